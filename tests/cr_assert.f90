@@ -1,0 +1,65 @@
+!> Minimal assertion module for crowdrom's test programs (test-drive / pFUnit shaped).
+!>
+!> A test program calls `check*` any number of times and ends with `call test_summary()`,
+!> which prints "N passed, M failed" and stops with a non-zero code if anything failed.
+module cr_assert
+  use, intrinsic :: iso_fortran_env, only: output_unit
+  use cr_kinds, only: wp
+  implicit none
+  private
+  public :: check, check_close, check_rel, test_summary, n_failed
+
+  integer :: n_passed = 0
+  integer :: n_failed = 0
+  logical :: quiet = .false.
+
+contains
+
+  !> Record a passing/failing condition with a name.
+  subroutine check(cond, name)
+    logical, intent(in) :: cond
+    character(len=*), intent(in) :: name
+    if (cond) then
+      n_passed = n_passed + 1
+    else
+      n_failed = n_failed + 1
+      write(output_unit, '(a)') "FAIL: " // name
+      flush(output_unit)
+    end if
+  end subroutine check
+
+  !> |a - b| <= tol (absolute).
+  subroutine check_close(a, b, tol, name)
+    real(wp), intent(in) :: a, b, tol
+    character(len=*), intent(in) :: name
+    character(len=200) :: buf
+    if (abs(a - b) <= tol) then
+      n_passed = n_passed + 1
+    else
+      n_failed = n_failed + 1
+      write(buf, '(3(a, es12.4))') " got ", a, " expected ", b, " tol ", tol
+      write(output_unit, '(a)') "FAIL: " // name // trim(buf)
+      flush(output_unit)
+    end if
+  end subroutine check_close
+
+  !> |a - b| <= tol * max(|b|, tiny) (relative).
+  subroutine check_rel(a, b, tol, name)
+    real(wp), intent(in) :: a, b, tol
+    character(len=*), intent(in) :: name
+    call check_close(a, b, tol * max(abs(b), tiny(1.0_wp)), name)
+  end subroutine check_rel
+
+  !> Print the tally and stop with status 1 if any check failed.
+  subroutine test_summary(rank)
+    integer, intent(in), optional :: rank
+    logical :: show
+    show = .true.
+    if (present(rank)) show = rank == 0
+    if (show .and. .not. quiet) then
+      write(output_unit, '(i0, " passed, ", i0, " failed")') n_passed, n_failed
+      flush(output_unit)
+    end if
+    if (n_failed > 0) error stop 1
+  end subroutine test_summary
+end module cr_assert
