@@ -1,0 +1,345 @@
+!> The configuration of a crowdrom run: one derived type per namelist group, gathered in
+!> config_t, read from a namelist file (rank 0 reads, every rank parses the same text).
+!>
+!> Units: lengths in metres, times in seconds, speeds in metres per second.
+!> Validation of ranges and consistency lives in cr_config_check (one place).
+module cr_config
+  use cr_kinds, only: wp
+  use cr_error, only: error_t, set_error
+  use cr_env, only: env_t
+  use cr_namelist_text, only: namelist_text_t
+  use cr_projection, only: projection_settings_t
+  implicit none
+  private
+  public :: config_t, scene_cfg_t, obstacles_cfg_t, agents_cfg_t, desired_cfg_t, time_cfg_t, &
+    contacts_cfg_t, output_cfg_t, read_config, config_echo, MAX_OBST, MAX_POLY_V, MAX_PATH, &
+    FOM_GROUPS
+
+  integer, parameter :: MAX_OBST = 64, MAX_POLY_V = 16, MAX_PATH = 512
+
+  !> Namelist groups known to crowdrom programs (a file may hold groups of later stages).
+  character(len=16), parameter :: FOM_GROUPS(*) = [character(len=16) :: 'scene', 'obstacles', &
+    'agents', 'desired', 'time', 'solver', 'contacts', 'output', 'study', 'offline', 'rom', 'hyper']
+
+  !> &scene: rectangular hall [0, hall_length] x [0, hall_width] closed by walls of thickness
+  !> wall_thickness; the top wall has an opening of width l_exit centred at exit_center.
+  type :: scene_cfg_t
+    real(wp) :: hall_length = 1.3_wp
+    real(wp) :: hall_width = 1.0_wp
+    real(wp) :: l_exit = 0.3_wp
+    !> x of the exit centre; negative means centred (hall_length / 2)
+    real(wp) :: exit_center = -1.0_wp
+    real(wp) :: wall_thickness = 0.1_wp
+  end type scene_cfg_t
+
+  !> &obstacles: extra convex obstacles (disks, thick segments, convex polygons).
+  type :: obstacles_cfg_t
+    integer :: n_disks = 0
+    real(wp) :: disk_x(MAX_OBST) = 0.0_wp, disk_y(MAX_OBST) = 0.0_wp, disk_r(MAX_OBST) = 0.0_wp
+    integer :: n_segments = 0
+    real(wp) :: seg_x1(MAX_OBST) = 0.0_wp, seg_y1(MAX_OBST) = 0.0_wp
+    real(wp) :: seg_x2(MAX_OBST) = 0.0_wp, seg_y2(MAX_OBST) = 0.0_wp
+    real(wp) :: seg_half_thickness(MAX_OBST) = 0.0_wp
+    integer :: n_polygons = 0
+    integer :: poly_nv(MAX_OBST) = 0
+    !> polygon vertices: poly_x(k, p) is the x of vertex k of polygon p
+    real(wp) :: poly_x(MAX_POLY_V, MAX_OBST) = 0.0_wp, poly_y(MAX_POLY_V, MAX_OBST) = 0.0_wp
+  end type obstacles_cfg_t
+
+  !> &agents: count, radius, speed and initial placement.
+  type :: agents_cfg_t
+    integer :: n_agents = 20
+    real(wp) :: radius = 0.05_wp
+    !> desired speed c of every agent (overridden per agent by speed_file)
+    real(wp) :: speed = 1.0_wp
+    character(len=MAX_PATH) :: speed_file = ''
+    !> 'random' (placement + overlap removal) or 'file' (plain text "x y" lines, or HDF5)
+    character(len=16) :: init = 'random'
+    character(len=MAX_PATH) :: init_file = ''
+    !> placement region xmin, ymin, xmax, ymax; all zero means the whole hall
+    real(wp) :: region(4) = 0.0_wp
+    integer :: seed = 1
+    integer :: placement_max_iter = 1000
+  end type agents_cfg_t
+
+  !> &desired: the spontaneous velocity.
+  type :: desired_cfg_t
+    !> 'geodesic' (towards the exit) or 'file' (prescribed per-agent vectors)
+    character(len=16) :: mode = 'geodesic'
+    character(len=MAX_PATH) :: file = ''
+    !> 'auto' (a distance field only when interior obstacles need it), 'analytic', 'grid'
+    character(len=16) :: field = 'auto'
+    !> grid spacing of the distance field; 0 means radius / 4
+    real(wp) :: grid_dx = 0.0_wp
+  end type desired_cfg_t
+
+  !> &time: step and horizon.
+  type :: time_cfg_t
+    real(wp) :: dt = 0.05_wp
+    integer :: n_steps = 40
+    !> run until every agent has left (capped by max_steps) instead of n_steps
+    logical :: until_empty = .false.
+    integer :: max_steps = 100000
+  end type time_cfg_t
+
+  !> &contacts: candidate contact selection.
+  type :: contacts_cfg_t
+    !> candidate rows have gap <= cutoff_factor * 2 h max|v_i|; an a-posteriori check adds
+    !> any row the solution could violate, so any value >= 1 is safe (larger: fewer re-solves)
+    real(wp) :: cutoff_factor = 1.5_wp
+  end type contacts_cfg_t
+
+  !> &output: files and verbosity.
+  type :: output_cfg_t
+    character(len=MAX_PATH) :: file = 'fom.h5'
+    integer :: every = 1
+    logical :: store_multipliers = .true.
+    character(len=16) :: log_level = 'info'
+  end type output_cfg_t
+
+  !> Everything a run needs, read from one namelist file.
+  type :: config_t
+    character(len=:), allocatable :: source
+    character(len=:), allocatable :: text
+    type(scene_cfg_t) :: scene
+    type(obstacles_cfg_t) :: obstacles
+    type(agents_cfg_t) :: agents
+    type(desired_cfg_t) :: desired
+    type(time_cfg_t) :: time
+    type(projection_settings_t) :: solver
+    type(contacts_cfg_t) :: contacts
+    type(output_cfg_t) :: output
+  end type config_t
+
+contains
+
+  !> Read every group of the full-order model from `path` into `cfg` (defaults for absent
+  !> groups). Errors name the file, the group and (from the runtime) the variable.
+  subroutine read_config(path, env, cfg, error, nml)
+    character(len=*), intent(in) :: path
+    type(env_t), intent(in) :: env
+    type(config_t), intent(out) :: cfg
+    type(error_t), allocatable, intent(out) :: error
+    !> the loaded text, for programs that read further groups
+    type(namelist_text_t), intent(out), optional :: nml
+    type(namelist_text_t) :: t
+    call t%load(path, env, error)
+    if (allocated(error)) return
+    call t%check_groups(FOM_GROUPS, error)
+    if (allocated(error)) return
+    cfg%source = path
+    cfg%text = t%text
+    call read_scene(t, cfg%scene, error); if (allocated(error)) return
+    call read_obstacles(t, cfg%obstacles, error); if (allocated(error)) return
+    call read_agents(t, cfg%agents, error); if (allocated(error)) return
+    call read_desired(t, cfg%desired, error); if (allocated(error)) return
+    call read_time(t, cfg%time, error); if (allocated(error)) return
+    call read_solver(t, cfg%solver, error); if (allocated(error)) return
+    call read_contacts(t, cfg%contacts, error); if (allocated(error)) return
+    call read_output(t, cfg%output, error); if (allocated(error)) return
+    if (present(nml)) nml = t
+  end subroutine read_config
+
+  !> Turn a namelist read status into an error naming file and group.
+  subroutine nml_status(t, group, ios, msg, error)
+    type(namelist_text_t), intent(in) :: t
+    character(len=*), intent(in) :: group
+    integer, intent(in) :: ios
+    character(len=*), intent(in) :: msg
+    type(error_t), allocatable, intent(out) :: error
+    if (ios == 0) return
+    if (is_iostat_end(ios) .and. .not. t%has_group(group)) return
+    call set_error(error, t%path // ": namelist group &" // group // ": " // trim(msg), 2)
+  end subroutine nml_status
+
+  subroutine read_scene(t, c, error)
+    type(namelist_text_t), intent(in) :: t
+    type(scene_cfg_t), intent(inout) :: c
+    type(error_t), allocatable, intent(out) :: error
+    real(wp) :: hall_length, hall_width, l_exit, exit_center, wall_thickness
+    namelist /scene/ hall_length, hall_width, l_exit, exit_center, wall_thickness
+    integer :: ios
+    character(len=512) :: msg
+    hall_length = c%hall_length; hall_width = c%hall_width; l_exit = c%l_exit
+    exit_center = c%exit_center; wall_thickness = c%wall_thickness
+    msg = ''
+    read(t%lines, nml=scene, iostat=ios, iomsg=msg)
+    call nml_status(t, 'scene', ios, msg, error); if (allocated(error)) return
+    c%hall_length = hall_length; c%hall_width = hall_width; c%l_exit = l_exit
+    c%exit_center = exit_center; c%wall_thickness = wall_thickness
+  end subroutine read_scene
+
+  subroutine read_obstacles(t, c, error)
+    type(namelist_text_t), intent(in) :: t
+    type(obstacles_cfg_t), intent(inout) :: c
+    type(error_t), allocatable, intent(out) :: error
+    integer :: n_disks, n_segments, n_polygons, poly_nv(MAX_OBST)
+    real(wp) :: disk_x(MAX_OBST), disk_y(MAX_OBST), disk_r(MAX_OBST)
+    real(wp) :: seg_x1(MAX_OBST), seg_y1(MAX_OBST), seg_x2(MAX_OBST), seg_y2(MAX_OBST)
+    real(wp) :: seg_half_thickness(MAX_OBST)
+    real(wp) :: poly_x(MAX_POLY_V, MAX_OBST), poly_y(MAX_POLY_V, MAX_OBST)
+    namelist /obstacles/ n_disks, disk_x, disk_y, disk_r, n_segments, seg_x1, seg_y1, seg_x2, &
+      seg_y2, seg_half_thickness, n_polygons, poly_nv, poly_x, poly_y
+    integer :: ios
+    character(len=512) :: msg
+    n_disks = c%n_disks; disk_x = c%disk_x; disk_y = c%disk_y; disk_r = c%disk_r
+    n_segments = c%n_segments; seg_x1 = c%seg_x1; seg_y1 = c%seg_y1; seg_x2 = c%seg_x2
+    seg_y2 = c%seg_y2; seg_half_thickness = c%seg_half_thickness
+    n_polygons = c%n_polygons; poly_nv = c%poly_nv; poly_x = c%poly_x; poly_y = c%poly_y
+    msg = ''
+    read(t%lines, nml=obstacles, iostat=ios, iomsg=msg)
+    call nml_status(t, 'obstacles', ios, msg, error); if (allocated(error)) return
+    c%n_disks = n_disks; c%disk_x = disk_x; c%disk_y = disk_y; c%disk_r = disk_r
+    c%n_segments = n_segments; c%seg_x1 = seg_x1; c%seg_y1 = seg_y1; c%seg_x2 = seg_x2
+    c%seg_y2 = seg_y2; c%seg_half_thickness = seg_half_thickness
+    c%n_polygons = n_polygons; c%poly_nv = poly_nv; c%poly_x = poly_x; c%poly_y = poly_y
+  end subroutine read_obstacles
+
+  subroutine read_agents(t, c, error)
+    type(namelist_text_t), intent(in) :: t
+    type(agents_cfg_t), intent(inout) :: c
+    type(error_t), allocatable, intent(out) :: error
+    integer :: n_agents, seed, placement_max_iter
+    real(wp) :: radius, speed, region(4)
+    character(len=MAX_PATH) :: speed_file, init_file
+    character(len=16) :: init
+    namelist /agents/ n_agents, radius, speed, speed_file, init, init_file, region, seed, &
+      placement_max_iter
+    integer :: ios
+    character(len=512) :: msg
+    n_agents = c%n_agents; radius = c%radius; speed = c%speed; speed_file = c%speed_file
+    init = c%init; init_file = c%init_file; region = c%region; seed = c%seed
+    placement_max_iter = c%placement_max_iter
+    msg = ''
+    read(t%lines, nml=agents, iostat=ios, iomsg=msg)
+    call nml_status(t, 'agents', ios, msg, error); if (allocated(error)) return
+    c%n_agents = n_agents; c%radius = radius; c%speed = speed; c%speed_file = speed_file
+    c%init = init; c%init_file = init_file; c%region = region; c%seed = seed
+    c%placement_max_iter = placement_max_iter
+  end subroutine read_agents
+
+  subroutine read_desired(t, c, error)
+    type(namelist_text_t), intent(in) :: t
+    type(desired_cfg_t), intent(inout) :: c
+    type(error_t), allocatable, intent(out) :: error
+    character(len=16) :: mode, field
+    character(len=MAX_PATH) :: file
+    real(wp) :: grid_dx
+    namelist /desired/ mode, file, field, grid_dx
+    integer :: ios
+    character(len=512) :: msg
+    mode = c%mode; file = c%file; field = c%field; grid_dx = c%grid_dx
+    msg = ''
+    read(t%lines, nml=desired, iostat=ios, iomsg=msg)
+    call nml_status(t, 'desired', ios, msg, error); if (allocated(error)) return
+    c%mode = mode; c%file = file; c%field = field; c%grid_dx = grid_dx
+  end subroutine read_desired
+
+  subroutine read_time(t, c, error)
+    type(namelist_text_t), intent(in) :: t
+    type(time_cfg_t), intent(inout) :: c
+    type(error_t), allocatable, intent(out) :: error
+    real(wp) :: dt
+    integer :: n_steps, max_steps
+    logical :: until_empty
+    namelist /time/ dt, n_steps, until_empty, max_steps
+    integer :: ios
+    character(len=512) :: msg
+    dt = c%dt; n_steps = c%n_steps; until_empty = c%until_empty; max_steps = c%max_steps
+    msg = ''
+    read(t%lines, nml=time, iostat=ios, iomsg=msg)
+    call nml_status(t, 'time', ios, msg, error); if (allocated(error)) return
+    c%dt = dt; c%n_steps = n_steps; c%until_empty = until_empty; c%max_steps = max_steps
+  end subroutine read_time
+
+  subroutine read_solver(t, c, error)
+    type(namelist_text_t), intent(in) :: t
+    type(projection_settings_t), intent(inout) :: c
+    type(error_t), allocatable, intent(out) :: error
+    character(len=32) :: name
+    real(wp) :: tol, uzawa_rho_factor, uzawa_eps
+    integer :: max_iter, uzawa_max_iter
+    logical :: warm_start
+    namelist /solver/ name, tol, max_iter, uzawa_rho_factor, uzawa_eps, uzawa_max_iter, warm_start
+    integer :: ios
+    character(len=512) :: msg
+    name = c%name; tol = c%tol; max_iter = c%max_iter; uzawa_rho_factor = c%uzawa_rho_factor
+    uzawa_eps = c%uzawa_eps; uzawa_max_iter = c%uzawa_max_iter; warm_start = c%warm_start
+    msg = ''
+    read(t%lines, nml=solver, iostat=ios, iomsg=msg)
+    call nml_status(t, 'solver', ios, msg, error); if (allocated(error)) return
+    c%name = name; c%tol = tol; c%max_iter = max_iter; c%uzawa_rho_factor = uzawa_rho_factor
+    c%uzawa_eps = uzawa_eps; c%uzawa_max_iter = uzawa_max_iter; c%warm_start = warm_start
+  end subroutine read_solver
+
+  subroutine read_contacts(t, c, error)
+    type(namelist_text_t), intent(in) :: t
+    type(contacts_cfg_t), intent(inout) :: c
+    type(error_t), allocatable, intent(out) :: error
+    real(wp) :: cutoff_factor
+    namelist /contacts/ cutoff_factor
+    integer :: ios
+    character(len=512) :: msg
+    cutoff_factor = c%cutoff_factor
+    msg = ''
+    read(t%lines, nml=contacts, iostat=ios, iomsg=msg)
+    call nml_status(t, 'contacts', ios, msg, error); if (allocated(error)) return
+    c%cutoff_factor = cutoff_factor
+  end subroutine read_contacts
+
+  subroutine read_output(t, c, error)
+    type(namelist_text_t), intent(in) :: t
+    type(output_cfg_t), intent(inout) :: c
+    type(error_t), allocatable, intent(out) :: error
+    character(len=MAX_PATH) :: file
+    integer :: every
+    logical :: store_multipliers
+    character(len=16) :: log_level
+    namelist /output/ file, every, store_multipliers, log_level
+    integer :: ios
+    character(len=512) :: msg
+    file = c%file; every = c%every; store_multipliers = c%store_multipliers
+    log_level = c%log_level
+    msg = ''
+    read(t%lines, nml=output, iostat=ios, iomsg=msg)
+    call nml_status(t, 'output', ios, msg, error); if (allocated(error)) return
+    c%file = file; c%every = every; c%store_multipliers = store_multipliers
+    c%log_level = log_level
+  end subroutine read_output
+
+  !> The effective configuration as namelist text (for logs and HDF5 attributes).
+  function config_echo(cfg) result(s)
+    type(config_t), intent(in) :: cfg
+    character(len=:), allocatable :: s
+    character(len=256) :: b
+    s = "! effective configuration (source: " // cfg%source // ")" // new_line('a')
+    write(b, '(a, 5(es16.8, 1x))') "&scene hall_length, hall_width, l_exit, exit_center, wall_thickness = ", &
+      cfg%scene%hall_length, cfg%scene%hall_width, cfg%scene%l_exit, cfg%scene%exit_center, &
+      cfg%scene%wall_thickness
+    s = s // trim(b) // " /" // new_line('a')
+    write(b, '(a, i0, a, i0, a, i0)') "&obstacles n_disks = ", cfg%obstacles%n_disks, &
+      ", n_segments = ", cfg%obstacles%n_segments, ", n_polygons = ", cfg%obstacles%n_polygons
+    s = s // trim(b) // " /" // new_line('a')
+    write(b, '(a, i0, a, es16.8, a, es16.8, a, i0)') "&agents n_agents = ", cfg%agents%n_agents, &
+      ", radius = ", cfg%agents%radius, ", speed = ", cfg%agents%speed, ", seed = ", cfg%agents%seed
+    s = s // trim(b) // ", init = '" // trim(cfg%agents%init) // "', init_file = '" // &
+      trim(cfg%agents%init_file) // "', speed_file = '" // trim(cfg%agents%speed_file) // "' /" // new_line('a')
+    s = s // "&desired mode = '" // trim(cfg%desired%mode) // "', field = '" // trim(cfg%desired%field) // &
+      "', file = '" // trim(cfg%desired%file) // "'"
+    write(b, '(a, es16.8)') ", grid_dx = ", cfg%desired%grid_dx
+    s = s // trim(b) // " /" // new_line('a')
+    write(b, '(a, es16.8, a, i0, a, l1, a, i0)') "&time dt = ", cfg%time%dt, ", n_steps = ", &
+      cfg%time%n_steps, ", until_empty = ", cfg%time%until_empty, ", max_steps = ", cfg%time%max_steps
+    s = s // trim(b) // " /" // new_line('a')
+    write(b, '(a, es12.4, a, i0, a, es12.4, a, es12.4, a, i0, a, l1)') ", tol = ", cfg%solver%tol, &
+      ", max_iter = ", cfg%solver%max_iter, ", uzawa_rho_factor = ", cfg%solver%uzawa_rho_factor, &
+      ", uzawa_eps = ", cfg%solver%uzawa_eps, ", uzawa_max_iter = ", cfg%solver%uzawa_max_iter, &
+      ", warm_start = ", cfg%solver%warm_start
+    s = s // "&solver name = '" // trim(cfg%solver%name) // "'" // trim(b) // " /" // new_line('a')
+    write(b, '(a, es16.8)') "&contacts cutoff_factor = ", cfg%contacts%cutoff_factor
+    s = s // trim(b) // " /" // new_line('a')
+    write(b, '(a, i0, a, l1)') ", every = ", cfg%output%every, ", store_multipliers = ", &
+      cfg%output%store_multipliers
+    s = s // "&output file = '" // trim(cfg%output%file) // "'" // trim(b) // " /" // new_line('a')
+  end function config_echo
+end module cr_config

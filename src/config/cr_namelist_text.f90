@@ -1,0 +1,170 @@
+!> The text of a namelist input file, read once on rank 0 and broadcast, then parsed
+!> group by group from an internal file on every rank.
+!>
+!> Unknown group names (a misspelt `&agent` for `&agents`) are rejected, so that a group
+!> is never silently ignored.
+module cr_namelist_text
+  use cr_error, only: error_t, set_error
+  use cr_env, only: env_t
+  use cr_strings, only: to_lower
+  implicit none
+  private
+  public :: namelist_text_t, MAX_LINE
+
+  integer, parameter :: MAX_LINE = 1024
+
+  !> Lines of one namelist file.
+  type :: namelist_text_t
+    !> path of the file (for messages)
+    character(len=:), allocatable :: path
+    !> the whole file as one string with newline separators
+    character(len=:), allocatable :: text
+    !> the file as records for internal-file namelist reads [n_lines]
+    character(len=MAX_LINE), allocatable :: lines(:)
+  contains
+    procedure :: load
+    procedure :: has_group
+    procedure :: check_groups
+  end type namelist_text_t
+
+contains
+
+  !> Rank 0 reads `path`; the text is broadcast to every rank of `env`.
+  subroutine load(this, path, env, error)
+    class(namelist_text_t), intent(inout) :: this
+    character(len=*), intent(in) :: path
+    type(env_t), intent(in) :: env
+    type(error_t), allocatable, intent(out) :: error
+    character(len=:), allocatable :: status
+    integer :: unit, ios, n, k, i0, nl
+    character(len=MAX_LINE) :: line
+    character(len=256) :: msg
+    this%path = path
+    status = ""
+    this%text = ""
+    if (env%is_root()) then
+      open(newunit=unit, file=path, status='old', action='read', iostat=ios, iomsg=msg)
+      if (ios /= 0) then
+        status = path // ": cannot open input file (" // trim(msg) // ")"
+      else
+        do
+          read(unit, '(a)', iostat=ios) line
+          if (ios /= 0) exit
+          if (len_trim(line) >= MAX_LINE - 1) then
+            status = path // ": a line is longer than " // "1000 characters"
+            exit
+          end if
+          this%text = this%text // trim(line) // new_line('a')
+        end do
+        close(unit)
+      end if
+    end if
+    call env%bcast_string(status)
+    if (len(status) > 0) then
+      call set_error(error, status, 2); return
+    end if
+    call env%bcast_string(this%text)
+    ! split into records
+    nl = 0
+    do k = 1, len(this%text)
+      if (this%text(k:k) == new_line('a')) nl = nl + 1
+    end do
+    allocate(this%lines(max(nl, 1)))
+    this%lines = ""
+    n = 0; i0 = 1
+    do k = 1, len(this%text)
+      if (this%text(k:k) == new_line('a')) then
+        n = n + 1
+        this%lines(n) = this%text(i0:k-1)
+        i0 = k + 1
+      end if
+    end do
+  end subroutine load
+
+  !> True if the file contains the group `&name` (case-insensitive, outside comments).
+  logical function has_group(this, name)
+    class(namelist_text_t), intent(in) :: this
+    character(len=*), intent(in) :: name
+    character(len=:), allocatable :: groups(:)
+    integer :: k
+    call list_groups(this, groups)
+    has_group = .false.
+    do k = 1, size(groups)
+      if (trim(groups(k)) == to_lower(name)) has_group = .true.
+    end do
+  end function has_group
+
+  !> Error if the file has a group not in `known` or the same group twice.
+  subroutine check_groups(this, known, error)
+    class(namelist_text_t), intent(in) :: this
+    character(len=*), intent(in) :: known(:)
+    type(error_t), allocatable, intent(out) :: error
+    character(len=:), allocatable :: groups(:)
+    character(len=:), allocatable :: list
+    integer :: k, j
+    logical :: found
+    call list_groups(this, groups)
+    do k = 1, size(groups)
+      found = .false.
+      do j = 1, size(known)
+        if (trim(groups(k)) == to_lower(trim(known(j)))) found = .true.
+      end do
+      if (.not. found) then
+        list = ""
+        do j = 1, size(known)
+          list = list // " &" // trim(known(j))
+        end do
+        call set_error(error, this%path // ": unknown namelist group &" // trim(groups(k)) // &
+          " (known groups:" // list // ")", 2)
+        return
+      end if
+      do j = 1, k - 1
+        if (groups(j) == groups(k)) then
+          call set_error(error, this%path // ": namelist group &" // trim(groups(k)) // &
+            " appears twice", 2)
+          return
+        end if
+      end do
+    end do
+  end subroutine check_groups
+
+  !> Names (lower case) of the groups opened with '&' at the start of a token.
+  subroutine list_groups(this, groups)
+    type(namelist_text_t), intent(in) :: this
+    character(len=:), allocatable, intent(out) :: groups(:)
+    character(len=64) :: found(200)
+    integer :: n, k, i, j
+    character(len=MAX_LINE) :: line
+    logical :: in_str
+    character :: q
+    n = 0
+    do k = 1, size(this%lines)
+      line = this%lines(k)
+      in_str = .false.; q = ' '
+      i = 1
+      do while (i <= len_trim(line))
+        if (in_str) then
+          if (line(i:i) == q) in_str = .false.
+        else if (line(i:i) == '"' .or. line(i:i) == "'") then
+          in_str = .true.; q = line(i:i)
+        else if (line(i:i) == '!') then
+          exit
+        else if (line(i:i) == '&') then
+          j = i + 1
+          do while (j <= len_trim(line))
+            if (index('abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_', line(j:j)) == 0) exit
+            j = j + 1
+          end do
+          if (j > i + 1 .and. n < size(found)) then
+            n = n + 1
+            found(n) = to_lower(line(i+1:j-1))
+          end if
+          i = j - 1
+        end if
+        i = i + 1
+      end do
+    end do
+    allocate(character(len=64) :: groups(n))
+    groups = found(1:n)
+  end subroutine list_groups
+end module cr_namelist_text

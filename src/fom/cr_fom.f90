@@ -1,0 +1,272 @@
+!> The full-order model: time stepping of the crowd (the paper's scheme, section 2.1).
+!>
+!> Step nu: v = desired(q^{nu-1}); u^nu = projection of v onto
+!> { u : D_l(q) + h G_l(q) . u >= 0 for every contact l }; q^nu = q^{nu-1} + h u^nu.
+!> Only contacts that can become active during the step are rows: candidates with
+!> gap <= cutoff = cutoff_factor * 2 h max_i |v_i|; after the solve, if 2 h max_i |u_i|
+!> exceeds the cutoff, the set is rebuilt with the larger cutoff and the step re-solved
+!> (warm started), so that the linearised constraint holds for *every* pair and obstacle.
+!> Multipliers are warm-started across steps by contact identity.
+module cr_fom
+  use cr_kinds, only: wp, i8
+  use cr_error, only: error_t, set_error, prefix_error
+  use cr_strings, only: str
+  use cr_config, only: config_t
+  use cr_scene, only: scene_t
+  use cr_desired, only: desired_t
+  use cr_contact_set, only: contact_set_t
+  use cr_neighbours, only: cell_list_t, build_contacts
+  use cr_placement, only: place_agents
+  use cr_projection, only: projection_solver_t, solve_stats_t, make_projection_solver
+  use cr_sort, only: argsort_i8, bsearch_i8
+  implicit none
+  private
+  public :: fom_t, step_record_t
+
+  !> What one step did (stored per step in the output).
+  type :: step_record_t
+    integer :: step = 0
+    integer :: iterations = 0
+    logical :: converged = .true.
+    real(wp) :: primal = 0, dual = 0, compl = 0, stat = 0, kkt = 0
+    integer :: n_rows = 0, n_active = 0, resolves = 0, n_inside = 0
+    !> smallest true gap over the candidate rows after the step
+    real(wp) :: min_gap = huge(1.0_wp)
+    real(wp) :: t_solve = 0, t_step = 0
+  end type step_record_t
+
+  !> State of a full-order simulation.
+  type :: fom_t
+    type(scene_t) :: scene
+    type(desired_t) :: desired
+    class(projection_solver_t), allocatable :: solver
+    type(contact_set_t) :: cs
+    type(cell_list_t) :: cells
+    integer :: n_agents = 0, step = 0
+    real(wp) :: radius = 0, dt = 0, cutoff_factor = 1.5_wp
+    logical :: warm_start = .true.
+    !> positions, desired and actual velocities [2*n_agents]
+    real(wp), allocatable :: q(:), v(:), u(:)
+    !> speeds c_i [n_agents]
+    real(wp), allocatable :: speeds(:)
+    !> multipliers of the current rows [cs%n]
+    real(wp), allocatable :: lambda(:)
+    !> agents still in the hall [n_agents]
+    logical, allocatable :: inside(:)
+    !> sorted identities and multipliers of the previous step (warm start)
+    integer(i8), allocatable :: prev_keys(:)
+    real(wp), allocatable :: prev_lambda(:)
+    integer :: placement_iterations = 0
+  contains
+    procedure :: init
+    procedure :: advance
+    procedure :: n_inside
+  end type fom_t
+
+contains
+
+  !> Build scene, desired velocity and solver from `cfg`; place the agents (or take q0).
+  subroutine init(this, cfg, error, q0, speeds)
+    class(fom_t), intent(inout) :: this
+    type(config_t), intent(in) :: cfg
+    type(error_t), allocatable, intent(out) :: error
+    !> initial positions [2*n_agents] (default: from &agents)
+    real(wp), intent(in), optional :: q0(:)
+    !> per-agent speeds [n_agents] (default: &agents speed / speed_file)
+    real(wp), intent(in), optional :: speeds(:)
+    integer :: i
+    this%n_agents = cfg%agents%n_agents
+    this%radius = cfg%agents%radius
+    this%dt = cfg%time%dt
+    this%cutoff_factor = cfg%contacts%cutoff_factor
+    this%warm_start = cfg%solver%warm_start
+    this%step = 0
+    call this%scene%init(cfg%scene, cfg%obstacles, error)
+    if (allocated(error)) return
+    call this%desired%init(cfg%desired, this%scene, this%radius, this%n_agents, error)
+    if (allocated(error)) return
+    call make_projection_solver(cfg%solver, this%solver, error)
+    if (allocated(error)) return
+    if (present(q0)) then
+      if (size(q0) /= 2 * this%n_agents) then
+        call set_error(error, "fom: q0 has " // str(size(q0)) // " entries, expected 2 * n_agents = " // &
+          str(2 * this%n_agents)); return
+      end if
+      this%q = q0
+    else
+      call place_agents(cfg%agents, this%scene, this%q, this%placement_iterations, error)
+      if (allocated(error)) return
+    end if
+    allocate(this%speeds(this%n_agents))
+    if (present(speeds)) then
+      if (size(speeds) /= this%n_agents) then
+        call set_error(error, "fom: speeds has " // str(size(speeds)) // " entries, expected n_agents = " // &
+          str(this%n_agents)); return
+      end if
+      this%speeds = speeds
+    else if (len_trim(cfg%agents%speed_file) > 0) then
+      call read_speeds(trim(cfg%agents%speed_file), this%speeds, error)
+      if (allocated(error)) return
+    else
+      this%speeds = cfg%agents%speed
+    end if
+    allocate(this%v(2 * this%n_agents), this%u(2 * this%n_agents), this%inside(this%n_agents))
+    this%v = 0; this%u = 0
+    do i = 1, this%n_agents
+      this%inside(i) = this%q(2*i) <= this%scene%y_out(this%radius)
+    end do
+    call this%cs%init(this%n_agents, this%dt, 8 * this%n_agents)
+    allocate(this%lambda(0), this%prev_keys(0), this%prev_lambda(0))
+  end subroutine init
+
+  !> Number of agents that have not left the hall.
+  pure integer function n_inside(this)
+    class(fom_t), intent(in) :: this
+    n_inside = count(this%inside)
+  end function n_inside
+
+  !> Advance one time step; `rec` reports what happened.
+  subroutine advance(this, rec, error)
+    class(fom_t), intent(inout) :: this
+    type(step_record_t), intent(out) :: rec
+    type(error_t), allocatable, intent(out) :: error
+    type(solve_stats_t) :: st
+    real(wp) :: vmax, umax, cutoff, need, d(2), dist
+    integer(8) :: c0, c1, c2, rate
+    integer :: i, l, a, b
+    call system_clock(c0, rate)
+    this%step = this%step + 1
+    rec%step = this%step
+    call this%desired%evaluate(this%q, this%speeds, this%v)
+    vmax = 0
+    do i = 1, this%n_agents
+      vmax = max(vmax, norm2(this%v(2*i-1:2*i)))
+    end do
+    cutoff = max(this%cutoff_factor * 2 * this%dt * vmax, 1.0e-12_wp * this%radius)
+    rec%t_solve = 0
+    do
+      call build_contacts(this%scene, this%q, this%radius, cutoff, this%cells, this%cs)
+      call warm_start_multipliers(this)
+      call system_clock(c1)
+      call this%solver%solve(this%cs, this%v, this%u, this%lambda, st, error)
+      call system_clock(c2)
+      rec%t_solve = rec%t_solve + real(c2 - c1, wp) / real(rate, wp)
+      if (allocated(error)) then
+        call prefix_error(error, "fom: step " // str(this%step)); return
+      end if
+      rec%iterations = rec%iterations + st%iterations
+      umax = 0
+      do i = 1, this%n_agents
+        umax = max(umax, norm2(this%u(2*i-1:2*i)))
+      end do
+      ! a row outside the set could only be violated if its gap < 2 h umax
+      need = 2 * this%dt * umax
+      if (need <= cutoff) exit
+      rec%resolves = rec%resolves + 1
+      cutoff = 1.05_wp * need
+      call remember_multipliers(this)
+      if (rec%resolves > 50) then
+        call set_error(error, "fom: step " // str(this%step) // ": contact set did not stabilise after 50 re-solves")
+        return
+      end if
+    end do
+    rec%converged = st%converged
+    rec%primal = st%primal; rec%dual = st%dual; rec%compl = st%compl; rec%stat = st%stat
+    rec%kkt = st%kkt
+    rec%n_rows = this%cs%n
+    rec%n_active = count(this%lambda(1:this%cs%n) > 0)
+    call remember_multipliers(this)
+    this%q = this%q + this%dt * this%u
+    ! true gaps of the candidate rows after the step
+    rec%min_gap = huge(1.0_wp)
+    do l = 1, this%cs%n
+      a = this%cs%ia(l); b = this%cs%ib(l)
+      if (b > 0) then
+        d = this%q(2*a-1:2*a) - this%q(2*b-1:2*b)
+        dist = norm2(d) - 2 * this%radius
+        rec%min_gap = min(rec%min_gap, dist)
+      end if
+    end do
+    call obstacle_gaps(this, rec%min_gap)
+    do i = 1, this%n_agents
+      if (this%q(2*i) > this%scene%y_out(this%radius)) this%inside(i) = .false.
+    end do
+    rec%n_inside = count(this%inside)
+    call system_clock(c2)
+    rec%t_step = real(c2 - c0, wp) / real(rate, wp)
+  end subroutine advance
+
+  !> Smallest agent-obstacle gap over the current rows at the new positions.
+  subroutine obstacle_gaps(this, gmin)
+    use cr_shapes, only: obstacle_distance
+    type(fom_t), intent(in) :: this
+    real(wp), intent(inout) :: gmin
+    integer :: l, a
+    real(wp) :: dist, nrm(2)
+    do l = 1, this%cs%n
+      if (this%cs%ib(l) == 0) then
+        a = this%cs%ia(l)
+        call obstacle_distance(this%scene%obstacles(this%cs%ob(l)), this%q(2*a-1:2*a), dist, nrm)
+        gmin = min(gmin, dist - this%radius)
+      end if
+    end do
+  end subroutine obstacle_gaps
+
+  !> Initial multipliers of the current rows from the previous ones, matched by identity.
+  subroutine warm_start_multipliers(this)
+    type(fom_t), intent(inout) :: this
+    integer :: l, pos
+    if (allocated(this%lambda)) deallocate(this%lambda)
+    allocate(this%lambda(this%cs%n))
+    this%lambda = 0
+    if (.not. this%warm_start .or. size(this%prev_keys) == 0) return
+    do l = 1, this%cs%n
+      pos = bsearch_i8(this%prev_keys, this%cs%key(l))
+      if (pos > 0) this%lambda(l) = this%prev_lambda(pos)
+    end do
+  end subroutine warm_start_multipliers
+
+  !> Keep the current multipliers (sorted by identity) for the next warm start.
+  subroutine remember_multipliers(this)
+    type(fom_t), intent(inout) :: this
+    integer(i8), allocatable :: keys(:)
+    integer, allocatable :: idx(:)
+    integer :: n, l
+    n = this%cs%n
+    allocate(keys(n), idx(n))
+    do l = 1, n
+      keys(l) = this%cs%key(l)
+    end do
+    call argsort_i8(keys, idx)
+    this%prev_keys = keys(idx)
+    this%prev_lambda = this%lambda(idx)
+  end subroutine remember_multipliers
+
+  !> Read n_agents speeds (one per line).
+  subroutine read_speeds(path, speeds, error)
+    character(len=*), intent(in) :: path
+    real(wp), intent(out) :: speeds(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer :: u, ios, k
+    character(len=256) :: msg
+    open(newunit=u, file=path, status='old', action='read', iostat=ios, iomsg=msg)
+    if (ios /= 0) then
+      call set_error(error, "&agents: speed_file: cannot open '" // path // "' (" // trim(msg) // ")", 2)
+      return
+    end if
+    do k = 1, size(speeds)
+      read(u, *, iostat=ios, iomsg=msg) speeds(k)
+      if (ios /= 0) then
+        call set_error(error, "&agents: speed_file: '" // path // "' line " // str(k) // &
+          ": expected one speed per agent for n_agents = " // str(size(speeds)), 2)
+        close(u); return
+      end if
+      if (.not. (speeds(k) >= 0 .and. speeds(k) < huge(1.0_wp))) then
+        call set_error(error, "&agents: speed_file: '" // path // "' line " // str(k) // &
+          ": speed must be finite and >= 0", 2)
+        close(u); return
+      end if
+    end do
+    close(u)
+  end subroutine read_speeds
+end module cr_fom

@@ -1,0 +1,154 @@
+!> The desired (spontaneous) velocity of every agent: speed c_i times the direction of
+!> steepest descent of the geodesic distance to the exit, or prescribed vectors from a file.
+!>
+!> Aiming rule: agents aim at the exit opening narrowed by the agent radius on each side,
+!> [x_lo + r, x_hi - r] on the inner face y = hall_width (aiming at the full opening lets an
+!> agent slide under a door corner and stop there for good). Inside the doorway agents walk
+!> straight out (+y); past the wall they keep walking away from the exit centre.
+!> Where the exit is visible the direction is analytic. With interior obstacles a geodesic
+!> distance field is computed once per scene (fast sweeping on a grid whose nodes closer
+!> than r - 1.5 dx to an obstacle are blocked, so the field is that of the agent centres).
+module cr_desired
+  use cr_kinds, only: wp
+  use cr_error, only: error_t, set_error, prefix_error
+  use cr_strings, only: str
+  use cr_config, only: desired_cfg_t
+  use cr_scene, only: scene_t
+  use cr_shapes, only: obstacle_t, make_segment
+  use cr_distance_field, only: distance_field_t
+  implicit none
+  private
+  public :: desired_t
+
+  !> Desired-velocity model of one scene.
+  type :: desired_t
+    logical :: from_file = .false.
+    logical :: use_field = .false.
+    type(distance_field_t) :: field
+    !> prescribed vectors (file mode) [2*n_agents]
+    real(wp), allocatable :: fixed(:)
+    real(wp) :: r = 0, y_door = 0, y_top = 0, t_lo = 0, t_hi = 0, x_lo = 0, x_hi = 0
+    real(wp) :: centre(2) = 0
+  contains
+    procedure :: init
+    procedure :: direction
+    procedure :: evaluate
+  end type desired_t
+
+contains
+
+  !> Set up for `scene` and agents of radius r; reads the vector file in file mode.
+  subroutine init(this, cfg, scene, radius, n_agents, error)
+    class(desired_t), intent(inout) :: this
+    type(desired_cfg_t), intent(in) :: cfg
+    type(scene_t), intent(in) :: scene
+    real(wp), intent(in) :: radius
+    integer, intent(in) :: n_agents
+    type(error_t), allocatable, intent(out) :: error
+    type(obstacle_t) :: target(1)
+    real(wp) :: dx
+    this%r = radius
+    this%y_door = scene%width
+    this%y_top = scene%width + scene%wall
+    this%x_lo = scene%x_lo; this%x_hi = scene%x_hi
+    this%t_lo = scene%x_lo + radius; this%t_hi = scene%x_hi - radius
+    if (this%t_lo > this%t_hi) then   ! exit narrower than a diameter: aim at its centre
+      this%t_lo = (scene%x_lo + scene%x_hi) / 2; this%t_hi = this%t_lo
+    end if
+    this%centre = scene%exit_center()
+    this%from_file = cfg%mode == 'file'
+    if (this%from_file) then
+      call read_vectors(trim(cfg%file), n_agents, this%fixed, error)
+      return
+    end if
+    select case (trim(cfg%field))
+    case ('grid')
+      this%use_field = .true.
+    case ('analytic')
+      this%use_field = .false.
+    case default
+      this%use_field = scene%n_interior() > 0
+    end select
+    if (.not. this%use_field) return
+    dx = cfg%grid_dx
+    if (dx <= 0) dx = radius / 4
+    call make_segment([scene%x_lo, scene%width], [scene%x_hi, scene%width], 0.0_wp, "exit", target(1), error)
+    if (allocated(error)) return
+    call this%field%init([0.0_wp, 0.0_wp], [scene%length, scene%width], dx, scene%obstacles, &
+      radius - 1.5_wp * dx, target, error)
+    if (allocated(error)) call prefix_error(error, "desired velocity: distance field")
+  end subroutine init
+
+  !> Unit desired direction at position p (geodesic mode).
+  subroutine direction(this, p, dir)
+    class(desired_t), intent(in) :: this
+    real(wp), intent(in) :: p(2)
+    real(wp), intent(out) :: dir(2)
+    real(wp) :: t(2), n
+    logical :: ok
+    if (p(2) >= this%y_top) then
+      ! past the wall: walk away from the exit centre
+      dir = p - this%centre
+    else if (p(2) >= this%y_door - this%r .and. p(1) >= this%t_lo .and. p(1) <= this%t_hi) then
+      dir = [0.0_wp, 1.0_wp]
+    else
+      if (this%use_field .and. p(2) < this%y_door - this%r) then
+        call this%field%direction(p, dir, ok)
+        if (ok) return
+      end if
+      t = [min(max(p(1), this%t_lo), this%t_hi), this%y_door]
+      dir = t - p
+    end if
+    n = norm2(dir)
+    if (n > 0) then
+      dir = dir / n
+    else
+      dir = [0.0_wp, 1.0_wp]
+    end if
+  end subroutine direction
+
+  !> v = desired velocities at positions q [2*n_agents] for speeds c [n_agents].
+  subroutine evaluate(this, q, speeds, v)
+    class(desired_t), intent(in) :: this
+    real(wp), intent(in) :: q(:), speeds(:)
+    real(wp), intent(out) :: v(:)
+    integer :: i
+    real(wp) :: d(2)
+    if (this%from_file) then
+      v = this%fixed
+      return
+    end if
+    do i = 1, size(speeds)
+      call this%direction(q(2*i-1:2*i), d)
+      v(2*i-1:2*i) = speeds(i) * d
+    end do
+  end subroutine evaluate
+
+  !> Read n lines "vx vy" from a plain text file.
+  subroutine read_vectors(path, n, vec, error)
+    character(len=*), intent(in) :: path
+    integer, intent(in) :: n
+    real(wp), allocatable, intent(out) :: vec(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer :: u, ios, k
+    character(len=256) :: msg
+    allocate(vec(2 * n))
+    open(newunit=u, file=path, status='old', action='read', iostat=ios, iomsg=msg)
+    if (ios /= 0) then
+      call set_error(error, "&desired: file: cannot open '" // path // "' (" // trim(msg) // ")", 2)
+      return
+    end if
+    do k = 1, n
+      read(u, *, iostat=ios, iomsg=msg) vec(2*k-1), vec(2*k)
+      if (ios /= 0) then
+        call set_error(error, "&desired: file: '" // path // "' line " // str(k) // &
+          ": expected two numbers 'vx vy' per agent for " // str(n) // " agents (" // trim(msg) // ")", 2)
+        close(u); return
+      end if
+    end do
+    close(u)
+    if (any(vec /= vec) .or. any(abs(vec) > huge(1.0_wp) / 4)) then
+      call set_error(error, "&desired: file: '" // path // "' has a non-finite value", 2)
+    end if
+  end subroutine read_vectors
+end module cr_desired

@@ -1,0 +1,131 @@
+!> The geometry of a scene: a rectangular hall closed by thick walls, an exit opening in
+!> the top wall (two barrier walls either side, as in the paper's Fig. 'region'), and any
+!> number of extra convex obstacles. All distances are exact (see cr_shapes).
+!>
+!>   y = hall_width + wall_thickness  +-------+         +-------+
+!>                                    | wall  |  exit   | wall  |
+!>   y = hall_width                   +-------+ x_lo..x_hi +----+
+!>                                    |          hall          |
+!>   y = 0                            +------------------------+
+!>                                    x = 0                    x = hall_length
+module cr_scene
+  use cr_kinds, only: wp
+  use cr_error, only: error_t, set_error, prefix_error
+  use cr_strings, only: str
+  use cr_config, only: scene_cfg_t, obstacles_cfg_t
+  use cr_shapes, only: obstacle_t, make_disk, make_segment, make_polygon, make_rectangle, &
+    obstacle_bbox
+  implicit none
+  private
+  public :: scene_t
+
+  !> Hall, exit and obstacles. Obstacles 1..n_walls are the hall walls, the rest are the
+  !> extra (interior) obstacles of the &obstacles group.
+  type :: scene_t
+    real(wp) :: length = 0, width = 0, wall = 0, l_exit = 0
+    !> x range of the exit opening
+    real(wp) :: x_lo = 0, x_hi = 0
+    type(obstacle_t), allocatable :: obstacles(:)
+    integer :: n_walls = 0
+    !> bounding boxes of the obstacles [2, n_obst]
+    real(wp), allocatable :: lo(:,:), hi(:,:)
+  contains
+    procedure :: init
+    procedure :: n_obstacles
+    procedure :: n_interior
+    procedure :: exit_center
+    procedure :: y_out
+  end type scene_t
+
+contains
+
+  !> Build the walls from &scene and the extra obstacles from &obstacles.
+  subroutine init(this, sc, oc, error)
+    class(scene_t), intent(inout) :: this
+    type(scene_cfg_t), intent(in) :: sc
+    type(obstacles_cfg_t), intent(in) :: oc
+    type(error_t), allocatable, intent(out) :: error
+    type(obstacle_t) :: tmp(5 + 3 * 64)
+    real(wp) :: L, H, t, xc
+    real(wp), allocatable :: verts(:,:)
+    integer :: n, k
+    L = sc%hall_length; H = sc%hall_width; t = sc%wall_thickness
+    xc = sc%exit_center
+    if (xc < 0) xc = L / 2
+    this%length = L; this%width = H; this%wall = t; this%l_exit = sc%l_exit
+    this%x_lo = xc - sc%l_exit / 2
+    this%x_hi = xc + sc%l_exit / 2
+    n = 0
+    call add_rect(-t, -t, 0.0_wp, H + t, "left wall"); if (allocated(error)) return
+    call add_rect(L, -t, L + t, H + t, "right wall"); if (allocated(error)) return
+    call add_rect(-t, -t, L + t, 0.0_wp, "bottom wall"); if (allocated(error)) return
+    if (this%x_lo > 0) then
+      call add_rect(0.0_wp, H, this%x_lo, H + t, "left barrier wall"); if (allocated(error)) return
+    end if
+    if (this%x_hi < L) then
+      call add_rect(this%x_hi, H, L, H + t, "right barrier wall"); if (allocated(error)) return
+    end if
+    this%n_walls = n
+    do k = 1, oc%n_disks
+      n = n + 1
+      call make_disk([oc%disk_x(k), oc%disk_y(k)], oc%disk_r(k), "&obstacles disk " // str(k), tmp(n), error)
+      if (allocated(error)) return
+    end do
+    do k = 1, oc%n_segments
+      n = n + 1
+      call make_segment([oc%seg_x1(k), oc%seg_y1(k)], [oc%seg_x2(k), oc%seg_y2(k)], &
+        oc%seg_half_thickness(k), "&obstacles segment " // str(k), tmp(n), error)
+      if (allocated(error)) return
+    end do
+    do k = 1, oc%n_polygons
+      n = n + 1
+      allocate(verts(2, oc%poly_nv(k)))
+      verts(1, :) = oc%poly_x(1:oc%poly_nv(k), k)
+      verts(2, :) = oc%poly_y(1:oc%poly_nv(k), k)
+      call make_polygon(verts, "&obstacles polygon " // str(k), tmp(n), error)
+      deallocate(verts)
+      if (allocated(error)) return
+    end do
+    this%obstacles = tmp(1:n)
+    allocate(this%lo(2, n), this%hi(2, n))
+    do k = 1, n
+      call obstacle_bbox(this%obstacles(k), this%lo(:, k), this%hi(:, k))
+    end do
+
+  contains
+
+    subroutine add_rect(x0, y0, x1, y1, label)
+      real(wp), intent(in) :: x0, y0, x1, y1
+      character(len=*), intent(in) :: label
+      n = n + 1
+      call make_rectangle(x0, y0, x1, y1, label, tmp(n), error)
+      if (allocated(error)) call prefix_error(error, "scene")
+    end subroutine add_rect
+  end subroutine init
+
+  pure integer function n_obstacles(this)
+    class(scene_t), intent(in) :: this
+    n_obstacles = 0
+    if (allocated(this%obstacles)) n_obstacles = size(this%obstacles)
+  end function n_obstacles
+
+  !> Number of extra obstacles (those that are not hall walls).
+  pure integer function n_interior(this)
+    class(scene_t), intent(in) :: this
+    n_interior = this%n_obstacles() - this%n_walls
+  end function n_interior
+
+  !> Centre of the exit opening on the inner face of the top wall.
+  pure function exit_center(this) result(c)
+    class(scene_t), intent(in) :: this
+    real(wp) :: c(2)
+    c = [(this%x_lo + this%x_hi) / 2, this%width]
+  end function exit_center
+
+  !> An agent of radius r whose centre is above this line has left the hall.
+  pure real(wp) function y_out(this, r)
+    class(scene_t), intent(in) :: this
+    real(wp), intent(in) :: r
+    y_out = this%width + this%wall + r
+  end function y_out
+end module cr_scene
