@@ -1,1 +1,2 @@
 cr_unit_test(test_core)
+cr_unit_test(test_model)

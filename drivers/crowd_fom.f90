@@ -1,0 +1,209 @@
+!> crowd_fom: run the full-order crowd model on one scene.
+!>
+!>   crowd_fom input.nml [--summary FILE]
+!>
+!> Reads the namelist file, places the agents, steps the model (progress on stdout), writes
+!> the HDF5 trajectory (&output file) and prints a summary; --summary also writes it as JSON.
+!> The model itself is serial: under mpirun rank 0 computes and the other ranks wait.
+program crowd_fom
+  use mpi_f08
+  use cr_kinds, only: wp
+  use cr_error, only: error_t, set_error
+  use cr_strings, only: str
+  use cr_env, only: env_t
+  use cr_logger, only: logger_t, LOG_ERROR, LOG_WARN, LOG_INFO, LOG_DEBUG
+  use cr_cli, only: cli_t, parse_cli
+  use cr_config, only: config_t, read_config, config_echo
+  use cr_config_check, only: check_config
+  use cr_fom, only: fom_t, step_record_t
+  use cr_fom_output, only: fom_writer_t
+  use cr_json, only: json_writer_t
+  implicit none
+  type(env_t) :: env
+  type(logger_t) :: log
+  type(cli_t) :: cli
+  type(config_t) :: cfg
+  type(error_t), allocatable :: error
+  integer :: ierr, code
+
+  call MPI_Init(ierr)
+  call env%init(MPI_COMM_WORLD, error)
+  call log%init(env%is_root())
+  code = 0
+  if (.not. allocated(error)) call parse_cli("crowd_fom", cli, error)
+  if (.not. allocated(error)) then
+    if (cli%help) then
+      if (env%is_root()) call print_help()
+      call env%free(); call MPI_Finalize(ierr)
+      stop
+    end if
+    call read_config(cli%input, env, cfg, error)
+  end if
+  if (.not. allocated(error)) call check_config(cfg, error)
+  if (.not. allocated(error)) then
+    select case (trim(cfg%output%log_level))
+    case ('error'); log%level = LOG_ERROR
+    case ('warn'); log%level = LOG_WARN
+    case ('debug'); log%level = LOG_DEBUG
+    case default; log%level = LOG_INFO
+    end select
+    if (env%is_root()) call run(cfg, cli, log, error)
+  end if
+  if (allocated(error)) then
+    call log%error(error%message)
+    code = error%code
+  end if
+  call MPI_Bcast(code, 1, MPI_INTEGER, 0, env%comm, ierr)
+  call env%free()
+  call MPI_Finalize(ierr)
+  if (code /= 0) error stop code
+
+contains
+
+  subroutine print_help()
+    print '(a)', "usage: crowd_fom input.nml [--summary FILE]"
+    print '(a)', ""
+    print '(a)', "Full-order crowd model (Maury-Venel): each step projects the desired velocity onto"
+    print '(a)', "the cone of non-overlapping velocities. Namelist groups: &scene &obstacles &agents"
+    print '(a)', "&desired &time &solver &contacts &output (see README, 'Input reference')."
+    print '(a)', ""
+    print '(a)', "  --summary FILE   also write the run summary as JSON"
+    print '(a)', "  -h, --help       this text"
+    print '(a)', ""
+    print '(a)', "Exit status: 0 success, 2 bad input, 1 other failure."
+  end subroutine print_help
+
+  subroutine run(cfg, cli, log, error)
+    type(config_t), intent(in) :: cfg
+    type(cli_t), intent(in) :: cli
+    type(logger_t), intent(inout) :: log
+    type(error_t), allocatable, intent(out) :: error
+    type(fom_t) :: fom
+    type(fom_writer_t) :: out
+    type(step_record_t), allocatable :: recs(:)
+    type(step_record_t) :: rec
+    integer :: n_target, k, n_failed, it_max, n_rho
+    real(wp) :: min_gap, kkt_max, t_total, it_mean
+    integer(8) :: c0, c1, rate
+    character(len=:), allocatable :: text
+    logical :: warned_rho
+
+    call log%stage_begin("crowd_fom: setup")
+    call log%info(config_echo(cfg))
+    call fom%init(cfg, error)
+    if (allocated(error)) return
+    call log%info("   " // str(fom%n_agents) // " agents of radius " // str(fom%radius) // ", " // &
+      str(fom%scene%n_obstacles()) // " obstacles (" // str(fom%scene%n_interior()) // " interior), " // &
+      "distance field: " // merge("grid    ", "analytic", fom%desired%use_field))
+    if (cfg%agents%init == 'random') call log%info("   placement: overlap removal took " // &
+      str(fom%placement_iterations) // " projection iterations")
+    call out%open(trim(cfg%output%file), cfg, fom, error)
+    if (allocated(error)) return
+    call log%stage_end()
+
+    n_target = cfg%time%n_steps
+    if (cfg%time%until_empty) n_target = cfg%time%max_steps
+    allocate(recs(n_target))
+    call log%stage_begin("crowd_fom: time stepping with solver '" // trim(cfg%solver%name) // "'")
+    call log%progress_start()
+    call system_clock(c0, rate)
+    k = 0
+    n_rho = 0
+    warned_rho = .false.
+    do while (k < n_target)
+      if (cfg%time%until_empty .and. fom%n_inside() == 0) exit
+      call fom%advance(rec, error)
+      if (allocated(error)) then
+        call out%abort(); return
+      end if
+      k = k + 1
+      recs(k) = rec
+      if (.not. rec%converged) call log%warn("step " // str(k) // ": projection not converged (KKT " // &
+        str(rec%kkt) // ", " // str(rec%iterations) // " iterations)")
+      if (fom%solver%name() == 'uzawa' .and. .not. warned_rho) then
+        if (rec%n_rows > 0 .and. cfg%solver%uzawa_rho_factor / cfg%time%dt**2 > 2.0_wp / fom%cs%lipschitz_bound()) then
+          call log%warn("uzawa: rho = " // str(cfg%solver%uzawa_rho_factor / cfg%time%dt**2) // &
+            " exceeds the convergence bound 2/||B||^2 >= " // str(2.0_wp / fom%cs%lipschitz_bound()) // &
+            " at step " // str(k))
+          warned_rho = .true.
+        end if
+      end if
+      if (mod(k, cfg%output%every) == 0 .or. k == n_target) then
+        call out%write_step(fom, error)
+        if (allocated(error)) then
+          call out%abort(); return
+        end if
+      end if
+      call log%progress("step", k, n_target)
+    end do
+    call system_clock(c1)
+    t_total = real(c1 - c0, wp) / real(rate, wp)
+    call log%stage_end()
+
+    call out%close(recs(1:k), error)
+    if (allocated(error)) return
+
+    n_failed = count(.not. recs(1:k)%converged)
+    min_gap = huge(1.0_wp); kkt_max = 0; it_max = 0; it_mean = 0
+    if (k > 0) then
+      min_gap = minval(recs(1:k)%min_gap)
+      kkt_max = maxval(recs(1:k)%kkt)
+      it_max = maxval(recs(1:k)%iterations)
+      it_mean = real(sum(recs(1:k)%iterations), wp) / k
+    end if
+    text = "summary:" // new_line('a') // &
+      "  agents              " // str(fom%n_agents) // new_line('a') // &
+      "  steps               " // str(k) // new_line('a') // &
+      "  agents left / still inside  " // str(fom%n_agents - fom%n_inside()) // " / " // str(fom%n_inside()) // new_line('a') // &
+      "  output file         " // trim(cfg%output%file) // new_line('a') // &
+      "  smallest gap seen   " // str(min_gap) // " (radius " // str(fom%radius) // ")" // new_line('a') // &
+      "  largest KKT residual " // str(kkt_max) // new_line('a') // &
+      "  failed steps        " // str(n_failed) // new_line('a') // &
+      "  iterations mean/max " // str(it_mean, 'f0.1') // " / " // str(it_max) // new_line('a') // &
+      "  time per step       " // str(t_total / max(k, 1)) // " s (solver " // &
+      str(sum(recs(1:k)%t_solve) / max(k, 1)) // " s)"
+    call log%info(text)
+    if (len(cli%summary) > 0) then
+      call write_summary(cli%summary, cfg, fom, recs(1:k), t_total, error)
+      if (allocated(error)) return
+      call log%info("summary written to " // cli%summary)
+    end if
+    if (n_rho < 0) n_rho = 0
+  end subroutine run
+
+  !> The summary as JSON (keys documented in the README).
+  subroutine write_summary(path, cfg, fom, recs, t_total, error)
+    character(len=*), intent(in) :: path
+    type(config_t), intent(in) :: cfg
+    type(fom_t), intent(in) :: fom
+    type(step_record_t), intent(in) :: recs(:)
+    real(wp), intent(in) :: t_total
+    type(error_t), allocatable, intent(out) :: error
+    type(json_writer_t) :: js
+    integer :: k
+    k = size(recs)
+    call js%add("program", "crowd_fom")
+    call js%add("input", cfg%source)
+    call js%add("solver", trim(cfg%solver%name))
+    call js%add("agents", fom%n_agents)
+    call js%add("steps", k)
+    call js%add("agents_left", fom%n_agents - fom%n_inside())
+    call js%add("agents_inside", fom%n_inside())
+    call js%add("output_file", trim(cfg%output%file))
+    if (k > 0) then
+      call js%add("smallest_gap", minval(recs%min_gap))
+      call js%add("largest_kkt_residual", maxval(recs%kkt))
+      call js%add("failed_steps", count(.not. recs%converged))
+      call js%add("iterations_mean", real(sum(recs%iterations), wp) / k)
+      call js%add("iterations_max", maxval(recs%iterations))
+      call js%add("resolves", sum(recs%resolves))
+      call js%add("solver_time_per_step", sum(recs%t_solve) / k)
+    else
+      call js%add("failed_steps", 0)
+    end if
+    call js%add("time_per_step", t_total / max(k, 1))
+    call js%add("time_total", t_total)
+    call js%add("placement_iterations", fom%placement_iterations)
+    call js%write_file(path, error)
+  end subroutine write_summary
+end program crowd_fom

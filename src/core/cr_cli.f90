@@ -1,0 +1,60 @@
+!> Command-line handling shared by the drivers: `program input.nml [--summary FILE] [--help]`.
+module cr_cli
+  use cr_error, only: error_t, set_error
+  implicit none
+  private
+  public :: cli_t, parse_cli
+
+  !> Parsed command line.
+  type :: cli_t
+    character(len=:), allocatable :: input
+    character(len=:), allocatable :: summary
+    logical :: help = .false.
+  end type cli_t
+
+contains
+
+  !> Parse the command line; unknown options and a missing input are errors.
+  subroutine parse_cli(program_name, cli, error)
+    character(len=*), intent(in) :: program_name
+    type(cli_t), intent(out) :: cli
+    type(error_t), allocatable, intent(out) :: error
+    integer :: k, n, length
+    character(len=:), allocatable :: arg
+    n = command_argument_count()
+    cli%summary = ""
+    k = 0
+    do while (k < n)
+      k = k + 1
+      call get_command_argument(k, length=length)
+      allocate(character(len=length) :: arg)
+      call get_command_argument(k, arg)
+      select case (arg)
+      case ('-h', '--help')
+        cli%help = .true.
+      case ('--summary')
+        if (k == n) then
+          call set_error(error, program_name // ": --summary needs a file name", 2); return
+        end if
+        k = k + 1
+        call get_command_argument(k, length=length)
+        deallocate(arg); allocate(character(len=length) :: arg)
+        call get_command_argument(k, arg)
+        cli%summary = arg
+      case default
+        if (arg(1:1) == '-') then
+          call set_error(error, program_name // ": unknown option '" // arg // "' (see --help)", 2); return
+        end if
+        if (allocated(cli%input)) then
+          call set_error(error, program_name // ": more than one input file given ('" // cli%input // &
+            "' and '" // arg // "')", 2); return
+        end if
+        cli%input = arg
+      end select
+      deallocate(arg)
+    end do
+    if (.not. cli%help .and. .not. allocated(cli%input)) &
+      call set_error(error, program_name // ": no input file given (usage: " // program_name // &
+        " input.nml [--summary FILE]; see --help)", 2)
+  end subroutine parse_cli
+end module cr_cli

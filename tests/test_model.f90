@@ -1,0 +1,164 @@
+!> Unit tests of the model layer: neighbour search against brute force, gap gradients
+!> against finite differences, the aiming rule, the random generator, sorting.
+program test_model
+  use cr_kinds, only: wp, i8
+  use cr_error, only: error_t
+  use cr_assert, only: check, check_close, test_summary
+  use cr_config, only: scene_cfg_t, obstacles_cfg_t, desired_cfg_t
+  use cr_scene, only: scene_t
+  use cr_neighbours, only: cell_list_t, build_contacts
+  use cr_contact_set, only: contact_set_t, contact_key
+  use cr_desired, only: desired_t
+  use cr_random, only: rng_t
+  use cr_sort, only: argsort_i8, bsearch_i8
+  use cr_shapes, only: obstacle_distance
+  implicit none
+  type(scene_t) :: scene
+  type(scene_cfg_t) :: sc
+  type(obstacles_cfg_t) :: oc
+  type(error_t), allocatable :: error
+
+  oc%n_disks = 1; oc%disk_x(1) = 0.65_wp; oc%disk_y(1) = 0.5_wp; oc%disk_r(1) = 0.1_wp
+  call scene%init(sc, oc, error)
+  call check(.not. allocated(error), "scene builds")
+  call check(scene%n_walls == 5 .and. scene%n_interior() == 1, "5 walls + 1 disk")
+  call test_neighbours()
+  call test_gap_gradient()
+  call test_aiming()
+  call test_random()
+  call test_sort()
+  call test_summary()
+
+contains
+
+  !> The cell list finds exactly the brute-force set of rows with gap <= cutoff.
+  subroutine test_neighbours()
+    type(rng_t) :: rng
+    type(cell_list_t) :: cells
+    type(contact_set_t) :: cs
+    real(wp), allocatable :: q(:)
+    integer(i8), allocatable :: found(:), brute(:)
+    integer, allocatable :: idx(:)
+    real(wp) :: cutoff, dist, nrm(2), r
+    integer :: na, i, j, k, nb, trial
+    logical :: same
+    r = 0.03_wp
+    do trial = 1, 4
+      na = 40 * trial
+      call rng%seed(trial)
+      allocate(q(2 * na))
+      do i = 1, na
+        q(2*i-1) = -0.1_wp + 1.5_wp * rng%uniform()
+        q(2*i) = -0.1_wp + 1.4_wp * rng%uniform()
+      end do
+      cutoff = 0.02_wp * trial
+      call cs%init(na, 0.1_wp)
+      call build_contacts(scene, q, r, cutoff, cells, cs)
+      allocate(found(cs%n), brute(na * na + na * scene%n_obstacles()))
+      do k = 1, cs%n
+        found(k) = cs%key(k)
+      end do
+      nb = 0
+      do i = 1, na
+        do j = i + 1, na
+          if (norm2(q(2*i-1:2*i) - q(2*j-1:2*j)) - 2 * r <= cutoff) then
+            nb = nb + 1; brute(nb) = contact_key(i, j, 0)
+          end if
+        end do
+        do k = 1, scene%n_obstacles()
+          call obstacle_distance(scene%obstacles(k), q(2*i-1:2*i), dist, nrm)
+          if (dist - r <= cutoff) then
+            nb = nb + 1; brute(nb) = contact_key(i, 0, k)
+          end if
+        end do
+      end do
+      allocate(idx(max(cs%n, nb)))
+      call argsort_i8(found, idx(1:cs%n)); found = found(idx(1:cs%n))
+      call argsort_i8(brute(1:nb), idx(1:nb)); brute(1:nb) = brute(idx(1:nb))
+      same = cs%n == nb
+      if (same) same = all(found == brute(1:nb))
+      call check(same, "cell list equals brute force (trial " // char(48 + trial) // ")")
+      deallocate(q, found, brute, idx)
+    end do
+  end subroutine test_neighbours
+
+  !> The pair normal is the gradient of the gap (central differences).
+  subroutine test_gap_gradient()
+    type(cell_list_t) :: cells
+    type(contact_set_t) :: cs
+    real(wp) :: q(4), qp(4), qm(4), e, fd(4), gfull(4)
+    integer :: c
+    q = [0.3_wp, 0.4_wp, 0.37_wp, 0.45_wp]
+    call cs%init(2, 1.0_wp)
+    call build_contacts(scene, q, 0.03_wp, 0.1_wp, cells, cs)
+    call check(cs%n >= 1, "pair found")
+    if (cs%n < 1) return
+    gfull = [cs%g(:, 1), -cs%g(:, 1)]
+    e = 1.0e-6_wp
+    do c = 1, 4
+      qp = q; qm = q
+      qp(c) = qp(c) + e; qm(c) = qm(c) - e
+      fd(c) = (gap(qp) - gap(qm)) / (2 * e)
+    end do
+    call check(maxval(abs(fd - gfull)) < 1.0e-8_wp, "pair gap gradient = finite differences")
+  end subroutine test_gap_gradient
+
+  real(wp) function gap(q)
+    real(wp), intent(in) :: q(4)
+    gap = norm2(q(1:2) - q(3:4)) - 0.06_wp
+  end function gap
+
+  !> Agents aim at the exit opening narrowed by the radius.
+  subroutine test_aiming()
+    type(desired_t) :: des
+    type(desired_cfg_t) :: dc
+    type(scene_t) :: hall
+    real(wp) :: dir(2), r, p(2)
+    type(error_t), allocatable :: err
+    call hall%init(sc, obstacles_cfg_t(), err)
+    r = 0.05_wp
+    call des%init(dc, hall, r, 1, err)
+    call check(.not. allocated(err) .and. .not. des%use_field, "analytic field without interior obstacles")
+    ! far left below the barrier wall: aim at (x_lo + r, H)
+    p = [0.1_wp, 0.5_wp]
+    call des%direction(p, dir)
+    call check(maxval(abs(dir - ([hall%x_lo + r, hall%width] - p) / norm2([hall%x_lo + r, hall%width] - p))) &
+      < 1e-12_wp, "aims at the narrowed opening, not the door corner")
+    p = [0.65_wp, 0.97_wp]
+    call des%direction(p, dir)
+    call check(maxval(abs(dir - [0.0_wp, 1.0_wp])) < 1e-12_wp, "walks straight out in the doorway")
+    p = [0.9_wp, 1.5_wp]
+    call des%direction(p, dir)
+    call check(dir(2) > 0 .and. dir(1) > 0, "keeps walking away past the exit")
+    call check_close(norm2(dir), 1.0_wp, 1e-14_wp, "unit direction")
+    ! with the interior disk, a field is used and the direction is unit and finite
+    call des%init(dc, scene, r, 1, err)
+    call check(.not. allocated(err) .and. des%use_field, "grid field with an interior obstacle")
+    p = [0.65_wp, 0.3_wp]   ! behind the disk: must go around it
+    call des%direction(p, dir)
+    call check(abs(dir(1)) > 0.2_wp, "goes around the obstacle (not straight through)")
+    call check_close(norm2(dir), 1.0_wp, 1e-12_wp, "unit direction from the field")
+  end subroutine test_aiming
+
+  subroutine test_random()
+    type(rng_t) :: a, b
+    real(wp) :: x(1000), y(1000), m
+    call a%seed(7); call b%seed(7)
+    call a%uniform_array(x); call b%uniform_array(y)
+    call check(all(x == y), "same seed, same stream")
+    call check(all(x > 0 .and. x < 1), "uniform in (0,1)")
+    m = sum(x) / size(x)
+    call check(abs(m - 0.5_wp) < 0.05_wp, "mean near 1/2")
+    call b%seed(7, stream=1); call b%uniform_array(y)
+    call check(any(x /= y), "streams differ")
+  end subroutine test_random
+
+  subroutine test_sort()
+    integer(i8) :: k(6) = [5_i8, 3_i8, 9_i8, 1_i8, 3_i8, 7_i8]
+    integer :: idx(6)
+    call argsort_i8(k, idx)
+    call check(all(k(idx(1:5)) <= k(idx(2:6))), "argsort ascending")
+    call check(idx(2) == 2 .and. idx(3) == 5, "argsort stable")
+    call check(bsearch_i8(k(idx), 7_i8) == 5 .and. bsearch_i8(k(idx), 4_i8) == 0, "binary search")
+  end subroutine test_sort
+end program test_model
