@@ -1,2 +1,3 @@
 cr_unit_test(test_core)
 cr_unit_test(test_model)
+cr_unit_test(test_config)

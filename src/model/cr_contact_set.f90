@@ -180,7 +180,8 @@ contains
 
   !> Scaled KKT residuals of (u, lambda) for  min |u - v|^2  s.t.  B u <= d.
   !>
-  !> With s = max(|v|_inf, tiny): primal = max_l (Bu - d)_l^+ / (h s);
+  !> With the velocity scale s = max(|v|_inf, max_l (-d_l)^+ / h, tiny) (overlapping rows
+  !> force a motion of at least -d_l / h even when v = 0): primal = max_l (Bu - d)_l^+ / (h s);
   !> dual = max_l (-lambda_l)^+ h / s; compl = max_l |lambda_l (Bu - d)_l| / s^2;
   !> stat = |u - v + B^T lambda|_inf / s. All are dimensionless.
   subroutine kkt_residuals(cs, v, u, lambda, primal, dual, compl, stat)
@@ -190,7 +191,11 @@ contains
     real(wp), allocatable :: r(:), w(:)
     real(wp) :: s
     integer :: l
-    s = max(maxval(abs(v)), tiny(1.0_wp) * 1.0e10_wp)
+    s = tiny(1.0_wp) * 1.0e10_wp
+    if (size(v) > 0) s = max(s, maxval(abs(v)))
+    do l = 1, cs%n
+      s = max(s, -cs%gap(l) / cs%h)
+    end do
     allocate(r(cs%n), w(size(u)))
     call cs%apply_b(u, r)
     primal = 0.0_wp; dual = 0.0_wp; compl = 0.0_wp
