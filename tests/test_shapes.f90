@@ -5,7 +5,8 @@ program test_shapes
   use cr_error, only: error_t
   use cr_assert, only: check, check_close, test_summary
   use cr_shapes, only: obstacle_t, OBST_DISK, OBST_SEGMENT, OBST_POLYGON, make_disk, make_segment, &
-      make_polygon, make_rectangle, obstacle_distance, obstacle_bbox, point_segment_distance
+      make_polygon, make_rectangle, obstacle_distance, obstacle_bbox, point_segment_distance, &
+      segment_obstacle_distance, segment_segment_distance
   implicit none
   real(wp), parameter :: tol = 1.0e-13_wp
   type(obstacle_t) :: disk, caps, rect, tri, tri_cw, wall
@@ -132,6 +133,27 @@ program test_shapes
   call fd_check(caps, "capsule")
   call fd_check(rect, "rectangle")
   call fd_check(tri, "triangle")
+
+  ! ---- segment-to-obstacle distances (line of sight) ----
+  call check_close(segment_obstacle_distance(disk, [0.0_wp, 2.0_wp], [3.0_wp, 2.0_wp]), 0.0_wp, tol, &
+      "segment through disk")
+  call check_close(segment_obstacle_distance(disk, [0.0_wp, 3.0_wp], [3.0_wp, 3.0_wp]), 0.5_wp, tol, &
+      "segment passing above disk")
+  call check_close(segment_obstacle_distance(caps, [0.0_wp, 1.0_wp], [2.0_wp, 1.0_wp]), 0.75_wp, tol, &
+      "segment parallel to capsule")
+  call check_close(segment_obstacle_distance(caps, [1.0_wp, -1.0_wp], [1.0_wp, 1.0_wp]), 0.0_wp, tol, &
+      "segment crossing capsule")
+  call check_close(segment_obstacle_distance(rect, [-1.0_wp, 0.5_wp], [3.0_wp, 0.5_wp]), 0.0_wp, tol, &
+      "segment crossing rectangle (endpoints outside)")
+  call check_close(segment_obstacle_distance(rect, [1.0_wp, 0.5_wp], [1.2_wp, 0.6_wp]), 0.0_wp, tol, &
+      "segment inside rectangle")
+  call check_close(segment_obstacle_distance(rect, [3.0_wp, 0.0_wp], [3.0_wp, 2.0_wp]), 1.0_wp, tol, &
+      "segment right of rectangle")
+  call check_close(segment_obstacle_distance(tri, [2.0_wp, 3.0_wp], [5.0_wp, 0.5_wp]), &
+      point_segment_distance([4.0_wp, 0.0_wp], [2.0_wp, 3.0_wp], [5.0_wp, 0.5_wp]), tol, &
+      "segment beyond hypotenuse (closest to vertex (4,0))")
+  call check_close(segment_segment_distance([0.0_wp, 0.0_wp], [1.0_wp, 0.0_wp], [2.0_wp, 0.0_wp], &
+      [3.0_wp, 0.0_wp]), 1.0_wp, tol, "collinear disjoint segments")
 
   ! ---- bounding boxes ----
   call obstacle_bbox(disk, lo, hi)
