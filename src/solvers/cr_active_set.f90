@@ -1,0 +1,225 @@
+!> Exact projection by clusters: the contact graph (agents linked by rows) is split into
+!> connected components; agents without rows keep u_i = v_i, and each component is projected
+!> by the dense least-distance solver of cr_nnls (LDP -> Lawson-Hanson NNLS), warm started
+!> from the rows with lambda > 0 on entry.
+module cr_active_set
+  use cr_kinds, only: wp
+  use cr_error, only: error_t, prefix_error
+  use cr_strings, only: str
+  use cr_contact_set, only: contact_set_t
+  use cr_nnls, only: nnls_work_t, ldp_stats_t, ldp_solve
+  use cr_projection, only: projection_solver_t, solve_stats_t, finish_stats, check_sizes, add_note
+  implicit none
+  private
+  public :: active_set_solver_t
+
+  !> Exact (active-set) projection, one dense LDP per contact cluster.
+  type, extends(projection_solver_t) :: active_set_solver_t
+    !> NNLS work space, reused across clusters and calls
+    type(nnls_work_t) :: work
+    !> union-find parents and component data [n_agents]
+    integer, allocatable :: parent(:), comp(:), local(:), agents(:), astart(:)
+    !> rows sorted by component and offsets [n rows], [n_comp + 1]
+    integer, allocatable :: rows(:), rstart(:)
+    !> dense cluster data
+    real(wp), allocatable :: bm(:,:), dl(:), vl(:), ul(:), ll(:)
+  contains
+    procedure :: solve => active_set_solve
+    procedure :: free => active_set_free
+  end type active_set_solver_t
+
+contains
+
+  subroutine active_set_solve(this, cs, v, u, lambda, stats, error)
+    class(active_set_solver_t), intent(inout) :: this
+    type(contact_set_t), intent(in) :: cs
+    real(wp), intent(in) :: v(:)
+    real(wp), intent(out) :: u(:)
+    real(wp), intent(inout) :: lambda(:)
+    type(solve_stats_t), intent(out) :: stats
+    type(error_t), allocatable, intent(out) :: error
+    integer :: na, n, l, i, a, b, c, ncomp, mr, nd, maxr, maxa, j, n_infeas
+    type(ldp_stats_t) :: ls
+    real(wp) :: h
+
+    call check_sizes("active_set", cs, v, u, lambda, error)
+    if (allocated(error)) return
+    na = cs%n_agents; n = cs%n; h = cs%h
+    stats%note = ""
+    stats%converged = .true.
+    if (.not. this%settings%warm_start) lambda(1:n) = 0.0_wp
+    u = v
+    if (n == 0) then
+      call finish_stats(cs, v, u, lambda, this%settings%tol, stats)
+      return
+    end if
+    call igrow(this%parent, na); call igrow(this%comp, na); call igrow(this%local, na)
+    call igrow(this%agents, na); call igrow(this%astart, na + 1)
+    call igrow(this%rows, n); call igrow(this%rstart, na + 1)
+
+    ! ---- connected components of the contact graph (union-find with path halving)
+    do i = 1, na
+      this%parent(i) = i
+    end do
+    do l = 1, n
+      if (cs%ib(l) > 0) then
+        a = find(cs%ia(l)); b = find(cs%ib(l))
+        if (a /= b) this%parent(max(a, b)) = min(a, b)
+      end if
+    end do
+    ! number the components that own rows; comp(i) = 0 for agents without rows
+    this%comp(1:na) = 0
+    ncomp = 0
+    this%local(1:na) = 0
+    do l = 1, n
+      a = find(cs%ia(l))
+      if (this%local(a) == 0) then
+        ncomp = ncomp + 1
+        this%local(a) = ncomp
+      end if
+    end do
+    do i = 1, na
+      a = find(i)
+      this%comp(i) = this%local(a)
+    end do
+    ! agents and rows sorted by component (counting sort)
+    this%astart(1:ncomp + 1) = 0
+    do i = 1, na
+      if (this%comp(i) > 0) this%astart(this%comp(i) + 1) = this%astart(this%comp(i) + 1) + 1
+    end do
+    this%rstart(1:ncomp + 1) = 0
+    do l = 1, n
+      c = this%comp(cs%ia(l))
+      this%rstart(c + 1) = this%rstart(c + 1) + 1
+    end do
+    this%astart(1) = 1; this%rstart(1) = 1
+    do c = 1, ncomp
+      this%astart(c + 1) = this%astart(c + 1) + this%astart(c)
+      this%rstart(c + 1) = this%rstart(c + 1) + this%rstart(c)
+    end do
+    do i = 1, na
+      c = this%comp(i)
+      if (c == 0) cycle
+      this%agents(this%astart(c)) = i
+      this%local(i) = this%astart(c)          ! temporary: slot, fixed below
+      this%astart(c) = this%astart(c) + 1
+    end do
+    do l = 1, n
+      c = this%comp(cs%ia(l))
+      this%rows(this%rstart(c)) = l
+      this%rstart(c) = this%rstart(c) + 1
+    end do
+    do c = ncomp, 1, -1
+      this%astart(c + 1) = this%astart(c)
+      this%rstart(c + 1) = this%rstart(c)
+    end do
+    this%astart(1) = 1; this%rstart(1) = 1
+    maxr = 0; maxa = 0
+    do c = 1, ncomp
+      maxr = max(maxr, this%rstart(c + 1) - this%rstart(c))
+      maxa = max(maxa, this%astart(c + 1) - this%astart(c))
+      do j = this%astart(c), this%astart(c + 1) - 1
+        this%local(this%agents(j)) = j - this%astart(c) + 1
+      end do
+    end do
+    call rgrow2(this%bm, maxr, 2 * maxa)
+    call rgrow(this%dl, maxr); call rgrow(this%ll, maxr)
+    call rgrow(this%vl, 2 * maxa); call rgrow(this%ul, 2 * maxa)
+
+    ! ---- one dense LDP per component
+    n_infeas = 0
+    do c = 1, ncomp
+      mr = this%rstart(c + 1) - this%rstart(c)
+      nd = 2 * (this%astart(c + 1) - this%astart(c))
+      this%bm(1:mr, 1:nd) = 0.0_wp
+      do j = 1, mr
+        l = this%rows(this%rstart(c) + j - 1)
+        a = this%local(cs%ia(l))
+        this%bm(j, 2*a - 1) = -h * cs%g(1, l)
+        this%bm(j, 2*a) = -h * cs%g(2, l)
+        if (cs%ib(l) > 0) then
+          b = this%local(cs%ib(l))
+          this%bm(j, 2*b - 1) = h * cs%g(1, l)
+          this%bm(j, 2*b) = h * cs%g(2, l)
+        end if
+        this%dl(j) = cs%gap(l)
+        this%ll(j) = lambda(l)
+      end do
+      do j = this%astart(c), this%astart(c + 1) - 1
+        a = this%agents(j); i = j - this%astart(c) + 1
+        this%vl(2*i - 1:2*i) = v(2*a - 1:2*a)
+      end do
+      call ldp_solve(this%bm(1:mr, 1:nd), this%dl(1:mr), this%vl(1:nd), this%ul(1:nd), &
+        this%ll(1:mr), ls, error, warm=this%settings%warm_start, &
+        max_iter=this%settings%max_iter, work=this%work)
+      if (allocated(error)) then
+        call prefix_error(error, "active_set: cluster " // str(c))
+        return
+      end if
+      stats%iterations = stats%iterations + ls%nnls%iterations
+      if (.not. ls%nnls%converged) stats%converged = .false.
+      if (ls%infeasible) n_infeas = n_infeas + 1
+      do j = this%astart(c), this%astart(c + 1) - 1
+        a = this%agents(j); i = j - this%astart(c) + 1
+        u(2*a - 1:2*a) = this%ul(2*i - 1:2*i)
+      end do
+      do j = 1, mr
+        lambda(this%rows(this%rstart(c) + j - 1)) = this%ll(j)
+      end do
+    end do
+    if (n_infeas > 0) call add_note(stats, str(n_infeas) // " infeasible cluster(s): " // &
+      "least-violation velocities returned")
+    if (.not. stats%converged) call add_note(stats, "iteration cap reached (" // &
+      str(this%settings%max_iter) // ") in at least one cluster")
+    call finish_stats(cs, v, u, lambda, this%settings%tol, stats)
+
+  contains
+
+    integer function find(x) result(r)
+      integer, intent(in) :: x
+      r = x
+      do while (this%parent(r) /= r)
+        this%parent(r) = this%parent(this%parent(r))
+        r = this%parent(r)
+      end do
+    end function find
+
+  end subroutine active_set_solve
+
+  subroutine active_set_free(this)
+    class(active_set_solver_t), intent(inout) :: this
+    this%work = nnls_work_t()
+    if (allocated(this%parent)) deallocate(this%parent)
+    if (allocated(this%bm)) deallocate(this%bm)
+  end subroutine active_set_free
+
+  subroutine igrow(a, n)
+    integer, allocatable, intent(inout) :: a(:)
+    integer, intent(in) :: n
+    if (allocated(a)) then
+      if (size(a) >= n) return
+      deallocate(a)
+    end if
+    allocate(a(max(n, 16)))
+  end subroutine igrow
+
+  subroutine rgrow(a, n)
+    real(wp), allocatable, intent(inout) :: a(:)
+    integer, intent(in) :: n
+    if (allocated(a)) then
+      if (size(a) >= n) return
+      deallocate(a)
+    end if
+    allocate(a(max(n, 16)))
+  end subroutine rgrow
+
+  subroutine rgrow2(a, m, n)
+    real(wp), allocatable, intent(inout) :: a(:,:)
+    integer, intent(in) :: m, n
+    if (allocated(a)) then
+      if (size(a, 1) >= m .and. size(a, 2) >= n) return
+      deallocate(a)
+    end if
+    allocate(a(max(m, 16), max(n, 16)))
+  end subroutine rgrow2
+end module cr_active_set

@@ -1,0 +1,625 @@
+!> Dense non-negative least squares (Lawson-Hanson active set) and least-distance programming.
+!>
+!> nnls_solve:  min |A x - b|_2  s.t.  x >= 0,  A: [m, n], b: [m], x: [n].
+!> ldp_solve:   min |u - v|_2^2  s.t.  Bm u <= d, Bm: [mc, n], by the LDP -> NNLS reduction.
+!>
+!> Numerics (nnls_solve):
+!> - The problem is scaled internally: every column of A by a power of two so that its 2-norm is
+!>   in [1/2, 1), b by a power of two likewise. Power-of-two scaling is exact, so the iteration
+!>   works on the same numbers whatever the units of A and b (up to the rounding of the user's
+!>   own rescaling), and the stopping tolerance is relative.
+!> - The passive columns A_P = Q R are kept factored with an explicit orthogonal Q [m, m]:
+!>   a column that enters is appended with one Householder reflection (O(m (m - k)) flops),
+!>   a column that leaves is removed with Givens rotations on R, Q and Q^T b (O(m (k - p))).
+!>   There is no refactorisation per iteration.
+!> - A column is refused (left at zero) when it is numerically dependent on the passive ones
+!>   (new diagonal of R below 16 m eps of its norm) or when, once added, its least-squares
+!>   coefficient is not positive (the round-off trap that makes textbook Lawson-Hanson cycle).
+!>   Refusals are cleared whenever the passive set changes, so they never hide a real descent
+!>   direction for long; the iteration count is capped in any case.
+!> - Columns are held in compressed sparse form (only non-zeros), which costs nothing for dense
+!>   data and makes the contact matrices (5 non-zeros per column) cheap.
+module cr_nnls
+  use cr_kinds, only: wp
+  use cr_error, only: error_t, set_error
+  use cr_strings, only: str
+  implicit none
+  private
+  public :: nnls_work_t, nnls_stats_t, ldp_stats_t, nnls_solve, ldp_solve
+
+  !> Outcome of one NNLS solve.
+  type :: nnls_stats_t
+    !> outer (column additions) plus inner (step-back) iterations
+    integer :: iterations = 0
+    !> .true. when the KKT test was met before the iteration cap
+    logical :: converged = .false.
+    !> residual norm |A x - b|_2 (original units)
+    real(wp) :: residual = 0.0_wp
+    !> max(0, w_j) over the active (x_j = 0) set, w = A^T (b - A x) (original units)
+    real(wp) :: w_active_max = 0.0_wp
+    !> max |w_j| over the passive (x_j > 0) set (original units)
+    real(wp) :: w_passive_max = 0.0_wp
+    !> dimensionless certificate: max_j violation_j / (|a_j| |b|), violation as above
+    real(wp) :: kkt_rel = 0.0_wp
+    !> number of passive (positive) entries of x
+    integer :: n_passive = 0
+  end type nnls_stats_t
+
+  !> Outcome of one LDP solve.
+  type :: ldp_stats_t
+    !> statistics of the underlying NNLS
+    type(nnls_stats_t) :: nnls
+    !> .true. when {u : Bm u <= d} was found empty; u is then the least-violation point
+    logical :: infeasible = .false.
+    !> max_l (Bm u - d)_l^+ of the returned u (original units)
+    real(wp) :: max_violation = 0.0_wp
+  end type ldp_stats_t
+
+  !> Reusable work space (grown on demand, never shrunk). One per thread of solves.
+  type :: nnls_work_t
+    integer :: mcap = -1, ncap = -1, nzcap = -1
+    !> compressed columns of the scaled A: col(j) .. col(j+1)-1 index row/val
+    integer, allocatable :: col(:), row(:)
+    real(wp), allocatable :: val(:)
+    !> column scales (powers of two) [n]
+    real(wp), allocatable :: cs(:)
+    !> orthogonal factor [m, m], triangular factor [m, min(m, n)]
+    real(wp), allocatable :: q(:,:), r(:,:)
+    !> Q^T b, work vectors [m]
+    real(wp), allocatable :: qtb(:), z(:), hv(:), res(:), bs(:)
+    !> current scaled iterate, trial solution, gradient [n]
+    real(wp), allocatable :: x(:), zp(:), w(:)
+    !> passive list (order of the columns of R) and position map [n]
+    integer, allocatable :: plist(:), pos(:)
+    logical, allocatable :: refused(:)
+    !> LDP buffers: the (n+1) x mc NNLS matrix, rhs, solution
+    real(wp), allocatable :: e(:,:), f(:), y(:)
+    logical, allocatable :: p0(:)
+  end type nnls_work_t
+
+contains
+
+  !> Make sure `work` can hold an m x n problem with at most nnz non-zeros.
+  subroutine reserve(work, m, n, nnz)
+    type(nnls_work_t), intent(inout) :: work
+    integer, intent(in) :: m, n, nnz
+    if (m > work%mcap) then
+      if (allocated(work%q)) deallocate(work%q, work%qtb, work%z, work%hv, work%res, work%bs)
+      allocate(work%q(m, m), work%qtb(m), work%z(m), work%hv(m), work%res(m), work%bs(m))
+    end if
+    if (m > work%mcap .or. n > work%ncap) then
+      if (allocated(work%r)) deallocate(work%r)
+      allocate(work%r(max(m, work%mcap, 1), max(1, min(max(m, work%mcap), max(n, work%ncap)))))
+    end if
+    if (n > work%ncap) then
+      if (allocated(work%col)) deallocate(work%col, work%cs, work%x, work%zp, work%w, &
+        work%plist, work%pos, work%refused)
+      allocate(work%col(n + 1), work%cs(n), work%x(n), work%zp(n), work%w(n), work%plist(n), &
+        work%pos(n), work%refused(n))
+    end if
+    work%mcap = max(work%mcap, m)
+    work%ncap = max(work%ncap, n)
+    if (nnz > work%nzcap) then
+      if (allocated(work%row)) deallocate(work%row, work%val)
+      allocate(work%row(max(nnz, 1)), work%val(max(nnz, 1)))
+      work%nzcap = nnz
+    end if
+  end subroutine reserve
+
+  !> Solve min |A x - b|_2 s.t. x >= 0 (Lawson-Hanson active set with incremental QR).
+  !>
+  !> On entry `passive0` (optional) marks a guess of the passive set (warm start); the result
+  !> does not depend on it, only the iteration count does. `max_iter` caps the iterations
+  !> (default 3 n + 50); when reached, stats%converged = .false. and x is the last feasible
+  !> iterate (x >= 0 always). Errors only for inconsistent sizes.
+  subroutine nnls_solve(a, b, x, stats, error, passive0, max_iter, work)
+    !> matrix [m, n]
+    real(wp), intent(in) :: a(:,:)
+    !> right-hand side [m]
+    real(wp), intent(in) :: b(:)
+    !> solution [n], x >= 0
+    real(wp), intent(out) :: x(:)
+    type(nnls_stats_t), intent(out) :: stats
+    type(error_t), allocatable, intent(out) :: error
+    !> warm-start guess of the passive set [n]
+    logical, intent(in), optional :: passive0(:)
+    integer, intent(in), optional :: max_iter
+    !> reusable work space
+    type(nnls_work_t), intent(inout), optional, target :: work
+    type(nnls_work_t), target :: local
+    type(nnls_work_t), pointer :: wk
+    integer :: m, n, j, i, nnz, itmax
+    real(wp) :: cmax, bnorm, sb
+
+    m = size(a, 1); n = size(a, 2)
+    if (size(b) /= m .or. size(x) /= n) then
+      call set_error(error, "nnls_solve: inconsistent sizes: A is " // str(m) // " x " // str(n) &
+        // ", b has " // str(size(b)) // ", x has " // str(size(x)), 2)
+      return
+    end if
+    if (present(passive0)) then
+      if (size(passive0) /= n) then
+        call set_error(error, "nnls_solve: passive0 has " // str(size(passive0)) // &
+          " entries, expected " // str(n), 2)
+        return
+      end if
+    end if
+    itmax = 3 * n + 50
+    if (present(max_iter)) itmax = max_iter
+    if (present(work)) then
+      wk => work
+    else
+      wk => local
+    end if
+
+    nnz = count(a /= 0.0_wp)
+    call reserve(wk, m, n, nnz)
+    ! scale b and the columns of A by powers of two (exact)
+    bnorm = norm2(b)
+    sb = 1.0_wp
+    if (bnorm > 0.0_wp) sb = scale(1.0_wp, exponent(bnorm))
+    wk%bs(1:m) = b / sb
+    nnz = 0
+    do j = 1, n
+      wk%col(j) = nnz + 1
+      cmax = norm2(a(:, j))
+      if (cmax > 0.0_wp) then
+        wk%cs(j) = scale(1.0_wp, -exponent(cmax))
+      else
+        wk%cs(j) = 0.0_wp
+      end if
+      do i = 1, m
+        if (a(i, j) /= 0.0_wp) then
+          nnz = nnz + 1
+          wk%row(nnz) = i
+          wk%val(nnz) = a(i, j) * wk%cs(j)
+        end if
+      end do
+    end do
+    wk%col(n + 1) = nnz + 1
+
+    call nnls_core(wk, m, n, itmax, stats, passive0)
+
+    ! unscale: x = sb * cs * x'
+    do j = 1, n
+      x(j) = wk%x(j) * wk%cs(j) * sb
+    end do
+    stats%residual = stats%residual * sb
+    stats%w_active_max = 0.0_wp
+    stats%w_passive_max = 0.0_wp
+    do j = 1, n
+      if (wk%cs(j) == 0.0_wp) cycle
+      if (wk%pos(j) > 0) then
+        stats%w_passive_max = max(stats%w_passive_max, abs(wk%w(j)) * sb / wk%cs(j))
+      else
+        stats%w_active_max = max(stats%w_active_max, wk%w(j) * sb / wk%cs(j))
+      end if
+    end do
+  end subroutine nnls_solve
+
+  !> Lawson-Hanson on the scaled compressed data held in wk (columns of norm in [1/2, 1)).
+  subroutine nnls_core(wk, m, n, itmax, stats, passive0)
+    type(nnls_work_t), intent(inout) :: wk
+    integer, intent(in) :: m, n, itmax
+    type(nnls_stats_t), intent(inout) :: stats
+    logical, intent(in), optional :: passive0(:)
+    integer :: k, j, t, p, it, pmin
+    real(wp) :: tolw, wmax, alpha, bn, eps, dn
+    logical :: ok, changed
+
+    eps = epsilon(1.0_wp)
+    k = 0
+    wk%x(1:n) = 0.0_wp
+    wk%pos(1:n) = 0
+    wk%refused(1:n) = .false.
+    if (m > 0) then
+      wk%q(1:m, 1:m) = 0.0_wp
+      do j = 1, m
+        wk%q(j, j) = 1.0_wp
+      end do
+      wk%qtb(1:m) = wk%bs(1:m)
+    end if
+    bn = 0.0_wp
+    if (m > 0) bn = norm2(wk%bs(1:m))
+    stats%iterations = 0
+    stats%converged = .true.
+    if (m == 0 .or. n == 0 .or. bn == 0.0_wp) then
+      if (m > 0) wk%res(1:m) = wk%bs(1:m)
+      call finish()
+      return
+    end if
+    tolw = 32.0_wp * eps * sqrt(real(m, wp)) * bn
+
+    ! ---- warm start: factor the guessed passive set, then drop non-positive coefficients
+    if (present(passive0)) then
+      do j = 1, n
+        if (passive0(j) .and. wk%cs(j) /= 0.0_wp .and. k < m) call add_column(j, k, ok)
+      end do
+      do
+        if (k == 0) exit
+        call solve_r(k)
+        changed = .false.
+        do p = k, 1, -1
+          if (wk%zp(p) <= 0.0_wp) then
+            call remove_column(p, k)
+            changed = .true.
+          end if
+        end do
+        if (.not. changed) exit
+      end do
+      do p = 1, k
+        wk%x(wk%plist(p)) = wk%zp(p)
+      end do
+    end if
+
+    ! ---- main loop
+    it = 0
+    stats%converged = .false.
+    outer: do
+      call gradient(k)
+      wmax = tolw
+      t = 0
+      do j = 1, n
+        if (wk%pos(j) /= 0 .or. wk%refused(j) .or. wk%cs(j) == 0.0_wp) cycle
+        if (wk%w(j) > wmax) then
+          wmax = wk%w(j); t = j
+        end if
+      end do
+      if (t == 0 .or. k == m) then
+        stats%converged = .true.
+        exit outer
+      end if
+      if (it >= itmax) exit outer
+      it = it + 1
+      call add_column(t, k, ok)
+      if (.not. ok) then
+        wk%refused(t) = .true.
+        cycle outer
+      end if
+      ! inner loop: step back until the least-squares solution on P is positive
+      call solve_r(k)
+      if (wk%zp(k) <= 0.0_wp) then
+        ! round-off: the entering column does not help; refuse it
+        call remove_column(k, k)
+        wk%refused(t) = .true.
+        cycle outer
+      end if
+      inner: do
+        if (all(wk%zp(1:k) > 0.0_wp)) exit inner
+        if (it >= itmax) exit outer
+        it = it + 1
+        alpha = 1.0_wp
+        pmin = 0
+        do p = 1, k
+          if (wk%zp(p) <= 0.0_wp) then
+            j = wk%plist(p)
+            dn = wk%x(j) - wk%zp(p)
+            if (dn > 0.0_wp) then
+              if (wk%x(j) / dn < alpha .or. pmin == 0) then
+                alpha = min(1.0_wp, wk%x(j) / dn); pmin = p
+              end if
+            else
+              alpha = 0.0_wp; pmin = p
+            end if
+          end if
+        end do
+        do p = 1, k
+          j = wk%plist(p)
+          wk%x(j) = wk%x(j) + alpha * (wk%zp(p) - wk%x(j))
+        end do
+        if (pmin > 0) wk%x(wk%plist(pmin)) = 0.0_wp
+        do p = k, 1, -1
+          j = wk%plist(p)
+          if (wk%x(j) <= 0.0_wp) then
+            wk%x(j) = 0.0_wp
+            call remove_column(p, k)
+          end if
+        end do
+        if (k == 0) exit inner
+        call solve_r(k)
+      end do inner
+      do p = 1, k
+        wk%x(wk%plist(p)) = wk%zp(p)
+      end do
+      wk%refused(1:n) = .false.
+    end do outer
+    stats%iterations = it
+    call gradient(k)
+    call finish()
+
+  contains
+
+    subroutine add_column(jj, kk, okk)
+      integer, intent(in) :: jj
+      integer, intent(inout) :: kk
+      logical, intent(out) :: okk
+      call add_column_impl(wk, m, jj, kk, okk)
+    end subroutine add_column
+
+    subroutine remove_column(pp, kk)
+      integer, intent(in) :: pp
+      integer, intent(inout) :: kk
+      call remove_column_impl(wk, m, pp, kk)
+    end subroutine remove_column
+
+    !> back substitution R(1:kk, 1:kk) zp = (Q^T b)(1:kk)
+    subroutine solve_r(kk)
+      integer, intent(in) :: kk
+      integer :: ii
+      do ii = kk, 1, -1
+        wk%zp(ii) = (wk%qtb(ii) - dot_product(wk%r(ii, ii + 1:kk), wk%zp(ii + 1:kk))) / wk%r(ii, ii)
+      end do
+    end subroutine solve_r
+
+    !> res = b - A_P x_P (scaled), w = A^T res (scaled)
+    subroutine gradient(kk)
+      integer, intent(in) :: kk
+      integer :: pp, jj, ii
+      real(wp) :: s
+      wk%res(1:m) = wk%bs(1:m)
+      do pp = 1, kk
+        jj = wk%plist(pp)
+        s = wk%x(jj)
+        do ii = wk%col(jj), wk%col(jj + 1) - 1
+          wk%res(wk%row(ii)) = wk%res(wk%row(ii)) - s * wk%val(ii)
+        end do
+      end do
+      do jj = 1, n
+        s = 0.0_wp
+        do ii = wk%col(jj), wk%col(jj + 1) - 1
+          s = s + wk%val(ii) * wk%res(wk%row(ii))
+        end do
+        wk%w(jj) = s
+      end do
+    end subroutine gradient
+
+    subroutine finish()
+      integer :: jj
+      real(wp) :: viol
+      stats%n_passive = k
+      stats%residual = 0.0_wp
+      if (m > 0) stats%residual = norm2(wk%res(1:m))
+      if (m == 0 .or. n == 0 .or. bn == 0.0_wp) wk%w(1:n) = 0.0_wp
+      stats%kkt_rel = 0.0_wp
+      if (bn == 0.0_wp) return
+      do jj = 1, n
+        if (wk%cs(jj) == 0.0_wp) cycle
+        if (wk%pos(jj) > 0) then
+          viol = abs(wk%w(jj))
+        else
+          viol = max(wk%w(jj), 0.0_wp)
+        end if
+        stats%kkt_rel = max(stats%kkt_rel, viol / (bn * norm2(wk%val(wk%col(jj):wk%col(jj + 1) - 1))))
+      end do
+    end subroutine finish
+
+  end subroutine nnls_core
+
+  !> Least-distance programming: min |u - v|_2^2  s.t.  Bm u <= d.
+  !>
+  !> Derivation (Lawson & Hanson, ch. 23). Put x = u - v and e = d - Bm v, so the problem is
+  !> min |x| s.t. G x >= h with G = -Bm, h = -e. The rows are balanced first: x = s x' with
+  !> s = 2^(exponent(max|e|) - exponent(max|Bm|)) (exact), i.e. G x' >= h / s.
+  !> Solve the NNLS  min |E y - f|, y >= 0, with E = [G^T; (h/s)^T] ((n+1) x mc), f = e_{n+1},
+  !> and let r = E y - f. Its optimality conditions are y >= 0, w = -E^T r <= 0, y^T w = 0.
+  !> From y^T w = 0: (E y)^T r = 0, i.e. (r + f)^T r = 0, so r_{n+1} = -|r|^2 =: -den.
+  !> * den = 0 (r = 0): G^T y = 0 and (h/s)^T y = 1 with y >= 0, a Farkas certificate that
+  !>   {G x >= h} is empty: the LDP is infeasible.
+  !> * den > 0: put x' = r(1:n) / den = G^T y / den. Then w <= 0 divided by den gives
+  !>   G x' - h/s >= 0 (primal feasibility); y_j w_j = 0 gives complementarity; and with
+  !>   mu = y / den, x' = G^T mu = -Bm^T mu. Back in the original units, x = s x' = -Bm^T (s mu),
+  !>   so the multipliers of  u = v - Bm^T lambda  (the KKT system of min 1/2|u-v|^2 + lambda^T
+  !>   (Bm u - d), the convention of the contact model) are  lambda = s y / den.
+  !> u is formed as v - Bm^T lambda, so stationarity holds to rounding.
+  !> When infeasible, u is the least-violation point of the regularised problem
+  !> min |sigma|^2 + eps |u - v|^2 s.t. Bm u - d <= sigma (eps = 1e-8 max|Bm|^2: a relative bias of ~1e-8), an
+  !> LDP in (sqrt(eps) (u - v), sigma), always feasible; lambda then holds sigma (the violations).
+  recursive subroutine ldp_solve(bm, d, v, u, lambda, stats, error, warm, max_iter, work)
+    !> constraint matrix [mc, n]
+    real(wp), intent(in) :: bm(:,:)
+    !> right-hand side [mc]
+    real(wp), intent(in) :: d(:)
+    !> point to project [n]
+    real(wp), intent(in) :: v(:)
+    !> projection [n]
+    real(wp), intent(out) :: u(:)
+    !> multipliers [mc]; on entry a warm-start guess (lambda > 0 marks the guessed active set)
+    real(wp), intent(inout) :: lambda(:)
+    type(ldp_stats_t), intent(out) :: stats
+    type(error_t), allocatable, intent(out) :: error
+    !> use lambda > 0 on entry as the initial passive set (default .true.)
+    logical, intent(in), optional :: warm
+    !> NNLS iteration cap
+    integer, intent(in), optional :: max_iter
+    type(nnls_work_t), intent(inout), optional, target :: work
+    type(nnls_work_t), target :: local
+    type(nnls_work_t), pointer :: wk
+    integer :: mc, n, i, j
+    real(wp) :: gmax, emax, s, den, cancel, sq
+    logical :: use_warm
+    real(wp), allocatable :: bz(:,:), vz(:), uz(:), lz(:)
+    type(ldp_stats_t) :: st2
+    type(nnls_stats_t) :: st1
+    integer :: pass, it1
+
+    mc = size(bm, 1); n = size(bm, 2)
+    if (size(d) /= mc .or. size(v) /= n .or. size(u) /= n .or. size(lambda) /= mc) then
+      call set_error(error, "ldp_solve: inconsistent sizes: Bm is " // str(mc) // " x " // str(n) &
+        // ", d " // str(size(d)) // ", v " // str(size(v)) // ", u " // str(size(u)) // &
+        ", lambda " // str(size(lambda)), 2)
+      return
+    end if
+    use_warm = .true.
+    if (present(warm)) use_warm = warm
+    if (present(work)) then
+      wk => work
+    else
+      wk => local
+    end if
+    if (.not. allocated(wk%e)) allocate(wk%e(0, 0), wk%f(0), wk%y(0), wk%p0(0))
+    if (size(wk%e, 1) < n + 1 .or. size(wk%e, 2) < mc) then
+      i = max(n + 1, size(wk%e, 1)); j = max(mc, size(wk%e, 2))
+      deallocate(wk%e, wk%f, wk%y, wk%p0)
+      allocate(wk%e(i, j), wk%f(i), wk%y(j), wk%p0(j))
+    end if
+    ! e = d - Bm v, kept in wk%y
+    do i = 1, mc
+      wk%y(i) = d(i) - dot_product(bm(i, :), v)
+    end do
+    stats%infeasible = .false.
+    stats%nnls%converged = .true.
+    if (mc == 0) then
+      u = v
+      return
+    end if
+    if (all(wk%y(1:mc) >= 0.0_wp)) then
+      ! v is feasible: it is its own projection
+      u = v
+      lambda = 0.0_wp
+      return
+    end if
+    gmax = maxval(abs(bm))
+    emax = maxval(abs(wk%y(1:mc)))
+    s = 1.0_wp
+    if (gmax > 0.0_wp .and. emax > 0.0_wp) s = scale(1.0_wp, exponent(emax) - exponent(gmax))
+    do pass = 1, 2
+      do j = 1, mc
+        wk%e(1:n, j) = -bm(j, :)
+        wk%e(n + 1, j) = -(d(j) - dot_product(bm(j, :), v)) / s
+        if (pass == 1) wk%p0(j) = use_warm .and. lambda(j) > 0.0_wp
+      end do
+      wk%f(1:n) = 0.0_wp
+      wk%f(n + 1) = 1.0_wp
+      call nnls_solve(wk%e(1:n + 1, 1:mc), wk%f(1:n + 1), wk%y(1:mc), st1, error, &
+        passive0=wk%p0(1:mc), max_iter=max_iter, work=wk)
+      if (allocated(error)) return
+      stats%nnls%iterations = stats%nnls%iterations + st1%iterations
+      it1 = stats%nnls%iterations
+      stats%nnls = st1
+      stats%nnls%iterations = it1
+      ! den = -r_{n+1} = 1 - (E y)_{n+1} = 1 / (1 + |x'|^2); cancel bounds its rounding error
+      den = 1.0_wp
+      cancel = 1.0_wp
+      do j = 1, mc
+        den = den - wk%e(n + 1, j) * wk%y(j)
+        cancel = cancel + abs(wk%e(n + 1, j) * wk%y(j))
+      end do
+      ! |x'| >> 1 loses accuracy (relative error ~ eps / den): rescale so that |x'| ~ 1 and
+      ! solve again, warm started (a second pass with den ~ eps confirms infeasibility)
+      if (den >= 0.25_wp .or. pass == 2) exit
+      s = s * min(1.0e8_wp, 1.0_wp / sqrt(max(den, tiny(1.0_wp))))
+      s = scale(1.0_wp, exponent(s))
+      wk%p0(1:mc) = wk%y(1:mc) > 0.0_wp
+    end do
+    if (den > 64.0_wp * epsilon(1.0_wp) * sqrt(real(mc, wp)) * cancel) then
+      lambda = (s / den) * wk%y(1:mc)
+      u = v
+      do j = 1, mc
+        if (lambda(j) /= 0.0_wp) u = u - lambda(j) * bm(j, :)
+      end do
+    else
+      ! infeasible: least-violation point of the regularised problem (see above)
+      sq = 1.0e-4_wp * gmax
+      allocate(bz(mc, n + mc), vz(n + mc), uz(n + mc), lz(mc))
+      bz = 0.0_wp
+      bz(:, 1:n) = bm / sq
+      do j = 1, mc
+        bz(j, n + j) = -1.0_wp
+      end do
+      vz = 0.0_wp
+      lz = 0.0_wp
+      call ldp_solve(bz, d - matmul(bm, v), vz, uz, lz, st2, error)
+      if (allocated(error)) return
+      u = v + uz(1:n) / sq
+      lambda = lz
+      stats%nnls%iterations = stats%nnls%iterations + st2%nnls%iterations
+      stats%nnls%converged = st2%nnls%converged
+      stats%infeasible = .true.
+    end if
+    stats%max_violation = 0.0_wp
+    do i = 1, mc
+      stats%max_violation = max(stats%max_violation, dot_product(bm(i, :), u) - d(i))
+    end do
+  end subroutine ldp_solve
+
+  !> Append column j to the factorisation Q R of A_P (k -> k + 1); ok = .false. (and nothing
+  !> changed) when the column is numerically in the span of the passive columns.
+  subroutine add_column_impl(wk, m, j, k, ok)
+    type(nnls_work_t), intent(inout) :: wk
+    integer, intent(in) :: m, j
+    integer, intent(inout) :: k
+    logical, intent(out) :: ok
+    integer :: i, ii, c, i0, i1
+    real(wp) :: s, alpha, beta, sig, anorm
+    ok = .false.
+    if (k >= m) return
+    i0 = wk%col(j); i1 = wk%col(j + 1) - 1
+    anorm = norm2(wk%val(i0:i1))
+    ! z = Q^T a_j using the non-zeros of a_j only
+    do i = 1, m
+      s = 0.0_wp
+      do ii = i0, i1
+        s = s + wk%q(wk%row(ii), i) * wk%val(ii)
+      end do
+      wk%z(i) = s
+    end do
+    sig = norm2(wk%z(k + 1:m))
+    if (sig <= 16.0_wp * real(m, wp) * epsilon(1.0_wp) * anorm) return
+    ! Householder H = I - beta v v^T with H z(k+1:m) = alpha e_1
+    alpha = -sign(sig, wk%z(k + 1))
+    wk%hv(k + 1:m) = wk%z(k + 1:m)
+    wk%hv(k + 1) = wk%z(k + 1) - alpha
+    beta = 1.0_wp / (alpha * (alpha - wk%z(k + 1)))
+    ! Q(:, k+1:m) <- Q(:, k+1:m) H  (so that the new Q^T = H Q^T)
+    wk%res(1:m) = 0.0_wp
+    do c = k + 1, m
+      if (wk%hv(c) /= 0.0_wp) wk%res(1:m) = wk%res(1:m) + wk%hv(c) * wk%q(1:m, c)
+    end do
+    do c = k + 1, m
+      if (wk%hv(c) /= 0.0_wp) wk%q(1:m, c) = wk%q(1:m, c) - (beta * wk%hv(c)) * wk%res(1:m)
+    end do
+    s = beta * dot_product(wk%hv(k + 1:m), wk%qtb(k + 1:m))
+    wk%qtb(k + 1:m) = wk%qtb(k + 1:m) - s * wk%hv(k + 1:m)
+    k = k + 1
+    wk%r(1:k - 1, k) = wk%z(1:k - 1)
+    wk%r(k, k) = alpha
+    wk%plist(k) = j
+    wk%pos(j) = k
+    ok = .true.
+  end subroutine add_column_impl
+
+  !> Remove the column at passive position p (k -> k - 1) with Givens rotations.
+  subroutine remove_column_impl(wk, m, p, k)
+    type(nnls_work_t), intent(inout) :: wk
+    integer, intent(in) :: m, p
+    integer, intent(inout) :: k
+    integer :: i, c
+    real(wp) :: cg, sg, rr, t1, t2
+    wk%pos(wk%plist(p)) = 0
+    do c = p, k - 1
+      wk%r(1:c + 1, c) = wk%r(1:c + 1, c + 1)
+      wk%plist(c) = wk%plist(c + 1)
+      wk%pos(wk%plist(c)) = c
+    end do
+    k = k - 1
+    do i = p, k
+      ! zero r(i+1, i) against r(i, i)
+      rr = hypot(wk%r(i, i), wk%r(i + 1, i))
+      if (rr == 0.0_wp) cycle
+      cg = wk%r(i, i) / rr; sg = wk%r(i + 1, i) / rr
+      wk%r(i, i) = rr; wk%r(i + 1, i) = 0.0_wp
+      do c = i + 1, k
+        t1 = wk%r(i, c); t2 = wk%r(i + 1, c)
+        wk%r(i, c) = cg * t1 + sg * t2
+        wk%r(i + 1, c) = -sg * t1 + cg * t2
+      end do
+      t1 = wk%qtb(i); t2 = wk%qtb(i + 1)
+      wk%qtb(i) = cg * t1 + sg * t2
+      wk%qtb(i + 1) = -sg * t1 + cg * t2
+      wk%res(1:m) = wk%q(1:m, i)
+      wk%q(1:m, i) = cg * wk%res(1:m) + sg * wk%q(1:m, i + 1)
+      wk%q(1:m, i + 1) = -sg * wk%res(1:m) + cg * wk%q(1:m, i + 1)
+    end do
+  end subroutine remove_column_impl
+
+end module cr_nnls

@@ -1,0 +1,2 @@
+cr_unit_test(test_shapes)
+cr_unit_test(test_distance_field)
