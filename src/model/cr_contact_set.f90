@@ -10,7 +10,7 @@ module cr_contact_set
   use cr_kinds, only: wp, i8
   implicit none
   private
-  public :: contact_set_t, contact_key, kkt_residuals
+  public :: contact_set_t, contact_key, kkt_residuals, velocity_scale
 
   !> Contact rows of one step.
   type :: contact_set_t
@@ -191,11 +191,7 @@ contains
     real(wp), allocatable :: r(:), w(:)
     real(wp) :: s
     integer :: l
-    s = tiny(1.0_wp) * 1.0e10_wp
-    if (size(v) > 0) s = max(s, maxval(abs(v)))
-    do l = 1, cs%n
-      s = max(s, -cs%gap(l) / cs%h)
-    end do
+    s = velocity_scale(cs, v)
     allocate(r(cs%n), w(size(u)))
     call cs%apply_b(u, r)
     primal = 0.0_wp; dual = 0.0_wp; compl = 0.0_wp
@@ -212,4 +208,17 @@ contains
     stat = 0.0_wp
     if (size(u) > 0) stat = maxval(abs(u - v + w)) / s
   end subroutine kkt_residuals
+
+  !> Velocity scale of a projection problem: max(|v|_inf, max_l (-d_l)^+ / h, tiny).
+  !> Overlapping rows (d_l < 0) force a motion of at least -d_l / h even when v = 0.
+  pure real(wp) function velocity_scale(cs, v) result(s)
+    type(contact_set_t), intent(in) :: cs
+    real(wp), intent(in) :: v(:)
+    integer :: l
+    s = tiny(1.0_wp) * 1.0e10_wp
+    if (size(v) > 0) s = max(s, maxval(abs(v)))
+    do l = 1, cs%n
+      s = max(s, -cs%gap(l) / cs%h)
+    end do
+  end function velocity_scale
 end module cr_contact_set

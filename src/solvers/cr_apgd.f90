@@ -9,7 +9,7 @@ module cr_apgd
   use cr_kinds, only: wp
   use cr_error, only: error_t
   use cr_strings, only: str
-  use cr_contact_set, only: contact_set_t
+  use cr_contact_set, only: contact_set_t, velocity_scale
   use cr_projection, only: projection_solver_t, solve_stats_t, finish_stats, check_sizes, add_note
   implicit none
   private
@@ -56,7 +56,7 @@ contains
       call finish_stats(cs, v, u, lambda, this%settings%tol, stats)
       return
     end if
-    sv = max(maxval(abs(v)), tiny(1.0_wp) * 1.0e10_wp)
+    sv = velocity_scale(cs, v)
     this%y(1:n) = lambda(1:n)
     this%best(1:n) = lambda(1:n)
     best_kkt = huge(1.0_wp)

@@ -1,0 +1,203 @@
+!> HDF5 output of a full-order run (schema "crowdrom-fom", version 1; see README).
+!>
+!> The file is written under a temporary name and renamed when complete (cr_h5file), so an
+!> interrupted or failed run never leaves a file that looks finished and never destroys a
+!> previous result. Trajectories are streamed (extendible datasets); per-step statistics
+!> are written at the end. Multipliers are stored sparse: identity (ia, ib, ob) + value
+!> of every row with lambda > 0, with offsets per output step.
+module cr_fom_output
+  use cr_kinds, only: wp, i8
+  use cr_error, only: error_t, prefix_error
+  use cr_config, only: config_t, config_echo
+  use cr_fom, only: fom_t, step_record_t
+  use cr_shapes, only: obstacle_t
+  use cr_h5file, only: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64
+  implicit none
+  private
+  public :: fom_writer_t, write_scene, FOM_SCHEMA, FOM_SCHEMA_VERSION
+
+  character(len=*), parameter :: FOM_SCHEMA = "crowdrom-fom"
+  integer, parameter :: FOM_SCHEMA_VERSION = 1
+
+  !> Streaming writer of one run.
+  type :: fom_writer_t
+    type(h5file_t) :: h5
+    logical :: store_multipliers = .true.
+    integer(i8) :: nnz = 0
+    integer :: n_out = 0
+  contains
+    procedure :: open => writer_open
+    procedure :: write_step
+    procedure :: close => writer_close
+    procedure :: abort => writer_abort
+  end type fom_writer_t
+
+contains
+
+  !> Create the file (temporary name), write metadata, scene and the initial state.
+  subroutine writer_open(this, path, cfg, fom, error)
+    class(fom_writer_t), intent(inout) :: this
+    character(len=*), intent(in) :: path
+    type(config_t), intent(in) :: cfg
+    type(fom_t), intent(in) :: fom
+    type(error_t), allocatable, intent(out) :: error
+    integer :: na
+    na = fom%n_agents
+    this%store_multipliers = cfg%output%store_multipliers
+    call this%h5%create(path, error)
+    if (allocated(error)) return
+    call attrs(error); if (allocated(error)) goto 9
+    call write_scene(this%h5, fom, error); if (allocated(error)) goto 9
+    call this%h5%make_group("agents", error); if (allocated(error)) goto 9
+    call this%h5%write("agents/speed", fom%speeds, error); if (allocated(error)) goto 9
+    call this%h5%write("agents/initial_positions", fom%q, error); if (allocated(error)) goto 9
+    call this%h5%make_group("traj/contacts", error); if (allocated(error)) goto 9
+    call this%h5%create_extendible("traj/step", [integer ::], cr_h5_int, error); if (allocated(error)) goto 9
+    call this%h5%create_extendible("traj/time", [integer ::], cr_h5_real, error); if (allocated(error)) goto 9
+    call this%h5%create_extendible("traj/positions", [2 * na], cr_h5_real, error); if (allocated(error)) goto 9
+    call this%h5%create_extendible("traj/velocities", [2 * na], cr_h5_real, error); if (allocated(error)) goto 9
+    call this%h5%create_extendible("traj/desired", [2 * na], cr_h5_real, error); if (allocated(error)) goto 9
+    call this%h5%create_extendible("traj/inside", [na], cr_h5_int, error); if (allocated(error)) goto 9
+    call this%h5%create_extendible("traj/contacts/offset", [integer ::], cr_h5_int64, error); if (allocated(error)) goto 9
+    call this%h5%create_extendible("traj/contacts/ia", [integer ::], cr_h5_int, error); if (allocated(error)) goto 9
+    call this%h5%create_extendible("traj/contacts/ib", [integer ::], cr_h5_int, error); if (allocated(error)) goto 9
+    call this%h5%create_extendible("traj/contacts/ob", [integer ::], cr_h5_int, error); if (allocated(error)) goto 9
+    call this%h5%create_extendible("traj/contacts/lambda", [integer ::], cr_h5_real, error); if (allocated(error)) goto 9
+    this%nnz = 0
+    call this%h5%append("traj/contacts/offset", this%nnz, error); if (allocated(error)) goto 9
+    this%n_out = 0
+    call this%write_step(fom, error)
+9   if (allocated(error)) then
+      call prefix_error(error, "output")
+      call this%h5%abort()
+    end if
+
+  contains
+
+    subroutine attrs(error)
+      type(error_t), allocatable, intent(out) :: error
+      call this%h5%write_attr("/", "schema", FOM_SCHEMA, error); if (allocated(error)) return
+      call this%h5%write_attr("/", "schema_version", FOM_SCHEMA_VERSION, error); if (allocated(error)) return
+      call this%h5%write_attr("/", "program", "crowd_fom", error); if (allocated(error)) return
+      call this%h5%write_attr("/", "units", "length: m, time: s, velocity: m/s, multiplier: m/s^2 " // &
+        "(lambda scales B = -h G: u = v - B^T lambda)", error); if (allocated(error)) return
+      call this%h5%write_attr("/", "agent_radius", fom%radius, error); if (allocated(error)) return
+      call this%h5%write_attr("/", "n_agents", fom%n_agents, error); if (allocated(error)) return
+      call this%h5%write_attr("/", "dt", fom%dt, error); if (allocated(error)) return
+      call this%h5%write_attr("/", "solver", trim(cfg%solver%name), error); if (allocated(error)) return
+      call this%h5%write_attr("/", "config", config_echo(cfg), error); if (allocated(error)) return
+      call this%h5%write_attr("/", "input_text", cfg%text, error); if (allocated(error)) return
+    end subroutine attrs
+  end subroutine writer_open
+
+  !> Append the current state (positions, velocities, inside flags, active multipliers).
+  subroutine write_step(this, fom, error)
+    class(fom_writer_t), intent(inout) :: this
+    type(fom_t), intent(in) :: fom
+    type(error_t), allocatable, intent(out) :: error
+    integer, allocatable :: ia(:), ib(:), ob(:), inside(:)
+    real(wp), allocatable :: lam(:)
+    integer :: n, l, k
+    call this%h5%append("traj/step", fom%step, error); if (allocated(error)) return
+    call this%h5%append("traj/time", fom%step * fom%dt, error); if (allocated(error)) return
+    call this%h5%append("traj/positions", fom%q, error); if (allocated(error)) return
+    call this%h5%append("traj/velocities", fom%u, error); if (allocated(error)) return
+    call this%h5%append("traj/desired", fom%v, error); if (allocated(error)) return
+    allocate(inside(fom%n_agents))
+    inside = merge(1, 0, fom%inside)
+    call this%h5%append("traj/inside", inside, error); if (allocated(error)) return
+    n = 0
+    if (this%store_multipliers .and. fom%step > 0) n = count(fom%lambda(1:fom%cs%n) > 0)
+    if (n > 0) then
+      allocate(ia(n), ib(n), ob(n), lam(n))
+      k = 0
+      do l = 1, fom%cs%n
+        if (fom%lambda(l) > 0) then
+          k = k + 1
+          ia(k) = fom%cs%ia(l); ib(k) = fom%cs%ib(l); ob(k) = fom%cs%ob(l); lam(k) = fom%lambda(l)
+        end if
+      end do
+      call this%h5%append("traj/contacts/ia", ia, error); if (allocated(error)) return
+      call this%h5%append("traj/contacts/ib", ib, error); if (allocated(error)) return
+      call this%h5%append("traj/contacts/ob", ob, error); if (allocated(error)) return
+      call this%h5%append("traj/contacts/lambda", lam, error); if (allocated(error)) return
+    end if
+    this%nnz = this%nnz + n
+    call this%h5%append("traj/contacts/offset", this%nnz, error); if (allocated(error)) return
+    this%n_out = this%n_out + 1
+  end subroutine write_step
+
+  !> Write the per-step statistics and commit the file under its final name.
+  subroutine writer_close(this, recs, error)
+    class(fom_writer_t), intent(inout) :: this
+    type(step_record_t), intent(in) :: recs(:)
+    type(error_t), allocatable, intent(out) :: error
+    call this%h5%make_group("stats", error); if (allocated(error)) goto 9
+    call this%h5%write("stats/step", recs%step, error); if (allocated(error)) goto 9
+    call this%h5%write("stats/iterations", recs%iterations, error); if (allocated(error)) goto 9
+    call this%h5%write("stats/converged", merge(1, 0, recs%converged), error); if (allocated(error)) goto 9
+    call this%h5%write("stats/kkt", recs%kkt, error); if (allocated(error)) goto 9
+    call this%h5%write("stats/kkt_primal", recs%primal, error); if (allocated(error)) goto 9
+    call this%h5%write("stats/kkt_dual", recs%dual, error); if (allocated(error)) goto 9
+    call this%h5%write("stats/kkt_complementarity", recs%compl, error); if (allocated(error)) goto 9
+    call this%h5%write("stats/kkt_stationarity", recs%stat, error); if (allocated(error)) goto 9
+    call this%h5%write("stats/n_rows", recs%n_rows, error); if (allocated(error)) goto 9
+    call this%h5%write("stats/n_active", recs%n_active, error); if (allocated(error)) goto 9
+    call this%h5%write("stats/resolves", recs%resolves, error); if (allocated(error)) goto 9
+    call this%h5%write("stats/n_inside", recs%n_inside, error); if (allocated(error)) goto 9
+    call this%h5%write("stats/min_gap", recs%min_gap, error); if (allocated(error)) goto 9
+    call this%h5%write("stats/time_solve", recs%t_solve, error); if (allocated(error)) goto 9
+    call this%h5%write("stats/time_step", recs%t_step, error); if (allocated(error)) goto 9
+    call this%h5%commit(error)
+9   if (allocated(error)) then
+      call prefix_error(error, "output")
+      call this%h5%abort()
+    end if
+  end subroutine writer_close
+
+  !> Close and delete the temporary file (the final name is untouched).
+  subroutine writer_abort(this)
+    class(fom_writer_t), intent(inout) :: this
+    call this%h5%abort()
+  end subroutine writer_abort
+
+  !> The scene group: obstacles in a uniform vertex representation, exit, plot domain.
+  subroutine write_scene(h5, fom, error)
+    type(h5file_t), intent(inout) :: h5
+    type(fom_t), intent(in) :: fom
+    type(error_t), allocatable, intent(out) :: error
+    integer :: n, k, nv
+    integer, allocatable :: kind(:), start(:)
+    real(wp), allocatable :: rad(:), verts(:,:)
+    real(wp) :: ex(2, 2), dom(4)
+    n = fom%scene%n_obstacles()
+    allocate(kind(n), start(n + 1), rad(n))
+    start(1) = 0
+    do k = 1, n
+      kind(k) = fom%scene%obstacles(k)%kind
+      rad(k) = fom%scene%obstacles(k)%radius
+      start(k + 1) = start(k) + size(fom%scene%obstacles(k)%vertices, 2)
+    end do
+    allocate(verts(2, start(n + 1)))
+    do k = 1, n
+      nv = size(fom%scene%obstacles(k)%vertices, 2)
+      verts(:, start(k) + 1:start(k) + nv) = fom%scene%obstacles(k)%vertices
+    end do
+    call h5%make_group("scene", error); if (allocated(error)) return
+    call h5%write("scene/obstacle_kind", kind, error); if (allocated(error)) return
+    call h5%write("scene/obstacle_radius", rad, error); if (allocated(error)) return
+    call h5%write("scene/obstacle_vertex_start", start, error); if (allocated(error)) return
+    call h5%write("scene/obstacle_vertices", verts, error); if (allocated(error)) return
+    ex(:, 1) = [fom%scene%x_lo, fom%scene%width]
+    ex(:, 2) = [fom%scene%x_hi, fom%scene%width]
+    call h5%write("scene/exit_segment", ex, error); if (allocated(error)) return
+    dom = [-fom%scene%wall, -fom%scene%wall, fom%scene%length + fom%scene%wall, &
+      fom%scene%width + fom%scene%wall + 0.3_wp * fom%scene%width]
+    call h5%write("scene/domain", dom, error); if (allocated(error)) return
+    call h5%write_attr("scene", "hall_length", fom%scene%length, error); if (allocated(error)) return
+    call h5%write_attr("scene", "hall_width", fom%scene%width, error); if (allocated(error)) return
+    call h5%write_attr("scene", "wall_thickness", fom%scene%wall, error); if (allocated(error)) return
+    call h5%write_attr("scene", "l_exit", fom%scene%l_exit, error); if (allocated(error)) return
+    call h5%write_attr("scene", "n_walls", fom%scene%n_walls, error)
+  end subroutine write_scene
+end module cr_fom_output
