@@ -1,0 +1,206 @@
+#!/usr/bin/env python3
+"""Draw a crowdrom full-order-model (FOM) trajectory file: hall, obstacles and agents.
+
+Reads an HDF5 file with root attribute schema = "crowdrom-fom" (see the FOM schema in the
+crowdrom documentation; h5py shows Fortran dimensions reversed) and writes one PNG with one
+panel per selected output step, optionally an animated GIF.
+
+Exit codes: 0 success, 2 missing/unreadable file or wrong schema (message on stderr).
+"""
+import argparse
+import sys
+
+import numpy as np
+
+SCHEMA = "crowdrom-fom"
+
+
+def _fail(msg):
+    print(f"plot_scene: error: {msg}", file=sys.stderr)
+    sys.exit(2)
+
+
+def _text(value):
+    """Attribute value as str (fixed-length strings come back as bytes)."""
+    if isinstance(value, (bytes, np.bytes_)):
+        return value.decode("utf-8", errors="replace")
+    if isinstance(value, np.ndarray) and value.shape == ():
+        return _text(value[()])
+    return str(value)
+
+
+def load(path):
+    """Load scene and trajectory arrays from a FOM file (exit 2 on a bad file)."""
+    import h5py
+
+    try:
+        f = h5py.File(path, "r")
+    except FileNotFoundError:
+        _fail(f"file not found: '{path}'")
+    except OSError as exc:
+        _fail(f"cannot open '{path}' as HDF5: {exc}")
+    with f:
+        if "schema" not in f.attrs or _text(f.attrs["schema"]) != SCHEMA:
+            _fail(f"'{path}' is not a crowdrom FOM file (root attribute schema != '{SCHEMA}')")
+        try:
+            d = {
+                "radius": float(f.attrs["agent_radius"]),
+                "n_agents": int(f.attrs["n_agents"]),
+                "dt": float(f.attrs["dt"]) if "dt" in f.attrs else None,
+                "kind": np.asarray(f["scene/obstacle_kind"][()], dtype=int).ravel(),
+                "oradius": np.asarray(f["scene/obstacle_radius"][()], dtype=float).ravel(),
+                "vstart": np.asarray(f["scene/obstacle_vertex_start"][()], dtype=int).ravel(),
+                "verts": np.asarray(f["scene/obstacle_vertices"][()], dtype=float).reshape(-1, 2),
+                "exit": np.asarray(f["scene/exit_segment"][()], dtype=float).reshape(2, 2),
+                "domain": np.asarray(f["scene/domain"][()], dtype=float).ravel(),
+                "step": np.asarray(f["traj/step"][()], dtype=int).ravel(),
+                "time": np.asarray(f["traj/time"][()], dtype=float).ravel(),
+                "pos": np.asarray(f["traj/positions"][()], dtype=float),
+                "inside": np.asarray(f["traj/inside"][()]).astype(bool),
+            }
+            if "traj/contacts/offset" in f:
+                c = f["traj/contacts"]
+                d["contacts"] = {k: np.asarray(c[k][()]).ravel()
+                                 for k in ("offset", "ia", "ib", "ob", "lambda")}
+        except KeyError as exc:
+            _fail(f"'{path}': missing dataset or attribute in the FOM schema: {exc}")
+    n_out = d["pos"].shape[0]
+    d["pos"] = d["pos"].reshape(n_out, d["n_agents"], 2)
+    d["inside"] = d["inside"].reshape(n_out, d["n_agents"])
+    return d
+
+
+def draw_scene(ax, d):
+    """Obstacles (disk, capsule, convex polygon), exit opening and domain box."""
+    from matplotlib.patches import Circle, Polygon, Rectangle
+
+    xmin, ymin, xmax, ymax = d["domain"]
+    ax.add_patch(Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, fill=False,
+                           edgecolor="0.7", lw=0.5, ls=":"))
+    style = dict(facecolor="0.55", edgecolor="0.25", lw=0.8)
+    for k, kind in enumerate(d["kind"]):
+        v = d["verts"][d["vstart"][k]:d["vstart"][k + 1]]
+        r = d["oradius"][k]
+        if kind == 1:  # disk: centre = first vertex
+            ax.add_patch(Circle(v[0], r, **style))
+        elif kind == 2:  # thick segment (capsule): two endpoints, half-thickness r
+            a, b = v[0], v[1]
+            t = b - a
+            n = np.array([-t[1], t[0]]) / max(np.hypot(*t), 1e-300) * r
+            ax.add_patch(Polygon([a + n, b + n, b - n, a - n], closed=True, **style))
+            ax.add_patch(Circle(a, r, **style))
+            ax.add_patch(Circle(b, r, **style))
+        elif kind == 3:  # convex polygon
+            ax.add_patch(Polygon(v, closed=True, **style))
+    e = d["exit"]
+    ax.plot(e[:, 0], e[:, 1], color="tab:green", lw=3, solid_capstyle="butt", label="exit")
+    pad = 0.02 * max(xmax - xmin, ymax - ymin)
+    ax.set_xlim(xmin - pad, xmax + pad)
+    ax.set_ylim(ymin - pad, ymax + pad)
+    ax.set_aspect("equal")
+
+
+def draw_agents(ax, d, i, show_left=True, contacts=False):
+    """Agents at output index i as disks of the true radius; return the artists."""
+    from matplotlib.collections import LineCollection, PatchCollection
+    from matplotlib.patches import Circle
+
+    artists = []
+    pos, inside = d["pos"][i], d["inside"][i]
+    disks = [Circle(p, d["radius"]) for p in pos[inside]]
+    pc = PatchCollection(disks, facecolor="tab:blue", edgecolor="navy", lw=0.5)
+    artists.append(ax.add_collection(pc))
+    if show_left and (~inside).any():
+        gone = [Circle(p, d["radius"]) for p in pos[~inside]]
+        artists.append(ax.add_collection(
+            PatchCollection(gone, facecolor="tab:blue", edgecolor="none", alpha=0.15)))
+    if contacts and "contacts" in d:
+        c = d["contacts"]
+        lo, hi = int(c["offset"][i]), int(c["offset"][i + 1])
+        ia, ib, lam = c["ia"][lo:hi], c["ib"][lo:hi], c["lambda"][lo:hi]
+        sel = (ib > 0) & (lam > 0)
+        if sel.any():
+            segs = np.stack([pos[ia[sel] - 1], pos[ib[sel] - 1]], axis=1)
+            artists.append(ax.add_collection(LineCollection(segs, colors="tab:red", lw=1.2, zorder=3)))
+    return artists
+
+
+def panel_title(d, i):
+    return f"step {d['step'][i]}  t = {d['time'][i]:.3g}  inside {int(d['inside'][i].sum())}"
+
+
+def pick_steps(d, requested):
+    """Output indices for the requested step numbers (default first, middle, last)."""
+    n_out = len(d["step"])
+    if not requested:
+        return sorted({0, (n_out - 1) // 2, n_out - 1})
+    idx = []
+    for s in requested:
+        hit = np.nonzero(d["step"] == s)[0]
+        if hit.size == 0:
+            _fail(f"step {s} is not in the file (output steps {d['step'][0]}..{d['step'][-1]})")
+        idx.append(int(hit[0]))
+    return idx
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("file", help="crowdrom FOM HDF5 file")
+    p.add_argument("-o", "--output", default=None, help="PNG to write (default: <file>.png)")
+    p.add_argument("--steps", type=int, nargs="+", default=None,
+                   help="simulation step numbers to draw (default: first, middle, last output)")
+    p.add_argument("--contacts", action="store_true",
+                   help="draw active agent-agent contacts (lambda > 0) as lines between centres")
+    p.add_argument("--hide-left", action="store_true", help="omit agents that have left")
+    p.add_argument("--animate", metavar="OUT.gif", default=None,
+                   help="also write an animation of all output steps (needs pillow)")
+    p.add_argument("--fps", type=int, default=10, help="animation frames per second")
+    p.add_argument("--dpi", type=int, default=120)
+    args = p.parse_args(argv)
+
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    d = load(args.file)
+    idx = pick_steps(d, args.steps)
+    out = args.output or (args.file.rsplit(".", 1)[0] + ".png")
+    fig, axes = plt.subplots(1, len(idx), figsize=(4.5 * len(idx), 4.5), squeeze=False)
+    for ax, i in zip(axes[0], idx):
+        draw_scene(ax, d)
+        draw_agents(ax, d, i, show_left=not args.hide_left, contacts=args.contacts)
+        ax.set_title(panel_title(d, i), fontsize=9)
+    fig.tight_layout()
+    fig.savefig(out, dpi=args.dpi)
+    plt.close(fig)
+    print(f"plot_scene: wrote {out}")
+
+    if args.animate:
+        from matplotlib.animation import FuncAnimation, PillowWriter
+        try:
+            import PIL  # noqa: F401
+        except ImportError:
+            print("plot_scene: error: --animate needs pillow (pip install pillow)", file=sys.stderr)
+            return 2
+        fig, ax = plt.subplots(figsize=(5, 5))
+        draw_scene(ax, d)
+        state = {"artists": []}
+
+        def frame(i):
+            for a in state["artists"]:
+                a.remove()
+            state["artists"] = draw_agents(ax, d, i, show_left=not args.hide_left,
+                                           contacts=args.contacts)
+            ax.set_title(panel_title(d, i), fontsize=9)
+            return state["artists"]
+
+        anim = FuncAnimation(fig, frame, frames=len(d["step"]), blit=False)
+        anim.save(args.animate, writer=PillowWriter(fps=args.fps), dpi=args.dpi // 2 or 60)
+        plt.close(fig)
+        print(f"plot_scene: wrote {args.animate}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
