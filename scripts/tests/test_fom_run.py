@@ -1,0 +1,122 @@
+"""Regression: crowd_fom on the tiny scene, read back with h5py (schema, shapes, sparse
+multipliers), summary JSON keys, and final positions against stored reference values."""
+import json
+import os
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+
+ROOT = os.environ.get("CROWDROM_ROOT", os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+BIN = os.environ.get("CROWDROM_BIN", os.path.join(ROOT, "build", "bin"))
+FOM = os.path.join(BIN, "crowd_fom")
+REF = os.path.join(ROOT, "tests", "reference", "tiny_final_positions.txt")
+# tolerance of the stored-reference comparison: the exact solver is deterministic, but
+# Debug and Release builds differ by round-off, amplified through the contacts
+REF_TOL = 1e-8
+
+SUMMARY_KEYS = ["program", "input", "solver", "agents", "steps", "agents_left", "agents_inside",
+                "output_file", "smallest_gap", "largest_kkt_residual", "failed_steps",
+                "iterations_mean", "iterations_max", "resolves", "solver_time_per_step",
+                "time_per_step", "time_total", "placement_iterations"]
+
+
+def strip_groups(text, groups):
+    """Remove namelist groups (e.g. ["time"]) from a namelist text."""
+    out, skip = [], False
+    for line in text.splitlines():
+        t = line.strip().lower()
+        if any(t.startswith("&" + g) for g in groups):
+            skip = True
+        if not skip:
+            out.append(line)
+        if skip and t.endswith("/"):
+            skip = False
+    return "\n".join(out) + "\n"
+
+
+def run_fom(tmp_path, extra="", replace=()):
+    src = open(os.path.join(ROOT, "inputs", "tiny.nml")).read()
+    nml = tmp_path / "tiny.nml"
+    nml.write_text(strip_groups(src, list(replace)) + extra)
+    js = tmp_path / "summary.json"
+    p = subprocess.run([FOM, str(nml), "--summary", str(js)], cwd=tmp_path, capture_output=True, text=True)
+    assert p.returncode == 0, p.stdout + p.stderr
+    return json.loads(js.read_text()), p.stdout
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("tiny")
+    summary, out = run_fom(tmp)
+    return tmp, summary, out
+
+
+def test_summary_keys(tiny):
+    tmp, s, out = tiny
+    for k in SUMMARY_KEYS:
+        assert k in s, k
+    assert s["agents"] == 8 and s["steps"] == 30
+    assert s["failed_steps"] == 0
+    assert s["largest_kkt_residual"] <= 1e-9
+    assert s["smallest_gap"] >= -1e-10 * 0.04
+    assert "summary:" in out and "step 30 of 30" in out
+
+
+def test_hdf5_schema(tiny):
+    tmp, s, _ = tiny
+    with h5py.File(tmp / s["output_file"], "r") as f:
+        assert f.attrs["schema"].decode() == "crowdrom-fom"
+        assert int(f.attrs["schema_version"]) == 1
+        na = int(f.attrs["n_agents"])
+        assert na == 8
+        assert "&agents" in f.attrs["config"].decode()
+        pos = f["traj/positions"][...]
+        assert pos.shape == (31, 16)                      # steps 0..30, (x1, y1, ...)
+        assert f["traj/velocities"].shape == (31, 16)
+        assert f["traj/inside"].shape == (31, 8)
+        assert list(f["traj/step"][...]) == list(range(31))
+        np.testing.assert_allclose(f["traj/time"][...], 0.02 * np.arange(31), rtol=0, atol=1e-15)
+        # explicit scheme: q^nu = q^{nu-1} + h u^nu
+        vel = f["traj/velocities"][...]
+        np.testing.assert_allclose(pos[1:], pos[:-1] + 0.02 * vel[1:], rtol=0, atol=1e-13)
+        off = f["traj/contacts/offset"][...]
+        assert off.shape == (32,) and off[0] == 0 and np.all(np.diff(off) >= 0)
+        lam = f["traj/contacts/lambda"][...]
+        assert lam.shape == (off[-1],) and np.all(lam > 0)
+        ia, ib, ob = (f["traj/contacts/" + k][...] for k in ("ia", "ib", "ob"))
+        assert np.all((ia >= 1) & (ia <= na))
+        assert np.all((ib == 0) == (ob > 0))               # pair xor obstacle
+        assert np.all(ib[ib > 0] > ia[ib > 0])
+        assert f["stats/kkt"].shape == (30,)
+        assert np.all(f["stats/converged"][...] == 1)
+        kinds = f["scene/obstacle_kind"][...]
+        assert list(kinds) == [3, 3, 3, 3, 3, 1]           # 5 walls (polygons) + the disk
+        assert f["scene/obstacle_vertices"].shape[1] == 2
+
+
+def test_reference_positions(tiny):
+    tmp, s, _ = tiny
+    with h5py.File(tmp / s["output_file"], "r") as f:
+        final = f["traj/positions"][-1]
+    if os.environ.get("CROWDROM_WRITE_REFERENCE"):
+        np.savetxt(REF, final.reshape(-1, 2), fmt="%.17e")
+    ref = np.loadtxt(REF).reshape(-1)
+    np.testing.assert_allclose(final, ref, rtol=0, atol=REF_TOL)
+
+
+def test_plot(tiny):
+    tmp, s, _ = tiny
+    png = tmp / "tiny.png"
+    p = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "plot_scene.py"),
+                        str(tmp / s["output_file"]), "-o", str(png)], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert png.stat().st_size > 10000
+
+
+def test_until_empty(tmp_path):
+    s, _ = run_fom(tmp_path, "&time dt = 0.02, until_empty = .true., max_steps = 500 /\n", replace=["time"])
+    assert s["agents_inside"] == 0
+    assert s["steps"] < 500

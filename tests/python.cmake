@@ -1,0 +1,11 @@
+# Python post-processing tests (pytest in the project venv), run by ctest like the rest.
+set(CR_VENV_PY ${CMAKE_SOURCE_DIR}/.venv/bin/python)
+if(EXISTS ${CR_VENV_PY})
+  add_test(NAME pytest_scripts
+    COMMAND ${CR_VENV_PY} -m pytest -q -p no:cacheprovider ${CMAKE_SOURCE_DIR}/scripts/tests
+    WORKING_DIRECTORY ${CMAKE_BINARY_DIR}/tests)
+  set_tests_properties(pytest_scripts PROPERTIES LABELS "regression;python"
+    ENVIRONMENT "${CR_MPI_ENV};CROWDROM_BIN=${CMAKE_BINARY_DIR}/bin;CROWDROM_ROOT=${CMAKE_SOURCE_DIR}")
+else()
+  message(WARNING "no .venv: the Python tests are not registered (run scripts/setup.sh)")
+endif()
