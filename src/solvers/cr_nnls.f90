@@ -412,8 +412,12 @@ contains
   !>   (Bm u - d), the convention of the contact model) are  lambda = s y / den.
   !> u is formed as v - Bm^T lambda, so stationarity holds to rounding.
   !> When infeasible, u is the least-violation point of the regularised problem
-  !> min |sigma|^2 + eps |u - v|^2 s.t. Bm u - d <= sigma (eps = 1e-8 max|Bm|^2: a relative bias of ~1e-8), an
-  !> LDP in (sqrt(eps) (u - v), sigma), always feasible; lambda then holds sigma (the violations).
+  !> min |sigma|^2 + eps |u - v|^2 s.t. Bm u - d <= sigma (eps = 1e-8 max|Bm|^2, a relative
+  !> bias of ~1e-8), an LDP in (sqrt(eps) (u - v), sigma), always feasible; lambda then holds
+  !> sigma (the violations).
+  !> Accuracy: den = 1 / (1 + |x'|^2), and x' carries a relative error ~ eps / den, so when
+  !> den < 1/4 the balance s is multiplied by |x'| and the NNLS solved again (warm started);
+  !> the LDP is declared infeasible only if den is still at rounding level after that.
   recursive subroutine ldp_solve(bm, d, v, u, lambda, stats, error, warm, max_iter, work)
     !> constraint matrix [mc, n]
     real(wp), intent(in) :: bm(:,:)
