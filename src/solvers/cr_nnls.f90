@@ -569,6 +569,17 @@ contains
     end do
     sig = norm2(wk%z(k + 1:m))
     if (sig <= 16.0_wp * real(m, wp) * epsilon(1.0_wp) * anorm) return
+    ! Pivot: move the largest entry of z(k+1:m) to position k+1 by swapping two columns of Q
+    ! (an orthogonal permutation; rows k+1:m of R are zero). With sparse columns this keeps the
+    ! reflector's support equal to that of z, so Q fills in slowly and the update stays cheap.
+    c = k + maxloc(abs(wk%z(k + 1:m)), dim=1)
+    if (c /= k + 1) then
+      s = wk%z(c); wk%z(c) = wk%z(k + 1); wk%z(k + 1) = s
+      s = wk%qtb(c); wk%qtb(c) = wk%qtb(k + 1); wk%qtb(k + 1) = s
+      wk%res(1:m) = wk%q(1:m, c)
+      wk%q(1:m, c) = wk%q(1:m, k + 1)
+      wk%q(1:m, k + 1) = wk%res(1:m)
+    end if
     ! Householder H = I - beta v v^T with H z(k+1:m) = alpha e_1
     alpha = -sign(sig, wk%z(k + 1))
     wk%hv(k + 1:m) = wk%z(k + 1:m)
