@@ -412,8 +412,12 @@ contains
   !>   (Bm u - d), the convention of the contact model) are  lambda = s y / den.
   !> u is formed as v - Bm^T lambda, so stationarity holds to rounding.
   !> When infeasible, u is the least-violation point of the regularised problem
-  !> min |sigma|^2 + eps |u - v|^2 s.t. Bm u - d <= sigma (eps = 1e-8 max|Bm|^2: a relative bias of ~1e-8), an
-  !> LDP in (sqrt(eps) (u - v), sigma), always feasible; lambda then holds sigma (the violations).
+  !> min |sigma|^2 + eps |u - v|^2 s.t. Bm u - d <= sigma (eps = 1e-8 max|Bm|^2, a relative
+  !> bias of ~1e-8), an LDP in (sqrt(eps) (u - v), sigma), always feasible; lambda then holds
+  !> sigma (the violations).
+  !> Accuracy: den = 1 / (1 + |x'|^2), and x' carries a relative error ~ eps / den, so when
+  !> den < 1/4 the balance s is multiplied by |x'| and the NNLS solved again (warm started);
+  !> the LDP is declared infeasible only if den is still at rounding level after that.
   recursive subroutine ldp_solve(bm, d, v, u, lambda, stats, error, warm, max_iter, work)
     !> constraint matrix [mc, n]
     real(wp), intent(in) :: bm(:,:)
@@ -565,6 +569,17 @@ contains
     end do
     sig = norm2(wk%z(k + 1:m))
     if (sig <= 16.0_wp * real(m, wp) * epsilon(1.0_wp) * anorm) return
+    ! Pivot: move the largest entry of z(k+1:m) to position k+1 by swapping two columns of Q
+    ! (an orthogonal permutation; rows k+1:m of R are zero). With sparse columns this keeps the
+    ! reflector's support equal to that of z, so Q fills in slowly and the update stays cheap.
+    c = k + maxloc(abs(wk%z(k + 1:m)), dim=1)
+    if (c /= k + 1) then
+      s = wk%z(c); wk%z(c) = wk%z(k + 1); wk%z(k + 1) = s
+      s = wk%qtb(c); wk%qtb(c) = wk%qtb(k + 1); wk%qtb(k + 1) = s
+      wk%res(1:m) = wk%q(1:m, c)
+      wk%q(1:m, c) = wk%q(1:m, k + 1)
+      wk%q(1:m, k + 1) = wk%res(1:m)
+    end if
     ! Householder H = I - beta v v^T with H z(k+1:m) = alpha e_1
     alpha = -sign(sig, wk%z(k + 1))
     wk%hv(k + 1:m) = wk%z(k + 1:m)
