@@ -6,7 +6,7 @@ program test_config
   use cr_error, only: error_t
   use cr_env, only: env_t
   use cr_assert, only: check, check_close, test_summary
-  use cr_config, only: config_t, read_config
+  use cr_config, only: config_t, read_config, config_echo
   use cr_config_check, only: check_config
   implicit none
   type(env_t) :: env
@@ -35,6 +35,19 @@ program test_config
   call check(cfg%time%dt == 0.05_wp, "absent group keeps defaults")
   call check_config(cfg, error)
   call check(.not. allocated(error), "good file validates")
+  ! the echo is a namelist file that reads back to the same configuration
+  open(newunit=u, file='cfg_echo.nml', status='replace')
+  write(u, '(a)') config_echo(cfg)
+  close(u)
+  block
+    type(config_t) :: again
+    call read_config('cfg_echo.nml', env, again, error)
+    call check(.not. allocated(error), "echo reads back")
+    call check(again%obstacles%poly_x(3, 1) == cfg%obstacles%poly_x(3, 1) .and. &
+      again%obstacles%disk_r(2) == cfg%obstacles%disk_r(2) .and. again%scene%l_exit == cfg%scene%l_exit .and. &
+      again%agents%n_agents == cfg%agents%n_agents .and. trim(again%solver%name) == 'apgd' .and. &
+      again%solver%tol == cfg%solver%tol, "echo round trip is exact")
+  end block
 
   open(newunit=u, file='cfg_bad.nml', status='replace')
   write(u, '(a)') "&agents n_agents = 0, radius = -1 /"

@@ -13,8 +13,12 @@ ROOT = os.environ.get("CROWDROM_ROOT", os.path.dirname(os.path.dirname(os.path.d
 BIN = os.environ.get("CROWDROM_BIN", os.path.join(ROOT, "build", "bin"))
 FOM = os.path.join(BIN, "crowd_fom")
 REF = os.path.join(ROOT, "tests", "reference", "tiny_final_positions.txt")
-# tolerance of the stored-reference comparison: the exact solver is deterministic, but
-# Debug and Release builds differ by round-off, amplified through the contacts
+# Tolerance of the stored-reference comparison. Debug and Release builds give the same
+# trajectory to round-off, but the desired velocity from the grid distance field is only
+# piecewise smooth (its gradient jumps across grid cells), so a round-off change in the
+# solver that moves an agent across a cell edge changes the trajectory by ~1e-3 (observed
+# when the NNLS pivoting changed). Regenerate with CROWDROM_WRITE_REFERENCE=1 only after such
+# a deliberate change, with the physical checks (test_fom_scenes) passing.
 REF_TOL = 1e-8
 
 SUMMARY_KEYS = ["program", "input", "solver", "agents", "steps", "agents_left", "agents_inside",
@@ -120,3 +124,19 @@ def test_until_empty(tmp_path):
     s, _ = run_fom(tmp_path, "&time dt = 0.02, until_empty = .true., max_steps = 500 /\n", replace=["time"])
     assert s["agents_inside"] == 0
     assert s["steps"] < 500
+
+
+def test_init_from_hdf5_reproduces_run(tiny, tmp_path):
+    """Initial positions read back from a previous output (HDF5) give the same trajectory."""
+    tmp, s, _ = tiny
+    h5 = tmp / s["output_file"]
+    src = open(os.path.join(ROOT, "inputs", "tiny.nml")).read()
+    src = src.replace("n_agents = 8, radius = 0.04, speed = 1.0, seed = 3",
+                      "n_agents = 8, radius = 0.04, speed = 1.0, init = 'file', init_file = '%s'" % h5)
+    assert "init = 'file'" in src
+    nml = tmp_path / "again.nml"
+    nml.write_text(src)
+    p = subprocess.run([FOM, str(nml)], cwd=tmp_path, capture_output=True, text=True)
+    assert p.returncode == 0, p.stdout + p.stderr
+    with h5py.File(h5, "r") as a, h5py.File(tmp_path / "tiny_fom.h5", "r") as b:
+        np.testing.assert_array_equal(a["traj/positions"][...], b["traj/positions"][...])

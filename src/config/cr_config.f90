@@ -307,39 +307,91 @@ contains
     c%log_level = log_level
   end subroutine read_output
 
-  !> The effective configuration as namelist text (for logs and HDF5 attributes).
+  !> The effective configuration as a namelist file that crowdrom can read back.
   function config_echo(cfg) result(s)
     type(config_t), intent(in) :: cfg
     character(len=:), allocatable :: s
-    character(len=256) :: b
+    integer :: k
     s = "! effective configuration (source: " // cfg%source // ")" // new_line('a')
-    write(b, '(a, 5(es16.8, 1x))') "&scene hall_length, hall_width, l_exit, exit_center, wall_thickness = ", &
-      cfg%scene%hall_length, cfg%scene%hall_width, cfg%scene%l_exit, cfg%scene%exit_center, &
-      cfg%scene%wall_thickness
-    s = s // trim(b) // " /" // new_line('a')
-    write(b, '(a, i0, a, i0, a, i0)') "&obstacles n_disks = ", cfg%obstacles%n_disks, &
-      ", n_segments = ", cfg%obstacles%n_segments, ", n_polygons = ", cfg%obstacles%n_polygons
-    s = s // trim(b) // " /" // new_line('a')
-    write(b, '(a, i0, a, es16.8, a, es16.8, a, i0)') "&agents n_agents = ", cfg%agents%n_agents, &
-      ", radius = ", cfg%agents%radius, ", speed = ", cfg%agents%speed, ", seed = ", cfg%agents%seed
-    s = s // trim(b) // ", init = '" // trim(cfg%agents%init) // "', init_file = '" // &
-      trim(cfg%agents%init_file) // "', speed_file = '" // trim(cfg%agents%speed_file) // "' /" // new_line('a')
-    s = s // "&desired mode = '" // trim(cfg%desired%mode) // "', field = '" // trim(cfg%desired%field) // &
-      "', file = '" // trim(cfg%desired%file) // "'"
-    write(b, '(a, es16.8)') ", grid_dx = ", cfg%desired%grid_dx
-    s = s // trim(b) // " /" // new_line('a')
-    write(b, '(a, es16.8, a, i0, a, l1, a, i0)') "&time dt = ", cfg%time%dt, ", n_steps = ", &
-      cfg%time%n_steps, ", until_empty = ", cfg%time%until_empty, ", max_steps = ", cfg%time%max_steps
-    s = s // trim(b) // " /" // new_line('a')
-    write(b, '(a, es12.4, a, i0, a, es12.4, a, es12.4, a, i0, a, l1)') ", tol = ", cfg%solver%tol, &
-      ", max_iter = ", cfg%solver%max_iter, ", uzawa_rho_factor = ", cfg%solver%uzawa_rho_factor, &
-      ", uzawa_eps = ", cfg%solver%uzawa_eps, ", uzawa_max_iter = ", cfg%solver%uzawa_max_iter, &
-      ", warm_start = ", cfg%solver%warm_start
-    s = s // "&solver name = '" // trim(cfg%solver%name) // "'" // trim(b) // " /" // new_line('a')
-    write(b, '(a, es16.8)') "&contacts cutoff_factor = ", cfg%contacts%cutoff_factor
-    s = s // trim(b) // " /" // new_line('a')
-    write(b, '(a, i0, a, l1)') ", every = ", cfg%output%every, ", store_multipliers = ", &
-      cfg%output%store_multipliers
-    s = s // "&output file = '" // trim(cfg%output%file) // "'" // trim(b) // " /" // new_line('a')
+    associate (c => cfg%scene)
+      s = s // "&scene hall_length = " // r(c%hall_length) // ", hall_width = " // r(c%hall_width) // &
+        ", l_exit = " // r(c%l_exit) // ", exit_center = " // r(c%exit_center) // &
+        ", wall_thickness = " // r(c%wall_thickness) // " /" // new_line('a')
+    end associate
+    associate (o => cfg%obstacles)
+      s = s // "&obstacles n_disks = " // i(o%n_disks) // ", n_segments = " // i(o%n_segments) // &
+        ", n_polygons = " // i(o%n_polygons)
+      do k = 1, o%n_disks
+        s = s // new_line('a') // "  disk_x(" // i(k) // ") = " // r(o%disk_x(k)) // ", disk_y(" // i(k) // &
+          ") = " // r(o%disk_y(k)) // ", disk_r(" // i(k) // ") = " // r(o%disk_r(k))
+      end do
+      do k = 1, o%n_segments
+        s = s // new_line('a') // "  seg_x1(" // i(k) // ") = " // r(o%seg_x1(k)) // ", seg_y1(" // i(k) // &
+          ") = " // r(o%seg_y1(k)) // ", seg_x2(" // i(k) // ") = " // r(o%seg_x2(k)) // ", seg_y2(" // &
+          i(k) // ") = " // r(o%seg_y2(k)) // ", seg_half_thickness(" // i(k) // ") = " // &
+          r(o%seg_half_thickness(k))
+      end do
+      do k = 1, o%n_polygons
+        s = s // new_line('a') // "  poly_nv(" // i(k) // ") = " // i(o%poly_nv(k)) // ", poly_x(:," // i(k) // &
+          ") = " // rs(o%poly_x(1:o%poly_nv(k), k)) // ", poly_y(:," // i(k) // ") = " // &
+          rs(o%poly_y(1:o%poly_nv(k), k))
+      end do
+      s = s // " /" // new_line('a')
+    end associate
+    associate (a => cfg%agents)
+      s = s // "&agents n_agents = " // i(a%n_agents) // ", radius = " // r(a%radius) // ", speed = " // &
+        r(a%speed) // ", speed_file = '" // trim(a%speed_file) // "', init = '" // trim(a%init) // &
+        "', init_file = '" // trim(a%init_file) // "', region = " // rs(a%region) // ", seed = " // &
+        i(a%seed) // ", placement_max_iter = " // i(a%placement_max_iter) // " /" // new_line('a')
+    end associate
+    associate (d => cfg%desired)
+      s = s // "&desired mode = '" // trim(d%mode) // "', file = '" // trim(d%file) // "', field = '" // &
+        trim(d%field) // "', grid_dx = " // r(d%grid_dx) // " /" // new_line('a')
+    end associate
+    associate (t => cfg%time)
+      s = s // "&time dt = " // r(t%dt) // ", n_steps = " // i(t%n_steps) // ", until_empty = " // &
+        merge(".true. ", ".false.", t%until_empty) // ", max_steps = " // i(t%max_steps) // " /" // new_line('a')
+    end associate
+    associate (v => cfg%solver)
+      s = s // "&solver name = '" // trim(v%name) // "', tol = " // r(v%tol) // ", max_iter = " // &
+        i(v%max_iter) // ", uzawa_rho_factor = " // r(v%uzawa_rho_factor) // ", uzawa_eps = " // &
+        r(v%uzawa_eps) // ", uzawa_max_iter = " // i(v%uzawa_max_iter) // ", warm_start = " // &
+        merge(".true. ", ".false.", v%warm_start) // " /" // new_line('a')
+    end associate
+    s = s // "&contacts cutoff_factor = " // r(cfg%contacts%cutoff_factor) // " /" // new_line('a')
+    associate (o => cfg%output)
+      s = s // "&output file = '" // trim(o%file) // "', every = " // i(o%every) // ", store_multipliers = " // &
+        merge(".true. ", ".false.", o%store_multipliers) // ", log_level = '" // trim(o%log_level) // "' /" // &
+        new_line('a')
+    end associate
+
+  contains
+
+    function r(x) result(t)
+      real(wp), intent(in) :: x
+      character(len=:), allocatable :: t
+      character(len=32) :: b
+      write(b, '(es23.16)') x
+      t = trim(adjustl(b))
+    end function r
+
+    function rs(x) result(t)
+      real(wp), intent(in) :: x(:)
+      character(len=:), allocatable :: t
+      integer :: m
+      t = ""
+      do m = 1, size(x)
+        if (m > 1) t = t // ", "
+        t = t // r(x(m))
+      end do
+    end function rs
+
+    function i(n) result(t)
+      integer, intent(in) :: n
+      character(len=:), allocatable :: t
+      character(len=16) :: b
+      write(b, '(i0)') n
+      t = trim(b)
+    end function i
   end function config_echo
 end module cr_config

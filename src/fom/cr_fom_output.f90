@@ -132,22 +132,39 @@ contains
     class(fom_writer_t), intent(inout) :: this
     type(step_record_t), intent(in) :: recs(:)
     type(error_t), allocatable, intent(out) :: error
+    integer, allocatable :: iv(:)
+    real(wp), allocatable :: rv(:)
     call this%h5%make_group("stats", error); if (allocated(error)) goto 9
-    call this%h5%write("stats/step", recs%step, error); if (allocated(error)) goto 9
-    call this%h5%write("stats/iterations", recs%iterations, error); if (allocated(error)) goto 9
-    call this%h5%write("stats/converged", merge(1, 0, recs%converged), error); if (allocated(error)) goto 9
-    call this%h5%write("stats/kkt", recs%kkt, error); if (allocated(error)) goto 9
-    call this%h5%write("stats/kkt_primal", recs%primal, error); if (allocated(error)) goto 9
-    call this%h5%write("stats/kkt_dual", recs%dual, error); if (allocated(error)) goto 9
-    call this%h5%write("stats/kkt_complementarity", recs%compl, error); if (allocated(error)) goto 9
-    call this%h5%write("stats/kkt_stationarity", recs%stat, error); if (allocated(error)) goto 9
-    call this%h5%write("stats/n_rows", recs%n_rows, error); if (allocated(error)) goto 9
-    call this%h5%write("stats/n_active", recs%n_active, error); if (allocated(error)) goto 9
-    call this%h5%write("stats/resolves", recs%resolves, error); if (allocated(error)) goto 9
-    call this%h5%write("stats/n_inside", recs%n_inside, error); if (allocated(error)) goto 9
-    call this%h5%write("stats/min_gap", recs%min_gap, error); if (allocated(error)) goto 9
-    call this%h5%write("stats/time_solve", recs%t_solve, error); if (allocated(error)) goto 9
-    call this%h5%write("stats/time_step", recs%t_step, error); if (allocated(error)) goto 9
+    iv = recs%step
+    call this%h5%write("stats/step", iv, error); if (allocated(error)) goto 9
+    iv = recs%iterations
+    call this%h5%write("stats/iterations", iv, error); if (allocated(error)) goto 9
+    iv = merge(1, 0, recs%converged)
+    call this%h5%write("stats/converged", iv, error); if (allocated(error)) goto 9
+    rv = recs%kkt
+    call this%h5%write("stats/kkt", rv, error); if (allocated(error)) goto 9
+    rv = recs%primal
+    call this%h5%write("stats/kkt_primal", rv, error); if (allocated(error)) goto 9
+    rv = recs%dual
+    call this%h5%write("stats/kkt_dual", rv, error); if (allocated(error)) goto 9
+    rv = recs%compl
+    call this%h5%write("stats/kkt_complementarity", rv, error); if (allocated(error)) goto 9
+    rv = recs%stat
+    call this%h5%write("stats/kkt_stationarity", rv, error); if (allocated(error)) goto 9
+    iv = recs%n_rows
+    call this%h5%write("stats/n_rows", iv, error); if (allocated(error)) goto 9
+    iv = recs%n_active
+    call this%h5%write("stats/n_active", iv, error); if (allocated(error)) goto 9
+    iv = recs%resolves
+    call this%h5%write("stats/resolves", iv, error); if (allocated(error)) goto 9
+    iv = recs%n_inside
+    call this%h5%write("stats/n_inside", iv, error); if (allocated(error)) goto 9
+    rv = recs%min_gap
+    call this%h5%write("stats/min_gap", rv, error); if (allocated(error)) goto 9
+    rv = recs%t_solve
+    call this%h5%write("stats/time_solve", rv, error); if (allocated(error)) goto 9
+    rv = recs%t_step
+    call this%h5%write("stats/time_step", rv, error); if (allocated(error)) goto 9
     call this%h5%commit(error)
 9   if (allocated(error)) then
       call prefix_error(error, "output")

@@ -13,13 +13,14 @@ module cr_placement
   use cr_config, only: agents_cfg_t
   use cr_scene, only: scene_t
   use cr_random, only: rng_t
+  use cr_h5file, only: h5file_t
   use cr_contact_set, only: contact_set_t
   use cr_neighbours, only: cell_list_t, build_contacts
   use cr_projection, only: projection_solver_t, projection_settings_t, solve_stats_t, &
     make_projection_solver
   implicit none
   private
-  public :: place_agents, read_positions_text, check_feasible
+  public :: place_agents, read_positions_text, read_positions_h5, check_feasible
 
 contains
 
@@ -35,7 +36,11 @@ contains
     integer :: i
     iterations = 0
     if (cfg%init == 'file') then
-      call read_positions_text(trim(cfg%init_file), cfg%n_agents, q, error)
+      if (is_hdf5_name(trim(cfg%init_file))) then
+        call read_positions_h5(trim(cfg%init_file), cfg%n_agents, q, error)
+      else
+        call read_positions_text(trim(cfg%init_file), cfg%n_agents, q, error)
+      end if
       if (allocated(error)) return
       call check_feasible(scene, q, cfg%radius, "&agents: init_file '" // trim(cfg%init_file) // "'", error)
       return
@@ -128,6 +133,51 @@ contains
     if (any(q /= q) .or. any(abs(q) > huge(1.0_wp) / 4)) &
       call set_error(error, "&agents: init_file: '" // path // "' has a non-finite value", 2)
   end subroutine read_positions_text
+
+  logical function is_hdf5_name(path)
+    character(len=*), intent(in) :: path
+    integer :: n
+    n = len(path)
+    is_hdf5_name = .false.
+    if (n > 3) is_hdf5_name = path(n-2:n) == '.h5'
+    if (n > 5) is_hdf5_name = is_hdf5_name .or. path(n-4:n) == '.hdf5'
+  end function is_hdf5_name
+
+  !> Read q [2n] from an HDF5 file: dataset 'positions' [2n] (x1, y1, x2, ...) or, in a
+  !> crowdrom full-order output, 'agents/initial_positions'.
+  subroutine read_positions_h5(path, n, q, error)
+    character(len=*), intent(in) :: path
+    integer, intent(in) :: n
+    real(wp), allocatable, intent(out) :: q(:)
+    type(error_t), allocatable, intent(out) :: error
+    type(h5file_t) :: h5
+    type(error_t), allocatable :: e2
+    character(len=:), allocatable :: name
+    call h5%open(path, error)
+    if (allocated(error)) then
+      error%message = "&agents: init_file: " // error%message; error%code = 2; return
+    end if
+    if (h5%exists("positions")) then
+      name = "positions"
+    else if (h5%exists("agents/initial_positions")) then
+      name = "agents/initial_positions"
+    else
+      call set_error(error, "&agents: init_file: '" // path // &
+        "' has neither a dataset 'positions' nor 'agents/initial_positions'", 2)
+      call h5%close(e2); return
+    end if
+    call h5%read(name, q, error)
+    call h5%close(e2)
+    if (allocated(error)) then
+      error%message = "&agents: init_file: " // error%message; error%code = 2; return
+    end if
+    if (size(q) /= 2 * n) then
+      call set_error(error, "&agents: init_file: '" // path // "' dataset '" // name // "' has " // &
+        str(size(q)) // " values, expected 2 * n_agents = " // str(2 * n), 2); return
+    end if
+    if (any(q /= q) .or. any(abs(q) > huge(1.0_wp) / 4)) &
+      call set_error(error, "&agents: init_file: '" // path // "' has a non-finite value", 2)
+  end subroutine read_positions_h5
 
   !> Error if two agents coincide or overlap, or an agent overlaps an obstacle, at q.
   subroutine check_feasible(scene, q, radius, where, error)
