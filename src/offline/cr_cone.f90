@@ -1,0 +1,454 @@
+!> The reduced cone of the multipliers (the paper's section 3.1.2): greedy index selection
+!> (gIS, Algorithm 2) and the modified cone projected greedy (mCPG, Algorithm 1), distributed
+!> over the ranks that hold the multiplier snapshots.
+!>
+!> Snapshots are sparse vectors of R^{n_dict} (n_dict = size of the global contact
+!> dictionary), stored per rank as compressed columns (sparse_columns_t) of a contiguous block
+!> of global snapshot columns. Every selection is a global reduction with a deterministic
+!> tie-break (largest value, then lowest global column), so the result does not depend on
+!> the number of ranks.
+module cr_cone
+  use mpi_f08
+  use cr_kinds, only: wp, i8
+  use cr_error, only: error_t, set_error, prefix_error
+  use cr_strings, only: str
+  use cr_env, only: env_t
+  use cr_nnls, only: nnls_solve, nnls_stats_t, ldp_solve, ldp_stats_t, nnls_work_t
+  implicit none
+  private
+  public :: sparse_columns_t, cone_result_t, gis_build, mcpg_build, cone_project_gram
+
+  !> Local block of sparse snapshot columns.
+  type :: sparse_columns_t
+    !> dimension of each column (size of the contact dictionary)
+    integer :: n_rows = 0
+    !> number of local columns and global index of the first one minus 1
+    integer :: n_cols = 0
+    integer(i8) :: col_offset = 0
+    !> column pointers, 0-based offsets into idx/val [n_cols + 1]
+    integer(i8), allocatable :: ptr(:)
+    !> 1-based row indices and values of the non-zeros [nnz]
+    integer, allocatable :: idx(:)
+    real(wp), allocatable :: val(:)
+  end type sparse_columns_t
+
+  !> Result of a cone construction.
+  type :: cone_result_t
+    character(len=8) :: method = ''
+    !> number of cone vectors R
+    integer :: r = 0
+    !> gIS: selected dictionary indices i_1..i_R (psi_r = e_{i_r}) [R]
+    integer, allocatable :: indices(:)
+    !> mCPG: cone vectors psi_1..psi_R [n_dict, R]
+    real(wp), allocatable :: psi(:,:)
+    !> global snapshot column selected at each iteration [R]
+    integer(i8), allocatable :: sigma(:)
+    !> maximum relative projection error e_r after r vectors, r = 0..R [R + 1]
+    real(wp), allocatable :: err_max(:)
+    !> mean relative projection error over the snapshots, r = 0..R [R + 1]
+    real(wp), allocatable :: err_mean(:)
+    !> wall time of the construction (s)
+    real(wp) :: time = 0
+    character(len=:), allocatable :: note
+  end type cone_result_t
+
+contains
+
+  ! ------------------------------------------------------------------ helpers
+
+  !> Global argmax of `val` over the local columns; ties go to the lowest global column.
+  subroutine global_argmax(env, lam, val, vmax, gcol, error)
+    type(env_t), intent(in) :: env
+    type(sparse_columns_t), intent(in) :: lam
+    real(wp), intent(in) :: val(:)
+    real(wp), intent(out) :: vmax
+    integer(i8), intent(out) :: gcol
+    type(error_t), allocatable, intent(out) :: error
+    real(wp) :: pair(2), res(2)
+    integer :: k, ierr
+    pair = [-huge(1.0_wp), huge(1.0_wp)]
+    if (lam%n_cols > 0) then
+      k = maxloc(val(1:lam%n_cols), dim=1)
+      pair = [val(k), real(lam%col_offset + k, wp)]
+    end if
+    call MPI_Allreduce(pair, res, 1, MPI_2DOUBLE_PRECISION, MPI_MAXLOC, env%comm, ierr)
+    if (ierr /= MPI_SUCCESS) then
+      call set_error(error, "cone: MPI_Allreduce(MAXLOC) failed"); return
+    end if
+    vmax = res(1)
+    gcol = nint(res(2), i8)
+  end subroutine global_argmax
+
+  !> The dense copy [n_rows] of global column `gcol`, on every rank.
+  subroutine fetch_column(env, lam, gcol, x, error)
+    type(env_t), intent(in) :: env
+    type(sparse_columns_t), intent(in) :: lam
+    integer(i8), intent(in) :: gcol
+    real(wp), intent(out) :: x(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer :: owner, mine, ierr, k
+    integer(i8) :: p
+    mine = 0
+    if (gcol > lam%col_offset .and. gcol <= lam%col_offset + lam%n_cols) mine = env%rank
+    call MPI_Allreduce(mine, owner, 1, MPI_INTEGER, MPI_MAX, env%comm, ierr)
+    x = 0
+    if (env%rank == owner) then
+      k = int(gcol - lam%col_offset)
+      do p = lam%ptr(k) + 1, lam%ptr(k + 1)
+        x(lam%idx(p)) = lam%val(p)
+      end do
+    end if
+    call MPI_Bcast(x, size(x), MPI_DOUBLE_PRECISION, owner, env%comm, ierr)
+    if (ierr /= MPI_SUCCESS) call set_error(error, "cone: MPI_Bcast of a snapshot failed")
+  end subroutine fetch_column
+
+  !> Squared norms of the local columns [n_cols].
+  subroutine column_norms2(lam, nrm2)
+    type(sparse_columns_t), intent(in) :: lam
+    real(wp), intent(out) :: nrm2(:)
+    integer :: k
+    do k = 1, lam%n_cols
+      nrm2(k) = sum(lam%val(lam%ptr(k) + 1:lam%ptr(k + 1))**2)
+    end do
+  end subroutine column_norms2
+
+  subroutine check_columns(lam, error)
+    type(sparse_columns_t), intent(in) :: lam
+    type(error_t), allocatable, intent(out) :: error
+    if (lam%n_cols < 0 .or. lam%n_rows < 0) then
+      call set_error(error, "cone: negative sizes"); return
+    end if
+    if (.not. allocated(lam%ptr)) then
+      call set_error(error, "cone: snapshot columns not set"); return
+    end if
+    if (size(lam%ptr) /= lam%n_cols + 1) then
+      call set_error(error, "cone: ptr has " // str(size(lam%ptr)) // " entries, expected n_cols + 1 = " // &
+        str(lam%n_cols + 1)); return
+    end if
+    if (lam%n_cols > 0) then
+      if (any(lam%idx(1:lam%ptr(lam%n_cols + 1)) < 1) .or. any(lam%idx(1:lam%ptr(lam%n_cols + 1)) > lam%n_rows)) then
+        call set_error(error, "cone: a row index is outside 1.." // str(lam%n_rows)); return
+      end if
+    end if
+  end subroutine check_columns
+
+  ! ------------------------------------------------------------------ gIS
+
+  !> Greedy index selection (Algorithm 2): psi_r = e_{i_r}, i_r the largest coordinate of
+  !> the worst-approximated snapshot not yet selected. The projection onto the cone of
+  !> selected canonical vectors keeps the selected coordinates (they are >= 0), so the
+  !> squared residual of each snapshot is updated by subtracting the new coordinate squared.
+  !> Stops when e_r <= delta, r = r_max, or the worst snapshot has no uncovered coordinate.
+  subroutine gis_build(env, lam, delta, r_max, res, error)
+    type(env_t), intent(in) :: env
+    type(sparse_columns_t), intent(in) :: lam
+    real(wp), intent(in) :: delta
+    integer, intent(in) :: r_max
+    type(cone_result_t), intent(out) :: res
+    type(error_t), allocatable, intent(out) :: error
+    real(wp), allocatable :: res2(:), col(:), tmp_err(:), tmp_mean(:)
+    integer, allocatable :: sel(:), tptr(:), tcol(:)
+    integer(i8), allocatable :: sig(:)
+    logical, allocatable :: chosen(:)
+    real(wp), allocatable :: tval(:)
+    real(wp) :: n1, worst, t0, best
+    integer(i8) :: gcol
+    integer :: r, i, k, nnz, p
+    t0 = env%wtime()
+    res%method = 'gis'
+    call check_columns(lam, error); if (allocated(error)) return
+    if (delta < 0 .or. r_max < 0) then
+      call set_error(error, "gis: delta must be >= 0 and r_max >= 0", 2); return
+    end if
+    allocate(res2(max(lam%n_cols, 1)), col(max(lam%n_rows, 1)), chosen(max(lam%n_rows, 1)))
+    allocate(sel(r_max), sig(r_max), tmp_err(r_max + 1), tmp_mean(r_max + 1))
+    chosen = .false.
+    call column_norms2(lam, res2)
+    ! transposed structure: for each dictionary index, its (local column, value) pairs
+    nnz = 0
+    if (lam%n_cols > 0) nnz = int(lam%ptr(lam%n_cols + 1))
+    allocate(tptr(lam%n_rows + 1), tcol(max(nnz, 1)), tval(max(nnz, 1)))
+    tptr = 0
+    do k = 1, nnz
+      tptr(lam%idx(k) + 1) = tptr(lam%idx(k) + 1) + 1
+    end do
+    do i = 1, lam%n_rows
+      tptr(i + 1) = tptr(i + 1) + tptr(i)
+    end do
+    block
+      integer, allocatable :: fill(:)
+      allocate(fill(lam%n_rows))
+      fill = tptr(1:lam%n_rows)
+      do k = 1, lam%n_cols
+        do p = int(lam%ptr(k)) + 1, int(lam%ptr(k + 1))
+          i = lam%idx(p)
+          fill(i) = fill(i) + 1
+          tcol(fill(i)) = k; tval(fill(i)) = lam%val(p)
+        end do
+      end do
+    end block
+    ! sigma_1 = argmax |lambda(sigma)|
+    call global_argmax(env, lam, res2, worst, gcol, error); if (allocated(error)) return
+    n1 = sqrt(max(worst, 0.0_wp))
+    r = 0
+    if (.not. (n1 > 0)) then
+      res%note = "empty cone: no contact is ever active in the snapshots (all multipliers are zero)"
+      call finish(); return
+    end if
+    tmp_err(1) = 1.0_wp
+    tmp_mean(1) = mean_rel()
+    do while (r < r_max)
+      if (sqrt(max(worst, 0.0_wp)) / n1 <= delta .and. r > 0) exit
+      call fetch_column(env, lam, gcol, col, error); if (allocated(error)) return
+      ! largest coordinate not yet selected (ties: lowest index)
+      best = 0; i = 0
+      do k = 1, lam%n_rows
+        if (.not. chosen(k) .and. col(k) > best) then
+          best = col(k); i = k
+        end if
+      end do
+      if (i == 0) then
+        res%note = "the worst-approximated snapshot has no uncovered positive coordinate"
+        exit
+      end if
+      r = r + 1
+      sel(r) = i; sig(r) = gcol; chosen(i) = .true.
+      do p = tptr(i) + 1, tptr(i + 1)
+        res2(tcol(p)) = max(res2(tcol(p)) - tval(p)**2, 0.0_wp)
+      end do
+      call global_argmax(env, lam, res2, worst, gcol, error); if (allocated(error)) return
+      tmp_err(r + 1) = sqrt(max(worst, 0.0_wp)) / n1
+      tmp_mean(r + 1) = mean_rel()
+    end do
+    call finish()
+
+  contains
+
+    real(wp) function mean_rel()
+      real(wp) :: s(2)
+      integer :: ierr
+      s(1) = sum(sqrt(max(res2(1:lam%n_cols), 0.0_wp))) / n1
+      s(2) = lam%n_cols
+      call MPI_Allreduce(MPI_IN_PLACE, s, 2, MPI_DOUBLE_PRECISION, MPI_SUM, env%comm, ierr)
+      mean_rel = s(1) / max(s(2), 1.0_wp)
+    end function mean_rel
+
+    subroutine finish()
+      res%r = r
+      res%indices = sel(1:r)
+      res%sigma = sig(1:r)
+      if (n1 > 0) then
+        res%err_max = tmp_err(1:r + 1)
+        res%err_mean = tmp_mean(1:r + 1)
+      else
+        res%err_max = [0.0_wp]
+        res%err_mean = [0.0_wp]
+      end if
+      res%time = env%wtime() - t0
+    end subroutine finish
+  end subroutine gis_build
+
+  ! ------------------------------------------------------------------ mCPG
+
+  !> Projection onto cone(psi_1..psi_r) in Gram form: k = argmin_{k >= 0} |x - Psi k|^2,
+  !> given G = Psi^T Psi [r, r], the upper Cholesky factor rg of G + eps I (eps = 1e-12 times
+  !> the largest diagonal of G: cone generators may be linearly dependent, e.g. psi_1 =
+  !> (psi_2 + psi_3) / sqrt(2) while the cone still grows), c = Psi^T x and |x|^2.
+  !> Returns k [r] and the squared residual |x - Psi k|^2 (from the unregularised G).
+  subroutine cone_project_gram(rg, g, c, x2, k, res2, error, passive0, work)
+    real(wp), intent(in) :: rg(:,:), g(:,:)
+    real(wp), intent(in) :: c(:)
+    real(wp), intent(in) :: x2
+    real(wp), intent(out) :: k(:)
+    real(wp), intent(out) :: res2
+    type(error_t), allocatable, intent(out) :: error
+    logical, intent(in), optional :: passive0(:)
+    type(nnls_work_t), intent(inout), optional :: work
+    real(wp), allocatable :: b(:)
+    type(nnls_stats_t) :: st
+    integer :: r, i
+    r = size(c)
+    ! |x - Psi k|^2 + eps |k|^2 = |R k - R^{-T} c|^2 + const
+    allocate(b(r))
+    do i = 1, r
+      b(i) = (c(i) - dot_product(rg(1:i-1, i), b(1:i-1))) / rg(i, i)
+    end do
+    call nnls_solve(rg, b, k, st, error, passive0=passive0, work=work)
+    if (allocated(error)) return
+    res2 = max(x2 - 2 * dot_product(k, c) + dot_product(k, matmul(g, k)), 0.0_wp)
+  end subroutine cone_project_gram
+
+  !> Modified cone projected greedy (Algorithm 1). psi_r is the normalised residual of the
+  !> worst-approximated snapshot after its projection onto the current cone subject to the
+  !> residual staying non-negative (a least-squares problem with inequality constraints,
+  !> reduced to least-distance programming and solved by our LDP/NNLS). All other
+  !> projections are cone projections in Gram form (nnls), warm started from the previous
+  !> iteration's support.
+  subroutine mcpg_build(env, lam, delta, r_max, res, error)
+    type(env_t), intent(in) :: env
+    type(sparse_columns_t), intent(in) :: lam
+    real(wp), intent(in) :: delta
+    integer, intent(in) :: r_max
+    type(cone_result_t), intent(out) :: res
+    type(error_t), allocatable, intent(out) :: error
+    real(wp), allocatable :: x2(:), res2(:), c(:,:), kk(:,:), col(:), psi(:,:), rg(:,:), gm(:,:)
+    real(wp), allocatable :: tmp_err(:), tmp_mean(:), resid(:)
+    integer(i8), allocatable :: sig(:)
+    logical, allocatable :: used(:)
+    type(nnls_work_t) :: work
+    real(wp) :: n1, worst, t0, nrm
+    integer(i8) :: gcol
+    integer :: r, k, p, j
+    t0 = env%wtime()
+    res%method = 'mcpg'
+    call check_columns(lam, error); if (allocated(error)) return
+    if (delta < 0 .or. r_max < 0) then
+      call set_error(error, "mcpg: delta must be >= 0 and r_max >= 0", 2); return
+    end if
+    allocate(x2(max(lam%n_cols, 1)), res2(max(lam%n_cols, 1)), used(max(lam%n_cols, 1)))
+    allocate(c(max(r_max, 1), max(lam%n_cols, 1)), kk(max(r_max, 1), max(lam%n_cols, 1)))
+    allocate(col(max(lam%n_rows, 1)), resid(max(lam%n_rows, 1)), psi(max(lam%n_rows, 1), max(r_max, 1)))
+    allocate(rg(max(r_max, 1), max(r_max, 1)), gm(max(r_max, 1), max(r_max, 1)), sig(r_max))
+    allocate(tmp_err(r_max + 1), tmp_mean(r_max + 1))
+    used = .false.; kk = 0; rg = 0; gm = 0
+    call column_norms2(lam, x2)
+    res2 = x2
+    call global_argmax(env, lam, res2, worst, gcol, error); if (allocated(error)) return
+    n1 = sqrt(max(worst, 0.0_wp))
+    r = 0
+    if (.not. (n1 > 0)) then
+      res%note = "empty cone: no contact is ever active in the snapshots (all multipliers are zero)"
+      call finish(); return
+    end if
+    tmp_err(1) = 1.0_wp
+    tmp_mean(1) = mean_rel()
+    do while (r < r_max)
+      if (r > 0 .and. sqrt(max(worst, 0.0_wp)) / n1 <= delta) exit
+      call fetch_column(env, lam, gcol, col, error); if (allocated(error)) return
+      call mark_used(gcol)
+      ! gamma = Psi k*, k* = argmin |col - Psi k| s.t. k >= 0, col - Psi k >= 0
+      call lsi_residual(col, resid, error); if (allocated(error)) return
+      nrm = norm2(resid(1:lam%n_rows))
+      if (.not. (nrm > 1.0e-14_wp * n1)) then
+        res%note = "the worst-approximated snapshot already lies in the cone"
+        exit
+      end if
+      r = r + 1
+      psi(1:lam%n_rows, r) = resid(1:lam%n_rows) / nrm
+      sig(r) = gcol
+      ! Gram matrix and Cholesky column r of G + eps I (the psi are unit vectors: eps = 1e-12)
+      do j = 1, r
+        gm(j, r) = dot_product(psi(1:lam%n_rows, j), psi(1:lam%n_rows, r))
+        gm(r, j) = gm(j, r)
+      end do
+      rg(1:r, r) = gm(1:r, r)
+      rg(r, r) = rg(r, r) + 1.0e-12_wp
+      do j = 1, r - 1
+        rg(j, r) = (rg(j, r) - dot_product(rg(1:j-1, j), rg(1:j-1, r))) / rg(j, j)
+      end do
+      rg(r, r) = sqrt(max(rg(r, r) - sum(rg(1:r-1, r)**2), 1.0e-12_wp))
+      ! project every local snapshot onto the new cone
+      do k = 1, lam%n_cols
+        c(r, k) = 0
+        do p = int(lam%ptr(k)) + 1, int(lam%ptr(k + 1))
+          c(r, k) = c(r, k) + psi(lam%idx(p), r) * lam%val(p)
+        end do
+        call cone_project_gram(rg(1:r, 1:r), gm(1:r, 1:r), c(1:r, k), x2(k), kk(1:r, k), res2(k), error, &
+          passive0=kk(1:r, k) > 0, work=work)
+        if (allocated(error)) then
+          call prefix_error(error, "mcpg: projection of snapshot " // str(lam%col_offset + k)); return
+        end if
+      end do
+      ! selected snapshots are excluded from the next selection (line 12)
+      call global_argmax(env, lam, merge(-1.0_wp, res2(1:max(lam%n_cols, 1)), used(1:max(lam%n_cols, 1))), &
+        worst, gcol, error); if (allocated(error)) return
+      worst = max(worst, 0.0_wp)
+      tmp_err(r + 1) = sqrt(worst) / n1
+      tmp_mean(r + 1) = mean_rel()
+    end do
+    call finish()
+
+  contains
+
+    subroutine mark_used(g)
+      integer(i8), intent(in) :: g
+      if (g > lam%col_offset .and. g <= lam%col_offset + lam%n_cols) used(int(g - lam%col_offset)) = .true.
+    end subroutine mark_used
+
+    !> resid = x - Psi k*,  k* = argmin |x - Psi k|, k >= 0, Psi k <= x   (LSI -> LDP)
+    subroutine lsi_residual(x, resid, error)
+      real(wp), intent(in) :: x(:)
+      real(wp), intent(out) :: resid(:)
+      type(error_t), allocatable, intent(out) :: error
+      ! Regularised (eps |k|^2, eps = 1e-12, as in the Gram projections) so that dependent
+      ! generators are allowed: [Psi; sqrt(eps) I] = [Q; Q2] R with R = rg, Q = Psi R^{-1}.
+      ! With z = R k - Q^T x:
+      ! min |z|^2 s.t. k = R^{-1}(z + Q^T x) >= 0 and Psi k <= x, an LDP in z:
+      !   -R^{-1} z <= R^{-1} Q^T x          (k >= 0)
+      !   Q z <= x - Q Q^T x                 (Psi k = Q (z + Q^T x) <= x)
+      real(wp), allocatable :: q(:,:), qtx(:), rinv(:,:), bm(:,:), d(:), z(:), lz(:), v0(:), kvec(:)
+      type(ldp_stats_t) :: st
+      integer :: n, i, jj
+      n = lam%n_rows
+      if (r == 0) then
+        resid(1:n) = x(1:n); return
+      end if
+      allocate(q(n, r), qtx(r), rinv(r, r), bm(r + n, r), d(r + n), z(r), lz(r + n), v0(r), kvec(r))
+      ! Q = Psi R^{-1}  (R upper triangular: column j of Q solves R^T)
+      do jj = 1, r
+        q(:, jj) = psi(1:n, jj)
+        do i = 1, jj - 1
+          q(:, jj) = q(:, jj) - rg(i, jj) * q(:, i)
+        end do
+        q(:, jj) = q(:, jj) / rg(jj, jj)
+      end do
+      qtx = matmul(x(1:n), q)
+      ! R^{-1}
+      rinv = 0
+      do jj = 1, r
+        rinv(jj, jj) = 1 / rg(jj, jj)
+        do i = jj - 1, 1, -1
+          rinv(i, jj) = -dot_product(rg(i, i+1:jj), rinv(i+1:jj, jj)) / rg(i, i)
+        end do
+      end do
+      bm(1:r, :) = -rinv
+      d(1:r) = matmul(rinv, qtx)
+      bm(r+1:r+n, :) = q
+      d(r+1:r+n) = x(1:n) - matmul(q, qtx)
+      v0 = 0; lz = 0
+      call ldp_solve(bm, d, v0, z, lz, st, error)
+      if (allocated(error)) return
+      kvec = matmul(rinv, z + qtx)
+      kvec = max(kvec, 0.0_wp)
+      resid(1:n) = x(1:n) - matmul(psi(1:n, 1:r), kvec)
+      resid(1:n) = max(resid(1:n), 0.0_wp)
+    end subroutine lsi_residual
+
+    real(wp) function mean_rel()
+      real(wp) :: s(2)
+      integer :: ierr, kk2
+      s = 0
+      do kk2 = 1, lam%n_cols
+        s(1) = s(1) + sqrt(max(res2(kk2), 0.0_wp))
+      end do
+      s(1) = s(1) / n1
+      s(2) = lam%n_cols
+      call MPI_Allreduce(MPI_IN_PLACE, s, 2, MPI_DOUBLE_PRECISION, MPI_SUM, env%comm, ierr)
+      mean_rel = s(1) / max(s(2), 1.0_wp)
+    end function mean_rel
+
+    subroutine finish()
+      res%r = r
+      res%psi = psi(1:lam%n_rows, 1:r)
+      res%sigma = sig(1:r)
+      if (n1 > 0) then
+        res%err_max = tmp_err(1:r + 1)
+        res%err_mean = tmp_mean(1:r + 1)
+      else
+        res%err_max = [0.0_wp]
+        res%err_mean = [0.0_wp]
+      end if
+      res%time = env%wtime() - t0
+    end subroutine finish
+  end subroutine mcpg_build
+end module cr_cone

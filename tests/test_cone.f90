@@ -1,0 +1,125 @@
+!> gIS and mCPG on hand-made sparse multiplier snapshots with known answers, distributed
+!> over 1, 2 or 4 ranks (contiguous column blocks): the result must not depend on the
+!> number of ranks.
+program test_cone
+  use mpi_f08
+  use cr_kinds, only: wp, i8
+  use cr_error, only: error_t
+  use cr_env, only: env_t
+  use cr_assert, only: check, check_close, test_summary
+  use cr_cone, only: sparse_columns_t, cone_result_t, gis_build, mcpg_build
+  implicit none
+  type(env_t) :: env
+  type(error_t), allocatable :: error
+  integer :: ierr
+  call MPI_Init(ierr)
+  call env%init(MPI_COMM_WORLD, error)
+  call test_gis_canonical()
+  call test_gis_known()
+  call test_mcpg_generators()
+  call test_empty()
+  call env%free()
+  call MPI_Finalize(ierr)
+  call test_summary(env%rank)
+
+contains
+
+  !> Distribute the dense columns x [n, m] by contiguous blocks.
+  subroutine distribute(x, lam)
+    real(wp), intent(in) :: x(:,:)
+    type(sparse_columns_t), intent(out) :: lam
+    integer :: m, per, rem, c0, nc, k, i, nnz
+    m = size(x, 2)
+    per = m / env%size; rem = mod(m, env%size)
+    nc = per; if (env%rank < rem) nc = nc + 1
+    c0 = env%rank * per + min(env%rank, rem)
+    lam%n_rows = size(x, 1); lam%n_cols = nc; lam%col_offset = c0
+    allocate(lam%ptr(nc + 1))
+    nnz = count(x(:, c0 + 1:c0 + nc) /= 0)
+    allocate(lam%idx(nnz), lam%val(nnz))
+    lam%ptr(1) = 0; nnz = 0
+    do k = 1, nc
+      do i = 1, size(x, 1)
+        if (x(i, c0 + k) /= 0) then
+          nnz = nnz + 1; lam%idx(nnz) = i; lam%val(nnz) = x(i, c0 + k)
+        end if
+      end do
+      lam%ptr(k + 1) = nnz
+    end do
+  end subroutine distribute
+
+  !> Scaled canonical vectors: gIS picks them by decreasing magnitude, error 0 at the end.
+  subroutine test_gis_canonical()
+    real(wp) :: x(6, 7)
+    type(sparse_columns_t) :: lam
+    type(cone_result_t) :: res
+    type(error_t), allocatable :: err
+    x = 0
+    x(3, 1) = 2; x(1, 2) = 5; x(6, 3) = 1; x(3, 4) = 4; x(2, 5) = 3; x(1, 6) = 0.5_wp
+    call distribute(x, lam)
+    call gis_build(env, lam, 0.0_wp, 10, res, err)
+    call check(.not. allocated(err), "gis canonical runs")
+    call check(res%r == 4, "gis canonical: 4 indices")
+    if (res%r == 4) then
+      call check(all(res%indices == [1, 3, 2, 6]), "gis canonical: order by magnitude")
+      call check(all(res%sigma == [2_i8, 4_i8, 5_i8, 3_i8]), "gis canonical: snapshots")
+    end if
+    call check_close(res%err_max(size(res%err_max)), 0.0_wp, 0.0_wp, "gis canonical: zero error")
+    call check_close(res%err_max(2), 4.0_wp / 5.0_wp, 1e-15_wp, "gis canonical: e_1 = 4/5")
+  end subroutine test_gis_canonical
+
+  !> A small case worked by hand.
+  subroutine test_gis_known()
+    real(wp) :: x(4, 3)
+    type(sparse_columns_t) :: lam
+    type(cone_result_t) :: res
+    type(error_t), allocatable :: err
+    ! |col1| = sqrt(10), |col2| = sqrt(13), |col3| = sqrt(8)
+    x(:, 1) = [3, 1, 0, 0]; x(:, 2) = [0, 2, 3, 0]; x(:, 3) = [2, 0, 0, 2]
+    call distribute(x, lam)
+    call gis_build(env, lam, 0.0_wp, 2, res, err)
+    call check(.not. allocated(err) .and. res%r == 2, "gis known: 2 steps")
+    ! step 1: sigma = 2, i = 3 -> residuals^2: 10, 4, 8 -> sigma = 1, i = 1 -> 1, 4, 4
+    call check(all(res%indices == [3, 1]), "gis known: indices 3 then 1")
+    call check(all(res%sigma == [2_i8, 1_i8]), "gis known: snapshots 2 then 1")
+    call check_close(res%err_max(2), sqrt(10.0_wp / 13.0_wp), 1e-15_wp, "gis known: e_1")
+    call check_close(res%err_max(3), sqrt(4.0_wp / 13.0_wp), 1e-15_wp, "gis known: e_2 (tie 4 = 4)")
+    call check_close(res%err_mean(3), 5.0_wp / 3.0_wp / sqrt(13.0_wp), 1e-15_wp, "gis known: mean error")
+  end subroutine test_gis_known
+
+  !> Snapshots in the cone of two generators g1 = (1,1,0,0), g2 = (0,0,1,1): mCPG picks the
+  !> largest (3,3,3,3), then (its LSI keeps residuals >= 0) g1 and g2: error 0 at r = 3.
+  subroutine test_mcpg_generators()
+    real(wp) :: x(4, 6)
+    type(sparse_columns_t) :: lam
+    type(cone_result_t) :: res
+    type(error_t), allocatable :: err
+    x(:, 1) = [1, 1, 0, 0]; x(:, 2) = [0, 0, 1, 1]; x(:, 3) = [3, 3, 3, 3]
+    x(:, 4) = [2, 2, 1, 1]; x(:, 5) = [0.5_wp, 0.5_wp, 0.0_wp, 0.0_wp]; x(:, 6) = [1, 1, 2, 2]
+    call distribute(x, lam)
+    call mcpg_build(env, lam, 1.0e-12_wp, 10, res, err)
+    call check(.not. allocated(err), "mcpg runs")
+    if (allocated(err)) print '(a)', err%message
+    call check(res%r == 3, "mcpg: 3 vectors")
+    if (res%r /= 3) print *, "mcpg r =", res%r, " err =", res%err_max, " sigma =", res%sigma, " note ", res%note
+    if (res%r >= 1) call check(res%sigma(1) == 3, "mcpg: starts from the largest snapshot")
+    if (res%r == 3) then
+      call check_close(minval(res%psi), 0.0_wp, 0.0_wp, "mcpg: cone vectors are non-negative")
+      call check(res%err_max(4) <= 1e-12_wp, "mcpg: zero error with 3 vectors")
+    end if
+  end subroutine test_mcpg_generators
+
+  subroutine test_empty()
+    real(wp) :: x(5, 4)
+    type(sparse_columns_t) :: lam
+    type(cone_result_t) :: res
+    type(error_t), allocatable :: err
+    x = 0
+    call distribute(x, lam)
+    call gis_build(env, lam, 1e-4_wp, 10, res, err)
+    call check(.not. allocated(err) .and. res%r == 0 .and. allocated(res%note), "gis: empty cone, no error")
+    call mcpg_build(env, lam, 1e-4_wp, 10, res, err)
+    call check(.not. allocated(err) .and. res%r == 0 .and. allocated(res%note), "mcpg: empty cone, no error")
+    if (allocated(res%note)) call check(index(res%note, "empty cone") > 0, "says the cone is empty")
+  end subroutine test_empty
+end program test_cone
