@@ -1,0 +1,213 @@
+!> Supremizer enrichment of the velocity basis (the paper's PGA, after Niakh et al.):
+!> the candidates are the supremizers s_{sigma,r} = B(q_sigma)^T psi_r for every training
+!> configuration q_sigma (distributed over the ranks) and cone vector psi_r; the candidate
+!> with the largest relative projection error |(I - V V^T) s| / |s| onto the current basis V
+!> is orthonormalised into V, until that error is <= delta (or max_add vectors were added).
+!>
+!> Cost: each candidate has at most 4 nnz(psi_r) non-zeros (2 per obstacle row), so its
+!> projections onto the basis are updated in O(nnz(psi_r)) per added vector (no dense
+!> n_dof x n_candidates matrix is formed). The squared residuals are tracked as
+!> |s|^2 - |V^T s|^2, which loses relative accuracy below ~1e-6; below that level every
+!> candidate's residual is recomputed explicitly (s - V (V^T s), orthogonalised twice), so
+!> small thresholds such as delta = 1e-8 are decided on exact residuals.
+module cr_supremizer
+  use mpi_f08
+  use cr_kinds, only: wp, i8
+  use cr_error, only: error_t, set_error
+  use cr_strings, only: str
+  use cr_env, only: env_t
+  use cr_scene, only: scene_t
+  use cr_contact_eval, only: eval_contact
+  use cr_sparse_cone, only: sparse_cone_t
+  implicit none
+  private
+  public :: pga_result_t, pga_enrich, supremizer
+
+  !> History of an enrichment.
+  type :: pga_result_t
+    integer :: n_added = 0
+    !> largest relative projection error before addition k (k = 1..n_added) and at the end
+    real(wp), allocatable :: err(:)
+    !> global candidate id of each addition: (sigma - 1) * R + r (sigma global, 1-based)
+    integer(i8), allocatable :: chosen(:)
+  end type pga_result_t
+
+contains
+
+  !> s = B(q)^T psi_r as a dense vector [2*n_agents] (B = -h G over the dictionary rows).
+  subroutine supremizer(scene, radius, h, dict_ia, dict_ib, dict_ob, cone, r, q, s)
+    type(scene_t), intent(in) :: scene
+    real(wp), intent(in) :: radius, h
+    integer, intent(in) :: dict_ia(:), dict_ib(:), dict_ob(:)
+    type(sparse_cone_t), intent(in) :: cone
+    integer, intent(in) :: r
+    real(wp), intent(in) :: q(:)
+    real(wp), intent(out) :: s(:)
+    integer :: p, l, a, b
+    real(wp) :: gap, g(2), w
+    s = 0
+    do p = cone%ptr(r) + 1, cone%ptr(r + 1)
+      l = cone%idx(p); w = -h * cone%val(p)
+      call eval_contact(scene, q, radius, dict_ia(l), dict_ib(l), dict_ob(l), gap, g)
+      a = dict_ia(l); b = dict_ib(l)
+      s(2*a-1:2*a) = s(2*a-1:2*a) + w * g
+      if (b > 0) s(2*b-1:2*b) = s(2*b-1:2*b) - w * g
+    end do
+  end subroutine supremizer
+
+  !> Enrich the orthonormal basis v [n_dof, N] (replicated) with supremizers of the local
+  !> configurations q_local [n_dof, n_local] (global columns col_offset+1..col_offset+n_local).
+  subroutine pga_enrich(env, scene, radius, h, dict_ia, dict_ib, dict_ob, cone, q_local, col_offset, &
+      v, delta, max_add, res, error)
+    type(env_t), intent(in) :: env
+    type(scene_t), intent(in) :: scene
+    real(wp), intent(in) :: radius, h
+    integer, intent(in) :: dict_ia(:), dict_ib(:), dict_ob(:)
+    type(sparse_cone_t), intent(in) :: cone
+    real(wp), intent(in) :: q_local(:,:)
+    integer(i8), intent(in) :: col_offset
+    real(wp), allocatable, intent(inout) :: v(:,:)
+    real(wp), intent(in) :: delta
+    integer, intent(in) :: max_add
+    type(pga_result_t), intent(out) :: res
+    type(error_t), allocatable, intent(out) :: error
+    integer, allocatable :: sup(:), pos(:)
+    real(wp), allocatable :: gq(:,:,:), nrm2(:,:), res2(:,:), t(:), s(:), vn(:,:), hist(:)
+    integer(i8), allocatable :: chosen(:)
+    logical :: exact
+    integer :: nd, nl, ns, k, j, r, added, ierr, owner, mine, rr
+    integer(i8) :: gid
+    real(wp) :: gap, pair(2), best(2), err
+    nd = size(v, 1); nl = size(q_local, 2)
+    if (size(q_local, 1) /= nd) then
+      call set_error(error, "pga: positions have " // str(size(q_local, 1)) // " rows, basis has " // str(nd)); return
+    end if
+    if (delta < 0 .or. max_add < 0) then
+      call set_error(error, "pga: delta must be >= 0 and max_add >= 0", 2); return
+    end if
+    allocate(hist(max_add + 1), chosen(max_add))
+    res%n_added = 0
+    if (cone%r == 0) then
+      res%err = [0.0_wp]; allocate(res%chosen(0)); return
+    end if
+    sup = cone%support(); ns = size(sup)
+    allocate(pos(cone%n_dict)); pos = 0
+    do j = 1, ns
+      pos(sup(j)) = j
+    end do
+    ! normals of the support rows at every local configuration
+    allocate(gq(2, ns, max(nl, 1)), nrm2(cone%r, max(nl, 1)), res2(cone%r, max(nl, 1)), t(ns), s(nd))
+    do k = 1, nl
+      do j = 1, ns
+        call eval_contact(scene, q_local(:, k), radius, dict_ia(sup(j)), dict_ib(sup(j)), dict_ob(sup(j)), &
+          gap, gq(:, j, k))
+      end do
+      do r = 1, cone%r
+        call supremizer(scene, radius, h, dict_ia, dict_ib, dict_ob, cone, r, q_local(:, k), s)
+        nrm2(r, k) = sum(s**2)
+      end do
+    end do
+    res2 = nrm2
+    do j = 1, size(v, 2)
+      call subtract_projection(v(:, j))
+    end do
+    exact = .false.
+    added = 0
+    do
+      call argmax(best)
+      err = sqrt(max(best(1), 0.0_wp))
+      if (.not. exact .and. err < 1.0e-5_wp) then
+        ! relative accuracy of |s|^2 - |V^T s|^2 is exhausted: recompute exactly
+        exact = .true.
+        call recompute_all()
+        cycle
+      end if
+      hist(added + 1) = err
+      if (err <= delta .or. added == max_add .or. best(1) < 0) exit
+      gid = nint(best(2), i8)
+      ! the owner forms the candidate, everybody orthonormalises it into v
+      k = int((gid - 1) / cone%r - col_offset) + 1
+      rr = int(mod(gid - 1, int(cone%r, i8))) + 1
+      mine = -1
+      if (k >= 1 .and. k <= nl) mine = env%rank
+      call MPI_Allreduce(mine, owner, 1, MPI_INTEGER, MPI_MAX, env%comm, ierr)
+      if (env%rank == owner) call supremizer(scene, radius, h, dict_ia, dict_ib, dict_ob, cone, rr, q_local(:, k), s)
+      call MPI_Bcast(s, nd, MPI_DOUBLE_PRECISION, owner, env%comm, ierr)
+      do j = 1, 2
+        s = s - matmul(v, matmul(s, v))
+      end do
+      if (.not. (norm2(s) > 0)) exit
+      s = s / norm2(s)
+      allocate(vn(nd, size(v, 2) + 1))
+      vn(:, 1:size(v, 2)) = v
+      vn(:, size(v, 2) + 1) = s
+      call move_alloc(vn, v)
+      added = added + 1
+      chosen(added) = gid
+      if (exact) then
+        call recompute_all()
+      else
+        call subtract_projection(s)
+      end if
+    end do
+    res%n_added = added
+    res%err = hist(1:added + 1)
+    res%chosen = chosen(1:added)
+
+  contains
+
+    !> res2 -= (phi^T s)^2 for every local candidate (O(nnz) each).
+    subroutine subtract_projection(phi)
+      real(wp), intent(in) :: phi(:)
+      integer :: kk, jj, p, a, b, r2
+      real(wp) :: pr
+      do kk = 1, nl
+        do jj = 1, ns
+          a = dict_ia(sup(jj)); b = dict_ib(sup(jj))
+          t(jj) = gq(1, jj, kk) * phi(2*a-1) + gq(2, jj, kk) * phi(2*a)
+          if (b > 0) t(jj) = t(jj) - gq(1, jj, kk) * phi(2*b-1) - gq(2, jj, kk) * phi(2*b)
+          t(jj) = -h * t(jj)
+        end do
+        do r2 = 1, cone%r
+          pr = 0
+          do p = cone%ptr(r2) + 1, cone%ptr(r2 + 1)
+            pr = pr + cone%val(p) * t(pos(cone%idx(p)))
+          end do
+          res2(r2, kk) = res2(r2, kk) - pr * pr
+        end do
+      end do
+    end subroutine subtract_projection
+
+    !> Exact squared residuals of every local candidate.
+    subroutine recompute_all()
+      integer :: kk, r2, m
+      real(wp), allocatable :: w(:)
+      allocate(w(nd))
+      do kk = 1, nl
+        do r2 = 1, cone%r
+          call supremizer(scene, radius, h, dict_ia, dict_ib, dict_ob, cone, r2, q_local(:, kk), w)
+          do m = 1, 2
+            w = w - matmul(v, matmul(w, v))
+          end do
+          res2(r2, kk) = sum(w**2)
+        end do
+      end do
+    end subroutine recompute_all
+
+    !> Global (max relative squared residual, candidate id), ties to the lowest id.
+    subroutine argmax(out)
+      real(wp), intent(out) :: out(2)
+      integer :: kk, r2
+      real(wp) :: rel
+      pair = [-1.0_wp, huge(1.0_wp)]
+      do kk = 1, nl
+        do r2 = 1, cone%r
+          if (.not. (nrm2(r2, kk) > 0)) cycle
+          rel = max(res2(r2, kk), 0.0_wp) / nrm2(r2, kk)
+          if (rel > pair(1)) pair = [rel, real((col_offset + kk - 1) * cone%r + r2, wp)]
+        end do
+      end do
+      call MPI_Allreduce(pair, out, 1, MPI_2DOUBLE_PRECISION, MPI_MAXLOC, env%comm, ierr)
+    end subroutine argmax
+  end subroutine pga_enrich
+end module cr_supremizer
