@@ -162,6 +162,12 @@ contains
     call solver%solve(cs, v, u, lam, ss, err)
     call check(.not. allocated(err), "infeasible cluster: not an error")
     call check(index(ss%note, "infeasible") > 0, "infeasible cluster: noted")
+    ! feasible desired velocity with a stale warm start: u = v and lambda = 0
+    cs%gap(1:3) = [0.1_wp, 0.1_wp, 0.1_wp]
+    lam = 1.0_wp
+    call solver%solve(cs, v, u, lam, ss, err)
+    call check(all(u == v) .and. all(lam == 0.0_wp) .and. ss%kkt == 0.0_wp, &
+      "feasible v, stale warm start: u = v, lambda = 0")
   end subroutine test_infeasible
 
   !> A cluster whose dense data would exceed the limit is an error, not an allocation.

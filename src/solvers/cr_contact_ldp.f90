@@ -58,6 +58,8 @@ module cr_contact_ldp
     real(wp), allocatable :: l(:,:)
     !> work vectors [kcap]
     real(wp), allocatable :: h(:), r(:), z(:), y(:), x(:)
+    !> L^{-1} (B v - d)_P, kept up to date by append and remove [kcap]
+    real(wp), allocatable :: yc(:)
     !> passive list [kcap]
     integer, allocatable :: plist(:)
     !> position in the passive list (0: not passive) [mcap]
@@ -79,9 +81,9 @@ contains
     type(contact_ldp_work_t), intent(inout) :: wk
     integer, intent(in) :: m, k
     if (k > wk%kcap) then
-      if (allocated(wk%l)) deallocate(wk%l, wk%h, wk%r, wk%z, wk%y, wk%x, wk%plist)
+      if (allocated(wk%l)) deallocate(wk%l, wk%h, wk%r, wk%z, wk%y, wk%x, wk%yc, wk%plist)
       allocate(wk%l(max(k, 1), max(k, 1)), wk%h(max(k, 1)), wk%r(max(k, 1)), wk%z(max(k, 1)), &
-        wk%y(max(k, 1)), wk%x(max(k, 1)), wk%plist(max(k, 1)))
+        wk%y(max(k, 1)), wk%x(max(k, 1)), wk%yc(max(k, 1)), wk%plist(max(k, 1)))
       wk%kcap = k
     end if
     if (m > wk%mcap) then
@@ -191,7 +193,8 @@ contains
     end if
     if (all(wk%cc(1:m) <= thr)) then
       ! v is feasible: it is its own projection
-      lambda = 0.0_wp
+      wk%lam(1:m) = 0.0_wp
+      wk%slack(1:m) = -wk%cc(1:m)
       stats%converged = .true.
       call finish()
       return
@@ -388,13 +391,10 @@ contains
       end do
     end subroutine finish
 
-    !> z = (B_P B_P^T)^{-1} (B v - d)_P
+    !> z = (B_P B_P^T)^{-1} (B v - d)_P = L^{-T} yc
     subroutine solve_p()
-      integer :: pp
-      do pp = 1, k
-        wk%z(pp) = wk%cc(wk%plist(pp))
-      end do
-      call solve_rhs(wk%z)
+      wk%z(1:k) = wk%yc(1:k)
+      call back(wk%z)
     end subroutine solve_p
 
     !> b = (L L^T)^{-1} b
@@ -443,6 +443,7 @@ contains
       k = k + 1
       wk%l(k, 1:k - 1) = wk%r(1:k - 1)
       wk%l(k, k) = sqrt(delta)
+      wk%yc(k) = (wk%cc(jt) - dot_product(wk%r(1:k - 1), wk%yc(1:k - 1))) / wk%l(k, k)
       wk%plist(k) = jt
       wk%pos(jt) = k
       okk = .true.
@@ -453,8 +454,11 @@ contains
     subroutine remove(pr)
       integer, intent(in) :: pr
       integer :: cc2, ii
-      real(wp) :: rr, cg, sg
+      real(wp) :: rr, cg, sg, eta, t1
       wk%pos(wk%plist(pr)) = 0
+      ! yc: the trailing part goes through the same rotations as [L33, l32] (eta = old yc(pr))
+      eta = wk%yc(pr)
+      wk%yc(pr:k - 1) = wk%yc(pr + 1:k)
       wk%y(pr:k - 1) = wk%l(pr + 1:k, pr)
       do cc2 = 1, pr - 1
         wk%l(pr:k - 1, cc2) = wk%l(pr + 1:k, cc2)
@@ -467,6 +471,9 @@ contains
       k = k - 1
       do ii = pr, k
         rr = hypot(wk%l(ii, ii), wk%y(ii))
+        t1 = wk%yc(ii)
+        wk%yc(ii) = (wk%l(ii, ii) * t1 + wk%y(ii) * eta) / rr
+        eta = (-wk%y(ii) * t1 + wk%l(ii, ii) * eta) / rr
         cg = rr / wk%l(ii, ii); sg = wk%y(ii) / wk%l(ii, ii)
         wk%l(ii, ii) = rr
         wk%l(ii + 1:k, ii) = (wk%l(ii + 1:k, ii) + sg * wk%y(ii + 1:k)) / cg
