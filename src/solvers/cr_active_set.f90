@@ -1,28 +1,43 @@
 !> Exact projection by clusters: the contact graph (agents linked by rows) is split into
 !> connected components; agents without rows keep u_i = v_i, and each component is projected
-!> by the dense least-distance solver of cr_nnls (LDP -> Lawson-Hanson NNLS), warm started
-!> from the rows with lambda > 0 on entry.
+!> by the sparse dual active-set solver of cr_contact_ldp (Cholesky of the passive Gram
+!> matrix), warm started from the rows with lambda > 0 on entry. A cluster that solver cannot
+!> finish (iteration cap, infeasible cluster) is handed to the dense least-distance solver of
+!> cr_nnls (LDP -> Lawson-Hanson NNLS), which also returns least-violation velocities.
+!> Clusters whose dense data would exceed max_dense_bytes are refused with an error.
 module cr_active_set
   use cr_kinds, only: wp
-  use cr_error, only: error_t, prefix_error
+  use cr_error, only: error_t, prefix_error, set_error
   use cr_strings, only: str
   use cr_contact_set, only: contact_set_t
   use cr_nnls, only: nnls_work_t, ldp_stats_t, ldp_solve
+  use cr_contact_ldp, only: contact_ldp_work_t, contact_ldp_stats_t, contact_ldp_solve, &
+    contact_ldp_bytes
   use cr_projection, only: projection_solver_t, solve_stats_t, finish_stats, check_sizes, add_note
   implicit none
   private
-  public :: active_set_solver_t
+  public :: active_set_solver_t, default_max_dense_bytes
+
+  !> default limit of the dense storage of one contact cluster: 2 GiB
+  real(wp), parameter :: default_max_dense_bytes = 2.0_wp * 1024.0_wp**3
 
   !> Exact (active-set) projection, one dense LDP per contact cluster.
   type, extends(projection_solver_t) :: active_set_solver_t
     !> NNLS work space, reused across clusters and calls
     type(nnls_work_t) :: work
+    !> work space of the sparse dual active-set solver
+    type(contact_ldp_work_t) :: cwork
+    !> largest dense storage (bytes) one cluster may need; larger clusters are an error
+    real(wp) :: max_dense_bytes = default_max_dense_bytes
     !> union-find parents and component data [n_agents]
     integer, allocatable :: parent(:), comp(:), local(:), agents(:), astart(:)
     !> rows sorted by component and offsets [n rows], [n_comp + 1]
     integer, allocatable :: rows(:), rstart(:)
     !> dense cluster data
     real(wp), allocatable :: bm(:,:), dl(:), vl(:), ul(:), ll(:)
+    !> sparse cluster rows: local agents [maxr], coefficients [2, maxr]
+    integer, allocatable :: ial(:), ibl(:)
+    real(wp), allocatable :: cl(:,:)
   contains
     procedure :: solve => active_set_solve
     procedure :: free => active_set_free
@@ -40,6 +55,7 @@ contains
     type(error_t), allocatable, intent(out) :: error
     integer :: na, n, l, i, a, b, c, ncomp, mr, nd, maxr, maxa, j, n_infeas
     type(ldp_stats_t) :: ls
+    type(contact_ldp_stats_t) :: cst
     real(wp) :: h
 
     call check_sizes("active_set", cs, v, u, lambda, error)
@@ -122,26 +138,29 @@ contains
         this%local(this%agents(j)) = j - this%astart(c) + 1
       end do
     end do
-    call rgrow2(this%bm, maxr, 2 * maxa)
     call rgrow(this%dl, maxr); call rgrow(this%ll, maxr)
     call rgrow(this%vl, 2 * maxa); call rgrow(this%ul, 2 * maxa)
+    call igrow(this%ial, maxr); call igrow(this%ibl, maxr)
+    if (allocated(this%cl)) then
+      if (size(this%cl, 2) < maxr) deallocate(this%cl)
+    end if
+    if (.not. allocated(this%cl)) allocate(this%cl(2, max(maxr, 16)))
 
-    ! ---- one dense LDP per component
+    ! ---- one sparse dual active-set solve per component (dense LDP as fallback)
     n_infeas = 0
     do c = 1, ncomp
       mr = this%rstart(c + 1) - this%rstart(c)
       nd = 2 * (this%astart(c + 1) - this%astart(c))
-      this%bm(1:mr, 1:nd) = 0.0_wp
+      if (contact_ldp_bytes(mr, nd) > this%max_dense_bytes) then
+        call too_large(contact_ldp_bytes(mr, nd))
+        return
+      end if
       do j = 1, mr
         l = this%rows(this%rstart(c) + j - 1)
-        a = this%local(cs%ia(l))
-        this%bm(j, 2*a - 1) = -h * cs%g(1, l)
-        this%bm(j, 2*a) = -h * cs%g(2, l)
-        if (cs%ib(l) > 0) then
-          b = this%local(cs%ib(l))
-          this%bm(j, 2*b - 1) = h * cs%g(1, l)
-          this%bm(j, 2*b) = h * cs%g(2, l)
-        end if
+        this%ial(j) = this%local(cs%ia(l))
+        this%ibl(j) = 0
+        if (cs%ib(l) > 0) this%ibl(j) = this%local(cs%ib(l))
+        this%cl(:, j) = -h * cs%g(:, l)
         this%dl(j) = cs%gap(l)
         this%ll(j) = lambda(l)
       end do
@@ -149,16 +168,19 @@ contains
         a = this%agents(j); i = j - this%astart(c) + 1
         this%vl(2*i - 1:2*i) = v(2*a - 1:2*a)
       end do
-      call ldp_solve(this%bm(1:mr, 1:nd), this%dl(1:mr), this%vl(1:nd), this%ul(1:nd), &
-        this%ll(1:mr), ls, error, warm=this%settings%warm_start, &
-        max_iter=this%settings%max_iter, work=this%work)
+      call contact_ldp_solve(this%ial(1:mr), this%ibl(1:mr), this%cl(:, 1:mr), this%dl(1:mr), &
+        this%vl(1:nd), this%ul(1:nd), this%ll(1:mr), cst, error, warm=this%settings%warm_start, &
+        max_iter=min(this%settings%max_iter, 10 * mr + 100), &
+        tol=1.0e-3_wp * this%settings%tol, work=this%cwork)
       if (allocated(error)) then
         call prefix_error(error, "active_set: cluster " // str(c))
         return
       end if
-      stats%iterations = stats%iterations + ls%nnls%iterations
-      if (.not. ls%nnls%converged) stats%converged = .false.
-      if (ls%infeasible) n_infeas = n_infeas + 1
+      stats%iterations = stats%iterations + cst%iterations
+      if (.not. cst%converged .or. cst%infeasible) then
+        call dense_cluster()
+        if (allocated(error)) return
+      end if
       do j = this%astart(c), this%astart(c + 1) - 1
         a = this%agents(j); i = j - this%astart(c) + 1
         u(2*a - 1:2*a) = this%ul(2*i - 1:2*i)
@@ -175,6 +197,50 @@ contains
 
   contains
 
+    !> The dense LDP (cr_nnls) on cluster c, warm started from the rows on entry.
+    subroutine dense_cluster()
+      real(wp) :: need
+      ! bm [mr, nd], E and Q of the NNLS, and the regularised LDP of an infeasible cluster
+      need = 8.0_wp * (real(mr, wp) * nd + real(nd + 1, wp) * mr + real(nd + 1, wp)**2 + &
+        real(mr, wp) * (nd + mr))
+      if (need > this%max_dense_bytes) then
+        call too_large(need)
+        return
+      end if
+      call rgrow2(this%bm, maxr, 2 * maxa)
+      this%bm(1:mr, 1:nd) = 0.0_wp
+      do j = 1, mr
+        l = this%rows(this%rstart(c) + j - 1)
+        a = this%local(cs%ia(l))
+        this%bm(j, 2*a - 1) = -h * cs%g(1, l)
+        this%bm(j, 2*a) = -h * cs%g(2, l)
+        if (cs%ib(l) > 0) then
+          b = this%local(cs%ib(l))
+          this%bm(j, 2*b - 1) = h * cs%g(1, l)
+          this%bm(j, 2*b) = h * cs%g(2, l)
+        end if
+        this%ll(j) = lambda(l)
+      end do
+      call ldp_solve(this%bm(1:mr, 1:nd), this%dl(1:mr), this%vl(1:nd), this%ul(1:nd), &
+        this%ll(1:mr), ls, error, warm=this%settings%warm_start, &
+        max_iter=this%settings%max_iter, work=this%work)
+      if (allocated(error)) then
+        call prefix_error(error, "active_set: cluster " // str(c))
+        return
+      end if
+      stats%iterations = stats%iterations + ls%nnls%iterations
+      if (.not. ls%nnls%converged) stats%converged = .false.
+      if (ls%infeasible) n_infeas = n_infeas + 1
+    end subroutine dense_cluster
+
+    subroutine too_large(bytes)
+      real(wp), intent(in) :: bytes
+      call set_error(error, "active_set: a contact cluster of " // str(nd / 2) // " agents and " // &
+        str(mr) // " rows needs " // str(bytes / 1.0e9_wp, "f0.2") // " GB of dense storage " // &
+        "(limit " // str(this%max_dense_bytes / 1.0e9_wp, "f0.2") // " GB); use solver 'apgd' " // &
+        "for crowds this large", 2)
+    end subroutine too_large
+
     integer function find(x) result(r)
       integer, intent(in) :: x
       r = x
@@ -189,6 +255,7 @@ contains
   subroutine active_set_free(this)
     class(active_set_solver_t), intent(inout) :: this
     this%work = nnls_work_t()
+    this%cwork = contact_ldp_work_t()
     if (allocated(this%parent)) deallocate(this%parent)
     if (allocated(this%bm)) deallocate(this%bm)
   end subroutine active_set_free
