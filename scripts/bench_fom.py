@@ -18,6 +18,7 @@ import sys
 import tempfile
 import time
 
+SOLVERS = ["active_set", "apgd", "uzawa"]
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FOM = os.path.join(ROOT, "build", "bin", "crowd_fom")
 
@@ -27,7 +28,7 @@ def read_nml(path):
         return f.read()
 
 
-def run(nml_text, workdir, tag):
+def run(nml_text, workdir, tag, timeout=None):
     nml = os.path.join(workdir, tag + ".nml")
     out = os.path.join(workdir, tag + ".h5")
     js = os.path.join(workdir, tag + ".json")
@@ -36,11 +37,14 @@ def run(nml_text, workdir, tag):
         f.write(nml_text)
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
     t0 = time.perf_counter()
-    p = subprocess.run([FOM, nml, "--summary", js], capture_output=True, text=True, env=env)
+    try:
+        p = subprocess.run([FOM, nml, "--summary", js], capture_output=True, text=True, env=env, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {"failed": "no result within %d s" % timeout}
     wall = time.perf_counter() - t0
     if p.returncode != 0:
-        sys.stderr.write(p.stdout + p.stderr)
-        raise SystemExit("crowd_fom failed on %s" % tag)
+        err = [l for l in (p.stdout + p.stderr).splitlines() if l.startswith("error:")]
+        return {"failed": err[0] if err else "exit status %d" % p.returncode}
     with open(js) as f:
         s = json.load(f)
     s["wall"] = wall
@@ -68,7 +72,7 @@ def solver_table(scenes, tols, uzawa_steps, workdir):
     rows = []
     for scene in scenes:
         base = strip_groups(read_nml(os.path.join(ROOT, "inputs", scene + ".nml")), ["solver", "output"])
-        for solver in ["active_set", "apgd", "uzawa"]:
+        for solver in SOLVERS:
             for tol in (tols if solver != "uzawa" else [None]):
                 text = base
                 if solver == "uzawa":
@@ -79,6 +83,8 @@ def solver_table(scenes, tols, uzawa_steps, workdir):
                 else:
                     text += "&solver name = '%s', tol = %g, max_iter = 1000000 /\n" % (solver, tol)
                 s = run(text, workdir, "%s_%s_%s" % (scene, solver, tol))
+                if "failed" in s:
+                    raise SystemExit("crowd_fom failed: %s" % s["failed"])
                 rows.append((scene, solver, "paper (eps=1e-12)" if tol is None else "%g" % tol, s))
                 print("  %-13s %-10s tol %-18s %8.3f ms/step  it mean %10.1f max %9d  KKT %.2e  failed %d" % (
                     scene, solver, rows[-1][2], 1e3 * s["solver_time_per_step"], s["iterations_mean"],
@@ -86,21 +92,26 @@ def solver_table(scenes, tols, uzawa_steps, workdir):
     return rows
 
 
-def scaling_table(ns, steps, workdir):
+def scaling_table(ns, steps, solvers, workdir, timeout):
     rows = []
     # congested150 density: 150 agents in 2.0 x 1.25 (minus a disk of radius 0.15)
     for n in ns:
+      for solver in solvers:
         scale = math.sqrt(n / 150.0)
         L, H = 2.0 * scale, 1.25 * scale
         text = ("&scene hall_length = %.6f, hall_width = %.6f, l_exit = 0.32, wall_thickness = 0.1 /\n"
                 "&obstacles n_disks = 1, disk_x = %.6f, disk_y = %.6f, disk_r = 0.15 /\n"
                 "&agents n_agents = %d, radius = 0.05, speed = 5.0, seed = 1 /\n"
-                "&time dt = 0.005, n_steps = %d /\n&solver name = 'active_set', tol = 1e-10 /\n"
-                % (L, H, L / 2, H / 2, n, steps))
-        s = run(text, workdir, "scale_%d" % n)
-        rows.append((n, s))
-        print("  N = %6d: %8.3f ms/step (solver %8.3f ms), KKT %.2e" % (
-            n, 1e3 * s["time_per_step"], 1e3 * s["solver_time_per_step"], s["largest_kkt_residual"]), flush=True)
+                "&time dt = 0.005, n_steps = %d /\n&solver name = '%s', tol = 1e-10, max_iter = 1000000 /\n"
+                % (L, H, L / 2, H / 2, n, steps, solver))
+        s = run(text, workdir, "scale_%d_%s" % (n, solver), timeout=timeout)
+        rows.append((n, solver, s))
+        if "failed" in s:
+            print("  N = %6d %-10s: %s" % (n, solver, s["failed"]), flush=True)
+        else:
+            print("  N = %6d %-10s: %8.3f ms/step (solver %8.3f ms), KKT %.2e, failed steps %d" % (
+                n, solver, 1e3 * s["time_per_step"], 1e3 * s["solver_time_per_step"], s["largest_kkt_residual"],
+                s["failed_steps"]), flush=True)
     return rows
 
 
@@ -109,27 +120,39 @@ def main():
     ap.add_argument("--quick", action="store_true", help="fewer cases (smoke run)")
     ap.add_argument("--uzawa-steps", type=int, default=5)
     ap.add_argument("--out", default=os.path.join(ROOT, "results", "bench_fom.md"))
+    ap.add_argument("--solvers", nargs="+", default=["active_set", "apgd", "uzawa"])
+    ap.add_argument("--scaling-solvers", nargs="+", default=["active_set", "apgd"])
+    ap.add_argument("--scaling-timeout", type=int, default=900, help="seconds per scaling run")
+    ap.add_argument("--skip-solvers", action="store_true")
     a = ap.parse_args()
     if not os.path.exists(FOM):
         raise SystemExit("build/bin/crowd_fom not found: run scripts/setup.sh first")
     tols = [1e-6, 1e-9, 1e-12] if not a.quick else [1e-9]
     ns = [150, 1000, 10000] if not a.quick else [150, 1000]
     with tempfile.TemporaryDirectory() as wd:
-        print("solvers:")
-        srows = solver_table(["hall20", "congested150"], tols, a.uzawa_steps, wd)
+        global SOLVERS
+        SOLVERS = a.solvers
+        srows = []
+        if not a.skip_solvers:
+            print("solvers:")
+            srows = solver_table(["hall20", "congested150"], tols, a.uzawa_steps, wd)
         print("scaling:")
-        crows = scaling_table(ns, 20, wd)
+        crows = scaling_table(ns, 20, a.scaling_solvers, wd, a.scaling_timeout)
     lines = ["| scene | solver | tolerance | steps | time/step (ms) | iterations mean | iterations max | largest KKT | failed steps |",
              "|---|---|---|---|---|---|---|---|---|"]
     for scene, solver, tol, s in srows:
         lines.append("| %s | %s | %s | %d | %.3f | %.1f | %d | %.1e | %d |" % (
             scene, solver, tol, s["steps"], 1e3 * s["solver_time_per_step"], s["iterations_mean"],
             s["iterations_max"], s["largest_kkt_residual"], s["failed_steps"]))
-    lines += ["", "| agents | time/step total (ms) | solver (ms) | per agent (us) | largest KKT |", "|---|---|---|---|---|"]
-    for n, s in crows:
-        lines.append("| %d | %.3f | %.3f | %.2f | %.1e |" % (
-            n, 1e3 * s["time_per_step"], 1e3 * s["solver_time_per_step"], 1e6 * s["time_per_step"] / n,
-            s["largest_kkt_residual"]))
+    lines += ["", "| agents | solver | time/step (ms) | solver part (ms) | per agent (us) | largest KKT | failed steps |",
+              "|---|---|---|---|---|---|---|"]
+    for n, solver, s in crows:
+        if "failed" in s:
+            lines.append("| %d | %s | %s | | | | |" % (n, solver, s["failed"]))
+        else:
+            lines.append("| %d | %s | %.3f | %.3f | %.2f | %.1e | %d |" % (
+                n, solver, 1e3 * s["time_per_step"], 1e3 * s["solver_time_per_step"],
+                1e6 * s["time_per_step"] / n, s["largest_kkt_residual"], s["failed_steps"]))
     text = "\n".join(lines) + "\n"
     os.makedirs(os.path.dirname(a.out), exist_ok=True)
     with open(a.out, "w") as f:
