@@ -68,7 +68,7 @@ contains
   subroutine snapshot_layout(env, s_local, n_snap, offset, error, counts)
     type(env_t), intent(in) :: env
     !> snapshots, columns distributed over ranks: [n_dof, n_r]
-    real(wp), intent(in) :: s_local(:, :)
+    real(wp), contiguous, intent(in) :: s_local(:, :)
     integer, intent(out) :: n_snap, offset
     type(error_t), allocatable, intent(out) :: error
     !> number of columns of every rank [env%size]
@@ -90,7 +90,7 @@ contains
   !> ||S||_F^2 summed over ranks.
   real(wp) function frobenius2(env, s_local)
     type(env_t), intent(in) :: env
-    real(wp), intent(in) :: s_local(:, :)
+    real(wp), contiguous, intent(in) :: s_local(:, :)
     frobenius2 = env%sum_real(sum(s_local**2))
   end function frobenius2
 
@@ -190,7 +190,7 @@ contains
   subroutine pod_tsqr(env, s_local, result, error, eps, n_modes)
     type(env_t), intent(in) :: env
     !> snapshots, columns distributed over ranks: [n_dof, n_r]
-    real(wp), intent(in) :: s_local(:, :)
+    real(wp), contiguous, intent(in) :: s_local(:, :)
     type(pod_result_t), intent(out) :: result
     type(error_t), allocatable, intent(out) :: error
     !> energy tolerance in [0, 1]
@@ -198,7 +198,7 @@ contains
     !> fixed number of modes N (>= 0)
     integer, intent(in), optional :: n_modes
     integer :: n_snap, offset, n_dof
-    real(wp), allocatable :: sigma(:), w(:, :)
+    real(wp), allocatable :: sigma(:), w(:, :), st(:, :)
     call check_truncation(eps, n_modes, error)
     if (allocated(error)) return
     call snapshot_layout(env, s_local, n_snap, offset, error)
@@ -208,7 +208,8 @@ contains
     result%n_dof = n_dof
     result%n_snap = n_snap
     result%total_energy = frobenius2(env, s_local)
-    call right_svd(env, transpose(s_local), sigma, w, error)
+    st = transpose(s_local)
+    call right_svd(env, st, sigma, w, error)
     if (allocated(error)) return
     call finish(env, result, sigma, w, real(max(n_dof, n_snap), wp) * epsilon(1.0_wp), eps, n_modes)
   end subroutine pod_tsqr
@@ -242,7 +243,7 @@ contains
   subroutine pod_snapshots(env, s_local, result, error, eps, n_modes)
     type(env_t), intent(in) :: env
     !> snapshots, columns distributed over ranks: [n_dof, n_r]
-    real(wp), intent(in) :: s_local(:, :)
+    real(wp), contiguous, intent(in) :: s_local(:, :)
     type(pod_result_t), intent(out) :: result
     type(error_t), allocatable, intent(out) :: error
     real(wp), intent(in), optional :: eps
@@ -363,7 +364,7 @@ contains
   !> dofs per rank), each row is transformed, and the sketch rows are gathered.
   subroutine sketch_srft(env, s_local, l, seed, y, error)
     type(env_t), intent(in) :: env
-    real(wp), intent(in) :: s_local(:, :)
+    real(wp), contiguous, intent(in) :: s_local(:, :)
     integer, intent(in) :: l, seed
     real(wp), allocatable, intent(out) :: y(:, :)
     type(error_t), allocatable, intent(out) :: error
@@ -469,7 +470,7 @@ contains
       & error, eps, n_modes)
     type(env_t), intent(in) :: env
     !> snapshots, columns distributed over ranks: [n_dof, n_r]
-    real(wp), intent(in) :: s_local(:, :)
+    real(wp), contiguous, intent(in) :: s_local(:, :)
     !> target rank k >= 1, oversampling p >= 0, power iterations q >= 0
     integer, intent(in) :: k, oversampling, power_iterations
     character(len=*), intent(in) :: sketch
@@ -559,7 +560,7 @@ contains
   subroutine pod_scalapack(env, s_local, result, error, eps, n_modes, block)
     type(env_t), intent(in) :: env
     !> snapshots, columns distributed over ranks: [n_dof, n_r]
-    real(wp), intent(in) :: s_local(:, :)
+    real(wp), contiguous, intent(in) :: s_local(:, :)
     type(pod_result_t), intent(out) :: result
     type(error_t), allocatable, intent(out) :: error
     real(wp), intent(in), optional :: eps

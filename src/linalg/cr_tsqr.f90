@@ -64,6 +64,7 @@ contains
         call la_orgqr(leaf, tau, error)
         if (allocated(error)) failed = .true.
       end if
+      deallocate(tau)
     else
       allocate(r, source=a_local)
     end if
