@@ -1,0 +1,81 @@
+!> LAPACK wrappers: results on small known problems and the translation of size errors and
+!> `info` codes into messages.
+program test_lapack
+  use cr_kinds, only: wp
+  use cr_error, only: error_t
+  use cr_lapack, only: la_geqrf, la_orgqr, la_gesvd, la_syevd, la_gemm, lapack_info_message
+  use cr_assert, only: check, check_close, test_summary
+  implicit none
+  type(error_t), allocatable :: e
+  real(wp) :: a(4, 3), q(4, 3), r(3, 3), tau(3), s(3), u(4, 3), vt(3, 3), c(3, 3), w(3)
+  real(wp) :: bad_tau(2), bad_u(3, 3), cc(2, 2)
+  integer :: j
+
+  a = reshape([1.0_wp, 2.0_wp, 3.0_wp, 4.0_wp, 2.0_wp, 1.0_wp, 0.0_wp, 5.0_wp, &
+    & -1.0_wp, 0.5_wp, 2.0_wp, 1.0_wp], [4, 3])
+
+  ! QR reproduces A, Q orthonormal
+  q = a
+  call la_geqrf(q, tau, e)
+  call check(.not. allocated(e), "geqrf runs")
+  r = 0.0_wp
+  do j = 1, 3
+    r(1:j, j) = q(1:j, j)
+  end do
+  call la_orgqr(q, tau, e)
+  call check(.not. allocated(e), "orgqr runs")
+  call check_close(maxval(abs(matmul(q, r) - a)), 0.0_wp, 1.0e-14_wp, "QR = A")
+  call check_close(maxval(abs(matmul(transpose(q), q) - identity(3))), 0.0_wp, 1.0e-15_wp, "Q^T Q = I")
+
+  ! SVD reproduces A
+  q = a
+  call la_gesvd(q, s, e, u=u, vt=vt)
+  call check(.not. allocated(e), "gesvd runs")
+  do j = 1, 3
+    u(:, j) = s(j) * u(:, j)
+  end do
+  call check_close(maxval(abs(matmul(u, vt) - a)), 0.0_wp, 1.0e-14_wp, "U S VT = A")
+  call check(s(1) >= s(2) .and. s(2) >= s(3), "singular values descending")
+
+  ! symmetric eigen-decomposition of A^T A: eigenvalues = s^2 ascending
+  c = matmul(transpose(a), a)
+  call la_syevd(c, w, e)
+  call check(.not. allocated(e), "syevd runs")
+  call check_close(maxval(abs(w - s(3:1:-1)**2)), 0.0_wp, 1.0e-12_wp, "eig(A^T A) = s^2")
+
+  ! size errors are reported with the sizes, nothing is called
+  q = a
+  call la_geqrf(q, bad_tau, e)
+  call check(allocated(e), "geqrf: short tau is an error")
+  if (allocated(e)) call check(index(e%message, "dgeqrf: tau has 2 entries, expected min(m, n) = 3 (m = 4, n = 3)") > 0, &
+    & "geqrf: message names the sizes")
+  call la_gesvd(q, s, e, u=bad_u)
+  call check(allocated(e), "gesvd: wrong u is an error")
+  if (allocated(e)) call check(index(e%message, "u is 3 x 3, expected 4 x 3") > 0, "gesvd: message names the shapes")
+  call la_gemm('N', 'N', 1.0_wp, a, a, 0.0_wp, cc, e)
+  call check(allocated(e), "gemm: mismatch is an error")
+  if (allocated(e)) call check(index(e%message, "op(a) is 4 x 3, op(b) is 4 x 3") > 0, "gemm: message names the shapes")
+  call la_orgqr(q(1:2, :), tau, e)
+  call check(allocated(e), "orgqr: n > m is an error")
+  call la_syevd(a(1:3, 1:2), w, e)
+  call check(allocated(e), "syevd: non-square is an error")
+
+  ! info translation
+  call check(lapack_info_message("dgeqrf", -7, "m = 4, n = 3") == &
+    & "dgeqrf: argument 7 had an illegal value (m = 4, n = 3)", "info < 0: illegal argument")
+  call check(index(lapack_info_message("dgesvd", 2, "m = 4, n = 3"), "2 superdiagonals") > 0, &
+    & "dgesvd info > 0: convergence failure")
+  call check(index(lapack_info_message("dsyevd", 5, "n = 3"), "failed to converge (info = 5, n = 3)") > 0, &
+    & "dsyevd info > 0")
+  call test_summary()
+contains
+  pure function identity(n) result(id)
+    integer, intent(in) :: n
+    real(wp) :: id(n, n)
+    integer :: i
+    id = 0.0_wp
+    do i = 1, n
+      id(i, i) = 1.0_wp
+    end do
+  end function identity
+end program test_lapack
