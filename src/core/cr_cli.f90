@@ -10,17 +10,24 @@ module cr_cli
     character(len=:), allocatable :: input
     character(len=:), allocatable :: summary
     logical :: help = .false.
+    !> --stop-after K (crowd_snapshots testing hook): stop after K samples; -1 when not given
+    integer :: stop_after = -1
   end type cli_t
 
 contains
 
   !> Parse the command line; unknown options and a missing input are errors.
-  subroutine parse_cli(program_name, cli, error)
+  subroutine parse_cli(program_name, cli, error, allow_stop_after)
     character(len=*), intent(in) :: program_name
     type(cli_t), intent(out) :: cli
     type(error_t), allocatable, intent(out) :: error
-    integer :: k, n, length
+    !> accept `--stop-after K` (default .false.: it is an unknown option)
+    logical, intent(in), optional :: allow_stop_after
+    integer :: k, n, length, ios
+    logical :: stop_ok
     character(len=:), allocatable :: arg
+    stop_ok = .false.
+    if (present(allow_stop_after)) stop_ok = allow_stop_after
     n = command_argument_count()
     cli%summary = ""
     k = 0
@@ -41,6 +48,21 @@ contains
         deallocate(arg); allocate(character(len=length) :: arg)
         call get_command_argument(k, arg)
         cli%summary = arg
+      case ('--stop-after')
+        if (.not. stop_ok) then
+          call set_error(error, program_name // ": unknown option '" // arg // "' (see --help)", 2); return
+        end if
+        if (k == n) then
+          call set_error(error, program_name // ": --stop-after needs a number of samples", 2); return
+        end if
+        k = k + 1
+        call get_command_argument(k, length=length)
+        deallocate(arg); allocate(character(len=length) :: arg)
+        call get_command_argument(k, arg)
+        read(arg, *, iostat=ios) cli%stop_after
+        if (ios /= 0 .or. cli%stop_after < 0) then
+          call set_error(error, program_name // ": --stop-after '" // arg // "' is not a number >= 0", 2); return
+        end if
       case default
         if (arg(1:1) == '-') then
           call set_error(error, program_name // ": unknown option '" // arg // "' (see --help)", 2); return

@@ -99,10 +99,10 @@ module cr_h5file
       r_int64_1, r_string
     procedure, private :: a_real0, a_real1, a_real2, a_int0, a_int1, a_int2, a_int64_0, a_int64_1
     generic :: append => a_real0, a_real1, a_real2, a_int0, a_int1, a_int2, a_int64_0, a_int64_1
-    procedure, private :: wb_real1, wb_real2, wb_int2
-    generic :: write_block => wb_real1, wb_real2, wb_int2
-    procedure, private :: rb_real1, rb_real2, rb_int2
-    generic :: read_block => rb_real1, rb_real2, rb_int2
+    procedure, private :: wb_real1, wb_real2, wb_int1, wb_int2, wb_int64_1
+    generic :: write_block => wb_real1, wb_real2, wb_int1, wb_int2, wb_int64_1
+    procedure, private :: rb_real1, rb_real2, rb_int1, rb_int2, rb_int64_1
+    generic :: read_block => rb_real1, rb_real2, rb_int1, rb_int2, rb_int64_1
     procedure, private :: wa_string, wa_real, wa_int, wa_real1, wa_int1
     generic :: write_attr => wa_string, wa_real, wa_int, wa_real1, wa_int1
     procedure, private :: ra_string, ra_real, ra_int, ra_real1, ra_int1
@@ -1418,6 +1418,50 @@ contains
     call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
       H5T_INTEGER_F, int(shape(x), hsize_t), offset, .false., error)
   end subroutine rb_int2
+
+  !> Collective: integer version of wb_real1 (elements offset+1..offset+size(x) of a 1D dataset).
+  subroutine wb_int1(this, name, x, offset, error)
+    class(h5file_t), intent(inout) :: this
+    character(len=*), intent(in) :: name
+    integer, intent(in), target, contiguous :: x(:)
+    integer, intent(in) :: offset
+    type(error_t), allocatable, intent(out) :: error
+    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
+      H5T_INTEGER_F, int(shape(x), hsize_t), offset, .true., error)
+  end subroutine wb_int1
+
+  !> Collective: int64 version of wb_real1.
+  subroutine wb_int64_1(this, name, x, offset, error)
+    class(h5file_t), intent(inout) :: this
+    character(len=*), intent(in) :: name
+    integer(i8), intent(in), target, contiguous :: x(:)
+    integer, intent(in) :: offset
+    type(error_t), allocatable, intent(out) :: error
+    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int64), &
+      H5T_INTEGER_F, int(shape(x), hsize_t), offset, .true., error)
+  end subroutine wb_int64_1
+
+  !> Collective: integer version of rb_real1.
+  subroutine rb_int1(this, name, x, offset, error)
+    class(h5file_t), intent(inout) :: this
+    character(len=*), intent(in) :: name
+    integer, intent(inout), target, contiguous :: x(:)
+    integer, intent(in) :: offset
+    type(error_t), allocatable, intent(out) :: error
+    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
+      H5T_INTEGER_F, int(shape(x), hsize_t), offset, .false., error)
+  end subroutine rb_int1
+
+  !> Collective: int64 version of rb_real1.
+  subroutine rb_int64_1(this, name, x, offset, error)
+    class(h5file_t), intent(inout) :: this
+    character(len=*), intent(in) :: name
+    integer(i8), intent(inout), target, contiguous :: x(:)
+    integer, intent(in) :: offset
+    type(error_t), allocatable, intent(out) :: error
+    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int64), &
+      H5T_INTEGER_F, int(shape(x), hsize_t), offset, .false., error)
+  end subroutine rb_int64_1
 
   ! ------------------------------------------------------------------ attributes
 

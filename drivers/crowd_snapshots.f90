@@ -1,0 +1,381 @@
+!> crowd_snapshots: run a parameter study of the full-order model over MPI ranks and write one
+!> resumable snapshot database.
+!>
+!>   mpirun -np P crowd_snapshots study.nml [--summary FILE] [--stop-after K]
+!>
+!> Every rank generates the same training / validation samples from &study. Samples already
+!> stored as pieces (`<database>.pieces/`) by an earlier, interrupted run of the same
+!> configuration are skipped; the others are handed out dynamically (shared counter, MPI
+!> one-sided) and each completed sample is written to its own piece file. When every sample is
+!> there, the database is assembled with parallel HDF5 under a temporary name, renamed, and the
+!> pieces are removed. A database or pieces from a different configuration are refused.
+program crowd_snapshots
+  use, intrinsic :: iso_fortran_env, only: compiler_version
+  use mpi_f08
+  use hdf5, only: h5get_libversion_f
+  use cr_kinds, only: wp, i8
+  use cr_error, only: error_t, set_error
+  use cr_strings, only: str
+  use cr_env, only: env_t
+  use cr_logger, only: logger_t, LOG_ERROR, LOG_WARN, LOG_INFO, LOG_DEBUG
+  use cr_cli, only: cli_t, parse_cli
+  use cr_config, only: config_t, read_config, config_echo
+  use cr_config_check, only: check_config
+  use cr_namelist_text, only: namelist_text_t
+  use cr_fom, only: fom_t
+  use cr_fsys, only: make_dir, remove_dir, remove_file, file_exists, file_size
+  use cr_json, only: json_writer_t
+  use cr_study_config, only: study_cfg_t, read_study, check_study, study_echo, study_hash
+  use cr_sampling, only: param_space_t, sample_set_t, generate_samples
+  use cr_scheduler, only: scheduler_t
+  use cr_snapshot_piece, only: sample_result_t, compute_sample, write_piece, piece_hash, piece_path
+  use cr_snapshot_db, only: SNAP_SCHEMA_VERSION, db_meta_t, db_totals_t, probe_database, &
+    assemble_database, collective_error
+  implicit none
+  character(len=*), parameter :: CROWDROM_VERSION = "crowdrom 0.1.0"
+  !> exit status of a run stopped by --stop-after
+  integer, parameter :: EXIT_STOPPED = 3
+  type(env_t) :: env
+  type(logger_t) :: log
+  type(cli_t) :: cli
+  type(config_t) :: cfg
+  type(study_cfg_t) :: study
+  type(namelist_text_t) :: nml
+  type(error_t), allocatable :: error
+  integer :: ierr, code
+  ! state of the run shared by run, set_of and report
+  type(sample_set_t) :: sets(2)
+  type(db_totals_t) :: totals
+  character(len=:), allocatable :: db
+  character(len=16) :: hash
+  integer :: n_tot, n_run, n_prev
+  integer, allocatable :: nsamp(:)
+  real(wp), allocatable :: busy(:)
+  real(wp) :: sum_time, t_compute, t_asm, t_total
+  integer(i8) :: bytes
+
+  call MPI_Init(ierr)
+  call env%init(MPI_COMM_WORLD, error)
+  call log%init(env%is_root())
+  code = 0
+  if (.not. allocated(error)) call parse_cli("crowd_snapshots", cli, error, allow_stop_after=.true.)
+  if (.not. allocated(error)) then
+    if (cli%help) then
+      if (env%is_root()) call print_help()
+      call env%free(); call MPI_Finalize(ierr)
+      stop
+    end if
+    call read_config(cli%input, env, cfg, error, nml)
+  end if
+  if (.not. allocated(error)) call check_config(cfg, error)
+  if (.not. allocated(error)) call read_study(nml, study, error)
+  if (.not. allocated(error)) call check_study(study, cfg, error)
+  if (.not. allocated(error)) then
+    select case (trim(cfg%output%log_level))
+    case ('error'); log%level = LOG_ERROR
+    case ('warn'); log%level = LOG_WARN
+    case ('debug'); log%level = LOG_DEBUG
+    case default; log%level = LOG_INFO
+    end select
+    call run(error)
+  end if
+  if (allocated(error)) then
+    call log%error(error%message)
+    code = error%code
+  end if
+  call MPI_Allreduce(MPI_IN_PLACE, code, 1, MPI_INTEGER, MPI_MAX, env%comm, ierr)
+  call env%free()
+  call MPI_Finalize(ierr)
+  if (code /= 0) error stop code
+
+contains
+
+  subroutine print_help()
+    print '(a)', "usage: mpirun -np P crowd_snapshots study.nml [--summary FILE] [--stop-after K]"
+    print '(a)', ""
+    print '(a)', "Parameter study of the full-order crowd model: samples the parameters of &study,"
+    print '(a)', "spreads the runs over the MPI ranks (dynamic assignment) and writes one snapshot"
+    print '(a)', "database (&study database; schema in docs/snapshots.md)."
+    print '(a)', "A killed run resumes where it stopped when the same command is run again."
+    print '(a)', ""
+    print '(a)', "  --summary FILE   also write the run summary as JSON"
+    print '(a)', "  --stop-after K   testing hook: compute at most K samples, then exit with status 3"
+    print '(a)', "                   without assembling the database (a rerun resumes)"
+    print '(a)', "  -h, --help       this text"
+    print '(a)', ""
+    print '(a)', "Exit status: 0 success, 2 bad input, 3 stopped by --stop-after, 1 other failure."
+  end subroutine print_help
+
+  subroutine run(error)
+    type(error_t), allocatable, intent(out) :: error
+    type(fom_t) :: fom_ref
+    type(param_space_t) :: space
+    type(db_meta_t) :: meta
+    type(scheduler_t) :: sched
+    type(sample_result_t) :: res
+    real(wp), allocatable :: q0(:)
+    integer, allocatable :: done(:), todo(:)
+    character(len=:), allocatable :: dir, msg, path, h
+    integer :: status, g, k, is, t, n_mine, ndone, ierr, maj, mnr, rel, vlen
+    real(wp) :: t0, t_start, t_loop, t_sample, busy_mine
+    character(len=MPI_MAX_LIBRARY_VERSION_STRING) :: mpiv
+
+    t_start = env%wtime()
+    db = trim(study%database)
+    dir = db // ".pieces"
+    call log%stage_begin("crowd_snapshots: setup")
+    call log%info(config_echo(cfg) // study_echo(study))
+    ! the reference model: scene and the common initial positions (placed once, on rank 0)
+    call fom_ref%init(cfg, error)
+    if (allocated(error)) return
+    q0 = fom_ref%q
+    call MPI_Bcast(q0, size(q0), MPI_DOUBLE_PRECISION, 0, env%comm, ierr)
+    call space%init(study, fom_ref%n_agents)
+    call generate_samples(study, space, sets(1), sets(2), error)
+    if (allocated(error)) return
+    n_tot = sets(1)%n + sets(2)%n
+    hash = study_hash(cfg, study, SNAP_SCHEMA_VERSION)
+    call log%info("   " // str(fom_ref%n_agents) // " agents, " // str(cfg%time%n_steps) // " steps per sample, " // &
+      str(space%n_expanded) // " parameter components (" // short(space%component_names()) // "), " // &
+      str(sets(1)%n) // " training + " // str(sets(2)%n) // " validation samples on " // str(env%size) // &
+      " ranks; config_hash " // hash)
+
+    ! an existing database: done already, or refused
+    status = 0; msg = ""
+    if (env%is_root()) call probe_database(db, hash, status, msg)
+    call MPI_Bcast(status, 1, MPI_INTEGER, 0, env%comm, ierr)
+    call env%bcast_string(msg)
+    if (status == 2) then
+      call set_error(error, msg, 2); return
+    end if
+    if (status == 1) then
+      call log%info("database '" // db // "' is already complete for this configuration: nothing to do")
+      call log%stage_end()
+      return
+    end if
+
+    ! pieces of earlier runs
+    allocate(done(n_tot))
+    done = 0
+    msg = ""
+    if (env%is_root()) then
+      if (make_dir(dir) /= 0) msg = "cannot create the directory '" // dir // "' for the pieces"
+      do g = 1, n_tot
+        if (len(msg) > 0) exit
+        call set_of(g, is, k)
+        path = piece_path(dir, sets(is)%name, k)
+        if (.not. file_exists(path)) cycle
+        call piece_hash(path, h, error)
+        if (allocated(error)) then
+          msg = "piece '" // path // "' cannot be read (" // error%message // "): remove it to recompute the sample"
+          deallocate(error)
+        else if (h /= hash) then
+          msg = "'" // dir // "' holds pieces of a different configuration (piece config_hash " // h // &
+            ", this input " // trim(hash) // "): refusing to mix them; remove the directory or restore the input"
+        else
+          done(g) = 1
+        end if
+      end do
+    end if
+    call env%bcast_string(msg)
+    if (len(msg) > 0) then
+      call set_error(error, msg, 2); return
+    end if
+    call MPI_Bcast(done, n_tot, MPI_INTEGER, 0, env%comm, ierr)
+    n_prev = count(done == 1)
+    todo = pack([(g, g = 1, n_tot)], done == 0)
+    n_run = size(todo)
+    if (cli%stop_after >= 0) n_run = min(n_run, cli%stop_after)
+    if (n_prev > 0) call log%info("   resuming: " // str(n_prev) // " of " // str(n_tot) // &
+      " samples already complete in '" // dir // "'")
+    call log%stage_end()
+
+    ! the samples, dynamically assigned
+    call log%stage_begin("crowd_snapshots: " // str(n_run) // " full-order runs on " // str(env%size) // " ranks")
+    call sched%init(env, n_run, error)
+    if (allocated(error)) return
+    call log%progress_start()
+    t_loop = env%wtime()
+    msg = ""
+    n_mine = 0; busy_mine = 0; sum_time = 0
+    do
+      t = sched%next()
+      if (t == 0) exit
+      g = todo(t)
+      call set_of(g, is, k)
+      t0 = env%wtime()
+      res%set = sets(is)%name
+      res%index = k
+      res%rank = env%rank
+      call compute_sample(cfg, space, sets(is)%mu(:, k), q0, fom_ref%speeds, res, error)
+      if (.not. allocated(error)) then
+        res%time = env%wtime() - t0
+        call write_piece(piece_path(dir, sets(is)%name, k), hash, res, error)
+      end if
+      if (allocated(error)) then
+        msg = trim(sets(is)%name) // " sample " // str(k) // " (mu = " // short(mu_text(sets(is)%mu(:, k))) // &
+          ") on rank " // str(env%rank) // ": " // error%message
+        deallocate(error)
+        exit
+      end if
+      t_sample = env%wtime() - t0
+      busy_mine = busy_mine + t_sample
+      sum_time = sum_time + t_sample
+      n_mine = n_mine + 1
+      ndone = sched%mark_done()
+      if (env%is_root()) call log%progress("samples", n_prev + ndone, n_tot)
+    end do
+    call collective_error(env, msg, error)
+    call sched%free()
+    if (allocated(error)) return
+    call env%barrier()
+    t_compute = env%wtime() - t_loop
+    allocate(busy(env%size), nsamp(env%size))
+    call MPI_Allgather(busy_mine, 1, MPI_DOUBLE_PRECISION, busy, 1, MPI_DOUBLE_PRECISION, env%comm, ierr)
+    call MPI_Allgather(n_mine, 1, MPI_INTEGER, nsamp, 1, MPI_INTEGER, env%comm, ierr)
+    sum_time = env%sum_real(sum_time)
+    call log%info("   samples " // str(n_prev + n_run) // " of " // str(n_tot) // " complete")
+    call log%stage_end()
+    if (n_run < size(todo)) then
+      call set_error(error, "stopped after " // str(n_run) // " samples as requested by --stop-after (" // &
+        str(n_prev + n_run) // " of " // str(n_tot) // " complete, database not assembled): run again " // &
+        "without --stop-after to finish", EXIT_STOPPED)
+      return
+    end if
+
+    ! the database
+    call log%stage_begin("crowd_snapshots: assembling '" // db // "'")
+    t0 = env%wtime()
+    meta%config_text = config_echo(cfg) // study_echo(study)
+    meta%input_text = cfg%text
+    meta%hash = hash
+    meta%param_names = space%component_names()
+    meta%version = CROWDROM_VERSION
+    call h5get_libversion_f(maj, mnr, rel, ierr)
+    meta%hdf5_version = str(maj) // "." // str(mnr) // "." // str(rel)
+    call MPI_Get_library_version(mpiv, vlen, ierr)
+    meta%mpi_version = trim(mpiv(1:min(vlen, len(mpiv))))
+    if (index(meta%mpi_version, new_line('a')) > 0) &
+      meta%mpi_version = meta%mpi_version(1:index(meta%mpi_version, new_line('a')) - 1)
+    meta%compiler = compiler_version()
+    meta%n_agents = fom_ref%n_agents
+    meta%n_steps = cfg%time%n_steps
+    meta%n_expanded = space%n_expanded
+    meta%radius = fom_ref%radius
+    meta%dt = fom_ref%dt
+    call assemble_database(env, db, dir, meta, fom_ref, q0, sets(1)%n, sets(2)%n, totals, error)
+    if (allocated(error)) return
+    ! the database is committed: the pieces can go
+    if (env%is_root()) then
+      do g = 1, n_tot
+        call set_of(g, is, k)
+        path = piece_path(dir, sets(is)%name, k)
+        status = remove_file(path)
+        status = remove_file(path // ".partial")
+      end do
+      if (remove_dir(dir) /= 0) call log%warn("could not remove '" // dir // "' (foreign files in it?)")
+    end if
+    t_asm = env%wtime() - t0
+    call log%stage_end()
+    t_total = env%wtime() - t_start
+    bytes = file_size(db)
+    call report()
+  end subroutine run
+
+    !> Global sample number g -> set (1 train, 2 valid) and index in the set.
+    subroutine set_of(g, is, k)
+      integer, intent(in) :: g
+      integer, intent(out) :: is, k
+      if (g <= sets(1)%n) then
+        is = 1; k = g
+      else
+        is = 2; k = g - sets(1)%n
+      end if
+    end subroutine set_of
+
+    subroutine report()
+      type(json_writer_t) :: js
+      character(len=:), allocatable :: text
+      real(wp) :: eff_compute, eff_total, balance, mean_busy
+      integer :: r
+      type(error_t), allocatable :: e2
+      eff_compute = 0; eff_total = 0; balance = 1
+      if (t_compute > 0) eff_compute = sum_time / (env%size * t_compute)
+      if (t_total > 0) eff_total = sum_time / (env%size * t_total)
+      mean_busy = sum(busy) / env%size
+      if (maxval(busy) > 0) balance = mean_busy / maxval(busy)
+      text = "summary:" // new_line('a') // &
+        "  database            " // db // " (" // str(real(bytes, wp) / 1.0e6_wp, 'f0.2') // " MB)" // new_line('a') // &
+        "  samples             " // str(n_tot) // " (" // str(sets(1)%n) // " train + " // str(sets(2)%n) // &
+        " valid), computed now " // str(n_run) // ", resumed " // str(n_prev) // new_line('a') // &
+        "  time per sample     mean " // str(sum_time / max(n_run, 1), 'f0.3') // " s (with its piece file), " // &
+        "max of the model runs in the database " // str(totals%time_max, 'f0.3') // " s" // new_line('a') // &
+        "  ranks               " // str(env%size) // new_line('a')
+      do r = 1, env%size
+        text = text // "    rank " // str(r - 1) // ": " // str(nsamp(r)) // " samples, busy " // &
+          str(busy(r), 'f0.2') // " s" // new_line('a')
+      end do
+      text = text // &
+        "  load balance        " // str(balance, 'f0.3') // " (mean / max busy time)" // new_line('a') // &
+        "  parallel efficiency " // str(eff_compute, 'f0.3') // " (sample loop), " // str(eff_total, 'f0.3') // &
+        " (whole run: sum of sample times / (P x wall))" // new_line('a') // &
+        "  wall time           " // str(t_total, 'f0.2') // " s (samples " // str(t_compute, 'f0.2') // &
+        " s, assembly " // str(t_asm, 'f0.2') // " s)" // new_line('a') // &
+        "  non-converged steps " // str(totals%nonconverged_steps) // " in " // str(totals%nonconverged_samples) // &
+        " samples (largest KKT residual " // str(totals%kkt_max) // ")" // new_line('a') // &
+        "  contact dictionary  " // str(totals%n_dict) // " contacts, " // str(totals%nnz) // " stored multipliers"
+      call log%info(text)
+      if (len(cli%summary) == 0 .or. .not. env%is_root()) return
+      call js%add("program", "crowd_snapshots")
+      call js%add("input", cfg%source)
+      call js%add("database", db)
+      call js%add("database_bytes", bytes)
+      call js%add("config_hash", trim(hash))
+      call js%add("ranks", env%size)
+      call js%add("samples_total", n_tot)
+      call js%add("samples_train", sets(1)%n)
+      call js%add("samples_valid", sets(2)%n)
+      call js%add("samples_computed", n_run)
+      call js%add("samples_resumed", n_prev)
+      call js%add("time_per_sample_mean", sum_time / max(n_run, 1))
+      call js%add("time_per_sample_max", totals%time_max)
+      call js%add("samples_per_rank", nsamp)
+      call js%add("busy_time_per_rank", busy)
+      call js%add("load_balance", balance)
+      call js%add("parallel_efficiency", eff_total)
+      call js%add("parallel_efficiency_sample_loop", eff_compute)
+      call js%add("wall_time", t_total)
+      call js%add("wall_time_samples", t_compute)
+      call js%add("wall_time_assembly", t_asm)
+      call js%add("nonconverged_steps", totals%nonconverged_steps)
+      call js%add("nonconverged_samples", totals%nonconverged_samples)
+      call js%add("largest_kkt_residual", totals%kkt_max)
+      call js%add("contacts_in_dictionary", totals%n_dict)
+      call js%add("stored_multipliers", totals%nnz)
+      call js%write_file(cli%summary, e2)
+      if (allocated(e2)) call log%warn(e2%message)
+    end subroutine report
+
+  !> "a, b, c" of a parameter vector.
+  function mu_text(mu) result(s)
+    real(wp), intent(in) :: mu(:)
+    character(len=:), allocatable :: s
+    integer :: k
+    s = ""
+    do k = 1, size(mu)
+      s = s // str(mu(k)) // merge(", ", "  ", k < size(mu))
+    end do
+    s = trim(s)
+  end function mu_text
+
+  !> At most 60 characters of s.
+  function short(s) result(t)
+    character(len=*), intent(in) :: s
+    character(len=:), allocatable :: t
+    if (len(s) > 60) then
+      t = s(1:57) // "..."
+    else
+      t = s
+    end if
+  end function short
+end program crowd_snapshots

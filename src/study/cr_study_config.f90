@@ -1,0 +1,223 @@
+!> The &study namelist group: which parameters of the full-order model vary, over which box,
+!> how the training and validation samples are drawn, and where the snapshot database goes.
+!>
+!>   &study n_params = 2, param_name = 'l_exit', 'speed', param_min = 0.28, 4.5,
+!>          param_max = 0.36, 5.5, sampling = 'random', n_train = 200, n_valid = 50, seed = 1,
+!>          database = 'results/congested150_snapshots.h5' /
+!>
+!> Parameter names: 'l_exit' (exit width, m), 'speed' (one desired speed c shared by every
+!> agent, m/s), 'speeds' (each agent's speed c_i drawn independently in [param_min, param_max]:
+!> n_agents components). Bounds are absolute. Reading follows cr_config (defaults, iostat,
+!> message naming file and group); check_study collects every problem.
+module cr_study_config
+  use cr_kinds, only: wp
+  use cr_error, only: error_t, set_error
+  use cr_strings, only: str, to_lower
+  use cr_namelist_text, only: namelist_text_t
+  use cr_config, only: config_t, config_echo, MAX_PATH
+  use cr_hash, only: hash_text
+  implicit none
+  private
+  public :: study_cfg_t, read_study, check_study, study_echo, study_hash, MAX_PARAMS, KNOWN_PARAMS
+
+  !> most parameters in one study ('speeds' counts as one here)
+  integer, parameter :: MAX_PARAMS = 8
+  character(len=*), parameter :: KNOWN_PARAMS = "l_exit, speed, speeds"
+
+  !> &study: parameters, sampling, database.
+  type :: study_cfg_t
+    integer :: n_params = 0
+    character(len=16) :: param_name(MAX_PARAMS) = ''
+    !> absolute bounds of each parameter (units of the parameter)
+    real(wp) :: param_min(MAX_PARAMS) = 0.0_wp
+    real(wp) :: param_max(MAX_PARAMS) = 0.0_wp
+    !> 'random' (uniform in the box, reproducible from seed) or 'grid' (tensor grid for training)
+    character(len=16) :: sampling = 'random'
+    !> grid points per parameter (sampling = 'grid'); product must equal n_train
+    integer :: grid_n(MAX_PARAMS) = 0
+    integer :: n_train = 200
+    integer :: n_valid = 50
+    integer :: seed = 1
+    character(len=MAX_PATH) :: database = 'snapshots.h5'
+  end type study_cfg_t
+
+contains
+
+  !> Read &study from the loaded namelist text (the group is required).
+  subroutine read_study(t, c, error)
+    type(namelist_text_t), intent(in) :: t
+    type(study_cfg_t), intent(out) :: c
+    type(error_t), allocatable, intent(out) :: error
+    integer :: n_params, grid_n(MAX_PARAMS), n_train, n_valid, seed
+    character(len=16) :: param_name(MAX_PARAMS), sampling
+    real(wp) :: param_min(MAX_PARAMS), param_max(MAX_PARAMS)
+    character(len=MAX_PATH) :: database
+    namelist /study/ n_params, param_name, param_min, param_max, sampling, grid_n, n_train, &
+      n_valid, seed, database
+    integer :: ios, k
+    character(len=512) :: msg
+    if (.not. t%has_group('study')) then
+      call set_error(error, t%path // ": no namelist group &study (a parameter study needs one)", 2)
+      return
+    end if
+    n_params = c%n_params; param_name = c%param_name; param_min = c%param_min
+    param_max = c%param_max; sampling = c%sampling; grid_n = c%grid_n; n_train = c%n_train
+    n_valid = c%n_valid; seed = c%seed; database = c%database
+    msg = ''
+    read(t%lines, nml=study, iostat=ios, iomsg=msg)
+    if (ios /= 0) then
+      call set_error(error, t%path // ": namelist group &study: " // trim(msg), 2); return
+    end if
+    c%n_params = n_params; c%param_min = param_min; c%param_max = param_max
+    do k = 1, MAX_PARAMS
+      c%param_name(k) = to_lower(adjustl(param_name(k)))
+    end do
+    c%sampling = to_lower(adjustl(sampling)); c%grid_n = grid_n; c%n_train = n_train
+    c%n_valid = n_valid; c%seed = seed; c%database = database
+  end subroutine read_study
+
+  !> Check &study against the model configuration; `error` lists every problem.
+  subroutine check_study(s, cfg, error)
+    type(study_cfg_t), intent(in) :: s
+    type(config_t), intent(in) :: cfg
+    type(error_t), allocatable, intent(out) :: error
+    character(len=:), allocatable :: p
+    integer :: k, j, np, nprob, ngrid
+    character(len=:), allocatable :: nm
+    p = ""; nprob = 0
+    np = min(max(s%n_params, 0), MAX_PARAMS)
+    call need(s%n_params >= 1 .and. s%n_params <= MAX_PARAMS, "&study: n_params must be in 1.." // &
+      str(MAX_PARAMS) // " (got " // str(s%n_params) // ")")
+    do k = 1, np
+      nm = trim(s%param_name(k))
+      select case (nm)
+      case ('l_exit', 'speed', 'speeds')
+      case default
+        call need(.false., "&study: param_name(" // str(k) // ") = '" // nm // &
+          "' is not a known parameter (known: " // KNOWN_PARAMS // ")")
+      end select
+      do j = 1, k - 1
+        call need(s%param_name(j) /= s%param_name(k), "&study: parameter '" // nm // "' is given twice")
+      end do
+      if (.not. (s%param_min(k) < s%param_max(k))) then
+        call need(.false., "&study: empty range for parameter " // str(k) // " '" // nm // &
+          "': param_min = " // str(s%param_min(k)) // " must be < param_max = " // str(s%param_max(k)))
+      else if (nm == 'l_exit') then
+        call need(s%param_min(k) > 0 .and. s%param_max(k) <= cfg%scene%hall_length, &
+          "&study: l_exit range [" // str(s%param_min(k)) // ", " // str(s%param_max(k)) // &
+          "] must lie in (0, hall_length = " // str(cfg%scene%hall_length) // "]")
+        if (cfg%scene%exit_center >= 0) call need(cfg%scene%exit_center - s%param_max(k) / 2 >= 0 .and. &
+          cfg%scene%exit_center + s%param_max(k) / 2 <= cfg%scene%hall_length, &
+          "&study: l_exit up to " // str(s%param_max(k)) // " puts the opening outside the wall (exit_center = " &
+          // str(cfg%scene%exit_center) // ")")
+      else if (nm == 'speed' .or. nm == 'speeds') then
+        call need(s%param_min(k) >= 0, "&study: " // nm // " range must be >= 0 (param_min = " // &
+          str(s%param_min(k)) // ")")
+      end if
+    end do
+    if (any(s%param_name(1:np) == 'speed') .and. any(s%param_name(1:np) == 'speeds')) &
+      call need(.false., "&study: 'speed' (one common speed) and 'speeds' (one per agent) exclude each other")
+    do k = np + 1, MAX_PARAMS
+      call need(len_trim(s%param_name(k)) == 0, "&study: param_name(" // str(k) // ") = '" // &
+        trim(s%param_name(k)) // "' is beyond n_params = " // str(s%n_params))
+    end do
+    call need(s%n_train >= 1, "&study: n_train must be >= 1 (got " // str(s%n_train) // ": zero samples)")
+    call need(s%n_valid >= 0, "&study: n_valid must be >= 0 (got " // str(s%n_valid) // ")")
+    call need(s%seed >= 0, "&study: seed must be >= 0 (got " // str(s%seed) // ")")
+    call need(len_trim(s%database) > 0, "&study: database must name a file")
+    select case (trim(s%sampling))
+    case ('random')
+    case ('grid')
+      call need(.not. any(s%param_name(1:np) == 'speeds'), "&study: sampling = 'grid' cannot vary " // &
+        "'speeds' (one component per agent); use 'speed' or sampling = 'random'")
+      call need(all(s%grid_n(1:np) >= 1), "&study: sampling = 'grid' needs grid_n(1:n_params) >= 1")
+      if (all(s%grid_n(1:np) >= 1) .and. np >= 1) then
+        ngrid = product(s%grid_n(1:np))
+        call need(ngrid == s%n_train, "&study: grid_n gives " // str(ngrid) // " training samples but n_train = " &
+          // str(s%n_train))
+      end if
+    case default
+      call need(.false., "&study: sampling = '" // trim(s%sampling) // "' is not one of 'random', 'grid'")
+    end select
+    call need(.not. cfg%time%until_empty, "&time: until_empty = .true. is not allowed in a study " // &
+      "(every sample runs n_steps steps)")
+    call need(cfg%time%n_steps >= 1, "&time: n_steps must be >= 1 in a study (got " // str(cfg%time%n_steps) // ")")
+    if (nprob > 0) call set_error(error, p, 2)
+
+  contains
+
+    subroutine need(ok, msg)
+      logical, intent(in) :: ok
+      character(len=*), intent(in) :: msg
+      if (ok) return
+      nprob = nprob + 1
+      if (nprob > 1) p = p // "; "
+      p = p // msg
+    end subroutine need
+  end subroutine check_study
+
+  !> &study as a re-readable namelist group (without database when with_database is false).
+  function study_echo(s, with_database) result(t)
+    type(study_cfg_t), intent(in) :: s
+    logical, intent(in), optional :: with_database
+    character(len=:), allocatable :: t
+    integer :: k, np
+    logical :: db
+    character(len=32) :: b
+    db = .true.
+    if (present(with_database)) db = with_database
+    np = min(max(s%n_params, 0), MAX_PARAMS)
+    t = "&study n_params = " // str(s%n_params) // ", param_name = "
+    do k = 1, np
+      t = t // "'" // trim(s%param_name(k)) // "'" // merge(", ", "  ", k < np)
+    end do
+    t = trim(t) // ", param_min = "
+    do k = 1, np
+      write(b, '(es23.16)') s%param_min(k)
+      t = t // trim(adjustl(b)) // merge(", ", "  ", k < np)
+    end do
+    t = trim(t) // ", param_max = "
+    do k = 1, np
+      write(b, '(es23.16)') s%param_max(k)
+      t = t // trim(adjustl(b)) // merge(", ", "  ", k < np)
+    end do
+    t = trim(t) // ", sampling = '" // trim(s%sampling) // "'"
+    if (s%sampling == 'grid') then
+      t = t // ", grid_n = "
+      do k = 1, np
+        t = t // str(s%grid_n(k)) // merge(", ", "  ", k < np)
+      end do
+      t = trim(t)
+    end if
+    t = t // ", n_train = " // str(s%n_train) // ", n_valid = " // str(s%n_valid) // ", seed = " // &
+      str(s%seed)
+    if (db) t = t // ", database = '" // trim(s%database) // "'"
+    t = t // " /" // new_line('a')
+  end function study_echo
+
+  !> Fingerprint of everything that determines the snapshots: the model configuration (without
+  !> its source line and &output) and &study (without the database name).
+  function study_hash(cfg, s, schema_version) result(h)
+    type(config_t), intent(in) :: cfg
+    type(study_cfg_t), intent(in) :: s
+    integer, intent(in) :: schema_version
+    character(len=16) :: h
+    character(len=:), allocatable :: e, kept
+    integer :: i0, i1
+    e = config_echo(cfg)
+    kept = ""
+    i0 = 1
+    do while (i0 <= len(e))
+      i1 = index(e(i0:), new_line('a'))
+      if (i1 == 0) then
+        i1 = len(e)
+      else
+        i1 = i0 + i1 - 1
+      end if
+      if (e(i0:i0) /= '!' .and. index(e(i0:i1), '&output') /= 1) kept = kept // e(i0:i1)
+      i0 = i1 + 1
+    end do
+    h = hash_text("crowdrom-snapshots v" // str(schema_version) // new_line('a') // kept // &
+      study_echo(s, with_database=.false.))
+  end function study_hash
+end module cr_study_config

@@ -1,0 +1,96 @@
+#!/usr/bin/env bash
+# Checks of crowd_snapshots (registered in tests/snapshots.cmake). Runs in its own directory.
+#   snap_check.sh ranks NP BIN INPUT            run at NP ranks; NP > 1: compare with snap_np1/
+#   snap_check.sh stop_resume BIN INPUT         --stop-after 4 at 2 ranks, resume at 3 ranks, compare
+#   snap_check.sh kill_resume BIN INPUT         SIGKILL a running mpirun, resume, compare
+#   snap_check.sh mismatch BIN INPUT OTHER      OTHER (another configuration) must refuse INPUT's database
+# The database name is &study database = 'snap_tiny.h5' (snap_kill.h5 for kill_resume).
+# Snapshots are compared bitwise with h5diff (data and attributes), except the per-sample
+# wall time and rank (stats/time, stats/rank).
+set -u
+MPIRUN=${MPIEXEC:-mpiexec}
+fail() { echo "FAIL: $*"; exit 1; }
+same_db() {  # same_db A B
+  h5diff --exclude-path /train/stats/time --exclude-path /train/stats/rank \
+         --exclude-path /valid/stats/time --exclude-path /valid/stats/rank "$1" "$2" > h5diff.log 2>&1
+  local rc=$?
+  [ $rc -eq 0 ] || { head -30 h5diff.log; fail "$1 and $2 differ (h5diff status $rc)"; }
+  h5dump -a /complete "$1" | grep -q "(0): 1" || fail "$1 is not marked complete"
+}
+mode=$1; shift
+case $mode in
+ranks)
+  np=$1; bin=$2; input=$3
+  dir=snap_np$np; rm -rf "$dir"; mkdir -p "$dir"; cd "$dir" || exit 1
+  "$MPIRUN" -np "$np" --oversubscribe "$bin" "$input" --summary summary.json > log.txt 2>&1 || { cat log.txt; fail "run at $np ranks"; }
+  [ -f snap_tiny.h5 ] || fail "no database"
+  [ ! -e snap_tiny.h5.pieces ] || fail "pieces left behind after a complete run"
+  grep -q '"samples_per_rank"' summary.json || fail "summary JSON incomplete"
+  if [ "$np" != 1 ]; then same_db snap_tiny.h5 ../snap_np1/snap_tiny.h5; fi
+  # a second run finds the complete database and does nothing
+  "$MPIRUN" -np "$np" --oversubscribe "$bin" "$input" > log2.txt 2>&1 || { cat log2.txt; fail "rerun on a complete database"; }
+  grep -q "already complete" log2.txt || fail "rerun did not recognise the complete database"
+  ;;
+stop_resume)
+  bin=$1; input=$2
+  rm -rf stop_resume; mkdir stop_resume; cd stop_resume || exit 1
+  "$MPIRUN" -np 2 --oversubscribe "$bin" "$input" --stop-after 4 > log1.txt 2>&1; rc=$?
+  [ $rc -eq 3 ] || { cat log1.txt; fail "--stop-after 4: exit status $rc, expected 3"; }
+  [ ! -e snap_tiny.h5 ] || fail "an interrupted run left a database under the final name"
+  n=$(ls snap_tiny.h5.pieces/*.h5 2>/dev/null | wc -l)
+  [ "$n" -eq 4 ] || fail "expected 4 complete pieces, found $n"
+  "$MPIRUN" -np 3 --oversubscribe "$bin" "$input" --summary s.json > log2.txt 2>&1 || { cat log2.txt; fail "resume"; }
+  grep -q '"samples_resumed": 4' s.json || { cat s.json; fail "the resumed run did not reuse the 4 pieces"; }
+  same_db snap_tiny.h5 ../snap_np1/snap_tiny.h5
+  ;;
+kill_resume)
+  bin=$1; input=$2
+  rm -rf kill_resume; mkdir kill_resume; cd kill_resume || exit 1
+  mkdir ref && (cd ref && "$MPIRUN" -np 1 "$bin" "$input" > log.txt 2>&1) || fail "reference run"
+  setsid "$MPIRUN" -np 2 --oversubscribe "$bin" "$input" > log1.txt 2>&1 &
+  pid=$!
+  for i in $(seq 1 600); do
+    n=$(ls snap_kill.h5.pieces/*.h5 2>/dev/null | wc -l)
+    [ "$n" -ge 3 ] && break
+    sleep 0.02
+  done
+  # like a batch system ending a job: SIGKILL mpirun and every process of its session (Open MPI
+  # puts the ranks in their own process groups, so killing mpirun's group alone leaves them running)
+  sid=$(ps -o sid= -p $pid | tr -d ' ')
+  [ -n "$sid" ] || fail "mpirun ended before it could be killed (make the study longer)"
+  pids=$(ps -eo pid=,sid= | awk -v s="$sid" '$2 == s {print $1}')
+  kill -KILL $pids 2>/dev/null
+  wait $pid 2>/dev/null
+  for i in $(seq 1 50); do
+    left=$(ps -eo pid=,sid= | awk -v s="$sid" '$2 == s {print $1}')
+    [ -z "$left" ] && break
+    sleep 0.1
+  done
+  [ -z "$left" ] || fail "processes of the killed run survive: $left"
+  [ ! -e snap_kill.h5 ] || fail "the killed run left a database under the final name (or finished before the kill)"
+  n=$(ls snap_kill.h5.pieces/*.h5 2>/dev/null | wc -l)
+  echo "killed with $n complete pieces"
+  "$MPIRUN" -np 2 --oversubscribe "$bin" "$input" --summary s.json > log2.txt 2>&1 || { cat log2.txt; fail "resume after SIGKILL"; }
+  grep -q "\"samples_resumed\": $n" s.json || { cat s.json; fail "resume did not reuse the $n pieces"; }
+  same_db snap_kill.h5 ref/snap_kill.h5
+  ;;
+mismatch)
+  bin=$1; input=$2; other=$3
+  rm -rf mismatch; mkdir mismatch; cd mismatch || exit 1
+  cp ../snap_np1/snap_tiny.h5 . || fail "no reference database"
+  cp snap_tiny.h5 before.h5
+  out=$("$MPIRUN" -np 2 --oversubscribe "$bin" "$other" --summary s.json 2>&1); rc=$?
+  [ $rc -ne 0 ] || fail "a database of another configuration was accepted"
+  grep -qE "^error: database 'snap_tiny.h5' was written for a different configuration" <<<"$out" || { echo "$out"; fail "message"; }
+  cmp -s snap_tiny.h5 before.h5 || fail "the existing database was modified"
+  [ ! -e snap_tiny.h5.pieces ] && [ ! -e s.json ] || fail "a refused run created files"
+  # pieces of another configuration are refused too
+  rm snap_tiny.h5; mkdir snap_tiny.h5.pieces
+  (mkdir p && cd p && "$MPIRUN" -np 1 "$bin" "$input" --stop-after 1 > /dev/null 2>&1; cp snap_tiny.h5.pieces/*.h5 ../snap_tiny.h5.pieces/)
+  out=$("$MPIRUN" -np 1 "$bin" "$other" 2>&1); rc=$?
+  [ $rc -ne 0 ] || fail "pieces of another configuration were accepted"
+  grep -qE "^error: .*holds pieces of a different configuration" <<<"$out" || { echo "$out"; fail "message (pieces)"; }
+  ;;
+*) fail "unknown mode $mode" ;;
+esac
+echo "1 passed, 0 failed"
