@@ -23,6 +23,7 @@ module cr_infsup
   use cr_contact_eval, only: eval_contact
   use cr_sparse_cone, only: sparse_cone_t
   use cr_nnls, only: nnls_solve, nnls_stats_t
+  use cr_lapack, only: la_syevd
   implicit none
   private
   public :: infsup_t, reduced_infsup
@@ -34,16 +35,6 @@ module cr_infsup
     logical :: exact = .false.
   end type infsup_t
 
-  interface
-    subroutine dsyev(jobz, uplo, n, a, lda, w, work, lwork, info)
-      import :: wp
-      character, intent(in) :: jobz, uplo
-      integer, intent(in) :: n, lda, lwork
-      real(wp), intent(inout) :: a(lda, *)
-      real(wp), intent(out) :: w(*), work(*)
-      integer, intent(out) :: info
-    end subroutine dsyev
-  end interface
 
 contains
 
@@ -56,11 +47,11 @@ contains
     real(wp), intent(in) :: v(:,:), q(:)
     type(infsup_t), intent(out) :: gam
     type(error_t), allocatable, intent(out) :: error
-    real(wp), allocatable :: bh(:,:), m(:,:), g(:,:), l(:,:), c(:,:), w(:), work(:), a(:,:), b(:), beta(:)
+    real(wp), allocatable :: bh(:,:), m(:,:), g(:,:), l(:,:), c(:,:), w(:), a(:,:), b(:), beta(:)
     real(wp), allocatable :: grad(:), trial(:)
     type(nnls_stats_t) :: st
     real(wp) :: gap, gv(2), wgt, f, ft, step, vmin, vmax
-    integer :: r, n, p, ll, ia, ib, i, j, info, lwork, it
+    integer :: r, n, p, ll, ia, ib, i, j, it
     r = cone%r; n = size(v, 2)
     if (r == 0 .or. n == 0) then
       gam = infsup_t(0.0_wp, 0.0_wp, .true.); return
@@ -104,13 +95,10 @@ contains
       call lsolve(c(:, j))
     end do
     c = 0.5_wp * (c + transpose(c))
-    allocate(w(r), work(1))
-    call dsyev('V', 'L', r, c, r, w, work, -1, info)
-    lwork = max(1, int(work(1)))
-    deallocate(work); allocate(work(lwork))
-    call dsyev('V', 'L', r, c, r, w, work, lwork, info)
-    if (info /= 0) then
-      call set_error(error, "infsup: dsyev failed with info = " // str(info) // " (R = " // str(r) // ")"); return
+    allocate(w(r))
+    call la_syevd(c, w, error)
+    if (allocated(error)) then
+      error%message = "infsup: " // error%message // " (R = " // str(r) // ")"; return
     end if
     gam%low = sqrt(max(w(1), 0.0_wp))
     ! eigenvector in beta coordinates: beta = L^{-T} y; one sign -> exact
