@@ -256,7 +256,7 @@ contains
     type(solve_stats_t) :: st
     type(error_t), allocatable :: err
     integer(8) :: c0, c1, rate
-    call jammed_scene(60, 50, .true., 0.02_wp, 1.0_wp, cs, v)
+    call jammed_scene(24, 20, .true., 0.02_wp, 1.0_wp, cs, v)
     allocate(u(size(v)), l(cs%n))
     s = projection_settings_t()
     call build('gpcg', s, sg)

@@ -1,25 +1,31 @@
-!> Exact, matrix-free projection by gradient projection + conjugate gradients on the dual
-!> (in the spirit of More & Toraldo's GPCG, SIAM J. Optim. 1 (1991)):
+!> Exact, matrix-free projection by gradient projection + conjugate gradients on the dual,
+!> an active-face method of the GPCG family (More & Toraldo, SIAM J. Optim. 1, 1991) in the
+!> proportioning form of Dostal's MPRGP (Dostal & Schoeberl, Comput. Optim. Appl. 30, 2005),
+!> which keeps CG running across bound changes and copes with degenerate (jammed) problems:
 !>   min_{lambda >= 0} f(lambda) = 1/2 |B^T lambda|^2 - lambda^T (B v - d),
 !>   g = grad f = d - B u(lambda),  u(lambda) = v - B^T lambda,  A = B B^T.
 !>
-!> Each outer iteration has two phases.
-!> - Gradient projection (GP): projected searches along the Jacobi-scaled steepest descent
-!>   direction -D^{-1} g (D = diag A = h^2 (2 for agent pairs, 1 for obstacle rows)):
-!>   lambda(a) = max(lambda - a D^{-1} g, 0), first trial a = the exact minimiser of f along the
-!>   direction with the blocked components removed, backtracking with safeguarded quadratic
-!>   interpolation until the Armijo test f(lambda(a)) <= f(lambda) + mu g^T (lambda(a) - lambda).
-!>   Many bounds may change per step. The phase ends when the active set {lambda_l = 0} no longer
-!>   changes or the decrease is small compared with the best decrease of the phase.
-!> - Conjugate gradients (CG): Jacobi-preconditioned CG on the free variables
-!>   F = {lambda_l > 0 or g_l < 0} (products A_FF p = B (B^T p) with p zero outside F), until the
-!>   scaled face residual is below tol / 10, a bound is hit (then a projected search along the
-!>   CG direction, which may fix several bounds at once, and back to GP) or a per-phase cap.
-!>   Singular faces (jammed crowds: B_F B_F^T singular) are consistent, and CG converges on them;
-!>   a direction of (numerically) zero curvature is followed to the nearest bound.
-!> The gradient and B^T lambda are recomputed from scratch after every CG phase, and the scaled
-!> KKT residual of kkt_residuals is evaluated there from them (primal from -g, complementarity
-!> from lambda g; dual and stationarity vanish by construction). Iterations = GP steps + CG steps.
+!> Jacobi scaling: D = diag A = h^2 |g_l|^2 (2 for agent pairs, 1 for obstacle rows); the method
+!> runs in the variables D^{1/2} lambda (bounds unchanged), i.e. with the preconditioner D^{-1}.
+!> Free gradient phi_l = g_l where lambda_l > 0 (else 0); chopped gradient beta_l = min(g_l, 0)
+!> where lambda_l = 0 (else 0). Each iteration is one of
+!> - CG step on the current face (matrix-free A p = B (B^T p), p zero on bound rows), taken when
+!>   the face gradient dominates (|beta|^2_{D^-1} <= Gamma^2 phi~^T D^-1 phi) and the CG step stays
+!>   feasible;
+!> - expansion step, when the CG step would cross a bound: step to the first bound along p, then
+!>   one projected gradient step lambda <- max(lambda - abar D^-1 phi, 0) with a fixed step
+!>   abar = 1.9 / (Gershgorin bound of ||D^-1/2 A D^-1/2||), which fixes many bounds at once;
+!>   CG restarts on the new face;
+!> - proportioning step, when bound rows want to leave their bound (beta dominates): exact line
+!>   minimisation along -D^-1 beta, releasing all of them at once; CG restarts.
+!> f decreases at every step (R-linear convergence for any Gamma > 0, abar in (0, 2/||A||]).
+!> Singular faces (B_F B_F^T singular) are consistent and CG converges on them; a direction of
+!> zero curvature is followed to the nearest bound (or flags an unbounded dual = infeasible
+!> constraints). The gradient is updated by recurrences and recomputed from scratch after every
+!> expansion step and whenever the recurrence says converged; the stopping test is the scaled
+!> KKT residual of kkt_residuals computed from g (primal from -g, complementarity from lambda g;
+!> dual and stationarity vanish by construction). Iterations = CG + expansion + proportioning
+!> steps (one product with A each, plus one more per expansion step).
 module cr_gpcg
   use cr_kinds, only: wp
   use cr_error, only: error_t
@@ -30,26 +36,18 @@ module cr_gpcg
   private
   public :: gpcg_solver_t
 
-  !> Armijo parameter of the projected searches
-  real(wp), parameter :: mu = 0.01_wp
-  !> GP phase ends when a step decreases f by less than eta_gp times the best decrease of the phase
-  real(wp), parameter :: eta_gp = 0.1_wp
-  !> at most this many GP steps in one phase
-  integer, parameter :: max_gp = 50
-  !> at most this many backtracking trials in one projected search
-  integer, parameter :: max_trials = 40
-  !> CG on a face stops when its scaled residual is below face_factor * tol
-  real(wp), parameter :: face_factor = 0.1_wp
-  !> relative curvature below which a CG direction counts as a null direction
-  real(wp), parameter :: curv_tol = 1.0e-13_wp
+  !> proportioning parameter Gamma
+  real(wp), parameter :: gamma_prop = 1.0_wp
+  !> fixed step of the expansion step, relative to 1 / (bound of ||D^-1/2 A D^-1/2||)
+  real(wp), parameter :: abar_factor = 1.9_wp
+  !> relative curvature below which a direction counts as a null direction of A
+  real(wp), parameter :: curv_tol = 1.0e-14_wp
 
-  !> Gradient projection + conjugate gradients (GPCG) on the dual; exact up to tol.
+  !> Gradient projection + conjugate gradients (MPRGP form) on the dual; exact up to tol.
   type, extends(projection_solver_t) :: gpcg_solver_t
     !> work arrays over rows, kept between solves and grown when needed [n rows]
-    real(wp), allocatable :: g(:), p(:), r(:), z(:), ap(:), s(:), dinv(:), best(:), lt(:)
-    !> free-variable mask of the current CG phase [n rows]
-    logical, allocatable :: isfree(:)
-    !> work arrays over velocities: B^T lambda, B^T (direction) [2*n_agents]
+    real(wp), allocatable :: g(:), p(:), ap(:), z(:), dinv(:), best(:)
+    !> work arrays over velocities (B^T lambda, B^T p, scratch) [2*n_agents]
     real(wp), allocatable :: w(:), t(:), ut(:)
   contains
     procedure :: solve => gpcg_solve
@@ -66,13 +64,14 @@ contains
     real(wp), intent(inout) :: lambda(:)
     type(solve_stats_t), intent(out) :: stats
     type(error_t), allocatable, intent(out) :: error
-    integer :: n, nd, l, iter, n_gp, n_outer, max_iter
-    real(wp) :: sv, kkt, best_kkt, tol, dmax, decrease
-    logical :: changed, unbounded, stalled
+    integer :: n, nd, na, l, a, b, iter, max_iter, n_refresh, n_exp, n_prop
+    real(wp) :: sv, kkt, best_kkt, tol, abar, bound, beta2, prop, gp, pap, pdp, acg, af, gam
+    real(wp) :: sa
+    logical :: unbounded, fresh
 
     call check_sizes("gpcg", cs, v, u, lambda, error)
     if (allocated(error)) return
-    n = cs%n; nd = size(v)
+    n = cs%n; nd = size(v); na = cs%n_agents
     tol = this%settings%tol
     max_iter = this%settings%max_iter
     stats%note = ""
@@ -84,55 +83,149 @@ contains
       call finish_stats(cs, v, u, lambda, tol, stats)
       return
     end if
-    call grow(this%g, n); call grow(this%p, n); call grow(this%r, n); call grow(this%z, n)
-    call grow(this%ap, n); call grow(this%s, n); call grow(this%dinv, n); call grow(this%best, n)
-    call grow(this%lt, n)
+    call grow(this%g, n); call grow(this%p, n); call grow(this%ap, n); call grow(this%z, n)
+    call grow(this%dinv, n); call grow(this%best, n)
     call grow(this%w, nd); call grow(this%t, nd); call grow(this%ut, nd)
-    if (allocated(this%isfree)) then
-      if (size(this%isfree) < n) deallocate(this%isfree)
-    end if
-    if (.not. allocated(this%isfree)) allocate(this%isfree(max(n, 16)))
 
-    ! Jacobi preconditioner: diag(B B^T)_l = h^2 |g_l|^2 (1 + [ib(l) > 0])
+    ! Jacobi scaling and the Gershgorin bound of ||D^-1/2 A D^-1/2||: |A_lm| <= h^2 |g_l| |g_m|,
+    ! so row l sums to at most c_l (S_ia + S_ib) with c_l = h |g_l| D_l^-1/2, S_a = sum of c_m
+    ! over the rows m touching agent a.
+    this%ut(1:na) = 0.0_wp
     do l = 1, n
       if (cs%ib(l) > 0) then
         this%dinv(l) = 1.0_wp / (2.0_wp * cs%h**2 * sum(cs%g(:, l)**2))
       else
         this%dinv(l) = 1.0_wp / (cs%h**2 * sum(cs%g(:, l)**2))
       end if
+      sa = cs%h * norm2(cs%g(:, l)) * sqrt(this%dinv(l))
+      a = cs%ia(l); b = cs%ib(l)
+      this%ut(a) = this%ut(a) + sa
+      if (b > 0) this%ut(b) = this%ut(b) + sa
     end do
+    bound = 0.0_wp
+    do l = 1, n
+      sa = this%ut(cs%ia(l))
+      if (cs%ib(l) > 0) sa = sa + this%ut(cs%ib(l))
+      bound = max(bound, cs%h * norm2(cs%g(:, l)) * sqrt(this%dinv(l)) * sa)
+    end do
+    abar = abar_factor / bound
     sv = velocity_scale(cs, v)
 
-    iter = 0; n_outer = 0
-    unbounded = .false.; stalled = .false.
+    iter = 0; n_refresh = 0; n_exp = 0; n_prop = 0
+    unbounded = .false.
     best_kkt = huge(1.0_wp)
-    call refresh(kkt)
+    call refresh()
+    fresh = .true.
+    call new_direction()
     do
-      if (kkt < best_kkt) then
-        best_kkt = kkt
-        this%best(1:n) = lambda(1:n)
+      kkt = kkt_of_g()
+      if (kkt <= tol .and. .not. fresh) then
+        ! confirm with a gradient computed from scratch
+        call refresh()
+        fresh = .true.
+        kkt = kkt_of_g()
+        call new_direction()
+      end if
+      if (fresh) then
+        if (kkt < best_kkt) then
+          best_kkt = kkt
+          this%best(1:n) = lambda(1:n)
+        end if
       end if
       if (kkt <= tol) then
         stats%converged = .true.
         exit
       end if
-      if (iter >= max_iter .or. unbounded .or. stalled) exit
-      n_outer = n_outer + 1
-      ! ---- gradient projection phase
-      dmax = 0.0_wp
-      do n_gp = 1, max_gp
-        call gp_step(changed, decrease)
-        iter = iter + 1
-        if (.not. changed .or. decrease <= eta_gp * dmax .or. iter >= max_iter) exit
-        dmax = max(dmax, decrease)
+      if (iter >= max_iter .or. unbounded) exit
+      iter = iter + 1
+      fresh = .false.
+      ! proportionality test: |beta|^2 <= Gamma^2 phi~^T phi (all in the D^-1 metric)
+      beta2 = 0.0_wp; prop = 0.0_wp
+      do l = 1, n
+        if (lambda(l) > 0.0_wp) then
+          prop = prop + min(lambda(l) / (abar * this%dinv(l)), this%g(l)) * this%g(l) * this%dinv(l)
+        else if (this%g(l) < 0.0_wp) then
+          beta2 = beta2 + this%g(l)**2 * this%dinv(l)
+        end if
       end do
-      ! ---- conjugate gradients on the free variables
-      if (iter < max_iter) call cg_phase()
-      call refresh(kkt)
-      ! no progress at all over many outer iterations: round-off floor above tol
-      if (n_outer > 50 .and. kkt >= best_kkt .and. mod(n_outer, 50) == 0) stalled = .true.
+      if (beta2 <= gamma_prop**2 * prop) then
+        ! ---- CG step along p (on the face)
+        gp = dot_product(this%g(1:n), this%p(1:n))
+        if (.not. (gp > 0.0_wp)) then
+          call new_direction()
+          gp = dot_product(this%g(1:n), this%p(1:n))
+          if (.not. (gp > 0.0_wp)) cycle
+        end if
+        call product(this%p, pap, pdp)
+        af = huge(1.0_wp)
+        do l = 1, n
+          if (this%p(l) > 0.0_wp) af = min(af, lambda(l) / this%p(l))
+        end do
+        if (pap > curv_tol * pdp) then
+          acg = gp / pap
+        else
+          acg = huge(1.0_wp)
+        end if
+        if (acg <= af) then
+          lambda(1:n) = lambda(1:n) - acg * this%p(1:n)
+          where (this%p(1:n) > 0.0_wp .and. lambda(1:n) < 0.0_wp) lambda(1:n) = 0.0_wp
+          this%g(1:n) = this%g(1:n) - acg * this%ap(1:n)
+          ! p <- D^-1 phi - gamma p, gamma = (D^-1 phi)^T A p / p^T A p
+          gam = 0.0_wp
+          do l = 1, n
+            if (lambda(l) > 0.0_wp) then
+              this%z(l) = this%dinv(l) * this%g(l)
+            else
+              this%z(l) = 0.0_wp
+            end if
+            gam = gam + this%z(l) * this%ap(l)
+          end do
+          gam = gam / pap
+          this%p(1:n) = this%z(1:n) - gam * this%p(1:n)
+        else
+          ! ---- expansion step: to the first bound, then a fixed-step projected gradient step
+          if (af >= huge(1.0_wp)) then
+            unbounded = .true.
+            cycle
+          end if
+          n_exp = n_exp + 1
+          call projected_cg_step(min(acg, 1.0e3_wp * af + abar), af)
+          do l = 1, n
+            if (lambda(l) > 0.0_wp) lambda(l) = max(lambda(l) - abar * this%dinv(l) * this%g(l), &
+              0.0_wp)
+          end do
+          call refresh()
+          fresh = .true.
+          call new_direction()
+        end if
+      else
+        ! ---- proportioning step along -D^-1 beta (releases the rows that want to leave the bound)
+        n_prop = n_prop + 1
+        do l = 1, n
+          this%z(l) = 0.0_wp
+          if (lambda(l) <= 0.0_wp .and. this%g(l) < 0.0_wp) this%z(l) = this%dinv(l) * this%g(l)
+        end do
+        call product(this%z, pap, pdp)
+        if (.not. (pap > curv_tol * pdp)) then
+          unbounded = .true.
+          cycle
+        end if
+        acg = beta2 / pap
+        lambda(1:n) = lambda(1:n) - acg * this%z(1:n)
+        this%g(1:n) = this%g(1:n) - acg * this%ap(1:n)
+        call new_direction()
+      end if
     end do
 
+    ! the last iterate may be better than the best fresh one
+    if (.not. stats%converged .and. .not. fresh) then
+      call refresh()
+      kkt = kkt_of_g()
+      if (kkt < best_kkt) then
+        best_kkt = kkt
+        this%best(1:n) = lambda(1:n)
+      end if
+    end if
     stats%iterations = iter
     lambda(1:n) = this%best(1:n)
     call cs%apply_bt(lambda(1:n), this%w(1:nd))
@@ -141,9 +234,6 @@ contains
       if (unbounded) then
         call add_note(stats, "dual unbounded along a null direction: the constraints B u <= d " // &
           "are infeasible")
-      else if (stalled) then
-        call add_note(stats, "no progress (round-off floor), best KKT residual " // &
-          str(best_kkt, "es9.2"))
       else
         call add_note(stats, "iteration cap reached (" // str(max_iter) // &
           "), best KKT residual " // str(best_kkt, "es9.2"))
@@ -153,181 +243,81 @@ contains
 
   contains
 
-    !> w = B^T lambda and g = d - B (v - w) from scratch; kkt = scaled KKT residual.
-    subroutine refresh(kkt)
-      real(wp), intent(out) :: kkt
-      integer :: k
+    !> g = d - B (v - B^T lambda) from scratch (also w = B^T lambda).
+    subroutine refresh()
+      n_refresh = n_refresh + 1
       call cs%apply_bt(lambda(1:n), this%w(1:nd))
       this%ut(1:nd) = v - this%w(1:nd)
       call cs%apply_b(this%ut(1:nd), this%g(1:n))
-      kkt = 0.0_wp
-      do k = 1, n
-        this%g(k) = cs%gap(k) - this%g(k)
-        kkt = max(kkt, -this%g(k) / (cs%h * sv), abs(lambda(k) * this%g(k)) / sv**2)
-      end do
+      this%g(1:n) = cs%gap(1:n) - this%g(1:n)
     end subroutine refresh
 
-    !> One projected search along -D^{-1} g. changed: the active set changed; decrease >= 0.
-    subroutine gp_step(changed, decrease)
-      logical, intent(out) :: changed
-      real(wp), intent(out) :: decrease
-      integer :: k
-      real(wp) :: gp, ptap, alpha
-      ! direction with the blocked components (lambda = 0, g > 0) removed
-      do k = 1, n
-        this%p(k) = -this%dinv(k) * this%g(k)
-        if (lambda(k) <= 0.0_wp .and. this%p(k) < 0.0_wp) this%p(k) = 0.0_wp
-      end do
-      gp = dot_product(this%g(1:n), this%p(1:n))
-      changed = .false.; decrease = 0.0_wp
-      if (.not. (gp < 0.0_wp)) return
-      call cs%apply_bt(this%p(1:n), this%t(1:nd))
-      ptap = dot_product(this%t(1:nd), this%t(1:nd))
-      if (ptap > -curv_tol * gp) then
-        alpha = -gp / ptap
-      else
-        alpha = 1.0_wp
-        do k = 1, n
-          if (this%p(k) < 0.0_wp) alpha = max(alpha, -lambda(k) / this%p(k))
-        end do
-      end if
-      call projected_search(alpha, 0.0_wp, changed, decrease)
-    end subroutine gp_step
-
-    !> Projected search along p from lambda: trial lambda(a) = max(lambda + a p, 0), starting at
-    !> a = alpha, backtracking until the Armijo test holds. Steps a <= a_safe (> 0) are known to
-    !> decrease f without projection and are accepted at once. Updates lambda, w, g.
-    subroutine projected_search(alpha, a_safe, changed, decrease)
-      real(wp), intent(in) :: alpha, a_safe
-      logical, intent(out) :: changed
-      real(wp), intent(out) :: decrease
+    !> Projected search along -p: lambda(a) = max(lambda - a p, 0) from a = a0, halving until the
+    !> Armijo test f(lambda(a)) <= f(lambda) + mu g^T (lambda(a) - lambda) holds; a <= af (the
+    !> first bound) is accepted at once (no projection but for the blocking rows, f decreases).
+    !> Several bounds may be fixed in one step. Updates lambda and g (w, ut, z, t used as scratch).
+    subroutine projected_cg_step(a0, af)
+      real(wp), intent(in) :: a0, af
+      real(wp), parameter :: mu = 1.0e-4_wp
+      real(wp) :: a, gs, sts
       integer :: k, trial
-      real(wp) :: a, gs, sts, phi, anew
-      a = alpha
-      changed = .false.; decrease = 0.0_wp
-      do trial = 1, max_trials
-        if (a_safe > 0.0_wp .and. a <= a_safe) a = a_safe
+      a = a0
+      do trial = 1, 60
+        if (a <= af) a = af
         do k = 1, n
-          this%lt(k) = max(lambda(k) + a * this%p(k), 0.0_wp)
-          ! exact zero for every component whose bound is reached (amax is computed the same way)
-          if (this%p(k) < 0.0_wp) then
-            if (a >= -lambda(k) / this%p(k)) this%lt(k) = 0.0_wp
+          this%z(k) = lambda(k) - a * this%p(k)
+          if (this%p(k) > 0.0_wp) then
+            if (a >= lambda(k) / this%p(k)) this%z(k) = 0.0_wp
           end if
-          this%s(k) = this%lt(k) - lambda(k)
+          this%z(k) = max(this%z(k), 0.0_wp) - lambda(k)
         end do
-        call cs%apply_bt(this%s(1:n), this%t(1:nd))
-        gs = dot_product(this%g(1:n), this%s(1:n))
+        if (a <= af) exit
+        call cs%apply_bt(this%z(1:n), this%t(1:nd))
+        gs = dot_product(this%g(1:n), this%z(1:n))
         sts = dot_product(this%t(1:nd), this%t(1:nd))
-        phi = gs + 0.5_wp * sts
-        if (phi <= mu * gs .and. gs < 0.0_wp) exit
-        if (a_safe > 0.0_wp .and. a <= a_safe) exit
-        if (.not. (gs < 0.0_wp)) then
-          a = 0.5_wp * a
-        else
-          ! minimiser of the quadratic through phi(0) = 0, slope gs/a, phi(a); safeguarded
-          anew = -gs * a / (2.0_wp * (phi - gs))
-          a = min(max(anew, 0.1_wp * a), 0.5_wp * a)
-        end if
-        if (trial == max_trials) return
+        if (gs + 0.5_wp * sts <= mu * gs) exit
+        a = 0.5_wp * a
       end do
-      if (.not. (phi < 0.0_wp)) return
-      decrease = -phi
-      do k = 1, n
-        if ((lambda(k) > 0.0_wp) .neqv. (this%lt(k) > 0.0_wp)) changed = .true.
-      end do
-      lambda(1:n) = this%lt(1:n)
-      this%w(1:nd) = this%w(1:nd) + this%t(1:nd)
-      this%ut(1:nd) = v - this%w(1:nd)
-      call cs%apply_b(this%ut(1:nd), this%g(1:n))
-      this%g(1:n) = cs%gap(1:n) - this%g(1:n)
-    end subroutine projected_search
+      lambda(1:n) = lambda(1:n) + this%z(1:n)
+      call refresh()
+    end subroutine projected_cg_step
 
-    !> Preconditioned CG on A_FF x = -g_F from x = 0 (x added to lambda_F as it goes).
-    subroutine cg_phase()
-      integer :: k, it, nf, cap
-      real(wp) :: rz, rz_new, pap, alpha, amax, beta, res, pdp
-      logical :: changed
-      real(wp) :: decrease
-      nf = 0
+    !> Scaled KKT residual from g and lambda >= 0.
+    real(wp) function kkt_of_g() result(r)
+      integer :: k
+      r = 0.0_wp
       do k = 1, n
-        this%isfree(k) = lambda(k) > 0.0_wp .or. this%g(k) < 0.0_wp
-        if (this%isfree(k)) then
-          nf = nf + 1
-          this%r(k) = -this%g(k)
+        r = max(r, -this%g(k) / (cs%h * sv), abs(lambda(k) * this%g(k)) / sv**2)
+      end do
+    end function kkt_of_g
+
+    !> p = D^-1 phi (restart of CG on the current face).
+    subroutine new_direction()
+      integer :: k
+      do k = 1, n
+        if (lambda(k) > 0.0_wp) then
+          this%p(k) = this%dinv(k) * this%g(k)
         else
-          this%r(k) = 0.0_wp
+          this%p(k) = 0.0_wp
         end if
-        this%z(k) = this%dinv(k) * this%r(k)
       end do
-      if (nf == 0) return
-      this%p(1:n) = this%z(1:n)
-      rz = dot_product(this%r(1:n), this%z(1:n))
-      cap = nf + 100
-      do it = 1, cap
-        res = 0.0_wp
-        do k = 1, n
-          if (this%isfree(k)) res = max(res, abs(this%r(k)) * max(1.0_wp / (cs%h * sv), &
-            lambda(k) / sv**2))
-        end do
-        if (res <= face_factor * tol .or. .not. (rz > 0.0_wp)) return
-        if (iter >= max_iter) return
-        iter = iter + 1
-        call cs%apply_bt(this%p(1:n), this%t(1:nd))
-        pap = dot_product(this%t(1:nd), this%t(1:nd))
-        pdp = 0.0_wp
-        do k = 1, n
-          if (this%isfree(k)) pdp = pdp + this%p(k)**2 / this%dinv(k)
-        end do
-        ! largest step before a free variable reaches its bound
-        amax = huge(1.0_wp)
-        do k = 1, n
-          if (this%p(k) < 0.0_wp) amax = min(amax, -lambda(k) / this%p(k))
-        end do
-        if (pap <= curv_tol * pdp) then
-          ! null direction of the face: f is linear along p (decreasing, since r^T p = rz > 0)
-          if (amax >= huge(1.0_wp)) then
-            unbounded = .true.
-            return
-          end if
-          call projected_search(amax, amax, changed, decrease)
-          return
-        end if
-        alpha = rz / pap
-        if (alpha >= amax) then
-          ! a bound is hit: projected search along p (several bounds may be fixed at once)
-          call projected_search(alpha, amax, changed, decrease)
-          return
-        end if
-        call cs%apply_b(this%t(1:nd), this%ap(1:n))
-        do k = 1, n
-          if (this%isfree(k)) then
-            lambda(k) = lambda(k) + alpha * this%p(k)
-            this%r(k) = this%r(k) - alpha * this%ap(k)
-          end if
-        end do
-        this%w(1:nd) = this%w(1:nd) + alpha * this%t(1:nd)
-        rz_new = 0.0_wp
-        do k = 1, n
-          if (this%isfree(k)) then
-            this%z(k) = this%dinv(k) * this%r(k)
-            rz_new = rz_new + this%r(k) * this%z(k)
-          end if
-        end do
-        beta = rz_new / rz
-        rz = rz_new
-        do k = 1, n
-          if (this%isfree(k)) this%p(k) = this%z(k) + beta * this%p(k)
-        end do
-      end do
-    end subroutine cg_phase
+    end subroutine new_direction
+
+    !> ap = A x = B (B^T x); xax = x^T A x = |B^T x|^2; xdx = x^T D x.
+    subroutine product(x, xax, xdx)
+      real(wp), intent(in) :: x(:)
+      real(wp), intent(out) :: xax, xdx
+      call cs%apply_bt(x(1:n), this%t(1:nd))
+      call cs%apply_b(this%t(1:nd), this%ap(1:n))
+      xax = dot_product(this%t(1:nd), this%t(1:nd))
+      xdx = sum(x(1:n)**2 / this%dinv(1:n))
+    end subroutine product
   end subroutine gpcg_solve
 
   subroutine gpcg_free(this)
     class(gpcg_solver_t), intent(inout) :: this
-    if (allocated(this%g)) deallocate(this%g, this%p, this%r, this%z, this%ap, this%s, &
-      this%dinv, this%best, this%lt)
+    if (allocated(this%g)) deallocate(this%g, this%p, this%ap, this%z, this%dinv, this%best)
     if (allocated(this%w)) deallocate(this%w, this%t, this%ut)
-    if (allocated(this%isfree)) deallocate(this%isfree)
   end subroutine gpcg_free
 
   subroutine grow(a, n)
