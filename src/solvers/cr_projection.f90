@@ -1,7 +1,7 @@
 !> Projection of a desired velocity onto the feasible cone of one step:
 !>   u = argmin |u - v|^2  s.t.  B u <= d   (B = -h G, rows of a contact_set_t).
 !>
-!> Variants ('uzawa', 'apgd', 'active_set') extend the abstract projection_solver_t;
+!> Variants ('uzawa', 'apgd', 'active_set', 'gpcg') extend the abstract projection_solver_t;
 !> make_projection_solver builds one from its name (the factory lives in the submodule
 !> cr_projection_factory so that this module does not depend on the variants).
 module cr_projection
@@ -15,15 +15,15 @@ module cr_projection
     known_projection_solvers, finish_stats, check_sizes, add_note
 
   !> names accepted by make_projection_solver
-  character(len=*), parameter :: known_projection_solvers = "'uzawa', 'apgd', 'active_set'"
+  character(len=*), parameter :: known_projection_solvers = "'uzawa', 'apgd', 'active_set', 'gpcg'"
 
   !> Settings of the projection solvers (one namelist group 'solver' upstream).
   type :: projection_settings_t
-    !> solver name: 'uzawa', 'apgd' or 'active_set'
+    !> solver name: 'uzawa', 'apgd', 'active_set' or 'gpcg'
     character(len=32) :: name = 'active_set'
     !> requested scaled KKT tolerance (see kkt_residuals)
     real(wp) :: tol = 1.0e-10_wp
-    !> iteration cap of apgd and active_set
+    !> iteration cap of apgd, active_set and gpcg
     integer :: max_iter = 200000
     !> Uzawa step rho = uzawa_rho_factor / h^2
     real(wp) :: uzawa_rho_factor = 0.2_wp

@@ -5,6 +5,7 @@ submodule (cr_projection) cr_projection_factory
   use cr_uzawa, only: uzawa_solver_t
   use cr_apgd, only: apgd_solver_t
   use cr_active_set, only: active_set_solver_t
+  use cr_gpcg, only: gpcg_solver_t
   implicit none
 contains
   module subroutine make_projection_solver(settings, solver, error)
@@ -21,6 +22,8 @@ contains
       allocate(apgd_solver_t :: solver)
     case ('active_set')
       allocate(active_set_solver_t :: solver)
+    case ('gpcg')
+      allocate(gpcg_solver_t :: solver)
     case default
       call set_error(error, "make_projection_solver: unknown solver name '" // &
         trim(settings%name) // "'; known names: " // known_projection_solvers, 2)

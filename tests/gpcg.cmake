@@ -1,0 +1,2 @@
+# Unit tests of the GPCG projection solver.
+cr_unit_test(test_gpcg)
