@@ -77,7 +77,8 @@ contains
     nc = per; if (env%rank < rem) nc = nc + 1
     c0 = env%rank * per + min(env%rank, rem)
     v = v0
-    call pga_enrich(env, scene, rad, h, dia, dib, dob, cone, q(:, c0 + 1:c0 + nc), int(c0, i8), v, 1.0e-8_wp, 100, res, err)
+    call pga_enrich(env, [scene], [(1, k = 1, nc)], rad, h, dia, dib, dob, cone, q(:, c0 + 1:c0 + nc), &
+      int(c0, i8), v, 1.0e-8_wp, 100, res, err)
     call check(.not. allocated(err), "pga runs")
     call check(res%n_added > 0, "pga adds supremizers")
     call check(res%err(res%n_added + 1) <= 1.0e-8_wp, "pga: final error <= delta")
@@ -94,7 +95,8 @@ contains
     call check(worst <= 1.0e-8_wp, "pga: every supremizer represented to 1e-8")
     ! the same on one rank with all the data
     vs = v0
-    call pga_enrich(solo, scene, rad, h, dia, dib, dob, cone, q, 0_i8, vs, 1.0e-8_wp, 100, ress, err)
+    call pga_enrich(solo, [scene], [(1, k = 1, nsnap)], rad, h, dia, dib, dob, cone, q, 0_i8, vs, &
+      1.0e-8_wp, 100, ress, err)
     call check(ress%n_added == res%n_added, "distributed = serial: same number of additions")
     if (ress%n_added == res%n_added) then
       call check(all(ress%chosen == res%chosen), "distributed = serial: same candidates")
@@ -103,7 +105,8 @@ contains
     end if
     ! a small budget stops early and says so through the error history
     vs = v0
-    call pga_enrich(solo, scene, rad, h, dia, dib, dob, cone, q, 0_i8, vs, 1.0e-8_wp, 1, ress, err)
+    call pga_enrich(solo, [scene], [(1, k = 1, nsnap)], rad, h, dia, dib, dob, cone, q, 0_i8, vs, &
+      1.0e-8_wp, 1, ress, err)
     call check(ress%n_added == 1 .and. ress%err(2) > 1.0e-8_wp, "max_add caps the enrichment")
   end subroutine test_pga
 
@@ -117,7 +120,8 @@ contains
     integer :: k
     ! enriched basis: positive constant at every training configuration
     v = v0
-    call pga_enrich(solo, scene, rad, h, dia, dib, dob, cone, q, 0_i8, v, 1.0e-10_wp, 100, res, err)
+    call pga_enrich(solo, [scene], [(1, k = 1, nsnap)], rad, h, dia, dib, dob, cone, q, 0_i8, v, &
+      1.0e-10_wp, 100, res, err)
     do k = 1, nsnap
       call reduced_infsup(scene, rad, h, dia, dib, dob, cone, v, q(:, k), g1, err)
       call check(.not. allocated(err), "infsup runs")

@@ -57,10 +57,13 @@ contains
 
   !> Enrich the orthonormal basis v [n_dof, N] (replicated) with supremizers of the local
   !> configurations q_local [n_dof, n_local] (global columns col_offset+1..col_offset+n_local).
-  subroutine pga_enrich(env, scene, radius, h, dict_ia, dict_ib, dict_ob, cone, q_local, col_offset, &
+  !> scenes(scene_of(k)) is the scene of local configuration k (studies that vary the exit
+  !> width have one scene per sample).
+  subroutine pga_enrich(env, scenes, scene_of, radius, h, dict_ia, dict_ib, dict_ob, cone, q_local, col_offset, &
       v, delta, max_add, res, error)
     type(env_t), intent(in) :: env
-    type(scene_t), intent(in) :: scene
+    type(scene_t), intent(in) :: scenes(:)
+    integer, intent(in) :: scene_of(:)
     real(wp), intent(in) :: radius, h
     integer, intent(in) :: dict_ia(:), dict_ib(:), dict_ob(:)
     type(sparse_cone_t), intent(in) :: cone
@@ -79,6 +82,9 @@ contains
     integer(i8) :: gid
     real(wp) :: gap, pair(2), best(2), err
     nd = size(v, 1); nl = size(q_local, 2)
+    if (size(scene_of) /= nl) then
+      call set_error(error, "pga: scene_of has " // str(size(scene_of)) // " entries, expected " // str(nl)); return
+    end if
     if (size(q_local, 1) /= nd) then
       call set_error(error, "pga: positions have " // str(size(q_local, 1)) // " rows, basis has " // str(nd)); return
     end if
@@ -99,11 +105,11 @@ contains
     allocate(gq(2, ns, max(nl, 1)), nrm2(cone%r, max(nl, 1)), res2(cone%r, max(nl, 1)), t(ns), s(nd))
     do k = 1, nl
       do j = 1, ns
-        call eval_contact(scene, q_local(:, k), radius, dict_ia(sup(j)), dict_ib(sup(j)), dict_ob(sup(j)), &
-          gap, gq(:, j, k))
+        call eval_contact(scenes(scene_of(k)), q_local(:, k), radius, dict_ia(sup(j)), dict_ib(sup(j)), &
+          dict_ob(sup(j)), gap, gq(:, j, k))
       end do
       do r = 1, cone%r
-        call supremizer(scene, radius, h, dict_ia, dict_ib, dict_ob, cone, r, q_local(:, k), s)
+        call supremizer(scenes(scene_of(k)), radius, h, dict_ia, dict_ib, dict_ob, cone, r, q_local(:, k), s)
         nrm2(r, k) = sum(s**2)
       end do
     end do
@@ -131,7 +137,8 @@ contains
       mine = -1
       if (k >= 1 .and. k <= nl) mine = env%rank
       call MPI_Allreduce(mine, owner, 1, MPI_INTEGER, MPI_MAX, env%comm, ierr)
-      if (env%rank == owner) call supremizer(scene, radius, h, dict_ia, dict_ib, dict_ob, cone, rr, q_local(:, k), s)
+      if (env%rank == owner) call supremizer(scenes(scene_of(k)), radius, h, dict_ia, dict_ib, dict_ob, cone, rr, &
+        q_local(:, k), s)
       call MPI_Bcast(s, nd, MPI_DOUBLE_PRECISION, owner, env%comm, ierr)
       do j = 1, 2
         s = s - matmul(v, matmul(s, v))
@@ -185,7 +192,7 @@ contains
       allocate(w(nd))
       do kk = 1, nl
         do r2 = 1, cone%r
-          call supremizer(scene, radius, h, dict_ia, dict_ib, dict_ob, cone, r2, q_local(:, kk), w)
+          call supremizer(scenes(scene_of(kk)), radius, h, dict_ia, dict_ib, dict_ob, cone, r2, q_local(:, kk), w)
           do m = 1, 2
             w = w - matmul(v, matmul(w, v))
           end do

@@ -1,0 +1,250 @@
+!> crowd_offline: reduced bases from a snapshot database.
+!>
+!>   mpirun -np P crowd_offline input.nml [--summary FILE]
+!>
+!> Stages: read the training snapshots (each rank its block of samples), velocity POD
+!> (&offline pod_method), multiplier cone (gIS or mCPG, optionally both for comparison),
+!> supremizer enrichment (PGA), reduced inf-sup table, ROM file (&offline rom_file).
+program crowd_offline
+  use mpi_f08
+  use cr_kinds, only: wp, i8
+  use cr_error, only: error_t, set_error
+  use cr_strings, only: str
+  use cr_env, only: env_t
+  use cr_logger, only: logger_t
+  use cr_cli, only: cli_t, parse_cli
+  use cr_config, only: config_t, read_config, config_echo
+  use cr_config_check, only: check_config
+  use cr_namelist_text, only: namelist_text_t
+  use cr_offline_config, only: offline_cfg_t, read_offline, check_offline, offline_echo
+  use cr_offline_data, only: offline_data_t, load_training
+  use cr_pod, only: pod_result_t, pod_tsqr, pod_rsvd, pod_scalapack, pod_snapshots
+  use cr_cone, only: cone_result_t, gis_build, mcpg_build
+  use cr_sparse_cone, only: sparse_cone_t
+  use cr_supremizer, only: pga_result_t, pga_enrich
+  use cr_infsup_table, only: infsup_table
+  use cr_rom_file, only: rom_tables_t, write_rom_file
+  use cr_json, only: json_writer_t
+  implicit none
+  type(env_t) :: env
+  type(logger_t) :: log
+  type(cli_t) :: cli
+  type(config_t) :: cfg
+  type(offline_cfg_t) :: ocfg
+  type(namelist_text_t) :: nml
+  type(error_t), allocatable :: error
+  integer :: ierr, code
+
+  call MPI_Init(ierr)
+  call env%init(MPI_COMM_WORLD, error)
+  call log%init(env%is_root())
+  code = 0
+  if (.not. allocated(error)) call parse_cli("crowd_offline", cli, error)
+  if (.not. allocated(error)) then
+    if (cli%help) then
+      if (env%is_root()) call print_help()
+      call env%free(); call MPI_Finalize(ierr)
+      stop
+    end if
+    call read_config(cli%input, env, cfg, error, nml)
+  end if
+  if (.not. allocated(error)) call check_config(cfg, error)
+  if (.not. allocated(error)) call read_offline(nml, ocfg, error)
+  if (.not. allocated(error)) call check_offline(cli%input, ocfg, error)
+  if (.not. allocated(error)) call run(error)
+  if (allocated(error)) then
+    call log%error(error%message)
+    code = error%code
+  end if
+  code = merge(code, 0, .true.)
+  call MPI_Allreduce(MPI_IN_PLACE, code, 1, MPI_INTEGER, MPI_MAX, env%comm, ierr)
+  call env%free()
+  call MPI_Finalize(ierr)
+  if (code /= 0) error stop code
+
+contains
+
+  subroutine print_help()
+    print '(a)', "usage: [mpirun -np P] crowd_offline input.nml [--summary FILE]"
+    print '(a)', ""
+    print '(a)', "Builds the reduced bases from the snapshot database named in &offline: velocity POD"
+    print '(a)', "(tsqr | rsvd | scalapack | snapshots), multiplier cone (gis | mcpg), supremizer"
+    print '(a)', "enrichment (PGA), reduced inf-sup table; writes the ROM file (&offline rom_file)."
+    print '(a)', "The input is the study's namelist file plus an &offline group (see README)."
+    print '(a)', ""
+    print '(a)', "Exit status: 0 success, 2 bad input, 1 other failure."
+  end subroutine print_help
+
+  !> All stages; errors are made collective before returning.
+  subroutine run(error)
+    type(error_t), allocatable, intent(out) :: error
+    type(offline_data_t) :: data
+    type(pod_result_t) :: pod
+    type(cone_result_t) :: cone, other
+    type(sparse_cone_t) :: scone
+    type(pga_result_t) :: pga
+    type(rom_tables_t) :: tab
+    real(wp), allocatable :: v(:,:)
+    real(wp) :: t0, eps
+    integer :: n_pod, nmodes
+    logical :: failed
+
+    call log%stage_begin("crowd_offline: read training snapshots")
+    t0 = env%wtime()
+    call load_training(env, trim(ocfg%database), cfg, data, error)
+    if (collective_fail()) return
+    tab%t_read = env%wtime() - t0
+    call log%info("   " // str(data%n_train) // " training samples x " // str(data%n_steps) // " steps, " // &
+      str(data%n_dof) // " velocity dofs, " // str(data%n_dict) // " contacts in the dictionary, " // &
+      str(env%size) // " rank(s)")
+    call log%stage_end()
+
+    ! ---- velocity POD
+    call log%stage_begin("crowd_offline: velocity POD (" // trim(ocfg%pod_method) // ")")
+    t0 = env%wtime()
+    eps = ocfg%pod_energy
+    nmodes = ocfg%pod_n
+    if (nmodes > 0 .and. nmodes > data%n_dof) then
+      call set_error(error, "&offline: pod_n = " // str(nmodes) // " is larger than the number of velocity " // &
+        "dofs (" // str(data%n_dof) // ")", 2)
+    end if
+    if (collective_fail()) return
+    select case (trim(ocfg%pod_method))
+    case ('tsqr')
+      if (nmodes > 0) then
+        call pod_tsqr(env, data%u, pod, error, n_modes=nmodes)
+      else
+        call pod_tsqr(env, data%u, pod, error, eps=eps)
+      end if
+    case ('snapshots')
+      if (nmodes > 0) then
+        call pod_snapshots(env, data%u, pod, error, n_modes=nmodes)
+      else
+        call pod_snapshots(env, data%u, pod, error, eps=eps)
+      end if
+    case ('scalapack')
+      if (nmodes > 0) then
+        call pod_scalapack(env, data%u, pod, error, n_modes=nmodes)
+      else
+        call pod_scalapack(env, data%u, pod, error, eps=eps)
+      end if
+    case ('rsvd')
+      if (nmodes > 0) then
+        call pod_rsvd(env, data%u, ocfg%rsvd_rank, ocfg%rsvd_oversampling, ocfg%rsvd_power, &
+          trim(ocfg%rsvd_sketch), ocfg%rsvd_seed, pod, error, n_modes=nmodes)
+      else
+        call pod_rsvd(env, data%u, ocfg%rsvd_rank, ocfg%rsvd_oversampling, ocfg%rsvd_power, &
+          trim(ocfg%rsvd_sketch), ocfg%rsvd_seed, pod, error, eps=eps)
+      end if
+    end select
+    if (collective_fail()) return
+    if (nmodes > 0 .and. pod%n_modes < nmodes) call log%warn("pod_n = " // str(nmodes) // &
+      " exceeds the numerical rank of the snapshots: " // str(pod%n_modes) // " modes kept")
+    tab%t_pod = env%wtime() - t0
+    n_pod = pod%n_modes
+    v = pod%phi(:, 1:n_pod)
+    call log%info("   N = " // str(n_pod) // " modes (numerical rank " // str(pod%rank) // &
+      ", retained energy " // str(pod%energy) // ")")
+    call log%stage_end()
+
+    ! ---- multiplier cone
+    call log%stage_begin("crowd_offline: multiplier cone (" // trim(ocfg%cone_method) // ")")
+    t0 = env%wtime()
+    if (ocfg%cone_method == 'gis') then
+      call gis_build(env, data%lam, ocfg%cone_delta, ocfg%cone_r_max, cone, error)
+    else
+      call mcpg_build(env, data%lam, ocfg%cone_delta, ocfg%mcpg_r_max, cone, error)
+    end if
+    if (collective_fail()) return
+    tab%t_cone = env%wtime() - t0
+    call log%info("   R = " // str(cone%r) // ", e_R = " // str(cone%err_max(cone%r + 1)) // ", " // &
+      str(cone%time) // " s")
+    if (allocated(cone%note)) call log%warn("cone: " // cone%note)
+    if (ocfg%cone_compare) then
+      t0 = env%wtime()
+      if (ocfg%cone_method == 'gis') then
+        call mcpg_build(env, data%lam, ocfg%cone_delta, ocfg%mcpg_r_max, other, error)
+      else
+        call gis_build(env, data%lam, ocfg%cone_delta, ocfg%cone_r_max, other, error)
+      end if
+      if (collective_fail()) return
+      tab%t_mcpg = env%wtime() - t0
+      call log%info("   comparison " // trim(other%method) // ": R = " // str(other%r) // ", e_R = " // &
+        str(other%err_max(other%r + 1)) // ", " // str(other%time) // " s")
+    end if
+    if (cone%method == 'gis') then
+      call scone%from_indices(data%n_dict, cone%indices)
+    else
+      call scone%from_dense(cone%psi)
+    end if
+    call log%stage_end()
+
+    ! ---- supremizer enrichment
+    if (ocfg%pga .and. scone%r > 0) then
+      call log%stage_begin("crowd_offline: supremizer enrichment (PGA, delta = " // str(ocfg%pga_delta) // ")")
+      t0 = env%wtime()
+      call pga_enrich(env, data%scenes, data%scene_of, data%radius, data%dt, data%dict_ia, data%dict_ib, &
+        data%dict_ob, scone, data%q, data%lam%col_offset, v, ocfg%pga_delta, ocfg%pga_max_add, pga, error)
+      if (collective_fail()) return
+      tab%t_pga = env%wtime() - t0
+      call log%info("   added " // str(pga%n_added) // " supremizers; largest projection error " // &
+        str(pga%err(1)) // " -> " // str(pga%err(pga%n_added + 1)))
+      if (pga%err(pga%n_added + 1) > ocfg%pga_delta) call log%warn("PGA stopped at pga_max_add = " // &
+        str(ocfg%pga_max_add) // " before reaching delta")
+      call log%stage_end()
+    else
+      allocate(pga%err(1), pga%chosen(0)); pga%err = 0
+    end if
+
+    ! ---- inf-sup table
+    call log%stage_begin("crowd_offline: reduced inf-sup table")
+    t0 = env%wtime()
+    call infsup_table(env, log, ocfg, data, pod, scone, tab, error)
+    if (collective_fail()) return
+    tab%t_infsup = env%wtime() - t0
+    call log%stage_end()
+
+    ! ---- ROM file
+    call log%stage_begin("crowd_offline: write " // trim(ocfg%rom_file))
+    if (env%is_root()) call write_rom_file(trim(ocfg%rom_file), config_echo(cfg) // offline_echo(ocfg), &
+      trim(ocfg%database), data%config_hash, data%n_agents, data%n_steps, data%radius, data%dt, pod, v, n_pod, &
+      cone, other, pga, data%dict_ia, data%dict_ib, data%dict_ob, tab, error)
+    failed = collective_fail()
+    if (failed) return
+    call log%stage_end()
+    call log%info("summary: N_pod = " // str(n_pod) // ", N (with supremizers) = " // str(size(v, 2)) // &
+      ", R = " // str(cone%r) // ", times: read " // str(tab%t_read) // " s, POD " // str(tab%t_pod) // &
+      " s, cone " // str(tab%t_cone) // " s, PGA " // str(tab%t_pga) // " s, inf-sup " // str(tab%t_infsup) // " s")
+    if (len(cli%summary) > 0 .and. env%is_root()) then
+      block
+        type(json_writer_t) :: js
+        call js%add("program", "crowd_offline")
+        call js%add("rom_file", trim(ocfg%rom_file))
+        call js%add("ranks", env%size)
+        call js%add("n_pod", n_pod)
+        call js%add("n_total", size(v, 2))
+        call js%add("r", cone%r)
+        call js%add("cone_method", trim(cone%method))
+        call js%add("cone_error", cone%err_max(cone%r + 1))
+        call js%add("pga_added", pga%n_added)
+        call js%add("pga_error", pga%err(pga%n_added + 1))
+        call js%add("time_read", tab%t_read)
+        call js%add("time_pod", tab%t_pod)
+        call js%add("time_cone", tab%t_cone)
+        call js%add("time_cone_comparison", tab%t_mcpg)
+        call js%add("time_pga", tab%t_pga)
+        call js%add("time_infsup", tab%t_infsup)
+        call js%write_file(cli%summary, error)
+      end block
+    end if
+    if (collective_fail()) return
+  end subroutine run
+
+  !> True on every rank if any rank has an error (the message is kept where it arose;
+  !> ranks without one get a generic message so that all stop together).
+  logical function collective_fail()
+    collective_fail = env%any_true(allocated(error))
+    if (collective_fail .and. .not. allocated(error)) &
+      call set_error(error, "another rank failed (see its message)")
+  end function collective_fail
+end program crowd_offline
