@@ -186,7 +186,7 @@ contains
     call check(allocated(err), "memory guard: error")
     if (allocated(err)) then
       call check(index(err%message, "contact cluster of 30 agents") > 0 .and. &
-        index(err%message, "use solver 'apgd'") > 0, "memory guard: clear message: " // &
+        index(err%message, "use solver 'gpcg'") > 0, "memory guard: clear message: " // &
         err%message)
     end if
     solver%max_dense_bytes = 1.0e9_wp

@@ -237,7 +237,7 @@ contains
       real(wp), intent(in) :: bytes
       call set_error(error, "active_set: a contact cluster of " // str(nd / 2) // " agents and " // &
         str(mr) // " rows needs " // str(bytes / 1.0e9_wp, "f0.2") // " GB of dense storage " // &
-        "(limit " // str(this%max_dense_bytes / 1.0e9_wp, "f0.2") // " GB); use solver 'apgd' " // &
+        "(limit " // str(this%max_dense_bytes / 1.0e9_wp, "f0.2") // " GB); use solver 'gpcg' " // &
         "for crowds this large", 2)
     end subroutine too_large
 
