@@ -7,7 +7,7 @@
 !> supremizer enrichment (PGA), reduced inf-sup table, ROM file (&offline rom_file).
 program crowd_offline
   use mpi_f08
-  use cr_kinds, only: wp, i8
+  use cr_kinds, only: wp
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
   use cr_env, only: env_t
@@ -56,7 +56,6 @@ program crowd_offline
     call log%error(error%message)
     code = error%code
   end if
-  code = merge(code, 0, .true.)
   call MPI_Allreduce(MPI_IN_PLACE, code, 1, MPI_INTEGER, MPI_MAX, env%comm, ierr)
   call env%free()
   call MPI_Finalize(ierr)

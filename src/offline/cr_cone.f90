@@ -132,6 +132,37 @@ contains
     end if
   end subroutine check_columns
 
+  !> Mean over all snapshots of the relative projection error sqrt(res2) / n1.
+  real(wp) function mean_relative(env, lam, res2, n1)
+    type(env_t), intent(in) :: env
+    type(sparse_columns_t), intent(in) :: lam
+    real(wp), intent(in) :: res2(:), n1
+    real(wp) :: s(2)
+    integer :: ierr
+    s(1) = sum(sqrt(max(res2(1:lam%n_cols), 0.0_wp))) / n1
+    s(2) = lam%n_cols
+    call MPI_Allreduce(MPI_IN_PLACE, s, 2, MPI_DOUBLE_PRECISION, MPI_SUM, env%comm, ierr)
+    mean_relative = s(1) / max(s(2), 1.0_wp)
+  end function mean_relative
+
+  !> Store R, the selected snapshots, the error history and the time in `res`.
+  subroutine record_history(res, r, sig, err, mean, n1, time)
+    type(cone_result_t), intent(inout) :: res
+    integer, intent(in) :: r
+    integer(i8), intent(in) :: sig(:)
+    real(wp), intent(in) :: err(:), mean(:), n1, time
+    res%r = r
+    res%sigma = sig(1:r)
+    if (n1 > 0) then
+      res%err_max = err(1:r + 1)
+      res%err_mean = mean(1:r + 1)
+    else
+      res%err_max = [0.0_wp]
+      res%err_mean = [0.0_wp]
+    end if
+    res%time = time
+  end subroutine record_history
+
   ! ------------------------------------------------------------------ gIS
 
   !> Greedy index selection (Algorithm 2): psi_r = e_{i_r}, i_r the largest coordinate of
@@ -196,7 +227,7 @@ contains
       call finish(); return
     end if
     tmp_err(1) = 1.0_wp
-    tmp_mean(1) = mean_rel()
+    tmp_mean(1) = mean_relative(env, lam, res2, n1)
     do while (r < r_max)
       if (sqrt(max(worst, 0.0_wp)) / n1 <= delta .and. r > 0) exit
       call fetch_column(env, lam, gcol, col, error); if (allocated(error)) return
@@ -218,33 +249,15 @@ contains
       end do
       call global_argmax(env, lam, res2, worst, gcol, error); if (allocated(error)) return
       tmp_err(r + 1) = sqrt(max(worst, 0.0_wp)) / n1
-      tmp_mean(r + 1) = mean_rel()
+      tmp_mean(r + 1) = mean_relative(env, lam, res2, n1)
     end do
     call finish()
 
   contains
 
-    real(wp) function mean_rel()
-      real(wp) :: s(2)
-      integer :: ierr
-      s(1) = sum(sqrt(max(res2(1:lam%n_cols), 0.0_wp))) / n1
-      s(2) = lam%n_cols
-      call MPI_Allreduce(MPI_IN_PLACE, s, 2, MPI_DOUBLE_PRECISION, MPI_SUM, env%comm, ierr)
-      mean_rel = s(1) / max(s(2), 1.0_wp)
-    end function mean_rel
-
     subroutine finish()
-      res%r = r
       res%indices = sel(1:r)
-      res%sigma = sig(1:r)
-      if (n1 > 0) then
-        res%err_max = tmp_err(1:r + 1)
-        res%err_mean = tmp_mean(1:r + 1)
-      else
-        res%err_max = [0.0_wp]
-        res%err_mean = [0.0_wp]
-      end if
-      res%time = env%wtime() - t0
+      call record_history(res, r, sig, tmp_err, tmp_mean, n1, env%wtime() - t0)
     end subroutine finish
   end subroutine gis_build
 
@@ -321,7 +334,7 @@ contains
       call finish(); return
     end if
     tmp_err(1) = 1.0_wp
-    tmp_mean(1) = mean_rel()
+    tmp_mean(1) = mean_relative(env, lam, res2, n1)
     do while (r < r_max)
       if (r > 0 .and. sqrt(max(worst, 0.0_wp)) / n1 <= delta) exit
       call fetch_column(env, lam, gcol, col, error); if (allocated(error)) return
@@ -364,7 +377,7 @@ contains
         worst, gcol, error); if (allocated(error)) return
       worst = max(worst, 0.0_wp)
       tmp_err(r + 1) = sqrt(worst) / n1
-      tmp_mean(r + 1) = mean_rel()
+      tmp_mean(r + 1) = mean_relative(env, lam, res2, n1)
     end do
     call finish()
 
@@ -424,31 +437,9 @@ contains
       resid(1:n) = max(resid(1:n), 0.0_wp)
     end subroutine lsi_residual
 
-    real(wp) function mean_rel()
-      real(wp) :: s(2)
-      integer :: ierr, kk2
-      s = 0
-      do kk2 = 1, lam%n_cols
-        s(1) = s(1) + sqrt(max(res2(kk2), 0.0_wp))
-      end do
-      s(1) = s(1) / n1
-      s(2) = lam%n_cols
-      call MPI_Allreduce(MPI_IN_PLACE, s, 2, MPI_DOUBLE_PRECISION, MPI_SUM, env%comm, ierr)
-      mean_rel = s(1) / max(s(2), 1.0_wp)
-    end function mean_rel
-
     subroutine finish()
-      res%r = r
       res%psi = psi(1:lam%n_rows, 1:r)
-      res%sigma = sig(1:r)
-      if (n1 > 0) then
-        res%err_max = tmp_err(1:r + 1)
-        res%err_mean = tmp_mean(1:r + 1)
-      else
-        res%err_max = [0.0_wp]
-        res%err_mean = [0.0_wp]
-      end if
-      res%time = env%wtime() - t0
+      call record_history(res, r, sig, tmp_err, tmp_mean, n1, env%wtime() - t0)
     end subroutine finish
   end subroutine mcpg_build
 end module cr_cone

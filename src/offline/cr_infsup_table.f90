@@ -36,9 +36,8 @@ contains
     integer, allocatable :: ns(:), rs(:)
     type(sparse_cone_t) :: sub
     type(pga_result_t) :: pres
-    type(infsup_t) :: g
     real(wp), allocatable :: vv(:,:), acc(:)
-    integer :: a, b, m, npair, ncols, stride, k, ierr
+    integer :: a, b, m, npair, ncols, stride, ierr
     ns = pack(ocfg%infsup_n, ocfg%infsup_n > 0)
     rs = pack(ocfg%infsup_r, ocfg%infsup_r > 0)
     if (size(ns) == 0) ns = pack([5, 10, 20, 40], [5, 10, 20, 40] <= pod%n_modes)
