@@ -6,13 +6,13 @@
 !> the HDF5 trajectory (&output file) and prints a summary; --summary also writes it as JSON.
 !> The model itself is serial: under mpirun rank 0 computes and the other ranks wait.
 program crowd_fom
-  use mpi_f08
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
   use cr_env, only: env_t
-  use cr_logger, only: logger_t, LOG_ERROR, LOG_WARN, LOG_INFO, LOG_DEBUG
-  use cr_cli, only: cli_t, parse_cli
+  use cr_logger, only: logger_t
+  use cr_cli, only: cli_t
+  use cr_program, only: program_start, program_finish, log_level_of
   use cr_config, only: config_t, read_config, config_echo
   use cr_config_check, only: check_config
   use cr_fom, only: fom_t, step_record_t
@@ -24,39 +24,23 @@ program crowd_fom
   type(cli_t) :: cli
   type(config_t) :: cfg
   type(error_t), allocatable :: error
-  integer :: ierr, code
+  integer :: code
 
-  call MPI_Init(ierr)
-  call env%init(MPI_COMM_WORLD, error)
-  call log%init(env%is_root())
-  code = 0
-  if (.not. allocated(error)) call parse_cli("crowd_fom", cli, error)
-  if (.not. allocated(error)) then
-    if (cli%help) then
-      if (env%is_root()) call print_help()
-      call env%free(); call MPI_Finalize(ierr)
-      stop
-    end if
-    call read_config(cli%input, env, cfg, error)
+  call program_start("crowd_fom", env, log, cli, error)
+  if (.not. allocated(error) .and. cli%help) then
+    if (env%is_root()) call print_help()
+    code = program_finish(env, log, error)
+    stop
   end if
+  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error)
   if (.not. allocated(error)) call check_config(cfg, error)
   if (.not. allocated(error)) then
-    select case (trim(cfg%output%log_level))
-    case ('error'); log%level = LOG_ERROR
-    case ('warn'); log%level = LOG_WARN
-    case ('debug'); log%level = LOG_DEBUG
-    case default; log%level = LOG_INFO
-    end select
+    log%level = log_level_of(cfg%output%log_level)
     if (env%is_root()) call run(cfg, cli, log, error)
   end if
-  if (allocated(error)) then
-    call log%error(error%message)
-    code = error%code
-  end if
-  call MPI_Bcast(code, 1, MPI_INTEGER, 0, env%comm, ierr)
-  call env%free()
-  call MPI_Finalize(ierr)
-  if (code /= 0) error stop code
+  code = program_finish(env, log, error)
+  ! a plain (quiet) stop: the error line was printed; no runtime backtrace on bad input
+  if (code /= 0) stop code, quiet=.true.
 
 contains
 

@@ -6,13 +6,13 @@
 !> (&offline pod_method), multiplier cone (gIS or mCPG, optionally both for comparison),
 !> supremizer enrichment (PGA), reduced inf-sup table, ROM file (&offline rom_file).
 program crowd_offline
-  use mpi_f08
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
   use cr_env, only: env_t
   use cr_logger, only: logger_t
-  use cr_cli, only: cli_t, parse_cli
+  use cr_cli, only: cli_t
+  use cr_program, only: program_start, program_finish, log_level_of
   use cr_config, only: config_t, read_config, config_echo
   use cr_config_check, only: check_config
   use cr_namelist_text, only: namelist_text_t
@@ -33,33 +33,25 @@ program crowd_offline
   type(offline_cfg_t) :: ocfg
   type(namelist_text_t) :: nml
   type(error_t), allocatable :: error
-  integer :: ierr, code
+  integer :: code
 
-  call MPI_Init(ierr)
-  call env%init(MPI_COMM_WORLD, error)
-  call log%init(env%is_root())
-  code = 0
-  if (.not. allocated(error)) call parse_cli("crowd_offline", cli, error)
-  if (.not. allocated(error)) then
-    if (cli%help) then
-      if (env%is_root()) call print_help()
-      call env%free(); call MPI_Finalize(ierr)
-      stop
-    end if
-    call read_config(cli%input, env, cfg, error, nml)
+  call program_start("crowd_offline", env, log, cli, error)
+  if (.not. allocated(error) .and. cli%help) then
+    if (env%is_root()) call print_help()
+    code = program_finish(env, log, error)
+    stop
   end if
+  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, nml)
   if (.not. allocated(error)) call check_config(cfg, error)
   if (.not. allocated(error)) call read_offline(nml, ocfg, error)
   if (.not. allocated(error)) call check_offline(cli%input, ocfg, error)
-  if (.not. allocated(error)) call run(error)
-  if (allocated(error)) then
-    call log%error(error%message)
-    code = error%code
+  if (.not. allocated(error)) then
+    log%level = log_level_of(cfg%output%log_level)
+    call run(error)
   end if
-  call MPI_Allreduce(MPI_IN_PLACE, code, 1, MPI_INTEGER, MPI_MAX, env%comm, ierr)
-  call env%free()
-  call MPI_Finalize(ierr)
-  if (code /= 0) error stop code
+  code = program_finish(env, log, error)
+  ! a plain (quiet) stop: the error line was printed; no runtime backtrace on bad input
+  if (code /= 0) stop code, quiet=.true.
 
 contains
 

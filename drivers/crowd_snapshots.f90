@@ -17,8 +17,9 @@ program crowd_snapshots
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
   use cr_env, only: env_t
-  use cr_logger, only: logger_t, LOG_ERROR, LOG_WARN, LOG_INFO, LOG_DEBUG
-  use cr_cli, only: cli_t, parse_cli
+  use cr_logger, only: logger_t
+  use cr_cli, only: cli_t
+  use cr_program, only: program_start, program_finish, log_level_of
   use cr_config, only: config_t, read_config, config_echo
   use cr_config_check, only: check_config
   use cr_namelist_text, only: namelist_text_t
@@ -42,7 +43,7 @@ program crowd_snapshots
   type(study_cfg_t) :: study
   type(namelist_text_t) :: nml
   type(error_t), allocatable :: error
-  integer :: ierr, code
+  integer :: code
   ! state of the run shared by run, set_of and report
   type(sample_set_t) :: sets(2)
   type(db_totals_t) :: totals
@@ -54,39 +55,23 @@ program crowd_snapshots
   real(wp) :: sum_time, t_compute, t_asm, t_total
   integer(i8) :: bytes
 
-  call MPI_Init(ierr)
-  call env%init(MPI_COMM_WORLD, error)
-  call log%init(env%is_root())
-  code = 0
-  if (.not. allocated(error)) call parse_cli("crowd_snapshots", cli, error, allow_stop_after=.true.)
-  if (.not. allocated(error)) then
-    if (cli%help) then
-      if (env%is_root()) call print_help()
-      call env%free(); call MPI_Finalize(ierr)
-      stop
-    end if
-    call read_config(cli%input, env, cfg, error, nml)
+  call program_start("crowd_snapshots", env, log, cli, error, allow_stop_after=.true.)
+  if (.not. allocated(error) .and. cli%help) then
+    if (env%is_root()) call print_help()
+    code = program_finish(env, log, error)
+    stop
   end if
+  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, nml)
   if (.not. allocated(error)) call check_config(cfg, error)
   if (.not. allocated(error)) call read_study(nml, study, error)
   if (.not. allocated(error)) call check_study(study, cfg, error)
   if (.not. allocated(error)) then
-    select case (trim(cfg%output%log_level))
-    case ('error'); log%level = LOG_ERROR
-    case ('warn'); log%level = LOG_WARN
-    case ('debug'); log%level = LOG_DEBUG
-    case default; log%level = LOG_INFO
-    end select
+    log%level = log_level_of(cfg%output%log_level)
     call run(error)
   end if
-  if (allocated(error)) then
-    call log%error(error%message)
-    code = error%code
-  end if
-  call MPI_Allreduce(MPI_IN_PLACE, code, 1, MPI_INTEGER, MPI_MAX, env%comm, ierr)
-  call env%free()
-  call MPI_Finalize(ierr)
-  if (code /= 0) error stop code
+  code = program_finish(env, log, error)
+  ! a plain (quiet) stop: the error line was printed; no runtime backtrace on bad input
+  if (code /= 0) stop code, quiet=.true.
 
 contains
 

@@ -6,6 +6,7 @@ program test_contact_ldp
   use cr_kinds, only: wp
   use cr_error, only: error_t
   use cr_assert, only: check, test_summary
+  use cr_test_scenes, only: seed_random
   use cr_contact_set, only: contact_set_t, kkt_residuals
   use cr_contact_ldp, only: contact_ldp_solve, contact_ldp_stats_t, contact_ldp_work_t
   use cr_nnls, only: ldp_solve, ldp_stats_t
@@ -13,7 +14,7 @@ program test_contact_ldp
   use cr_active_set, only: active_set_solver_t
   implicit none
   real(wp), parameter :: rad = 0.05_wp, h = 0.01_wp
-  call seed()
+  call seed_random(777)
   call test_hex_wall(0.0_wp, "exact hex")
   call test_hex_wall(1.0e-9_wp, "hex jitter 1e-9")
   call test_hex_wall(1.0e-5_wp, "hex jitter 1e-5")
@@ -22,14 +23,6 @@ program test_contact_ldp
   call test_summary()
 
 contains
-
-  subroutine seed()
-    integer :: n
-    integer, allocatable :: s(:)
-    call random_seed(size=n)
-    allocate(s(n)); s = 777
-    call random_seed(put=s)
-  end subroutine seed
 
   !> nx x ny disks in hexagonal packing (touching neighbours) resting on the wall y = 0 and
   !> against the wall x = 0, every touching pair a row (3 per agent: many dependent rows);

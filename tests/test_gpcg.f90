@@ -7,12 +7,13 @@ program test_gpcg
   use cr_kinds, only: wp
   use cr_error, only: error_t
   use cr_assert, only: check, test_summary
+  use cr_test_scenes, only: seed_random, lattice_scene
   use cr_contact_set, only: contact_set_t
   use cr_projection, only: projection_settings_t, solve_stats_t, projection_solver_t, &
     make_projection_solver
   implicit none
   real(wp), parameter :: rad = 0.05_wp, h = 0.01_wp
-  call seed()
+  call seed_random(777)
   call test_random()
   call test_jammed()
   call test_warm_and_cap()
@@ -20,57 +21,6 @@ program test_gpcg
   call test_summary()
 
 contains
-
-  subroutine seed()
-    integer :: n
-    integer, allocatable :: s(:)
-    call random_seed(size=n)
-    allocate(s(n)); s = 777
-    call random_seed(put=s)
-  end subroutine seed
-
-  !> Random feasible scene: nx x ny disks on a jittered lattice (gaps 2e-3 .. 6e-3), all pairs
-  !> with gap < cutoff, n_obs random obstacle rows; desired velocity towards the centre + noise.
-  subroutine random_scene(nx, ny, n_obs, cutoff, cs, v)
-    integer, intent(in) :: nx, ny, n_obs
-    real(wp), intent(in) :: cutoff
-    type(contact_set_t), intent(out) :: cs
-    real(wp), allocatable, intent(out) :: v(:)
-    real(wp), allocatable :: q(:,:), jit(:,:), nz(:)
-    real(wp) :: dx, c(2), dist, gap, ang, r(2)
-    integer :: na, i, j, k
-    na = nx * ny
-    dx = 2.0_wp * rad + 0.004_wp
-    allocate(q(2, na), jit(2, na), nz(2 * na))
-    call random_number(jit)
-    do j = 1, ny
-      do i = 1, nx
-        k = i + (j - 1) * nx
-        q(:, k) = [i * dx, j * dx] + 0.002_wp * (jit(:, k) - 0.5_wp)
-      end do
-    end do
-    call cs%init(na, h, 4 * na)
-    do i = 1, na
-      do j = i + 1, na
-        dist = norm2(q(:, i) - q(:, j))
-        gap = dist - 2.0_wp * rad
-        if (gap < cutoff) call cs%add(i, j, 0, (q(:, i) - q(:, j)) / dist, gap)
-      end do
-    end do
-    do k = 1, n_obs
-      call random_number(r)
-      i = 1 + int(r(1) * na)
-      ang = 8.0_wp * atan(1.0_wp) * r(2)
-      call random_number(gap)
-      call cs%add(i, 0, k, [cos(ang), sin(ang)], 0.005_wp * gap)
-    end do
-    c = sum(q, dim=2) / na
-    call random_number(nz)
-    allocate(v(2 * na))
-    do k = 1, na
-      v(2*k - 1:2*k) = -(q(:, k) - c) / max(norm2(q(:, k) - c), 1.0e-3_wp) + (nz(2*k - 1:2*k) - 0.5_wp)
-    end do
-  end subroutine random_scene
 
   !> Jammed scene: a hexagonal packing of nx x ny touching disks (pair gaps 0 up to round-off,
   !> clamped at 0), a wall x = 0 touched by the first column (obstacle rows, gap 0). With
@@ -176,7 +126,7 @@ contains
     integer :: trial
     character(len=16) :: tag
     do trial = 1, 6
-      call random_scene(3 + mod(trial, 3) * 3, 3 + trial, 4, 0.03_wp, cs, v)
+      call lattice_scene(3 + mod(trial, 3) * 3, 3 + trial, 4, 0.03_wp, rad, h, cs, v)
       write(tag, '(a, i0)') "random ", trial
       call compare(cs, v, trim(tag))
     end do
@@ -274,7 +224,7 @@ contains
     call check(st%converged .and. st%kkt <= 1.0e-10_wp, "large jam warm: KKT <= 1e-10")
     print '(a, i0, a, es9.2, a, f8.3, a)', "large jam: warm ", st%iterations, &
       " iterations, kkt ", st%kkt, ", ", real(c1 - c0, wp) / rate, " s"
-    call random_scene(50, 40, 50, 0.03_wp, cs, v)
+    call lattice_scene(50, 40, 50, 0.03_wp, rad, h, cs, v)
     deallocate(u, l)
     allocate(u(size(v)), l(cs%n))
     l = 0.0_wp

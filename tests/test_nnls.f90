@@ -4,10 +4,11 @@ program test_nnls
   use cr_kinds, only: wp
   use cr_error, only: error_t
   use cr_assert, only: check, check_close, test_summary
+  use cr_test_scenes, only: seed_random
   use cr_nnls, only: nnls_solve, nnls_stats_t, nnls_work_t, ldp_solve, ldp_stats_t
   implicit none
   type(nnls_work_t) :: work
-  call seed()
+  call seed_random(12345)
   call test_random_vs_enumeration()
   call test_degenerate()
   call test_scaling_and_warm()
@@ -15,14 +16,6 @@ program test_nnls
   call test_summary()
 
 contains
-
-  subroutine seed()
-    integer :: n
-    integer, allocatable :: s(:)
-    call random_seed(size=n)
-    allocate(s(n)); s = 12345
-    call random_seed(put=s)
-  end subroutine seed
 
   !> standard normal matrix
   subroutine randn(a)

@@ -6,12 +6,13 @@ program test_projection
   use cr_kinds, only: wp
   use cr_error, only: error_t
   use cr_assert, only: check, check_close, test_summary
+  use cr_test_scenes, only: seed_random, lattice_scene
   use cr_contact_set, only: contact_set_t
   use cr_projection, only: projection_settings_t, solve_stats_t, projection_solver_t, &
     make_projection_solver
   implicit none
   real(wp), parameter :: rad = 0.05_wp, h = 0.01_wp
-  call seed()
+  call seed_random(4242)
   call test_agreement()
   call test_brute_force()
   call test_warm_and_caps()
@@ -20,64 +21,6 @@ program test_projection
   call test_summary()
 
 contains
-
-  subroutine seed()
-    integer :: n
-    integer, allocatable :: s(:)
-    call random_seed(size=n)
-    allocate(s(n)); s = 4242
-    call random_seed(put=s)
-  end subroutine seed
-
-  !> Random feasible scene: nx x ny disks on a jittered lattice (gaps 2e-3 .. 6e-3, one pair
-  !> at 1e-7), all pairs with gap < cutoff, n_obs obstacle rows; desired velocity pushing the
-  !> crowd to its centre plus noise.
-  subroutine make_scene(nx, ny, n_obs, cutoff, cs, v)
-    integer, intent(in) :: nx, ny, n_obs
-    real(wp), intent(in) :: cutoff
-    type(contact_set_t), intent(out) :: cs
-    real(wp), allocatable, intent(out) :: v(:)
-    real(wp), allocatable :: q(:,:), jit(:,:), nz(:)
-    real(wp) :: dx, c(2), dist, gap, ang, r(2), qold(2)
-    integer :: na, i, j, k
-    na = nx * ny
-    dx = 2.0_wp * rad + 0.004_wp
-    allocate(q(2, na), jit(2, na), nz(2 * na))
-    call random_number(jit)
-    do j = 1, ny
-      do i = 1, nx
-        k = i + (j - 1) * nx
-        q(:, k) = [i * dx, j * dx] + 0.002_wp * (jit(:, k) - 0.5_wp)
-      end do
-    end do
-    ! make agents 1 and 2 almost touch, if that overlaps nobody
-    qold = q(:, 2)
-    q(:, 2) = q(:, 1) + (2.0_wp * rad + 1.0e-7_wp) * (q(:, 2) - q(:, 1)) / norm2(q(:, 2) - q(:, 1))
-    do k = 3, na
-      if (norm2(q(:, 2) - q(:, k)) < 2.0_wp * rad) q(:, 2) = qold
-    end do
-    call cs%init(na, h, 4 * na)
-    do i = 1, na
-      do j = i + 1, na
-        dist = norm2(q(:, i) - q(:, j))
-        gap = dist - 2.0_wp * rad
-        if (gap < cutoff) call cs%add(i, j, 0, (q(:, i) - q(:, j)) / dist, gap)
-      end do
-    end do
-    do k = 1, n_obs
-      call random_number(r)
-      i = 1 + int(r(1) * na)
-      ang = 8.0_wp * atan(1.0_wp) * r(2)
-      call random_number(gap)
-      call cs%add(i, 0, k, [cos(ang), sin(ang)], 0.005_wp * gap)
-    end do
-    c = sum(q, dim=2) / na
-    call random_number(nz)
-    allocate(v(2 * na))
-    do k = 1, na
-      v(2*k - 1:2*k) = -(q(:, k) - c) / max(norm2(q(:, k) - c), 1.0e-3_wp) + (nz(2*k - 1:2*k) - 0.5_wp)
-    end do
-  end subroutine make_scene
 
   subroutine build(name, s, solver)
     character(len=*), intent(in) :: name
@@ -100,7 +43,7 @@ contains
     real(wp) :: lb
     do trial = 1, 6
       nx = 3 + mod(trial, 3) * 2; ny = 3 + trial / 2
-      call make_scene(nx, ny, 3, 0.03_wp, cs, v)
+      call lattice_scene(nx, ny, 3, 0.03_wp, rad, h, cs, v, near_touch=.true.)
       allocate(ua(size(v)), ug(size(v)), uu(size(v)), la(cs%n), lg(cs%n), lu(cs%n))
       la = 0.0_wp; lg = 0.0_wp; lu = 0.0_wp
       s = projection_settings_t()
@@ -147,7 +90,7 @@ contains
     s = projection_settings_t()
     call build('active_set', s, sa)
     do trial = 1, 20
-      call make_scene(2 + mod(trial, 2), 2, 2, 0.01_wp, cs, v)
+      call lattice_scene(2 + mod(trial, 2), 2, 2, 0.01_wp, rad, h, cs, v, near_touch=.true.)
       n = cs%n; nd = size(v)
       if (n > 10) cycle
       allocate(bd(n, nd), u(nd), lam(n), ub(nd), lb(n), idx(n), e(n))
@@ -222,7 +165,7 @@ contains
     type(projection_settings_t) :: s
     type(solve_stats_t) :: st
     type(error_t), allocatable :: err
-    call make_scene(5, 4, 3, 0.03_wp, cs, v)
+    call lattice_scene(5, 4, 3, 0.03_wp, rad, h, cs, v, near_touch=.true.)
     allocate(u0(size(v)), u(size(v)), l0(cs%n), l(cs%n))
     s = projection_settings_t()
     call build('active_set', s, sa)
@@ -301,7 +244,7 @@ contains
     integer(8) :: c0, c1, rate
     integer :: k, nrep, it_cold
     real(wp) :: t_cold, t_warm
-    call make_scene(12, 13, 10, 0.047_wp, cs, v)
+    call lattice_scene(12, 13, 10, 0.047_wp, rad, h, cs, v, near_touch=.true.)
     allocate(u(size(v)), l(cs%n), l0(cs%n))
     s = projection_settings_t()
     call build('active_set', s, sa)

@@ -9,6 +9,9 @@ import h5py
 import numpy as np
 import pytest
 
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+from bench_fom import strip_groups  # noqa: E402  (one namelist-group filter for scripts and tests)
+
 ROOT = os.environ.get("CROWDROM_ROOT", os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 BIN = os.environ.get("CROWDROM_BIN", os.path.join(ROOT, "build", "bin"))
 FOM = os.path.join(BIN, "crowd_fom")
@@ -25,20 +28,6 @@ SUMMARY_KEYS = ["program", "input", "solver", "agents", "steps", "agents_left", 
                 "output_file", "smallest_gap", "largest_kkt_residual", "failed_steps",
                 "iterations_mean", "iterations_max", "resolves", "solver_time_per_step",
                 "time_per_step", "time_total", "placement_iterations"]
-
-
-def strip_groups(text, groups):
-    """Remove namelist groups (e.g. ["time"]) from a namelist text."""
-    out, skip = [], False
-    for line in text.splitlines():
-        t = line.strip().lower()
-        if any(t.startswith("&" + g) for g in groups):
-            skip = True
-        if not skip:
-            out.append(line)
-        if skip and t.endswith("/"):
-            skip = False
-    return "\n".join(out) + "\n"
 
 
 def run_fom(tmp_path, extra="", replace=()):

@@ -2,7 +2,7 @@
 !> All problems are collected and reported together in one error.
 module cr_config_check
   use cr_kinds, only: wp
-  use cr_error, only: error_t, set_error
+  use cr_error, only: error_t, problems_t
   use cr_strings, only: str
   use cr_config, only: config_t, MAX_OBST, MAX_POLY_V
   use cr_projection, only: projection_solver_t, make_projection_solver
@@ -19,105 +19,93 @@ contains
   subroutine check_config(cfg, error)
     type(config_t), intent(in) :: cfg
     type(error_t), allocatable, intent(out) :: error
-    character(len=:), allocatable :: p
-    integer :: nprob, k
+    type(problems_t) :: probs
+    integer :: k
     real(wp) :: reg(4), area, frac
     class(projection_solver_t), allocatable :: solver
     type(error_t), allocatable :: e2
-    p = ""
-    nprob = 0
     associate (s => cfg%scene, o => cfg%obstacles, a => cfg%agents, d => cfg%desired, &
                t => cfg%time, v => cfg%solver, c => cfg%contacts, out => cfg%output)
       ! &scene
-      call need(s%hall_length > 0, "&scene: hall_length must be > 0 (got " // str(s%hall_length) // ")")
-      call need(s%hall_width > 0, "&scene: hall_width must be > 0 (got " // str(s%hall_width) // ")")
-      call need(s%wall_thickness > 0, "&scene: wall_thickness must be > 0 (got " // str(s%wall_thickness) // ")")
-      call need(s%l_exit > 0, "&scene: l_exit must be > 0 (got " // str(s%l_exit) // ")")
-      call need(s%l_exit <= s%hall_length, "&scene: l_exit = " // str(s%l_exit) // &
+      call probs%need(s%hall_length > 0, "&scene: hall_length must be > 0 (got " // str(s%hall_length) // ")")
+      call probs%need(s%hall_width > 0, "&scene: hall_width must be > 0 (got " // str(s%hall_width) // ")")
+      call probs%need(s%wall_thickness > 0, "&scene: wall_thickness must be > 0 (got " // str(s%wall_thickness) // ")")
+      call probs%need(s%l_exit > 0, "&scene: l_exit must be > 0 (got " // str(s%l_exit) // ")")
+      call probs%need(s%l_exit <= s%hall_length, "&scene: l_exit = " // str(s%l_exit) // &
         " is wider than the wall (hall_length = " // str(s%hall_length) // ")")
       if (s%exit_center >= 0 .and. s%l_exit <= s%hall_length) then
-        call need(s%exit_center - s%l_exit / 2 >= 0 .and. s%exit_center + s%l_exit / 2 <= s%hall_length, &
+        call probs%need(s%exit_center - s%l_exit / 2 >= 0 .and. s%exit_center + s%l_exit / 2 <= s%hall_length, &
           "&scene: exit_center = " // str(s%exit_center) // " puts the opening outside the wall")
       end if
       ! &obstacles
-      call need(o%n_disks >= 0 .and. o%n_disks <= MAX_OBST, "&obstacles: n_disks must be in 0.." // str(MAX_OBST))
-      call need(o%n_segments >= 0 .and. o%n_segments <= MAX_OBST, "&obstacles: n_segments must be in 0.." // str(MAX_OBST))
-      call need(o%n_polygons >= 0 .and. o%n_polygons <= MAX_OBST, "&obstacles: n_polygons must be in 0.." // str(MAX_OBST))
+      call probs%need(o%n_disks >= 0 .and. o%n_disks <= MAX_OBST, "&obstacles: n_disks must be in 0.." // str(MAX_OBST))
+      call probs%need(o%n_segments >= 0 .and. o%n_segments <= MAX_OBST, "&obstacles: n_segments must be in 0.." // str(MAX_OBST))
+      call probs%need(o%n_polygons >= 0 .and. o%n_polygons <= MAX_OBST, "&obstacles: n_polygons must be in 0.." // str(MAX_OBST))
       do k = 1, min(max(o%n_disks, 0), MAX_OBST)
-        call need(o%disk_r(k) > 0, "&obstacles: disk_r(" // str(k) // ") must be > 0 (got " // str(o%disk_r(k)) // ")")
+        call probs%need(o%disk_r(k) > 0, "&obstacles: disk_r(" // str(k) // ") must be > 0 (got " // str(o%disk_r(k)) // ")")
       end do
       do k = 1, min(max(o%n_segments, 0), MAX_OBST)
-        call need(o%seg_half_thickness(k) >= 0, "&obstacles: seg_half_thickness(" // str(k) // ") must be >= 0")
-        call need(o%seg_x1(k) /= o%seg_x2(k) .or. o%seg_y1(k) /= o%seg_y2(k), &
+        call probs%need(o%seg_half_thickness(k) >= 0, "&obstacles: seg_half_thickness(" // str(k) // ") must be >= 0")
+        call probs%need(o%seg_x1(k) /= o%seg_x2(k) .or. o%seg_y1(k) /= o%seg_y2(k), &
           "&obstacles: segment " // str(k) // " has equal endpoints (seg_x1/seg_y1 = seg_x2/seg_y2)")
       end do
       do k = 1, min(max(o%n_polygons, 0), MAX_OBST)
-        call need(o%poly_nv(k) >= 3 .and. o%poly_nv(k) <= MAX_POLY_V, "&obstacles: poly_nv(" // str(k) // &
+        call probs%need(o%poly_nv(k) >= 3 .and. o%poly_nv(k) <= MAX_POLY_V, "&obstacles: poly_nv(" // str(k) // &
           ") must be in 3.." // str(MAX_POLY_V) // " (got " // str(o%poly_nv(k)) // ")")
       end do
       ! &agents
-      call need(a%n_agents >= 1, "&agents: n_agents must be >= 1 (got " // str(a%n_agents) // ")")
-      call need(a%radius > 0, "&agents: radius must be > 0 (got " // str(a%radius) // ")")
-      call need(a%speed >= 0, "&agents: speed must be >= 0 (got " // str(a%speed) // ")")
-      call need(a%init == 'random' .or. a%init == 'file', "&agents: init must be 'random' or 'file' (got '" // &
+      call probs%need(a%n_agents >= 1, "&agents: n_agents must be >= 1 (got " // str(a%n_agents) // ")")
+      call probs%need(a%radius > 0, "&agents: radius must be > 0 (got " // str(a%radius) // ")")
+      call probs%need(a%speed >= 0, "&agents: speed must be >= 0 (got " // str(a%speed) // ")")
+      call probs%need(a%init == 'random' .or. a%init == 'file', "&agents: init must be 'random' or 'file' (got '" // &
         trim(a%init) // "')")
-      if (a%init == 'file') call need(len_trim(a%init_file) > 0, "&agents: init = 'file' needs init_file")
-      call need(a%placement_max_iter >= 1, "&agents: placement_max_iter must be >= 1")
+      if (a%init == 'file') call probs%need(len_trim(a%init_file) > 0, "&agents: init = 'file' needs init_file")
+      call probs%need(a%placement_max_iter >= 1, "&agents: placement_max_iter must be >= 1")
       reg = a%region
       if (all(reg == 0)) reg = [0.0_wp, 0.0_wp, s%hall_length, s%hall_width]
       if (a%init == 'random') then
-        call need(reg(3) > reg(1) .and. reg(4) > reg(2), "&agents: region must have xmin < xmax and ymin < ymax")
-        call need(reg(1) >= 0 .and. reg(2) >= 0 .and. reg(3) <= s%hall_length .and. reg(4) <= s%hall_width, &
+        call probs%need(reg(3) > reg(1) .and. reg(4) > reg(2), "&agents: region must have xmin < xmax and ymin < ymax")
+        call probs%need(reg(1) >= 0 .and. reg(2) >= 0 .and. reg(3) <= s%hall_length .and. reg(4) <= s%hall_width, &
           "&agents: region must lie inside the hall [0, hall_length] x [0, hall_width]")
         area = max(reg(3) - reg(1), 0.0_wp) * max(reg(4) - reg(2), 0.0_wp)
         if (a%radius > 0 .and. area > 0 .and. a%n_agents > 0) then
-          call need(reg(3) - reg(1) >= 2 * a%radius .and. reg(4) - reg(2) >= 2 * a%radius, &
+          call probs%need(reg(3) - reg(1) >= 2 * a%radius .and. reg(4) - reg(2) >= 2 * a%radius, &
             "&agents: region is narrower than an agent (2 * radius)")
           frac = a%n_agents * acos(-1.0_wp) * a%radius**2 / area
-          call need(frac <= PACKING_LIMIT, "&agents: n_agents = " // str(a%n_agents) // " disks of radius " // &
+          call probs%need(frac <= PACKING_LIMIT, "&agents: n_agents = " // str(a%n_agents) // " disks of radius " // &
             str(a%radius) // " cover " // str(frac, 'f0.3') // " of the region: more agents than fit (limit " // &
             str(PACKING_LIMIT, 'f0.4') // ")")
         end if
       end if
       ! &desired
-      call need(d%mode == 'geodesic' .or. d%mode == 'file', "&desired: mode must be 'geodesic' or 'file' (got '" // &
+      call probs%need(d%mode == 'geodesic' .or. d%mode == 'file', "&desired: mode must be 'geodesic' or 'file' (got '" // &
         trim(d%mode) // "')")
-      if (d%mode == 'file') call need(len_trim(d%file) > 0, "&desired: mode = 'file' needs file")
-      call need(d%field == 'auto' .or. d%field == 'analytic' .or. d%field == 'grid', &
+      if (d%mode == 'file') call probs%need(len_trim(d%file) > 0, "&desired: mode = 'file' needs file")
+      call probs%need(d%field == 'auto' .or. d%field == 'analytic' .or. d%field == 'grid', &
         "&desired: field must be 'auto', 'analytic' or 'grid' (got '" // trim(d%field) // "')")
-      call need(d%grid_dx >= 0, "&desired: grid_dx must be >= 0 (0 = radius / 4)")
-      if (a%radius > 0) call need(d%grid_dx < a%radius / 2, "&desired: grid_dx must be < radius / 2")
+      call probs%need(d%grid_dx >= 0, "&desired: grid_dx must be >= 0 (0 = radius / 4)")
+      if (a%radius > 0) call probs%need(d%grid_dx < a%radius / 2, "&desired: grid_dx must be < radius / 2")
       ! &time
-      call need(t%dt > 0, "&time: dt must be > 0 (got " // str(t%dt) // ")")
-      call need(t%n_steps >= 1 .or. t%until_empty, "&time: n_steps must be >= 1 (got " // str(t%n_steps) // ")")
-      call need(t%max_steps >= 1, "&time: max_steps must be >= 1")
+      call probs%need(t%dt > 0, "&time: dt must be > 0 (got " // str(t%dt) // ")")
+      call probs%need(t%n_steps >= 1 .or. t%until_empty, "&time: n_steps must be >= 1 (got " // str(t%n_steps) // ")")
+      call probs%need(t%max_steps >= 1, "&time: max_steps must be >= 1")
       ! &solver
       call make_projection_solver(v, solver, e2)
-      if (allocated(e2)) call need(.false., "&solver: " // e2%message)
-      call need(v%tol > 0, "&solver: tol must be > 0 (got " // str(v%tol) // ")")
-      call need(v%max_iter >= 1, "&solver: max_iter must be >= 1")
-      call need(v%uzawa_rho_factor > 0, "&solver: uzawa_rho_factor must be > 0")
-      call need(v%uzawa_eps > 0, "&solver: uzawa_eps must be > 0")
-      call need(v%uzawa_max_iter >= 1, "&solver: uzawa_max_iter must be >= 1")
+      if (allocated(e2)) call probs%need(.false., "&solver: " // e2%message)
+      call probs%need(v%tol > 0, "&solver: tol must be > 0 (got " // str(v%tol) // ")")
+      call probs%need(v%max_iter >= 1, "&solver: max_iter must be >= 1")
+      call probs%need(v%uzawa_rho_factor > 0, "&solver: uzawa_rho_factor must be > 0")
+      call probs%need(v%uzawa_eps > 0, "&solver: uzawa_eps must be > 0")
+      call probs%need(v%uzawa_max_iter >= 1, "&solver: uzawa_max_iter must be >= 1")
       ! &contacts
-      call need(c%cutoff_factor >= 1, "&contacts: cutoff_factor must be >= 1 (got " // str(c%cutoff_factor) // ")")
+      call probs%need(c%cutoff_factor >= 1, "&contacts: cutoff_factor must be >= 1 (got " // str(c%cutoff_factor) // ")")
       ! &output
-      call need(len_trim(out%file) > 0, "&output: file must not be empty")
-      call need(out%every >= 1, "&output: every must be >= 1")
-      call need(any(out%log_level == [character(len=16) :: 'error', 'warn', 'info', 'debug']), &
+      call probs%need(len_trim(out%file) > 0, "&output: file must not be empty")
+      call probs%need(out%every >= 1, "&output: every must be >= 1")
+      call probs%need(any(out%log_level == [character(len=16) :: 'error', 'warn', 'info', 'debug']), &
         "&output: log_level must be 'error', 'warn', 'info' or 'debug'")
     end associate
-    if (nprob > 0) call set_error(error, cfg%source // ": " // p, 2)
+    call probs%to_error(cfg%source, error)
 
-  contains
-
-    subroutine need(ok, msg)
-      logical, intent(in) :: ok
-      character(len=*), intent(in) :: msg
-      if (ok) return
-      nprob = nprob + 1
-      if (nprob > 1) p = p // "; "
-      p = p // msg
-    end subroutine need
   end subroutine check_config
 end module cr_config_check

@@ -5,7 +5,7 @@
 module cr_error
   implicit none
   private
-  public :: error_t, set_error, prefix_error
+  public :: error_t, set_error, prefix_error, problems_t
 
   !> An error with a human-readable one-line message and a numeric code.
   type :: error_t
@@ -15,7 +15,43 @@ module cr_error
     integer :: code = 1
   end type error_t
 
+  !> Collector of input problems: validation checks every rule, then reports all at once.
+  type :: problems_t
+    integer :: n = 0
+    character(len=:), allocatable :: text
+  contains
+    procedure :: need
+    procedure :: to_error
+  end type problems_t
+
 contains
+
+  !> Record `msg` unless `ok`.
+  subroutine need(this, ok, msg)
+    class(problems_t), intent(inout) :: this
+    logical, intent(in) :: ok
+    character(len=*), intent(in) :: msg
+    if (ok) return
+    if (this%n == 0) then
+      this%text = msg
+    else
+      this%text = this%text // "; " // msg
+    end if
+    this%n = this%n + 1
+  end subroutine need
+
+  !> If any problem was recorded, an input error (code 2) "prefix: p1; p2; ...".
+  subroutine to_error(this, prefix, error)
+    class(problems_t), intent(in) :: this
+    character(len=*), intent(in) :: prefix
+    type(error_t), allocatable, intent(out) :: error
+    if (this%n == 0) return
+    if (len(prefix) > 0) then
+      call set_error(error, prefix // ": " // this%text, 2)
+    else
+      call set_error(error, this%text, 2)
+    end if
+  end subroutine to_error
 
   !> Allocate `error` with a message (and optional code).
   subroutine set_error(error, message, code)

@@ -3,6 +3,7 @@
 !> not a cryptographic hash. All arithmetic stays below 2^62 (no integer overflow).
 module cr_hash
   use cr_kinds, only: i8
+  use cr_strings, only: to_lower
   implicit none
   private
   public :: hash_text
@@ -25,17 +26,7 @@ contains
     end do
     h1 = modulo(h1 * B1 + int(len(s), i8), P1)
     write(h, '(z8.8, z8.8)') h1, h2
-    h = lower(h)
+    h = to_lower(h)
   end function hash_text
 
-  pure function lower(s) result(t)
-    character(len=*), intent(in) :: s
-    character(len=len(s)) :: t
-    integer :: k, c
-    t = s
-    do k = 1, len(s)
-      c = iachar(s(k:k))
-      if (c >= iachar('A') .and. c <= iachar('Z')) t(k:k) = achar(c + 32)
-    end do
-  end function lower
 end module cr_hash

@@ -1,7 +1,7 @@
 !> &offline: configuration of crowd_offline (reduced bases from a snapshot database).
 module cr_offline_config
   use cr_kinds, only: wp
-  use cr_error, only: error_t, set_error
+  use cr_error, only: error_t, set_error, problems_t
   use cr_strings, only: str
   use cr_namelist_text, only: namelist_text_t
   implicit none
@@ -89,37 +89,26 @@ contains
     character(len=*), intent(in) :: path
     type(offline_cfg_t), intent(in) :: c
     type(error_t), allocatable, intent(out) :: error
-    character(len=:), allocatable :: p
-    integer :: n
-    p = ""; n = 0
-    call need(len_trim(c%database) > 0, "&offline: database must be given")
-    call need(len_trim(c%rom_file) > 0, "&offline: rom_file must be given")
-    call need(any(c%pod_method == [character(len=16) :: 'tsqr', 'rsvd', 'scalapack', 'snapshots']), &
+    type(problems_t) :: probs
+    call probs%need(len_trim(c%database) > 0, "&offline: database must be given")
+    call probs%need(len_trim(c%rom_file) > 0, "&offline: rom_file must be given")
+    call probs%need(any(c%pod_method == [character(len=16) :: 'tsqr', 'rsvd', 'scalapack', 'snapshots']), &
       "&offline: pod_method must be 'tsqr', 'rsvd', 'scalapack' or 'snapshots' (got '" // trim(c%pod_method) // "')")
-    call need(c%pod_n >= 0, "&offline: pod_n must be >= 0 (0: truncate by pod_energy)")
-    call need(c%pod_energy >= 0 .and. c%pod_energy <= 1, "&offline: pod_energy must be in [0, 1]")
-    call need(c%rsvd_rank >= 1, "&offline: rsvd_rank must be >= 1")
-    call need(c%rsvd_oversampling >= 0, "&offline: rsvd_oversampling must be >= 0")
-    call need(c%rsvd_power >= 0, "&offline: rsvd_power must be >= 0")
-    call need(c%rsvd_sketch == 'gaussian' .or. c%rsvd_sketch == 'srft', &
+    call probs%need(c%pod_n >= 0, "&offline: pod_n must be >= 0 (0: truncate by pod_energy)")
+    call probs%need(c%pod_energy >= 0 .and. c%pod_energy <= 1, "&offline: pod_energy must be in [0, 1]")
+    call probs%need(c%rsvd_rank >= 1, "&offline: rsvd_rank must be >= 1")
+    call probs%need(c%rsvd_oversampling >= 0, "&offline: rsvd_oversampling must be >= 0")
+    call probs%need(c%rsvd_power >= 0, "&offline: rsvd_power must be >= 0")
+    call probs%need(c%rsvd_sketch == 'gaussian' .or. c%rsvd_sketch == 'srft', &
       "&offline: rsvd_sketch must be 'gaussian' or 'srft'")
-    call need(c%cone_method == 'gis' .or. c%cone_method == 'mcpg', "&offline: cone_method must be 'gis' or 'mcpg'")
-    call need(c%cone_delta >= 0, "&offline: cone_delta must be >= 0")
-    call need(c%cone_r_max >= 0 .and. c%mcpg_r_max >= 0, "&offline: cone_r_max and mcpg_r_max must be >= 0")
-    call need(c%pga_delta > 0, "&offline: pga_delta must be > 0 (got " // str(c%pga_delta) // ")")
-    call need(c%pga_max_add >= 0, "&offline: pga_max_add must be >= 0")
-    call need(all(c%infsup_n >= 0) .and. all(c%infsup_r >= 0), "&offline: infsup_n and infsup_r must be >= 0")
-    call need(c%infsup_samples >= 0, "&offline: infsup_samples must be >= 0")
-    if (n > 0) call set_error(error, path // ": " // p, 2)
-  contains
-    subroutine need(ok, msg)
-      logical, intent(in) :: ok
-      character(len=*), intent(in) :: msg
-      if (ok) return
-      n = n + 1
-      if (n > 1) p = p // "; "
-      p = p // msg
-    end subroutine need
+    call probs%need(c%cone_method == 'gis' .or. c%cone_method == 'mcpg', "&offline: cone_method must be 'gis' or 'mcpg'")
+    call probs%need(c%cone_delta >= 0, "&offline: cone_delta must be >= 0")
+    call probs%need(c%cone_r_max >= 0 .and. c%mcpg_r_max >= 0, "&offline: cone_r_max and mcpg_r_max must be >= 0")
+    call probs%need(c%pga_delta > 0, "&offline: pga_delta must be > 0 (got " // str(c%pga_delta) // ")")
+    call probs%need(c%pga_max_add >= 0, "&offline: pga_max_add must be >= 0")
+    call probs%need(all(c%infsup_n >= 0) .and. all(c%infsup_r >= 0), "&offline: infsup_n and infsup_r must be >= 0")
+    call probs%need(c%infsup_samples >= 0, "&offline: infsup_samples must be >= 0")
+    call probs%to_error(path, error)
   end subroutine check_offline
 
   !> The group as re-readable namelist text.

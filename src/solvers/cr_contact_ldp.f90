@@ -28,6 +28,7 @@ module cr_contact_ldp
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
+  use cr_nnls, only: lh_step_back
   implicit none
   private
   public :: contact_ldp_work_t, contact_ldp_stats_t, contact_ldp_solve, contact_ldp_bytes
@@ -128,7 +129,7 @@ contains
     type(contact_ldp_work_t), target :: local
     type(contact_ldp_work_t), pointer :: wk
     integer :: m, nd, na, j, k, p, t, it, itmax, pmin, kmax
-    real(wp) :: sv, thr, worst, tau, q, xmax, alpha, tolv
+    real(wp) :: sv, thr, worst, tau, q, xmax, tolv
     logical :: use_warm, ok, changed, refined
 
     m = size(d); nd = size(v); na = nd / 2
@@ -325,32 +326,12 @@ contains
     !> lambda_P = z > 0.
     subroutine step_back()
       integer :: pp, jj
-      real(wp) :: dn
       do
         if (k == 0) return
         if (all(wk%z(1:k) > 0.0_wp)) exit
         if (it >= itmax) exit
         it = it + 1
-        alpha = 1.0_wp
-        pmin = 0
-        do pp = 1, k
-          if (wk%z(pp) <= 0.0_wp) then
-            jj = wk%plist(pp)
-            dn = wk%lam(jj) - wk%z(pp)
-            if (dn > 0.0_wp) then
-              if (wk%lam(jj) / dn < alpha .or. pmin == 0) then
-                alpha = min(1.0_wp, wk%lam(jj) / dn); pmin = pp
-              end if
-            else
-              alpha = 0.0_wp; pmin = pp
-            end if
-          end if
-        end do
-        do pp = 1, k
-          jj = wk%plist(pp)
-          wk%lam(jj) = wk%lam(jj) + alpha * (wk%z(pp) - wk%lam(jj))
-        end do
-        if (pmin > 0) wk%lam(wk%plist(pmin)) = 0.0_wp
+        call lh_step_back(wk%lam, wk%z(1:k), wk%plist(1:k))
         do pp = k, 1, -1
           jj = wk%plist(pp)
           if (wk%lam(jj) <= 0.0_wp) then

@@ -25,7 +25,7 @@ module cr_nnls
   use cr_strings, only: str
   implicit none
   private
-  public :: nnls_work_t, nnls_stats_t, ldp_stats_t, nnls_solve, ldp_solve
+  public :: nnls_work_t, nnls_stats_t, ldp_stats_t, nnls_solve, ldp_solve, lh_step_back
 
   !> Outcome of one NNLS solve.
   type :: nnls_stats_t
@@ -203,8 +203,8 @@ contains
     integer, intent(in) :: m, n, itmax
     type(nnls_stats_t), intent(inout) :: stats
     logical, intent(in), optional :: passive0(:)
-    integer :: k, j, t, p, it, pmin
-    real(wp) :: tolw, wmax, alpha, bn, eps, dn
+    integer :: k, j, t, p, it
+    real(wp) :: tolw, wmax, bn, eps
     logical :: ok, changed
 
     eps = epsilon(1.0_wp)
@@ -288,26 +288,7 @@ contains
         if (all(wk%zp(1:k) > 0.0_wp)) exit inner
         if (it >= itmax) exit outer
         it = it + 1
-        alpha = 1.0_wp
-        pmin = 0
-        do p = 1, k
-          if (wk%zp(p) <= 0.0_wp) then
-            j = wk%plist(p)
-            dn = wk%x(j) - wk%zp(p)
-            if (dn > 0.0_wp) then
-              if (wk%x(j) / dn < alpha .or. pmin == 0) then
-                alpha = min(1.0_wp, wk%x(j) / dn); pmin = p
-              end if
-            else
-              alpha = 0.0_wp; pmin = p
-            end if
-          end if
-        end do
-        do p = 1, k
-          j = wk%plist(p)
-          wk%x(j) = wk%x(j) + alpha * (wk%zp(p) - wk%x(j))
-        end do
-        if (pmin > 0) wk%x(wk%plist(pmin)) = 0.0_wp
+        call lh_step_back(wk%x, wk%zp(1:k), wk%plist(1:k))
         do p = k, 1, -1
           j = wk%plist(p)
           if (wk%x(j) <= 0.0_wp) then
@@ -637,4 +618,34 @@ contains
     end do
   end subroutine remove_column_impl
 
+  !> Lawson-Hanson step back: x(plist) moves towards the passive-set minimiser z along the
+  !> segment as far as x stays >= 0 (the largest alpha in [0, 1]); the passive variable that
+  !> blocks the step is set to exactly 0. Shared by the NNLS here and the sparse contact kernel.
+  pure subroutine lh_step_back(x, z, plist)
+    real(wp), intent(inout) :: x(:)
+    real(wp), intent(in) :: z(:)
+    integer, intent(in) :: plist(:)
+    real(wp) :: alpha, dn
+    integer :: p, j, pmin
+    alpha = 1.0_wp
+    pmin = 0
+    do p = 1, size(z)
+      if (z(p) <= 0.0_wp) then
+        j = plist(p)
+        dn = x(j) - z(p)
+        if (dn > 0.0_wp) then
+          if (x(j) / dn < alpha .or. pmin == 0) then
+            alpha = min(1.0_wp, x(j) / dn); pmin = p
+          end if
+        else
+          alpha = 0.0_wp; pmin = p
+        end if
+      end if
+    end do
+    do p = 1, size(z)
+      j = plist(p)
+      x(j) = x(j) + alpha * (z(p) - x(j))
+    end do
+    if (pmin > 0) x(plist(pmin)) = 0.0_wp
+  end subroutine lh_step_back
 end module cr_nnls

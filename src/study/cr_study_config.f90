@@ -11,7 +11,7 @@
 !> message naming file and group); check_study collects every problem.
 module cr_study_config
   use cr_kinds, only: wp
-  use cr_error, only: error_t, set_error
+  use cr_error, only: error_t, set_error, problems_t
   use cr_strings, only: str, to_lower
   use cr_namelist_text, only: namelist_text_t
   use cr_config, only: config_t, config_echo, MAX_PATH
@@ -81,79 +81,68 @@ contains
     type(study_cfg_t), intent(in) :: s
     type(config_t), intent(in) :: cfg
     type(error_t), allocatable, intent(out) :: error
-    character(len=:), allocatable :: p
-    integer :: k, j, np, nprob, ngrid
+    type(problems_t) :: probs
+    integer :: k, j, np, ngrid
     character(len=:), allocatable :: nm
-    p = ""; nprob = 0
     np = min(max(s%n_params, 0), MAX_PARAMS)
-    call need(s%n_params >= 1 .and. s%n_params <= MAX_PARAMS, "&study: n_params must be in 1.." // &
+    call probs%need(s%n_params >= 1 .and. s%n_params <= MAX_PARAMS, "&study: n_params must be in 1.." // &
       str(MAX_PARAMS) // " (got " // str(s%n_params) // ")")
     do k = 1, np
       nm = trim(s%param_name(k))
       select case (nm)
       case ('l_exit', 'speed', 'speeds')
       case default
-        call need(.false., "&study: param_name(" // str(k) // ") = '" // nm // &
+        call probs%need(.false., "&study: param_name(" // str(k) // ") = '" // nm // &
           "' is not a known parameter (known: " // KNOWN_PARAMS // ")")
       end select
       do j = 1, k - 1
-        call need(s%param_name(j) /= s%param_name(k), "&study: parameter '" // nm // "' is given twice")
+        call probs%need(s%param_name(j) /= s%param_name(k), "&study: parameter '" // nm // "' is given twice")
       end do
       if (.not. (s%param_min(k) < s%param_max(k))) then
-        call need(.false., "&study: empty range for parameter " // str(k) // " '" // nm // &
+        call probs%need(.false., "&study: empty range for parameter " // str(k) // " '" // nm // &
           "': param_min = " // str(s%param_min(k)) // " must be < param_max = " // str(s%param_max(k)))
       else if (nm == 'l_exit') then
-        call need(s%param_min(k) > 0 .and. s%param_max(k) <= cfg%scene%hall_length, &
+        call probs%need(s%param_min(k) > 0 .and. s%param_max(k) <= cfg%scene%hall_length, &
           "&study: l_exit range [" // str(s%param_min(k)) // ", " // str(s%param_max(k)) // &
           "] must lie in (0, hall_length = " // str(cfg%scene%hall_length) // "]")
-        if (cfg%scene%exit_center >= 0) call need(cfg%scene%exit_center - s%param_max(k) / 2 >= 0 .and. &
+        if (cfg%scene%exit_center >= 0) call probs%need(cfg%scene%exit_center - s%param_max(k) / 2 >= 0 .and. &
           cfg%scene%exit_center + s%param_max(k) / 2 <= cfg%scene%hall_length, &
           "&study: l_exit up to " // str(s%param_max(k)) // " puts the opening outside the wall (exit_center = " &
           // str(cfg%scene%exit_center) // ")")
       else if (nm == 'speed' .or. nm == 'speeds') then
-        call need(s%param_min(k) >= 0, "&study: " // nm // " range must be >= 0 (param_min = " // &
+        call probs%need(s%param_min(k) >= 0, "&study: " // nm // " range must be >= 0 (param_min = " // &
           str(s%param_min(k)) // ")")
       end if
     end do
     if (any(s%param_name(1:np) == 'speed') .and. any(s%param_name(1:np) == 'speeds')) &
-      call need(.false., "&study: 'speed' (one common speed) and 'speeds' (one per agent) exclude each other")
+      call probs%need(.false., "&study: 'speed' (one common speed) and 'speeds' (one per agent) exclude each other")
     do k = np + 1, MAX_PARAMS
-      call need(len_trim(s%param_name(k)) == 0, "&study: param_name(" // str(k) // ") = '" // &
+      call probs%need(len_trim(s%param_name(k)) == 0, "&study: param_name(" // str(k) // ") = '" // &
         trim(s%param_name(k)) // "' is beyond n_params = " // str(s%n_params))
     end do
-    call need(s%n_train >= 1, "&study: n_train must be >= 1 (got " // str(s%n_train) // ": zero samples)")
-    call need(s%n_valid >= 0, "&study: n_valid must be >= 0 (got " // str(s%n_valid) // ")")
-    call need(s%seed >= 0, "&study: seed must be >= 0 (got " // str(s%seed) // ")")
-    call need(len_trim(s%database) > 0, "&study: database must name a file")
+    call probs%need(s%n_train >= 1, "&study: n_train must be >= 1 (got " // str(s%n_train) // ": zero samples)")
+    call probs%need(s%n_valid >= 0, "&study: n_valid must be >= 0 (got " // str(s%n_valid) // ")")
+    call probs%need(s%seed >= 0, "&study: seed must be >= 0 (got " // str(s%seed) // ")")
+    call probs%need(len_trim(s%database) > 0, "&study: database must name a file")
     select case (trim(s%sampling))
     case ('random')
     case ('grid')
-      call need(.not. any(s%param_name(1:np) == 'speeds'), "&study: sampling = 'grid' cannot vary " // &
+      call probs%need(.not. any(s%param_name(1:np) == 'speeds'), "&study: sampling = 'grid' cannot vary " // &
         "'speeds' (one component per agent); use 'speed' or sampling = 'random'")
-      call need(all(s%grid_n(1:np) >= 1), "&study: sampling = 'grid' needs grid_n(1:n_params) >= 1")
+      call probs%need(all(s%grid_n(1:np) >= 1), "&study: sampling = 'grid' needs grid_n(1:n_params) >= 1")
       if (all(s%grid_n(1:np) >= 1) .and. np >= 1) then
         ngrid = product(s%grid_n(1:np))
-        call need(ngrid == s%n_train, "&study: grid_n gives " // str(ngrid) // " training samples but n_train = " &
+        call probs%need(ngrid == s%n_train, "&study: grid_n gives " // str(ngrid) // " training samples but n_train = " &
           // str(s%n_train))
       end if
     case default
-      call need(.false., "&study: sampling = '" // trim(s%sampling) // "' is not one of 'random', 'grid'")
+      call probs%need(.false., "&study: sampling = '" // trim(s%sampling) // "' is not one of 'random', 'grid'")
     end select
-    call need(.not. cfg%time%until_empty, "&time: until_empty = .true. is not allowed in a study " // &
+    call probs%need(.not. cfg%time%until_empty, "&time: until_empty = .true. is not allowed in a study " // &
       "(every sample runs n_steps steps)")
-    call need(cfg%time%n_steps >= 1, "&time: n_steps must be >= 1 in a study (got " // str(cfg%time%n_steps) // ")")
-    if (nprob > 0) call set_error(error, p, 2)
+    call probs%need(cfg%time%n_steps >= 1, "&time: n_steps must be >= 1 in a study (got " // str(cfg%time%n_steps) // ")")
+    call probs%to_error("", error)
 
-  contains
-
-    subroutine need(ok, msg)
-      logical, intent(in) :: ok
-      character(len=*), intent(in) :: msg
-      if (ok) return
-      nprob = nprob + 1
-      if (nprob > 1) p = p // "; "
-      p = p // msg
-    end subroutine need
   end subroutine check_study
 
   !> &study as a re-readable namelist group (without database when with_database is false).

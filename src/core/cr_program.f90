@@ -1,0 +1,60 @@
+!> Start and end of a crowdrom program, shared by the drivers: MPI, the environment on
+!> MPI_COMM_WORLD, the root-only logger, the command line; at the end the error is printed
+!> once (`error: <message>`), the exit code is agreed by all ranks, MPI is finalised.
+!> Only the driver stops (with the code returned by program_finish).
+module cr_program
+  use mpi_f08
+  use cr_error, only: error_t
+  use cr_env, only: env_t
+  use cr_logger, only: logger_t, LOG_ERROR, LOG_WARN, LOG_INFO, LOG_DEBUG
+  use cr_cli, only: cli_t, parse_cli
+  implicit none
+  private
+  public :: program_start, program_finish, log_level_of
+
+contains
+
+  !> MPI_Init, env on MPI_COMM_WORLD, logger active on rank 0, parsed command line.
+  subroutine program_start(name, env, log, cli, error, allow_stop_after)
+    character(len=*), intent(in) :: name
+    type(env_t), intent(inout) :: env
+    type(logger_t), intent(inout) :: log
+    type(cli_t), intent(out) :: cli
+    type(error_t), allocatable, intent(out) :: error
+    logical, intent(in), optional :: allow_stop_after
+    integer :: ierr
+    call MPI_Init(ierr)
+    call env%init(MPI_COMM_WORLD, error)
+    call log%init(env%is_root())
+    if (allocated(error)) return
+    call parse_cli(name, cli, error, allow_stop_after=allow_stop_after)
+  end subroutine program_start
+
+  !> Print the error (root), agree on the exit code (largest over the ranks), free the
+  !> environment and finalise MPI. Returns 0 or the error code.
+  integer function program_finish(env, log, error) result(code)
+    type(env_t), intent(inout) :: env
+    type(logger_t), intent(in) :: log
+    type(error_t), allocatable, intent(in) :: error
+    integer :: ierr
+    code = 0
+    if (allocated(error)) then
+      call log%error(error%message)
+      code = error%code
+    end if
+    call MPI_Allreduce(MPI_IN_PLACE, code, 1, MPI_INTEGER, MPI_MAX, env%comm, ierr)
+    call env%free()
+    call MPI_Finalize(ierr)
+  end function program_finish
+
+  !> Logger level of an &output log_level name ('error', 'warn', 'info', 'debug').
+  pure integer function log_level_of(name) result(level)
+    character(len=*), intent(in) :: name
+    select case (trim(name))
+    case ('error'); level = LOG_ERROR
+    case ('warn'); level = LOG_WARN
+    case ('debug'); level = LOG_DEBUG
+    case default; level = LOG_INFO
+    end select
+  end function log_level_of
+end module cr_program

@@ -1,0 +1,76 @@
+!> Shared helpers of the solver tests: seeding the Fortran random generator, and a random
+!> feasible disk scene (jittered lattice) with its contact rows and a desired velocity.
+module cr_test_scenes
+  use cr_kinds, only: wp
+  use cr_contact_set, only: contact_set_t
+  implicit none
+  private
+  public :: seed_random, lattice_scene
+
+contains
+
+  !> Make random_number reproducible.
+  subroutine seed_random(value)
+    integer, intent(in) :: value
+    integer :: n
+    integer, allocatable :: s(:)
+    call random_seed(size=n)
+    allocate(s(n)); s = value
+    call random_seed(put=s)
+  end subroutine seed_random
+
+  !> nx x ny disks of radius rad on a jittered lattice (gaps 2e-3 .. 6e-3), every pair with
+  !> gap < cutoff as a row (step h), n_obs random obstacle rows with gaps in [0, 5e-3), and a
+  !> desired velocity towards the centre plus noise. With near_touch, agents 1 and 2 are
+  !> moved to a gap of 1e-7 (if that overlaps nobody).
+  subroutine lattice_scene(nx, ny, n_obs, cutoff, rad, h, cs, v, near_touch)
+    integer, intent(in) :: nx, ny, n_obs
+    real(wp), intent(in) :: cutoff, rad, h
+    type(contact_set_t), intent(out) :: cs
+    real(wp), allocatable, intent(out) :: v(:)
+    logical, intent(in), optional :: near_touch
+    real(wp), allocatable :: q(:,:), jit(:,:), nz(:)
+    real(wp) :: dx, c(2), dist, gap, ang, r(2), qold(2)
+    integer :: na, i, j, k
+    na = nx * ny
+    dx = 2.0_wp * rad + 0.004_wp
+    allocate(q(2, na), jit(2, na), nz(2 * na))
+    call random_number(jit)
+    do j = 1, ny
+      do i = 1, nx
+        k = i + (j - 1) * nx
+        q(:, k) = [i * dx, j * dx] + 0.002_wp * (jit(:, k) - 0.5_wp)
+      end do
+    end do
+    if (present(near_touch)) then
+      if (near_touch .and. na >= 2) then
+        qold = q(:, 2)
+        q(:, 2) = q(:, 1) + (2.0_wp * rad + 1.0e-7_wp) * (q(:, 2) - q(:, 1)) / norm2(q(:, 2) - q(:, 1))
+        do k = 3, na
+          if (norm2(q(:, 2) - q(:, k)) < 2.0_wp * rad) q(:, 2) = qold
+        end do
+      end if
+    end if
+    call cs%init(na, h, 4 * na)
+    do i = 1, na
+      do j = i + 1, na
+        dist = norm2(q(:, i) - q(:, j))
+        gap = dist - 2.0_wp * rad
+        if (gap < cutoff) call cs%add(i, j, 0, (q(:, i) - q(:, j)) / dist, gap)
+      end do
+    end do
+    do k = 1, n_obs
+      call random_number(r)
+      i = 1 + int(r(1) * na)
+      ang = 8.0_wp * atan(1.0_wp) * r(2)
+      call random_number(gap)
+      call cs%add(i, 0, k, [cos(ang), sin(ang)], 0.005_wp * gap)
+    end do
+    c = sum(q, dim=2) / na
+    call random_number(nz)
+    allocate(v(2 * na))
+    do k = 1, na
+      v(2*k - 1:2*k) = -(q(:, k) - c) / max(norm2(q(:, k) - c), 1.0e-3_wp) + (nz(2*k - 1:2*k) - 0.5_wp)
+    end do
+  end subroutine lattice_scene
+end module cr_test_scenes
