@@ -24,6 +24,7 @@ program crowd_offline
   use cr_supremizer, only: pga_result_t, pga_enrich
   use cr_infsup_table, only: infsup_table
   use cr_rom_file, only: rom_tables_t, write_rom_file
+  use cr_rom_pairs, only: rom_pair_t, build_pair, TERM_NAMES
   use cr_json, only: json_writer_t
   implicit none
   type(env_t) :: env
@@ -75,6 +76,7 @@ contains
     type(sparse_cone_t) :: scone
     type(pga_result_t) :: pga
     type(rom_tables_t) :: tab
+    type(rom_pair_t), allocatable :: pairs(:)
     real(wp), allocatable :: v(:,:)
     real(wp) :: t0, eps
     integer :: n_pod, nmodes
@@ -195,11 +197,19 @@ contains
     tab%t_infsup = env%wtime() - t0
     call log%stage_end()
 
+    ! ---- reduced models for crowd_rom (pairs (N, R), their supremizers and hyper-reduction)
+    call log%stage_begin("crowd_offline: reduced models (pairs N, R; hyper-reduction)")
+    t0 = env%wtime()
+    call prepare_pairs(data, pod%phi(:, 1:n_pod), scone, v, pga, pairs, error)
+    if (collective_fail()) return
+    tab%t_pairs = env%wtime() - t0
+    call log%stage_end()
+
     ! ---- ROM file
     call log%stage_begin("crowd_offline: write " // trim(ocfg%rom_file))
     if (env%is_root()) call write_rom_file(trim(ocfg%rom_file), config_echo(cfg) // offline_echo(ocfg), &
       trim(ocfg%database), data%config_hash, data%n_agents, data%n_steps, data%radius, data%dt, pod, v, n_pod, &
-      cone, other, pga, data%dict_ia, data%dict_ib, data%dict_ob, tab, error)
+      cone, other, pga, data%dict_ia, data%dict_ib, data%dict_ob, tab, pairs, error)
     failed = collective_fail()
     if (failed) return
     call log%stage_end()
@@ -230,6 +240,61 @@ contains
     end if
     if (collective_fail()) return
   end subroutine run
+
+  !> Build the pairs of &offline rom_n / rom_r (default: one pair, all POD modes and the
+  !> whole cone, which reuses the enrichment v_full / pga_full already computed).
+  subroutine prepare_pairs(data_ref, phi, scone, v_full, pga_full, pairs, error)
+    type(offline_data_t), intent(in) :: data_ref
+    real(wp), intent(in) :: phi(:,:)
+    type(sparse_cone_t), intent(in) :: scone
+    real(wp), intent(in) :: v_full(:,:)
+    type(pga_result_t), intent(in) :: pga_full
+    type(rom_pair_t), allocatable, intent(out) :: pairs(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer, allocatable :: nn(:), rr(:)
+    integer :: k, j
+    character(len=:), allocatable :: line
+    call log%progress_start()
+    nn = pack(ocfg%rom_n, ocfg%rom_n > 0)
+    rr = pack(ocfg%rom_r, ocfg%rom_r > 0)
+    if (size(nn) == 0) then
+      nn = [size(phi, 2)]; rr = [scone%r]
+    end if
+    allocate(pairs(size(nn)))
+    do k = 1, size(nn)
+      if (nn(k) > size(phi, 2)) then
+        call set_error(error, cli%input // ": &offline: rom_n(" // str(k) // ") = " // str(nn(k)) // &
+          " exceeds the " // str(size(phi, 2)) // " POD modes kept (pod_n / pod_energy)", 2); return
+      end if
+      if (rr(k) > scone%r) then
+        call set_error(error, cli%input // ": &offline: rom_r(" // str(k) // ") = " // str(rr(k)) // &
+          " exceeds the " // str(scone%r) // " cone vectors built (cone_r_max / cone_delta)", 2); return
+      end if
+      call log%progress("pair", k, size(nn))
+      if (nn(k) == size(phi, 2) .and. rr(k) == scone%r) then
+        ! the full enrichment is already computed
+        call build_pair(env, data_ref, phi, nn(k), scone, rr(k), .false., ocfg%pga_delta, ocfg%pga_max_add, &
+          ocfg%hyper, ocfg%hyper_m_factor, ocfg%eq_tol, pairs(k), error, v_given=v_full)
+        if (allocated(error)) return
+        pairs(k)%n_pga = size(v_full, 2) - size(phi, 2)
+        pairs(k)%pga_err = pga_full%err
+      else
+        call build_pair(env, data_ref, phi, nn(k), scone, rr(k), ocfg%pga, ocfg%pga_delta, ocfg%pga_max_add, &
+          ocfg%hyper, ocfg%hyper_m_factor, ocfg%eq_tol, pairs(k), error)
+        if (allocated(error)) return
+      end if
+      line = "   pair " // str(k) // ": N = " // str(nn(k)) // ", R = " // str(rr(k)) // ", supremizers " // &
+        str(pairs(k)%n_pga) // " (basis " // str(size(pairs(k)%v, 2)) // ")"
+      if (pairs(k)%hyper) then
+        do j = 1, 3
+          line = line // "; " // TERM_NAMES(j) // ": p = " // str(pairs(k)%terms%p(j)) // ", EIM m = " // &
+            str(pairs(k)%eim(j)%m) // ", EQ m = " // str(pairs(k)%eq(j)%m)
+          if (pairs(k)%eq(j)%m > 0) line = line // " (err " // str(pairs(k)%eq(j)%err(pairs(k)%eq(j)%m)) // ")"
+        end do
+      end if
+      call log%info(line)
+    end do
+  end subroutine prepare_pairs
 
   !> True on every rank if any rank has an error (the message is kept where it arose;
   !> ranks without one get a generic message so that all stop together).

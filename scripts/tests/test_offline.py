@@ -80,6 +80,14 @@ def test_ranks_agree(study):
     assert a["basis/v"].shape == b["basis/v"].shape
     np.testing.assert_allclose(a["basis/v"][...], b["basis/v"][...], atol=1e-10)
     np.testing.assert_allclose(a["pod/sigma"][...], b["pod/sigma"][...], rtol=1e-12, atol=1e-14)
+    # the prepared pair: supremizers, EIM indices and EQ points from Gramians summed over ranks
+    assert a.attrs["n_pairs"] == b.attrs["n_pairs"] == 1
+    np.testing.assert_allclose(a["pairs/1/v"][...], b["pairs/1/v"][...], atol=1e-10)
+    for t in ("s1", "s2", "s3"):
+        np.testing.assert_array_equal(a["pairs/1/eim/%s/indices" % t][...], b["pairs/1/eim/%s/indices" % t][...])
+        np.testing.assert_array_equal(a["pairs/1/eq/%s/indices" % t][...], b["pairs/1/eq/%s/indices" % t][...])
+        np.testing.assert_allclose(a["pairs/1/eq/%s/weights" % t][...], b["pairs/1/eq/%s/weights" % t][...],
+                                   rtol=1e-8, atol=1e-10)
 
 
 @pytest.mark.parametrize("kw,message", [

@@ -12,7 +12,7 @@ module cr_config
   implicit none
   private
   public :: config_t, scene_cfg_t, obstacles_cfg_t, agents_cfg_t, desired_cfg_t, time_cfg_t, &
-    contacts_cfg_t, output_cfg_t, read_config, config_echo, MAX_OBST, MAX_POLY_V, MAX_PATH, &
+    contacts_cfg_t, output_cfg_t, read_config, parse_config, config_echo, MAX_OBST, MAX_POLY_V, MAX_PATH, &
     FOM_GROUPS
 
   integer, parameter :: MAX_OBST = 64, MAX_POLY_V = 16, MAX_PATH = 512
@@ -125,9 +125,20 @@ contains
     type(namelist_text_t) :: t
     call t%load(path, env, error)
     if (allocated(error)) return
+    call parse_config(t, cfg, error)
+    if (allocated(error)) return
+    if (present(nml)) nml = t
+  end subroutine read_config
+
+  !> Parse the groups of the full-order model from loaded namelist text `t` (a file, or the
+  !> effective configuration stored in an output file).
+  subroutine parse_config(t, cfg, error)
+    type(namelist_text_t), intent(in) :: t
+    type(config_t), intent(out) :: cfg
+    type(error_t), allocatable, intent(out) :: error
     call t%check_groups(FOM_GROUPS, error)
     if (allocated(error)) return
-    cfg%source = path
+    cfg%source = t%path
     cfg%text = t%text
     call read_scene(t, cfg%scene, error); if (allocated(error)) return
     call read_obstacles(t, cfg%obstacles, error); if (allocated(error)) return
@@ -137,8 +148,7 @@ contains
     call read_solver(t, cfg%solver, error); if (allocated(error)) return
     call read_contacts(t, cfg%contacts, error); if (allocated(error)) return
     call read_output(t, cfg%output, error); if (allocated(error)) return
-    if (present(nml)) nml = t
-  end subroutine read_config
+  end subroutine parse_config
 
   !> Turn a namelist read status into an error naming file and group.
   subroutine nml_status(t, group, ios, msg, error)

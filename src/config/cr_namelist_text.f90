@@ -23,6 +23,7 @@ module cr_namelist_text
     character(len=MAX_LINE), allocatable :: lines(:)
   contains
     procedure :: load
+    procedure :: set_text
     procedure :: has_group
     procedure :: check_groups
   end type namelist_text_t
@@ -36,7 +37,7 @@ contains
     type(env_t), intent(in) :: env
     type(error_t), allocatable, intent(out) :: error
     character(len=:), allocatable :: status
-    integer :: unit, ios, n, k, i0, nl
+    integer :: unit, ios
     character(len=MAX_LINE) :: line
     character(len=256) :: msg
     this%path = path
@@ -64,22 +65,38 @@ contains
       call set_error(error, status, 2); return
     end if
     call env%bcast_string(this%text)
-    ! split into records
+    call this%set_text(path, this%text)
+  end subroutine load
+
+  !> Take the namelist text from a string (e.g. the effective configuration stored in an
+  !> HDF5 attribute); `path` names its origin in messages.
+  subroutine set_text(this, path, text)
+    class(namelist_text_t), intent(inout) :: this
+    character(len=*), intent(in) :: path, text
+    integer :: k, n, nl, i0
+    character(len=:), allocatable :: copy
+    copy = text
+    if (len(copy) > 0) then
+      if (copy(len(copy):len(copy)) /= new_line('a')) copy = copy // new_line('a')
+    end if
+    this%path = path
+    this%text = copy
     nl = 0
-    do k = 1, len(this%text)
-      if (this%text(k:k) == new_line('a')) nl = nl + 1
+    do k = 1, len(copy)
+      if (copy(k:k) == new_line('a')) nl = nl + 1
     end do
+    if (allocated(this%lines)) deallocate(this%lines)
     allocate(this%lines(max(nl, 1)))
     this%lines = ""
     n = 0; i0 = 1
-    do k = 1, len(this%text)
-      if (this%text(k:k) == new_line('a')) then
+    do k = 1, len(copy)
+      if (copy(k:k) == new_line('a')) then
         n = n + 1
-        this%lines(n) = this%text(i0:k-1)
+        this%lines(n) = copy(i0:k-1)
         i0 = k + 1
       end if
     end do
-  end subroutine load
+  end subroutine set_text
 
   !> True if the file contains the group `&name` (case-insensitive, outside comments).
   logical function has_group(this, name)

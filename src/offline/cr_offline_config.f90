@@ -40,6 +40,16 @@ module cr_offline_config
     integer :: infsup_n(MAX_GRID) = 0
     integer :: infsup_r(MAX_GRID) = 0
     integer :: infsup_samples = 20
+    !> ROM pairs to prepare for crowd_rom: (rom_n(k), rom_r(k)) = (POD modes, cone vectors),
+    !> entries with rom_n = 0 unused; none given: one pair (all POD modes, the whole cone)
+    integer :: rom_n(MAX_GRID) = 0
+    integer :: rom_r(MAX_GRID) = 0
+    !> hyper-reduction (EIM and EQ of s1 = v(q), s2 = B(q), s3 = d(q)) for every pair;
+    !> points stored up to hyper_m_factor times the paper's defaults m(v) = 2 N, m(B) = R,
+    !> m(d) = 2 R (capped by the candidates); EQ stops early at relative error eq_tol
+    logical :: hyper = .true.
+    real(wp) :: hyper_m_factor = 2.0_wp
+    real(wp) :: eq_tol = 1.0e-10_wp
   end type offline_cfg_t
 
 contains
@@ -54,11 +64,13 @@ contains
     character(len=8) :: cone_method
     integer :: pod_n, rsvd_rank, rsvd_oversampling, rsvd_power, rsvd_seed, cone_r_max, mcpg_r_max
     integer :: pga_max_add, infsup_n(MAX_GRID), infsup_r(MAX_GRID), infsup_samples
-    real(wp) :: pod_energy, cone_delta, pga_delta
-    logical :: cone_compare, pga
+    integer :: rom_n(MAX_GRID), rom_r(MAX_GRID)
+    real(wp) :: pod_energy, cone_delta, pga_delta, hyper_m_factor, eq_tol
+    logical :: cone_compare, pga, hyper
     namelist /offline/ database, rom_file, pod_method, pod_n, pod_energy, rsvd_rank, rsvd_oversampling, &
       rsvd_power, rsvd_sketch, rsvd_seed, cone_method, cone_compare, cone_delta, cone_r_max, mcpg_r_max, &
-      pga, pga_delta, pga_max_add, infsup_n, infsup_r, infsup_samples
+      pga, pga_delta, pga_max_add, infsup_n, infsup_r, infsup_samples, rom_n, rom_r, hyper, &
+      hyper_m_factor, eq_tol
     integer :: ios
     character(len=512) :: msg
     database = c%database; rom_file = c%rom_file; pod_method = c%pod_method; pod_n = c%pod_n
@@ -68,6 +80,7 @@ contains
     cone_r_max = c%cone_r_max; mcpg_r_max = c%mcpg_r_max; pga = c%pga; pga_delta = c%pga_delta
     pga_max_add = c%pga_max_add; infsup_n = c%infsup_n; infsup_r = c%infsup_r
     infsup_samples = c%infsup_samples
+    rom_n = c%rom_n; rom_r = c%rom_r; hyper = c%hyper; hyper_m_factor = c%hyper_m_factor; eq_tol = c%eq_tol
     msg = ''
     read(t%lines, nml=offline, iostat=ios, iomsg=msg)
     if (ios /= 0) then
@@ -82,6 +95,7 @@ contains
     c%cone_r_max = cone_r_max; c%mcpg_r_max = mcpg_r_max; c%pga = pga; c%pga_delta = pga_delta
     c%pga_max_add = pga_max_add; c%infsup_n = infsup_n; c%infsup_r = infsup_r
     c%infsup_samples = infsup_samples
+    c%rom_n = rom_n; c%rom_r = rom_r; c%hyper = hyper; c%hyper_m_factor = hyper_m_factor; c%eq_tol = eq_tol
   end subroutine read_offline
 
   !> Validate &offline; all problems reported at once.
@@ -108,6 +122,11 @@ contains
     call probs%need(c%pga_max_add >= 0, "&offline: pga_max_add must be >= 0")
     call probs%need(all(c%infsup_n >= 0) .and. all(c%infsup_r >= 0), "&offline: infsup_n and infsup_r must be >= 0")
     call probs%need(c%infsup_samples >= 0, "&offline: infsup_samples must be >= 0")
+    call probs%need(all(c%rom_n >= 0) .and. all(c%rom_r >= 0), "&offline: rom_n and rom_r must be >= 0")
+    call probs%need(all((c%rom_n > 0) .eqv. (c%rom_r > 0)), &
+      "&offline: rom_n and rom_r must be given in pairs (same number of positive entries)")
+    call probs%need(c%hyper_m_factor >= 1, "&offline: hyper_m_factor must be >= 1 (got " // str(c%hyper_m_factor) // ")")
+    call probs%need(c%eq_tol >= 0 .and. c%eq_tol < 1, "&offline: eq_tol must be in [0, 1)")
     call probs%to_error(path, error)
   end subroutine check_offline
 
@@ -125,6 +144,19 @@ contains
       ", pga = ", c%pga, ", pga_delta = ", c%pga_delta, ", pga_max_add = ", c%pga_max_add, &
       ", infsup_samples = ", c%infsup_samples
     s = s // ", rsvd_sketch = '" // trim(c%rsvd_sketch) // trim(b) // ", cone_method = '" // trim(c%cone_method) // &
-      "', cone_compare = " // merge("T", "F", c%cone_compare) // " /" // new_line('a')
+      "', cone_compare = " // merge("T", "F", c%cone_compare) // ", hyper = " // merge("T", "F", c%hyper)
+    write(b, '(a, es23.16, a, es23.16)') ", hyper_m_factor = ", c%hyper_m_factor, ", eq_tol = ", c%eq_tol
+    s = s // trim(b) // ", rom_n = " // int_list(c%rom_n) // ", rom_r = " // int_list(c%rom_r) // " /" // new_line('a')
+  contains
+    function int_list(a) result(t)
+      integer, intent(in) :: a(:)
+      character(len=:), allocatable :: t
+      integer :: k
+      t = str(a(1))
+      do k = 2, size(a)
+        if (all(a(k:) == 0)) exit
+        t = t // ", " // str(a(k))
+      end do
+    end function int_list
   end function offline_echo
 end module cr_offline_config

@@ -24,8 +24,9 @@ module cr_offline_data
     character(len=:), allocatable :: config_hash, param_names
     !> first local sample minus 1, number of local samples
     integer :: s0 = 0, ns = 0
-    !> velocity snapshots u^nu and configurations q^{nu-1} [n_dof, ns * n_steps]
-    real(wp), allocatable :: u(:,:), q(:,:)
+    !> velocity snapshots u^nu, configurations q^{nu-1} and desired velocities v(q^{nu-1})
+    !> [n_dof, ns * n_steps]
+    real(wp), allocatable :: u(:,:), q(:,:), v(:,:)
     !> multipliers of the local snapshot columns
     type(sparse_columns_t) :: lam
     !> contact dictionary [n_dict]
@@ -87,6 +88,8 @@ contains
     allocate(data%u(data%n_dof, data%ns * nt), pos(data%n_dof, data%ns * (nt + 1)))
     call h5%read_block("train/velocities", data%u, data%s0 * nt, error); if (allocated(error)) goto 9
     call h5%read_block("train/positions", pos, data%s0 * (nt + 1), error); if (allocated(error)) goto 9
+    allocate(data%v(data%n_dof, data%ns * nt))
+    call h5%read_block("train/desired", data%v, data%s0 * nt, error); if (allocated(error)) goto 9
     allocate(data%q(data%n_dof, data%ns * nt))
     do k = 1, data%ns
       do nu = 1, nt

@@ -7,11 +7,15 @@ module cr_rom_file
   use cr_pod, only: pod_result_t
   use cr_cone, only: cone_result_t
   use cr_supremizer, only: pga_result_t
+  use cr_rom_pairs, only: rom_pair_t, write_pair
+  use cr_strings, only: str
   implicit none
   private
-  public :: rom_tables_t, write_rom_file, ROM_SCHEMA
+  public :: rom_tables_t, write_rom_file, ROM_SCHEMA, ROM_SCHEMA_VERSION
 
   character(len=*), parameter :: ROM_SCHEMA = "crowdrom-rom"
+  !> 2: prepared pairs (/pairs/<k>) with their hyper-reduction
+  integer, parameter :: ROM_SCHEMA_VERSION = 2
 
   !> Inf-sup table and timings gathered by the driver.
   type :: rom_tables_t
@@ -19,14 +23,14 @@ module cr_rom_file
     real(wp), allocatable :: is_low_min(:), is_up_min(:), is_up_mean(:)
     real(wp), allocatable :: is_low_min_pga(:), is_up_min_pga(:), is_up_mean_pga(:)
     integer, allocatable :: is_n_pga(:)
-    real(wp) :: t_read = 0, t_pod = 0, t_cone = 0, t_mcpg = 0, t_pga = 0, t_infsup = 0
+    real(wp) :: t_read = 0, t_pod = 0, t_cone = 0, t_mcpg = 0, t_pga = 0, t_infsup = 0, t_pairs = 0
   end type rom_tables_t
 
 contains
 
   !> Write the ROM file (rank 0 only; temporary name + rename).
   subroutine write_rom_file(path, attrs_config, database, db_hash, n_agents, n_steps, radius, dt, &
-      pod, v, n_pod, cone, cone_other, pga, dict_ia, dict_ib, dict_ob, tables, error)
+      pod, v, n_pod, cone, cone_other, pga, dict_ia, dict_ib, dict_ob, tables, pairs, error)
     character(len=*), intent(in) :: path, attrs_config, database, db_hash
     integer, intent(in) :: n_agents, n_steps
     real(wp), intent(in) :: radius, dt
@@ -37,12 +41,15 @@ contains
     type(pga_result_t), intent(in) :: pga
     integer, intent(in) :: dict_ia(:), dict_ib(:), dict_ob(:)
     type(rom_tables_t), intent(in) :: tables
+    !> the reduced models prepared for crowd_rom
+    type(rom_pair_t), intent(in) :: pairs(:)
     type(error_t), allocatable, intent(out) :: error
     type(h5file_t) :: h5
+    integer :: k
     call h5%create(path, error)
     if (allocated(error)) return
     call h5%write_attr("/", "schema", ROM_SCHEMA, error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "schema_version", 1, error); if (allocated(error)) goto 9
+    call h5%write_attr("/", "schema_version", ROM_SCHEMA_VERSION, error); if (allocated(error)) goto 9
     call h5%write_attr("/", "program", "crowd_offline", error); if (allocated(error)) goto 9
     call h5%write_attr("/", "config", attrs_config, error); if (allocated(error)) goto 9
     call h5%write_attr("/", "database", database, error); if (allocated(error)) goto 9
@@ -95,6 +102,13 @@ contains
     call h5%write_attr("timing", "cone_other", tables%t_mcpg, error); if (allocated(error)) goto 9
     call h5%write_attr("timing", "pga", tables%t_pga, error); if (allocated(error)) goto 9
     call h5%write_attr("timing", "infsup", tables%t_infsup, error); if (allocated(error)) goto 9
+    call h5%write_attr("timing", "pairs", tables%t_pairs, error); if (allocated(error)) goto 9
+    call h5%write_attr("/", "n_pairs", size(pairs), error); if (allocated(error)) goto 9
+    call h5%make_group("pairs", error); if (allocated(error)) goto 9
+    do k = 1, size(pairs)
+      call write_pair(h5, "pairs/" // str(k), pairs(k), error)
+      if (allocated(error)) goto 9
+    end do
     call h5%commit(error)
 9   if (allocated(error)) then
       call prefix_error(error, "ROM file")

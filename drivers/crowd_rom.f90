@@ -1,0 +1,546 @@
+!> crowd_rom: the online reduced model and its accuracy/speed sweep (serial).
+!>
+!>   crowd_rom input.nml [--summary FILE]
+!>
+!> The input holds a &rom group (see README). The scene, time step and parameter space come
+!> from the snapshot database the ROM file was built from. For every setting of the sweep
+!> and every sample of the chosen sets, the reduced model is stepped; where full-order
+!> trajectories exist, E_mu, E_avg, the velocity best-approximation error, overlaps and
+!> agents that fail to leave are reported, with the time per reduced step and the speedup
+!> over the full-order model (the paper's Uzawa and the fastest exact solver, both timed in
+!> this run at the same tolerance). Results: the HDF5 file &rom output (schema
+!> crowdrom-romrun) and the table &rom table (CSV), both written atomically.
+program crowd_rom
+  use cr_kinds, only: wp
+  use cr_error, only: error_t, set_error, prefix_error
+  use cr_strings, only: str
+  use cr_env, only: env_t
+  use cr_logger, only: logger_t
+  use cr_cli, only: cli_t
+  use cr_program, only: program_start, program_finish
+  use cr_config, only: config_t, FOM_GROUPS
+  use cr_namelist_text, only: namelist_text_t
+  use cr_rom_config, only: rom_cfg_t, read_rom, check_rom, rom_echo, MAX_SETTINGS
+  use cr_rom_model, only: rom_header_t, rom_pair_data_t, read_rom_header, load_rom_pair, find_pair
+  use cr_rom_study, only: rom_study_t, sample_block_t, open_study, read_block_set
+  use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t, make_reduced_ops
+  use cr_rom_stepper, only: rom_solver_cfg_t, rom_traj_t, run_trajectory, reduced_positions
+  use cr_rom_metrics, only: position_errors, projection_error, max_overlap, agents_not_left
+  use cr_fom, only: fom_t, step_record_t
+  use cr_h5file, only: h5file_t
+  use cr_fsys, only: rename_file, remove_file
+  use cr_json, only: json_writer_t
+  implicit none
+
+  !> One row of the sweep table (one setting on one set).
+  type :: row_t
+    integer :: setting = 0, n = 0, r = 0, nb = 0, m(3) = 0
+    character(len=8) :: set = '', hyper = '', contacts = '', solver = ''
+    real(wp) :: e_avg = -1, e_max = -1, e_proj = -1, overlap = 0, t_step = 0
+    integer :: not_left = 0, not_left_fom = -1, infeasible = 0, capped = 0, extrapolating = 0
+  end type row_t
+
+  type(env_t) :: env
+  type(logger_t) :: log
+  type(cli_t) :: cli
+  type(rom_cfg_t) :: rcfg
+  type(namelist_text_t) :: nml
+  type(error_t), allocatable :: error
+  integer :: code
+  ! state of the run, shared by the procedures below
+  type(rom_header_t) :: hdr
+  type(rom_study_t) :: st
+  type(sample_block_t), allocatable :: blocks(:)
+  type(h5file_t) :: h5
+  character(len=:), allocatable :: dbpath, where
+  integer, allocatable :: setting_ids(:)
+  real(wp) :: t_uz = 0, t_ex = 0, kkt_uz = 0, kkt_ex = 0
+  integer :: nc_uz = 0, nc_ex = 0
+
+  call program_start("crowd_rom", env, log, cli, error)
+  if (.not. allocated(error) .and. cli%help) then
+    if (env%is_root()) call print_help()
+    code = program_finish(env, log, error)
+    stop
+  end if
+  if (.not. allocated(error) .and. env%size > 1) call set_error(error, "crowd_rom is serial: run it " // &
+    "without mpirun (or with -np 1); the parallel stages are crowd_snapshots and crowd_offline", 2)
+  if (.not. allocated(error)) call nml%load(cli%input, env, error)
+  if (.not. allocated(error)) call nml%check_groups(FOM_GROUPS, error)
+  if (.not. allocated(error)) call read_rom(nml, rcfg, error)
+  if (.not. allocated(error)) call check_rom(cli%input, rcfg, error)
+  if (.not. allocated(error)) call run(error)
+  code = program_finish(env, log, error)
+  if (code /= 0) stop code, quiet=.true.
+
+contains
+
+  subroutine print_help()
+    print '(a)', "usage: crowd_rom input.nml [--summary FILE]"
+    print '(a)', ""
+    print '(a)', "Runs the reduced model of a ROM file (crowd_offline) for the validation (or training,"
+    print '(a)', "or given) parameters of its study, for every setting of the &rom sweep (N, R,"
+    print '(a)', "hyper-reduction none | eim | eq, contacts cone | online, m_v, m_b, m_d); reports"
+    print '(a)', "E_avg, overlaps, agents that fail to leave, time per step and the speedup over the"
+    print '(a)', "full-order model; writes &rom output (HDF5) and &rom table (CSV). Serial."
+    print '(a)', ""
+    print '(a)', "Exit status: 0 success, 2 bad input, 1 other failure."
+  end subroutine print_help
+
+  subroutine run(error)
+    type(error_t), allocatable, intent(out) :: error
+    type(rom_pair_data_t), allocatable :: pairs(:)
+    logical, allocatable :: loaded(:)
+    type(row_t), allocatable :: rows(:)
+    integer :: ks, ib, kp, nrow
+
+    where = cli%input // ": &rom"
+    call log%stage_begin("crowd_rom: read ROM file and study")
+    call read_rom_header(trim(rcfg%rom_file), where // ": rom_file", hdr, error)
+    if (allocated(error)) return
+    dbpath = trim(rcfg%database)
+    if (len(dbpath) == 0) dbpath = hdr%database
+    call open_study(dbpath, where // ": database", hdr, st, error)
+    if (allocated(error)) return
+    call log%info("   " // str(st%n_agents) // " agents, " // str(st%n_steps) // " steps, parameters " // &
+      short(st%param_names) // "; ROM pairs (N, R) stored: " // pair_list(hdr))
+    ! parameter sets
+    select case (trim(rcfg%sets))
+    case ('valid', 'train')
+      allocate(blocks(1))
+      call read_block_set(st, trim(rcfg%sets), rcfg%n_samples, blocks(1), error)
+    case ('both')
+      allocate(blocks(2))
+      call read_block_set(st, 'train', rcfg%n_samples, blocks(1), error)
+      if (.not. allocated(error)) call read_block_set(st, 'valid', rcfg%n_samples, blocks(2), error)
+    case ('given')
+      allocate(blocks(1))
+      call given_block(st, blocks(1), error)
+    end select
+    if (allocated(error)) return
+    ! settings
+    setting_ids = pack([(ks, ks = 1, MAX_SETTINGS)], rcfg%n > 0)
+    if (size(setting_ids) == 0) then
+      call set_error(error, where // ": no setting given (n(1) = N, r(1) = R, ...)", 2); return
+    end if
+    allocate(pairs(hdr%n_pairs), loaded(hdr%n_pairs))
+    loaded = .false.
+    do ks = 1, size(setting_ids)
+      call find_pair(hdr, rcfg%n(setting_ids(ks)), rcfg%r(setting_ids(ks)), where // ": setting " // &
+        str(setting_ids(ks)), kp, error)
+      if (allocated(error)) return
+    end do
+    call log%stage_end()
+
+    ! full-order reference timing
+    t_uz = 0; t_ex = 0; kkt_uz = 0; kkt_ex = 0; nc_uz = 0; nc_ex = 0
+    if (rcfg%fom_timing_samples > 0) then
+      call log%stage_begin("crowd_rom: full-order timing (paper's uzawa, eps " // str(rcfg%fom_uzawa_eps) // &
+        "; " // trim(rcfg%fom_exact_solver) // ", KKT tolerance " // str(rcfg%fom_tol) // ")")
+      call fom_timing(st, blocks(size(blocks)), 'uzawa', t_uz, kkt_uz, nc_uz, error)
+      if (allocated(error)) return
+      call fom_timing(st, blocks(size(blocks)), trim(rcfg%fom_exact_solver), t_ex, kkt_ex, nc_ex, error)
+      if (allocated(error)) return
+      call log%info("   uzawa " // str(t_uz, "es10.3") // " s/step (largest KKT " // str(kkt_uz, "es9.2") // ", " // &
+        str(nc_uz) // " non-converged steps); " // trim(rcfg%fom_exact_solver) // " " // str(t_ex, "es10.3") // &
+        " s/step (largest KKT " // str(kkt_ex, "es9.2") // ")")
+      call log%stage_end()
+    end if
+
+    ! output file
+    call h5%create(trim(rcfg%output), error)
+    if (allocated(error)) then
+      call prefix_error(error, where // ": output"); error%code = 2; return
+    end if
+    call write_header(error); if (allocated(error)) goto 9
+
+    allocate(rows(size(setting_ids) * size(blocks)))
+    nrow = 0
+    do ks = 1, size(setting_ids)
+      call find_pair(hdr, rcfg%n(setting_ids(ks)), rcfg%r(setting_ids(ks)), where, kp, error)
+      if (allocated(error)) goto 9
+      if (.not. loaded(kp)) then
+        call load_rom_pair(hdr, kp, pairs(kp), error); if (allocated(error)) goto 9
+        loaded(kp) = .true.
+      end if
+      call log%stage_begin("crowd_rom: setting " // str(ks) // " of " // str(size(setting_ids)) // ": (N, R) = (" // &
+        str(pairs(kp)%n) // ", " // str(pairs(kp)%r) // "), basis " // str(pairs(kp)%nb) // ", hyper " // &
+        trim(rcfg%hyper(setting_ids(ks))) // ", contacts " // trim(rcfg%contacts(setting_ids(ks))) // &
+        ", solver " // trim(rcfg%solver))
+      do ib = 1, size(blocks)
+        nrow = nrow + 1
+        call run_setting(ks, setting_ids(ks), pairs(kp), blocks(ib), rows(nrow), error)
+        if (allocated(error)) goto 9
+      end do
+      call log%stage_end()
+    end do
+    call write_table(rows(1:nrow), error); if (allocated(error)) goto 9
+    call h5%commit(error)
+    if (allocated(error)) goto 9
+    call write_csv(rows(1:nrow), error)
+    if (allocated(error)) return
+    call print_table(rows(1:nrow))
+    if (len(cli%summary) > 0) call write_summary(rows(1:nrow), error)
+    return
+9   call h5%abort()
+  end subroutine run
+
+    subroutine write_header(error)
+      type(error_t), allocatable, intent(out) :: error
+      call h5%write_attr("/", "schema", "crowdrom-romrun", error); if (allocated(error)) return
+      call h5%write_attr("/", "schema_version", 1, error); if (allocated(error)) return
+      call h5%write_attr("/", "program", "crowd_rom", error); if (allocated(error)) return
+      call h5%write_attr("/", "config", rom_echo(rcfg), error); if (allocated(error)) return
+      call h5%write_attr("/", "rom_file", trim(rcfg%rom_file), error); if (allocated(error)) return
+      call h5%write_attr("/", "database", dbpath, error); if (allocated(error)) return
+      call h5%write_attr("/", "database_config_hash", st%hash, error); if (allocated(error)) return
+      call h5%write_attr("/", "n_agents", st%n_agents, error); if (allocated(error)) return
+      call h5%write_attr("/", "n_steps", st%n_steps, error); if (allocated(error)) return
+      call h5%write_attr("/", "dt", st%dt, error); if (allocated(error)) return
+      call h5%write_attr("/", "agent_radius", st%radius, error); if (allocated(error)) return
+      call h5%write_attr("/", "param_names", st%param_names, error); if (allocated(error)) return
+      call h5%write_attr("/", "param_min", st%space%lo, error); if (allocated(error)) return
+      call h5%write_attr("/", "param_max", st%space%hi, error); if (allocated(error)) return
+      call h5%write_attr("/", "n_settings", size(setting_ids), error); if (allocated(error)) return
+      call h5%make_group("fom_timing", error); if (allocated(error)) return
+      call h5%write_attr("fom_timing", "t_step_uzawa", t_uz, error); if (allocated(error)) return
+      call h5%write_attr("fom_timing", "t_step_exact", t_ex, error); if (allocated(error)) return
+      call h5%write_attr("fom_timing", "exact_solver", trim(rcfg%fom_exact_solver), error); if (allocated(error)) return
+      call h5%write_attr("fom_timing", "tolerance", rcfg%fom_tol, error); if (allocated(error)) return
+      call h5%write_attr("fom_timing", "uzawa_eps", rcfg%fom_uzawa_eps, error); if (allocated(error)) return
+      call h5%write_attr("fom_timing", "samples", rcfg%fom_timing_samples, error); if (allocated(error)) return
+      call h5%write_attr("fom_timing", "kkt_max_uzawa", kkt_uz, error); if (allocated(error)) return
+      call h5%write_attr("fom_timing", "kkt_max_exact", kkt_ex, error); if (allocated(error)) return
+      call h5%write_attr("fom_timing", "nonconverged_steps_uzawa", nc_uz, error); if (allocated(error)) return
+    end subroutine write_header
+
+    !> Run setting ks (index kset in the &rom arrays) on one block of samples.
+    subroutine run_setting(ks, kset, pair, blk, row, error)
+      integer, intent(in) :: ks, kset
+      type(rom_pair_data_t), intent(in) :: pair
+      type(sample_block_t), intent(in) :: blk
+      type(row_t), intent(out) :: row
+      type(error_t), allocatable, intent(out) :: error
+      class(reduced_ops_t), allocatable :: ops
+      type(rom_solver_cfg_t) :: scfg
+      type(rom_traj_t) :: traj, tr2
+      type(eval_ctx_t) :: ctx
+      type(config_t) :: c2
+      real(wp), allocatable :: alpha(:,:), beta(:,:), pos(:,:), qr(:,:), err_time(:,:)
+      real(wp), allocatable :: e_mu(:), e_proj(:), overlap(:), time(:)
+      integer, allocatable :: not_left(:), not_left_fom(:), infeas(:), capped(:), extrap(:)
+      character(len=:), allocatable :: g
+      integer :: k, nt, nb, rep
+      nt = st%n_steps
+      call make_reduced_ops(trim(rcfg%hyper(kset)), trim(rcfg%contacts(kset)), pair, &
+        [rcfg%m_v(kset), rcfg%m_b(kset), rcfg%m_d(kset)], st%cfg%contacts%cutoff_factor, &
+        where // ": setting " // str(kset), ops, error)
+      if (allocated(error)) return
+      scfg%name = rcfg%solver
+      scfg%nnls_max_iter = rcfg%nnls_max_iter
+      scfg%uzawa_rho_factor = rcfg%uzawa_rho_factor
+      scfg%uzawa_eps = rcfg%uzawa_eps
+      scfg%uzawa_max_iter = rcfg%uzawa_max_iter
+      nb = pair%nb
+      allocate(alpha(nb, nt * blk%n), beta(merge(pair%r, 0, ops%fixed_rows), nt * blk%n), &
+        pos(st%n_dof, (nt + 1) * blk%n), err_time(nt + 1, blk%n), e_mu(blk%n), e_proj(blk%n), &
+        overlap(blk%n), time(blk%n), not_left(blk%n), not_left_fom(blk%n), infeas(blk%n), capped(blk%n), &
+        extrap(blk%n))
+      err_time = -1; e_mu = -1; e_proj = -1; not_left_fom = -1
+      call log%progress_start()
+      do k = 1, blk%n
+        c2 = st%cfg
+        call ctx_reset(ctx)
+        ctx%speeds = st%speeds
+        call st%space%apply(blk%mu(:, k), c2, ctx%speeds)
+        call ctx%scene%init(c2%scene, c2%obstacles, error)
+        if (allocated(error)) return
+        call ctx%desired%init(c2%desired, ctx%scene, st%radius, st%n_agents, error)
+        if (allocated(error)) return
+        ctx%radius = st%radius
+        ctx%h = st%dt
+        call run_trajectory(ops, ctx, st%q0, nt, scfg, traj, error)
+        if (allocated(error)) then
+          call prefix_error(error, "setting " // str(ks) // ", " // trim(blk%name) // " sample " // str(k)); return
+        end if
+        do rep = 2, rcfg%timing_repeats
+          call run_trajectory(ops, ctx, st%q0, nt, scfg, tr2, error)
+          if (allocated(error)) return
+          traj%time = min(traj%time, tr2%time)
+        end do
+        alpha(:, (k - 1) * nt + 1:k * nt) = traj%alpha
+        if (size(beta, 1) > 0) beta(:, (k - 1) * nt + 1:k * nt) = traj%beta
+        qr = reduced_positions(st%q0, pair%v, traj%alpha, st%dt)
+        pos(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)) = qr
+        time(k) = traj%time
+        infeas(k) = traj%n_infeasible
+        capped(k) = traj%n_capped
+        overlap(k) = max_overlap(ctx%scene, st%radius, qr)
+        not_left(k) = agents_not_left(ctx%scene, st%radius, qr(:, nt + 1))
+        extrap(k) = merge(1, 0, any(blk%mu(:, k) < st%space%lo - 1.0e-12_wp * abs(st%space%lo)) .or. &
+          any(blk%mu(:, k) > st%space%hi + 1.0e-12_wp * abs(st%space%hi)))
+        if (blk%has_fom) then
+          call position_errors(blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), qr, err_time(:, k), e_mu(k))
+          e_proj(k) = projection_error(blk%u(:, (k - 1) * nt + 1:k * nt), pair%v)
+          not_left_fom(k) = agents_not_left(ctx%scene, st%radius, blk%q(:, k * (nt + 1)))
+        end if
+        call log%progress(trim(blk%name) // " sample", k, blk%n)
+      end do
+      row%setting = ks; row%n = pair%n; row%r = pair%r; row%nb = nb; row%m = ops%m
+      row%set = blk%name; row%hyper = rcfg%hyper(kset); row%contacts = rcfg%contacts(kset); row%solver = rcfg%solver
+      row%t_step = sum(time) / max(1, nt * blk%n)
+      row%overlap = maxval(overlap, mask=[(.true., k = 1, blk%n)])
+      if (blk%n == 0) row%overlap = 0
+      row%not_left = sum(not_left); row%infeasible = sum(infeas); row%capped = sum(capped)
+      row%extrapolating = sum(extrap)
+      if (blk%has_fom .and. blk%n > 0) then
+        row%e_avg = sum(e_mu) / blk%n
+        row%e_max = maxval(e_mu)
+        row%e_proj = sum(e_proj) / blk%n
+        row%not_left_fom = sum(not_left_fom)
+      end if
+      call log%info("   " // trim(blk%name) // ": E_avg " // str(row%e_avg, "es9.2") // ", E_max " // &
+        str(row%e_max, "es9.2") // ", best approximation " // str(row%e_proj, "es9.2") // ", deepest overlap " // &
+        str(row%overlap, "es9.2") // ", agents not out " // str(row%not_left) // " (FOM " // str(row%not_left_fom) // &
+        "), infeasible steps " // str(row%infeasible) // ", capped " // str(row%capped) // ", " // &
+        str(row%t_step, "es9.2") // " s/step")
+      if (row%extrapolating > 0) call log%warn(str(row%extrapolating) // " of " // str(blk%n) // " " // &
+        trim(blk%name) // " parameters lie outside the training box: the reduced model extrapolates")
+      ! output group
+      g = "setting_" // str(ks)
+      call h5%make_group(g // "/" // trim(blk%name), error); if (allocated(error)) return
+      call h5%write_attr(g, "n", pair%n, error); if (allocated(error)) return
+      call h5%write_attr(g, "r", pair%r, error); if (allocated(error)) return
+      call h5%write_attr(g, "n_basis", nb, error); if (allocated(error)) return
+      call h5%write_attr(g, "pair", pair%index, error); if (allocated(error)) return
+      call h5%write_attr(g, "hyper", trim(rcfg%hyper(kset)), error); if (allocated(error)) return
+      call h5%write_attr(g, "contacts", trim(rcfg%contacts(kset)), error); if (allocated(error)) return
+      call h5%write_attr(g, "solver", trim(rcfg%solver), error); if (allocated(error)) return
+      call h5%write_attr(g, "m_v", ops%m(1), error); if (allocated(error)) return
+      call h5%write_attr(g, "m_b", ops%m(2), error); if (allocated(error)) return
+      call h5%write_attr(g, "m_d", ops%m(3), error); if (allocated(error)) return
+      if (trim(blk%name) == trim(blocks(size(blocks))%name)) then
+        call h5%write_attr(g, "E_avg", row%e_avg, error); if (allocated(error)) return
+        call h5%write_attr(g, "t_step", row%t_step, error); if (allocated(error)) return
+        call h5%write_attr(g, "speedup_uzawa", ratio(t_uz, row%t_step), error); if (allocated(error)) return
+        call h5%write_attr(g, "speedup_exact", ratio(t_ex, row%t_step), error); if (allocated(error)) return
+      end if
+      g = g // "/" // trim(blk%name)
+      call h5%write(g // "/params", blk%mu, error); if (allocated(error)) return
+      call h5%write(g // "/alpha", alpha, error); if (allocated(error)) return
+      if (size(beta, 1) > 0) then
+        call h5%write(g // "/beta", beta, error); if (allocated(error)) return
+      end if
+      call h5%write(g // "/positions", pos, error); if (allocated(error)) return
+      call h5%write(g // "/err_time", err_time, error); if (allocated(error)) return
+      call h5%write(g // "/E_mu", e_mu, error); if (allocated(error)) return
+      call h5%write(g // "/E_proj", e_proj, error); if (allocated(error)) return
+      call h5%write(g // "/max_overlap", overlap, error); if (allocated(error)) return
+      call h5%write(g // "/n_not_left", not_left, error); if (allocated(error)) return
+      call h5%write(g // "/n_not_left_fom", not_left_fom, error); if (allocated(error)) return
+      call h5%write(g // "/n_infeasible", infeas, error); if (allocated(error)) return
+      call h5%write(g // "/n_capped", capped, error); if (allocated(error)) return
+      call h5%write(g // "/extrapolating", extrap, error); if (allocated(error)) return
+      call h5%write(g // "/time", time, error); if (allocated(error)) return
+    end subroutine run_setting
+
+    !> Mean time per full-order step over the first fom_timing_samples samples of blk.
+    subroutine fom_timing(st, blk, solver, t_step, kkt_max, n_nonconv, error)
+      type(rom_study_t), intent(in) :: st
+      type(sample_block_t), intent(in) :: blk
+      character(len=*), intent(in) :: solver
+      real(wp), intent(out) :: t_step, kkt_max
+      integer, intent(out) :: n_nonconv
+      type(error_t), allocatable, intent(out) :: error
+      type(config_t) :: c2
+      type(step_record_t) :: rec
+      real(wp), allocatable :: speeds(:)
+      integer :: k, nu, ns
+      t_step = 0; kkt_max = 0; n_nonconv = 0
+      ns = min(rcfg%fom_timing_samples, blk%n)
+      call log%progress_start()
+      do k = 1, ns
+        c2 = st%cfg
+        c2%solver%name = solver
+        c2%solver%tol = rcfg%fom_tol
+        if (solver == 'uzawa') then
+          ! the paper's full-order model: cold start, its own stopping test
+          c2%solver%uzawa_eps = rcfg%fom_uzawa_eps
+          c2%solver%warm_start = .false.
+        end if
+        speeds = st%speeds
+        call st%space%apply(blk%mu(:, k), c2, speeds)
+        fresh: block
+          type(fom_t) :: fom
+          call fom%init(c2, error, q0=st%q0, speeds=speeds)
+          if (allocated(error)) return
+          do nu = 1, st%n_steps
+            call fom%advance(rec, error)
+            if (allocated(error)) then
+              call prefix_error(error, "full-order timing (" // solver // ")"); return
+            end if
+            t_step = t_step + rec%t_step
+            kkt_max = max(kkt_max, rec%kkt)
+            if (.not. rec%converged) n_nonconv = n_nonconv + 1
+          end do
+        end block fresh
+        call log%progress("full-order " // solver // " sample", k, ns)
+      end do
+      t_step = t_step / max(1, ns * st%n_steps)
+    end subroutine fom_timing
+
+    !> The one sample of sets = 'given'.
+    subroutine given_block(st, blk, error)
+      type(rom_study_t), intent(in) :: st
+      type(sample_block_t), intent(out) :: blk
+      type(error_t), allocatable, intent(out) :: error
+      integer :: nmu
+      nmu = count(rcfg%mu > -huge(1.0_wp))
+      if (nmu /= st%space%n_expanded) then
+        call set_error(error, where // ": mu has " // str(nmu) // " values but the study has " // &
+          str(st%space%n_expanded) // " parameter components (" // short(st%param_names) // ")", 2); return
+      end if
+      blk%name = 'given'
+      blk%n = 1
+      blk%mu = reshape(rcfg%mu(1:nmu), [nmu, 1])
+      allocate(blk%q(st%n_dof, 0), blk%u(st%n_dof, 0))
+      blk%has_fom = .false.
+    end subroutine given_block
+
+    subroutine write_table(rows, error)
+      type(row_t), intent(in) :: rows(:)
+      type(error_t), allocatable, intent(out) :: error
+      integer :: ks
+      call h5%make_group("table", error); if (allocated(error)) return
+      call h5%write("table/setting", rows%setting, error); if (allocated(error)) return
+      call h5%write("table/n", rows%n, error); if (allocated(error)) return
+      call h5%write("table/r", rows%r, error); if (allocated(error)) return
+      call h5%write("table/n_basis", rows%nb, error); if (allocated(error)) return
+      call h5%write("table/E_avg", rows%e_avg, error); if (allocated(error)) return
+      call h5%write("table/E_max", rows%e_max, error); if (allocated(error)) return
+      call h5%write("table/E_proj_avg", rows%e_proj, error); if (allocated(error)) return
+      call h5%write("table/max_overlap", rows%overlap, error); if (allocated(error)) return
+      call h5%write("table/agents_not_left", rows%not_left, error); if (allocated(error)) return
+      call h5%write("table/agents_not_left_fom", rows%not_left_fom, error); if (allocated(error)) return
+      call h5%write("table/infeasible_steps", rows%infeasible, error); if (allocated(error)) return
+      call h5%write("table/capped_steps", rows%capped, error); if (allocated(error)) return
+      call h5%write("table/t_step_rom", rows%t_step, error); if (allocated(error)) return
+      call h5%write("table/speedup_uzawa", [(ratio(t_uz, rows(ks)%t_step), ks = 1, size(rows))], error)
+      if (allocated(error)) return
+      call h5%write("table/speedup_exact", [(ratio(t_ex, rows(ks)%t_step), ks = 1, size(rows))], error)
+      if (allocated(error)) return
+      call h5%write_attr("table", "columns", "see the CSV header; strings (set, hyper, contacts, solver) in " // &
+        "the setting_<k> attributes", error)
+    end subroutine write_table
+
+    function csv_line(r) result(s)
+      type(row_t), intent(in) :: r
+      character(len=:), allocatable :: s
+      s = str(r%setting) // "," // trim(r%set) // "," // str(r%n) // "," // str(r%r) // "," // str(r%nb) // "," // &
+        trim(r%hyper) // "," // trim(r%contacts) // "," // trim(r%solver) // "," // str(r%m(1)) // "," // &
+        str(r%m(2)) // "," // str(r%m(3)) // "," // e(r%e_avg) // "," // e(r%e_max) // "," // e(r%e_proj) // &
+        "," // e(r%overlap) // "," // str(r%not_left) // "," // str(r%not_left_fom) // "," // str(r%infeasible) // &
+        "," // str(r%capped) // "," // e(r%t_step) // "," // e(t_uz) // "," // e(t_ex) // "," // &
+        e(ratio(t_uz, r%t_step)) // "," // e(ratio(t_ex, r%t_step)) // "," // str(r%extrapolating)
+    end function csv_line
+
+    subroutine write_csv(rows, error)
+      type(row_t), intent(in) :: rows(:)
+      type(error_t), allocatable, intent(out) :: error
+      integer :: u, ios, k
+      character(len=:), allocatable :: tmp
+      tmp = trim(rcfg%table) // ".partial"
+      open(newunit=u, file=tmp, status='replace', action='write', iostat=ios)
+      if (ios /= 0) then
+        call set_error(error, where // ": table: cannot write '" // tmp // "'", 2); return
+      end if
+      write(u, '(a)') "setting,set,n,r,n_basis,hyper,contacts,solver,m_v,m_b,m_d,E_avg,E_max,E_proj_avg," // &
+        "max_overlap,agents_not_left,agents_not_left_fom,infeasible_steps,capped_steps,t_step_rom," // &
+        "t_step_fom_uzawa,t_step_fom_exact,speedup_uzawa,speedup_exact,extrapolating"
+      do k = 1, size(rows)
+        write(u, '(a)') csv_line(rows(k))
+      end do
+      close(u)
+      if (rename_file(tmp, trim(rcfg%table)) /= 0) then
+        call set_error(error, where // ": table: cannot rename '" // tmp // "'")
+        ios = remove_file(tmp)
+      end if
+    end subroutine write_csv
+
+    subroutine print_table(rows)
+      type(row_t), intent(in) :: rows(:)
+      integer :: k
+      call log%info("")
+      call log%info("| setting | set | N | R | Nb | hyper | contacts | m_v,m_b,m_d | E_avg | E_max | best approx. |" // &
+        " overlap | not out (FOM) | infeas. | t_step ROM [s] | speedup vs uzawa | speedup vs " // &
+        trim(rcfg%fom_exact_solver) // " |")
+      call log%info("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+      do k = 1, size(rows)
+        associate (r => rows(k))
+          call log%info("| " // str(r%setting) // " | " // trim(r%set) // " | " // str(r%n) // " | " // str(r%r) // &
+            " | " // str(r%nb) // " | " // trim(r%hyper) // " | " // trim(r%contacts) // " | " // str(r%m(1)) // "," // &
+            str(r%m(2)) // "," // str(r%m(3)) // " | " // str(r%e_avg, "es9.2") // " | " // str(r%e_max, "es9.2") // &
+            " | " // str(r%e_proj, "es9.2") // " | " // str(r%overlap, "es9.2") // " | " // str(r%not_left) // &
+            " (" // str(r%not_left_fom) // ") | " // str(r%infeasible) // " | " // str(r%t_step, "es9.2") // " | " // &
+            str(ratio(t_uz, r%t_step), "f9.1") // " | " // str(ratio(t_ex, r%t_step), "f9.1") // " |")
+        end associate
+      end do
+    end subroutine print_table
+
+    subroutine write_summary(rows, error)
+      type(row_t), intent(in) :: rows(:)
+      type(error_t), allocatable, intent(out) :: error
+      type(json_writer_t) :: js
+      call js%add("program", "crowd_rom")
+      call js%add("output", trim(rcfg%output))
+      call js%add("settings", size(setting_ids))
+      call js%add("t_step_fom_uzawa", t_uz)
+      call js%add("t_step_fom_exact", t_ex)
+      call js%add("e_avg_last", rows(size(rows))%e_avg)
+      call js%add("max_overlap", maxval(rows%overlap))
+      call js%add("infeasible_steps", sum(rows%infeasible))
+      call js%add("capped_steps", sum(rows%capped))
+      call js%add("t_step_rom_min", minval(rows%t_step))
+      call js%write_file(cli%summary, error)
+    end subroutine write_summary
+
+  !> A fresh evaluation context (scene and desired velocity are rebuilt per sample).
+  subroutine ctx_reset(ctx)
+    type(eval_ctx_t), intent(inout) :: ctx
+    type(eval_ctx_t) :: fresh
+    ctx = fresh
+  end subroutine ctx_reset
+
+  pure real(wp) function ratio(a, b)
+    real(wp), intent(in) :: a, b
+    ratio = 0
+    if (b > 0 .and. a > 0) ratio = a / b
+  end function ratio
+
+  function e(x) result(s)
+    real(wp), intent(in) :: x
+    character(len=:), allocatable :: s
+    s = str(x, "es12.5")
+    s = trim(adjustl(s))
+  end function e
+
+  function short(s) result(t)
+    character(len=*), intent(in) :: s
+    character(len=:), allocatable :: t
+    if (len(s) > 60) then
+      t = s(1:57) // "..."
+    else
+      t = s
+    end if
+  end function short
+
+  function pair_list(hdr) result(s)
+    type(rom_header_t), intent(in) :: hdr
+    character(len=:), allocatable :: s
+    integer :: k
+    s = ""
+    do k = 1, hdr%n_pairs
+      s = s // " (" // str(hdr%pair_n(k)) // ", " // str(hdr%pair_r(k)) // ")"
+    end do
+  end function pair_list
+end program crowd_rom

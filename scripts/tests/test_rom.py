@@ -1,0 +1,197 @@
+"""crowd_rom end to end on a tiny study (tests/inputs/rom_tiny.nml): with full bases the
+reduced model reproduces the full-order trajectories of the training parameters (exact
+assembly, EQ and EIM with all points, online contacts); a small ROM runs and reports its
+failure modes; a parameter outside the training box is flagged; bad inputs fail with one
+clear line and write nothing."""
+import csv
+import os
+import re
+import subprocess
+
+import h5py
+import numpy as np
+import pytest
+
+ROOT = os.environ.get("CROWDROM_ROOT", os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+BIN = os.environ.get("CROWDROM_BIN", os.path.join(ROOT, "build", "bin"))
+STUDY = os.path.join(ROOT, "tests", "inputs", "rom_tiny.nml")
+ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+           OMPI_MCA_rmaps_base_oversubscribe="1", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+
+
+def run(np_, prog, nml, cwd):
+    cmd = [os.path.join(BIN, prog), str(nml)]
+    if np_ > 0:
+        cmd = ["mpiexec", "-n", str(np_)] + cmd
+    return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, env=ENV)
+
+
+def study_file(tmp, name, db, seed=None):
+    text = open(STUDY).read().replace("database = 'rom_tiny.h5'", "database = '%s'" % db)
+    if seed is not None:
+        text = text.replace("seed = 7", "seed = %d" % seed)
+    path = tmp / name
+    path.write_text(text)
+    return path
+
+
+def offline(tmp, study, db, rom, extra=""):
+    text = open(study).read()
+    text += ("&offline database = '%s', rom_file = '%s', pod_energy = 0.0, cone_delta = 0.0, pga_delta = 1e-8, "
+             "infsup_samples = 2, infsup_n = 2, infsup_r = 2%s /\n" % (db, rom, extra))
+    path = tmp / (os.path.basename(str(rom)) + ".nml")
+    path.write_text(text)
+    p = run(1, "crowd_offline", path, tmp)
+    assert p.returncode == 0, p.stdout + p.stderr
+    return rom
+
+
+def rom_input(tmp, name, rom, out, settings, **kw):
+    opts = dict(rom_file="'%s'" % rom, output="'%s'" % out, fom_timing_samples="1", timing_repeats="1")
+    opts.update(kw)
+    lines = ["&rom " + ", ".join("%s = %s" % (k, v) for k, v in opts.items())]
+    for k, s in enumerate(settings, 1):
+        lines.append(", ".join("%s(%d) = %s" % (key, k, val) for key, val in s.items()))
+    path = tmp / name
+    path.write_text("\n".join(lines) + " /\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("rom")
+    db = tmp / "tiny.h5"
+    sfile = study_file(tmp, "study.nml", db)
+    p = run(2, "crowd_snapshots", sfile, tmp)
+    assert p.returncode == 0, p.stdout + p.stderr
+    rom0 = offline(tmp, sfile, db, tmp / "rom_full.h5")
+    with h5py.File(rom0, "r") as f:
+        n_full, r_full = int(f["pairs/1"].attrs["n"]), int(f["pairs/1"].attrs["r"])
+    rom = offline(tmp, sfile, db, tmp / "rom.h5",
+                  extra=", rom_n = %d, 4, rom_r = %d, 3" % (n_full, r_full))
+    return tmp, db, rom, n_full, r_full
+
+
+def stored_m(rom, method, term, pair=1):
+    with h5py.File(rom, "r") as f:
+        return int(f["pairs/%d/%s/%s" % (pair, method, term)].attrs["m"])
+
+
+def test_full_basis_reproduces_fom(study):
+    tmp, db, rom, n, r = study
+    full = dict(n=n, r=r)
+    m_eim = dict(m_v=stored_m(rom, "eim", "s1"), m_b=stored_m(rom, "eim", "s2"), m_d=stored_m(rom, "eim", "s3"))
+    settings = [dict(full, hyper="'none'"), dict(full, hyper="'eq'"), dict(full, hyper="'eim'", **m_eim),
+                dict(full, hyper="'none'", contacts="'online'")]
+    out = tmp / "full.h5"
+    p = run(0, "crowd_rom", rom_input(tmp, "full.nml", rom, out, settings, sets="'train'"), tmp)
+    assert p.returncode == 0, p.stdout + p.stderr
+    with h5py.File(out, "r") as f, h5py.File(db, "r") as d:
+        assert f.attrs["schema"].decode() == "crowdrom-romrun"
+        q_fom = d["train/positions"][...]
+        for k in range(1, len(settings) + 1):
+            g = f["setting_%d/train" % k]
+            e = g["E_mu"][...]
+            assert e.shape == (6,)
+            assert e.max() <= 1e-8, (k, e)
+            np.testing.assert_allclose(g["positions"][...], q_fom, atol=1e-9)
+            assert g["max_overlap"][...].max() <= 1e-9
+            assert np.all(g["n_infeasible"][...] == 0) and np.all(g["n_capped"][...] == 0)
+            assert g["alpha"].shape == (6 * 12, f["setting_%d" % k].attrs["n_basis"])
+    rows = list(csv.DictReader(open(tmp / "full.csv")))
+    assert len(rows) == 4 and all(float(r_["E_avg"]) <= 1e-8 for r_ in rows)
+    assert all(float(r_["t_step_fom_uzawa"]) > 0 and float(r_["speedup_exact"]) > 0 for r_ in rows)
+
+
+def test_small_rom_reports(study):
+    tmp, db, rom, n, r = study
+    settings = [dict(n=4, r=3, hyper="'eq'"), dict(n=4, r=3, hyper="'none'", contacts="'online'"),
+                dict(n=4, r=3, hyper="'none'")]
+    out = tmp / "small.h5"
+    p = run(0, "crowd_rom", rom_input(tmp, "small.nml", rom, out, settings, sets="'both'", solver="'nnls'"), tmp)
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert "| setting | set |" in p.stdout
+    with h5py.File(out, "r") as f:
+        for k in (1, 2, 3):
+            for s in ("train", "valid"):
+                g = f["setting_%d/%s" % (k, s)]
+                for name in ("E_mu", "E_proj", "max_overlap", "time"):
+                    x = g[name][...]
+                    assert np.all(np.isfinite(x)) and np.all(x >= 0), name
+                assert g["err_time"][...][:, 0].max() == 0.0   # same initial positions
+            assert f["setting_%d" % k].attrs["speedup_uzawa"] > 0
+        # the exact projection and EQ with the default R points of the same pair agree
+        np.testing.assert_allclose(f["setting_1/valid/positions"][...], f["setting_3/valid/positions"][...],
+                                   atol=1e-8)
+        # 'online' enforces every near contact: no overlap deeper than round-off
+        assert f["setting_2/valid/max_overlap"][...].max() <= 1e-9
+
+
+def test_uzawa_reduced_solver(study):
+    tmp, db, rom, n, r = study
+    out = tmp / "uz.h5"
+    nml = rom_input(tmp, "uz.nml", rom, out, [dict(n=n, r=r, hyper="'none'")], sets="'train'", solver="'uzawa'",
+                    uzawa_eps="1e-14", n_samples="2")
+    p = run(0, "crowd_rom", nml, tmp)
+    assert p.returncode == 0, p.stdout + p.stderr
+    with h5py.File(out, "r") as f:
+        assert f["setting_1/train/E_mu"][...].max() <= 1e-5
+
+
+def test_given_parameter_extrapolates(study):
+    tmp, db, rom, n, r = study
+    out = tmp / "given.h5"
+    mu = ", ".join(["0.3"] + ["1.0"] * 8)           # l_exit 0.3 is outside [0.18, 0.22]
+    nml = rom_input(tmp, "given.nml", rom, out, [dict(n=4, r=3, hyper="'eq'")], sets="'given'", mu=mu)
+    p = run(0, "crowd_rom", nml, tmp)
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert "outside the training box" in p.stdout + p.stderr
+    with h5py.File(out, "r") as f:
+        g = f["setting_1/given"]
+        assert g["extrapolating"][...].tolist() == [1]
+        assert g["E_mu"][...].tolist() == [-1.0]        # no full-order reference
+        assert np.all(np.isfinite(g["positions"][...]))
+
+
+@pytest.mark.parametrize("case,message", [
+    ("missing_rom", r"&rom: rom_file '.*missing\.h5': cannot open"),
+    ("other_study", r"was built from another study"),
+    ("not_prepared", r"\(N, R\) = \(5, 2\) is not prepared in ROM file"),
+    ("m_too_large", r"m_b = 1000 is larger than the \d+ EQ candidates"),
+    ("bad_hyper", r"&rom: hyper\(1\) must be 'none', 'eim' or 'eq'"),
+    ("misspelt", r"namelist group &rom"),
+    ("no_rom_group", r"namelist group &rom is missing"),
+    ("parallel", r"crowd_rom is serial"),
+])
+def test_bad_input(study, case, message):
+    tmp, db, rom, n, r = study
+    out = tmp / ("bad_%s.h5" % case)
+    setting = [dict(n=4, r=3, hyper="'eq'")]
+    kw = {}
+    np_ = 0
+    if case == "missing_rom":
+        rom = tmp / "missing.h5"
+    elif case == "other_study":
+        db2 = tmp / "other.h5"
+        s2 = study_file(tmp, "other.nml", db2, seed=8)
+        p = run(1, "crowd_snapshots", s2, tmp)
+        assert p.returncode == 0, p.stdout + p.stderr
+        kw["database"] = "'%s'" % db2
+    elif case == "not_prepared":
+        setting = [dict(n=5, r=2)]
+    elif case == "m_too_large":
+        setting = [dict(n=4, r=3, hyper="'eq'", m_b=1000)]
+    elif case == "bad_hyper":
+        setting = [dict(n=4, r=3, hyper="'deim'")]
+    elif case == "parallel":
+        np_ = 2
+    nml = rom_input(tmp, "bad_%s.nml" % case, rom, out, setting, **kw)
+    if case == "misspelt":
+        nml.write_text(nml.read_text().replace("timing_repeats", "timing_repeat"))
+    if case == "no_rom_group":
+        nml.write_text("&scene l_exit = 0.2 /\n")
+    p = run(np_, "crowd_rom", nml, tmp)
+    assert p.returncode != 0
+    err = [l for l in (p.stdout + p.stderr).splitlines() if l.startswith("error:")]
+    assert len(err) >= 1 and re.search(message, err[0]), p.stdout + p.stderr
+    assert not out.exists() and not os.path.exists(str(out) + ".partial")

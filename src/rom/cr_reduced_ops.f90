@@ -1,0 +1,465 @@
+!> Assembly of the reduced problem of one time step, the paper's
+!>   min |alpha - vhat|^2  s.t.  bhat alpha <= dhat,
+!> vhat = V^T v(q), bhat = W^T B(q) V, dhat = W^T d(q), by one of the variants
+!>   'none'   exact projection: every agent's desired velocity, every row of the cone's support;
+!>   'eim'    empirical interpolation: the m_k interpolation entries of each term, then
+!>            precomputed reduced images of the EIM modes (cost O(m (R Nb)) per step);
+!>   'eq'     empirical quadrature: weighted sums over the m_k quadrature entries;
+!>   'online' (contacts = 'online') the rows of B V of the contacts near in the reduced
+!>            positions at this step (cell-list search, as the full-order model), each
+!>            enforced on its own; vhat exact.
+!> Each variant lists the agents whose positions it reads (`agents`); the stepper rebuilds
+!> only those positions from the reduced coefficients.
+module cr_reduced_ops
+  use cr_kinds, only: wp
+  use cr_error, only: error_t, set_error
+  use cr_strings, only: str
+  use cr_scene, only: scene_t
+  use cr_desired, only: desired_t
+  use cr_contact_eval, only: eval_contact
+  use cr_contact_set, only: contact_set_t
+  use cr_neighbours, only: cell_list_t, build_contacts
+  use cr_rom_model, only: rom_pair_data_t
+  use cr_eim, only: eim_t, eim_interp_matrix
+  implicit none
+  private
+  public :: eval_ctx_t, reduced_ops_t, make_reduced_ops, HYPER_NAMES
+
+  character(len=8), parameter :: HYPER_NAMES(3) = [character(len=8) :: 'none', 'eim', 'eq']
+
+  !> What the terms depend on besides the positions: the sample's scene, desired-velocity
+  !> model and speeds, the agent radius and the time step.
+  type :: eval_ctx_t
+    type(scene_t) :: scene
+    type(desired_t) :: desired
+    real(wp), allocatable :: speeds(:)
+    real(wp) :: radius = 0, h = 0
+  end type eval_ctx_t
+
+  !> A way of assembling (vhat, bhat, dhat).
+  type, abstract :: reduced_ops_t
+    integer :: nb = 0, r = 0
+    !> agents whose positions `assemble` reads
+    integer, allocatable :: agents(:)
+    !> number of interpolation / quadrature entries of s1, s2, s3 (0 for exact)
+    integer :: m(3) = 0
+    !> velocity basis [n_dof, nb]
+    real(wp), allocatable :: v(:,:)
+    !> .true. when the rows are the R cone vectors (multipliers comparable across steps)
+    logical :: fixed_rows = .true.
+  contains
+    procedure(assemble_i), deferred :: assemble
+  end type reduced_ops_t
+
+  abstract interface
+    !> Reduced terms at positions q [n_dof] (valid at least for this%agents):
+    !> vhat [nb], bhat [rows, nb], dhat [rows] (rows = R, or the near contacts for 'online').
+    subroutine assemble_i(this, ctx, q, vhat, bhat, dhat)
+      import :: reduced_ops_t, eval_ctx_t, wp
+      class(reduced_ops_t), intent(inout) :: this
+      type(eval_ctx_t), intent(in) :: ctx
+      real(wp), intent(in) :: q(:)
+      real(wp), intent(out) :: vhat(:)
+      real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
+    end subroutine assemble_i
+  end interface
+
+  !> Exact projection over the cone's support rows.
+  type, extends(reduced_ops_t) :: ops_exact_t
+    integer, allocatable :: ia(:), ib(:), ob(:)
+    !> cone on the support rows [p3, R]
+    real(wp), allocatable :: w(:,:)
+    real(wp), allocatable :: vfull(:)
+  contains
+    procedure :: assemble => exact_assemble
+  end type ops_exact_t
+
+  !> Near contacts of the reduced positions, each row enforced.
+  type, extends(reduced_ops_t) :: ops_online_t
+    type(cell_list_t) :: cells
+    type(contact_set_t) :: cs
+    real(wp) :: cutoff_factor = 1.5_wp
+    real(wp), allocatable :: vfull(:)
+  contains
+    procedure :: assemble => online_assemble
+  end type ops_online_t
+
+  !> Empirical interpolation.
+  type, extends(reduced_ops_t) :: ops_eim_t
+    integer, allocatable :: idx1(:), idx2(:), idx3(:)
+    real(wp), allocatable :: minv1(:,:), minv2(:,:), minv3(:,:)
+    !> reduced images of the modes: a1 [nb, m1], a2 [R nb, m2], a3 [R, m3]
+    real(wp), allocatable :: a1(:,:), a2(:,:), a3(:,:)
+    integer, allocatable :: ia(:), ib(:), ob(:), s2_row(:), s2_dof(:)
+    real(wp), allocatable :: s2_sgn(:)
+  contains
+    procedure :: assemble => eim_assemble
+  end type ops_eim_t
+
+  !> Empirical quadrature.
+  type, extends(reduced_ops_t) :: ops_eq_t
+    integer, allocatable :: idx1(:), idx2(:), idx3(:)
+    real(wp), allocatable :: w1(:), w2(:), w3(:)
+    integer, allocatable :: ia(:), ib(:), ob(:)
+    !> cone on the support rows [p3, R]
+    real(wp), allocatable :: w(:,:)
+  contains
+    procedure :: assemble => eq_assemble
+  end type ops_eq_t
+
+contains
+
+  !> Build the variant `hyper` ('none', 'eim', 'eq') with contacts 'cone' or 'online' for
+  !> `pair`; m_req = requested (m_v, m_b, m_d), 0 = default (2 nb, R, 2 R capped by what is
+  !> stored). `where` prefixes error messages.
+  subroutine make_reduced_ops(hyper, contacts, pair, m_req, cutoff_factor, where, ops, error)
+    character(len=*), intent(in) :: hyper, contacts
+    type(rom_pair_data_t), intent(in) :: pair
+    integer, intent(in) :: m_req(3)
+    real(wp), intent(in) :: cutoff_factor
+    character(len=*), intent(in) :: where
+    class(reduced_ops_t), allocatable, intent(out) :: ops
+    type(error_t), allocatable, intent(out) :: error
+    integer :: m(3), k, n_agents
+    logical, allocatable :: need(:)
+    n_agents = size(pair%v, 1) / 2
+    if (contacts == 'online') then
+      allocate(ops_online_t :: ops)
+    else
+      select case (trim(hyper))
+      case ('none')
+        allocate(ops_exact_t :: ops)
+      case ('eim')
+        allocate(ops_eim_t :: ops)
+      case ('eq')
+        allocate(ops_eq_t :: ops)
+      case default
+        call set_error(error, where // ": unknown hyper-reduction '" // trim(hyper) // "' (known: none, eim, eq)", 2)
+        return
+      end select
+    end if
+    ops%nb = pair%nb
+    ops%r = pair%r
+    ops%v = pair%v
+    allocate(need(n_agents))
+    need = .false.
+    select type (ops)
+    type is (ops_online_t)
+      ops%cutoff_factor = cutoff_factor
+      ops%fixed_rows = .false.
+      allocate(ops%vfull(2 * n_agents))
+      call ops%cs%init(n_agents, 1.0_wp, 8 * n_agents)
+      need = .true.
+    type is (ops_exact_t)
+      ops%ia = pair%terms%ia; ops%ib = pair%terms%ib; ops%ob = pair%terms%ob
+      ops%w = pair%terms%w
+      allocate(ops%vfull(2 * n_agents))
+      need = .true.
+    type is (ops_eim_t)
+      call choose_m('EIM', [(pair%term(k)%m_eim, k = 1, 3)], [(pair%terms%p(k), k = 1, 3)], m, error)
+      if (allocated(error)) return
+      ops%m = m
+      ops%ia = pair%terms%ia; ops%ib = pair%terms%ib; ops%ob = pair%terms%ob
+      ops%s2_row = pair%terms%s2_row; ops%s2_dof = pair%terms%s2_dof; ops%s2_sgn = pair%terms%s2_sgn
+      call eim_setup(ops, pair, m, error)
+      if (allocated(error)) return
+      call mark(ops%idx1, ops%s2_row(ops%idx2), ops%idx3, ops%ia, ops%ib)
+    type is (ops_eq_t)
+      call choose_m('EQ', [(pair%term(k)%m_eq, k = 1, 3)], [pair%terms%p(1), pair%terms%p(3), pair%terms%p(3)], &
+        m, error)
+      if (allocated(error)) return
+      ops%m = m
+      ops%ia = pair%terms%ia; ops%ib = pair%terms%ib; ops%ob = pair%terms%ob
+      ops%w = pair%terms%w
+      ops%idx1 = pair%term(1)%eq_idx(1:m(1)); ops%w1 = weights(1, m(1))
+      ops%idx2 = pair%term(2)%eq_idx(1:m(2)); ops%w2 = weights(2, m(2))
+      ops%idx3 = pair%term(3)%eq_idx(1:m(3)); ops%w3 = weights(3, m(3))
+      call mark(ops%idx1, ops%idx2, ops%idx3, ops%ia, ops%ib)
+    end select
+    ops%agents = pack([(k, k = 1, n_agents)], need)
+
+  contains
+
+    function weights(j, mj) result(w)
+      integer, intent(in) :: j, mj
+      real(wp), allocatable :: w(:)
+      if (mj == 0) then
+        allocate(w(0))
+      else
+        w = pair%term(j)%eq_w(1:mj, mj)
+      end if
+    end function weights
+
+    !> m per term: requested, or the paper's default capped by what is stored.
+    subroutine choose_m(what, stored, cand, m, error)
+      character(len=*), intent(in) :: what
+      !> points stored and candidates of each term
+      integer, intent(in) :: stored(3), cand(3)
+      integer, intent(out) :: m(3)
+      type(error_t), allocatable, intent(out) :: error
+      character(len=3), parameter :: names(3) = ['m_v', 'm_b', 'm_d']
+      integer :: dflt(3), j
+      if (.not. pair%hyper) then
+        call set_error(error, where // ": the ROM file stores no hyper-reduction for (N, R) = (" // str(pair%n) // &
+          ", " // str(pair%r) // ") (&offline hyper = .false.); use hyper = 'none'", 2); return
+      end if
+      dflt = [2 * pair%nb, pair%r, 2 * pair%r]
+      do j = 1, 3
+        if (m_req(j) > cand(j)) then
+          call set_error(error, where // ": " // names(j) // " = " // str(m_req(j)) // " is larger than the " // &
+            str(cand(j)) // " " // what // " candidates of term s" // str(j) // " for (N, R) = (" // str(pair%n) // &
+            ", " // str(pair%r) // ")", 2); return
+        end if
+        if (m_req(j) > stored(j)) then
+          call set_error(error, where // ": " // names(j) // " = " // str(m_req(j)) // " but the ROM file stores " // &
+            str(stored(j)) // " " // what // " points for term s" // str(j) // " of (N, R) = (" // str(pair%n) // &
+            ", " // str(pair%r) // ") (raise &offline hyper_m_factor)", 2); return
+        end if
+        if (m_req(j) > 0) then
+          m(j) = m_req(j)
+        else
+          m(j) = min(dflt(j), stored(j))
+        end if
+      end do
+    end subroutine choose_m
+
+    !> Mark the agents read by the selected dofs i1 and support rows r2, r3.
+    subroutine mark(i1, r2, r3, ia, ib)
+      integer, intent(in) :: i1(:), r2(:), r3(:), ia(:), ib(:)
+      integer :: j
+      do j = 1, size(i1)
+        need((i1(j) + 1) / 2) = .true.
+      end do
+      do j = 1, size(r2)
+        need(ia(r2(j))) = .true.
+        if (ib(r2(j)) > 0) need(ib(r2(j))) = .true.
+      end do
+      do j = 1, size(r3)
+        need(ia(r3(j))) = .true.
+        if (ib(r3(j)) > 0) need(ib(r3(j))) = .true.
+      end do
+    end subroutine mark
+  end subroutine make_reduced_ops
+
+  !> EIM: indices, interpolation inverses and reduced images of the modes.
+  subroutine eim_setup(ops, pair, m, error)
+    type(ops_eim_t), intent(inout) :: ops
+    type(rom_pair_data_t), intent(in) :: pair
+    integer, intent(in) :: m(3)
+    type(error_t), allocatable, intent(out) :: error
+    type(eim_t) :: e
+    integer :: j, i, mm, nb, r
+    nb = pair%nb; r = pair%r
+    do j = 1, 3
+      e%p = pair%term(j)%p
+      e%m = m(j)
+      if (m(j) > 0) then
+        e%basis = pair%term(j)%eim_basis(:, 1:m(j))
+        e%idx = pair%term(j)%eim_idx(1:m(j))
+      else
+        allocate(e%basis(e%p, 0), e%idx(0))
+      end if
+      select case (j)
+      case (1)
+        ops%idx1 = e%idx
+        if (m(j) > 0) then
+          call eim_interp_matrix(e, m(j), ops%minv1, error); if (allocated(error)) return
+        end if
+        ops%a1 = matmul(transpose(pair%v), e%basis)
+      case (2)
+        ops%idx2 = e%idx
+        if (m(j) > 0) then
+          call eim_interp_matrix(e, m(j), ops%minv2, error); if (allocated(error)) return
+        end if
+        allocate(ops%a2(r * nb, m(j)))
+        ops%a2 = 0
+        do mm = 1, m(j)
+          do i = 1, e%p
+            if (e%basis(i, mm) == 0) cycle
+            call add_outer(ops%a2(:, mm), e%basis(i, mm), pair%terms%w(pair%terms%s2_row(i), :), &
+              pair%v(pair%terms%s2_dof(i), :))
+          end do
+        end do
+      case (3)
+        ops%idx3 = e%idx
+        if (m(j) > 0) then
+          call eim_interp_matrix(e, m(j), ops%minv3, error); if (allocated(error)) return
+        end if
+        ops%a3 = matmul(transpose(pair%terms%w), e%basis)
+      end select
+      deallocate(e%basis, e%idx)
+    end do
+  end subroutine eim_setup
+
+  !> a [R * nb] viewed as [R, nb]: a += s * x y^T (x [R], y [nb]); skips zero entries of x.
+  pure subroutine add_outer(a, s, x, y)
+    real(wp), intent(inout) :: a(:)
+    real(wp), intent(in) :: s, x(:), y(:)
+    integer :: i, j, r
+    r = size(x)
+    do i = 1, r
+      if (x(i) == 0) cycle
+      do j = 1, size(y)
+        a(i + (j - 1) * r) = a(i + (j - 1) * r) + s * x(i) * y(j)
+      end do
+    end do
+  end subroutine add_outer
+
+  !> Desired velocity of agent a at q.
+  function agent_desired(ctx, q, a) result(va)
+    type(eval_ctx_t), intent(in) :: ctx
+    real(wp), intent(in) :: q(:)
+    integer, intent(in) :: a
+    real(wp) :: va(2), d(2)
+    if (ctx%desired%from_file) then
+      va = ctx%desired%fixed(2*a-1:2*a)
+      return
+    end if
+    call ctx%desired%direction(q(2*a-1:2*a), d)
+    va = ctx%speeds(a) * d
+  end function agent_desired
+
+  subroutine exact_assemble(this, ctx, q, vhat, bhat, dhat)
+    class(ops_exact_t), intent(inout) :: this
+    type(eval_ctx_t), intent(in) :: ctx
+    real(wp), intent(in) :: q(:)
+    real(wp), intent(out) :: vhat(:)
+    real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
+    real(wp) :: gap, g(2), bv(this%nb)
+    integer :: k, a, b, j
+    call ctx%desired%evaluate(q, ctx%speeds, this%vfull)
+    vhat = matmul(this%vfull, this%v)
+    call ensure(bhat, dhat, this%r, this%nb)
+    bhat = 0; dhat = 0
+    do k = 1, size(this%ia)
+      a = this%ia(k); b = this%ib(k)
+      call eval_contact(ctx%scene, q, ctx%radius, a, b, this%ob(k), gap, g)
+      bv = -ctx%h * (g(1) * this%v(2*a-1, :) + g(2) * this%v(2*a, :))
+      if (b > 0) bv = bv + ctx%h * (g(1) * this%v(2*b-1, :) + g(2) * this%v(2*b, :))
+      do j = 1, this%r
+        if (this%w(k, j) == 0) cycle
+        bhat(j, :) = bhat(j, :) + this%w(k, j) * bv
+        dhat(j) = dhat(j) + this%w(k, j) * gap
+      end do
+    end do
+  end subroutine exact_assemble
+
+  subroutine online_assemble(this, ctx, q, vhat, bhat, dhat)
+    class(ops_online_t), intent(inout) :: this
+    type(eval_ctx_t), intent(in) :: ctx
+    real(wp), intent(in) :: q(:)
+    real(wp), intent(out) :: vhat(:)
+    real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
+    real(wp) :: vmax, cutoff
+    integer :: l, a, b, i
+    call ctx%desired%evaluate(q, ctx%speeds, this%vfull)
+    vhat = matmul(this%vfull, this%v)
+    vmax = 0
+    do i = 1, size(ctx%speeds)
+      vmax = max(vmax, norm2(this%vfull(2*i-1:2*i)))
+    end do
+    ! the full-order model's candidate rule (the reduced velocity is not known yet)
+    cutoff = max(this%cutoff_factor * 2 * ctx%h * vmax, 1.0e-12_wp * ctx%radius)
+    this%cs%h = ctx%h
+    call build_contacts(ctx%scene, q, ctx%radius, cutoff, this%cells, this%cs)
+    if (allocated(bhat)) then
+      if (size(bhat, 1) /= this%cs%n) deallocate(bhat, dhat)
+    end if
+    if (.not. allocated(bhat)) allocate(bhat(this%cs%n, this%nb), dhat(this%cs%n))
+    do l = 1, this%cs%n
+      a = this%cs%ia(l); b = this%cs%ib(l)
+      bhat(l, :) = -ctx%h * (this%cs%g(1, l) * this%v(2*a-1, :) + this%cs%g(2, l) * this%v(2*a, :))
+      if (b > 0) bhat(l, :) = bhat(l, :) + ctx%h * (this%cs%g(1, l) * this%v(2*b-1, :) + &
+        this%cs%g(2, l) * this%v(2*b, :))
+      dhat(l) = this%cs%gap(l)
+    end do
+  end subroutine online_assemble
+
+  subroutine eim_assemble(this, ctx, q, vhat, bhat, dhat)
+    class(ops_eim_t), intent(inout) :: this
+    type(eval_ctx_t), intent(in) :: ctx
+    real(wp), intent(in) :: q(:)
+    real(wp), intent(out) :: vhat(:)
+    real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
+    real(wp) :: s(max(this%m(1), this%m(2), this%m(3), 1)), va(2), gap, g(2), c(max(this%m(2), 1))
+    integer :: j, i, l
+    call ensure(bhat, dhat, this%r, this%nb)
+    ! s1 at the interpolation dofs
+    do j = 1, this%m(1)
+      i = this%idx1(j)
+      va = agent_desired(ctx, q, (i + 1) / 2)
+      s(j) = va(2 - mod(i, 2))
+    end do
+    if (this%m(1) > 0) then
+      vhat = matmul(this%a1, matmul(this%minv1, s(1:this%m(1))))
+    else
+      vhat = 0
+    end if
+    ! s2 at the interpolation entries
+    do j = 1, this%m(2)
+      i = this%idx2(j); l = this%s2_row(i)
+      call eval_contact(ctx%scene, q, ctx%radius, this%ia(l), this%ib(l), this%ob(l), gap, g)
+      s(j) = this%s2_sgn(i) * ctx%h * g(2 - mod(this%s2_dof(i), 2))
+    end do
+    if (this%m(2) > 0) then
+      c(1:this%m(2)) = matmul(this%minv2, s(1:this%m(2)))
+      bhat = reshape(matmul(this%a2, c(1:this%m(2))), [this%r, this%nb])
+    else
+      bhat = 0
+    end if
+    ! s3 at the interpolation rows
+    do j = 1, this%m(3)
+      l = this%idx3(j)
+      call eval_contact(ctx%scene, q, ctx%radius, this%ia(l), this%ib(l), this%ob(l), gap, g)
+      s(j) = gap
+    end do
+    if (this%m(3) > 0) then
+      dhat = matmul(this%a3, matmul(this%minv3, s(1:this%m(3))))
+    else
+      dhat = 0
+    end if
+  end subroutine eim_assemble
+
+  subroutine eq_assemble(this, ctx, q, vhat, bhat, dhat)
+    class(ops_eq_t), intent(inout) :: this
+    type(eval_ctx_t), intent(in) :: ctx
+    real(wp), intent(in) :: q(:)
+    real(wp), intent(out) :: vhat(:)
+    real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
+    real(wp) :: va(2), gap, g(2), bv(this%nb)
+    integer :: j, i, l, k, a, b
+    call ensure(bhat, dhat, this%r, this%nb)
+    vhat = 0; bhat = 0; dhat = 0
+    do j = 1, this%m(1)
+      i = this%idx1(j)
+      va = agent_desired(ctx, q, (i + 1) / 2)
+      vhat = vhat + (this%w1(j) * va(2 - mod(i, 2))) * this%v(i, :)
+    end do
+    do j = 1, this%m(2)
+      l = this%idx2(j); a = this%ia(l); b = this%ib(l)
+      call eval_contact(ctx%scene, q, ctx%radius, a, b, this%ob(l), gap, g)
+      bv = -ctx%h * (g(1) * this%v(2*a-1, :) + g(2) * this%v(2*a, :))
+      if (b > 0) bv = bv + ctx%h * (g(1) * this%v(2*b-1, :) + g(2) * this%v(2*b, :))
+      do k = 1, this%r
+        if (this%w(l, k) == 0) cycle
+        bhat(k, :) = bhat(k, :) + (this%w2(j) * this%w(l, k)) * bv
+      end do
+    end do
+    do j = 1, this%m(3)
+      l = this%idx3(j)
+      call eval_contact(ctx%scene, q, ctx%radius, this%ia(l), this%ib(l), this%ob(l), gap, g)
+      dhat = dhat + (this%w3(j) * gap) * this%w(l, :)
+    end do
+  end subroutine eq_assemble
+
+  !> Allocate bhat [r, nb], dhat [r] if needed.
+  subroutine ensure(bhat, dhat, r, nb)
+    real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
+    integer, intent(in) :: r, nb
+    if (allocated(bhat)) then
+      if (size(bhat, 1) == r .and. size(bhat, 2) == nb) return
+      deallocate(bhat, dhat)
+    end if
+    allocate(bhat(r, nb), dhat(r))
+  end subroutine ensure
+end module cr_reduced_ops

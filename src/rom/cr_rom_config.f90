@@ -1,0 +1,181 @@
+!> &rom: configuration of crowd_rom (the online reduced model and its accuracy/speed sweep).
+!>
+!> A run is a list of settings k = 1..n_settings, one per positive entry of n(:):
+!> (n(k), r(k)) chooses a reduced model prepared by crowd_offline, hyper(k) its assembly
+!> ('none': exact projection of the selected terms, 'eim', 'eq'), contacts(k) the enforced
+!> constraints ('cone': the reduced cone; 'online': the contacts near in the reduced
+!> positions at each step), m_v/m_b/m_d(k) the interpolation / quadrature points (0: the
+!> paper's defaults 2 Nb, R, 2 R, capped by what the ROM file stores).
+module cr_rom_config
+  use cr_kinds, only: wp
+  use cr_error, only: error_t, set_error, problems_t
+  use cr_strings, only: str
+  use cr_namelist_text, only: namelist_text_t
+  implicit none
+  private
+  public :: rom_cfg_t, read_rom, check_rom, rom_echo, MAX_SETTINGS, MAX_MU
+
+  integer, parameter :: MAX_SETTINGS = 64, MAX_PATH = 512, MAX_MU = 1024
+
+  !> Online reduced-model run.
+  type :: rom_cfg_t
+    !> ROM file (crowd_offline) and snapshot database ('' = the one named in the ROM file)
+    character(len=MAX_PATH) :: rom_file = ''
+    character(len=MAX_PATH) :: database = ''
+    !> result file (schema crowdrom-romrun) and the sweep table (CSV; '' = output with .csv)
+    character(len=MAX_PATH) :: output = ''
+    character(len=MAX_PATH) :: table = ''
+    !> parameters: 'valid', 'train', 'both' (database samples) or 'given' (mu below)
+    character(len=8) :: sets = 'valid'
+    !> use only the first n_samples samples of each set (0: all)
+    integer :: n_samples = 0
+    !> the parameter of sets = 'given' (expanded components, as in the database's params)
+    real(wp) :: mu(MAX_MU) = -huge(1.0_wp)
+    !> settings of the sweep
+    integer :: n(MAX_SETTINGS) = 0
+    integer :: r(MAX_SETTINGS) = 0
+    character(len=8) :: hyper(MAX_SETTINGS) = 'eq'
+    character(len=8) :: contacts(MAX_SETTINGS) = 'cone'
+    integer :: m_v(MAX_SETTINGS) = 0
+    integer :: m_b(MAX_SETTINGS) = 0
+    integer :: m_d(MAX_SETTINGS) = 0
+    !> reduced solver: 'nnls' (exact active set, warm started) or 'uzawa' (the paper's)
+    character(len=8) :: solver = 'nnls'
+    integer :: nnls_max_iter = 0
+    !> reduced Uzawa: rho = uzawa_rho_factor / h^2, stopping test, cap
+    real(wp) :: uzawa_rho_factor = 0.2_wp
+    real(wp) :: uzawa_eps = 1.0e-12_wp
+    integer :: uzawa_max_iter = 1000000
+    !> full-order reference timing: samples; the paper's Uzawa (rho = 0.2 / h^2, cold start,
+    !> stopped at relative changes <= fom_uzawa_eps) and the exact solver (scaled KKT <= fom_tol)
+    integer :: fom_timing_samples = 3
+    real(wp) :: fom_tol = 1.0e-10_wp
+    real(wp) :: fom_uzawa_eps = 1.0e-12_wp
+    character(len=32) :: fom_exact_solver = 'active_set'
+    !> repetitions of each reduced run for the timing (the fastest is kept)
+    integer :: timing_repeats = 3
+  end type rom_cfg_t
+
+contains
+
+  !> Read &rom (required group).
+  subroutine read_rom(t, c, error)
+    type(namelist_text_t), intent(in) :: t
+    type(rom_cfg_t), intent(inout) :: c
+    type(error_t), allocatable, intent(out) :: error
+    character(len=MAX_PATH) :: rom_file, database, output, table
+    character(len=8) :: sets, solver, hyper(MAX_SETTINGS), contacts(MAX_SETTINGS)
+    character(len=32) :: fom_exact_solver
+    integer :: n_samples, n(MAX_SETTINGS), r(MAX_SETTINGS), m_v(MAX_SETTINGS), m_b(MAX_SETTINGS)
+    integer :: m_d(MAX_SETTINGS), nnls_max_iter, uzawa_max_iter, fom_timing_samples, timing_repeats
+    real(wp) :: mu(MAX_MU), uzawa_rho_factor, uzawa_eps, fom_tol, fom_uzawa_eps
+    namelist /rom/ rom_file, database, output, table, sets, n_samples, mu, n, r, hyper, contacts, m_v, m_b, &
+      m_d, solver, nnls_max_iter, uzawa_rho_factor, uzawa_eps, uzawa_max_iter, fom_timing_samples, fom_tol, &
+      fom_uzawa_eps, fom_exact_solver, timing_repeats
+    integer :: ios
+    character(len=512) :: msg
+    if (.not. t%has_group('rom')) then
+      call set_error(error, t%path // ": namelist group &rom is missing", 2); return
+    end if
+    rom_file = c%rom_file; database = c%database; output = c%output; table = c%table; sets = c%sets
+    n_samples = c%n_samples; mu = c%mu; n = c%n; r = c%r; hyper = c%hyper; contacts = c%contacts
+    m_v = c%m_v; m_b = c%m_b; m_d = c%m_d; solver = c%solver; nnls_max_iter = c%nnls_max_iter
+    uzawa_rho_factor = c%uzawa_rho_factor; uzawa_eps = c%uzawa_eps; uzawa_max_iter = c%uzawa_max_iter
+    fom_timing_samples = c%fom_timing_samples; fom_tol = c%fom_tol; fom_uzawa_eps = c%fom_uzawa_eps
+    fom_exact_solver = c%fom_exact_solver
+    timing_repeats = c%timing_repeats
+    msg = ''
+    read(t%lines, nml=rom, iostat=ios, iomsg=msg)
+    if (ios /= 0) then
+      call set_error(error, t%path // ": namelist group &rom: " // trim(msg), 2); return
+    end if
+    c%rom_file = rom_file; c%database = database; c%output = output; c%table = table; c%sets = sets
+    c%n_samples = n_samples; c%mu = mu; c%n = n; c%r = r; c%hyper = hyper; c%contacts = contacts
+    c%m_v = m_v; c%m_b = m_b; c%m_d = m_d; c%solver = solver; c%nnls_max_iter = nnls_max_iter
+    c%uzawa_rho_factor = uzawa_rho_factor; c%uzawa_eps = uzawa_eps; c%uzawa_max_iter = uzawa_max_iter
+    c%fom_timing_samples = fom_timing_samples; c%fom_tol = fom_tol; c%fom_uzawa_eps = fom_uzawa_eps
+    c%fom_exact_solver = fom_exact_solver
+    c%timing_repeats = timing_repeats
+    if (len_trim(c%table) == 0 .and. len_trim(c%output) > 0) then
+      if (index(c%output, '.h5', back=.true.) == len_trim(c%output) - 2 .and. len_trim(c%output) > 3) then
+        c%table = c%output(1:len_trim(c%output) - 3) // '.csv'
+      else
+        c%table = trim(c%output) // '.csv'
+      end if
+    end if
+  end subroutine read_rom
+
+  !> Validate &rom; all problems reported at once.
+  subroutine check_rom(path, c, error)
+    character(len=*), intent(in) :: path
+    type(rom_cfg_t), intent(in) :: c
+    type(error_t), allocatable, intent(out) :: error
+    type(problems_t) :: probs
+    integer :: k
+    call probs%need(len_trim(c%rom_file) > 0, "&rom: rom_file must be given")
+    call probs%need(len_trim(c%output) > 0, "&rom: output must be given")
+    call probs%need(any(c%sets == [character(len=8) :: 'valid', 'train', 'both', 'given']), &
+      "&rom: sets must be 'valid', 'train', 'both' or 'given' (got '" // trim(c%sets) // "')")
+    call probs%need(c%sets /= 'given' .or. c%mu(1) > -huge(1.0_wp), "&rom: sets = 'given' needs mu")
+    call probs%need(c%n_samples >= 0, "&rom: n_samples must be >= 0 (0: all)")
+    call probs%need(all(c%n >= 0), "&rom: n(:) must be >= 0")
+    call probs%need(all(c%r >= 0), "&rom: r(:) must be >= 0")
+    do k = 1, MAX_SETTINGS
+      if (c%n(k) == 0) cycle
+      call probs%need(any(c%hyper(k) == [character(len=8) :: 'none', 'eim', 'eq']), &
+        "&rom: hyper(" // str(k) // ") must be 'none', 'eim' or 'eq' (got '" // trim(c%hyper(k)) // "')")
+      call probs%need(c%contacts(k) == 'cone' .or. c%contacts(k) == 'online', &
+        "&rom: contacts(" // str(k) // ") must be 'cone' or 'online' (got '" // trim(c%contacts(k)) // "')")
+      call probs%need(c%contacts(k) /= 'online' .or. c%hyper(k) == 'none', &
+        "&rom: contacts(" // str(k) // ") = 'online' needs hyper(" // str(k) // ") = 'none' (the online rows " // &
+        "are assembled exactly)")
+      call probs%need(c%m_v(k) >= 0 .and. c%m_b(k) >= 0 .and. c%m_d(k) >= 0, &
+        "&rom: m_v, m_b, m_d(" // str(k) // ") must be >= 0 (0: defaults)")
+    end do
+    call probs%need(c%solver == 'nnls' .or. c%solver == 'uzawa', "&rom: solver must be 'nnls' or 'uzawa'")
+    call probs%need(c%nnls_max_iter >= 0, "&rom: nnls_max_iter must be >= 0 (0: default)")
+    call probs%need(c%uzawa_rho_factor > 0, "&rom: uzawa_rho_factor must be > 0")
+    call probs%need(c%uzawa_eps > 0, "&rom: uzawa_eps must be > 0")
+    call probs%need(c%uzawa_max_iter >= 1, "&rom: uzawa_max_iter must be >= 1")
+    call probs%need(c%fom_timing_samples >= 0, "&rom: fom_timing_samples must be >= 0")
+    call probs%need(c%fom_tol > 0, "&rom: fom_tol must be > 0")
+    call probs%need(c%fom_uzawa_eps > 0, "&rom: fom_uzawa_eps must be > 0")
+    call probs%need(any(c%fom_exact_solver == [character(len=32) :: 'active_set', 'gpcg']), &
+      "&rom: fom_exact_solver must be 'active_set' or 'gpcg'")
+    call probs%need(c%timing_repeats >= 1, "&rom: timing_repeats must be >= 1")
+    call probs%to_error(path, error)
+  end subroutine check_rom
+
+  !> The group as re-readable namelist text.
+  function rom_echo(c) result(s)
+    type(rom_cfg_t), intent(in) :: c
+    character(len=:), allocatable :: s
+    integer :: k
+    character(len=256) :: b
+    s = "&rom rom_file = '" // trim(c%rom_file) // "', database = '" // trim(c%database) // "', output = '" // &
+      trim(c%output) // "', table = '" // trim(c%table) // "', sets = '" // trim(c%sets) // "', n_samples = " // &
+      str(c%n_samples) // ", solver = '" // trim(c%solver) // "'"
+    write(b, '(a, i0, a, es23.16, a, es23.16, a, i0, a, i0, a, es23.16, a, i0)') ", nnls_max_iter = ", &
+      c%nnls_max_iter, ", uzawa_rho_factor = ", c%uzawa_rho_factor, ", uzawa_eps = ", c%uzawa_eps, &
+      ", uzawa_max_iter = ", c%uzawa_max_iter, ", fom_timing_samples = ", c%fom_timing_samples, &
+      ", fom_tol = ", c%fom_tol, ", timing_repeats = ", c%timing_repeats
+    s = s // trim(b) // ", fom_uzawa_eps = " // str(c%fom_uzawa_eps, "es23.16")
+    b = ''
+    s = s // trim(b) // ", fom_exact_solver = '" // trim(c%fom_exact_solver) // "'"
+    do k = 1, MAX_SETTINGS
+      if (c%n(k) == 0) cycle
+      s = s // new_line('a') // "  n(" // str(k) // ") = " // str(c%n(k)) // ", r(" // str(k) // ") = " // &
+        str(c%r(k)) // ", hyper(" // str(k) // ") = '" // trim(c%hyper(k)) // "', contacts(" // str(k) // &
+        ") = '" // trim(c%contacts(k)) // "', m_v(" // str(k) // ") = " // str(c%m_v(k)) // ", m_b(" // &
+        str(k) // ") = " // str(c%m_b(k)) // ", m_d(" // str(k) // ") = " // str(c%m_d(k))
+    end do
+    if (c%sets == 'given') then
+      s = s // new_line('a') // "  mu = " // str(c%mu(1), "es23.16")
+      do k = 2, MAX_MU
+        if (c%mu(k) <= -huge(1.0_wp)) exit
+        s = s // ", " // str(c%mu(k), "es23.16")
+      end do
+    end if
+    s = s // " /" // new_line('a')
+  end function rom_echo
+end module cr_rom_config
