@@ -888,11 +888,11 @@ contains
   !> Requirement 3: infeasible systems.
   subroutine test_ldp_infeasible()
     real(wp) :: u2(2), l2(2), l3(3), bt(3, 2), bz(3, 3), dz(3), uz(3), pz(3), u1(3), l1(2)
-    real(wp) :: b0(2, 3), lb(2)
+    real(wp) :: b0(2, 3), lb(2), un(0)
     real(wp), allocatable :: bm(:,:), d(:), v(:), u(:), lam(:)
     type(ldp_stats_t) :: st
     type(error_t), allocatable :: err
-    integer :: trial, mc, n
+    integer :: trial, mc, n, k
     real(wp) :: c, gap
     ! u1 <= -1 and -u1 <= -1: least violation u1 = 0 (both violated by 1), u2 = v2
     call solve_infeasible(reshape([1.0_wp, -1.0_wp, 0.0_wp, 0.0_wp], [2, 2]), [-1.0_wp, -1.0_wp], &
@@ -933,6 +933,24 @@ contains
       call check(st%infeasible .and. all(uz == [0.1_wp, 0.2_wp, 0.3_wp]) .and. &
         st%max_violation == 2.0_wp, "Bm = 0, d < 0: infeasible, u = v, violation 2")
     end if
+    ! n = 0: only the signs of d matter
+    call ldp_solve(reshape([real(wp) ::], [2, 0]), [1.0_wp, -2.0_wp], [real(wp) ::], un, lb, st, err)
+    call check(.not. allocated(err), "n = 0, d < 0: no error")
+    if (.not. allocated(err)) call check(st%infeasible .and. st%max_violation == 2.0_wp, &
+      "n = 0, d < 0: infeasible, violation 2")
+    call ldp_solve(reshape([real(wp) ::], [2, 0]), [1.0_wp, 0.0_wp], [real(wp) ::], un, lb, st, err)
+    call check(.not. allocated(err) .and. .not. st%infeasible .and. all(lb == 0.0_wp), &
+      "n = 0, d >= 0: feasible")
+    ! badly scaled infeasible system (rows times 1e-20 and 1e15): same least-violation point
+    do k = 1, 2
+      c = merge(1.0e-20_wp, 1.0e15_wp, k == 1)
+      call solve_infeasible(c * reshape([1.0_wp, -1.0_wp, 0.0_wp, 0.0_wp], [2, 2]), &
+        [-c, -c], [0.3_wp, 0.7_wp], u2, l2, st, "scaled opposite halfspaces " // str(k))
+      call check(abs(u2(1)) <= 1.0e-12_wp .and. abs(u2(2) - 0.7_wp) <= 1.0e-14_wp, &
+        "scaled opposite halfspaces " // str(k) // ": u = (0, v2)")
+      call check(abs(st%max_violation / c - 1.0_wp) <= 1.0e-12_wp, &
+        "scaled opposite halfspaces " // str(k) // ": max violation c")
+    end do
     ! random infeasible systems: a random system plus the reverse of its first row shifted
     do trial = 1, 60
       mc = randint(2, 6); n = randint(1, 5)

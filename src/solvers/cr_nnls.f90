@@ -19,6 +19,14 @@
 !>   direction for long; the iteration count is capped in any case.
 !> - Columns are held in compressed sparse form (only non-zeros), which costs nothing for dense
 !>   data and makes the contact matrices (5 non-zeros per column) cheap.
+!> - The returned x is always >= 0 and the statistics (residual, KKT measures, n_passive) are
+!>   those of the returned x, also when the iteration cap stops the solve.
+!>
+!> ldp_solve: the projection u is unique; lambda is not when constraint rows are dependent
+!> (any valid multipliers are returned). An infeasible system is detected by a Farkas
+!> certificate and answered with the least-squares least-violation point closest to v (two
+!> NNLS, no regularisation bias; see ldp_solve). Both routines reject NaN / Inf input (error
+!> code 2) and every loop is bounded by the iteration cap.
 module cr_nnls
   use cr_kinds, only: wp
   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
