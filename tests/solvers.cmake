@@ -2,3 +2,4 @@
 cr_unit_test(test_nnls)
 cr_unit_test(test_projection)
 cr_unit_test(test_contact_ldp)
+cr_unit_test(test_nnls_edge)

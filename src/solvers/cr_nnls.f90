@@ -19,9 +19,18 @@
 !>   direction for long; the iteration count is capped in any case.
 !> - Columns are held in compressed sparse form (only non-zeros), which costs nothing for dense
 !>   data and makes the contact matrices (5 non-zeros per column) cheap.
+!> - The returned x is always >= 0 and the statistics (residual, KKT measures, n_passive) are
+!>   those of the returned x, also when the iteration cap stops the solve.
+!>
+!> ldp_solve: the projection u is unique; lambda is not when constraint rows are dependent
+!> (any valid multipliers are returned). An infeasible system is detected by a Farkas
+!> certificate and answered with the least-squares least-violation point closest to v (two
+!> NNLS, no regularisation bias; see ldp_solve). Both routines reject NaN / Inf input (error
+!> code 2) and every loop is bounded by the iteration cap.
 module cr_nnls
   use cr_kinds, only: wp
-  use cr_error, only: error_t, set_error
+  use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
+  use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
   implicit none
   private
@@ -111,7 +120,8 @@ contains
   !> On entry `passive0` (optional) marks a guess of the passive set (warm start); the result
   !> does not depend on it, only the iteration count does. `max_iter` caps the iterations
   !> (default 3 n + 50); when reached, stats%converged = .false. and x is the last feasible
-  !> iterate (x >= 0 always). Errors only for inconsistent sizes.
+  !> iterate (x >= 0 always) and the statistics are those of that x. Errors (code 2) for
+  !> inconsistent sizes and for a NaN or Inf in A or b (checked in one pass, before any use).
   subroutine nnls_solve(a, b, x, stats, error, passive0, max_iter, work)
     !> matrix [m, n]
     real(wp), intent(in) :: a(:,:)
@@ -152,7 +162,22 @@ contains
       wk => local
     end if
 
-    nnz = count(a /= 0.0_wp)
+    nnz = 0
+    do j = 1, n
+      do i = 1, m
+        if (.not. ieee_is_finite(a(i, j))) then
+          call set_error(error, "nnls_solve: A(" // str(i) // ", " // str(j) // ") is not finite", 2)
+          return
+        end if
+        if (a(i, j) /= 0.0_wp) nnz = nnz + 1
+      end do
+    end do
+    do i = 1, m
+      if (.not. ieee_is_finite(b(i))) then
+        call set_error(error, "nnls_solve: b(" // str(i) // ") is not finite", 2)
+        return
+      end if
+    end do
     call reserve(wk, m, n, nnz)
     ! scale b and the columns of A by powers of two (exact)
     bnorm = norm2(b)
@@ -304,6 +329,14 @@ contains
       end do
       wk%refused(1:n) = .false.
     end do outer
+    ! after a cap inside the step-back loop the entering column may still sit at x = 0:
+    ! drop such columns so that the passive set is exactly {x > 0}
+    do p = k, 1, -1
+      if (wk%x(wk%plist(p)) <= 0.0_wp) then
+        wk%x(wk%plist(p)) = 0.0_wp
+        call remove_column(p, k)
+      end if
+    end do
     stats%iterations = it
     call gradient(k)
     call finish()
@@ -392,14 +425,29 @@ contains
   !>   so the multipliers of  u = v - Bm^T lambda  (the KKT system of min 1/2|u-v|^2 + lambda^T
   !>   (Bm u - d), the convention of the contact model) are  lambda = s y / den.
   !> u is formed as v - Bm^T lambda, so stationarity holds to rounding.
-  !> When infeasible, u is the least-violation point of the regularised problem
-  !> min |sigma|^2 + eps |u - v|^2 s.t. Bm u - d <= sigma (eps = 1e-8 max|Bm|^2, a relative
-  !> bias of ~1e-8), an LDP in (sqrt(eps) (u - v), sigma), always feasible; lambda then holds
-  !> sigma (the violations).
   !> Accuracy: den = 1 / (1 + |x'|^2), and x' carries a relative error ~ eps / den, so when
   !> den < 1/4 the balance s is multiplied by |x'| and the NNLS solved again (warm started);
   !> the LDP is declared infeasible only if den is still at rounding level after that.
-  recursive subroutine ldp_solve(bm, d, v, u, lambda, stats, error, warm, max_iter, work)
+  !>
+  !> Infeasible systems. The violation sigma = (Bm u - d)^+ is minimised in the least-squares
+  !> sense, and among the minimisers the point closest to v is returned:
+  !> 1. sigma* = argmin |sigma|_2 over {sigma >= Bm u - d, u free}: an NNLS in (u+, u-, t) >= 0,
+  !>    min |[Bm, -Bm, I] (u+, u-, t) - d|, whose residual is unique and equals -sigma*
+  !>    (sigma* is then the smallest possible sum of squared violations, and also the vector
+  !>    of violations of every least-squares least-violation point);
+  !> 2. u = projection of v on {Bm u <= d + sigma* + delta}, an LDP as above, with a margin
+  !>    delta_l = 64 eps sqrt(mc) (|d_l| + sigma*_l + |Bm_l|_1 |u*|_inf) at rounding level (u* the
+  !>    point of stage 1) so that rounding never makes this set empty.
+  !> Then stats%infeasible = .true. (unless sigma* is itself at the rounding level of delta, in
+  !> which case the system is feasible to rounding and reported as such), lambda holds the
+  !> multipliers of stage 2 (u = v - Bm^T lambda, lambda >= 0, lambda_l > 0 only on rows with
+  !> (Bm u - d)_l = sigma*_l + delta_l), and stats%max_violation = max_l (Bm u - d)_l^+.
+  !> Should stage 2 fail numerically, u is the point of stage 1 (still least violation, not the
+  !> closest to v) and lambda = 0.
+  !>
+  !> Errors (code 2): inconsistent sizes, a NaN or Inf in Bm, d, v (or in lambda when the
+  !> warm start is on). Every NNLS is capped (max_iter each; stats%nnls%iterations sums them).
+  subroutine ldp_solve(bm, d, v, u, lambda, stats, error, warm, max_iter, work)
     !> constraint matrix [mc, n]
     real(wp), intent(in) :: bm(:,:)
     !> right-hand side [mc]
@@ -420,12 +468,7 @@ contains
     type(nnls_work_t), target :: local
     type(nnls_work_t), pointer :: wk
     integer :: mc, n, i, j
-    real(wp) :: gmax, emax, s, den, cancel, sq
-    logical :: use_warm
-    real(wp), allocatable :: bz(:,:), vz(:), uz(:), lz(:)
-    type(ldp_stats_t) :: st2
-    type(nnls_stats_t) :: st1
-    integer :: pass, it1
+    logical :: use_warm, feasible
 
     mc = size(bm, 1); n = size(bm, 2)
     if (size(d) /= mc .or. size(v) /= n .or. size(u) /= n .or. size(lambda) /= mc) then
@@ -436,27 +479,90 @@ contains
     end if
     use_warm = .true.
     if (present(warm)) use_warm = warm
+    do j = 1, n
+      do i = 1, mc
+        if (.not. ieee_is_finite(bm(i, j))) then
+          call set_error(error, "ldp_solve: Bm(" // str(i) // ", " // str(j) // ") is not finite", 2)
+          return
+        end if
+      end do
+      if (.not. ieee_is_finite(v(j))) then
+        call set_error(error, "ldp_solve: v(" // str(j) // ") is not finite", 2)
+        return
+      end if
+    end do
+    do i = 1, mc
+      if (.not. ieee_is_finite(d(i))) then
+        call set_error(error, "ldp_solve: d(" // str(i) // ") is not finite", 2)
+        return
+      end if
+      if (use_warm) then
+        if (.not. ieee_is_finite(lambda(i))) then
+          call set_error(error, "ldp_solve: warm-start lambda(" // str(i) // ") is not finite", 2)
+          return
+        end if
+      end if
+    end do
     if (present(work)) then
       wk => work
     else
       wk => local
     end if
-    if (.not. allocated(wk%e)) allocate(wk%e(0, 0), wk%f(0), wk%y(0), wk%p0(0))
-    if (size(wk%e, 1) < n + 1 .or. size(wk%e, 2) < mc) then
-      i = max(n + 1, size(wk%e, 1)); j = max(mc, size(wk%e, 2))
-      deallocate(wk%e, wk%f, wk%y, wk%p0)
-      allocate(wk%e(i, j), wk%f(i), wk%y(j), wk%p0(j))
-    end if
-    ! e = d - Bm v, kept in wk%y
-    do i = 1, mc
-      wk%y(i) = d(i) - dot_product(bm(i, :), v)
-    end do
     stats%infeasible = .false.
     stats%nnls%converged = .true.
     if (mc == 0) then
       u = v
       return
     end if
+    call reserve_ldp(wk, mc, n)
+    do j = 1, mc
+      wk%p0(j) = .false.
+      if (use_warm) wk%p0(j) = lambda(j) > 0.0_wp
+    end do
+    call ldp_project(bm, d, v, u, lambda, stats, error, max_iter, wk, feasible)
+    if (allocated(error)) return
+    if (.not. feasible) call least_violation(bm, d, v, u, lambda, stats, error, max_iter, wk)
+    if (allocated(error)) return
+    stats%max_violation = 0.0_wp
+    do i = 1, mc
+      stats%max_violation = max(stats%max_violation, dot_product(bm(i, :), u) - d(i))
+    end do
+  end subroutine ldp_solve
+
+  !> Make sure the LDP buffers of `wk` hold an mc x n problem.
+  subroutine reserve_ldp(wk, mc, n)
+    type(nnls_work_t), intent(inout) :: wk
+    integer, intent(in) :: mc, n
+    integer :: i, j
+    if (.not. allocated(wk%e)) allocate(wk%e(0, 0), wk%f(0), wk%y(0), wk%p0(0))
+    if (size(wk%e, 1) < n + 1 .or. size(wk%e, 2) < mc) then
+      i = max(n + 1, size(wk%e, 1)); j = max(mc, size(wk%e, 2))
+      deallocate(wk%e, wk%f, wk%y, wk%p0)
+      allocate(wk%e(i, j), wk%f(i), wk%y(j), wk%p0(j))
+    end if
+  end subroutine reserve_ldp
+
+  !> The LDP -> NNLS reduction of ldp_solve (see there), warm started from wk%p0(1:mc).
+  !> feasible = .false. (u, lambda untouched) when the Farkas certificate shows
+  !> {Bm u <= d} empty to rounding. Adds its NNLS iterations to stats%nnls%iterations.
+  subroutine ldp_project(bm, d, v, u, lambda, stats, error, max_iter, wk, feasible)
+    real(wp), intent(in) :: bm(:,:), d(:), v(:)
+    real(wp), intent(inout) :: u(:), lambda(:)
+    type(ldp_stats_t), intent(inout) :: stats
+    type(error_t), allocatable, intent(out) :: error
+    integer, intent(in), optional :: max_iter
+    type(nnls_work_t), intent(inout) :: wk
+    logical, intent(out) :: feasible
+    integer :: mc, n, i, j, pass, it1
+    real(wp) :: gmax, emax, s, den, cancel
+    type(nnls_stats_t) :: st1
+
+    mc = size(bm, 1); n = size(bm, 2)
+    feasible = .true.
+    ! e = d - Bm v, kept in wk%y
+    do i = 1, mc
+      wk%y(i) = d(i) - dot_product(bm(i, :), v)
+    end do
     if (all(wk%y(1:mc) >= 0.0_wp)) then
       ! v is feasible: it is its own projection
       u = v
@@ -471,15 +577,16 @@ contains
       do j = 1, mc
         wk%e(1:n, j) = -bm(j, :)
         wk%e(n + 1, j) = -(d(j) - dot_product(bm(j, :), v)) / s
-        if (pass == 1) wk%p0(j) = use_warm .and. lambda(j) > 0.0_wp
       end do
       wk%f(1:n) = 0.0_wp
       wk%f(n + 1) = 1.0_wp
       call nnls_solve(wk%e(1:n + 1, 1:mc), wk%f(1:n + 1), wk%y(1:mc), st1, error, &
         passive0=wk%p0(1:mc), max_iter=max_iter, work=wk)
-      if (allocated(error)) return
-      stats%nnls%iterations = stats%nnls%iterations + st1%iterations
-      it1 = stats%nnls%iterations
+      if (allocated(error)) then
+        call prefix_error(error, "ldp_solve")
+        return
+      end if
+      it1 = stats%nnls%iterations + st1%iterations
       stats%nnls = st1
       stats%nnls%iterations = it1
       ! den = -r_{n+1} = 1 - (E y)_{n+1} = 1 / (1 + |x'|^2); cancel bounds its rounding error
@@ -503,29 +610,60 @@ contains
         if (lambda(j) /= 0.0_wp) u = u - lambda(j) * bm(j, :)
       end do
     else
-      ! infeasible: least-violation point of the regularised problem (see above)
-      sq = 1.0e-4_wp * gmax
-      allocate(bz(mc, n + mc), vz(n + mc), uz(n + mc), lz(mc))
-      bz = 0.0_wp
-      bz(:, 1:n) = bm / sq
-      do j = 1, mc
-        bz(j, n + j) = -1.0_wp
-      end do
-      vz = 0.0_wp
-      lz = 0.0_wp
-      call ldp_solve(bz, d - matmul(bm, v), vz, uz, lz, st2, error)
-      if (allocated(error)) return
-      u = v + uz(1:n) / sq
-      lambda = lz
-      stats%nnls%iterations = stats%nnls%iterations + st2%nnls%iterations
-      stats%nnls%converged = st2%nnls%converged
-      stats%infeasible = .true.
+      feasible = .false.
     end if
-    stats%max_violation = 0.0_wp
-    do i = 1, mc
-      stats%max_violation = max(stats%max_violation, dot_product(bm(i, :), u) - d(i))
+  end subroutine ldp_project
+
+  !> Least-violation point of an infeasible {Bm u <= d} (the two stages documented at
+  !> ldp_solve). Sets u, lambda and stats%infeasible.
+  subroutine least_violation(bm, d, v, u, lambda, stats, error, max_iter, wk)
+    real(wp), intent(in) :: bm(:,:), d(:), v(:)
+    real(wp), intent(inout) :: u(:), lambda(:)
+    type(ldp_stats_t), intent(inout) :: stats
+    type(error_t), allocatable, intent(out) :: error
+    integer, intent(in), optional :: max_iter
+    type(nnls_work_t), intent(inout) :: wk
+    real(wp), allocatable :: a(:,:), x(:), ustar(:), sigma(:), delta(:)
+    type(nnls_stats_t) :: st1
+    integer :: mc, n, l
+    real(wp) :: umax
+    logical :: feasible, conv0
+
+    mc = size(bm, 1); n = size(bm, 2)
+    conv0 = stats%nnls%converged
+    ! stage 1: sigma* = A x - d for the NNLS min |A x - d|, A = [Bm, -Bm, I], x >= 0
+    allocate(a(mc, 2 * n + mc), x(2 * n + mc), ustar(n), sigma(mc), delta(mc))
+    a(:, 1:n) = bm
+    a(:, n + 1:2 * n) = -bm
+    a(:, 2 * n + 1:) = 0.0_wp
+    do l = 1, mc
+      a(l, 2 * n + l) = 1.0_wp
     end do
-  end subroutine ldp_solve
+    call nnls_solve(a, d, x, st1, error, max_iter=max_iter, work=wk)
+    if (allocated(error)) then
+      call prefix_error(error, "ldp_solve: least-violation stage")
+      return
+    end if
+    stats%nnls%iterations = stats%nnls%iterations + st1%iterations
+    ustar = x(1:n) - x(n + 1:2 * n)
+    umax = 0.0_wp
+    if (n > 0) umax = maxval(abs(ustar))
+    do l = 1, mc
+      sigma(l) = max(0.0_wp, dot_product(bm(l, :), ustar) - d(l) + x(2 * n + l))
+      delta(l) = 64.0_wp * epsilon(1.0_wp) * sqrt(real(mc, wp)) * &
+        (abs(d(l)) + sigma(l) + sum(abs(bm(l, :))) * umax)
+    end do
+    ! stage 2: projection of v on the relaxed set, warm started from the violated rows
+    wk%p0(1:mc) = sigma > 0.0_wp
+    call ldp_project(bm, d + sigma + delta, v, u, lambda, stats, error, max_iter, wk, feasible)
+    if (allocated(error)) return
+    stats%nnls%converged = conv0 .and. st1%converged .and. stats%nnls%converged
+    if (.not. feasible) then
+      u = ustar
+      lambda = 0.0_wp
+    end if
+    stats%infeasible = any(sigma > delta)
+  end subroutine least_violation
 
   !> Append column j to the factorisation Q R of A_P (k -> k + 1); ok = .false. (and nothing
   !> changed) when the column is numerically in the span of the passive columns.
