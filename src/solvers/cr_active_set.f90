@@ -200,9 +200,10 @@ contains
     !> The dense LDP (cr_nnls) on cluster c, warm started from the rows on entry.
     subroutine dense_cluster()
       real(wp) :: need
-      ! bm [mr, nd], E and Q of the NNLS, and the regularised LDP of an infeasible cluster
+      ! bm [mr, nd], E and Q of the NNLS, and the least-violation NNLS of an infeasible
+      ! cluster (mr (2 nd + mr) + mr^2 reals)
       need = 8.0_wp * (real(mr, wp) * nd + real(nd + 1, wp) * mr + real(nd + 1, wp)**2 + &
-        real(mr, wp) * (nd + mr))
+        real(mr, wp) * (2 * nd + mr) + real(mr, wp)**2)
       if (need > this%max_dense_bytes) then
         call too_large(need)
         return
