@@ -47,6 +47,10 @@ module cr_reduced_ops
     real(wp), allocatable :: v(:,:)
     !> .true. when the rows are the R cone vectors (multipliers comparable across steps)
     logical :: fixed_rows = .true.
+    !> the cone by support rows (CSR): row l has cone entries wk(wp0(l)+1 : wp0(l+1)) with
+    !> values wv (one entry per row for gIS cones)
+    integer, allocatable :: wp0(:), wk(:)
+    real(wp), allocatable :: wv(:)
   contains
     procedure(assemble_i), deferred :: assemble
   end type reduced_ops_t
@@ -141,6 +145,7 @@ contains
     ops%nb = pair%nb
     ops%r = pair%r
     ops%v = pair%v
+    call cone_rows(pair%terms%w, ops%wp0, ops%wk, ops%wv)
     allocate(need(n_agents))
     need = .false.
     select type (ops)
@@ -241,6 +246,26 @@ contains
     end subroutine mark
   end subroutine make_reduced_ops
 
+  !> CSR by rows of the cone on its support rows w [p3, R].
+  subroutine cone_rows(w, ptr, k, val)
+    real(wp), intent(in) :: w(:,:)
+    integer, allocatable, intent(out) :: ptr(:), k(:)
+    real(wp), allocatable, intent(out) :: val(:)
+    integer :: l, j, n
+    allocate(ptr(size(w, 1) + 1), k(count(w /= 0)), val(count(w /= 0)))
+    n = 0
+    ptr(1) = 0
+    do l = 1, size(w, 1)
+      do j = 1, size(w, 2)
+        if (w(l, j) /= 0) then
+          n = n + 1
+          k(n) = j; val(n) = w(l, j)
+        end if
+      end do
+      ptr(l + 1) = n
+    end do
+  end subroutine cone_rows
+
   !> EIM: indices, interpolation inverses and reduced images of the modes.
   subroutine eim_setup(ops, pair, m, error)
     type(ops_eim_t), intent(inout) :: ops
@@ -326,7 +351,7 @@ contains
     real(wp), intent(out) :: vhat(:)
     real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
     real(wp) :: gap, g(2), bv(this%nb)
-    integer :: k, a, b, j
+    integer :: k, a, b, j, p
     call ctx%desired%evaluate(q, ctx%speeds, this%vfull)
     vhat = matmul(this%vfull, this%v)
     call ensure(bhat, dhat, this%r, this%nb)
@@ -336,10 +361,10 @@ contains
       call eval_contact(ctx%scene, q, ctx%radius, a, b, this%ob(k), gap, g)
       bv = -ctx%h * (g(1) * this%v(2*a-1, :) + g(2) * this%v(2*a, :))
       if (b > 0) bv = bv + ctx%h * (g(1) * this%v(2*b-1, :) + g(2) * this%v(2*b, :))
-      do j = 1, this%r
-        if (this%w(k, j) == 0) cycle
-        bhat(j, :) = bhat(j, :) + this%w(k, j) * bv
-        dhat(j) = dhat(j) + this%w(k, j) * gap
+      do p = this%wp0(k) + 1, this%wp0(k + 1)
+        j = this%wk(p)
+        bhat(j, :) = bhat(j, :) + this%wv(p) * bv
+        dhat(j) = dhat(j) + this%wv(p) * gap
       end do
     end do
   end subroutine exact_assemble
@@ -427,7 +452,7 @@ contains
     real(wp), intent(out) :: vhat(:)
     real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
     real(wp) :: va(2), gap, g(2), bv(this%nb)
-    integer :: j, i, l, k, a, b
+    integer :: j, i, l, k, a, b, p
     call ensure(bhat, dhat, this%r, this%nb)
     vhat = 0; bhat = 0; dhat = 0
     do j = 1, this%m(1)
@@ -440,15 +465,17 @@ contains
       call eval_contact(ctx%scene, q, ctx%radius, a, b, this%ob(l), gap, g)
       bv = -ctx%h * (g(1) * this%v(2*a-1, :) + g(2) * this%v(2*a, :))
       if (b > 0) bv = bv + ctx%h * (g(1) * this%v(2*b-1, :) + g(2) * this%v(2*b, :))
-      do k = 1, this%r
-        if (this%w(l, k) == 0) cycle
-        bhat(k, :) = bhat(k, :) + (this%w2(j) * this%w(l, k)) * bv
+      do p = this%wp0(l) + 1, this%wp0(l + 1)
+        k = this%wk(p)
+        bhat(k, :) = bhat(k, :) + (this%w2(j) * this%wv(p)) * bv
       end do
     end do
     do j = 1, this%m(3)
       l = this%idx3(j)
       call eval_contact(ctx%scene, q, ctx%radius, this%ia(l), this%ib(l), this%ob(l), gap, g)
-      dhat = dhat + (this%w3(j) * gap) * this%w(l, :)
+      do p = this%wp0(l) + 1, this%wp0(l + 1)
+        dhat(this%wk(p)) = dhat(this%wk(p)) + (this%w3(j) * gap) * this%wv(p)
+      end do
     end do
   end subroutine eq_assemble
 

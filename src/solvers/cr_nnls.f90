@@ -519,6 +519,18 @@ contains
       wk%p0(j) = .false.
       if (use_warm) wk%p0(j) = lambda(j) > 0.0_wp
     end do
+    if (use_warm .and. any(wk%p0(1:mc))) then
+      ! the guessed active set often is the answer (consecutive time steps): verify it
+      call ldp_active_guess(bm, d, v, u, lambda, wk, feasible)
+      if (feasible) then
+        stats%nnls%n_passive = count(lambda > 0.0_wp)
+        stats%max_violation = 0.0_wp
+        do i = 1, mc
+          stats%max_violation = max(stats%max_violation, dot_product(bm(i, :), u) - d(i))
+        end do
+        return
+      end if
+    end if
     call ldp_project(bm, d, v, u, lambda, stats, error, max_iter, wk, feasible)
     if (allocated(error)) return
     if (.not. feasible) call least_violation(bm, d, v, u, lambda, stats, error, max_iter, wk)
@@ -528,6 +540,85 @@ contains
       stats%max_violation = max(stats%max_violation, dot_product(bm(i, :), u) - d(i))
     end do
   end subroutine ldp_solve
+
+  !> Warm path of ldp_solve: with the rows A = {lambda > 0} of the guess held as equalities,
+  !> solve (Bm_A Bm_A^T) beta = Bm_A v - d_A (Cholesky, k = |A|: O(k^2 n + k^3)) and accept
+  !> u = v - Bm_A^T beta when it satisfies the KKT conditions of the LDP: beta >= 0 and
+  !> Bm u <= d to rounding (256 eps (sum_j |Bm_ij u_j| + |d_i|)). These conditions
+  !> characterise the unique projection, so an accepted answer is exact. Otherwise A is
+  !> updated by a primal-dual active-set sweep (drop beta < 0, add violated rows), at most 6
+  !> sweeps; if none verifies, ok = .false. and u, lambda are untouched (dependent rows make
+  !> the factor fail: the NNLS path then handles degenerate and infeasible cases).
+  subroutine ldp_active_guess(bm, d, v, u, lambda, wk, ok)
+    real(wp), intent(in) :: bm(:,:), d(:), v(:)
+    real(wp), intent(inout) :: u(:), lambda(:)
+    type(nnls_work_t), intent(inout) :: wk
+    logical, intent(out) :: ok
+    integer, parameter :: MAX_SWEEPS = 6
+    integer, allocatable :: act(:)
+    logical, allocatable :: in_a(:), next(:)
+    real(wp), allocatable :: g(:,:), beta(:), ut(:), viol(:), tol(:)
+    integer :: k, i, j, p, mc, sweep
+    real(wp) :: t
+    mc = size(bm, 1)
+    ok = .false.
+    in_a = wk%p0(1:mc)
+    allocate(viol(mc), tol(mc), next(mc))
+    do sweep = 1, MAX_SWEEPS
+      act = pack([(i, i = 1, mc)], in_a)
+      k = size(act)
+      if (k > size(bm, 2)) return
+      if (allocated(g)) deallocate(g, beta)
+      allocate(g(k, k), beta(k))
+      do j = 1, k
+        do i = j, k
+          g(i, j) = dot_product(bm(act(i), :), bm(act(j), :))
+        end do
+        beta(j) = dot_product(bm(act(j), :), v) - d(act(j))
+      end do
+      ! Cholesky G = L L^T in the lower triangle; a relative pivot below 1e-10 means
+      ! (numerically) dependent rows
+      do j = 1, k
+        t = g(j, j) - dot_product(g(j, 1:j-1), g(j, 1:j-1))
+        if (.not. t > 1.0e-10_wp * g(j, j)) return
+        g(j, j) = sqrt(t)
+        do i = j + 1, k
+          g(i, j) = (g(i, j) - dot_product(g(i, 1:j-1), g(j, 1:j-1))) / g(j, j)
+        end do
+      end do
+      do i = 1, k
+        beta(i) = (beta(i) - dot_product(g(i, 1:i-1), beta(1:i-1))) / g(i, i)
+      end do
+      do i = k, 1, -1
+        do p = i + 1, k
+          beta(i) = beta(i) - g(p, i) * beta(p)
+        end do
+        beta(i) = beta(i) / g(i, i)
+      end do
+      ut = v
+      do i = 1, k
+        ut = ut - beta(i) * bm(act(i), :)
+      end do
+      do i = 1, mc
+        tol(i) = 256.0_wp * epsilon(1.0_wp) * (sum(abs(bm(i, :) * ut)) + abs(d(i)))
+        viol(i) = dot_product(bm(i, :), ut) - d(i)
+      end do
+      if (all(beta >= 0.0_wp) .and. all(viol <= tol)) then
+        ok = .true.
+        u = ut
+        lambda = 0.0_wp
+        lambda(act) = beta
+        return
+      end if
+      ! primal-dual active-set update: keep rows with beta > 0, add violated rows
+      next = viol > tol
+      do i = 1, k
+        next(act(i)) = beta(i) > 0.0_wp
+      end do
+      if (all(next .eqv. in_a)) return
+      in_a = next
+    end do
+  end subroutine ldp_active_guess
 
   !> Make sure the LDP buffers of `wk` hold an mc x n problem.
   subroutine reserve_ldp(wk, mc, n)
