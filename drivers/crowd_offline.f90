@@ -140,6 +140,14 @@ contains
       ", retained energy " // str(pod%energy) // ")")
     call log%stage_end()
 
+    ! ---- POD vs randomized POD (timing and spectra)
+    if (any(ocfg%pod_compare_n > 0)) then
+      call log%stage_begin("crowd_offline: POD (method of snapshots) vs randomized POD")
+      call pod_compare(data, tab, error)
+      if (collective_fail()) return
+      call log%stage_end()
+    end if
+
     ! ---- multiplier cone
     call log%stage_begin("crowd_offline: multiplier cone (" // trim(ocfg%cone_method) // ")")
     t0 = env%wtime()
@@ -240,6 +248,34 @@ contains
     end if
     if (collective_fail()) return
   end subroutine run
+
+  !> Time the exact POD (method of snapshots, all modes) and pod_rsvd for each requested rank.
+  subroutine pod_compare(data_ref, tab, error)
+    type(offline_data_t), intent(in) :: data_ref
+    type(rom_tables_t), intent(inout) :: tab
+    type(error_t), allocatable, intent(out) :: error
+    type(pod_result_t) :: ex, rs
+    real(wp) :: t0
+    integer :: k
+    tab%pc_n = pack(ocfg%pod_compare_n, ocfg%pod_compare_n > 0)
+    allocate(tab%pc_t_rpod(size(tab%pc_n)))
+    t0 = env%wtime()
+    call pod_snapshots(env, data_ref%u, ex, error, eps=0.0_wp)
+    if (allocated(error)) return
+    tab%pc_t_exact = env%wtime() - t0
+    tab%pc_sigma_exact = ex%sigma_all
+    do k = 1, size(tab%pc_n)
+      t0 = env%wtime()
+      call pod_rsvd(env, data_ref%u, tab%pc_n(k), ocfg%rsvd_oversampling, ocfg%rsvd_power, &
+        trim(ocfg%rsvd_sketch), ocfg%rsvd_seed, rs, error, n_modes=min(tab%pc_n(k), data_ref%n_dof))
+      if (allocated(error)) return
+      tab%pc_t_rpod(k) = env%wtime() - t0
+      if (k == size(tab%pc_n)) tab%pc_sigma_rpod = rs%sigma_all
+      call log%info("   rPOD rank " // str(tab%pc_n(k)) // ": " // str(tab%pc_t_rpod(k), "es9.2") // " s (exact POD " // &
+        str(tab%pc_t_exact, "es9.2") // " s), sigma_k " // str(rs%sigma_all(min(tab%pc_n(k), size(rs%sigma_all))), &
+        "es10.3") // " vs " // str(ex%sigma_all(min(tab%pc_n(k), size(ex%sigma_all))), "es10.3"))
+    end do
+  end subroutine pod_compare
 
   !> Build the pairs of &offline rom_n / rom_r (default: one pair, all POD modes and the
   !> whole cone, which reuses the enrichment v_full / pga_full already computed).

@@ -208,6 +208,7 @@ contains
       call h5%write_attr("fom_timing", "exact_solver", trim(rcfg%fom_exact_solver), error); if (allocated(error)) return
       call h5%write_attr("fom_timing", "tolerance", rcfg%fom_tol, error); if (allocated(error)) return
       call h5%write_attr("fom_timing", "uzawa_eps", rcfg%fom_uzawa_eps, error); if (allocated(error)) return
+      call h5%write_attr("fom_timing", "uzawa_steps", rcfg%fom_uzawa_steps, error); if (allocated(error)) return
       call h5%write_attr("fom_timing", "samples", rcfg%fom_timing_samples, error); if (allocated(error)) return
       call h5%write_attr("fom_timing", "kkt_max_uzawa", kkt_uz, error); if (allocated(error)) return
       call h5%write_attr("fom_timing", "kkt_max_exact", kkt_ex, error); if (allocated(error)) return
@@ -355,8 +356,10 @@ contains
       type(config_t) :: c2
       type(step_record_t) :: rec
       real(wp), allocatable :: speeds(:)
-      integer :: k, nu, ns
+      integer :: k, nu, ns, nsteps
       t_step = 0; kkt_max = 0; n_nonconv = 0
+      nsteps = st%n_steps
+      if (solver == 'uzawa' .and. rcfg%fom_uzawa_steps > 0) nsteps = min(nsteps, rcfg%fom_uzawa_steps)
       ns = min(rcfg%fom_timing_samples, blk%n)
       call log%progress_start()
       do k = 1, ns
@@ -374,7 +377,7 @@ contains
           type(fom_t) :: fom
           call fom%init(c2, error, q0=st%q0, speeds=speeds)
           if (allocated(error)) return
-          do nu = 1, st%n_steps
+          do nu = 1, nsteps
             call fom%advance(rec, error)
             if (allocated(error)) then
               call prefix_error(error, "full-order timing (" // solver // ")"); return
@@ -386,7 +389,7 @@ contains
         end block fresh
         call log%progress("full-order " // solver // " sample", k, ns)
       end do
-      t_step = t_step / max(1, ns * st%n_steps)
+      t_step = t_step / max(1, ns * nsteps)
     end subroutine fom_timing
 
     !> The one sample of sets = 'given'.

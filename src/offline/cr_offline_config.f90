@@ -48,6 +48,9 @@ module cr_offline_config
     !> points stored up to hyper_m_factor times the paper's defaults m(v) = 2 N, m(B) = R,
     !> m(d) = 2 R (capped by the candidates); EQ stops early at relative error eq_tol
     logical :: hyper = .true.
+    !> POD vs randomized POD comparison (the paper's rPOD figure): for each k > 0 the time and
+    !> spectrum of pod_rsvd with rank k against the exact method of snapshots
+    integer :: pod_compare_n(MAX_GRID) = 0
     real(wp) :: hyper_m_factor = 2.0_wp
     real(wp) :: eq_tol = 1.0e-10_wp
   end type offline_cfg_t
@@ -64,13 +67,13 @@ contains
     character(len=8) :: cone_method
     integer :: pod_n, rsvd_rank, rsvd_oversampling, rsvd_power, rsvd_seed, cone_r_max, mcpg_r_max
     integer :: pga_max_add, infsup_n(MAX_GRID), infsup_r(MAX_GRID), infsup_samples
-    integer :: rom_n(MAX_GRID), rom_r(MAX_GRID)
+    integer :: rom_n(MAX_GRID), rom_r(MAX_GRID), pod_compare_n(MAX_GRID)
     real(wp) :: pod_energy, cone_delta, pga_delta, hyper_m_factor, eq_tol
     logical :: cone_compare, pga, hyper
     namelist /offline/ database, rom_file, pod_method, pod_n, pod_energy, rsvd_rank, rsvd_oversampling, &
       rsvd_power, rsvd_sketch, rsvd_seed, cone_method, cone_compare, cone_delta, cone_r_max, mcpg_r_max, &
       pga, pga_delta, pga_max_add, infsup_n, infsup_r, infsup_samples, rom_n, rom_r, hyper, &
-      hyper_m_factor, eq_tol
+      hyper_m_factor, eq_tol, pod_compare_n
     integer :: ios
     character(len=512) :: msg
     database = c%database; rom_file = c%rom_file; pod_method = c%pod_method; pod_n = c%pod_n
@@ -80,6 +83,7 @@ contains
     cone_r_max = c%cone_r_max; mcpg_r_max = c%mcpg_r_max; pga = c%pga; pga_delta = c%pga_delta
     pga_max_add = c%pga_max_add; infsup_n = c%infsup_n; infsup_r = c%infsup_r
     infsup_samples = c%infsup_samples
+    pod_compare_n = c%pod_compare_n
     rom_n = c%rom_n; rom_r = c%rom_r; hyper = c%hyper; hyper_m_factor = c%hyper_m_factor; eq_tol = c%eq_tol
     msg = ''
     read(t%lines, nml=offline, iostat=ios, iomsg=msg)
@@ -95,6 +99,7 @@ contains
     c%cone_r_max = cone_r_max; c%mcpg_r_max = mcpg_r_max; c%pga = pga; c%pga_delta = pga_delta
     c%pga_max_add = pga_max_add; c%infsup_n = infsup_n; c%infsup_r = infsup_r
     c%infsup_samples = infsup_samples
+    c%pod_compare_n = pod_compare_n
     c%rom_n = rom_n; c%rom_r = rom_r; c%hyper = hyper; c%hyper_m_factor = hyper_m_factor; c%eq_tol = eq_tol
   end subroutine read_offline
 
@@ -125,6 +130,7 @@ contains
     call probs%need(all(c%rom_n >= 0) .and. all(c%rom_r >= 0), "&offline: rom_n and rom_r must be >= 0")
     call probs%need(all((c%rom_n > 0) .eqv. (c%rom_r > 0)), &
       "&offline: rom_n and rom_r must be given in pairs (same number of positive entries)")
+    call probs%need(all(c%pod_compare_n >= 0), "&offline: pod_compare_n must be >= 0")
     call probs%need(c%hyper_m_factor >= 1, "&offline: hyper_m_factor must be >= 1 (got " // str(c%hyper_m_factor) // ")")
     call probs%need(c%eq_tol >= 0 .and. c%eq_tol < 1, "&offline: eq_tol must be in [0, 1)")
     call probs%to_error(path, error)
@@ -146,7 +152,8 @@ contains
     s = s // ", rsvd_sketch = '" // trim(c%rsvd_sketch) // trim(b) // ", cone_method = '" // trim(c%cone_method) // &
       "', cone_compare = " // merge("T", "F", c%cone_compare) // ", hyper = " // merge("T", "F", c%hyper)
     write(b, '(a, es23.16, a, es23.16)') ", hyper_m_factor = ", c%hyper_m_factor, ", eq_tol = ", c%eq_tol
-    s = s // trim(b) // ", rom_n = " // int_list(c%rom_n) // ", rom_r = " // int_list(c%rom_r) // " /" // new_line('a')
+    s = s // trim(b) // ", rom_n = " // int_list(c%rom_n) // ", rom_r = " // int_list(c%rom_r) // &
+      ", pod_compare_n = " // int_list(c%pod_compare_n) // " /" // new_line('a')
   contains
     function int_list(a) result(t)
       integer, intent(in) :: a(:)

@@ -23,6 +23,10 @@ module cr_rom_file
     real(wp), allocatable :: is_low_min(:), is_up_min(:), is_up_mean(:)
     real(wp), allocatable :: is_low_min_pga(:), is_up_min_pga(:), is_up_mean_pga(:)
     integer, allocatable :: is_n_pga(:)
+    !> POD vs rPOD: requested ranks, times (s), spectra (exact: all; rPOD: the largest run)
+    integer, allocatable :: pc_n(:)
+    real(wp), allocatable :: pc_t_rpod(:), pc_sigma_exact(:), pc_sigma_rpod(:)
+    real(wp) :: pc_t_exact = 0
     real(wp) :: t_read = 0, t_pod = 0, t_cone = 0, t_mcpg = 0, t_pga = 0, t_infsup = 0, t_pairs = 0
   end type rom_tables_t
 
@@ -103,6 +107,17 @@ contains
     call h5%write_attr("timing", "pga", tables%t_pga, error); if (allocated(error)) goto 9
     call h5%write_attr("timing", "infsup", tables%t_infsup, error); if (allocated(error)) goto 9
     call h5%write_attr("timing", "pairs", tables%t_pairs, error); if (allocated(error)) goto 9
+    if (allocated(tables%pc_n)) then
+      if (size(tables%pc_n) > 0) then
+        call h5%make_group("pod_compare", error); if (allocated(error)) goto 9
+        call h5%write("pod_compare/n", tables%pc_n, error); if (allocated(error)) goto 9
+        call h5%write("pod_compare/t_rpod", tables%pc_t_rpod, error); if (allocated(error)) goto 9
+        call h5%write("pod_compare/t_exact", [(tables%pc_t_exact, k = 1, size(tables%pc_n))], error)
+        if (allocated(error)) goto 9
+        call h5%write("pod_compare/sigma_exact", tables%pc_sigma_exact, error); if (allocated(error)) goto 9
+        call h5%write("pod_compare/sigma_rpod", tables%pc_sigma_rpod, error); if (allocated(error)) goto 9
+      end if
+    end if
     call h5%write_attr("/", "n_pairs", size(pairs), error); if (allocated(error)) goto 9
     call h5%make_group("pairs", error); if (allocated(error)) goto 9
     do k = 1, size(pairs)
