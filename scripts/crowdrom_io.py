@@ -30,7 +30,7 @@ class InputError(Exception):
 def text(value):
     """Attribute value as str (fixed-length strings come back as bytes)."""
     if isinstance(value, (bytes, np.bytes_)):
-        return value.decode("utf-8", errors="replace")
+        return value.decode("utf-8", errors="replace").rstrip("\x00 ")
     if isinstance(value, np.ndarray):
         if value.shape == () or value.size == 1:
             return text(value.reshape(-1)[0])
@@ -219,9 +219,9 @@ def rom_pair_indices(f):
 
 # ------------------------------------------------------------------------------ ROM run file
 
-SETTING_ATTRS = {"n": int, "r": int, "n_basis": int, "pair": int, "hyper": str, "contacts": str,
-                 "solver": str, "m_v": int, "m_b": int, "m_d": int, "E_avg": float,
+SETTING_ATTRS = {"n": int, "r": int, "n_basis": int, "pair": int, "hyper": str, "E_avg": float,
                  "t_step": float, "speedup_uzawa": float, "speedup_exact": float}
+SETTING_ATTRS_OPTIONAL = {"contacts": str, "solver": str, "m_v": int, "m_b": int, "m_d": int}
 
 
 def romrun_meta(f):
@@ -249,6 +249,8 @@ def romrun_setting(f, k):
     s = {"index": k}
     for key, kind in SETTING_ATTRS.items():
         s[key] = attr(g, key, kind)
+    for key, kind in SETTING_ATTRS_OPTIONAL.items():
+        s[key] = attr(g, key, kind) if key in g.attrs else None
     s["sets"] = [x for x in ("train", "valid") if x in g]
     return s
 

@@ -616,6 +616,10 @@ def main(argv=None):
     ap.add_argument("--n", type=int, nargs="+", help="truncations n (default: config n_values, "
                     "else n_step, 2 n_step, ... up to the pair's POD modes)")
     ap.add_argument("--regressors", nargs="+", choices=REGRESSORS, help="override config regressors")
+    ap.add_argument("--append-mu", action="store_true", help="append the parameters mu to the "
+                    "features (config features.append_mu)")
+    ap.add_argument("--append-nu", action="store_true", help="append the step index nu to the "
+                    "features (config features.append_nu)")
     ap.add_argument("-o", "--output", help="output HDF5 (default: <romrun>_ml_s<k>.h5)")
     ap.add_argument("--models-dir", help="where models are saved/loaded (default: <output>_models/)")
     ap.add_argument("--predict-only", action="store_true",
@@ -634,7 +638,10 @@ def main(argv=None):
     except ImportError:
         fail("scikit-learn is not installed in this Python (use the project venv .venv)", 1)
     try:
-        over = {"regressors": args.regressors} if args.regressors else None
+        over = {"regressors": args.regressors} if args.regressors else {}
+        feats = {k: True for k, v in (("append_mu", args.append_mu), ("append_nu", args.append_nu)) if v}
+        if feats:
+            over["features"] = feats
         cfg = load_config(args.config, over)
         st = Study(args.romrun, args.setting, rom=args.rom, database=args.database,
                    need_train=not args.predict_only)
@@ -642,6 +649,10 @@ def main(argv=None):
         stem = os.path.splitext(args.romrun)[0]
         out = args.output or f"{stem}_ml_s{args.setting}.h5"
         models_dir = args.models_dir or (os.path.splitext(out)[0] + "_models")
+        for what, path in (("output", out), ("CSV", args.csv)):
+            if path and not os.path.isdir(os.path.dirname(os.path.abspath(path))):
+                raise InputError(f"{what} directory does not exist: "
+                                 f"'{os.path.dirname(os.path.abspath(path))}'")
         log(f"romrun '{args.romrun}', ROM '{st.rom_path}', database '{st.db_path}'; n = {n_values}; "
             f"regressors {cfg['regressors']}; models in '{models_dir}'", args.quiet)
         res = run(st, cfg, n_values, models_dir, args.predict_only, args.quiet)

@@ -248,6 +248,11 @@ def test_bad_inputs(study, tmp_path, args, expect, capsys):
     assert not out.exists() and not os.path.exists(str(out) + ".partial")
 
 
+def test_output_directory_missing(study, tmp_path, capsys):
+    res = call(capsys, study["romrun"], "--config", study["cfg"], "-o", tmp_path / "no" / "x.h5")
+    assert res.returncode == 2 and "output directory does not exist" in res.stderr
+
+
 def test_missing_group_in_romrun(study, tmp_path, capsys):
     bad = tmp_path / "broken.h5"
     with h5py.File(study["romrun"], "r") as src, h5py.File(bad, "w") as dst:
@@ -263,10 +268,10 @@ def test_missing_group_in_romrun(study, tmp_path, capsys):
 def test_in_process_with_mu_nu_features(study, tmp_path, capsys):
     cfg = tmp_path / "c.json"
     cfg.write_text(json.dumps(dict(SMALL, n_values=[4], regressors=["random_forest"],
-                                   features={"append_mu": True, "append_nu": True})))
+                                   features={"append_mu": True})))
     out = tmp_path / "f.h5"
     assert ml_correct.main([study["romrun"], "--setting", "2", "--config", str(cfg), "-o", str(out),
-                            "--quiet"]) == 0
+                            "--append-nu", "--quiet"]) == 0
     text = capsys.readouterr().out
     assert "| random_forest | 4 |" in text
     with h5py.File(out, "r") as f:
