@@ -1,0 +1,339 @@
+"""Readers of the crowdrom HDF5 files for the Python post-processing (ML correction, figures).
+
+Fortran writes the files; h5py shows every dataset with its Fortran dimensions reversed. The
+readers here return arrays in a "natural" numpy layout and say so in their docstrings:
+
+* snapshot database (schema ``crowdrom-snapshots``): positions ``[n_S, N_T + 1, n_dof]``,
+  velocities ``[n_S, N_T, n_dof]``, params ``[n_S, n_mu]``;
+* ROM file (schema ``crowdrom-rom``): pair basis ``V`` ``[n_dof, n_basis]`` (columns are basis
+  vectors, the first ``n`` the POD modes);
+* ROM run file (schema ``crowdrom-romrun``): alpha ``[n_S, N_T, n_basis]``, positions
+  ``[n_S, N_T + 1, n_dof]``, err_time ``[n_S, N_T + 1]``.
+
+Every problem with an input raises ``InputError`` with a one-line message naming the file and the
+missing object; the command-line scripts turn it into ``<script>: error: <message>`` and exit 2.
+"""
+import os
+
+import numpy as np
+
+DB_SCHEMA = "crowdrom-snapshots"
+ROM_SCHEMA = "crowdrom-rom"
+ROMRUN_SCHEMA = "crowdrom-romrun"
+ML_SCHEMA = "crowdrom-ml"
+
+
+class InputError(Exception):
+    """A missing, unreadable or inconsistent input file (exit status 2 in the scripts)."""
+
+
+def text(value):
+    """Attribute value as str (fixed-length strings come back as bytes)."""
+    if isinstance(value, (bytes, np.bytes_)):
+        return value.decode("utf-8", errors="replace").rstrip("\x00 ")
+    if isinstance(value, np.ndarray):
+        if value.shape == () or value.size == 1:
+            return text(value.reshape(-1)[0])
+    return str(value)
+
+
+def scalar(value):
+    """Attribute value as a Python number (1-element arrays accepted)."""
+    a = np.asarray(value)
+    if a.size != 1:
+        raise ValueError(f"expected a scalar, got shape {a.shape}")
+    return a.reshape(-1)[0].item()
+
+
+def open_h5(path, schema=None, what="file"):
+    """Open an HDF5 file read-only and check its root attribute ``schema``."""
+    import h5py
+
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise InputError(f"{what} not found: '{path}'")
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise InputError(f"cannot open {what} '{path}' as HDF5: {exc}") from None
+    if schema is not None:
+        got = text(f.attrs["schema"]) if "schema" in f.attrs else None
+        if got != schema:
+            f.close()
+            raise InputError(f"'{path}' is not a {schema} file (root attribute schema = {got!r})")
+    return f
+
+
+def attr(obj, name, kind=float):
+    """Attribute ``name`` of a file/group/dataset converted by ``kind`` (InputError if missing)."""
+    if name not in obj.attrs:
+        raise InputError(f"'{obj.file.filename}': missing attribute '{name}' on '{obj.name}'")
+    v = obj.attrs[name]
+    if kind is str:
+        return text(v)
+    return kind(scalar(v))
+
+
+def dataset(f, name):
+    """Dataset ``name`` as a numpy array (InputError naming the file if missing)."""
+    if name not in f:
+        raise InputError(f"'{f.file.filename}': missing dataset '{name}'")
+    obj = f[name]
+    if not hasattr(obj, "shape"):
+        raise InputError(f"'{f.file.filename}': '{name}' is a group, expected a dataset")
+    return np.asarray(obj[()])
+
+
+def group(f, name):
+    if name not in f:
+        raise InputError(f"'{f.file.filename}': missing group '{name}'")
+    return f[name]
+
+
+# ------------------------------------------------------------------------------ database
+
+def _blocks(arr, n_blocks, per_block, n_dof, path, name):
+    """h5py array [(per_block * n_blocks), n_dof] -> [n_blocks, per_block, n_dof]."""
+    if arr.shape != (per_block * n_blocks, n_dof):
+        raise InputError(f"'{path}': '{name}' has h5py shape {arr.shape}, expected "
+                         f"({per_block * n_blocks}, {n_dof})")
+    return arr.reshape(n_blocks, per_block, n_dof)
+
+
+def read_database_meta(f):
+    """Root metadata of an open snapshot database."""
+    return {
+        "n_agents": attr(f, "n_agents", int),
+        "n_steps": attr(f, "n_steps", int),
+        "dt": attr(f, "dt", float),
+        "agent_radius": attr(f, "agent_radius", float),
+        "param_names": attr(f, "param_names", str).split(",") if "param_names" in f.attrs else [],
+        "config_hash": attr(f, "config_hash", str) if "config_hash" in f.attrs else "",
+    }
+
+
+def read_database_set(f, s, velocities=True):
+    """One set S of an open database: params [n_S, n_mu], positions [n_S, N_T+1, n_dof],
+    velocities [n_S, N_T, n_dof] (if asked)."""
+    meta = read_database_meta(f)
+    nt, n_dof = meta["n_steps"], 2 * meta["n_agents"]
+    group(f, s)
+    params = dataset(f, f"{s}/params")
+    if params.ndim == 1:
+        params = params.reshape(-1, 1)
+    n_s = params.shape[0]
+    out = {"params": params,
+           "positions": _blocks(dataset(f, f"{s}/positions"), n_s, nt + 1, n_dof, f.filename,
+                                f"{s}/positions")}
+    if velocities:
+        out["velocities"] = _blocks(dataset(f, f"{s}/velocities"), n_s, nt, n_dof, f.filename,
+                                    f"{s}/velocities")
+    return out
+
+
+def read_scene(f):
+    """The reference scene stored under /scene (same layout as in crowdrom-fom files)."""
+    g = group(f, "scene")
+    d = {
+        "kind": np.asarray(dataset(g, "obstacle_kind"), dtype=int).ravel(),
+        "oradius": np.asarray(dataset(g, "obstacle_radius"), dtype=float).ravel(),
+        "vstart": np.asarray(dataset(g, "obstacle_vertex_start"), dtype=int).ravel(),
+        "verts": np.asarray(dataset(g, "obstacle_vertices"), dtype=float).reshape(-1, 2),
+        "exit": np.asarray(dataset(g, "exit_segment"), dtype=float).reshape(2, 2),
+        "domain": np.asarray(dataset(g, "domain"), dtype=float).ravel(),
+        "n_walls": int(scalar(g.attrs["n_walls"])) if "n_walls" in g.attrs else None,
+    }
+    return d
+
+
+def scene_for_params(scene, param_names, params):
+    """Copy of the reference scene with the exit width of a sample (parameter ``l_exit``).
+
+    The exit opening stays centred where it is; wall vertices that sit on the reference opening's
+    end points (the two barrier walls beside the exit) move with them. Other parameters do not
+    change the geometry."""
+    if "l_exit" not in param_names:
+        return scene
+    l_new = float(params[param_names.index("l_exit")])
+    d = dict(scene)
+    e = scene["exit"].copy()
+    x_lo, x_hi = sorted((e[0, 0], e[1, 0]))
+    yc = e[:, 1].mean()
+    xc = 0.5 * (x_lo + x_hi)
+    n_lo, n_hi = xc - 0.5 * l_new, xc + 0.5 * l_new
+    tol = 1e-9 * max(1.0, abs(x_hi - x_lo))
+    verts = scene["verts"].copy()
+    n_walls = scene.get("n_walls") or len(scene["kind"])
+    for k in range(min(n_walls, len(scene["kind"]))):
+        lo, hi = scene["vstart"][k], scene["vstart"][k + 1]
+        v = verts[lo:hi]
+        near_exit_height = v[:, 1] >= yc - tol
+        v[near_exit_height & (np.abs(v[:, 0] - x_lo) <= tol), 0] = n_lo
+        v[near_exit_height & (np.abs(v[:, 0] - x_hi) <= tol), 0] = n_hi
+    order = np.argsort(e[:, 0])
+    e[order[0], 0], e[order[1], 0] = n_lo, n_hi
+    d["verts"], d["exit"] = verts, e
+    return d
+
+
+def multipliers_csr(f, s):
+    """Sparse multipliers of set S as scipy CSC [n_dict, N_T n_S] (column = velocity column)."""
+    from scipy.sparse import csc_matrix
+
+    off = dataset(f, f"{s}/lambda_offset").astype(np.int64).ravel()
+    idx = dataset(f, f"{s}/lambda_index").astype(np.int64).ravel()
+    val = dataset(f, f"{s}/lambda_value").astype(float).ravel()
+    n_dict = dataset(f, "contacts/ia").size
+    n_col = off.size - 1
+    if off[0] != 0 or off[-1] != idx.size or idx.size != val.size:
+        raise InputError(f"'{f.filename}': inconsistent multiplier CSR in set '{s}'")
+    if idx.size and (idx.min() < 1 or idx.max() > n_dict):
+        raise InputError(f"'{f.filename}': multiplier index outside 1..{n_dict} in set '{s}'")
+    return csc_matrix((val, idx - 1, off), shape=(n_dict, n_col))
+
+
+# ------------------------------------------------------------------------------ ROM file
+
+def read_rom_pair(f, k):
+    """Pair k (1-based) of an open ROM file: attrs and the basis V [n_dof, n_basis]."""
+    name = f"pairs/{k}"
+    if "pairs" not in f:
+        raise InputError(f"'{f.filename}': no group 'pairs' (ROM schema_version < 2?)")
+    g = group(f, name)
+    p = {"index": k, "n": attr(g, "n", int), "r": attr(g, "r", int),
+         "n_pga": attr(g, "n_pga", int), "n_basis": attr(g, "n_basis", int)}
+    v = dataset(g, "v")
+    if v.ndim != 2 or v.shape[0] != p["n_basis"]:
+        raise InputError(f"'{f.filename}': '{name}/v' has h5py shape {v.shape}, expected "
+                         f"(n_basis = {p['n_basis']}, n_dof)")
+    p["V"] = np.ascontiguousarray(v.T)
+    return p
+
+
+def rom_pair_indices(f):
+    """Sorted 1-based pair indices present in a ROM file."""
+    if "pairs" not in f:
+        return []
+    return sorted(int(k) for k in f["pairs"].keys() if k.isdigit())
+
+
+# ------------------------------------------------------------------------------ ROM run file
+
+SETTING_ATTRS = {"n": int, "r": int, "n_basis": int, "pair": int, "hyper": str, "E_avg": float,
+                 "t_step": float, "speedup_uzawa": float, "speedup_exact": float}
+SETTING_ATTRS_OPTIONAL = {"contacts": str, "solver": str, "m_v": int, "m_b": int, "m_d": int}
+
+
+def romrun_meta(f):
+    """Root metadata and FOM timing of an open ROM run file."""
+    m = {"rom_file": attr(f, "rom_file", str), "database": attr(f, "database", str),
+         "n_agents": attr(f, "n_agents", int), "n_steps": attr(f, "n_steps", int),
+         "dt": attr(f, "dt", float), "agent_radius": attr(f, "agent_radius", float),
+         "n_settings": attr(f, "n_settings", int),
+         "param_names": attr(f, "param_names", str).split(",") if "param_names" in f.attrs else []}
+    g = group(f, "fom_timing")
+    m["t_step_uzawa"] = attr(g, "t_step_uzawa", float)
+    m["t_step_exact"] = attr(g, "t_step_exact", float)
+    m["exact_solver"] = attr(g, "exact_solver", str) if "exact_solver" in g.attrs else ""
+    return m
+
+
+def romrun_setting(f, k):
+    """Attributes of setting k (1-based) of an open ROM run file."""
+    name = f"setting_{k}"
+    if name not in f:
+        n = int(scalar(f.attrs["n_settings"])) if "n_settings" in f.attrs else "?"
+        raise InputError(f"'{f.filename}': no setting {k} (group '/{name}'; the file has "
+                         f"n_settings = {n})")
+    g = f[name]
+    s = {"index": k}
+    for key, kind in SETTING_ATTRS.items():
+        s[key] = attr(g, key, kind)
+    for key, kind in SETTING_ATTRS_OPTIONAL.items():
+        s[key] = attr(g, key, kind) if key in g.attrs else None
+    s["sets"] = [x for x in ("train", "valid") if x in g]
+    return s
+
+
+def romrun_set(f, k, s, n_steps, n_dof):
+    """Set S of setting k: params [n_S, n_mu], alpha [n_S, N_T, n_basis], positions
+    [n_S, N_T+1, n_dof], err_time [n_S, N_T+1] and the per-sample vectors."""
+    name = f"setting_{k}/{s}"
+    if name not in f:
+        raise InputError(f"'{f.filename}': setting {k} has no '{s}' set (group '/{name}')")
+    g = f[name]
+    params = dataset(g, "params")
+    if params.ndim == 1:
+        params = params.reshape(-1, 1)
+    n_s = params.shape[0]
+    alpha = dataset(g, "alpha")
+    if alpha.ndim != 2 or alpha.shape[0] != n_steps * n_s:
+        raise InputError(f"'{f.filename}': '{name}/alpha' has h5py shape {alpha.shape}, expected "
+                         f"(N_T n_S = {n_steps * n_s}, n_basis)")
+    out = {"params": params, "alpha": alpha.reshape(n_s, n_steps, alpha.shape[1]),
+           "positions": _blocks(dataset(g, "positions"), n_s, n_steps + 1, n_dof, f.filename,
+                                f"{name}/positions")}
+    et = dataset(g, "err_time")
+    if et.shape != (n_s, n_steps + 1):
+        raise InputError(f"'{f.filename}': '{name}/err_time' has h5py shape {et.shape}, expected "
+                         f"({n_s}, {n_steps + 1})")
+    out["err_time"] = et
+    for key in ("E_mu", "E_proj", "max_overlap", "n_not_left", "time"):
+        if key in g:
+            out[key] = np.asarray(g[key][()]).ravel()
+    return out
+
+
+# ------------------------------------------------------------------------------ errors, schemes
+
+def integrate_positions(q0, u, h):
+    """Explicit scheme q(nu) = q(nu-1) + h u(nu) from q(0) = q0.
+
+    q0 [n_dof], u [n_S, N_T, n_dof] -> positions [n_S, N_T + 1, n_dof]."""
+    n_s, nt, n_dof = u.shape
+    q = np.empty((n_s, nt + 1, n_dof))
+    q[:, 0, :] = q0
+    q[:, 1:, :] = q0 + h * np.cumsum(u, axis=1)
+    return q
+
+
+def time_integrated_error(q_ref, q, h):
+    """The paper's E_mu per sample: sqrt(sum_nu h |q - q^|^2) / sqrt(sum_nu h |q|^2), nu = 1..N_T.
+
+    q_ref, q [n_S, N_T + 1, n_dof] -> [n_S]."""
+    num = np.sqrt(h * np.sum((q_ref[:, 1:] - q[:, 1:]) ** 2, axis=(1, 2)))
+    den = np.sqrt(h * np.sum(q_ref[:, 1:] ** 2, axis=(1, 2)))
+    return num / np.where(den > 0, den, 1.0)
+
+
+def error_in_time(q_ref, q):
+    """Relative position error per step |q - q^| / |q|: [n_S, N_T + 1]."""
+    num = np.linalg.norm(q_ref - q, axis=2)
+    den = np.linalg.norm(q_ref, axis=2)
+    return num / np.where(den > 0, den, 1.0)
+
+
+def match_samples(ref_params, params, path, what):
+    """Index into ref_params [n_ref, n_mu] of each row of params [n_S, n_mu] (exact up to 1e-10
+    relative); InputError if a sample is not in the reference set."""
+    if ref_params.shape[1] != params.shape[1]:
+        raise InputError(f"{what}: {params.shape[1]} parameter components, the database has "
+                         f"{ref_params.shape[1]}")
+    scale = np.maximum(np.abs(ref_params).max(axis=0), 1e-300)
+    out = np.empty(params.shape[0], dtype=int)
+    for i, p in enumerate(params):
+        d = np.max(np.abs(ref_params - p) / scale, axis=1)
+        j = int(np.argmin(d))
+        if d[j] > 1e-10:
+            raise InputError(f"{what}: sample {i + 1} (params {np.array2string(p, precision=6)}) "
+                             f"is not in the database '{path}'")
+        out[i] = j
+    return out
+
+
+def resolve_path(path, relative_to):
+    """Path stored in a file: absolute, or relative to the cwd, else to the storing file's folder."""
+    if os.path.isabs(path) or os.path.exists(path):
+        return path
+    cand = os.path.join(os.path.dirname(os.path.abspath(os.fspath(relative_to))), path)
+    return cand if os.path.exists(cand) else path

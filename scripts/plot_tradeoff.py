@@ -1,0 +1,210 @@
+#!/usr/bin/env python3
+"""Accuracy vs cost of the reduced models of a crowd_rom sweep (the paper's Pareto plots).
+
+Input: the sweep table written by crowd_rom (CSV with the header
+setting,set,n,r,n_basis,hyper,...,E_avg,...,t_step_rom,t_step_fom_uzawa,t_step_fom_exact,
+speedup_uzawa,speedup_exact) or the ROM run file itself (schema crowdrom-romrun; E_avg and E_max
+then come from each setting's validation E_mu). One PNG with two panels:
+(a) E_avg vs the ROM time per step, with the FOM times per step (Uzawa and exact solver) as
+reference lines; (b) E_avg vs the speedup against both FOM references. The Pareto front
+(settings no other setting beats in both error and cost) is highlighted; points are labelled
+(N, R, hyper). ML-corrected results (files of scripts/ml_correct.py) can be overlaid (--ml):
+the best n of each regressor, at the ROM step time plus the prediction time per step.
+
+Exit codes: 0 success, 2 missing/unreadable input or missing columns (message on stderr).
+"""
+import argparse
+import csv
+import os
+import sys
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import crowdrom_io as cio  # noqa: E402
+from crowdrom_io import InputError  # noqa: E402
+
+PROG = "plot_tradeoff"
+NEEDED = ("setting", "set", "n", "r", "hyper", "E_avg", "t_step_rom", "t_step_fom_uzawa",
+          "t_step_fom_exact", "speedup_uzawa", "speedup_exact")
+HYPER_MARKERS = {"none": "s", "eim": "D", "eq": "o"}
+
+
+def _num(v):
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        return v
+    return int(x) if x.is_integer() and "." not in str(v) and "e" not in str(v).lower() else x
+
+
+def read_csv_rows(path):
+    """Rows of the sweep CSV as dicts (numbers converted)."""
+    if not os.path.exists(path):
+        raise InputError(f"sweep table not found: '{path}'")
+    with open(path, newline="") as fh:
+        reader = csv.DictReader(fh)
+        missing = [c for c in NEEDED if c not in (reader.fieldnames or [])]
+        if missing:
+            raise InputError(f"'{path}': missing column(s) {missing} in the header")
+        rows = [{k: _num(v) for k, v in row.items()} for row in reader]
+    if not rows:
+        raise InputError(f"'{path}': no rows")
+    return rows
+
+
+def read_romrun_rows(path):
+    """The same rows from a ROM run file (validation set of every setting)."""
+    rows = []
+    with cio.open_h5(path, cio.ROMRUN_SCHEMA, "ROM run file") as f:
+        m = cio.romrun_meta(f)
+        for k in range(1, m["n_settings"] + 1):
+            s = cio.romrun_setting(f, k)
+            for name in s["sets"]:
+                e = cio.dataset(f, f"setting_{k}/{name}/E_mu").ravel()
+                rows.append({"setting": k, "set": name, "n": s["n"], "r": s["r"],
+                             "n_basis": s["n_basis"], "hyper": s["hyper"],
+                             "contacts": s["contacts"], "E_avg": float(e.mean()),
+                             "E_max": float(e.max()), "t_step_rom": s["t_step"],
+                             "t_step_fom_uzawa": m["t_step_uzawa"], "t_step_fom_exact": m["t_step_exact"],
+                             "speedup_uzawa": s["speedup_uzawa"], "speedup_exact": s["speedup_exact"]})
+    if not rows:
+        raise InputError(f"'{path}': no settings")
+    return rows
+
+
+def read_rows(path):
+    """Rows from a CSV (by extension) or a ROM run file."""
+    if str(path).lower().endswith(".csv"):
+        return read_csv_rows(path)
+    return read_romrun_rows(path)
+
+
+def read_ml_points(paths):
+    """Best-n point of each regressor of each ML output file."""
+    pts = []
+    for path in paths:
+        with cio.open_h5(path, cio.ML_SCHEMA, "ML output") as f:
+            a = f.attrs
+            t_rom = float(cio.scalar(a["t_step_rom"]))
+            for reg in ("random_forest", "mlp"):
+                if reg not in f:
+                    continue
+                g = f[reg]
+                i = int(np.argmin(g["E_avg"][()]))
+                n_vals = f["n_values"][()]
+                pts.append({"label": f"ML {reg} ({int(cio.scalar(a['pair_n']))},{int(cio.scalar(a['pair_r']))}) "
+                                     f"n={int(n_vals[i])}",
+                            "E_avg": float(g["E_avg"][i]), "t_step": float(g["t_step"][i]),
+                            "speedup_uzawa": float(g["speedup"][i]),
+                            "speedup_exact": float(g["speedup_exact"][i]), "t_step_rom": t_rom})
+    return pts
+
+
+def pareto_mask(cost, err):
+    """True for points not dominated: no other point has cost <= and err <= with one strict."""
+    cost, err = np.asarray(cost, float), np.asarray(err, float)
+    mask = np.ones(cost.size, bool)
+    for i in range(cost.size):
+        dom = (cost <= cost[i]) & (err <= err[i]) & ((cost < cost[i]) | (err < err[i]))
+        mask[i] = not dom.any()
+    return mask
+
+
+def _label(r):
+    return f"({r['n']},{r['r']},{r['hyper']})"
+
+
+def plot_tradeoff(rows, out, ml_points=(), set_name="valid", title=None, dpi=120):
+    """Draw the two panels into ``out`` (PNG); return the Pareto-optimal rows."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in rows if str(r["set"]) == set_name]
+    if not rows:
+        raise InputError(f"no rows of set '{set_name}'")
+    err = np.array([float(r["E_avg"]) for r in rows])
+    t = np.array([float(r["t_step_rom"]) for r in rows])
+    sp_u = np.array([float(r["speedup_uzawa"]) for r in rows])
+    sp_e = np.array([float(r["speedup_exact"]) for r in rows])
+    front = pareto_mask(t, err)
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 5))
+    for hyper in sorted({str(r["hyper"]) for r in rows}):
+        sel = np.array([str(r["hyper"]) == hyper for r in rows])
+        mk = HYPER_MARKERS.get(hyper, "^")
+        ax1.scatter(t[sel], err[sel], marker=mk, c="tab:blue", alpha=0.6, label=f"ROM, hyper = {hyper}")
+        ax2.scatter(sp_u[sel], err[sel], marker=mk, c="tab:blue", alpha=0.6,
+                    label=f"vs Uzawa FOM, hyper = {hyper}")
+        ax2.scatter(sp_e[sel], err[sel], marker=mk, facecolors="none", edgecolors="tab:orange",
+                    label=f"vs exact FOM, hyper = {hyper}")
+    o = np.argsort(t[front])
+    ax1.plot(t[front][o], err[front][o], "-", color="tab:red", lw=1.5, label="Pareto front")
+    ax1.scatter(t[front], err[front], s=90, facecolors="none", edgecolors="tab:red", lw=1.5)
+    for sp, color in ((sp_u, "tab:red"), (sp_e, "tab:purple")):
+        f2 = pareto_mask(-sp, err)
+        o2 = np.argsort(sp[f2])
+        ax2.plot(sp[f2][o2], err[f2][o2], "-", color=color, lw=1.2)
+    for i, r in enumerate(rows):
+        ax1.annotate(_label(r), (t[i], err[i]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+        ax2.annotate(_label(r), (sp_u[i], err[i]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    t_uz, t_ex = float(rows[0]["t_step_fom_uzawa"]), float(rows[0]["t_step_fom_exact"])
+    ax1.axvline(t_uz, color="k", ls="--", lw=1, label=f"FOM Uzawa {t_uz:.2e} s")
+    ax1.axvline(t_ex, color="0.4", ls=":", lw=1, label=f"FOM exact {t_ex:.2e} s")
+    ax2.axvline(1.0, color="0.5", ls=":", lw=1)
+    for p in ml_points:
+        ax1.scatter([p["t_step"]], [p["E_avg"]], marker="*", s=140, c="tab:green", zorder=5)
+        ax1.annotate(p["label"], (p["t_step"], p["E_avg"]), fontsize=7, color="tab:green",
+                     xytext=(3, -9), textcoords="offset points")
+        ax2.scatter([p["speedup_uzawa"]], [p["E_avg"]], marker="*", s=140, c="tab:green", zorder=5)
+        ax2.scatter([p["speedup_exact"]], [p["E_avg"]], marker="*", s=140, facecolors="none",
+                    edgecolors="tab:green", zorder=5)
+        ax2.annotate(p["label"], (p["speedup_uzawa"], p["E_avg"]), fontsize=7, color="tab:green",
+                     xytext=(3, -9), textcoords="offset points")
+    if ml_points:
+        ax1.scatter([], [], marker="*", c="tab:green", label="ML-corrected (best n)")
+        ax2.scatter([], [], marker="*", c="tab:green", label="ML-corrected (best n)")
+    for ax in (ax1, ax2):
+        ax.set_xscale("log")
+        ax.margins(x=0.25, y=0.1)
+        if np.all(err > 0):
+            ax.set_yscale("log")
+        ax.set_ylabel(r"$E_{\rm avg}$ (validation)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    ax1.set_xlabel("time per step (s)")
+    ax1.set_title("(a) accuracy vs cost")
+    ax2.set_xlabel("speedup with respect to the FOM")
+    ax2.set_title("(b) accuracy vs speedup (filled: Uzawa FOM, open: exact FOM)")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(out, dpi=dpi)
+    plt.close(fig)
+    return [r for r, m in zip(rows, front) if m]
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="plot_tradeoff.py", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("input", help="sweep CSV of crowd_rom, or the ROM run file (HDF5)")
+    ap.add_argument("-o", "--output", help="PNG to write (default: <input>_tradeoff.png)")
+    ap.add_argument("--set", default="valid", help="which set's rows to draw (default valid)")
+    ap.add_argument("--ml", nargs="+", default=[], help="ML output files of ml_correct.py to overlay")
+    ap.add_argument("--title", default=None)
+    ap.add_argument("--dpi", type=int, default=120)
+    args = ap.parse_args(argv)
+    out = args.output or (os.path.splitext(args.input)[0] + "_tradeoff.png")
+    try:
+        rows = read_rows(args.input)
+        front = plot_tradeoff(rows, out, read_ml_points(args.ml), args.set, args.title, args.dpi)
+    except InputError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{PROG}: Pareto front: " + ", ".join(_label(r) for r in front))
+    print(f"{PROG}: wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,189 @@
+"""scripts/make_figures.py and scripts/plot_tradeoff.py on small synthetic files (tests/synth.py):
+every figure is produced and is a real picture, missing optional inputs skip only their figures,
+bad inputs fail with exit status 2; the Pareto front and the multiplier POD against direct
+computations."""
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+SCRIPTS = os.path.dirname(HERE)
+sys.path.insert(0, HERE)
+sys.path.insert(0, SCRIPTS)
+import crowdrom_io as cio  # noqa: E402
+import make_figures  # noqa: E402
+import ml_correct  # noqa: E402
+import plot_tradeoff  # noqa: E402
+import synth  # noqa: E402
+
+ALL = [name for name, _ in make_figures.FIGURES]
+
+
+def run(script, *args):
+    return subprocess.run([sys.executable, os.path.join(SCRIPTS, script), *map(str, args)],
+                          capture_output=True, text=True, timeout=300)
+
+
+def assert_picture(path, min_bytes=5000):
+    assert os.path.exists(path), path
+    assert os.path.getsize(path) > min_bytes, path
+    import matplotlib.image as mpimg
+    img = mpimg.imread(path)
+    assert img.ndim == 3 and img.shape[0] > 100 and img.shape[1] > 100
+    assert np.ptp(img[..., :3]) > 0.5, f"{path} looks blank"
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("figs")
+    st = synth.make_study(tmp)
+    cfg = tmp / "small.json"
+    cfg.write_text(json.dumps({"n_values": [3, 6], "random_forest": {"n_estimators": 10},
+                               "mlp": {"max_iter": 200}, "timing_repeats": 1}))
+    st["ml"] = str(tmp / "ml.h5")
+    assert ml_correct.main([st["romrun"], "--setting", "1", "--config", str(cfg), "-o", st["ml"],
+                            "--quiet"]) == 0
+    st["tmp"] = tmp
+    return st
+
+
+def test_all_figures(study, tmp_path):
+    out = tmp_path / "figs"
+    res = run("make_figures.py", "--database", study["db"], "--rom", study["rom"], "--romrun",
+              study["romrun"], "--csv", study["csv"], "--ml", study["ml"], "-o", out, "--dpi", 70)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "make_figures: skip" not in res.stdout
+    assert f"{len(ALL)} figures written" in res.stdout
+    for name in ALL:
+        assert_picture(out / f"{name}.png")
+    img = pytest.importorskip("matplotlib.image").imread(out / "positions.png")
+    assert img.shape[0] > 2 * img.shape[1] / 3 * 0.9     # three rows: FOM, ROM, ML-corrected
+
+
+def test_only_rom_skips_the_rest(study, tmp_path):
+    out = tmp_path / "rom_only"
+    written, skipped = make_figures.make_all({"rom": study["rom"]}, str(out), log=lambda m: None, dpi=70)
+    offline = {"pod_decay", "cone_max_error", "infsup_heatmap", "pga_convergence", "eim_sigma",
+               "eq_error", "pod_rpod"}
+    assert {os.path.basename(p)[:-4] for p in written} == offline
+    assert set(skipped) == set(ALL) - offline
+    assert "--database" in skipped["cone_vs_pod_mean"] and "--romrun" in skipped["error_in_time"]
+    assert "--ml" in skipped["ml_correction"]
+    for p in written:
+        assert_picture(p)
+
+
+def test_romrun_without_ml_and_csv(study, tmp_path):
+    out = tmp_path / "noml"
+    ctx = {"romrun": study["romrun"], "database": study["db"], "settings": [2, 3], "sample": 2,
+           "agents": [1, 6], "steps": [0, 5, 99]}
+    written, skipped = make_figures.make_all(ctx, str(out), log=lambda m: None, dpi=70)
+    names = {os.path.basename(p)[:-4] for p in written}
+    assert {"error_in_time", "tradeoff", "trajectories", "positions"} <= names
+    assert "ml_correction" in skipped
+    for p in written:
+        assert_picture(p)
+
+
+def test_rom_version1_skips_pair_figures(study, tmp_path):
+    old = tmp_path / "rom_v1.h5"
+    shutil.copy(study["rom"], old)
+    with h5py.File(old, "a") as f:
+        del f["pairs"], f["pod_compare"]
+        f.attrs["schema_version"] = np.int32(1)
+    written, skipped = make_figures.make_all({"rom": str(old)}, str(tmp_path / "v1"),
+                                             log=lambda m: None, dpi=70)
+    assert {"eim_sigma", "eq_error", "pod_rpod"} <= set(skipped)
+    assert "pairs" in skipped["eim_sigma"] or "schema_version 2" in skipped["eim_sigma"]
+    assert "pga_convergence" in {os.path.basename(p)[:-4] for p in written}
+
+
+@pytest.mark.parametrize("args,expect", [
+    (["--rom", "{db}"], "is not a crowdrom-rom file"),
+    (["--romrun", "{tmp}/none.h5"], "romrun not found"),
+    (["--csv", "{tmp}/none.csv"], "sweep table not found"),
+    (["--rom", "{rom}", "--pair", "9", "--only", "eim_sigma"], "no pair 9"),
+    (["--romrun", "{romrun}", "--database", "{db}", "--sample", "99", "--only", "positions"], "--sample 99"),
+])
+def test_bad_inputs(study, tmp_path, args, expect, capsys):
+    fill = {"tmp": tmp_path, "db": study["db"], "rom": study["rom"], "romrun": study["romrun"]}
+    capsys.readouterr()
+    code = make_figures.main([a.format(**fill) for a in args] + ["-o", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.startswith("make_figures: error:") and expect in err
+
+
+def test_tradeoff_cli(study, tmp_path, capsys):
+    out = tmp_path / "csv.png"
+    res = run("plot_tradeoff.py", study["csv"], "-o", out, "--ml", study["ml"])
+    assert res.returncode == 0, res.stderr
+    assert "Pareto front: (6,4,eq)" in res.stdout
+    assert_picture(out)
+    out = tmp_path / "romrun.png"
+    assert plot_tradeoff.main([study["romrun"], "-o", str(out)]) == 0
+    assert "Pareto front: (6,4,eq)" in capsys.readouterr().out
+    assert_picture(out)
+
+
+def test_tradeoff_rows_agree(study):
+    a = plot_tradeoff.read_rows(study["csv"])
+    b = plot_tradeoff.read_rows(study["romrun"])
+    key = lambda r: (r["setting"], r["set"])  # noqa: E731
+    b = {key(r): r for r in b}
+    assert len(a) == len(b) == 5
+    for r in a:
+        s = b[key(r)]
+        for k in ("n", "r", "hyper", "t_step_rom", "speedup_uzawa"):
+            assert r[k] == s[k]
+        assert r["E_avg"] == pytest.approx(s["E_avg"], rel=1e-14)
+
+
+def test_tradeoff_bad_csv(tmp_path, capsys):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("setting,set,n\n1,valid,4\n")
+    assert plot_tradeoff.main([str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "missing column" in err and "E_avg" in err
+    assert plot_tradeoff.main([str(tmp_path / "none.csv")]) == 2
+    assert "not found" in capsys.readouterr().err
+
+
+def test_pareto_mask():
+    cost = np.array([1.0, 2.0, 3.0, 2.5, 1.0, 4.0])
+    err = np.array([5.0, 3.0, 1.0, 3.5, 6.0, 1.0])
+    np.testing.assert_array_equal(plot_tradeoff.pareto_mask(cost, err),
+                                  [True, True, True, False, False, False])
+
+
+def test_multiplier_pod_errors_against_svd():
+    from scipy.sparse import random as sprandom
+
+    lam = sprandom(12, 60, density=0.2, random_state=3, format="csc")
+    lam.data = np.abs(lam.data)
+    mean, mx = make_figures.multiplier_pod_errors(lam, 8)
+    a = lam.toarray()
+    u, _, _ = np.linalg.svd(a, full_matrices=False)
+    n1 = np.linalg.norm(a, axis=0).max()
+    for r in (0, 3, 8):
+        res = a - u[:, :r] @ (u[:, :r].T @ a)
+        rel = np.linalg.norm(res, axis=0) / n1
+        assert mean[r] == pytest.approx(rel.mean(), rel=1e-8, abs=1e-12)
+        assert mx[r] == pytest.approx(rel.max(), rel=1e-8, abs=1e-12)
+    assert mean[0] > mean[3] > mean[8]
+
+
+def test_scene_for_params_moves_the_exit(study):
+    with h5py.File(study["db"], "r") as f:
+        sc = cio.read_scene(f)
+    new = cio.scene_for_params(sc, ["l_exit", "speed"], np.array([0.4, 1.0]))
+    assert new["exit"][:, 0] == pytest.approx([0.3, 0.7])
+    walls = new["verts"][12:20]                               # the two walls beside the exit
+    assert walls[1, 0] == pytest.approx(0.3) and walls[4, 0] == pytest.approx(0.7)
+    assert np.array_equal(sc["exit"][:, 0], [0.35, 0.65])     # the reference is untouched
