@@ -1,0 +1,69 @@
+#!/usr/bin/env bash
+# The whole parametric study on one case: set up (packages, venv, Release build), snapshots on
+# 2 ranks, offline bases on 2 ranks, the online ROM sweep, the ML correction, all figures, and
+# the accuracy/speed table.
+#   scripts/run_study.sh [hall20|congested150]        (default: hall20)
+# Inputs: inputs/<case>_study.nml (&study + &offline), inputs/<case>_rom.nml (&rom),
+# inputs/<case>_ml.json (ML settings). Results in results/: <case>_snapshots.h5, <case>_rom.h5,
+# <case>_romrun.h5, <case>_table.csv, <case>_ml.h5, figures in results/<case>_figures/.
+# A complete snapshot database of the same configuration is reused (crowd_snapshots resumes).
+set -euo pipefail
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+CASE=${1:-hall20}
+NP=${NP:-2}
+"$ROOT/scripts/setup.sh"
+cd "$ROOT"
+for f in "inputs/${CASE}_study.nml" "inputs/${CASE}_rom.nml" "inputs/${CASE}_ml.json"; do
+  [ -f "$f" ] || { echo "run_study: error: $f not found (cases: hall20, congested150)" >&2; exit 2; }
+done
+mkdir -p results
+export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1
+if [ "$(id -u)" -eq 0 ]; then export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1; fi
+PY=.venv/bin/python
+t0=$(date +%s)
+stage() { echo; echo "=== run_study [$CASE] stage $1 of 6: $2 (elapsed $(( $(date +%s) - t0 )) s)"; }
+
+stage 1 "snapshots (mpirun -np $NP crowd_snapshots)"
+mpirun -np "$NP" build/bin/crowd_snapshots "inputs/${CASE}_study.nml" --summary "results/${CASE}_snapshots.json"
+stage 2 "offline bases (mpirun -np $NP crowd_offline)"
+mpirun -np "$NP" build/bin/crowd_offline "inputs/${CASE}_study.nml" --summary "results/${CASE}_offline.json"
+stage 3 "online reduced model sweep (crowd_rom)"
+build/bin/crowd_rom "inputs/${CASE}_rom.nml" --summary "results/${CASE}_rom.json"
+# the ML correction uses the setting given in the ML file's "_setting" key (default: the last
+# 'eq' setting with the largest N among those run on both sets)
+SETTING=$($PY - "$CASE" <<'PYEOF'
+import csv, json, sys
+case = sys.argv[1]
+cfg = json.load(open("inputs/%s_ml.json" % case))
+if "_setting" in cfg:
+    print(cfg["_setting"]); sys.exit()
+rows = [r for r in csv.DictReader(open("results/%s_table.csv" % case)) if r["set"] == "valid"
+        and r["hyper"] == "eq" and r["contacts"] == "cone"]
+best = max(rows, key=lambda r: (int(r["n"]), -int(r["setting"])))
+print(best["setting"])
+PYEOF
+)
+stage 4 "ML correction (scripts/ml_correct.py, setting $SETTING)"
+$PY scripts/ml_correct.py "results/${CASE}_romrun.h5" --setting "$SETTING" --config "inputs/${CASE}_ml.json" \
+  -o "results/${CASE}_ml.h5" --models-dir "results/${CASE}_ml_models" --csv "results/${CASE}_ml.csv"
+stage 5 "figures (scripts/make_figures.py)"
+$PY scripts/make_figures.py --database "results/${CASE}_snapshots.h5" --rom "results/${CASE}_rom.h5" \
+  --romrun "results/${CASE}_romrun.h5" --csv "results/${CASE}_table.csv" --ml "results/${CASE}_ml.h5" \
+  --setting "$SETTING" -o "results/${CASE}_figures"
+stage 6 "accuracy / speed table"
+$PY - "$CASE" <<'PYEOF'
+import csv, sys
+case = sys.argv[1]
+rows = [r for r in csv.DictReader(open("results/%s_table.csv" % case)) if r["set"] == "valid"]
+print("Validation set: E_avg (paper's time-integrated relative position error), time per reduced step,")
+print("speedup over (a) the paper's Uzawa FOM and (b) the exact active-set FOM, both timed in this run.")
+print("| N | R | Nb | hyper | contacts | E_avg | deepest overlap | agents not out (FOM) | t_step [s] | speedup (a) | speedup (b) |")
+print("|---|---|---|---|---|---|---|---|---|---|---|")
+for r in rows:
+    print("| %s | %s | %s | %s | %s | %.2e | %.2e | %s (%s) | %.2e | %.1f | %.1f |" % (
+        r["n"], r["r"], r["n_basis"], r["hyper"], r["contacts"], float(r["E_avg"]), float(r["max_overlap"]),
+        r["agents_not_left"], r["agents_not_left_fom"], float(r["t_step_rom"]), float(r["speedup_uzawa"]),
+        float(r["speedup_exact"])))
+PYEOF
+echo
+echo "run_study [$CASE]: done in $(( $(date +%s) - t0 )) s; table results/${CASE}_table.csv, ML results/${CASE}_ml.csv, figures results/${CASE}_figures/"
