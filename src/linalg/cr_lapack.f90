@@ -15,6 +15,7 @@ module cr_lapack
   private
   public :: la_geqrf, la_orgqr, la_gesvd, la_syevd, la_gemm, la_pdgesvd
   public :: lapack_info_message, pause_fpe_halting, restore_fpe_halting
+  public :: la_syrk
 
   interface
     subroutine dgeqrf(m, n, a, lda, tau, work, lwork, info)
@@ -55,6 +56,13 @@ module cr_lapack
       real(wp), intent(in) :: alpha, beta, a(lda, *), b(ldb, *)
       real(wp), intent(inout) :: c(ldc, *)
     end subroutine dgemm
+    subroutine dsyrk(uplo, trans, n, k, alpha, a, lda, beta, c, ldc)
+      import :: wp
+      character, intent(in) :: uplo, trans
+      integer, intent(in) :: n, k, lda, ldc
+      real(wp), intent(in) :: alpha, beta, a(lda, *)
+      real(wp), intent(inout) :: c(ldc, *)
+    end subroutine dsyrk
     subroutine pdgesvd(jobu, jobvt, m, n, a, ia, ja, desca, s, u, iu, ju, descu, &
         & vt, ivt, jvt, descvt, work, lwork, info)
       import :: wp
@@ -304,4 +312,33 @@ contains
       end if
     end if
   end subroutine la_pdgesvd
+
+  !> Symmetric rank-k update c = alpha a a^T + beta c (trans = 'N', a [n, k]) or
+  !> c = alpha a^T a + beta c (trans = 'T', a [k, n]); c [n, n], only the `uplo` ('U' or 'L')
+  !> triangle is referenced and updated. Half the flops of la_gemm for a Gram matrix.
+  subroutine la_syrk(uplo, trans, alpha, a, beta, c, error)
+    character, intent(in) :: uplo, trans
+    real(wp), intent(in) :: alpha, beta
+    real(wp), contiguous, intent(in) :: a(:, :)
+    real(wp), contiguous, intent(inout) :: c(:, :)
+    type(error_t), allocatable, intent(out) :: error
+    integer :: n, k
+    if (trans == 'T') then
+      n = size(a, 2); k = size(a, 1)
+    else
+      n = size(a, 1); k = size(a, 2)
+    end if
+    if ((uplo /= 'U' .and. uplo /= 'L') .or. (trans /= 'N' .and. trans /= 'T')) then
+      call set_error(error, "dsyrk: uplo = '" // uplo // "' and trans = '" // trans // &
+        & "'; expected 'U'/'L' and 'N'/'T'")
+      return
+    end if
+    if (size(c, 1) /= n .or. size(c, 2) /= n) then
+      call set_error(error, "dsyrk: op(a) is " // str(n) // " x " // str(k) // ", c is " // &
+        & str(size(c, 1)) // " x " // str(size(c, 2)) // ", expected " // str(n) // " x " // str(n))
+      return
+    end if
+    if (n == 0) return
+    call dsyrk(uplo, trans, n, k, alpha, a, max(1, size(a, 1)), beta, c, n)
+  end subroutine la_syrk
 end module cr_lapack
