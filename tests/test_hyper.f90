@@ -31,6 +31,7 @@ program test_hyper
   call test_eq_all_candidates()
   call test_eq_compressible()
   call test_eq_duplicates()
+  call test_eq_first_selection()
   call test_eq_scaling()
   call test_eq_bad_input()
 
@@ -486,6 +487,69 @@ contains
       call check_eq_history(eq, s, f, merge(1.0e-14_wp, 1.0e-12_wp, signed), name)
     end do
   end subroutine test_eq_duplicates
+
+  !> First selection = the best score computed from H directly, for both signs and rules, on
+  !> data where the best signed score is negative (a candidate with f pointing against the rest).
+  subroutine test_eq_first_selection()
+    integer, parameter :: p = 10, q = 3, ns = 30
+    real(wp), allocatable :: s(:, :), f(:, :), h(:, :), c(:), dinv(:), res(:), pap(:)
+    type(eq_t) :: eq
+    type(error_t), allocatable :: e
+    integer :: i, expect
+    s = abs(randn(p, ns, 81))
+    f = randn(q, p, 82) + 2.0_wp
+    ! candidate 4: a small multiple of the mean snapshot entry with a reversed mean kernel
+    ! vector: the best normalised correlation (negative), but not the largest raw one
+    s(4, :) = 0.01_wp * sum(s, dim=1) / real(p, wp)
+    f(:, 4) = -3.0_wp * sum(f, dim=2) / real(p, wp)
+    call eq_gramian(env, local_cols(s), kernel(f), h, e)
+    call check(.not. allocated(e), "eq first selection: gramian")
+    if (allocated(e)) return
+    c = sum(h, dim=2)
+    allocate(dinv(p))
+    do i = 1, p
+      dinv(i) = 1.0_wp / sqrt(h(i, i))
+    end do
+    res = c * dinv
+    pap = dinv * matmul(h, dinv * res)
+    expect = maxloc(abs(res), dim=1)
+    call check(res(expect) < 0.0_wp, "eq first selection: the data make the best signed score negative")
+    call check(maxloc(abs(c), dim=1) /= expect, "eq first selection: the data need the diagonal scaling")
+    call eq_build(h, .true., 3, 0.0_wp, eq, e)
+    if (.not. allocated(e)) call check(eq%idx(1) == expect, "eq first selection: signed, residual rule")
+    call eq_build(h, .false., 3, 0.0_wp, eq, e)
+    if (.not. allocated(e)) call check(eq%idx(1) == maxloc(res, dim=1), &
+      & "eq first selection: non-negative, residual rule")
+    call eq_build(h, .true., 3, 0.0_wp, eq, e, rule="paper")
+    if (.not. allocated(e)) call check(eq%idx(1) == maxloc(abs(pap), dim=1), &
+      & "eq first selection: signed, paper rule")
+    call eq_build(h, .false., 3, 0.0_wp, eq, e, rule="paper")
+    if (.not. allocated(e)) call check(eq%idx(1) == maxloc(pap, dim=1), &
+      & "eq first selection: non-negative, paper rule")
+
+    ! the rules differ: candidate 1 alone on the first half of the snapshots (amplitude 1),
+    ! candidates 2-4 nearly equal on the second half (amplitude 1/4 each). Residual rule: the
+    ! normalised correlations are sqrt(15) and (3/4) sqrt(15): candidate 1. Paper rule: the
+    ! cluster adds up, 3 (3/4) sqrt(15) > sqrt(15): a cluster member.
+    deallocate(s, f)
+    allocate(s(4, ns), f(1, 4))
+    s = 0.0_wp
+    s(1, 1:15) = 1.0_wp
+    pap = reshape(randn(3, 15, 83), [45])
+    do i = 2, 4
+      s(i, 16:30) = 0.25_wp + 0.01_wp * pap((i - 2) * 15 + 1:(i - 1) * 15)
+    end do
+    f = 1.0_wp
+    call eq_gramian(env, local_cols(s), kernel(f), h, e)
+    call check(.not. allocated(e), "eq rules differ: gramian")
+    if (allocated(e)) return
+    do i = 1, 2
+      call eq_build(h, i == 1, 2, 0.0_wp, eq, e)
+      if (.not. allocated(e)) call check(eq%idx(1) == 1, "eq rules differ: residual rule picks the single one")
+      call eq_build(h, i == 1, 2, 0.0_wp, eq, e, rule="paper")
+      if (.not. allocated(e)) call check(eq%idx(1) >= 2, "eq rules differ: paper rule picks the cluster")
+    end do
+  end subroutine test_eq_first_selection
 
   !> Candidates scaled over 24 orders of magnitude: same accuracy thanks to the diagonal scaling.
   subroutine test_eq_scaling()

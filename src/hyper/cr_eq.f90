@@ -33,6 +33,9 @@
 !>   minimises the reported error itself, so the error history is non-increasing in both
 !>   variants.
 !> * err_k^2 = (1^T r - w^T r_I) / (1^T H 1) (equal to the quadratic form above), O(p).
+!>   Computed from H alone, it cancels: its absolute floor is about sqrt(eps |1|^T|H||1| /
+!>   1^T H 1) (~1e-8 for well-scaled data) even when the true error is smaller, so a useful
+!>   tolerance is >= 1e-7. A negative rounding value is reported as 0.
 !> * Stops at m_max, when err <= tol (tol > 0), or when no admissible candidate is left; the
 !>   last two set `note`.
 module cr_eq
