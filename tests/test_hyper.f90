@@ -580,7 +580,7 @@ contains
 
   !> m > p, negative tolerance, unknown rule, zero snapshots, non-square H.
   subroutine test_eq_bad_input()
-    real(wp), allocatable :: s(:, :), h(:, :)
+    real(wp), allocatable :: s(:, :), h(:, :), f(:, :)
     type(eq_t) :: eq
     type(error_t), allocatable :: e
     s = randn(5, 8, 71)
@@ -608,6 +608,23 @@ contains
       call check(eq%m == 0 .and. size(eq%idx) == 0 .and. size(eq%err) == 0, "eq zero snapshots: m = 0")
       call check(allocated(eq%note), "eq zero snapshots: note")
     end if
+
+    ! Pi = 0 although every candidate contributes: s_2 = 3 s_1, f_2 = -f_1 / 3
+    deallocate(s)
+    allocate(s(2, 8))
+    s(1, :) = reshape(randn(1, 8, 73), [8])
+    s(2, :) = 3.0_wp * s(1, :)
+    f = reshape([1.0_wp, 0.7_wp, 0.2_wp, 1.0_wp, 0.7_wp, 0.2_wp], [3, 2])
+    f(:, 2) = -f(:, 1) / 3.0_wp
+    call eq_gramian(env, local_cols(s), kernel(f), h, e)
+    call check(.not. allocated(e), "eq cancelling target: gramian")
+    call eq_build(h, .true., 2, 0.0_wp, eq, e)
+    call check(.not. allocated(e), "eq cancelling target: no error")
+    if (.not. allocated(e)) call check(eq%m == 0 .and. allocated(eq%note), "eq cancelling target: m = 0, note")
+    h = reshape([1.0_wp, -2.0_wp, -2.0_wp, 1.0_wp], [2, 2])
+    call eq_build(h, .true., 2, 0.0_wp, eq, e)
+    call check(allocated(e), "eq indefinite H with 1^T H 1 < 0: error")
+
     call eq%free()
     call check(eq%m == 0 .and. .not. allocated(eq%idx), "eq free")
   end subroutine test_eq_bad_input

@@ -157,7 +157,8 @@ contains
 
   !> Greedy empirical quadrature on the Gramian h [p, p] (serial; see the module header).
   !> Errors (code 2): m_max < 0 or m_max > p, tol < 0, h not square or not finite, an unknown
-  !> rule, 1^T H 1 < 0 (not a Gramian). A zero target (1^T H 1 = 0) gives m = 0 and a note.
+  !> rule, 1^T H 1 < 0 (not a Gramian). A zero target (1^T H 1 = 0 up to rounding, p eps
+!> sum |H_ij|) gives m = 0 and a note.
   subroutine eq_build(h, signed, m_max, tol, eq, error, rule, dep_tol)
     !> Gramian (symmetric positive semi-definite), replicated [p, p]
     real(wp), contiguous, intent(in) :: h(:, :)
@@ -239,6 +240,8 @@ contains
       end if
     end do
     allocate(eq%idx(0), eq%w(0, 0), eq%err(0))
+    ! 1^T H 1 = sum_sigma |Pi|^2 at the rounding level of the sum is a zero target
+    if (abs(total) <= real(p, wp) * epsilon(1.0_wp) * sum(abs(h))) total = 0.0_wp
     if (total < 0.0_wp) then
       call set_error(error, "eq_build: 1^T H 1 = " // str(total) // " < 0: H is not a Gramian " // &
         & "(not positive semi-definite)", 2)
