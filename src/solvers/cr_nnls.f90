@@ -557,52 +557,45 @@ contains
     integer, parameter :: MAX_SWEEPS = 6
     integer, allocatable :: act(:)
     logical, allocatable :: in_a(:), next(:)
-    real(wp), allocatable :: g(:,:), beta(:), ut(:), viol(:), tol(:)
-    integer :: k, i, j, p, mc, sweep
+    real(wp), allocatable :: bt(:,:), ba(:,:), g(:,:), beta(:), ut(:), viol(:), tol(:), absb(:,:)
+    integer :: k, i, j, mc, n, sweep
     real(wp) :: t
-    mc = size(bm, 1)
+    mc = size(bm, 1); n = size(bm, 2)
     ok = .false.
     in_a = wk%p0(1:mc)
+    ! rows of Bm as contiguous columns
+    bt = transpose(bm)
+    absb = abs(bt)
     allocate(viol(mc), tol(mc), next(mc))
     do sweep = 1, MAX_SWEEPS
       act = pack([(i, i = 1, mc)], in_a)
       k = size(act)
-      if (k > size(bm, 2)) return
-      if (allocated(g)) deallocate(g, beta)
-      allocate(g(k, k), beta(k))
+      if (k > n) return
+      ba = bt(:, act)
+      ! G = Ba^T Ba, right-hand side Ba^T v - d_A
+      g = matmul(transpose(ba), ba)
+      beta = matmul(v, ba) - d(act)
+      ! Cholesky G = R^T R in the upper triangle (column access); a relative pivot below
+      ! 1e-10 means (numerically) dependent rows
       do j = 1, k
-        do i = j, k
-          g(i, j) = dot_product(bm(act(i), :), bm(act(j), :))
+        do i = 1, j - 1
+          g(i, j) = (g(i, j) - dot_product(g(1:i-1, i), g(1:i-1, j))) / g(i, i)
         end do
-        beta(j) = dot_product(bm(act(j), :), v) - d(act(j))
-      end do
-      ! Cholesky G = L L^T in the lower triangle; a relative pivot below 1e-10 means
-      ! (numerically) dependent rows
-      do j = 1, k
-        t = g(j, j) - dot_product(g(j, 1:j-1), g(j, 1:j-1))
+        t = g(j, j) - dot_product(g(1:j-1, j), g(1:j-1, j))
         if (.not. t > 1.0e-10_wp * g(j, j)) return
         g(j, j) = sqrt(t)
-        do i = j + 1, k
-          g(i, j) = (g(i, j) - dot_product(g(i, 1:j-1), g(j, 1:j-1))) / g(j, j)
-        end do
       end do
+      ! R^T y = rhs, R beta = y
       do i = 1, k
-        beta(i) = (beta(i) - dot_product(g(i, 1:i-1), beta(1:i-1))) / g(i, i)
+        beta(i) = (beta(i) - dot_product(g(1:i-1, i), beta(1:i-1))) / g(i, i)
       end do
       do i = k, 1, -1
-        do p = i + 1, k
-          beta(i) = beta(i) - g(p, i) * beta(p)
-        end do
         beta(i) = beta(i) / g(i, i)
+        beta(1:i-1) = beta(1:i-1) - g(1:i-1, i) * beta(i)
       end do
-      ut = v
-      do i = 1, k
-        ut = ut - beta(i) * bm(act(i), :)
-      end do
-      do i = 1, mc
-        tol(i) = 256.0_wp * epsilon(1.0_wp) * (sum(abs(bm(i, :) * ut)) + abs(d(i)))
-        viol(i) = dot_product(bm(i, :), ut) - d(i)
-      end do
+      ut = v - matmul(ba, beta)
+      viol = matmul(ut, bt) - d
+      tol = 256.0_wp * epsilon(1.0_wp) * (matmul(abs(ut), absb) + abs(d))
       if (all(beta >= 0.0_wp) .and. all(viol <= tol)) then
         ok = .true.
         u = ut
