@@ -557,7 +557,7 @@ contains
     integer, parameter :: MAX_SWEEPS = 6
     integer, allocatable :: act(:)
     logical, allocatable :: in_a(:), next(:)
-    real(wp), allocatable :: bt(:,:), ba(:,:), g(:,:), beta(:), ut(:), viol(:), tol(:), absb(:,:)
+    real(wp), allocatable :: bt(:,:), ba(:,:), g(:,:), beta(:), ut(:), viol(:), tol(:)
     integer :: k, i, j, mc, n, sweep
     real(wp) :: t
     mc = size(bm, 1); n = size(bm, 2)
@@ -565,7 +565,6 @@ contains
     in_a = wk%p0(1:mc)
     ! rows of Bm as contiguous columns
     bt = transpose(bm)
-    absb = abs(bt)
     allocate(viol(mc), tol(mc), next(mc))
     do sweep = 1, MAX_SWEEPS
       act = pack([(i, i = 1, mc)], in_a)
@@ -595,7 +594,11 @@ contains
       end do
       ut = v - matmul(ba, beta)
       viol = matmul(ut, bt) - d
-      tol = 256.0_wp * epsilon(1.0_wp) * (matmul(abs(ut), absb) + abs(d))
+      ! rounding allowance, needed only where a row is not satisfied exactly
+      do i = 1, mc
+        tol(i) = 0.0_wp
+        if (viol(i) > 0.0_wp) tol(i) = 256.0_wp * epsilon(1.0_wp) * (sum(abs(bt(:, i) * ut)) + abs(d(i)))
+      end do
       if (all(beta >= 0.0_wp) .and. all(viol <= tol)) then
         ok = .true.
         u = ut
