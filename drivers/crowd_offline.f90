@@ -292,7 +292,7 @@ contains
     character(len=:), allocatable :: line
     call log%progress_start()
     nn = pack(ocfg%rom_n, ocfg%rom_n > 0)
-    rr = pack(ocfg%rom_r, ocfg%rom_r > 0)
+    rr = pack(ocfg%rom_r, ocfg%rom_n > 0)
     if (size(nn) == 0) then
       nn = [size(phi, 2)]; rr = [scone%r]
     end if

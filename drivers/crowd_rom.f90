@@ -36,7 +36,7 @@ program crowd_rom
   type :: row_t
     integer :: setting = 0, n = 0, r = 0, nb = 0, m(3) = 0
     character(len=8) :: set = '', hyper = '', contacts = '', solver = ''
-    real(wp) :: e_avg = -1, e_max = -1, e_proj = -1, overlap = 0, t_step = 0
+    real(wp) :: e_avg = -1, e_max = -1, e_proj = -1, overlap = 0, t_step = 0, mobility = -1
     integer :: not_left = 0, not_left_fom = -1, infeasible = 0, capped = 0, extrapolating = 0
   end type row_t
 
@@ -228,7 +228,7 @@ contains
       type(eval_ctx_t) :: ctx
       type(config_t) :: c2
       real(wp), allocatable :: alpha(:,:), beta(:,:), pos(:,:), qr(:,:), err_time(:,:)
-      real(wp), allocatable :: e_mu(:), e_proj(:), overlap(:), time(:)
+      real(wp), allocatable :: e_mu(:), e_proj(:), overlap(:), time(:), mobility(:)
       integer, allocatable :: not_left(:), not_left_fom(:), infeas(:), capped(:), extrap(:)
       character(len=:), allocatable :: g
       integer :: k, nt, nb, rep
@@ -245,9 +245,9 @@ contains
       nb = pair%nb
       allocate(alpha(nb, nt * blk%n), beta(merge(pair%r, 0, ops%fixed_rows), nt * blk%n), &
         pos(st%n_dof, (nt + 1) * blk%n), err_time(nt + 1, blk%n), e_mu(blk%n), e_proj(blk%n), &
-        overlap(blk%n), time(blk%n), not_left(blk%n), not_left_fom(blk%n), infeas(blk%n), capped(blk%n), &
+        overlap(blk%n), time(blk%n), mobility(blk%n), not_left(blk%n), not_left_fom(blk%n), infeas(blk%n), capped(blk%n), &
         extrap(blk%n))
-      err_time = -1; e_mu = -1; e_proj = -1; not_left_fom = -1
+      err_time = -1; e_mu = -1; e_proj = -1; not_left_fom = -1; mobility = -1
       call log%progress_start()
       do k = 1, blk%n
         c2 = st%cfg
@@ -284,6 +284,9 @@ contains
           call position_errors(blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), qr, err_time(:, k), e_mu(k))
           e_proj(k) = projection_error(blk%u(:, (k - 1) * nt + 1:k * nt), pair%v)
           not_left_fom(k) = agents_not_left(ctx%scene, st%radius, blk%q(:, k * (nt + 1)))
+          ! locking indicator: displacement of the reduced crowd relative to the full-order one
+          if (norm2(blk%q(:, k * (nt + 1)) - st%q0) > 0) mobility(k) = norm2(qr(:, nt + 1) - st%q0) / &
+            norm2(blk%q(:, k * (nt + 1)) - st%q0)
         end if
         call log%progress(trim(blk%name) // " sample", k, blk%n)
       end do
@@ -299,11 +302,13 @@ contains
         row%e_max = maxval(e_mu)
         row%e_proj = sum(e_proj) / blk%n
         row%not_left_fom = sum(not_left_fom)
+        if (all(mobility >= 0)) row%mobility = sum(mobility) / blk%n
       end if
       call log%info("   " // trim(blk%name) // ": E_avg " // str(row%e_avg, "es9.2") // ", E_max " // &
         str(row%e_max, "es9.2") // ", best approximation " // str(row%e_proj, "es9.2") // ", deepest overlap " // &
         str(row%overlap, "es9.2") // ", agents not out " // str(row%not_left) // " (FOM " // str(row%not_left_fom) // &
-        "), infeasible steps " // str(row%infeasible) // ", capped " // str(row%capped) // ", " // &
+        "), mobility " // str(row%mobility, "f6.3") // ", infeasible steps " // str(row%infeasible) // &
+        ", capped " // str(row%capped) // ", " // &
         str(row%t_step, "es9.2") // " s/step")
       if (row%extrapolating > 0) call log%warn(str(row%extrapolating) // " of " // str(blk%n) // " " // &
         trim(blk%name) // " parameters lie outside the training box: the reduced model extrapolates")
@@ -337,6 +342,7 @@ contains
       call h5%write(g // "/E_mu", e_mu, error); if (allocated(error)) return
       call h5%write(g // "/E_proj", e_proj, error); if (allocated(error)) return
       call h5%write(g // "/max_overlap", overlap, error); if (allocated(error)) return
+      call h5%write(g // "/mobility", mobility, error); if (allocated(error)) return
       call h5%write(g // "/n_not_left", not_left, error); if (allocated(error)) return
       call h5%write(g // "/n_not_left_fom", not_left_fom, error); if (allocated(error)) return
       call h5%write(g // "/n_infeasible", infeas, error); if (allocated(error)) return
@@ -423,6 +429,7 @@ contains
       call h5%write("table/E_max", rows%e_max, error); if (allocated(error)) return
       call h5%write("table/E_proj_avg", rows%e_proj, error); if (allocated(error)) return
       call h5%write("table/max_overlap", rows%overlap, error); if (allocated(error)) return
+      call h5%write("table/mobility", rows%mobility, error); if (allocated(error)) return
       call h5%write("table/agents_not_left", rows%not_left, error); if (allocated(error)) return
       call h5%write("table/agents_not_left_fom", rows%not_left_fom, error); if (allocated(error)) return
       call h5%write("table/infeasible_steps", rows%infeasible, error); if (allocated(error)) return
@@ -444,7 +451,8 @@ contains
         str(r%m(2)) // "," // str(r%m(3)) // "," // e(r%e_avg) // "," // e(r%e_max) // "," // e(r%e_proj) // &
         "," // e(r%overlap) // "," // str(r%not_left) // "," // str(r%not_left_fom) // "," // str(r%infeasible) // &
         "," // str(r%capped) // "," // e(r%t_step) // "," // e(t_uz) // "," // e(t_ex) // "," // &
-        e(ratio(t_uz, r%t_step)) // "," // e(ratio(t_ex, r%t_step)) // "," // str(r%extrapolating)
+        e(ratio(t_uz, r%t_step)) // "," // e(ratio(t_ex, r%t_step)) // "," // str(r%extrapolating) // "," // &
+        e(r%mobility)
     end function csv_line
 
     subroutine write_csv(rows, error)
@@ -459,7 +467,7 @@ contains
       end if
       write(u, '(a)') "setting,set,n,r,n_basis,hyper,contacts,solver,m_v,m_b,m_d,E_avg,E_max,E_proj_avg," // &
         "max_overlap,agents_not_left,agents_not_left_fom,infeasible_steps,capped_steps,t_step_rom," // &
-        "t_step_fom_uzawa,t_step_fom_exact,speedup_uzawa,speedup_exact,extrapolating"
+        "t_step_fom_uzawa,t_step_fom_exact,speedup_uzawa,speedup_exact,extrapolating,mobility"
       do k = 1, size(rows)
         write(u, '(a)') csv_line(rows(k))
       end do
@@ -475,16 +483,17 @@ contains
       integer :: k
       call log%info("")
       call log%info("| setting | set | N | R | Nb | hyper | contacts | m_v,m_b,m_d | E_avg | E_max | best approx. |" // &
-        " overlap | not out (FOM) | infeas. | t_step ROM [s] | speedup vs uzawa | speedup vs " // &
+        " overlap | not out (FOM) | mobility | infeas. | t_step ROM [s] | speedup vs uzawa | speedup vs " // &
         trim(rcfg%fom_exact_solver) // " |")
-      call log%info("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+      call log%info("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
       do k = 1, size(rows)
         associate (r => rows(k))
           call log%info("| " // str(r%setting) // " | " // trim(r%set) // " | " // str(r%n) // " | " // str(r%r) // &
             " | " // str(r%nb) // " | " // trim(r%hyper) // " | " // trim(r%contacts) // " | " // str(r%m(1)) // "," // &
             str(r%m(2)) // "," // str(r%m(3)) // " | " // str(r%e_avg, "es9.2") // " | " // str(r%e_max, "es9.2") // &
             " | " // str(r%e_proj, "es9.2") // " | " // str(r%overlap, "es9.2") // " | " // str(r%not_left) // &
-            " (" // str(r%not_left_fom) // ") | " // str(r%infeasible) // " | " // str(r%t_step, "es9.2") // " | " // &
+            " (" // str(r%not_left_fom) // ") | " // str(r%mobility, "f6.3") // " | " // str(r%infeasible) // &
+            " | " // str(r%t_step, "es9.2") // " | " // &
             str(ratio(t_uz, r%t_step), "f9.1") // " | " // str(ratio(t_ex, r%t_step), "f9.1") // " |")
         end associate
       end do

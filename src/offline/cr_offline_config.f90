@@ -40,10 +40,11 @@ module cr_offline_config
     integer :: infsup_n(MAX_GRID) = 0
     integer :: infsup_r(MAX_GRID) = 0
     integer :: infsup_samples = 20
-    !> ROM pairs to prepare for crowd_rom: (rom_n(k), rom_r(k)) = (POD modes, cone vectors),
-    !> entries with rom_n = 0 unused; none given: one pair (all POD modes, the whole cone)
+    !> ROM pairs to prepare for crowd_rom: (rom_n(k), rom_r(k)) = (POD modes, cone vectors)
+    !> for every rom_n(k) > 0 (rom_r(k) = 0: no constraint at all); none given: one pair (all
+    !> POD modes, the whole cone)
     integer :: rom_n(MAX_GRID) = 0
-    integer :: rom_r(MAX_GRID) = 0
+    integer :: rom_r(MAX_GRID) = -1
     !> hyper-reduction (EIM and EQ of s1 = v(q), s2 = B(q), s3 = d(q)) for every pair;
     !> points stored up to hyper_m_factor times the paper's defaults m(v) = 2 N, m(B) = R,
     !> m(d) = 2 R (capped by the candidates); EQ stops early at relative error eq_tol
@@ -127,9 +128,10 @@ contains
     call probs%need(c%pga_max_add >= 0, "&offline: pga_max_add must be >= 0")
     call probs%need(all(c%infsup_n >= 0) .and. all(c%infsup_r >= 0), "&offline: infsup_n and infsup_r must be >= 0")
     call probs%need(c%infsup_samples >= 0, "&offline: infsup_samples must be >= 0")
-    call probs%need(all(c%rom_n >= 0) .and. all(c%rom_r >= 0), "&offline: rom_n and rom_r must be >= 0")
-    call probs%need(all((c%rom_n > 0) .eqv. (c%rom_r > 0)), &
-      "&offline: rom_n and rom_r must be given in pairs (same number of positive entries)")
+    call probs%need(all(c%rom_n >= 0), "&offline: rom_n must be >= 0")
+    call probs%need(all(c%rom_r >= 0 .or. c%rom_n == 0), &
+      "&offline: rom_r(k) >= 0 must be given for every rom_n(k) > 0")
+    call probs%need(all(c%rom_r < 0 .or. c%rom_n > 0), "&offline: rom_r(k) given without rom_n(k)")
     call probs%need(all(c%pod_compare_n >= 0), "&offline: pod_compare_n must be >= 0")
     call probs%need(c%hyper_m_factor >= 1, "&offline: hyper_m_factor must be >= 1 (got " // str(c%hyper_m_factor) // ")")
     call probs%need(c%eq_tol >= 0 .and. c%eq_tol < 1, "&offline: eq_tol must be in [0, 1)")
@@ -161,7 +163,7 @@ contains
       integer :: k
       t = str(a(1))
       do k = 2, size(a)
-        if (all(a(k:) == 0)) exit
+        if (all(a(k:) == a(size(a)))) exit
         t = t // ", " // str(a(k))
       end do
     end function int_list
