@@ -310,6 +310,10 @@ contains
         "), mobility " // str(row%mobility, "f6.3") // ", infeasible steps " // str(row%infeasible) // &
         ", capped " // str(row%capped) // ", " // &
         str(row%t_step, "es9.2") // " s/step")
+      if (row%infeasible > 0) call log%warn(str(row%infeasible) // " reduced steps were infeasible (the reduced " // &
+        "positions already overlap): least-violation coefficients used")
+      if (row%capped > 0) call log%warn(str(row%capped) // " reduced solves stopped at their iteration cap " // &
+        "(nnls_max_iter / uzawa_max_iter): those steps are not converged")
       if (row%extrapolating > 0) call log%warn(str(row%extrapolating) // " of " // str(blk%n) // " " // &
         trim(blk%name) // " parameters lie outside the training box: the reduced model extrapolates")
       ! output group
