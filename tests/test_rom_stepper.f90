@@ -39,6 +39,12 @@ program test_rom_stepper
   use cr_reduced_ops, only: eval_ctx_t
   use cr_rom_stepper, only: rom_solver_cfg_t, rom_traj_t, run_trajectory, reduced_positions
   use test_rom_stepper_ops, only: const_ops_t
+  use cr_config, only: scene_cfg_t, obstacles_cfg_t, desired_cfg_t
+  use cr_rom_model, only: rom_pair_data_t
+  use cr_sparse_cone, only: sparse_cone_t
+  use cr_reduced_ops, only: reduced_ops_t, make_reduced_ops
+  use cr_random, only: rng_t
+  use cr_lapack, only: la_geqrf, la_orgqr
   implicit none
   type(const_ops_t) :: ops
   type(eval_ctx_t) :: ctx
@@ -91,5 +97,57 @@ program test_rom_stepper
   call run_trajectory(ops, ctx, q0, 2, scfg, traj, error)
   call check(traj%n_capped == 0, "uzawa: converged")
   call check_close(traj%alpha(1, 2), 0.2_wp, 1.0e-10_wp, "uzawa: same projection")
+  call check_gram()
   call test_summary()
+
+contains
+
+  !> The cheap Gram of the exact assembly (Z (V V^T) Z^T) equals bhat bhat^T.
+  subroutine check_gram()
+    integer, parameter :: na = 40, nb = 70, nd = 12
+    type(scene_cfg_t) :: sc
+    type(obstacles_cfg_t) :: oc
+    type(desired_cfg_t) :: dc
+    type(eval_ctx_t) :: c2
+    type(rom_pair_data_t) :: pair
+    type(sparse_cone_t) :: cone
+    class(reduced_ops_t), allocatable :: rops
+    type(rng_t) :: rng
+    real(wp), allocatable :: a(:,:), tau(:), q(:), vh(:), bh(:,:), dh(:), g(:,:)
+    integer :: ia(nd), ib(nd), ob(nd), i, j
+    call rng%seed(11, 1)
+    call c2%scene%init(sc, oc, error)
+    call check(.not. allocated(error), "gram: scene")
+    allocate(q(2 * na), a(2 * na, nb), tau(nb))
+    do i = 1, na
+      q(2*i-1) = 0.1_wp + 1.1_wp * rng%uniform()
+      q(2*i) = 0.1_wp + 0.8_wp * rng%uniform()
+    end do
+    do j = 1, nb
+      do i = 1, 2 * na
+        a(i, j) = rng%normal()
+      end do
+    end do
+    call la_geqrf(a, tau, error)
+    call la_orgqr(a, tau, error)
+    call check(.not. allocated(error), "gram: orthonormal basis")
+    do i = 1, nd
+      ia(i) = i; ib(i) = i + 7; ob(i) = 0
+    end do
+    ib(nd) = 0; ob(nd) = 1
+    call cone%from_indices(nd, [3, 1, 12, 7, 5, 9])
+    pair%n = nb; pair%r = 6; pair%nb = nb; pair%v = a
+    call pair%terms%init(cone, 6, ia, ib, ob, 2 * na, error)
+    call check(.not. allocated(error), "gram: candidates")
+    call make_reduced_ops('none', 'cone', pair, [0, 0, 0], 1.5_wp, "test", rops, error)
+    call check(.not. allocated(error), "gram: ops")
+    call check(rops%has_gram, "gram: used when Nb >= 4 zmax^2")
+    c2%radius = 0.02_wp; c2%h = 0.05_wp
+    c2%speeds = [(1.0_wp, i = 1, na)]
+    call c2%desired%init(dc, c2%scene, c2%radius, na, error)
+    allocate(vh(nb), g(6, 6))
+    call rops%assemble(c2, q, vh, bh, dh)
+    call rops%gram(g)
+    call check(maxval(abs(g - matmul(bh, transpose(bh)))) <= 1.0e-14_wp * maxval(abs(g)), "gram: Z P Z^T = Bh Bh^T")
+  end subroutine check_gram
 end program test_rom_stepper

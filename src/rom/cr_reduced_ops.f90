@@ -51,8 +51,18 @@ module cr_reduced_ops
     !> values wv (one entry per row for gIS cones)
     integer, allocatable :: wp0(:), wk(:)
     real(wp), allocatable :: wv(:)
+    !> Gram matrix of the reduced rows without touching the basis: row k of bhat is z_k V with
+    !> a sparse z_k (at most zmax entries, recorded by `assemble`), so bhat bhat^T =
+    !> Z (V V^T) Z^T costs zmax^2 flops per entry instead of Nb (has_gram: cone variants with
+    !> zmax <= 16, Nb >= 4 zmax^2 and n_dof <= 4000)
+    logical :: has_gram = .false.
+    integer :: zmax = 0
+    real(wp), allocatable :: pmat(:,:), zval(:,:)
+    integer, allocatable :: zn(:), zdof(:,:)
   contains
     procedure(assemble_i), deferred :: assemble
+    procedure :: gram => ops_gram
+    procedure, private :: z_add
   end type reduced_ops_t
 
   abstract interface
@@ -160,6 +170,7 @@ contains
       ops%w = pair%terms%w
       allocate(ops%vfull(2 * n_agents))
       need = .true.
+      call gram_setup(ops, pair)
     type is (ops_eim_t)
       call choose_m('EIM', [(pair%term(k)%m_eim, k = 1, 3)], [(pair%terms%p(k), k = 1, 3)], m, error)
       if (allocated(error)) return
@@ -180,6 +191,7 @@ contains
       ops%idx2 = pair%term(2)%eq_idx(1:m(2)); ops%w2 = weights(2, m(2))
       ops%idx3 = pair%term(3)%eq_idx(1:m(3)); ops%w3 = weights(3, m(3))
       call mark(ops%idx1, ops%idx2, ops%idx3, ops%ia, ops%ib)
+      call gram_setup(ops, pair)
     end select
     ops%agents = pack([(k, k = 1, n_agents)], need)
 
@@ -245,6 +257,62 @@ contains
       end do
     end subroutine mark
   end subroutine make_reduced_ops
+
+  !> Prepare the cheap Gram matrix of the rows (see reduced_ops_t) when it pays.
+  subroutine gram_setup(ops, pair)
+    class(reduced_ops_t), intent(inout) :: ops
+    type(rom_pair_data_t), intent(in) :: pair
+    integer :: k, n_dof
+    n_dof = size(pair%v, 1)
+    ops%zmax = 0
+    do k = 1, pair%r
+      ops%zmax = max(ops%zmax, 4 * count(pair%terms%w(:, k) /= 0))
+    end do
+    ! worth it when a row's dof-space support is much smaller than the basis
+    ops%has_gram = pair%r > 0 .and. ops%zmax <= 16 .and. n_dof <= 4000 .and. pair%nb >= 4 * ops%zmax**2
+    if (.not. ops%has_gram) return
+    ops%pmat = matmul(pair%v, transpose(pair%v))
+    allocate(ops%zn(pair%r), ops%zdof(ops%zmax, pair%r), ops%zval(ops%zmax, pair%r))
+    ops%zn = 0
+  end subroutine gram_setup
+
+  !> Record z_k += c (the dof-space row of a contact: -h g on agent a, +h g on agent b).
+  subroutine z_add(this, k, c, a, b, g, h)
+    class(reduced_ops_t), intent(inout) :: this
+    integer, intent(in) :: k, a, b
+    real(wp), intent(in) :: c, g(2), h
+    integer :: n
+    n = this%zn(k)
+    this%zdof(n + 1:n + 2, k) = [2*a - 1, 2*a]
+    this%zval(n + 1:n + 2, k) = -c * h * g
+    n = n + 2
+    if (b > 0) then
+      this%zdof(n + 1:n + 2, k) = [2*b - 1, 2*b]
+      this%zval(n + 1:n + 2, k) = c * h * g
+      n = n + 2
+    end if
+    this%zn(k) = n
+  end subroutine z_add
+
+  !> g = bhat bhat^T [R, R] from the rows recorded by the last `assemble`.
+  subroutine ops_gram(this, g)
+    class(reduced_ops_t), intent(in) :: this
+    real(wp), intent(out) :: g(:,:)
+    integer :: k, kk, i, j
+    real(wp) :: t
+    do k = 1, this%r
+      do kk = k, this%r
+        t = 0
+        do j = 1, this%zn(kk)
+          do i = 1, this%zn(k)
+            t = t + this%zval(i, k) * this%zval(j, kk) * this%pmat(this%zdof(i, k), this%zdof(j, kk))
+          end do
+        end do
+        g(k, kk) = t
+        g(kk, k) = t
+      end do
+    end do
+  end subroutine ops_gram
 
   !> CSR by rows of the cone on its support rows w [p3, R].
   subroutine cone_rows(w, ptr, k, val)
@@ -356,6 +424,7 @@ contains
     vhat = matmul(this%vfull, this%v)
     call ensure(bhat, dhat, this%r, this%nb)
     bhat = 0; dhat = 0
+    if (this%has_gram) this%zn = 0
     do k = 1, size(this%ia)
       a = this%ia(k); b = this%ib(k)
       call eval_contact(ctx%scene, q, ctx%radius, a, b, this%ob(k), gap, g)
@@ -365,6 +434,7 @@ contains
         j = this%wk(p)
         bhat(j, :) = bhat(j, :) + this%wv(p) * bv
         dhat(j) = dhat(j) + this%wv(p) * gap
+        if (this%has_gram) call this%z_add(j, this%wv(p), a, b, g, ctx%h)
       end do
     end do
   end subroutine exact_assemble
@@ -455,6 +525,7 @@ contains
     integer :: j, i, l, k, a, b, p
     call ensure(bhat, dhat, this%r, this%nb)
     vhat = 0; bhat = 0; dhat = 0
+    if (this%has_gram) this%zn = 0
     do j = 1, this%m(1)
       i = this%idx1(j)
       va = agent_desired(ctx, q, (i + 1) / 2)
@@ -468,6 +539,7 @@ contains
       do p = this%wp0(l) + 1, this%wp0(l + 1)
         k = this%wk(p)
         bhat(k, :) = bhat(k, :) + (this%w2(j) * this%wv(p)) * bv
+        if (this%has_gram) call this%z_add(k, this%w2(j) * this%wv(p), a, b, g, ctx%h)
       end do
     end do
     do j = 1, this%m(3)

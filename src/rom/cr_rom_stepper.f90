@@ -50,7 +50,7 @@ contains
     type(rom_solver_cfg_t), intent(in) :: scfg
     type(rom_traj_t), intent(out) :: traj
     type(error_t), allocatable, intent(out) :: error
-    real(wp), allocatable :: q(:), acc(:), vhat(:), alpha(:), bhat(:,:), dhat(:), lam(:)
+    real(wp), allocatable :: q(:), acc(:), vhat(:), alpha(:), bhat(:,:), dhat(:), lam(:), gram(:,:)
     type(nnls_work_t) :: work
     type(ldp_stats_t) :: st
     integer :: nu, j, a, nb, na, its
@@ -91,7 +91,16 @@ contains
         if (capped) traj%n_capped = traj%n_capped + 1
         if (size(dhat) > 0) traj%max_violation = max(traj%max_violation, maxval(matmul(bhat, alpha) - dhat))
       else
-        if (scfg%nnls_max_iter > 0) then
+        if (ops%has_gram .and. ops%fixed_rows) then
+          if (.not. allocated(gram)) allocate(gram(ops%r, ops%r))
+          call ops%gram(gram)
+          if (scfg%nnls_max_iter > 0) then
+            call ldp_solve(bhat, dhat, vhat, alpha, lam, st, error, warm=.true., max_iter=scfg%nnls_max_iter, &
+              work=work, gram=gram)
+          else
+            call ldp_solve(bhat, dhat, vhat, alpha, lam, st, error, warm=.true., work=work, gram=gram)
+          end if
+        else if (scfg%nnls_max_iter > 0) then
           call ldp_solve(bhat, dhat, vhat, alpha, lam, st, error, warm=.true., max_iter=scfg%nnls_max_iter, work=work)
         else
           call ldp_solve(bhat, dhat, vhat, alpha, lam, st, error, warm=.true., work=work)

@@ -447,7 +447,7 @@ contains
   !>
   !> Errors (code 2): inconsistent sizes, a NaN or Inf in Bm, d, v (or in lambda when the
   !> warm start is on). Every NNLS is capped (max_iter each; stats%nnls%iterations sums them).
-  subroutine ldp_solve(bm, d, v, u, lambda, stats, error, warm, max_iter, work)
+  subroutine ldp_solve(bm, d, v, u, lambda, stats, error, warm, max_iter, work, gram)
     !> constraint matrix [mc, n]
     real(wp), intent(in) :: bm(:,:)
     !> right-hand side [mc]
@@ -465,6 +465,8 @@ contains
     !> NNLS iteration cap
     integer, intent(in), optional :: max_iter
     type(nnls_work_t), intent(inout), optional, target :: work
+    !> Bm Bm^T [mc, mc] when the caller can form it more cheaply (warm path only)
+    real(wp), intent(in), optional :: gram(:,:)
     type(nnls_work_t), target :: local
     type(nnls_work_t), pointer :: wk
     integer :: mc, n, i, j
@@ -521,7 +523,16 @@ contains
     end do
     if (use_warm .and. any(wk%p0(1:mc))) then
       ! the guessed active set often is the answer (consecutive time steps): verify it
-      call ldp_active_guess(bm, d, v, u, lambda, wk, feasible)
+      if (present(gram)) then
+        if (size(gram, 1) /= mc .or. size(gram, 2) /= mc) then
+          call set_error(error, "ldp_solve: gram is " // str(size(gram, 1)) // " x " // str(size(gram, 2)) // &
+            ", expected " // str(mc) // " x " // str(mc), 2)
+          return
+        end if
+        call ldp_active_guess(bm, d, v, u, lambda, wk, feasible, gram)
+      else
+        call ldp_active_guess(bm, d, v, u, lambda, wk, feasible)
+      end if
       if (feasible) then
         stats%nnls%n_passive = count(lambda > 0.0_wp)
         stats%max_violation = 0.0_wp
@@ -549,12 +560,13 @@ contains
   !> updated by a primal-dual active-set sweep (drop beta < 0, add violated rows), at most 6
   !> sweeps; if none verifies, ok = .false. and u, lambda are untouched (dependent rows make
   !> the factor fail: the NNLS path then handles degenerate and infeasible cases).
-  subroutine ldp_active_guess(bm, d, v, u, lambda, wk, ok)
+  subroutine ldp_active_guess(bm, d, v, u, lambda, wk, ok, gram)
     real(wp), intent(in) :: bm(:,:), d(:), v(:)
     real(wp), intent(inout) :: u(:), lambda(:)
     type(nnls_work_t), intent(inout) :: wk
     logical, intent(out) :: ok
-    integer, parameter :: MAX_SWEEPS = 6
+    real(wp), intent(in), optional :: gram(:,:)
+    integer, parameter :: MAX_SWEEPS = 10
     integer, allocatable :: act(:)
     logical, allocatable :: in_a(:), next(:)
     real(wp), allocatable :: bt(:,:), ba(:,:), g(:,:), beta(:), ut(:), viol(:), tol(:)
@@ -572,7 +584,11 @@ contains
       if (k > n) return
       ba = bt(:, act)
       ! G = Ba^T Ba, right-hand side Ba^T v - d_A
-      g = matmul(transpose(ba), ba)
+      if (present(gram)) then
+        g = gram(act, act)
+      else
+        g = matmul(transpose(ba), ba)
+      end if
       beta = matmul(v, ba) - d(act)
       ! Cholesky G = R^T R in the upper triangle (column access); a relative pivot below
       ! 1e-10 means (numerically) dependent rows
@@ -581,7 +597,10 @@ contains
           g(i, j) = (g(i, j) - dot_product(g(1:i-1, i), g(1:i-1, j))) / g(i, i)
         end do
         t = g(j, j) - dot_product(g(1:j-1, j), g(1:j-1, j))
-        if (.not. t > 1.0e-10_wp * g(j, j)) return
+        if (.not. t > 1.0e-10_wp * g(j, j)) then
+          wk%p0(1:mc) = in_a
+          return
+        end if
         g(j, j) = sqrt(t)
       end do
       ! R^T y = rhs, R beta = y
@@ -611,9 +630,11 @@ contains
       do i = 1, k
         next(act(i)) = beta(i) > 0.0_wp
       end do
-      if (all(next .eqv. in_a)) return
+      if (all(next .eqv. in_a)) exit
       in_a = next
     end do
+    ! not verified: the NNLS starts from the last active set
+    wk%p0(1:mc) = in_a
   end subroutine ldp_active_guess
 
   !> Make sure the LDP buffers of `wk` hold an mc x n problem.
