@@ -135,7 +135,8 @@ contains
     ! full-order reference timing
     t_uz = 0; t_ex = 0; kkt_uz = 0; kkt_ex = 0; nc_uz = 0; nc_ex = 0
     if (rcfg%fom_timing_samples > 0) then
-      call log%stage_begin("crowd_rom: full-order timing (paper's uzawa, eps " // str(rcfg%fom_uzawa_eps) // &
+      call log%stage_begin("crowd_rom: full-order timing (paper's uzawa on " // trim(rcfg%fom_uzawa_rows) // &
+        " rows, eps " // str(rcfg%fom_uzawa_eps) // &
         "; " // trim(rcfg%fom_exact_solver) // ", KKT tolerance " // str(rcfg%fom_tol) // ")")
       call fom_timing(st, blocks(size(blocks)), 'uzawa', t_uz, kkt_uz, nc_uz, error)
       if (allocated(error)) return
@@ -209,6 +210,7 @@ contains
       call h5%write_attr("fom_timing", "tolerance", rcfg%fom_tol, error); if (allocated(error)) return
       call h5%write_attr("fom_timing", "uzawa_eps", rcfg%fom_uzawa_eps, error); if (allocated(error)) return
       call h5%write_attr("fom_timing", "uzawa_steps", rcfg%fom_uzawa_steps, error); if (allocated(error)) return
+      call h5%write_attr("fom_timing", "uzawa_rows", trim(rcfg%fom_uzawa_rows), error); if (allocated(error)) return
       call h5%write_attr("fom_timing", "samples", rcfg%fom_timing_samples, error); if (allocated(error)) return
       call h5%write_attr("fom_timing", "kkt_max_uzawa", kkt_uz, error); if (allocated(error)) return
       call h5%write_attr("fom_timing", "kkt_max_exact", kkt_ex, error); if (allocated(error)) return
@@ -380,6 +382,8 @@ contains
           ! the paper's full-order model: cold start, its own stopping test
           c2%solver%uzawa_eps = rcfg%fom_uzawa_eps
           c2%solver%warm_start = .false.
+          ! every pair and agent-obstacle pair a row, as in the paper (cutoff beyond the scene)
+          if (rcfg%fom_uzawa_rows == 'all') c2%contacts%cutoff_factor = 1.0e9_wp
         end if
         speeds = st%speeds
         call st%space%apply(blk%mu(:, k), c2, speeds)

@@ -117,6 +117,12 @@ module cr_reduced_ops
     integer, allocatable :: ia(:), ib(:), ob(:)
     !> cone on the support rows [p3, R]
     real(wp), allocatable :: w(:,:)
+    !> each point's contact row / agent evaluated once per step: distinct rows of the s2 and
+    !> s3 points and their positions, distinct agents of the s1 points and their positions
+    integer, allocatable :: urows(:), pos2(:), pos3(:), uagents(:), pos1(:)
+    real(wp), allocatable :: ugap(:), ug(:,:), udes(:,:)
+    !> V^T [nb, n_dof] (contiguous rows of V) and bhat^T [nb, R] work space
+    real(wp), allocatable :: vt(:,:), bht(:,:)
   contains
     procedure :: assemble => eq_assemble
   end type ops_eq_t
@@ -192,6 +198,11 @@ contains
       ops%idx3 = pair%term(3)%eq_idx(1:m(3)); ops%w3 = weights(3, m(3))
       call mark(ops%idx1, ops%idx2, ops%idx3, ops%ia, ops%ib)
       call gram_setup(ops, pair)
+      call unique_map([ops%idx2, ops%idx3], ops%urows, ops%pos2, ops%pos3, size(ops%idx2))
+      call unique_map((ops%idx1 + 1) / 2, ops%uagents, ops%pos1)
+      allocate(ops%ugap(size(ops%urows)), ops%ug(2, size(ops%urows)), ops%udes(2, size(ops%uagents)))
+      ops%vt = transpose(pair%v)
+      allocate(ops%bht(pair%nb, pair%r))
     end select
     ops%agents = pack([(k, k = 1, n_agents)], need)
 
@@ -257,6 +268,35 @@ contains
       end do
     end subroutine mark
   end subroutine make_reduced_ops
+
+  !> Distinct values u of x and the position of each x(j) in u; with n1 given, pos_a covers
+  !> x(1:n1) and pos_b x(n1+1:).
+  subroutine unique_map(x, u, pos_a, pos_b, n1)
+    integer, intent(in) :: x(:)
+    integer, allocatable, intent(out) :: u(:), pos_a(:)
+    integer, allocatable, intent(out), optional :: pos_b(:)
+    integer, intent(in), optional :: n1
+    integer, allocatable :: where(:), pos(:)
+    integer :: j, n
+    allocate(u(size(x)), pos(size(x)), where(maxval([x, 1])))
+    where = 0
+    n = 0
+    do j = 1, size(x)
+      if (where(x(j)) == 0) then
+        n = n + 1
+        u(n) = x(j)
+        where(x(j)) = n
+      end if
+      pos(j) = where(x(j))
+    end do
+    u = u(1:n)
+    if (present(n1)) then
+      pos_a = pos(1:n1)
+      pos_b = pos(n1 + 1:)
+    else
+      pos_a = pos
+    end if
+  end subroutine unique_map
 
   !> Prepare the cheap Gram matrix of the rows (see reduced_ops_t) when it pays.
   subroutine gram_setup(ops, pair)
@@ -521,32 +561,40 @@ contains
     real(wp), intent(in) :: q(:)
     real(wp), intent(out) :: vhat(:)
     real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
-    real(wp) :: va(2), gap, g(2), bv(this%nb)
-    integer :: j, i, l, k, a, b, p
+    real(wp) :: g(2), c
+    integer :: j, i, l, k, a, b, p, u
     call ensure(bhat, dhat, this%r, this%nb)
-    vhat = 0; bhat = 0; dhat = 0
+    vhat = 0; dhat = 0
+    this%bht = 0
     if (this%has_gram) this%zn = 0
+    ! each agent and contact row once
+    do u = 1, size(this%uagents)
+      this%udes(:, u) = agent_desired(ctx, q, this%uagents(u))
+    end do
+    do u = 1, size(this%urows)
+      l = this%urows(u)
+      call eval_contact(ctx%scene, q, ctx%radius, this%ia(l), this%ib(l), this%ob(l), this%ugap(u), this%ug(:, u))
+    end do
     do j = 1, this%m(1)
       i = this%idx1(j)
-      va = agent_desired(ctx, q, (i + 1) / 2)
-      vhat = vhat + (this%w1(j) * va(2 - mod(i, 2))) * this%v(i, :)
+      vhat = vhat + (this%w1(j) * this%udes(2 - mod(i, 2), this%pos1(j))) * this%vt(:, i)
     end do
     do j = 1, this%m(2)
       l = this%idx2(j); a = this%ia(l); b = this%ib(l)
-      call eval_contact(ctx%scene, q, ctx%radius, a, b, this%ob(l), gap, g)
-      bv = -ctx%h * (g(1) * this%v(2*a-1, :) + g(2) * this%v(2*a, :))
-      if (b > 0) bv = bv + ctx%h * (g(1) * this%v(2*b-1, :) + g(2) * this%v(2*b, :))
+      g = this%ug(:, this%pos2(j))
       do p = this%wp0(l) + 1, this%wp0(l + 1)
         k = this%wk(p)
-        bhat(k, :) = bhat(k, :) + (this%w2(j) * this%wv(p)) * bv
+        c = this%w2(j) * this%wv(p) * ctx%h
+        this%bht(:, k) = this%bht(:, k) - c * (g(1) * this%vt(:, 2*a-1) + g(2) * this%vt(:, 2*a))
+        if (b > 0) this%bht(:, k) = this%bht(:, k) + c * (g(1) * this%vt(:, 2*b-1) + g(2) * this%vt(:, 2*b))
         if (this%has_gram) call this%z_add(k, this%w2(j) * this%wv(p), a, b, g, ctx%h)
       end do
     end do
+    bhat = transpose(this%bht)
     do j = 1, this%m(3)
       l = this%idx3(j)
-      call eval_contact(ctx%scene, q, ctx%radius, this%ia(l), this%ib(l), this%ob(l), gap, g)
       do p = this%wp0(l) + 1, this%wp0(l + 1)
-        dhat(this%wk(p)) = dhat(this%wk(p)) + (this%w3(j) * gap) * this%wv(p)
+        dhat(this%wk(p)) = dhat(this%wk(p)) + (this%w3(j) * this%ugap(this%pos3(j))) * this%wv(p)
       end do
     end do
   end subroutine eq_assemble

@@ -54,6 +54,9 @@ module cr_rom_config
     !> time the Uzawa reference on the first fom_uzawa_steps steps only (0: all steps); the
     !> paper's Uzawa can need 1e5-1e6 iterations per step on congested scenes
     integer :: fom_uzawa_steps = 0
+    !> rows of the Uzawa reference: 'all' (the paper's full-order model: every agent pair and
+    !> agent-obstacle pair is a constraint row) or 'near' (this project's neighbour list)
+    character(len=8) :: fom_uzawa_rows = 'all'
     character(len=32) :: fom_exact_solver = 'active_set'
     !> repetitions of each reduced run for the timing (the fastest is kept)
     integer :: timing_repeats = 3
@@ -69,13 +72,14 @@ contains
     character(len=MAX_PATH) :: rom_file, database, output, table
     character(len=8) :: sets, solver, hyper(MAX_SETTINGS), contacts(MAX_SETTINGS)
     character(len=32) :: fom_exact_solver
+    character(len=8) :: fom_uzawa_rows
     integer :: n_samples, n(MAX_SETTINGS), r(MAX_SETTINGS), m_v(MAX_SETTINGS), m_b(MAX_SETTINGS)
     integer :: m_d(MAX_SETTINGS), nnls_max_iter, uzawa_max_iter, fom_timing_samples, timing_repeats
     real(wp) :: mu(MAX_MU), uzawa_rho_factor, uzawa_eps, fom_tol, fom_uzawa_eps
     integer :: fom_uzawa_steps
     namelist /rom/ rom_file, database, output, table, sets, n_samples, mu, n, r, hyper, contacts, m_v, m_b, &
       m_d, solver, nnls_max_iter, uzawa_rho_factor, uzawa_eps, uzawa_max_iter, fom_timing_samples, fom_tol, &
-      fom_uzawa_eps, fom_uzawa_steps, fom_exact_solver, timing_repeats
+      fom_uzawa_eps, fom_uzawa_steps, fom_uzawa_rows, fom_exact_solver, timing_repeats
     integer :: ios
     character(len=512) :: msg
     if (.not. t%has_group('rom')) then
@@ -86,7 +90,7 @@ contains
     m_v = c%m_v; m_b = c%m_b; m_d = c%m_d; solver = c%solver; nnls_max_iter = c%nnls_max_iter
     uzawa_rho_factor = c%uzawa_rho_factor; uzawa_eps = c%uzawa_eps; uzawa_max_iter = c%uzawa_max_iter
     fom_timing_samples = c%fom_timing_samples; fom_tol = c%fom_tol; fom_uzawa_eps = c%fom_uzawa_eps
-    fom_uzawa_steps = c%fom_uzawa_steps; fom_exact_solver = c%fom_exact_solver
+    fom_uzawa_steps = c%fom_uzawa_steps; fom_uzawa_rows = c%fom_uzawa_rows; fom_exact_solver = c%fom_exact_solver
     timing_repeats = c%timing_repeats
     msg = ''
     read(t%lines, nml=rom, iostat=ios, iomsg=msg)
@@ -98,7 +102,7 @@ contains
     c%m_v = m_v; c%m_b = m_b; c%m_d = m_d; c%solver = solver; c%nnls_max_iter = nnls_max_iter
     c%uzawa_rho_factor = uzawa_rho_factor; c%uzawa_eps = uzawa_eps; c%uzawa_max_iter = uzawa_max_iter
     c%fom_timing_samples = fom_timing_samples; c%fom_tol = fom_tol; c%fom_uzawa_eps = fom_uzawa_eps
-    c%fom_uzawa_steps = fom_uzawa_steps; c%fom_exact_solver = fom_exact_solver
+    c%fom_uzawa_steps = fom_uzawa_steps; c%fom_uzawa_rows = fom_uzawa_rows; c%fom_exact_solver = fom_exact_solver
     c%timing_repeats = timing_repeats
     if (len_trim(c%table) == 0 .and. len_trim(c%output) > 0) then
       if (index(c%output, '.h5', back=.true.) == len_trim(c%output) - 2 .and. len_trim(c%output) > 3) then
@@ -145,6 +149,8 @@ contains
     call probs%need(c%fom_tol > 0, "&rom: fom_tol must be > 0")
     call probs%need(c%fom_uzawa_eps > 0, "&rom: fom_uzawa_eps must be > 0")
     call probs%need(c%fom_uzawa_steps >= 0, "&rom: fom_uzawa_steps must be >= 0 (0: all steps)")
+    call probs%need(c%fom_uzawa_rows == 'all' .or. c%fom_uzawa_rows == 'near', &
+      "&rom: fom_uzawa_rows must be 'all' or 'near' (got '" // trim(c%fom_uzawa_rows) // "')")
     call probs%need(any(c%fom_exact_solver == [character(len=32) :: 'active_set', 'gpcg']), &
       "&rom: fom_exact_solver must be 'active_set' or 'gpcg'")
     call probs%need(c%timing_repeats >= 1, "&rom: timing_repeats must be >= 1")
@@ -165,7 +171,7 @@ contains
       ", uzawa_max_iter = ", c%uzawa_max_iter, ", fom_timing_samples = ", c%fom_timing_samples, &
       ", fom_tol = ", c%fom_tol, ", timing_repeats = ", c%timing_repeats
     s = s // trim(b) // ", fom_uzawa_eps = " // str(c%fom_uzawa_eps, "es23.16") // ", fom_uzawa_steps = " // &
-      str(c%fom_uzawa_steps)
+      str(c%fom_uzawa_steps) // ", fom_uzawa_rows = '" // trim(c%fom_uzawa_rows) // "'"
     b = ''
     s = s // trim(b) // ", fom_exact_solver = '" // trim(c%fom_exact_solver) // "'"
     do k = 1, MAX_SETTINGS
