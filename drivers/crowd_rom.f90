@@ -13,7 +13,7 @@
 program crowd_rom
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error, prefix_error
-  use cr_strings, only: str
+  use cr_strings, only: str, shorten
   use cr_env, only: env_t
   use cr_logger, only: logger_t
   use cr_cli, only: cli_t
@@ -103,7 +103,7 @@ contains
     call open_study(dbpath, where // ": database", hdr, st, error)
     if (allocated(error)) return
     call log%info("   " // str(st%n_agents) // " agents, " // str(st%n_steps) // " steps, parameters " // &
-      short(st%param_names) // "; ROM pairs (N, R) stored: " // pair_list(hdr))
+      shorten(st%param_names, 60) // "; ROM pairs (N, R) stored: " // pair_list(hdr))
     ! parameter sets
     select case (trim(rcfg%sets))
     case ('valid', 'train')
@@ -415,7 +415,7 @@ contains
       nmu = count(rcfg%mu > -huge(1.0_wp))
       if (nmu /= st%space%n_expanded) then
         call set_error(error, where // ": mu has " // str(nmu) // " values but the study has " // &
-          str(st%space%n_expanded) // " parameter components (" // short(st%param_names) // ")", 2); return
+          str(st%space%n_expanded) // " parameter components (" // shorten(st%param_names, 60) // ")", 2); return
       end if
       blk%name = 'given'
       blk%n = 1
@@ -544,15 +544,6 @@ contains
     s = trim(adjustl(s))
   end function e
 
-  function short(s) result(t)
-    character(len=*), intent(in) :: s
-    character(len=:), allocatable :: t
-    if (len(s) > 60) then
-      t = s(1:57) // "..."
-    else
-      t = s
-    end if
-  end function short
 
   function pair_list(hdr) result(s)
     type(rom_header_t), intent(in) :: hdr

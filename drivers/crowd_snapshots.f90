@@ -15,7 +15,7 @@ program crowd_snapshots
   use hdf5, only: h5get_libversion_f
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error
-  use cr_strings, only: str
+  use cr_strings, only: str, shorten
   use cr_env, only: env_t
   use cr_logger, only: logger_t
   use cr_cli, only: cli_t
@@ -121,7 +121,7 @@ contains
     n_tot = sets(1)%n + sets(2)%n
     hash = study_hash(cfg, study, SNAP_SCHEMA_VERSION)
     call log%info("   " // str(fom_ref%n_agents) // " agents, " // str(cfg%time%n_steps) // " steps per sample, " // &
-      str(space%n_expanded) // " parameter components (" // short(space%component_names()) // "), " // &
+      str(space%n_expanded) // " parameter components (" // shorten(space%component_names(), 60) // "), " // &
       str(sets(1)%n) // " training + " // str(sets(2)%n) // " validation samples on " // str(env%size) // &
       " ranks; config_hash " // hash)
 
@@ -198,7 +198,7 @@ contains
         call write_piece(piece_path(dir, sets(is)%name, k), hash, res, error)
       end if
       if (allocated(error)) then
-        msg = trim(sets(is)%name) // " sample " // str(k) // " (mu = " // short(mu_text(sets(is)%mu(:, k))) // &
+        msg = trim(sets(is)%name) // " sample " // str(k) // " (mu = " // shorten(mu_text(sets(is)%mu(:, k)), 60) // &
           ") on rank " // str(env%rank) // ": " // error%message
         deallocate(error)
         exit
@@ -353,14 +353,4 @@ contains
     s = trim(s)
   end function mu_text
 
-  !> At most 60 characters of s.
-  function short(s) result(t)
-    character(len=*), intent(in) :: s
-    character(len=:), allocatable :: t
-    if (len(s) > 60) then
-      t = s(1:57) // "..."
-    else
-      t = s
-    end if
-  end function short
 end program crowd_snapshots

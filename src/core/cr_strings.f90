@@ -3,7 +3,7 @@ module cr_strings
   use cr_kinds, only: wp, i8
   implicit none
   private
-  public :: str, to_lower
+  public :: shorten, str, to_lower
 
   !> Format a number as a trimmed string.
   interface str
@@ -63,4 +63,15 @@ contains
       if (c >= iachar('A') .and. c <= iachar('Z')) t(k:k) = achar(c + 32)
     end do
   end function to_lower
+  !> s cut to at most n characters (the last three replaced by "...").
+  pure function shorten(s, n) result(t)
+    character(len=*), intent(in) :: s
+    integer, intent(in) :: n
+    character(len=:), allocatable :: t
+    if (len(s) > n) then
+      t = s(1:max(n - 3, 0)) // "..."
+    else
+      t = s
+    end if
+  end function shorten
 end module cr_strings
