@@ -101,8 +101,8 @@ contains
       end if
       k = k + 1
       recs(k) = rec
-      if (.not. rec%converged) call log%warn("step " // str(k) // ": projection not converged (KKT " // &
-        str(rec%kkt) // ", " // str(rec%iterations) // " iterations)")
+      if (.not. rec%converged) call log%warn("step " // str(k) // ": projection not converged (KKT residual " // &
+        str(rec%kkt) // ", tol " // str(cfg%solver%tol) // ", " // str(rec%iterations) // " iterations)")
       if (fom%solver%name() == 'uzawa' .and. .not. warned_rho) then
         if (rec%n_rows > 0 .and. cfg%solver%uzawa_rho_factor / cfg%time%dt**2 > 2.0_wp / fom%cs%lipschitz_bound()) then
           call log%warn("uzawa: rho = " // str(cfg%solver%uzawa_rho_factor / cfg%time%dt**2) // &
