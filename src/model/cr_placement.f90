@@ -243,7 +243,9 @@ contains
       call set_error(error, "&agents: init_file: '" // path // "' has a non-finite value", 2)
   end subroutine read_positions_h5
 
-  !> Error if two agents coincide or overlap, or an agent overlaps an obstacle, at q.
+  !> Error if an agent starts outside the building (beside or below the hall, not in the
+  !> hall, the doorway or the open space beyond the top wall), two agents coincide or
+  !> overlap, or an agent overlaps an obstacle, at q.
   subroutine check_feasible(scene, q, radius, where, error)
     type(scene_t), intent(in) :: scene
     real(wp), intent(in) :: q(:)
@@ -269,6 +271,15 @@ contains
       else if (cs%gap(l) < -tol) then
         call set_error(error, where // ": agent " // str(cs%ia(l)) // " starts inside obstacle '" // &
           scene%obstacles(cs%ob(l))%label // "' (gap " // str(cs%gap(l)) // ")", 2); return
+      end if
+    end do
+    do l = 1, size(q) / 2
+      if (q(2*l) < scene%width + scene%wall .and. &
+          (q(2*l-1) < 0.0_wp .or. q(2*l-1) > scene%length .or. q(2*l) < 0.0_wp)) then
+        call set_error(error, where // ": agent " // str(l) // " at (" // str(q(2*l-1)) // ", " // &
+          str(q(2*l)) // ") starts outside the hall [0, " // str(scene%length) // "] x [0, " // &
+          str(scene%width) // "] (agents start in the hall, the doorway or beyond the top wall)", 2)
+        return
       end if
     end do
   end subroutine check_feasible
