@@ -66,10 +66,12 @@ contains
     type(fom_writer_t) :: out
     type(step_record_t), allocatable :: recs(:)
     type(step_record_t) :: rec
-    integer :: n_target, k, n_failed, it_max
+    integer :: n_target, k, n_failed, it_max, n_warned
+    !> non-converged steps warned about one by one
+    integer, parameter :: MAX_STEP_WARNINGS = 10
     real(wp) :: min_gap, kkt_max, t_total, it_mean
     integer(8) :: c0, c1, rate
-    character(len=:), allocatable :: text
+    character(len=:), allocatable :: text, gap_text
     logical :: warned_rho
 
     call log%stage_begin("crowd_fom: setup")
@@ -92,6 +94,7 @@ contains
     call log%progress_start()
     call system_clock(c0, rate)
     k = 0
+    n_warned = 0
     warned_rho = .false.
     do while (k < n_target)
       if (cfg%time%until_empty .and. fom%n_inside() == 0) exit
@@ -101,10 +104,17 @@ contains
       end if
       k = k + 1
       recs(k) = rec
-      if (.not. rec%converged) call log%warn("step " // str(k) // ": projection not converged (KKT " // &
-        str(rec%kkt) // ", " // str(rec%iterations) // " iterations)")
+      if (.not. rec%converged) then
+        n_warned = n_warned + 1
+        if (n_warned <= MAX_STEP_WARNINGS) call log%warn("step " // str(k) // ": projection not converged " // &
+          "(KKT residual " // str(rec%kkt) // ", tol " // str(cfg%solver%tol) // ", " // str(rec%iterations) // &
+          " iterations)")
+        if (n_warned == MAX_STEP_WARNINGS) call log%warn("further non-converged steps are counted (summary: " // &
+          "failed steps; stats/converged) but not printed")
+      end if
       if (fom%solver%name() == 'uzawa' .and. .not. warned_rho) then
-        if (rec%n_rows > 0 .and. cfg%solver%uzawa_rho_factor / cfg%time%dt**2 > 2.0_wp / fom%cs%lipschitz_bound()) then
+        ! rho L > 2 (no division: L = 0 without rows)
+        if (cfg%solver%uzawa_rho_factor / cfg%time%dt**2 * fom%cs%lipschitz_bound() > 2.0_wp) then
           call log%warn("uzawa: rho = " // str(cfg%solver%uzawa_rho_factor / cfg%time%dt**2) // &
             " exceeds the convergence bound 2/||B||^2 >= " // str(2.0_wp / fom%cs%lipschitz_bound()) // &
             " at step " // str(k))
@@ -134,12 +144,15 @@ contains
       it_max = maxval(recs(1:k)%iterations)
       it_mean = real(sum(recs(1:k)%iterations), wp) / k
     end if
+    ! min_gap stays huge when no contact was ever within the cutoff (nothing close)
+    gap_text = str(min_gap)
+    if (min_gap == huge(1.0_wp)) gap_text = "none (no contact within the cutoff in any step)"
     text = "summary:" // new_line('a') // &
       "  agents              " // str(fom%n_agents) // new_line('a') // &
       "  steps               " // str(k) // new_line('a') // &
       "  agents left / still inside  " // str(fom%n_agents - fom%n_inside()) // " / " // str(fom%n_inside()) // new_line('a') // &
       "  output file         " // trim(cfg%output%file) // new_line('a') // &
-      "  smallest gap seen   " // str(min_gap) // " (radius " // str(fom%radius) // ")" // new_line('a') // &
+      "  smallest gap seen   " // gap_text // " (radius " // str(fom%radius) // ")" // new_line('a') // &
       "  largest KKT residual " // str(kkt_max) // new_line('a') // &
       "  failed steps        " // str(n_failed) // new_line('a') // &
       "  iterations mean/max " // str(it_mean, 'f0.1') // " / " // str(it_max) // new_line('a') // &
@@ -173,7 +186,8 @@ contains
     call js%add("agents_inside", fom%n_inside())
     call js%add("output_file", trim(cfg%output%file))
     if (k > 0) then
-      call js%add("smallest_gap", minval(recs%min_gap))
+      ! omitted when no contact was ever within the cutoff (see stats/min_gap)
+      if (minval(recs%min_gap) < huge(1.0_wp)) call js%add("smallest_gap", minval(recs%min_gap))
       call js%add("largest_kkt_residual", maxval(recs%kkt))
       call js%add("failed_steps", count(.not. recs%converged))
       call js%add("iterations_mean", real(sum(recs%iterations), wp) / k)

@@ -138,6 +138,14 @@ contains
     v = pod%phi(:, 1:n_pod)
     call log%info("   N = " // str(n_pod) // " modes (numerical rank " // str(pod%rank) // &
       ", retained energy " // str(pod%energy) // ")")
+    if (n_pod == 0) then
+      if (.not. (pod%total_energy > 0)) then
+        call log%warn("POD: the velocity snapshots are all zero (a crowd at rest): no POD mode")
+      else
+        call log%warn("POD: pod_energy = " // str(eps) // " keeps no POD mode (1 - retained energy <= " // &
+          "pod_energy already with N = 0)")
+      end if
+    end if
     call log%stage_end()
 
     ! ---- POD vs randomized POD (timing and spectra)
@@ -172,6 +180,7 @@ contains
       tab%t_mcpg = env%wtime() - t0
       call log%info("   comparison " // trim(other%method) // ": R = " // str(other%r) // ", e_R = " // &
         str(other%err_max(other%r + 1)) // ", " // str(other%time) // " s")
+      if (allocated(other%note)) call log%warn("cone (comparison " // trim(other%method) // "): " // other%note)
     end if
     if (cone%method == 'gis') then
       call scone%from_indices(data%n_dict, cone%indices)
@@ -190,12 +199,14 @@ contains
       tab%t_pga = env%wtime() - t0
       call log%info("   added " // str(pga%n_added) // " supremizers; largest projection error " // &
         str(pga%err(1)) // " -> " // str(pga%err(pga%n_added + 1)))
-      if (pga%err(pga%n_added + 1) > ocfg%pga_delta) call log%warn("PGA stopped at pga_max_add = " // &
-        str(ocfg%pga_max_add) // " before reaching delta")
+      if (allocated(pga%note)) call log%warn("PGA: " // pga%note)
       call log%stage_end()
     else
       allocate(pga%err(1), pga%chosen(0)); pga%err = 0
+      if (ocfg%pga) call log%warn("PGA skipped: the cone is empty, there is no supremizer to add")
     end if
+    if (size(v, 2) == 0) call log%warn("the reduced velocity basis is empty (N = 0): the reduced model " // &
+      "can only predict a zero velocity")
 
     ! ---- inf-sup table
     call log%stage_begin("crowd_offline: reduced inf-sup table")
@@ -231,12 +242,16 @@ contains
         call js%add("rom_file", trim(ocfg%rom_file))
         call js%add("ranks", env%size)
         call js%add("n_pod", n_pod)
+        call js%add("pod_numerical_rank", pod%rank)
+        call js%add("pod_energy_retained", pod%energy)
         call js%add("n_total", size(v, 2))
         call js%add("r", cone%r)
         call js%add("cone_method", trim(cone%method))
         call js%add("cone_error", cone%err_max(cone%r + 1))
         call js%add("pga_added", pga%n_added)
         call js%add("pga_error", pga%err(pga%n_added + 1))
+        call js%add("cone_note", note_of(cone%note))
+        call js%add("pga_note", note_of(pga%note))
         call js%add("time_read", tab%t_read)
         call js%add("time_pod", tab%t_pod)
         call js%add("time_cone", tab%t_cone)
@@ -331,6 +346,14 @@ contains
       call log%info(line)
     end do
   end subroutine prepare_pairs
+
+  !> The note, or an empty string when there is none.
+  function note_of(note) result(s)
+    character(len=:), allocatable, intent(in) :: note
+    character(len=:), allocatable :: s
+    s = ""
+    if (allocated(note)) s = note
+  end function note_of
 
   !> True on every rank if any rank has an error (the message is kept where it arose;
   !> ranks without one get a generic message so that all stop together).

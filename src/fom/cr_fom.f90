@@ -27,6 +27,8 @@ module cr_fom
   type :: step_record_t
     integer :: step = 0
     integer :: iterations = 0
+    !> the solver's stopping test was met *and* the scaled KKT residual is <= &solver tol
+    !> (a step whose stopping test was met with a larger residual is not counted as converged)
     logical :: converged = .true.
     real(wp) :: primal = 0, dual = 0, compl = 0, stat = 0, kkt = 0
     integer :: n_rows = 0, n_active = 0, resolves = 0, n_inside = 0
@@ -170,7 +172,7 @@ contains
         return
       end if
     end do
-    rec%converged = st%converged
+    rec%converged = st%converged .and. st%kkt <= this%solver%settings%tol
     rec%primal = st%primal; rec%dual = st%dual; rec%compl = st%compl; rec%stat = st%stat
     rec%kkt = st%kkt
     rec%n_rows = this%cs%n

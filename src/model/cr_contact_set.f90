@@ -180,7 +180,7 @@ contains
 
   !> Scaled KKT residuals of (u, lambda) for  min |u - v|^2  s.t.  B u <= d.
   !>
-  !> With the velocity scale s = max(|v|_inf, max_l (-d_l)^+ / h, tiny) (overlapping rows
+  !> With the velocity scale s = max(|v|_inf, max_l (-d_l)^+ / h, sqrt(tiny)) (overlapping rows
   !> force a motion of at least -d_l / h even when v = 0): primal = max_l (Bu - d)_l^+ / (h s);
   !> dual = max_l (-lambda_l)^+ h / s; compl = max_l |lambda_l (Bu - d)_l| / s^2;
   !> stat = |u - v + B^T lambda|_inf / s. All are dimensionless.
@@ -209,13 +209,15 @@ contains
     if (size(u) > 0) stat = maxval(abs(u - v + w)) / s
   end subroutine kkt_residuals
 
-  !> Velocity scale of a projection problem: max(|v|_inf, max_l (-d_l)^+ / h, tiny).
-  !> Overlapping rows (d_l < 0) force a motion of at least -d_l / h even when v = 0.
+  !> Velocity scale of a projection problem: max(|v|_inf, max_l (-d_l)^+ / h, sqrt(tiny)).
+  !> Overlapping rows (d_l < 0) force a motion of at least -d_l / h even when v = 0. The
+  !> floor sqrt(tiny) keeps s**2 a normal number (a crowd at rest, v = 0: residuals 0 / s**2
+  !> must be 0, not 0 / 0).
   pure real(wp) function velocity_scale(cs, v) result(s)
     type(contact_set_t), intent(in) :: cs
     real(wp), intent(in) :: v(:)
     integer :: l
-    s = tiny(1.0_wp) * 1.0e10_wp
+    s = sqrt(tiny(1.0_wp))
     if (size(v) > 0) s = max(s, maxval(abs(v)))
     do l = 1, cs%n
       s = max(s, -cs%gap(l) / cs%h)

@@ -5,13 +5,19 @@
 !> D_l(q) + G_l(q) . delta >= 0  for every pair/obstacle contact with gap <= a small cutoff,
 !> solved exactly by the active-set projection (h = 1, zero desired velocity). Gaps are
 !> convex functions of q, so every linearised row that holds also holds for the true gap;
-!> a few iterations remove all overlaps. Failure to do so is reported, never ignored.
+!> a few iterations remove all overlaps. The agents are confined to the placement region by
+!> four thick walls around it (instead of the hall's walls and exit, through which a deep
+!> overlap could push an agent out of the hall), together with the interior obstacles.
+!> Failure is reported, never ignored: after placement_max_iter projections, or earlier when
+!> the largest overlap has not shrunk for STALL_ITER projections (a crowd too dense for its
+!> region jams: its linearised problem becomes infeasible and the overlap stops decreasing).
 module cr_placement
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
   use cr_config, only: agents_cfg_t
   use cr_scene, only: scene_t
+  use cr_shapes, only: make_rectangle, obstacle_bbox
   use cr_random, only: rng_t
   use cr_h5file, only: h5file_t
   use cr_contact_set, only: contact_set_t
@@ -21,6 +27,11 @@ module cr_placement
   implicit none
   private
   public :: place_agents, read_positions_text, read_positions_h5, check_feasible
+
+  !> projections without a 1% decrease of the largest overlap before placement gives up
+  integer, parameter :: STALL_ITER = 60
+  !> iteration cap of one overlap-removal projection (the loop repeats, exactness not needed)
+  integer, parameter :: PROJ_MAX_ITER = 5000
 
 contains
 
@@ -53,31 +64,68 @@ contains
       q(2*i-1) = reg(1) + cfg%radius + rng%uniform() * (reg(3) - reg(1) - 2 * cfg%radius)
       q(2*i) = reg(2) + cfg%radius + rng%uniform() * (reg(4) - reg(2) - 2 * cfg%radius)
     end do
-    call separate(scene, q, cfg%radius, cfg%placement_max_iter, iterations, error)
+    call separate(scene, reg, q, cfg%radius, cfg%placement_max_iter, iterations, error)
   end subroutine place_agents
 
-  !> Overlap removal by repeated exact projections (see module doc).
-  subroutine separate(scene, q, radius, max_iter, iterations, error)
+  !> The interior obstacles of `scene` and four walls around the region reg [4] (xmin, ymin,
+  !> xmax, ymax), thicker than the region is wide so that no projection can push a centre
+  !> through one.
+  subroutine confined_scene(scene, reg, box, error)
     type(scene_t), intent(in) :: scene
+    real(wp), intent(in) :: reg(4)
+    type(scene_t), intent(out) :: box
+    type(error_t), allocatable, intent(out) :: error
+    real(wp) :: t
+    integer :: n, k
+    t = 2 * max(reg(3) - reg(1), reg(4) - reg(2))
+    n = scene%n_interior()
+    box%length = scene%length; box%width = scene%width; box%wall = t
+    box%x_lo = scene%x_lo; box%x_hi = scene%x_hi; box%l_exit = scene%l_exit
+    box%n_walls = 4
+    allocate(box%obstacles(4 + n), box%lo(2, 4 + n), box%hi(2, 4 + n))
+    call make_rectangle(reg(1) - t, reg(2) - t, reg(1), reg(4) + t, "placement region, left", box%obstacles(1), error)
+    if (allocated(error)) return
+    call make_rectangle(reg(3), reg(2) - t, reg(3) + t, reg(4) + t, "placement region, right", box%obstacles(2), error)
+    if (allocated(error)) return
+    call make_rectangle(reg(1), reg(2) - t, reg(3), reg(2), "placement region, bottom", box%obstacles(3), error)
+    if (allocated(error)) return
+    call make_rectangle(reg(1), reg(4), reg(3), reg(4) + t, "placement region, top", box%obstacles(4), error)
+    if (allocated(error)) return
+    do k = 1, n
+      box%obstacles(4 + k) = scene%obstacles(scene%n_walls + k)
+    end do
+    do k = 1, 4 + n
+      call obstacle_bbox(box%obstacles(k), box%lo(:, k), box%hi(:, k))
+    end do
+  end subroutine confined_scene
+
+  !> Overlap removal by repeated projections inside the region reg [4] (see module doc).
+  subroutine separate(scene, reg, q, radius, max_iter, iterations, error)
+    type(scene_t), intent(in) :: scene
+    real(wp), intent(in) :: reg(4)
     real(wp), intent(inout) :: q(:)
     real(wp), intent(in) :: radius
     integer, intent(in) :: max_iter
     integer, intent(out) :: iterations
     type(error_t), allocatable, intent(out) :: error
+    type(scene_t) :: box
     type(contact_set_t) :: cs
     type(cell_list_t) :: cells
     type(projection_settings_t) :: settings
     class(projection_solver_t), allocatable :: solver
     type(solve_stats_t) :: stats
     real(wp), allocatable :: v(:), delta(:), lambda(:)
-    real(wp) :: margin, worst
-    integer :: na, it
+    real(wp) :: margin, worst, best
+    integer :: na, it, since_best
+    character(len=:), allocatable :: why
     na = size(q) / 2
+    call confined_scene(scene, reg, box, error)
+    if (allocated(error)) return
     ! an iterative sparse solver: any N; exactness is not needed since the loop checks the
     ! true gaps and repeats
     settings%name = 'apgd'
     settings%tol = 1.0e-9_wp
-    settings%max_iter = 20000
+    settings%max_iter = PROJ_MAX_ITER
     call make_projection_solver(settings, solver, error)
     if (allocated(error)) return
     call cs%init(na, 1.0_wp, 8 * na)
@@ -85,12 +133,21 @@ contains
     v = 0.0_wp
     margin = 1.0e-9_wp * radius
     worst = 0.0_wp
+    best = -huge(1.0_wp)
+    since_best = 0
     iterations = 0
     do it = 1, max_iter
-      call build_contacts(scene, q, radius, 0.05_wp * radius, cells, cs)
+      call build_contacts(box, q, radius, 0.05_wp * radius, cells, cs)
       worst = 0.0_wp
       if (cs%n > 0) worst = minval(cs%gap(1:cs%n))
       if (worst >= 0.0_wp) exit
+      ! stall: the largest overlap has not shrunk by 1% for STALL_ITER projections
+      if (worst > best + 0.01_wp * abs(best)) then
+        best = worst; since_best = 0
+      else
+        since_best = since_best + 1
+        if (since_best >= STALL_ITER) exit
+      end if
       iterations = it
       cs%gap(1:cs%n) = cs%gap(1:cs%n) - margin
       if (allocated(lambda)) deallocate(lambda)
@@ -101,9 +158,16 @@ contains
       q = q + delta
     end do
     if (worst < 0.0_wp) then
+      if (since_best >= STALL_ITER) then
+        why = "no progress in the last " // str(STALL_ITER) // " projections"
+      else
+        why = "placement_max_iter = " // str(max_iter)
+      end if
       call set_error(error, "&agents: cannot make the initial configuration feasible: " // str(na) // &
-        " agents of radius " // str(radius) // " still overlap by " // str(-worst) // " after " // &
-        str(max_iter) // " projection iterations (placement_max_iter); use fewer agents or a larger region", 2)
+        " agents of radius " // str(radius) // " cover " // &
+        str(na * acos(-1.0_wp) * radius**2 / ((reg(3) - reg(1)) * (reg(4) - reg(2))), 'f0.3') // &
+        " of the region and still overlap by " // str(-worst) // " after " // str(iterations) // &
+        " projection iterations (" // why // "); use fewer agents or a larger region", 2)
     end if
   end subroutine separate
 
@@ -179,7 +243,9 @@ contains
       call set_error(error, "&agents: init_file: '" // path // "' has a non-finite value", 2)
   end subroutine read_positions_h5
 
-  !> Error if two agents coincide or overlap, or an agent overlaps an obstacle, at q.
+  !> Error if an agent starts outside the building (beside or below the hall, not in the
+  !> hall, the doorway or the open space beyond the top wall), two agents coincide or
+  !> overlap, or an agent overlaps an obstacle, at q.
   subroutine check_feasible(scene, q, radius, where, error)
     type(scene_t), intent(in) :: scene
     real(wp), intent(in) :: q(:)
@@ -205,6 +271,15 @@ contains
       else if (cs%gap(l) < -tol) then
         call set_error(error, where // ": agent " // str(cs%ia(l)) // " starts inside obstacle '" // &
           scene%obstacles(cs%ob(l))%label // "' (gap " // str(cs%gap(l)) // ")", 2); return
+      end if
+    end do
+    do l = 1, size(q) / 2
+      if (q(2*l) < scene%width + scene%wall .and. &
+          (q(2*l-1) < 0.0_wp .or. q(2*l-1) > scene%length .or. q(2*l) < 0.0_wp)) then
+        call set_error(error, where // ": agent " // str(l) // " at (" // str(q(2*l-1)) // ", " // &
+          str(q(2*l)) // ") starts outside the hall [0, " // str(scene%length) // "] x [0, " // &
+          str(scene%width) // "] (agents start in the hall, the doorway or beyond the top wall)", 2)
+        return
       end if
     end do
   end subroutine check_feasible

@@ -170,6 +170,10 @@ contains
   !> selected canonical vectors keeps the selected coordinates (they are >= 0), so the
   !> squared residual of each snapshot is updated by subtracting the new coordinate squared.
   !> Stops when e_r <= delta, r = r_max, or the worst snapshot has no uncovered coordinate.
+  !> A residual that the subtraction has reduced below 1e-6 of the snapshot's squared norm
+  !> (where it has lost about six digits to cancellation) is recomputed exactly from the
+  !> uncovered coordinates, so that small errors, and e_R = 0 once everything is covered,
+  !> are exact (delta = 0 is a valid request).
   subroutine gis_build(env, lam, delta, r_max, res, error)
     type(env_t), intent(in) :: env
     type(sparse_columns_t), intent(in) :: lam
@@ -177,7 +181,7 @@ contains
     integer, intent(in) :: r_max
     type(cone_result_t), intent(out) :: res
     type(error_t), allocatable, intent(out) :: error
-    real(wp), allocatable :: res2(:), col(:), tmp_err(:), tmp_mean(:)
+    real(wp), allocatable :: res2(:), x2(:), col(:), tmp_err(:), tmp_mean(:)
     integer, allocatable :: sel(:), tptr(:), tcol(:)
     integer(i8), allocatable :: sig(:)
     logical, allocatable :: chosen(:)
@@ -195,6 +199,7 @@ contains
     allocate(sel(r_max), sig(r_max), tmp_err(r_max + 1), tmp_mean(r_max + 1))
     chosen = .false.
     call column_norms2(lam, res2)
+    x2 = res2
     ! transposed structure: for each dictionary index, its (local column, value) pairs
     nnz = 0
     if (lam%n_cols > 0) nnz = int(lam%ptr(lam%n_cols + 1))
@@ -245,7 +250,9 @@ contains
       r = r + 1
       sel(r) = i; sig(r) = gcol; chosen(i) = .true.
       do p = tptr(i) + 1, tptr(i + 1)
-        res2(tcol(p)) = max(res2(tcol(p)) - tval(p)**2, 0.0_wp)
+        k = tcol(p)
+        res2(k) = max(res2(k) - tval(p)**2, 0.0_wp)
+        if (res2(k) <= 1.0e-6_wp * x2(k)) res2(k) = uncovered2(k)
       end do
       call global_argmax(env, lam, res2, worst, gcol, error); if (allocated(error)) return
       tmp_err(r + 1) = sqrt(max(worst, 0.0_wp)) / n1
@@ -254,6 +261,16 @@ contains
     call finish()
 
   contains
+
+    !> Exact squared residual of local column kk: its uncovered coordinates squared.
+    real(wp) function uncovered2(kk)
+      integer, intent(in) :: kk
+      integer :: q
+      uncovered2 = 0
+      do q = int(lam%ptr(kk)) + 1, int(lam%ptr(kk + 1))
+        if (.not. chosen(lam%idx(q))) uncovered2 = uncovered2 + lam%val(q)**2
+      end do
+    end function uncovered2
 
     subroutine finish()
       res%indices = sel(1:r)

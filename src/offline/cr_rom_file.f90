@@ -144,14 +144,15 @@ contains
       end if
       call h5%write(g // "/err_max", c%err_max, error); if (allocated(error)) return
       call h5%write(g // "/err_mean", c%err_mean, error); if (allocated(error)) return
-      if (c%r > 0) then
+      ! written also when R = 0 (empty datasets): a reader finds the same objects in every file
+      if (allocated(c%sigma)) then
         call h5%write(g // "/sigma", c%sigma, error); if (allocated(error)) return
-        if (allocated(c%indices)) then
-          call h5%write(g // "/indices", c%indices, error); if (allocated(error)) return
-        end if
-        if (allocated(c%psi)) then
-          call h5%write(g // "/psi", c%psi, error); if (allocated(error)) return
-        end if
+      end if
+      if (allocated(c%indices)) then
+        call h5%write(g // "/indices", c%indices, error); if (allocated(error)) return
+      end if
+      if (allocated(c%psi)) then
+        call h5%write(g // "/psi", c%psi, error); if (allocated(error)) return
       end if
     end subroutine write_cone
   end subroutine write_rom_file

@@ -10,6 +10,11 @@
 !> |s|^2 - |V^T s|^2, which loses relative accuracy below ~1e-6; below that level every
 !> candidate's residual is recomputed explicitly (s - V (V^T s), orthogonalised twice), so
 !> small thresholds such as delta = 1e-8 are decided on exact residuals.
+!>
+!> Stops also, with a note, when the basis spans the whole velocity space (N = n_dof) or
+!> when the largest exact relative residual is at the round-off level (<= ROUNDOFF_FLOOR):
+!> such a candidate lies in the span, and orthonormalising it would add a direction made of
+!> rounding errors (a delta below that level is unreachable, not a reason to add noise).
 module cr_supremizer
   use mpi_f08
   use cr_kinds, only: wp, i8
@@ -21,7 +26,10 @@ module cr_supremizer
   use cr_sparse_cone, only: sparse_cone_t
   implicit none
   private
-  public :: pga_result_t, pga_enrich, supremizer
+  public :: pga_result_t, pga_enrich, supremizer, ROUNDOFF_FLOOR
+
+  !> relative residual below which a candidate counts as lying in the span of the basis
+  real(wp), parameter :: ROUNDOFF_FLOOR = 1.0e-12_wp
 
   !> History of an enrichment.
   type :: pga_result_t
@@ -30,6 +38,8 @@ module cr_supremizer
     real(wp), allocatable :: err(:)
     !> global candidate id of each addition: (sigma - 1) * R + r (sigma global, 1-based)
     integer(i8), allocatable :: chosen(:)
+    !> why the enrichment stopped before reaching delta (empty when it reached delta)
+    character(len=:), allocatable :: note
   end type pga_result_t
 
 contains
@@ -129,7 +139,20 @@ contains
         cycle
       end if
       hist(added + 1) = err
-      if (err <= delta .or. added == max_add .or. best(1) < 0) exit
+      if (err <= delta .or. best(1) < 0) exit
+      if (added == max_add) then
+        res%note = "stopped at pga_max_add = " // str(max_add) // " before reaching delta"
+        exit
+      end if
+      if (size(v, 2) >= nd) then
+        res%note = "the basis spans the whole velocity space (N = " // str(nd) // ")"
+        exit
+      end if
+      if (exact .and. err <= ROUNDOFF_FLOOR) then
+        res%note = "every remaining supremizer lies in the span up to round-off (relative residual " // &
+          str(err) // " <= " // str(ROUNDOFF_FLOOR) // "): delta is below the round-off level"
+        exit
+      end if
       gid = nint(best(2), i8)
       ! the owner forms the candidate, everybody orthonormalises it into v
       k = int((gid - 1) / cone%r - col_offset) + 1
@@ -143,7 +166,10 @@ contains
       do j = 1, 2
         s = s - matmul(v, matmul(s, v))
       end do
-      if (.not. (norm2(s) > 0)) exit
+      if (.not. (norm2(s) > 0)) then
+        res%note = "the selected supremizer lies in the span of the basis"
+        exit
+      end if
       s = s / norm2(s)
       allocate(vn(nd, size(v, 2) + 1))
       vn(:, 1:size(v, 2)) = v

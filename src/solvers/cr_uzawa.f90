@@ -2,15 +2,24 @@
 !>   u_{k+1} = v - B^T lambda_k,  lambda_{k+1} = max(0, lambda_k + rho (B u_{k+1} - d)),
 !> rho = uzawa_rho_factor / h^2, stopped when the relative changes of u and of lambda,
 !> |x_k - x_{k-1}| / (|x_{k-1}| + 1), are both <= uzawa_eps.
+!>
+!> Divergence: with rho above the convergence bound the iterates may grow without limit.
+!> Once h max(lambda) exceeds DIVERGED times the velocity scale of the problem (no converged
+!> multiplier comes near: that would mean forces 1e100 times the desired motion), or an
+!> iterate is not finite, the solve stops with an error naming rho and the bound, before
+!> any overflow: there is no usable velocity to return.
 module cr_uzawa
   use cr_kinds, only: wp
-  use cr_error, only: error_t
+  use cr_error, only: error_t, set_error
   use cr_strings, only: str
-  use cr_contact_set, only: contact_set_t
+  use cr_contact_set, only: contact_set_t, velocity_scale
   use cr_projection, only: projection_solver_t, solve_stats_t, finish_stats, check_sizes, add_note
   implicit none
   private
   public :: uzawa_solver_t
+
+  !> divergence threshold on h max(lambda) / velocity scale
+  real(wp), parameter :: DIVERGED = 1.0e100_wp
 
   !> Uzawa projection (fixed-step projected gradient on the dual).
   type, extends(projection_solver_t) :: uzawa_solver_t
@@ -32,7 +41,7 @@ contains
     type(solve_stats_t), intent(out) :: stats
     type(error_t), allocatable, intent(out) :: error
     integer :: n, nd, k
-    real(wp) :: rho, lb, du, dl, nu, nl
+    real(wp) :: rho, lb, du, dl, nu, nl, sv
 
     call check_sizes("uzawa", cs, v, u, lambda, error)
     if (allocated(error)) return
@@ -55,6 +64,7 @@ contains
       call add_note(stats, "rho = " // str(rho, "es9.2") // " above the convergence bound 2/L = " &
         // str(2.0_wp / lb, "es9.2") // " (L: Gershgorin bound of ||B||^2)")
     end if
+    sv = velocity_scale(cs, v)
     u = v
     do k = 1, this%settings%uzawa_max_iter
       this%uold(1:nd) = u
@@ -64,6 +74,14 @@ contains
       call cs%apply_b(u, this%bu(1:n))
       lambda(1:n) = max(0.0_wp, lambda(1:n) + rho * (this%bu(1:n) - cs%gap(1:n)))
       stats%iterations = k
+      if (.not. (cs%h * maxval(lambda(1:n)) <= DIVERGED * sv)) then
+        call set_error(error, "uzawa: diverged at iteration " // str(k) // " (multipliers beyond 1e100 " // &
+          "times the velocity scale): rho = uzawa_rho_factor / h^2 = " // str(rho, "es9.2") // " " // &
+          trim(merge("exceeds ", "is below", rho > 2.0_wp / lb)) // " the convergence bound 2/L = " // &
+          str(2.0_wp / lb, "es9.2") // "; lower uzawa_rho_factor (at most " // &
+          str(2.0_wp * cs%h**2 / lb, "es9.2") // " is safe for these contacts)", 2)
+        return
+      end if
       if (k > 1) then
         du = norm2(u - this%uold(1:nd)); nu = norm2(this%uold(1:nd))
         dl = norm2(lambda(1:n) - this%lold(1:n)); nl = norm2(this%lold(1:n))

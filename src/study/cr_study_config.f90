@@ -112,6 +112,9 @@ contains
       else if (nm == 'speed' .or. nm == 'speeds') then
         call probs%need(s%param_min(k) >= 0, "&study: " // nm // " range must be >= 0 (param_min = " // &
           str(s%param_min(k)) // ")")
+        ! prescribed desired velocities ignore the speeds: every sample would be the same
+        call probs%need(cfg%desired%mode /= 'file', "&study: parameter '" // nm // "' has no effect with " // &
+          "&desired mode = 'file' (prescribed velocities): every sample would be identical")
       end if
     end do
     if (any(s%param_name(1:np) == 'speed') .and. any(s%param_name(1:np) == 'speeds')) &
