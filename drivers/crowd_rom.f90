@@ -521,6 +521,12 @@ contains
       call js%add("infeasible_steps", sum(rows%infeasible))
       call js%add("capped_steps", sum(rows%capped))
       call js%add("t_step_rom_min", minval(rows%t_step))
+      call js%add("e_avg_max", maxval(rows%e_avg))
+      call js%add("mobility_min", minval(rows%mobility))
+      call js%add("mobility_max", maxval(rows%mobility))
+      call js%add("agents_not_left", sum(rows%not_left))
+      call js%add("agents_not_left_fom", sum(rows%not_left_fom))
+      call js%add("extrapolating_samples", sum(rows%extrapolating))
       call js%write_file(cli%summary, error)
     end subroutine write_summary
 

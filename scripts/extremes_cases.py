@@ -801,4 +801,126 @@ def all_cases():
                  full_offline="pga_delta = 1.0e-300, pod_n = 5, pga_max_add = 400"))
     add(off_case("offline_pga_delta_above", "completes: delta above every error adds no supremizer",
                  "study_tiny.nml", "pga_delta = 10.0", offline_completes(pga_above), full_study=HALL20_STUDY))
+    cases += online_cases()
+    return cases
+
+
+# ----------------------------------------------------------------------------- online (crowd_rom)
+
+def parse_rom(r, ctx):
+    if r.rc != 0 or not r.summary:
+        return parse_default(r, ctx)
+    s = r.summary
+    if s["e_avg_max"] < 0:
+        out = "completed (no full-order reference): deepest overlap %s" % fmt(s["max_overlap"])
+    else:
+        out = "completed: E_avg <= %s, deepest overlap %s, mobility %s..%s" % (
+            fmt(s["e_avg_max"]), fmt(s["max_overlap"]), fmt(s["mobility_min"], ".2f"), fmt(s["mobility_max"], ".2f"))
+    if s["infeasible_steps"]:
+        out += ", %d infeasible steps" % s["infeasible_steps"]
+    if s["extrapolating_samples"]:
+        out += ", %d extrapolating samples (flagged)" % s["extrapolating_samples"]
+    return {"outcome": out, "measure": "E_avg %s" % (fmt(s["e_avg_max"]) if s["e_avg_max"] >= 0 else "-"),
+            "iterations": "capped steps %d" % s["capped_steps"], "time": r.wall}
+
+
+def rom_output_ok(c, r, ctx, extra=None):
+    """crowd_rom completed: result file and CSV written, no NaN/Inf, errors in [0, 2]."""
+    if not check_completed(c, r):
+        return
+    path = os.path.join(ctx.workdir, "run.h5")
+    if not c.need(os.path.exists(path), "no result file"):
+        return
+    c.need(os.path.exists(os.path.join(ctx.workdir, "run.csv")), "no CSV table")
+    bad = nonfinite_in_h5(path)
+    c.need(not bad, "NaN/Inf in the result file: %s" % bad[:5])
+    with h5py.File(path, "r") as f:
+        for k in range(1, int(f.attrs["n_settings"]) + 1):
+            for sname in f["setting_%d" % k]:
+                g = f["setting_%d/%s" % (k, sname)]
+                e = g["E_mu"][...]
+                c.need(np.all((e == -1) | ((e >= 0) & (e <= 2))), "setting %d: E_mu out of [0, 2]: %s" % (k, e))
+                c.need(np.all(g["max_overlap"][...] >= 0), "negative overlap")
+        if extra is not None:
+            extra(c, r, ctx, f)
+
+
+def rom_case(name, expected, offline, rom, check, full_offline=None, full_rom=None, study="study_tiny.nml",
+             full_study=None, **kw):
+    """crowd_snapshots, crowd_offline, then crowd_rom on one input (study + &offline + &rom)."""
+    off = "database = 'db.h5', rom_file = 'rom.h5', infsup_samples = 2, infsup_n = 2, infsup_r = 2, "
+    ro = "rom_file = 'rom.h5', output = 'run.h5', table = 'run.csv', fom_timing_samples = 1, timing_repeats = 1, "
+    groups = {"small": {"offline": off + offline, "rom": ro + rom}}
+    groups["full"] = dict(full_study or {})
+    groups["full"]["offline"] = off + (full_offline or offline)
+    groups["full"]["rom"] = ro + (full_rom or rom)
+    return Case(name, "online", expected, "crowd_rom", study, groups, check, parse=parse_rom,
+                before=[("crowd_snapshots", 1), ("crowd_offline", 1)], **kw)
+
+
+def online_cases():
+    """The reduced model at its extremes (tiny study; the full size runs the hall20 study)."""
+    cases = []
+    add = cases.append
+
+    def locking(c, r, ctx, f):
+        # too many constraints on too small a velocity space: the crowd is slowed down
+        mob = f["setting_1/valid/mobility"][...]
+        c.need(np.all(mob >= 0), "no mobility figure")
+        c.need(mob.mean() < 0.95, "no locking measured (mobility %s)" % mob)
+
+    add(rom_case("online_locking", "completes: R >> N without supremizers; locking is measured (mobility < 1: "
+                 "the reduced crowd moves less than the full-order one), never a NaN",
+                 "pga = .false., pod_energy = 0.0, cone_delta = 0.0, rom_n = 1, rom_r = 9",
+                 "sets = 'valid', n = 1, r = 9, hyper = 'none'",
+                 lambda c, r, ctx: rom_output_ok(c, r, ctx, locking),
+                 full_study=HALL20_STUDY, full_offline="pga = .false., pod_energy = 0.0, cone_delta = 0.0, "
+                 "rom_n = 2, rom_r = 60", full_rom="sets = 'valid', n = 2, r = 60, hyper = 'none'"))
+
+    def no_constraint(c, r, ctx, f):
+        c.need(f["setting_1"].attrs["r"] == 0, "R is not 0")
+        c.need("beta" not in f["setting_1/valid"] or f["setting_1/valid/beta"].shape[-1] == 0, "multipliers for R = 0")
+
+    add(rom_case("online_r0", "completes: R = 0 (no constraint): the reduced velocity is the projected desired "
+                 "velocity; overlaps (agents passing through each other) are reported, not hidden",
+                 "pod_energy = 0.0, rom_n = 4, rom_r = 0", "sets = 'valid', n = 4, r = 0, hyper = 'eq'",
+                 lambda c, r, ctx: rom_output_ok(c, r, ctx, no_constraint),
+                 full_study=HALL20_STUDY, full_offline="pod_energy = 0.0, rom_n = 10, rom_r = 0",
+                 full_rom="sets = 'valid', n = 10, r = 0, hyper = 'eq'"))
+    add(rom_case("online_n1", "completes: N = 1 with the supremizers of R = 3 cone vectors, finite errors",
+                 "pod_energy = 0.0, rom_n = 1, rom_r = 3", "sets = 'both', n = 1, 1, r = 3, 3, hyper = 'eq', 'none'",
+                 lambda c, r, ctx: rom_output_ok(c, r, ctx), full_study=HALL20_STUDY))
+
+    def extrapolates(c, r, ctx, f):
+        c.need(f["setting_1/given/extrapolating"][...].tolist() == [1], "extrapolation not flagged")
+        c.need("outside the training box" in r.out, "no extrapolation warning")
+
+    add(rom_case("online_extrapolation", "completes: a parameter outside the training box runs and is flagged "
+                 "as extrapolating (warning and output flag)",
+                 "pod_energy = 0.0, rom_n = 4, rom_r = 3", "sets = 'given', mu = 0.3, 8*1.5, n = 4, r = 3",
+                 lambda c, r, ctx: rom_output_ok(c, r, ctx, extrapolates),
+                 full_study=HALL20_STUDY, full_offline="pod_energy = 1e-4, rom_n = 10, rom_r = 15",
+                 full_rom="sets = 'given', mu = 0.45, 20*1.6, n = 10, r = 15"))
+    add(rom_case("online_m_above_candidates", "refused: m_b larger than the EQ candidates of the pair",
+                 "pod_energy = 0.0, rom_n = 4, rom_r = 3", "sets = 'valid', n = 4, r = 3, hyper = 'eq', m_b = 1000",
+                 refused(r"m_b = 1000 is larger than the \d+ EQ candidates", files=("run.h5", "summary.json")),
+                 full_study=HALL20_STUDY, full_offline="rom_n = 10, rom_r = 15",
+                 full_rom="sets = 'valid', n = 10, r = 15, hyper = 'eq', m_b = 1000"))
+
+    def eim_clamped(c, r, ctx, f):
+        with h5py.File(os.path.join(ctx.workdir, "rom.h5"), "r") as rom:
+            g = rom["pairs/1/eim"]
+            notes = [attr_str(g[t].attrs.get("note", b"")) for t in ("s1", "s2", "s3")]
+            ms = [int(g[t].attrs["m"]) for t in ("s1", "s2", "s3")]
+            ps = [int(g[t].attrs["p"]) for t in ("s1", "s2", "s3")]
+        c.need(all(m <= p for m, p in zip(ms, ps)), "EIM kept more points than candidates")
+        c.need(any("rank" in n for n in notes), "no note on the EIM rank clamp: %s" % notes)
+
+    add(rom_case("online_eim_above_rank", "completes: EIM asked for more points than the numerical rank of a term "
+                 "keeps the rank (note in the ROM file); the ROM runs with them",
+                 "pod_energy = 0.0, rom_n = 4, rom_r = 3, hyper_m_factor = 50.0",
+                 "sets = 'valid', n = 4, r = 3, hyper = 'eim'",
+                 lambda c, r, ctx: rom_output_ok(c, r, ctx, eim_clamped),
+                 full_study=HALL20_STUDY, full_offline="pod_energy = 1e-4, rom_n = 10, rom_r = 15, hyper_m_factor = 50.0",
+                 full_rom="sets = 'valid', n = 10, r = 15, hyper = 'eim'"))
     return cases
