@@ -717,6 +717,11 @@ def all_cases():
              {"small": {"solver": "name = 'uzawa', uzawa_rho_factor = 5.0"}},
              refused(r"sample \d+ .*uzawa: diverged", files=("db.h5", "summary.json")),
              parse=parse_snapshots, np=2))
+    add(Case("snapshots_speed_without_effect", "snapshots", "refused: a study varying the speeds of prescribed "
+             "desired velocities (&desired mode = 'file') would give identical samples", "crowd_snapshots",
+             "study_tiny.nml", {"small": {"desired": "mode = 'file', file = 'vectors.txt'"}},
+             refused(r"parameter 'speeds' has no effect with &desired mode = 'file'", files=("db.h5", "summary.json")),
+             parse=parse_snapshots, files={"vectors.txt": "0.0 1.0\n" * 8}))
     # -- offline
     def rank_one(c, r, ctx, rom):
         c.need(rom.rank == 1 and rom.n_pod == 1, "numerical rank %d, N_pod %d (expected 1, 1)" % (rom.rank, rom.n_pod))
