@@ -108,6 +108,18 @@ contains
     call pga_enrich(solo, [scene], [(1, k = 1, nsnap)], rad, h, dia, dib, dob, cone, q, 0_i8, vs, &
       1.0e-8_wp, 1, ress, err)
     call check(ress%n_added == 1 .and. ress%err(2) > 1.0e-8_wp, "max_add caps the enrichment")
+    call check(allocated(ress%note), "max_add: the note says why PGA stopped")
+    ! a delta below the round-off level: PGA stops at the whole space or at round-off, with a
+    ! note, and never adds directions made of rounding errors
+    vs = v0
+    call pga_enrich(solo, [scene], [(1, k = 1, nsnap)], rad, h, dia, dib, dob, cone, q, 0_i8, vs, &
+      1.0e-300_wp, 10 * nd, ress, err)
+    call check(.not. allocated(err), "tiny delta: not an error")
+    call check(size(vs, 2) <= nd, "tiny delta: no more basis vectors than dofs")
+    call check(allocated(ress%note), "tiny delta: the note says why PGA stopped")
+    call check(maxval(abs(matmul(transpose(vs), vs) - eye(size(vs, 2)))) < 1e-12_wp, "tiny delta: basis orthonormal")
+    call check(all(ress%err == ress%err) .and. ress%err(ress%n_added + 1) <= 1.0e-12_wp, &
+      "tiny delta: every supremizer represented to round-off")
   end subroutine test_pga
 
   subroutine test_infsup()

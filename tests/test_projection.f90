@@ -207,6 +207,16 @@ contains
     call build('uzawa', s, su)
     call su%solve(cs, v, u, l, st, err)
     call check(st%rho_above_bound .and. index(st%note, "bound") > 0, "uzawa: rho above bound flagged")
+    ! far above the bound Uzawa diverges: an error naming rho and the bound, before any overflow
+    s%uzawa_rho_factor = 200.0_wp * h**2 / cs%lipschitz_bound()
+    s%uzawa_max_iter = 1000000
+    call build('uzawa', s, su)
+    l = 0.0_wp
+    call su%solve(cs, v, u, l, st, err)
+    call check(allocated(err), "uzawa: divergence is an error")
+    if (allocated(err)) call check(index(err%message, "diverged") > 0 .and. &
+      index(err%message, "convergence bound") > 0, "uzawa: divergence message names rho and the bound")
+    call check(st%iterations < 1000000, "uzawa: divergence detected before the iteration cap")
     ! sizes
     call sa%solve(cs, v(1:4), u, l, st, err)
     call check(allocated(err), "size mismatch is an error")
