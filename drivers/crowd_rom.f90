@@ -92,6 +92,7 @@ contains
     type(rom_pair_data_t), allocatable :: pairs(:)
     logical, allocatable :: loaded(:)
     type(row_t), allocatable :: rows(:)
+    integer, allocatable :: pair_of(:)
     integer :: ks, ib, kp, nrow
 
     where = cli%input // ": &rom"
@@ -125,9 +126,10 @@ contains
     end if
     allocate(pairs(hdr%n_pairs), loaded(hdr%n_pairs))
     loaded = .false.
+    allocate(pair_of(size(setting_ids)))
     do ks = 1, size(setting_ids)
       call find_pair(hdr, rcfg%n(setting_ids(ks)), rcfg%r(setting_ids(ks)), where // ": setting " // &
-        str(setting_ids(ks)), kp, error)
+        str(setting_ids(ks)), pair_of(ks), error)
       if (allocated(error)) return
     end do
     call log%stage_end()
@@ -158,8 +160,7 @@ contains
     allocate(rows(size(setting_ids) * size(blocks)))
     nrow = 0
     do ks = 1, size(setting_ids)
-      call find_pair(hdr, rcfg%n(setting_ids(ks)), rcfg%r(setting_ids(ks)), where, kp, error)
-      if (allocated(error)) goto 9
+      kp = pair_of(ks)
       if (.not. loaded(kp)) then
         call load_rom_pair(hdr, kp, pairs(kp), error); if (allocated(error)) goto 9
         loaded(kp) = .true.

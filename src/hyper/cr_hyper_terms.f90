@@ -20,7 +20,7 @@ module cr_hyper_terms
   use cr_contact_eval, only: eval_contact
   implicit none
   private
-  public :: hyper_terms_t
+  public :: hyper_terms_t, contact_row_image
 
   !> Candidate entries of s1, s2, s3 for one reduced cone.
   type :: hyper_terms_t
@@ -150,8 +150,7 @@ contains
     do k = 1, size(this%rows)
       a = this%ia(k); b = this%ib(k)
       call eval_contact(scene, q, radius, a, b, this%ob(k), gap, g)
-      y(k, :) = -h * (g(1) * v(2*a-1, :) + g(2) * v(2*a, :))
-      if (b > 0) y(k, :) = y(k, :) + h * (g(1) * v(2*b-1, :) + g(2) * v(2*b, :))
+      y(k, :) = contact_row_image(v, a, b, g, h)
     end do
   end subroutine row_images
 
@@ -189,4 +188,13 @@ contains
       s2(i) = this%s2_sgn(i) * h * gx(2 - mod(this%s2_dof(i), 2), this%s2_row(i))
     end do
   end subroutine snapshot
+  !> b V for the contact row b of agents a, b (b = 0: obstacle) with unit normal g:
+  !> B = -h G puts -h g on agent a's dofs and +h g on agent b's; v [n_dof, Nb] -> [Nb].
+  pure function contact_row_image(v, a, b, g, h) result(y)
+    real(wp), intent(in) :: v(:,:), g(2), h
+    integer, intent(in) :: a, b
+    real(wp) :: y(size(v, 2))
+    y = -h * (g(1) * v(2*a-1, :) + g(2) * v(2*a, :))
+    if (b > 0) y = y + h * (g(1) * v(2*b-1, :) + g(2) * v(2*b, :))
+  end function contact_row_image
 end module cr_hyper_terms

@@ -20,6 +20,7 @@ module cr_reduced_ops
   use cr_contact_set, only: contact_set_t
   use cr_neighbours, only: cell_list_t, build_contacts
   use cr_rom_model, only: rom_pair_data_t
+  use cr_hyper_terms, only: contact_row_image
   use cr_eim, only: eim_t, eim_interp_matrix
   implicit none
   private
@@ -468,8 +469,7 @@ contains
     do k = 1, size(this%ia)
       a = this%ia(k); b = this%ib(k)
       call eval_contact(ctx%scene, q, ctx%radius, a, b, this%ob(k), gap, g)
-      bv = -ctx%h * (g(1) * this%v(2*a-1, :) + g(2) * this%v(2*a, :))
-      if (b > 0) bv = bv + ctx%h * (g(1) * this%v(2*b-1, :) + g(2) * this%v(2*b, :))
+      bv = contact_row_image(this%v, a, b, g, ctx%h)
       do p = this%wp0(k) + 1, this%wp0(k + 1)
         j = this%wk(p)
         bhat(j, :) = bhat(j, :) + this%wv(p) * bv
@@ -503,9 +503,7 @@ contains
     if (.not. allocated(bhat)) allocate(bhat(this%cs%n, this%nb), dhat(this%cs%n))
     do l = 1, this%cs%n
       a = this%cs%ia(l); b = this%cs%ib(l)
-      bhat(l, :) = -ctx%h * (this%cs%g(1, l) * this%v(2*a-1, :) + this%cs%g(2, l) * this%v(2*a, :))
-      if (b > 0) bhat(l, :) = bhat(l, :) + ctx%h * (this%cs%g(1, l) * this%v(2*b-1, :) + &
-        this%cs%g(2, l) * this%v(2*b, :))
+      bhat(l, :) = contact_row_image(this%v, a, b, this%cs%g(:, l), ctx%h)
       dhat(l) = this%cs%gap(l)
     end do
   end subroutine online_assemble

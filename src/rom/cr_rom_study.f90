@@ -14,7 +14,7 @@ module cr_rom_study
   use cr_rom_model, only: rom_header_t
   implicit none
   private
-  public :: rom_study_t, sample_block_t, open_study, read_block_set, fom_ok
+  public :: rom_study_t, sample_block_t, open_study, read_block_set
 
   !> Samples of one set and, for database sets, their full-order trajectories.
   type :: sample_block_t
@@ -137,9 +137,4 @@ contains
     if (allocated(e2)) call move_alloc(e2, error)
   end subroutine read_block_set
 
-  !> .true. when the block carries full-order trajectories.
-  pure logical function fom_ok(blk)
-    type(sample_block_t), intent(in) :: blk
-    fom_ok = blk%has_fom
-  end function fom_ok
 end module cr_rom_study

@@ -533,16 +533,11 @@ contains
       else
         call ldp_active_guess(bm, d, v, u, lambda, wk, feasible)
       end if
-      if (feasible) then
-        stats%nnls%n_passive = count(lambda > 0.0_wp)
-        stats%max_violation = 0.0_wp
-        do i = 1, mc
-          stats%max_violation = max(stats%max_violation, dot_product(bm(i, :), u) - d(i))
-        end do
-        return
-      end if
+      if (feasible) stats%nnls%n_passive = count(lambda > 0.0_wp)
+    else
+      feasible = .false.
     end if
-    call ldp_project(bm, d, v, u, lambda, stats, error, max_iter, wk, feasible)
+    if (.not. feasible) call ldp_project(bm, d, v, u, lambda, stats, error, max_iter, wk, feasible)
     if (allocated(error)) return
     if (.not. feasible) call least_violation(bm, d, v, u, lambda, stats, error, max_iter, wk)
     if (allocated(error)) return
