@@ -23,7 +23,7 @@ program crowd_offline
   use cr_sparse_cone, only: sparse_cone_t
   use cr_supremizer, only: pga_result_t, pga_enrich
   use cr_infsup_table, only: infsup_table
-  use cr_rom_file, only: rom_tables_t, write_rom_file
+  use cr_rom_file, only: rom_file_t, rom_tables_t, write_rom_file
   use cr_rom_pairs, only: rom_pair_t, build_pair, TERM_NAMES
   use cr_json, only: json_writer_t
   implicit none
@@ -226,9 +226,22 @@ contains
 
     ! ---- ROM file
     call log%stage_begin("crowd_offline: write " // trim(ocfg%rom_file))
-    if (env%is_root()) call write_rom_file(trim(ocfg%rom_file), config_echo(cfg) // offline_echo(ocfg), &
-      trim(ocfg%database), data%config_hash, data%n_agents, data%n_steps, data%radius, data%dt, pod, v, n_pod, &
-      cone, other, pga, data%dict_ia, data%dict_ib, data%dict_ob, tab, pairs, error)
+    if (env%is_root()) then
+      block
+        type(rom_file_t) :: rom
+        rom%config = config_echo(cfg) // offline_echo(ocfg)
+        rom%database = trim(ocfg%database); rom%db_hash = data%config_hash
+        rom%n_agents = data%n_agents; rom%n_steps = data%n_steps; rom%radius = data%radius; rom%dt = data%dt
+        rom%pod_method = pod%method; rom%pod_rank = pod%rank; rom%pod_total_energy = pod%total_energy
+        rom%pod_sigma = pod%sigma_all
+        rom%v = v; rom%n_pod = n_pod
+        rom%cone = cone; rom%cone_other = other
+        rom%pga_err = pga%err
+        rom%dict_ia = data%dict_ia; rom%dict_ib = data%dict_ib; rom%dict_ob = data%dict_ob
+        rom%tables = tab
+        call write_rom_file(trim(ocfg%rom_file), rom, pairs, error)
+      end block
+    end if
     failed = collective_fail()
     if (failed) return
     call log%stage_end()

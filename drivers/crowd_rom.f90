@@ -21,7 +21,7 @@ program crowd_rom
   use cr_config, only: config_t, FOM_GROUPS
   use cr_namelist_text, only: namelist_text_t
   use cr_rom_config, only: rom_cfg_t, read_rom, check_rom, rom_echo, MAX_SETTINGS
-  use cr_rom_model, only: rom_header_t, rom_pair_data_t, read_rom_header, load_rom_pair, find_pair
+  use cr_rom_file, only: rom_file_t, rom_pair_t, read_rom_file, read_rom_pair, find_pair
   use cr_rom_study, only: rom_study_t, sample_block_t, open_study, read_block_set
   use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t, make_reduced_ops
   use cr_rom_stepper, only: rom_solver_cfg_t, rom_traj_t, run_trajectory, reduced_positions
@@ -48,7 +48,7 @@ program crowd_rom
   type(error_t), allocatable :: error
   integer :: code
   ! state of the run, shared by the procedures below
-  type(rom_header_t) :: hdr
+  type(rom_file_t) :: hdr
   type(rom_study_t) :: st
   type(sample_block_t), allocatable :: blocks(:)
   type(h5file_t) :: h5
@@ -89,7 +89,7 @@ contains
 
   subroutine run(error)
     type(error_t), allocatable, intent(out) :: error
-    type(rom_pair_data_t), allocatable :: pairs(:)
+    type(rom_pair_t), allocatable :: pairs(:)
     logical, allocatable :: loaded(:)
     type(row_t), allocatable :: rows(:)
     integer, allocatable :: pair_of(:)
@@ -97,7 +97,7 @@ contains
 
     where = cli%input // ": &rom"
     call log%stage_begin("crowd_rom: read ROM file and study")
-    call read_rom_header(trim(rcfg%rom_file), where // ": rom_file", hdr, error)
+    call read_rom_file(trim(rcfg%rom_file), where // ": rom_file", hdr, error)
     if (allocated(error)) return
     dbpath = trim(rcfg%database)
     if (len(dbpath) == 0) dbpath = hdr%database
@@ -162,7 +162,7 @@ contains
     do ks = 1, size(setting_ids)
       kp = pair_of(ks)
       if (.not. loaded(kp)) then
-        call load_rom_pair(hdr, kp, pairs(kp), error); if (allocated(error)) goto 9
+        call read_rom_pair(hdr, kp, pairs(kp), error); if (allocated(error)) goto 9
         loaded(kp) = .true.
       end if
       call log%stage_begin("crowd_rom: setting " // str(ks) // " of " // str(size(setting_ids)) // ": (N, R) = (" // &
@@ -221,7 +221,7 @@ contains
     !> Run setting ks (index kset in the &rom arrays) on one block of samples.
     subroutine run_setting(ks, kset, pair, blk, row, error)
       integer, intent(in) :: ks, kset
-      type(rom_pair_data_t), intent(in) :: pair
+      type(rom_pair_t), intent(in) :: pair
       type(sample_block_t), intent(in) :: blk
       type(row_t), intent(out) :: row
       type(error_t), allocatable, intent(out) :: error
@@ -553,7 +553,7 @@ contains
 
 
   function pair_list(hdr) result(s)
-    type(rom_header_t), intent(in) :: hdr
+    type(rom_file_t), intent(in) :: hdr
     character(len=:), allocatable :: s
     integer :: k
     s = ""

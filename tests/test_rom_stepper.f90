@@ -40,7 +40,7 @@ program test_rom_stepper
   use cr_rom_stepper, only: rom_solver_cfg_t, rom_traj_t, run_trajectory, reduced_positions
   use test_rom_stepper_ops, only: const_ops_t
   use cr_config, only: scene_cfg_t, obstacles_cfg_t, desired_cfg_t
-  use cr_rom_model, only: rom_pair_data_t
+  use cr_rom_file, only: rom_pair_t
   use cr_sparse_cone, only: sparse_cone_t
   use cr_reduced_ops, only: reduced_ops_t, make_reduced_ops
   use cr_random, only: rng_t
@@ -109,7 +109,7 @@ contains
     type(obstacles_cfg_t) :: oc
     type(desired_cfg_t) :: dc
     type(eval_ctx_t) :: c2
-    type(rom_pair_data_t) :: pair
+    type(rom_pair_t) :: pair
     type(sparse_cone_t) :: cone
     class(reduced_ops_t), allocatable :: rops
     type(rng_t) :: rng

@@ -13,6 +13,8 @@ module cr_cone
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
   use cr_env, only: env_t
+  !> the result of a cone construction is the cone record of the ROM file
+  use cr_rom_file, only: cone_result_t => rom_cone_t
   use cr_nnls, only: nnls_solve, nnls_stats_t, ldp_solve, ldp_stats_t, nnls_work_t
   implicit none
   private
@@ -31,26 +33,6 @@ module cr_cone
     integer, allocatable :: idx(:)
     real(wp), allocatable :: val(:)
   end type sparse_columns_t
-
-  !> Result of a cone construction.
-  type :: cone_result_t
-    character(len=8) :: method = ''
-    !> number of cone vectors R
-    integer :: r = 0
-    !> gIS: selected dictionary indices i_1..i_R (psi_r = e_{i_r}) [R]
-    integer, allocatable :: indices(:)
-    !> mCPG: cone vectors psi_1..psi_R [n_dict, R]
-    real(wp), allocatable :: psi(:,:)
-    !> global snapshot column selected at each iteration [R]
-    integer(i8), allocatable :: sigma(:)
-    !> maximum relative projection error e_r after r vectors, r = 0..R [R + 1]
-    real(wp), allocatable :: err_max(:)
-    !> mean relative projection error over the snapshots, r = 0..R [R + 1]
-    real(wp), allocatable :: err_mean(:)
-    !> wall time of the construction (s)
-    real(wp) :: time = 0
-    character(len=:), allocatable :: note
-  end type cone_result_t
 
 contains
 

@@ -2,6 +2,7 @@
 !> POD modes enriched by PGA supremizers of the first R cone vectors) and the hyper-reduction
 !> of s1 = v(q), s2 = B(q), s3 = d(q) for that pair: EIM (POD + DEIM of the candidate
 !> snapshots) and Empirical Quadrature (NNOMP on the Gramians summed over all ranks).
+!> The pair type is the ROM file's (cr_rom_file).
 !> Training snapshots of the terms are evaluated at the training configurations q^{nu-1}
 !> each rank holds; nothing is gathered except p x p Gramians and the POD's small factors.
 module cr_rom_pairs
@@ -12,30 +13,12 @@ module cr_rom_pairs
   use cr_offline_data, only: offline_data_t
   use cr_sparse_cone, only: sparse_cone_t
   use cr_supremizer, only: pga_result_t, pga_enrich
-  use cr_hyper_terms, only: hyper_terms_t
-  use cr_eim, only: eim_t, eim_build
-  use cr_eq, only: eq_t, eq_gramian, eq_build
-  use cr_h5file, only: h5file_t
+  use cr_eim, only: eim_build
+  use cr_eq, only: eq_gramian, eq_build
+  use cr_rom_file, only: rom_pair_t, TERM_NAMES
   implicit none
   private
-  public :: rom_pair_t, build_pair, write_pair, cone_prefix, TERM_NAMES
-
-  character(len=2), parameter :: TERM_NAMES(3) = ['s1', 's2', 's3']
-
-  !> One prepared reduced model.
-  type :: rom_pair_t
-    !> POD modes, cone vectors, supremizers
-    integer :: n = 0, r = 0, n_pga = 0
-    !> velocity basis [n_dof, n + n_pga] (POD modes first)
-    real(wp), allocatable :: v(:,:)
-    !> PGA history: largest relative projection error before each addition and at the end
-    real(wp), allocatable :: pga_err(:)
-    type(hyper_terms_t) :: terms
-    logical :: hyper = .false.
-    type(eim_t) :: eim(3)
-    type(eq_t) :: eq(3)
-    real(wp) :: t_pga = 0, t_snap = 0, t_eim = 0, t_eq = 0
-  end type rom_pair_t
+  public :: rom_pair_t, build_pair, cone_prefix, TERM_NAMES
 
 contains
 
@@ -96,6 +79,7 @@ contains
       pair%pga_err = [0.0_wp]
     end if
     pair%t_pga = env%wtime() - t0
+    pair%nb = size(pair%v, 2)
     call pair%terms%init(cr, r, data%dict_ia, data%dict_ib, data%dict_ob, data%n_dof, error)
     if (allocated(error)) return
     pair%hyper = hyper
@@ -183,64 +167,4 @@ contains
       if (any(.not. abs(h) <= huge(1.0_wp))) call set_error(error, "the row Gramian is not finite")
     end subroutine row_gramian
   end subroutine build_hyper
-
-  !> Write `pair` into group `g` of an open ROM file (rank 0).
-  subroutine write_pair(h5, g, pair, error)
-    type(h5file_t), intent(inout) :: h5
-    character(len=*), intent(in) :: g
-    type(rom_pair_t), intent(in) :: pair
-    type(error_t), allocatable, intent(out) :: error
-    integer :: k
-    character(len=:), allocatable :: t
-    call h5%make_group(g, error); if (allocated(error)) return
-    call h5%write_attr(g, "n", pair%n, error); if (allocated(error)) return
-    call h5%write_attr(g, "r", pair%r, error); if (allocated(error)) return
-    call h5%write_attr(g, "n_pga", pair%n_pga, error); if (allocated(error)) return
-    call h5%write_attr(g, "n_basis", size(pair%v, 2), error); if (allocated(error)) return
-    call h5%write_attr(g, "hyper", merge(1, 0, pair%hyper), error); if (allocated(error)) return
-    call h5%write_attr(g, "time_pga", pair%t_pga, error); if (allocated(error)) return
-    call h5%write_attr(g, "time_snapshots", pair%t_snap, error); if (allocated(error)) return
-    call h5%write_attr(g, "time_eim", pair%t_eim, error); if (allocated(error)) return
-    call h5%write_attr(g, "time_eq", pair%t_eq, error); if (allocated(error)) return
-    call h5%write(g // "/v", pair%v, error); if (allocated(error)) return
-    call h5%write(g // "/pga_err", pair%pga_err, error); if (allocated(error)) return
-    call h5%make_group(g // "/cand", error); if (allocated(error)) return
-    call h5%write(g // "/cand/rows", pair%terms%rows, error); if (allocated(error)) return
-    call h5%write(g // "/cand/w", pair%terms%w, error); if (allocated(error)) return
-    call h5%write(g // "/cand/s2_row", pair%terms%s2_row, error); if (allocated(error)) return
-    call h5%write(g // "/cand/s2_dof", pair%terms%s2_dof, error); if (allocated(error)) return
-    if (.not. pair%hyper) return
-    call h5%make_group(g // "/eim", error); if (allocated(error)) return
-    call h5%make_group(g // "/eq", error); if (allocated(error)) return
-    do k = 1, 3
-      t = g // "/eim/" // TERM_NAMES(k)
-      call h5%make_group(t, error); if (allocated(error)) return
-      call h5%write_attr(t, "p", pair%terms%p(k), error); if (allocated(error)) return
-      call h5%write_attr(t, "m", pair%eim(k)%m, error); if (allocated(error)) return
-      if (allocated(pair%eim(k)%note)) then
-        call h5%write_attr(t, "note", pair%eim(k)%note, error); if (allocated(error)) return
-      end if
-      if (pair%eim(k)%m > 0) then
-        call h5%write(t // "/basis", pair%eim(k)%basis(:, 1:pair%eim(k)%m), error); if (allocated(error)) return
-        call h5%write(t // "/indices", pair%eim(k)%idx(1:pair%eim(k)%m), error); if (allocated(error)) return
-        call h5%write(t // "/err", pair%eim(k)%err(1:pair%eim(k)%m), error); if (allocated(error)) return
-      end if
-      if (allocated(pair%eim(k)%sigma)) then
-        call h5%write(t // "/sigma", pair%eim(k)%sigma, error); if (allocated(error)) return
-      end if
-      t = g // "/eq/" // TERM_NAMES(k)
-      call h5%make_group(t, error); if (allocated(error)) return
-      call h5%write_attr(t, "p", pair%eq(k)%p, error); if (allocated(error)) return
-      call h5%write_attr(t, "m", pair%eq(k)%m, error); if (allocated(error)) return
-      if (allocated(pair%eq(k)%note)) then
-        call h5%write_attr(t, "note", pair%eq(k)%note, error); if (allocated(error)) return
-      end if
-      if (pair%eq(k)%m > 0) then
-        call h5%write(t // "/indices", pair%eq(k)%idx(1:pair%eq(k)%m), error); if (allocated(error)) return
-        call h5%write(t // "/weights", pair%eq(k)%w(1:pair%eq(k)%m, 1:pair%eq(k)%m), error)
-        if (allocated(error)) return
-        call h5%write(t // "/err", pair%eq(k)%err(1:pair%eq(k)%m), error); if (allocated(error)) return
-      end if
-    end do
-  end subroutine write_pair
 end module cr_rom_pairs

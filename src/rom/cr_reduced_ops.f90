@@ -19,7 +19,7 @@ module cr_reduced_ops
   use cr_contact_eval, only: eval_contact
   use cr_contact_set, only: contact_set_t
   use cr_neighbours, only: cell_list_t, build_contacts
-  use cr_rom_model, only: rom_pair_data_t
+  use cr_rom_file, only: rom_pair_t
   use cr_hyper_terms, only: contact_row_image
   use cr_eim, only: eim_t, eim_interp_matrix
   implicit none
@@ -135,7 +135,7 @@ contains
   !> stored). `where` prefixes error messages.
   subroutine make_reduced_ops(hyper, contacts, pair, m_req, cutoff_factor, where, ops, error)
     character(len=*), intent(in) :: hyper, contacts
-    type(rom_pair_data_t), intent(in) :: pair
+    type(rom_pair_t), intent(in) :: pair
     integer, intent(in) :: m_req(3)
     real(wp), intent(in) :: cutoff_factor
     character(len=*), intent(in) :: where
@@ -179,7 +179,7 @@ contains
       need = .true.
       call gram_setup(ops, pair)
     type is (ops_eim_t)
-      call choose_m('EIM', [(pair%term(k)%m_eim, k = 1, 3)], [(pair%terms%p(k), k = 1, 3)], m, error)
+      call choose_m('EIM', [(pair%eim(k)%m, k = 1, 3)], [(pair%terms%p(k), k = 1, 3)], m, error)
       if (allocated(error)) return
       ops%m = m
       ops%ia = pair%terms%ia; ops%ib = pair%terms%ib; ops%ob = pair%terms%ob
@@ -188,15 +188,15 @@ contains
       if (allocated(error)) return
       call mark(ops%idx1, ops%s2_row(ops%idx2), ops%idx3, ops%ia, ops%ib)
     type is (ops_eq_t)
-      call choose_m('EQ', [(pair%term(k)%m_eq, k = 1, 3)], [pair%terms%p(1), pair%terms%p(3), pair%terms%p(3)], &
+      call choose_m('EQ', [(pair%eq(k)%m, k = 1, 3)], [pair%terms%p(1), pair%terms%p(3), pair%terms%p(3)], &
         m, error)
       if (allocated(error)) return
       ops%m = m
       ops%ia = pair%terms%ia; ops%ib = pair%terms%ib; ops%ob = pair%terms%ob
       ops%w = pair%terms%w
-      ops%idx1 = pair%term(1)%eq_idx(1:m(1)); ops%w1 = weights(1, m(1))
-      ops%idx2 = pair%term(2)%eq_idx(1:m(2)); ops%w2 = weights(2, m(2))
-      ops%idx3 = pair%term(3)%eq_idx(1:m(3)); ops%w3 = weights(3, m(3))
+      ops%idx1 = pair%eq(1)%idx(1:m(1)); ops%w1 = weights(1, m(1))
+      ops%idx2 = pair%eq(2)%idx(1:m(2)); ops%w2 = weights(2, m(2))
+      ops%idx3 = pair%eq(3)%idx(1:m(3)); ops%w3 = weights(3, m(3))
       call mark(ops%idx1, ops%idx2, ops%idx3, ops%ia, ops%ib)
       call gram_setup(ops, pair)
       call unique_map([ops%idx2, ops%idx3], ops%urows, ops%pos2, ops%pos3, size(ops%idx2))
@@ -215,7 +215,7 @@ contains
       if (mj == 0) then
         allocate(w(0))
       else
-        w = pair%term(j)%eq_w(1:mj, mj)
+        w = pair%eq(j)%w(1:mj, mj)
       end if
     end function weights
 
@@ -302,7 +302,7 @@ contains
   !> Prepare the cheap Gram matrix of the rows (see reduced_ops_t) when it pays.
   subroutine gram_setup(ops, pair)
     class(reduced_ops_t), intent(inout) :: ops
-    type(rom_pair_data_t), intent(in) :: pair
+    type(rom_pair_t), intent(in) :: pair
     integer :: k, n_dof
     n_dof = size(pair%v, 1)
     ops%zmax = 0
@@ -378,18 +378,18 @@ contains
   !> EIM: indices, interpolation inverses and reduced images of the modes.
   subroutine eim_setup(ops, pair, m, error)
     type(ops_eim_t), intent(inout) :: ops
-    type(rom_pair_data_t), intent(in) :: pair
+    type(rom_pair_t), intent(in) :: pair
     integer, intent(in) :: m(3)
     type(error_t), allocatable, intent(out) :: error
     type(eim_t) :: e
     integer :: j, i, mm, nb, r
     nb = pair%nb; r = pair%r
     do j = 1, 3
-      e%p = pair%term(j)%p
+      e%p = pair%eim(j)%p
       e%m = m(j)
       if (m(j) > 0) then
-        e%basis = pair%term(j)%eim_basis(:, 1:m(j))
-        e%idx = pair%term(j)%eim_idx(1:m(j))
+        e%basis = pair%eim(j)%basis(:, 1:m(j))
+        e%idx = pair%eim(j)%idx(1:m(j))
       else
         allocate(e%basis(e%p, 0), e%idx(0))
       end if

@@ -11,7 +11,7 @@ module cr_rom_study
   use cr_namelist_text, only: namelist_text_t
   use cr_study_config, only: study_cfg_t, read_study
   use cr_sampling, only: param_space_t
-  use cr_rom_model, only: rom_header_t
+  use cr_rom_file, only: rom_file_t
   implicit none
   private
   public :: rom_study_t, sample_block_t, open_study, read_block_set
@@ -46,7 +46,7 @@ contains
   !> Open the database at `path` (checked against the ROM header) and read its configuration.
   subroutine open_study(path, where, hdr, st, error)
     character(len=*), intent(in) :: path, where
-    type(rom_header_t), intent(in) :: hdr
+    type(rom_file_t), intent(in) :: hdr
     type(rom_study_t), intent(out) :: st
     type(error_t), allocatable, intent(out) :: error
     type(h5file_t) :: h5
