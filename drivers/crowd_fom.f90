@@ -16,7 +16,7 @@ program crowd_fom
   use cr_config, only: config_t, read_config, config_echo
   use cr_config_check, only: check_config
   use cr_fom, only: fom_t, step_record_t
-  use cr_fom_output, only: fom_writer_t
+  use cr_fom_file, only: fom_writer_t
   use cr_json, only: json_writer_t
   implicit none
   type(env_t) :: env

@@ -30,8 +30,8 @@ program crowd_snapshots
   use cr_sampling, only: param_space_t, sample_set_t, generate_samples
   use cr_scheduler, only: scheduler_t
   use cr_snapshot_piece, only: sample_result_t, compute_sample, write_piece, piece_hash, piece_path
-  use cr_snapshot_db, only: SNAP_SCHEMA_VERSION, db_meta_t, db_totals_t, probe_database, &
-    assemble_database, collective_error
+  use cr_snapshot_file, only: SNAP_SCHEMA_VERSION, db_meta_t
+  use cr_snapshot_db, only: db_totals_t, probe_database, assemble_database, collective_error
   implicit none
   character(len=*), parameter :: CROWDROM_VERSION = "crowdrom 0.1.0"
   !> exit status of a run stopped by --stop-after

@@ -10,7 +10,7 @@ module cr_offline_data
   use cr_env, only: env_t
   use cr_config, only: config_t
   use cr_scene, only: scene_t
-  use cr_h5file, only: h5file_t
+  use cr_snapshot_file, only: snap_header_t, snap_block_t, read_snap_header, read_snap_block
   use cr_distribution, only: block_range
   use cr_cone, only: sparse_columns_t
   implicit none
@@ -45,80 +45,50 @@ contains
     type(config_t), intent(in) :: cfg
     type(offline_data_t), intent(out) :: data
     type(error_t), allocatable, intent(out) :: error
-    type(h5file_t) :: h5
-    type(error_t), allocatable :: e2
-    character(len=:), allocatable :: schema
-    integer(i8), allocatable :: off(:)
-    integer, allocatable :: idx(:)
-    real(wp), allocatable :: val(:), pos(:,:), params(:,:)
-    integer :: complete, nt, k, nu, c, il, j
-    integer(i8) :: p, base
-    call h5%open(path, error, env=env)
-    if (allocated(error)) then
-      error%message = "&offline: database: " // error%message; error%code = 2; return
-    end if
-    call h5%read_attr("/", "schema", schema, error)
-    if (allocated(error)) goto 9
-    if (schema /= "crowdrom-snapshots") then
-      call set_error(error, "&offline: database '" // path // "' is not a snapshot database (schema '" // &
-        schema // "')", 2); goto 9
-    end if
-    call h5%read_attr("/", "complete", complete, error); if (allocated(error)) goto 9
-    if (complete /= 1) then
-      call set_error(error, "&offline: database '" // path // "' is not complete", 2); goto 9
-    end if
-    call h5%read_attr("/", "n_agents", data%n_agents, error); if (allocated(error)) goto 9
-    call h5%read_attr("/", "n_steps", data%n_steps, error); if (allocated(error)) goto 9
-    call h5%read_attr("/", "n_train", data%n_train, error); if (allocated(error)) goto 9
-    call h5%read_attr("/", "agent_radius", data%radius, error); if (allocated(error)) goto 9
-    call h5%read_attr("/", "dt", data%dt, error); if (allocated(error)) goto 9
-    call h5%read_attr("/", "config_hash", data%config_hash, error); if (allocated(error)) goto 9
-    call h5%read_attr("/", "param_names", data%param_names, error); if (allocated(error)) goto 9
+    type(snap_header_t) :: hdr
+    type(snap_block_t) :: blk
+    real(wp), allocatable :: params(:,:)
+    integer :: nt, k, nu, il, j
+    call read_snap_header(path, "&offline: database", hdr, error, env=env)
+    if (allocated(error)) return
+    data%n_agents = hdr%n_agents; data%n_steps = hdr%n_steps; data%n_train = hdr%n_train
+    data%radius = hdr%radius; data%dt = hdr%dt
+    data%config_hash = hdr%hash; data%param_names = hdr%param_names
     if (data%n_agents /= cfg%agents%n_agents .or. abs(data%radius - cfg%agents%radius) > 0 .or. &
         abs(data%dt - cfg%time%dt) > 0) then
       call set_error(error, "&offline: database '" // path // "' is from another scene (n_agents " // &
         str(data%n_agents) // ", radius " // str(data%radius) // ", dt " // str(data%dt) // &
         ") than the input (n_agents " // str(cfg%agents%n_agents) // ", radius " // str(cfg%agents%radius) // &
-        ", dt " // str(cfg%time%dt) // ")", 2); goto 9
+        ", dt " // str(cfg%time%dt) // ")", 2); return
     end if
-    data%n_dof = 2 * data%n_agents
+    data%n_dof = hdr%n_dof
     nt = data%n_steps
     call block_range(data%n_train, env%size, env%rank, data%s0, data%ns)
-    ! velocities and the configurations before each step
-    allocate(data%u(data%n_dof, data%ns * nt), pos(data%n_dof, data%ns * (nt + 1)))
-    call h5%read_block("train/velocities", data%u, data%s0 * nt, error); if (allocated(error)) goto 9
-    call h5%read_block("train/positions", pos, data%s0 * (nt + 1), error); if (allocated(error)) goto 9
-    allocate(data%v(data%n_dof, data%ns * nt))
-    call h5%read_block("train/desired", data%v, data%s0 * nt, error); if (allocated(error)) goto 9
+    call read_snap_block(hdr, 'train', data%s0 + 1, data%ns, .true., .true., blk, error, env=env)
+    if (allocated(error)) then
+      if (error%code == 2) error%message = "&offline: database: " // error%message
+      return
+    end if
+    ! velocities, desired velocities and the configurations before each step
+    call move_alloc(blk%u, data%u)
+    call move_alloc(blk%v, data%v)
     allocate(data%q(data%n_dof, data%ns * nt))
     do k = 1, data%ns
       do nu = 1, nt
-        data%q(:, (k - 1) * nt + nu) = pos(:, (k - 1) * (nt + 1) + nu)
+        data%q(:, (k - 1) * nt + nu) = blk%q(:, (k - 1) * (nt + 1) + nu)
       end do
     end do
-    ! dictionary and multipliers (CSR over the snapshot columns)
-    call h5%read("contacts/ia", data%dict_ia, error); if (allocated(error)) goto 9
-    call h5%read("contacts/ib", data%dict_ib, error); if (allocated(error)) goto 9
-    call h5%read("contacts/ob", data%dict_ob, error); if (allocated(error)) goto 9
-    data%n_dict = size(data%dict_ia)
-    call h5%read("train/lambda_offset", off, error); if (allocated(error)) goto 9
-    call h5%read("train/lambda_index", idx, error); if (allocated(error)) goto 9
-    call h5%read("train/lambda_value", val, error); if (allocated(error)) goto 9
+    ! dictionary and multipliers (CSR over the local snapshot columns)
+    data%dict_ia = hdr%dict_ia; data%dict_ib = hdr%dict_ib; data%dict_ob = hdr%dict_ob
+    data%n_dict = hdr%n_dict
     data%lam%n_rows = data%n_dict
     data%lam%n_cols = data%ns * nt
     data%lam%col_offset = int(data%s0, i8) * nt
-    base = off(data%s0 * nt + 1)
-    allocate(data%lam%ptr(data%lam%n_cols + 1))
-    do c = 1, data%lam%n_cols + 1
-      data%lam%ptr(c) = off(data%s0 * nt + c) - base
-    end do
-    allocate(data%lam%idx(int(data%lam%ptr(data%lam%n_cols + 1))), data%lam%val(int(data%lam%ptr(data%lam%n_cols + 1))))
-    do p = 1, data%lam%ptr(data%lam%n_cols + 1)
-      data%lam%idx(p) = idx(base + p)
-      data%lam%val(p) = val(base + p)
-    end do
+    call move_alloc(blk%lam_ptr, data%lam%ptr)
+    call move_alloc(blk%lam_idx, data%lam%idx)
+    call move_alloc(blk%lam_val, data%lam%val)
+    params = blk%mu
     ! one scene per local sample (l_exit may be a parameter)
-    call h5%read("train/params", params, error); if (allocated(error)) goto 9
     il = index("," // data%param_names // ",", ",l_exit,")
     allocate(data%scenes(max(data%ns, 1)), data%scene_of(data%ns * nt))
     do k = 1, data%ns
@@ -127,19 +97,22 @@ contains
         c2 = cfg
         if (il > 0) then
           j = count_commas(data%param_names(1:il - 1)) + 1
-          c2%scene%l_exit = params(j, data%s0 + k)
+          c2%scene%l_exit = params(j, k)
         end if
         call data%scenes(k)%init(c2%scene, c2%obstacles, error)
         if (allocated(error)) then
-          call prefix_error(error, "&offline: scene of training sample " // str(data%s0 + k)); goto 9
+          call prefix_error(error, "&offline: scene of training sample " // str(data%s0 + k)); return
         end if
       end block
       data%scene_of((k - 1) * nt + 1:k * nt) = k
     end do
     if (data%ns == 0) call data%scenes(1)%init(cfg%scene, cfg%obstacles, error)
-9   call h5%close(e2)
     if (allocated(error)) return
-    if (allocated(e2)) call move_alloc(e2, error)
+    if (data%n_dict > 0) then
+      if (maxval(data%dict_ob) > data%scenes(1)%n_obstacles()) call set_error(error, "&offline: database '" // &
+        path // "': dataset 'contacts/ob': obstacle index " // str(maxval(data%dict_ob)) // " but the scene has " // &
+        str(data%scenes(1)%n_obstacles()) // " obstacles", 2)
+    end if
 
   contains
 

@@ -6,7 +6,7 @@ module cr_rom_study
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
-  use cr_h5file, only: h5file_t
+  use cr_snapshot_file, only: snap_header_t, snap_block_t, read_snap_header, read_snap_block
   use cr_config, only: config_t, parse_config
   use cr_namelist_text, only: namelist_text_t
   use cr_study_config, only: study_cfg_t, read_study
@@ -30,6 +30,8 @@ module cr_rom_study
   !> The study behind a ROM file.
   type :: rom_study_t
     character(len=:), allocatable :: database, hash, param_names
+    !> the database's header (read and validated)
+    type(snap_header_t) :: db
     type(config_t) :: cfg
     type(study_cfg_t) :: study
     type(param_space_t) :: space
@@ -49,59 +51,37 @@ contains
     type(rom_file_t), intent(in) :: hdr
     type(rom_study_t), intent(out) :: st
     type(error_t), allocatable, intent(out) :: error
-    type(h5file_t) :: h5
-    type(error_t), allocatable :: e2
     type(namelist_text_t) :: t
-    character(len=:), allocatable :: schema, text
-    integer :: complete
-    call h5%open(path, error)
-    if (allocated(error)) then
-      error%message = where // " '" // path // "': cannot open the snapshot database (" // error%message // ")"
-      error%code = 2; return
-    end if
+    call read_snap_header(path, where, st%db, error)
+    if (allocated(error)) return
     st%database = path
-    call h5%read_attr("/", "schema", schema, error)
-    if (.not. allocated(error)) then
-      if (schema /= "crowdrom-snapshots") call set_error(error, where // " '" // path // &
-        "' is not a snapshot database (schema '" // schema // "')", 2)
-    else
-      call set_error(error, where // " '" // path // "' is not a snapshot database (no schema attribute)", 2)
-    end if
-    if (allocated(error)) goto 9
-    call h5%read_attr("/", "complete", complete, error); if (allocated(error)) goto 9
-    if (complete /= 1) then
-      call set_error(error, where // " '" // path // "' is not complete", 2); goto 9
-    end if
-    call h5%read_attr("/", "config_hash", st%hash, error); if (allocated(error)) goto 9
+    st%hash = st%db%hash
     if (st%hash /= hdr%db_hash) then
       call set_error(error, where // ": ROM file '" // hdr%path // "' was built from another study (database " // &
-        "config_hash " // hdr%db_hash // ", but '" // path // "' has " // st%hash // ")", 2); goto 9
+        "config_hash " // hdr%db_hash // ", but '" // path // "' has " // st%hash // ")", 2); return
     end if
-    call h5%read_attr("/", "n_agents", st%n_agents, error); if (allocated(error)) goto 9
-    call h5%read_attr("/", "n_steps", st%n_steps, error); if (allocated(error)) goto 9
-    call h5%read_attr("/", "n_train", st%n_train, error); if (allocated(error)) goto 9
-    call h5%read_attr("/", "n_valid", st%n_valid, error); if (allocated(error)) goto 9
-    call h5%read_attr("/", "agent_radius", st%radius, error); if (allocated(error)) goto 9
-    call h5%read_attr("/", "dt", st%dt, error); if (allocated(error)) goto 9
-    call h5%read_attr("/", "param_names", st%param_names, error); if (allocated(error)) goto 9
-    call h5%read_attr("/", "config", text, error); if (allocated(error)) goto 9
-    call h5%read("initial_positions", st%q0, error); if (allocated(error)) goto 9
-    st%n_dof = 2 * st%n_agents
+    st%n_agents = st%db%n_agents; st%n_steps = st%db%n_steps
+    st%n_train = st%db%n_train; st%n_valid = st%db%n_valid
+    st%radius = st%db%radius; st%dt = st%db%dt
+    st%param_names = st%db%param_names
+    st%q0 = st%db%q0
+    st%n_dof = st%db%n_dof
     if (st%n_agents /= hdr%n_agents .or. st%n_steps /= hdr%n_steps) then
       call set_error(error, where // ": ROM file '" // hdr%path // "' and database '" // path // &
-        "' disagree on n_agents / n_steps", 2); goto 9
+        "' disagree on n_agents / n_steps", 2); return
     end if
-    call t%set_text(path // " (attribute config)", text)
+    call t%set_text(path // " (attribute config)", st%db%config_text)
     call parse_config(t, st%cfg, error)
-    if (allocated(error)) goto 9
+    if (allocated(error)) return
     call read_study(t, st%study, error)
-    if (allocated(error)) goto 9
+    if (allocated(error)) return
     call st%space%init(st%study, st%n_agents)
+    if (st%space%n_expanded /= st%db%n_params) then
+      call set_error(error, where // " '" // path // "': attribute 'n_params' = " // str(st%db%n_params) // &
+        ", but its configuration has " // str(st%space%n_expanded) // " parameter components", 2); return
+    end if
     allocate(st%speeds(st%n_agents))
     st%speeds = st%cfg%agents%speed
-9   call h5%close(e2)
-    if (allocated(error)) return
-    if (allocated(e2)) call move_alloc(e2, error)
   end subroutine open_study
 
   !> Read the first n (0: all) samples of database set `name` ('train' or 'valid').
@@ -111,30 +91,18 @@ contains
     integer, intent(in) :: n
     type(sample_block_t), intent(out) :: blk
     type(error_t), allocatable, intent(out) :: error
-    type(h5file_t) :: h5
-    type(error_t), allocatable :: e2
-    real(wp), allocatable :: mu(:,:)
-    integer :: ns, nt
-    call h5%open(st%database, error)
-    if (allocated(error)) return
-    call h5%read(name // "/params", mu, error); if (allocated(error)) goto 9
-    ns = size(mu, 2)
+    type(snap_block_t) :: b
+    integer :: ns
+    ns = merge(st%n_train, st%n_valid, name == 'train')
     if (n > 0) ns = min(n, ns)
-    nt = st%n_steps
+    call read_snap_block(st%db, name, 1, ns, .false., .false., b, error)
+    if (allocated(error)) return
     blk%name = name
     blk%n = ns
-    blk%mu = mu(:, 1:ns)
-    allocate(blk%q(st%n_dof, (nt + 1) * ns), blk%u(st%n_dof, nt * ns))
-    if (ns > 0) then
-      call h5%read_block(name // "/positions", blk%q, 0, error); if (allocated(error)) goto 9
-      call h5%read_block(name // "/velocities", blk%u, 0, error); if (allocated(error)) goto 9
-    end if
+    call move_alloc(b%mu, blk%mu)
+    call move_alloc(b%q, blk%q)
+    call move_alloc(b%u, blk%u)
     blk%has_fom = .true.
-9   call h5%close(e2)
-    if (allocated(error)) then
-      call prefix_error(error, "database '" // st%database // "', set " // name); return
-    end if
-    if (allocated(e2)) call move_alloc(e2, error)
   end subroutine read_block_set
 
 end module cr_rom_study

@@ -1,5 +1,5 @@
-!> The snapshot database of a parameter study (schema "crowdrom-snapshots", version 1; the
-!> layout is documented in the README, "Snapshot database").
+!> Assembly of the snapshot database of a parameter study (the product and its schema are
+!> src/products/cr_snapshot_file).
 !>
 !> assemble_database gathers the per-sample pieces (cr_snapshot_piece) into one file with
 !> parallel HDF5: the samples of each set are split into contiguous blocks over the ranks
@@ -15,31 +15,12 @@ module cr_snapshot_db
   use cr_env, only: env_t
   use cr_sort, only: argsort_i8, bsearch_i8
   use cr_fom, only: fom_t
-  use cr_fom_output, only: write_scene
-  use cr_h5file, only: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64
+  use cr_h5file, only: h5file_t
+  use cr_snapshot_file, only: SNAP_SCHEMA, db_meta_t, snap_block_t, write_snap_header, write_snap_set
   use cr_snapshot_piece, only: sample_result_t, read_piece, piece_path
   implicit none
   private
-  public :: SNAP_SCHEMA, SNAP_SCHEMA_VERSION, SNAP_UNITS, db_meta_t, db_totals_t, probe_database, &
-    assemble_database, block_range, collective_error
-
-  character(len=*), parameter :: SNAP_SCHEMA = "crowdrom-snapshots"
-  integer, parameter :: SNAP_SCHEMA_VERSION = 1
-  character(len=*), parameter :: SNAP_UNITS = "length: m, time: s, velocity: m/s, l_exit: m, " // &
-    "speed: m/s, multiplier: m/s^2 (lambda scales B = -h G: u = v - B^T lambda)"
-
-  !> Root metadata of a database.
-  type :: db_meta_t
-    !> effective configuration (config_echo + study_echo) and the input file text
-    character(len=:), allocatable :: config_text, input_text
-    character(len=16) :: hash = ''
-    !> comma-separated component names of mu
-    character(len=:), allocatable :: param_names
-    !> program, HDF5, MPI and compiler versions
-    character(len=:), allocatable :: version, hdf5_version, mpi_version, compiler
-    integer :: n_agents = 0, n_steps = 0, n_expanded = 0
-    real(wp) :: radius = 0, dt = 0
-  end type db_meta_t
+  public :: db_totals_t, probe_database, assemble_database, block_range, collective_error
 
   !> Totals over the whole database (every rank receives them).
   type :: db_totals_t
@@ -151,9 +132,10 @@ contains
     call h5%create(path, error, env=env)
     if (allocated(error)) return
     ops: block
-      call write_header(error); if (allocated(error)) exit ops
+      call write_snap_header(h5, meta, n_train, n_valid, q0, fom_ref%scene, dkey, dia, dib, dob, error)
+      if (allocated(error)) exit ops
       do is = 1, 2
-        call write_set(sets(is), error); if (allocated(error)) exit ops
+        call write_snap_set(env, h5, meta, block_of(sets(is)), error); if (allocated(error)) exit ops
       end do
       call h5%write_attr("/", "complete", 1, error); if (allocated(error)) exit ops
       call h5%commit(error)
@@ -187,164 +169,41 @@ contains
 
   contains
 
-    subroutine write_header(error)
-      type(error_t), allocatable, intent(out) :: error
-      call h5%write_attr("/", "schema", SNAP_SCHEMA, error); if (allocated(error)) return
-      call h5%write_attr("/", "schema_version", SNAP_SCHEMA_VERSION, error); if (allocated(error)) return
-      call h5%write_attr("/", "program", "crowd_snapshots", error); if (allocated(error)) return
-      call h5%write_attr("/", "version", meta%version, error); if (allocated(error)) return
-      call h5%write_attr("/", "hdf5_version", meta%hdf5_version, error); if (allocated(error)) return
-      call h5%write_attr("/", "mpi_version", meta%mpi_version, error); if (allocated(error)) return
-      call h5%write_attr("/", "compiler", meta%compiler, error); if (allocated(error)) return
-      call h5%write_attr("/", "config", meta%config_text, error); if (allocated(error)) return
-      call h5%write_attr("/", "input_text", meta%input_text, error); if (allocated(error)) return
-      call h5%write_attr("/", "config_hash", trim(meta%hash), error); if (allocated(error)) return
-      call h5%write_attr("/", "units", SNAP_UNITS, error); if (allocated(error)) return
-      call h5%write_attr("/", "n_agents", meta%n_agents, error); if (allocated(error)) return
-      call h5%write_attr("/", "agent_radius", meta%radius, error); if (allocated(error)) return
-      call h5%write_attr("/", "dt", meta%dt, error); if (allocated(error)) return
-      call h5%write_attr("/", "n_steps", meta%n_steps, error); if (allocated(error)) return
-      call h5%write_attr("/", "n_train", n_train, error); if (allocated(error)) return
-      call h5%write_attr("/", "n_valid", n_valid, error); if (allocated(error)) return
-      call h5%write_attr("/", "n_params", meta%n_expanded, error); if (allocated(error)) return
-      call h5%write_attr("/", "param_names", meta%param_names, error); if (allocated(error)) return
-      call h5%write_attr("/", "complete", 0, error); if (allocated(error)) return
-      call h5%write("initial_positions", q0, error); if (allocated(error)) return
-      call write_scene(h5, fom_ref, error); if (allocated(error)) return
-      call h5%make_group("contacts", error); if (allocated(error)) return
-      call h5%write("contacts/key", dkey, error); if (allocated(error)) return
-      call h5%write("contacts/ia", dia, error); if (allocated(error)) return
-      call h5%write("contacts/ib", dib, error); if (allocated(error)) return
-      call h5%write("contacts/ob", dob, error); if (allocated(error)) return
-      call h5%write_attr("contacts", "description", "global contact dictionary: every contact " // &
-        "with lambda > 0 in some sample and step, sorted by key; ib = 0 for agent-obstacle " // &
-        "contacts (ob = obstacle index), ob = 0 for agent pairs", error)
-    end subroutine write_header
-
-    subroutine write_set(b, error)
+    !> The samples of a set block as the product's block (multipliers mapped to the dictionary).
+    function block_of(b) result(o)
       type(set_block_t), intent(in) :: b
-      type(error_t), allocatable, intent(out) :: error
-      character(len=:), allocatable :: g
-      real(wp), allocatable :: rbuf(:,:), r1(:)
-      integer, allocatable :: ibuf(:,:), i1(:)
-      integer(i8), allocatable :: off(:), cnt(:)
-      integer(i8) :: base, base0, mine
-      integer :: nd, ns, ne, k, c0, nnz_loc, j, n0, o, ierr
-      g = trim(b%name)
+      type(snap_block_t) :: o
+      integer :: nd, ns, ne, k, j, c0, nnz
       nd = 2 * meta%n_agents; ns = meta%n_steps; ne = meta%n_expanded
-      call h5%make_group(g, error); if (allocated(error)) return
-      call h5%make_group(g // "/stats", error); if (allocated(error)) return
-      ! parameters
-      call h5%create_dataset(g // "/params", [ne, b%n], cr_h5_real, error); if (allocated(error)) return
-      allocate(rbuf(ne, b%nloc))
+      o%name = b%name; o%n = b%n; o%k0 = b%k0; o%nloc = b%nloc
+      allocate(o%mu(ne, b%nloc), o%q(nd, (ns + 1) * b%nloc), o%u(nd, ns * b%nloc), o%v(nd, ns * b%nloc), &
+        o%kkt(ns, b%nloc), o%min_gap(ns, b%nloc), o%iterations(ns, b%nloc), o%converged(ns, b%nloc), &
+        o%n_active(ns, b%nloc), o%time(b%nloc), o%rank(b%nloc), o%lam_ptr(ns * b%nloc + 1))
+      nnz = 0
+      o%lam_ptr(1) = 0
       do k = 1, b%nloc
-        rbuf(:, k) = b%s(k)%mu
+        associate (s => b%s(k))
+          o%mu(:, k) = s%mu
+          o%q(:, (k - 1) * (ns + 1) + 1:k * (ns + 1)) = s%q
+          o%u(:, (k - 1) * ns + 1:k * ns) = s%u
+          o%v(:, (k - 1) * ns + 1:k * ns) = s%v
+          o%kkt(:, k) = s%kkt; o%min_gap(:, k) = s%min_gap
+          o%iterations(:, k) = s%iterations; o%converged(:, k) = s%converged; o%n_active(:, k) = s%n_active
+          o%time(k) = s%time; o%rank(k) = s%rank
+          o%lam_ptr((k - 1) * ns + 2:k * ns + 1) = nnz + s%offset(2:ns + 1)
+          nnz = nnz + size(s%value)
+        end associate
       end do
-      call h5%write_block(g // "/params", rbuf, b%k0 - 1, error); if (allocated(error)) return
-      deallocate(rbuf)
-      ! positions
-      call h5%create_dataset(g // "/positions", [nd, (ns + 1) * b%n], cr_h5_real, error); if (allocated(error)) return
-      allocate(rbuf(nd, (ns + 1) * b%nloc))
-      do k = 1, b%nloc
-        rbuf(:, (k - 1) * (ns + 1) + 1:k * (ns + 1)) = b%s(k)%q
-      end do
-      call h5%write_block(g // "/positions", rbuf, (b%k0 - 1) * (ns + 1), error); if (allocated(error)) return
-      deallocate(rbuf)
-      ! velocities and desired velocities
-      allocate(rbuf(nd, ns * b%nloc))
-      call h5%create_dataset(g // "/velocities", [nd, ns * b%n], cr_h5_real, error); if (allocated(error)) return
-      do k = 1, b%nloc
-        rbuf(:, (k - 1) * ns + 1:k * ns) = b%s(k)%u
-      end do
-      call h5%write_block(g // "/velocities", rbuf, (b%k0 - 1) * ns, error); if (allocated(error)) return
-      call h5%create_dataset(g // "/desired", [nd, ns * b%n], cr_h5_real, error); if (allocated(error)) return
-      do k = 1, b%nloc
-        rbuf(:, (k - 1) * ns + 1:k * ns) = b%s(k)%v
-      end do
-      call h5%write_block(g // "/desired", rbuf, (b%k0 - 1) * ns, error); if (allocated(error)) return
-      deallocate(rbuf)
-      ! per-step statistics [n_steps, n_S]
-      allocate(rbuf(ns, b%nloc), ibuf(ns, b%nloc))
-      call h5%create_dataset(g // "/stats/kkt", [ns, b%n], cr_h5_real, error); if (allocated(error)) return
-      do k = 1, b%nloc
-        rbuf(:, k) = b%s(k)%kkt
-      end do
-      call h5%write_block(g // "/stats/kkt", rbuf, b%k0 - 1, error); if (allocated(error)) return
-      call h5%create_dataset(g // "/stats/min_gap", [ns, b%n], cr_h5_real, error); if (allocated(error)) return
-      do k = 1, b%nloc
-        rbuf(:, k) = b%s(k)%min_gap
-      end do
-      call h5%write_block(g // "/stats/min_gap", rbuf, b%k0 - 1, error); if (allocated(error)) return
-      call h5%create_dataset(g // "/stats/iterations", [ns, b%n], cr_h5_int, error); if (allocated(error)) return
-      do k = 1, b%nloc
-        ibuf(:, k) = b%s(k)%iterations
-      end do
-      call h5%write_block(g // "/stats/iterations", ibuf, b%k0 - 1, error); if (allocated(error)) return
-      call h5%create_dataset(g // "/stats/converged", [ns, b%n], cr_h5_int, error); if (allocated(error)) return
-      do k = 1, b%nloc
-        ibuf(:, k) = b%s(k)%converged
-      end do
-      call h5%write_block(g // "/stats/converged", ibuf, b%k0 - 1, error); if (allocated(error)) return
-      call h5%create_dataset(g // "/stats/n_active", [ns, b%n], cr_h5_int, error); if (allocated(error)) return
-      do k = 1, b%nloc
-        ibuf(:, k) = b%s(k)%n_active
-      end do
-      call h5%write_block(g // "/stats/n_active", ibuf, b%k0 - 1, error); if (allocated(error)) return
-      ! per-sample time and rank [n_S] (not part of the bitwise comparison)
-      allocate(r1(b%nloc), i1(b%nloc))
-      do k = 1, b%nloc
-        r1(k) = b%s(k)%time; i1(k) = b%s(k)%rank
-      end do
-      call h5%create_dataset(g // "/stats/time", [b%n], cr_h5_real, error); if (allocated(error)) return
-      call h5%write_block(g // "/stats/time", r1, b%k0 - 1, error); if (allocated(error)) return
-      call h5%create_dataset(g // "/stats/rank", [b%n], cr_h5_int, error); if (allocated(error)) return
-      call h5%write_block(g // "/stats/rank", i1, b%k0 - 1, error); if (allocated(error)) return
-      ! sparse multipliers, CSR over the snapshot columns
-      nnz_loc = 0
-      do k = 1, b%nloc
-        nnz_loc = nnz_loc + size(b%s(k)%value)
-      end do
-      mine = nnz_loc
-      base = 0
-      call MPI_Exscan(mine, base, 1, MPI_INTEGER8, MPI_SUM, env%comm, ierr)
-      if (env%rank == 0) base = 0
-      base0 = base
-      allocate(cnt(1))
-      cnt(1) = mine
-      call MPI_Allreduce(MPI_IN_PLACE, cnt, 1, MPI_INTEGER8, MPI_SUM, env%comm, ierr)
-      if (cnt(1) > huge(1)) then
-        call set_error(error, g // ": " // str(cnt(1)) // " multipliers exceed the 32-bit block offsets"); return
-      end if
-      n0 = merge(1, 0, env%rank == 0)
-      allocate(off(n0 + ns * b%nloc))
-      if (n0 == 1) off(1) = 0
-      c0 = n0
-      do k = 1, b%nloc
-        off(c0 + 1:c0 + ns) = base + b%s(k)%offset(2:ns + 1)
-        base = base + b%s(k)%offset(ns + 1)
-        c0 = c0 + ns
-      end do
-      o = 0
-      if (env%rank > 0) o = (b%k0 - 1) * ns + 1
-      call h5%create_dataset(g // "/lambda_offset", [ns * b%n + 1], cr_h5_int64, error); if (allocated(error)) return
-      call h5%write_block(g // "/lambda_offset", off, o, error); if (allocated(error)) return
-      deallocate(r1, i1)
-      allocate(r1(nnz_loc), i1(nnz_loc))
+      allocate(o%lam_idx(nnz), o%lam_val(nnz))
       c0 = 0
       do k = 1, b%nloc
         do j = 1, size(b%s(k)%value)
           c0 = c0 + 1
-          r1(c0) = b%s(k)%value(j)
-          i1(c0) = bsearch_i8(dkey, b%s(k)%key(j))
+          o%lam_val(c0) = b%s(k)%value(j)
+          o%lam_idx(c0) = bsearch_i8(dkey, b%s(k)%key(j))
         end do
       end do
-      o = int(base0)
-      call h5%create_dataset(g // "/lambda_index", [int(cnt(1))], cr_h5_int, error); if (allocated(error)) return
-      call h5%write_block(g // "/lambda_index", i1, o, error); if (allocated(error)) return
-      call h5%create_dataset(g // "/lambda_value", [int(cnt(1))], cr_h5_real, error); if (allocated(error)) return
-      call h5%write_block(g // "/lambda_value", r1, o, error); if (allocated(error)) return
-      call h5%write_attr(g, "n_samples", b%n, error)
-    end subroutine write_set
+    end function block_of
   end subroutine assemble_database
 
   !> Sorted union over all ranks of the contact keys of this rank's samples (with identities).

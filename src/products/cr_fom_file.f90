@@ -5,12 +5,12 @@
 !> previous result. Trajectories are streamed (extendible datasets); per-step statistics
 !> are written at the end. Multipliers are stored sparse: identity (ia, ib, ob) + value
 !> of every row with lambda > 0, with offsets per output step.
-module cr_fom_output
+module cr_fom_file
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, prefix_error
   use cr_config, only: config_t, config_echo
   use cr_fom, only: fom_t, step_record_t
-  use cr_shapes, only: obstacle_t
+  use cr_scene, only: scene_t
   use cr_h5file, only: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64
   implicit none
   private
@@ -47,7 +47,7 @@ contains
     call this%h5%create(path, error)
     if (allocated(error)) return
     call attrs(error); if (allocated(error)) goto 9
-    call write_scene(this%h5, fom, error); if (allocated(error)) goto 9
+    call write_scene(this%h5, fom%scene, error); if (allocated(error)) goto 9
     call this%h5%make_group("agents", error); if (allocated(error)) goto 9
     call this%h5%write("agents/speed", fom%speeds, error); if (allocated(error)) goto 9
     call this%h5%write("agents/initial_positions", fom%q, error); if (allocated(error)) goto 9
@@ -179,42 +179,42 @@ contains
   end subroutine writer_abort
 
   !> The scene group: obstacles in a uniform vertex representation, exit, plot domain.
-  subroutine write_scene(h5, fom, error)
+  subroutine write_scene(h5, scene, error)
     type(h5file_t), intent(inout) :: h5
-    type(fom_t), intent(in) :: fom
+    type(scene_t), intent(in) :: scene
     type(error_t), allocatable, intent(out) :: error
     integer :: n, k, nv
     integer, allocatable :: kind(:), start(:)
     real(wp), allocatable :: rad(:), verts(:,:)
     real(wp) :: ex(2, 2), dom(4)
-    n = fom%scene%n_obstacles()
+    n = scene%n_obstacles()
     allocate(kind(n), start(n + 1), rad(n))
     start(1) = 0
     do k = 1, n
-      kind(k) = fom%scene%obstacles(k)%kind
-      rad(k) = fom%scene%obstacles(k)%radius
-      start(k + 1) = start(k) + size(fom%scene%obstacles(k)%vertices, 2)
+      kind(k) = scene%obstacles(k)%kind
+      rad(k) = scene%obstacles(k)%radius
+      start(k + 1) = start(k) + size(scene%obstacles(k)%vertices, 2)
     end do
     allocate(verts(2, start(n + 1)))
     do k = 1, n
-      nv = size(fom%scene%obstacles(k)%vertices, 2)
-      verts(:, start(k) + 1:start(k) + nv) = fom%scene%obstacles(k)%vertices
+      nv = size(scene%obstacles(k)%vertices, 2)
+      verts(:, start(k) + 1:start(k) + nv) = scene%obstacles(k)%vertices
     end do
     call h5%make_group("scene", error); if (allocated(error)) return
     call h5%write("scene/obstacle_kind", kind, error); if (allocated(error)) return
     call h5%write("scene/obstacle_radius", rad, error); if (allocated(error)) return
     call h5%write("scene/obstacle_vertex_start", start, error); if (allocated(error)) return
     call h5%write("scene/obstacle_vertices", verts, error); if (allocated(error)) return
-    ex(:, 1) = [fom%scene%x_lo, fom%scene%width]
-    ex(:, 2) = [fom%scene%x_hi, fom%scene%width]
+    ex(:, 1) = [scene%x_lo, scene%width]
+    ex(:, 2) = [scene%x_hi, scene%width]
     call h5%write("scene/exit_segment", ex, error); if (allocated(error)) return
-    dom = [-fom%scene%wall, -fom%scene%wall, fom%scene%length + fom%scene%wall, &
-      fom%scene%width + fom%scene%wall + 0.3_wp * fom%scene%width]
+    dom = [-scene%wall, -scene%wall, scene%length + scene%wall, &
+      scene%width + scene%wall + 0.3_wp * scene%width]
     call h5%write("scene/domain", dom, error); if (allocated(error)) return
-    call h5%write_attr("scene", "hall_length", fom%scene%length, error); if (allocated(error)) return
-    call h5%write_attr("scene", "hall_width", fom%scene%width, error); if (allocated(error)) return
-    call h5%write_attr("scene", "wall_thickness", fom%scene%wall, error); if (allocated(error)) return
-    call h5%write_attr("scene", "l_exit", fom%scene%l_exit, error); if (allocated(error)) return
-    call h5%write_attr("scene", "n_walls", fom%scene%n_walls, error)
+    call h5%write_attr("scene", "hall_length", scene%length, error); if (allocated(error)) return
+    call h5%write_attr("scene", "hall_width", scene%width, error); if (allocated(error)) return
+    call h5%write_attr("scene", "wall_thickness", scene%wall, error); if (allocated(error)) return
+    call h5%write_attr("scene", "l_exit", scene%l_exit, error); if (allocated(error)) return
+    call h5%write_attr("scene", "n_walls", scene%n_walls, error)
   end subroutine write_scene
-end module cr_fom_output
+end module cr_fom_file
