@@ -27,18 +27,10 @@ program crowd_rom
   use cr_rom_stepper, only: rom_solver_cfg_t, rom_traj_t, run_trajectory, reduced_positions
   use cr_rom_metrics, only: position_errors, projection_error, max_overlap, agents_not_left
   use cr_fom, only: fom_t, step_record_t
-  use cr_h5file, only: h5file_t
+  use cr_romrun_file, only: romrun_header_t, romrun_row_t, romrun_set_t, romrun_writer_t, speedup
   use cr_fsys, only: rename_file, remove_file
   use cr_json, only: json_writer_t
   implicit none
-
-  !> One row of the sweep table (one setting on one set).
-  type :: row_t
-    integer :: setting = 0, n = 0, r = 0, nb = 0, m(3) = 0
-    character(len=8) :: set = '', hyper = '', contacts = '', solver = ''
-    real(wp) :: e_avg = -1, e_max = -1, e_proj = -1, overlap = 0, t_step = 0, mobility = -1
-    integer :: not_left = 0, not_left_fom = -1, infeasible = 0, capped = 0, extrapolating = 0
-  end type row_t
 
   type(env_t) :: env
   type(logger_t) :: log
@@ -51,7 +43,8 @@ program crowd_rom
   type(rom_file_t) :: hdr
   type(rom_study_t) :: st
   type(sample_block_t), allocatable :: blocks(:)
-  type(h5file_t) :: h5
+  type(romrun_writer_t) :: out
+  type(romrun_header_t) :: rhdr
   character(len=:), allocatable :: dbpath, where
   integer, allocatable :: setting_ids(:)
   real(wp) :: t_uz = 0, t_ex = 0, kkt_uz = 0, kkt_ex = 0
@@ -91,7 +84,7 @@ contains
     type(error_t), allocatable, intent(out) :: error
     type(rom_pair_t), allocatable :: pairs(:)
     logical, allocatable :: loaded(:)
-    type(row_t), allocatable :: rows(:)
+    type(romrun_row_t), allocatable :: rows(:)
     integer, allocatable :: pair_of(:)
     integer :: ks, ib, kp, nrow
 
@@ -151,11 +144,11 @@ contains
     end if
 
     ! output file
-    call h5%create(trim(rcfg%output), error)
+    call make_header()
+    call out%open(trim(rcfg%output), rhdr, error)
     if (allocated(error)) then
       call prefix_error(error, where // ": output"); error%code = 2; return
     end if
-    call write_header(error); if (allocated(error)) goto 9
 
     allocate(rows(size(setting_ids) * size(blocks)))
     nrow = 0
@@ -176,54 +169,35 @@ contains
       end do
       call log%stage_end()
     end do
-    call write_table(rows(1:nrow), error); if (allocated(error)) goto 9
-    call h5%commit(error)
+    call out%close(rhdr, rows(1:nrow), error)
     if (allocated(error)) goto 9
     call write_csv(rows(1:nrow), error)
     if (allocated(error)) return
     call print_table(rows(1:nrow))
     if (len(cli%summary) > 0) call write_summary(rows(1:nrow), error)
     return
-9   call h5%abort()
+9   call out%abort()
   end subroutine run
 
-    subroutine write_header(error)
-      type(error_t), allocatable, intent(out) :: error
-      call h5%write_attr("/", "schema", "crowdrom-romrun", error); if (allocated(error)) return
-      call h5%write_attr("/", "schema_version", 1, error); if (allocated(error)) return
-      call h5%write_attr("/", "program", "crowd_rom", error); if (allocated(error)) return
-      call h5%write_attr("/", "config", rom_echo(rcfg), error); if (allocated(error)) return
-      call h5%write_attr("/", "rom_file", trim(rcfg%rom_file), error); if (allocated(error)) return
-      call h5%write_attr("/", "database", dbpath, error); if (allocated(error)) return
-      call h5%write_attr("/", "database_config_hash", st%hash, error); if (allocated(error)) return
-      call h5%write_attr("/", "n_agents", st%n_agents, error); if (allocated(error)) return
-      call h5%write_attr("/", "n_steps", st%n_steps, error); if (allocated(error)) return
-      call h5%write_attr("/", "dt", st%dt, error); if (allocated(error)) return
-      call h5%write_attr("/", "agent_radius", st%radius, error); if (allocated(error)) return
-      call h5%write_attr("/", "param_names", st%param_names, error); if (allocated(error)) return
-      call h5%write_attr("/", "param_min", st%space%lo, error); if (allocated(error)) return
-      call h5%write_attr("/", "param_max", st%space%hi, error); if (allocated(error)) return
-      call h5%write_attr("/", "n_settings", size(setting_ids), error); if (allocated(error)) return
-      call h5%make_group("fom_timing", error); if (allocated(error)) return
-      call h5%write_attr("fom_timing", "t_step_uzawa", t_uz, error); if (allocated(error)) return
-      call h5%write_attr("fom_timing", "t_step_exact", t_ex, error); if (allocated(error)) return
-      call h5%write_attr("fom_timing", "exact_solver", trim(rcfg%fom_exact_solver), error); if (allocated(error)) return
-      call h5%write_attr("fom_timing", "tolerance", rcfg%fom_tol, error); if (allocated(error)) return
-      call h5%write_attr("fom_timing", "uzawa_eps", rcfg%fom_uzawa_eps, error); if (allocated(error)) return
-      call h5%write_attr("fom_timing", "uzawa_steps", rcfg%fom_uzawa_steps, error); if (allocated(error)) return
-      call h5%write_attr("fom_timing", "uzawa_rows", trim(rcfg%fom_uzawa_rows), error); if (allocated(error)) return
-      call h5%write_attr("fom_timing", "samples", rcfg%fom_timing_samples, error); if (allocated(error)) return
-      call h5%write_attr("fom_timing", "kkt_max_uzawa", kkt_uz, error); if (allocated(error)) return
-      call h5%write_attr("fom_timing", "kkt_max_exact", kkt_ex, error); if (allocated(error)) return
-      call h5%write_attr("fom_timing", "nonconverged_steps_uzawa", nc_uz, error); if (allocated(error)) return
-    end subroutine write_header
+    !> The ROM-run header of this sweep.
+    subroutine make_header()
+      rhdr%config = rom_echo(rcfg)
+      rhdr%rom_file = trim(rcfg%rom_file); rhdr%database = dbpath; rhdr%db_hash = st%hash
+      rhdr%n_agents = st%n_agents; rhdr%n_steps = st%n_steps; rhdr%dt = st%dt; rhdr%radius = st%radius
+      rhdr%param_names = st%param_names; rhdr%param_min = st%space%lo; rhdr%param_max = st%space%hi
+      rhdr%n_settings = size(setting_ids)
+      rhdr%t_uz = t_uz; rhdr%t_ex = t_ex; rhdr%exact_solver = trim(rcfg%fom_exact_solver)
+      rhdr%tolerance = rcfg%fom_tol; rhdr%uzawa_eps = rcfg%fom_uzawa_eps; rhdr%uzawa_steps = rcfg%fom_uzawa_steps
+      rhdr%uzawa_rows = trim(rcfg%fom_uzawa_rows); rhdr%timing_samples = rcfg%fom_timing_samples
+      rhdr%kkt_uz = kkt_uz; rhdr%kkt_ex = kkt_ex; rhdr%nc_uz = nc_uz
+    end subroutine make_header
 
     !> Run setting ks (index kset in the &rom arrays) on one block of samples.
     subroutine run_setting(ks, kset, pair, blk, row, error)
       integer, intent(in) :: ks, kset
       type(rom_pair_t), intent(in) :: pair
       type(sample_block_t), intent(in) :: blk
-      type(row_t), intent(out) :: row
+      type(romrun_row_t), intent(out) :: row
       type(error_t), allocatable, intent(out) :: error
       class(reduced_ops_t), allocatable :: ops
       type(rom_solver_cfg_t) :: scfg
@@ -233,7 +207,7 @@ contains
       real(wp), allocatable :: alpha(:,:), beta(:,:), pos(:,:), qr(:,:), err_time(:,:)
       real(wp), allocatable :: e_mu(:), e_proj(:), overlap(:), time(:), mobility(:)
       integer, allocatable :: not_left(:), not_left_fom(:), infeas(:), capped(:), extrap(:)
-      character(len=:), allocatable :: g
+      type(romrun_set_t) :: out_set
       integer :: k, nt, nb, rep
       nt = st%n_steps
       call make_reduced_ops(trim(rcfg%hyper(kset)), trim(rcfg%contacts(kset)), pair, &
@@ -320,42 +294,22 @@ contains
       if (row%extrapolating > 0) call log%warn(str(row%extrapolating) // " of " // str(blk%n) // " " // &
         trim(blk%name) // " parameters lie outside the training box: the reduced model extrapolates")
       ! output group
-      g = "setting_" // str(ks)
-      call h5%make_group(g // "/" // trim(blk%name), error); if (allocated(error)) return
-      call h5%write_attr(g, "n", pair%n, error); if (allocated(error)) return
-      call h5%write_attr(g, "r", pair%r, error); if (allocated(error)) return
-      call h5%write_attr(g, "n_basis", nb, error); if (allocated(error)) return
-      call h5%write_attr(g, "pair", pair%index, error); if (allocated(error)) return
-      call h5%write_attr(g, "hyper", trim(rcfg%hyper(kset)), error); if (allocated(error)) return
-      call h5%write_attr(g, "contacts", trim(rcfg%contacts(kset)), error); if (allocated(error)) return
-      call h5%write_attr(g, "solver", trim(rcfg%solver), error); if (allocated(error)) return
-      call h5%write_attr(g, "m_v", ops%m(1), error); if (allocated(error)) return
-      call h5%write_attr(g, "m_b", ops%m(2), error); if (allocated(error)) return
-      call h5%write_attr(g, "m_d", ops%m(3), error); if (allocated(error)) return
-      if (trim(blk%name) == trim(blocks(size(blocks))%name)) then
-        call h5%write_attr(g, "E_avg", row%e_avg, error); if (allocated(error)) return
-        call h5%write_attr(g, "t_step", row%t_step, error); if (allocated(error)) return
-        call h5%write_attr(g, "speedup_uzawa", ratio(t_uz, row%t_step), error); if (allocated(error)) return
-        call h5%write_attr(g, "speedup_exact", ratio(t_ex, row%t_step), error); if (allocated(error)) return
-      end if
-      g = g // "/" // trim(blk%name)
-      call h5%write(g // "/params", blk%mu, error); if (allocated(error)) return
-      call h5%write(g // "/alpha", alpha, error); if (allocated(error)) return
-      if (size(beta, 1) > 0) then
-        call h5%write(g // "/beta", beta, error); if (allocated(error)) return
-      end if
-      call h5%write(g // "/positions", pos, error); if (allocated(error)) return
-      call h5%write(g // "/err_time", err_time, error); if (allocated(error)) return
-      call h5%write(g // "/E_mu", e_mu, error); if (allocated(error)) return
-      call h5%write(g // "/E_proj", e_proj, error); if (allocated(error)) return
-      call h5%write(g // "/max_overlap", overlap, error); if (allocated(error)) return
-      call h5%write(g // "/mobility", mobility, error); if (allocated(error)) return
-      call h5%write(g // "/n_not_left", not_left, error); if (allocated(error)) return
-      call h5%write(g // "/n_not_left_fom", not_left_fom, error); if (allocated(error)) return
-      call h5%write(g // "/n_infeasible", infeas, error); if (allocated(error)) return
-      call h5%write(g // "/n_capped", capped, error); if (allocated(error)) return
-      call h5%write(g // "/extrapolating", extrap, error); if (allocated(error)) return
-      call h5%write(g // "/time", time, error); if (allocated(error)) return
+      out_set%setting = ks; out_set%n = pair%n; out_set%r = pair%r; out_set%nb = nb; out_set%pair = pair%index
+      out_set%m = ops%m
+      out_set%hyper = rcfg%hyper(kset); out_set%contacts = rcfg%contacts(kset); out_set%solver = rcfg%solver
+      out_set%name = blk%name
+      out_set%summary = trim(blk%name) == trim(blocks(size(blocks))%name)
+      out_set%e_avg = row%e_avg; out_set%t_step = row%t_step
+      out_set%speedup_uzawa = speedup(t_uz, row%t_step); out_set%speedup_exact = speedup(t_ex, row%t_step)
+      out_set%params = blk%mu
+      call move_alloc(alpha, out_set%alpha); call move_alloc(beta, out_set%beta)
+      call move_alloc(pos, out_set%positions); call move_alloc(err_time, out_set%err_time)
+      call move_alloc(e_mu, out_set%e_mu); call move_alloc(e_proj, out_set%e_proj)
+      call move_alloc(overlap, out_set%max_overlap); call move_alloc(mobility, out_set%mobility)
+      call move_alloc(not_left, out_set%n_not_left); call move_alloc(not_left_fom, out_set%n_not_left_fom)
+      call move_alloc(infeas, out_set%n_infeasible); call move_alloc(capped, out_set%n_capped)
+      call move_alloc(extrap, out_set%extrapolating); call move_alloc(time, out_set%time)
+      call out%write_set(out_set, error)
     end subroutine run_setting
 
     !> Mean time per full-order step over the first fom_timing_samples samples of blk.
@@ -425,47 +379,20 @@ contains
       blk%has_fom = .false.
     end subroutine given_block
 
-    subroutine write_table(rows, error)
-      type(row_t), intent(in) :: rows(:)
-      type(error_t), allocatable, intent(out) :: error
-      integer :: ks
-      call h5%make_group("table", error); if (allocated(error)) return
-      call h5%write("table/setting", rows%setting, error); if (allocated(error)) return
-      call h5%write("table/n", rows%n, error); if (allocated(error)) return
-      call h5%write("table/r", rows%r, error); if (allocated(error)) return
-      call h5%write("table/n_basis", rows%nb, error); if (allocated(error)) return
-      call h5%write("table/E_avg", rows%e_avg, error); if (allocated(error)) return
-      call h5%write("table/E_max", rows%e_max, error); if (allocated(error)) return
-      call h5%write("table/E_proj_avg", rows%e_proj, error); if (allocated(error)) return
-      call h5%write("table/max_overlap", rows%overlap, error); if (allocated(error)) return
-      call h5%write("table/mobility", rows%mobility, error); if (allocated(error)) return
-      call h5%write("table/agents_not_left", rows%not_left, error); if (allocated(error)) return
-      call h5%write("table/agents_not_left_fom", rows%not_left_fom, error); if (allocated(error)) return
-      call h5%write("table/infeasible_steps", rows%infeasible, error); if (allocated(error)) return
-      call h5%write("table/capped_steps", rows%capped, error); if (allocated(error)) return
-      call h5%write("table/t_step_rom", rows%t_step, error); if (allocated(error)) return
-      call h5%write("table/speedup_uzawa", [(ratio(t_uz, rows(ks)%t_step), ks = 1, size(rows))], error)
-      if (allocated(error)) return
-      call h5%write("table/speedup_exact", [(ratio(t_ex, rows(ks)%t_step), ks = 1, size(rows))], error)
-      if (allocated(error)) return
-      call h5%write_attr("table", "columns", "see the CSV header; strings (set, hyper, contacts, solver) in " // &
-        "the setting_<k> attributes", error)
-    end subroutine write_table
-
     function csv_line(r) result(s)
-      type(row_t), intent(in) :: r
+      type(romrun_row_t), intent(in) :: r
       character(len=:), allocatable :: s
       s = str(r%setting) // "," // trim(r%set) // "," // str(r%n) // "," // str(r%r) // "," // str(r%nb) // "," // &
         trim(r%hyper) // "," // trim(r%contacts) // "," // trim(r%solver) // "," // str(r%m(1)) // "," // &
         str(r%m(2)) // "," // str(r%m(3)) // "," // e(r%e_avg) // "," // e(r%e_max) // "," // e(r%e_proj) // &
         "," // e(r%overlap) // "," // str(r%not_left) // "," // str(r%not_left_fom) // "," // str(r%infeasible) // &
         "," // str(r%capped) // "," // e(r%t_step) // "," // e(t_uz) // "," // e(t_ex) // "," // &
-        e(ratio(t_uz, r%t_step)) // "," // e(ratio(t_ex, r%t_step)) // "," // str(r%extrapolating) // "," // &
+        e(speedup(t_uz, r%t_step)) // "," // e(speedup(t_ex, r%t_step)) // "," // str(r%extrapolating) // "," // &
         e(r%mobility)
     end function csv_line
 
     subroutine write_csv(rows, error)
-      type(row_t), intent(in) :: rows(:)
+      type(romrun_row_t), intent(in) :: rows(:)
       type(error_t), allocatable, intent(out) :: error
       integer :: u, ios, k
       character(len=:), allocatable :: tmp
@@ -488,7 +415,7 @@ contains
     end subroutine write_csv
 
     subroutine print_table(rows)
-      type(row_t), intent(in) :: rows(:)
+      type(romrun_row_t), intent(in) :: rows(:)
       integer :: k
       call log%info("")
       call log%info("| setting | set | N | R | Nb | hyper | contacts | m_v,m_b,m_d | E_avg | E_max | best approx. |" // &
@@ -503,13 +430,13 @@ contains
             " | " // str(r%e_proj, "es9.2") // " | " // str(r%overlap, "es9.2") // " | " // str(r%not_left) // &
             " (" // str(r%not_left_fom) // ") | " // str(r%mobility, "f6.3") // " | " // str(r%infeasible) // &
             " | " // str(r%t_step, "es9.2") // " | " // &
-            str(ratio(t_uz, r%t_step), "f9.1") // " | " // str(ratio(t_ex, r%t_step), "f9.1") // " |")
+            str(speedup(t_uz, r%t_step), "f9.1") // " | " // str(speedup(t_ex, r%t_step), "f9.1") // " |")
         end associate
       end do
     end subroutine print_table
 
     subroutine write_summary(rows, error)
-      type(row_t), intent(in) :: rows(:)
+      type(romrun_row_t), intent(in) :: rows(:)
       type(error_t), allocatable, intent(out) :: error
       type(json_writer_t) :: js
       call js%add("program", "crowd_rom")
@@ -537,12 +464,6 @@ contains
     type(eval_ctx_t) :: fresh
     ctx = fresh
   end subroutine ctx_reset
-
-  pure real(wp) function ratio(a, b)
-    real(wp), intent(in) :: a, b
-    ratio = 0
-    if (b > 0 .and. a > 0) ratio = a / b
-  end function ratio
 
   function e(x) result(s)
     real(wp), intent(in) :: x

@@ -1,4 +1,7 @@
-!> HDF5 output of a full-order run (schema "crowdrom-fom", version 1; see README).
+!> HDF5 output of a full-order run (schema "crowdrom-fom", version 1; see README), written by
+!> crowd_fom (`fom_writer_t`) and read back by `read_fom_file` (tests, tools), which accepts
+!> the versions in FOM_VERSIONS_READ and validates shapes, contact identities and finiteness.
+!> The scene group (`write_scene`) is shared with the snapshot database.
 !>
 !> The file is written under a temporary name and renamed when complete (cr_h5file), so an
 !> interrupted or failed run never leaves a file that looks finished and never destroys a
@@ -12,12 +15,38 @@ module cr_fom_file
   use cr_fom, only: fom_t, step_record_t
   use cr_scene, only: scene_t
   use cr_h5file, only: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64
+  use cr_strings, only: str
+  use cr_product_check, only: check_schema, need_finite, need_range, need_dims, product_error
   implicit none
   private
-  public :: fom_writer_t, write_scene, FOM_SCHEMA, FOM_SCHEMA_VERSION
+  public :: fom_writer_t, fom_file_t, read_fom_file, write_scene, FOM_SCHEMA, FOM_SCHEMA_VERSION, FOM_VERSIONS_READ
 
   character(len=*), parameter :: FOM_SCHEMA = "crowdrom-fom"
   integer, parameter :: FOM_SCHEMA_VERSION = 1
+  !> versions the reader accepts
+  integer, parameter :: FOM_VERSIONS_READ(1) = [1]
+
+  !> A full-order run as read back (n_out output states, nnz stored multipliers).
+  type :: fom_file_t
+    character(len=:), allocatable :: path, solver, config
+    integer :: n_agents = 0, n_out = 0
+    real(wp) :: radius = 0, dt = 0
+    !> reference speeds and initial positions [n_agents], [2 n_agents]
+    real(wp), allocatable :: speed(:), q0(:)
+    !> output steps and times [n_out]
+    integer, allocatable :: step(:)
+    real(wp), allocatable :: time(:)
+    !> positions, velocities, desired velocities [2 n_agents, n_out]; inside flags [n_agents, n_out]
+    real(wp), allocatable :: q(:,:), u(:,:), v(:,:)
+    integer, allocatable :: inside(:,:)
+    !> multipliers, CSR over the output states: offset [n_out + 1]; identities, values [nnz]
+    integer(i8), allocatable :: offset(:)
+    integer, allocatable :: ia(:), ib(:), ob(:)
+    real(wp), allocatable :: lambda(:)
+    !> per-step statistics [n_steps]
+    integer, allocatable :: iterations(:), converged(:)
+    real(wp), allocatable :: kkt(:), min_gap(:)
+  end type fom_file_t
 
   !> Streaming writer of one run.
   type :: fom_writer_t
@@ -177,6 +206,95 @@ contains
     class(fom_writer_t), intent(inout) :: this
     call this%h5%abort()
   end subroutine writer_abort
+
+  !> Read and validate a full-order output file (serial).
+  subroutine read_fom_file(path, f, error)
+    character(len=*), intent(in) :: path
+    type(fom_file_t), intent(out) :: f
+    type(error_t), allocatable, intent(out) :: error
+    type(h5file_t) :: h5
+    type(error_t), allocatable :: e2
+    integer(i8), allocatable :: d(:)
+    integer :: version, nd, c
+    call h5%open(path, error)
+    if (allocated(error)) then
+      error%code = 2; return
+    end if
+    f%path = path
+    call check_schema(h5, path, FOM_SCHEMA, FOM_VERSIONS_READ, "full-order output", version, error)
+    if (allocated(error)) goto 9
+    call h5%read_attr("/", "n_agents", f%n_agents, error); if (allocated(error)) goto 9
+    call h5%read_attr("/", "agent_radius", f%radius, error); if (allocated(error)) goto 9
+    call h5%read_attr("/", "dt", f%dt, error); if (allocated(error)) goto 9
+    call h5%read_attr("/", "solver", f%solver, error); if (allocated(error)) goto 9
+    call h5%read_attr("/", "config", f%config, error); if (allocated(error)) goto 9
+    if (f%n_agents < 0 .or. .not. (f%radius > 0 .and. f%radius <= huge(1.0_wp)) .or. &
+        .not. (f%dt > 0 .and. f%dt <= huge(1.0_wp))) then
+      call product_error(path, "root attributes out of range (n_agents " // str(f%n_agents) // ", agent_radius " // &
+        str(f%radius) // ", dt " // str(f%dt) // ")", error); goto 9
+    end if
+    nd = 2 * f%n_agents
+    call h5%get_dims("traj/step", d, error); if (allocated(error)) goto 9
+    f%n_out = int(d(1))
+    call need_dims(h5, path, "agents/speed", [int(f%n_agents, i8)], "n_agents", error); if (allocated(error)) goto 9
+    call need_dims(h5, path, "agents/initial_positions", [int(nd, i8)], "2 n_agents", error); if (allocated(error)) goto 9
+    call need_dims(h5, path, "traj/time", [int(f%n_out, i8)], "traj/step", error); if (allocated(error)) goto 9
+    call need_dims(h5, path, "traj/positions", [int(nd, i8), int(f%n_out, i8)], "2 n_agents x traj/step", error)
+    if (allocated(error)) goto 9
+    call need_dims(h5, path, "traj/velocities", [int(nd, i8), int(f%n_out, i8)], "2 n_agents x traj/step", error)
+    if (allocated(error)) goto 9
+    call need_dims(h5, path, "traj/desired", [int(nd, i8), int(f%n_out, i8)], "2 n_agents x traj/step", error)
+    if (allocated(error)) goto 9
+    call need_dims(h5, path, "traj/inside", [int(f%n_agents, i8), int(f%n_out, i8)], "n_agents x traj/step", error)
+    if (allocated(error)) goto 9
+    call need_dims(h5, path, "traj/contacts/offset", [int(f%n_out + 1, i8)], "traj/step + 1", error)
+    if (allocated(error)) goto 9
+    call h5%read("agents/speed", f%speed, error); if (allocated(error)) goto 9
+    call h5%read("agents/initial_positions", f%q0, error); if (allocated(error)) goto 9
+    call h5%read("traj/step", f%step, error); if (allocated(error)) goto 9
+    call h5%read("traj/time", f%time, error); if (allocated(error)) goto 9
+    call h5%read("traj/positions", f%q, error); if (allocated(error)) goto 9
+    call h5%read("traj/velocities", f%u, error); if (allocated(error)) goto 9
+    call h5%read("traj/desired", f%v, error); if (allocated(error)) goto 9
+    call h5%read("traj/inside", f%inside, error); if (allocated(error)) goto 9
+    call h5%read("traj/contacts/offset", f%offset, error); if (allocated(error)) goto 9
+    call h5%read("traj/contacts/ia", f%ia, error); if (allocated(error)) goto 9
+    call h5%read("traj/contacts/ib", f%ib, error); if (allocated(error)) goto 9
+    call h5%read("traj/contacts/ob", f%ob, error); if (allocated(error)) goto 9
+    call h5%read("traj/contacts/lambda", f%lambda, error); if (allocated(error)) goto 9
+    call h5%read("stats/iterations", f%iterations, error); if (allocated(error)) goto 9
+    call h5%read("stats/converged", f%converged, error); if (allocated(error)) goto 9
+    call h5%read("stats/kkt", f%kkt, error); if (allocated(error)) goto 9
+    call h5%read("stats/min_gap", f%min_gap, error); if (allocated(error)) goto 9
+    call need_finite(path, "agents/speed", f%speed, error); if (allocated(error)) goto 9
+    call need_finite(path, "agents/initial_positions", f%q0, error); if (allocated(error)) goto 9
+    call need_finite(path, "traj/positions", f%q, error); if (allocated(error)) goto 9
+    call need_finite(path, "traj/velocities", f%u, error); if (allocated(error)) goto 9
+    call need_finite(path, "traj/desired", f%v, error); if (allocated(error)) goto 9
+    call need_finite(path, "traj/contacts/lambda", f%lambda, error); if (allocated(error)) goto 9
+    call need_range(path, "traj/inside", reshape(f%inside, [size(f%inside)]), 0, 1, error); if (allocated(error)) goto 9
+    call need_range(path, "traj/contacts/ia", f%ia, 1, f%n_agents, error); if (allocated(error)) goto 9
+    call need_range(path, "traj/contacts/ib", f%ib, 0, f%n_agents, error); if (allocated(error)) goto 9
+    call need_range(path, "traj/contacts/ob", f%ob, 0, huge(1), error); if (allocated(error)) goto 9
+    if (size(f%ib) /= size(f%ia) .or. size(f%ob) /= size(f%ia) .or. size(f%lambda) /= size(f%ia)) then
+      call product_error(path, "datasets 'traj/contacts/ia, ib, ob, lambda' have different sizes", error); goto 9
+    end if
+    if (f%offset(1) /= 0 .or. f%offset(f%n_out + 1) /= size(f%ia)) then
+      call product_error(path, "dataset 'traj/contacts/offset': ends " // str(f%offset(1)) // ".." // &
+        str(f%offset(f%n_out + 1)) // ", expected 0.." // str(size(f%ia)), error); goto 9
+    end if
+    do c = 1, f%n_out
+      if (f%offset(c + 1) < f%offset(c)) then
+        call product_error(path, "dataset 'traj/contacts/offset': offsets decrease at output " // str(c), error); goto 9
+      end if
+    end do
+9   call h5%close(e2)
+    if (allocated(error)) then
+      if (error%code /= 2) call prefix_error(error, "full-order output '" // path // "'")
+      return
+    end if
+    if (allocated(e2)) call move_alloc(e2, error)
+  end subroutine read_fom_file
 
   !> The scene group: obstacles in a uniform vertex representation, exit, plot domain.
   subroutine write_scene(h5, scene, error)

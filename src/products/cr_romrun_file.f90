@@ -1,0 +1,410 @@
+!> The ROM-run file (schema "crowdrom-romrun", version 1; layout in the README, "ROM run
+!> file"): written by crowd_rom, read by the Python scripts (ML correction, figures) and by
+!> `read_romrun` (tests, tools).
+!>
+!> Writing is streamed: `open` writes the header, `write_set` one (setting, set) group as soon
+!> as it is computed, `close` the sweep table and commits the file (temporary name + rename);
+!> `abort` leaves any previous file untouched. The reader accepts the versions in
+!> ROMRUN_VERSIONS_READ and validates shapes against the header and settings, and that the
+!> parameters are finite (reduced trajectories may legitimately hold diverged values).
+module cr_romrun_file
+  use cr_kinds, only: wp, i8
+  use cr_error, only: error_t, prefix_error
+  use cr_strings, only: str
+  use cr_h5file, only: h5file_t
+  use cr_product_check, only: check_schema, need_finite, need_dims, product_error
+  implicit none
+  private
+  public :: ROMRUN_SCHEMA, ROMRUN_SCHEMA_VERSION, ROMRUN_VERSIONS_READ, romrun_header_t, romrun_row_t, &
+    romrun_set_t, romrun_t, romrun_writer_t, read_romrun, speedup
+
+  character(len=*), parameter :: ROMRUN_SCHEMA = "crowdrom-romrun"
+  integer, parameter :: ROMRUN_SCHEMA_VERSION = 1
+  !> versions the reader accepts
+  integer, parameter :: ROMRUN_VERSIONS_READ(1) = [1]
+
+  !> Root attributes and the full-order timing of a sweep.
+  type :: romrun_header_t
+    character(len=:), allocatable :: config, rom_file, database, db_hash, param_names
+    integer :: n_agents = 0, n_steps = 0, n_settings = 0
+    real(wp) :: dt = 0, radius = 0
+    !> training box [n_mu]
+    real(wp), allocatable :: param_min(:), param_max(:)
+    !> full-order reference: time per step (paper's Uzawa, fastest exact solver) and its setup
+    real(wp) :: t_uz = 0, t_ex = 0, tolerance = 0, uzawa_eps = 0, kkt_uz = 0, kkt_ex = 0
+    character(len=:), allocatable :: exact_solver, uzawa_rows
+    integer :: uzawa_steps = 0, timing_samples = 0, nc_uz = 0
+  end type romrun_header_t
+
+  !> One row of the sweep table (one setting on one set).
+  type :: romrun_row_t
+    integer :: setting = 0, n = 0, r = 0, nb = 0, m(3) = 0
+    character(len=8) :: set = '', hyper = '', contacts = '', solver = ''
+    real(wp) :: e_avg = -1, e_max = -1, e_proj = -1, overlap = 0, t_step = 0, mobility = -1
+    integer :: not_left = 0, not_left_fom = -1, infeasible = 0, capped = 0, extrapolating = 0
+  end type romrun_row_t
+
+  !> One setting run on one set of samples (n samples, N_T steps, nb basis vectors).
+  type :: romrun_set_t
+    !> setting number, its pair (N, R, basis size, index in the ROM file), hyper-reduction,
+    !> contacts, solver, points m_v, m_b, m_d
+    integer :: setting = 0, n = 0, r = 0, nb = 0, pair = 0, m(3) = 0
+    character(len=8) :: hyper = '', contacts = '', solver = ''
+    character(len=8) :: name = ''
+    !> the setting's summary attributes are stored with this set (the last set run)
+    logical :: summary = .false.
+    real(wp) :: e_avg = -1, t_step = 0, speedup_uzawa = 0, speedup_exact = 0
+    !> parameters [n_mu, n]; coefficients [nb, N_T n]; multiplier coefficients [R or 0, N_T n];
+    !> positions [n_dof, (N_T + 1) n]; relative position error in time [N_T + 1, n]
+    real(wp), allocatable :: params(:,:), alpha(:,:), beta(:,:), positions(:,:), err_time(:,:)
+    !> per sample [n]
+    real(wp), allocatable :: e_mu(:), e_proj(:), max_overlap(:), mobility(:), time(:)
+    integer, allocatable :: n_not_left(:), n_not_left_fom(:), n_infeasible(:), n_capped(:), extrapolating(:)
+  end type romrun_set_t
+
+  !> A ROM-run file as read back.
+  type :: romrun_t
+    type(romrun_header_t) :: hdr
+    type(romrun_set_t), allocatable :: sets(:)
+    type(romrun_row_t), allocatable :: rows(:)
+  end type romrun_t
+
+  !> Streaming writer.
+  type :: romrun_writer_t
+    type(h5file_t) :: h5
+  contains
+    procedure :: open => writer_open
+    procedure :: write_set => writer_write_set
+    procedure :: close => writer_close
+    procedure :: abort => writer_abort
+  end type romrun_writer_t
+
+contains
+
+  !> a / b, or 0 when either is not positive.
+  pure real(wp) function speedup(a, b)
+    real(wp), intent(in) :: a, b
+    speedup = 0
+    if (b > 0 .and. a > 0) speedup = a / b
+  end function speedup
+
+  !> Create the file (temporary name) and write the header.
+  subroutine writer_open(this, path, hdr, error)
+    class(romrun_writer_t), intent(inout) :: this
+    character(len=*), intent(in) :: path
+    type(romrun_header_t), intent(in) :: hdr
+    type(error_t), allocatable, intent(out) :: error
+    call this%h5%create(path, error)
+    if (allocated(error)) return
+    associate (h5 => this%h5)
+      call h5%write_attr("/", "schema", ROMRUN_SCHEMA, error); if (allocated(error)) goto 9
+      call h5%write_attr("/", "schema_version", ROMRUN_SCHEMA_VERSION, error); if (allocated(error)) goto 9
+      call h5%write_attr("/", "program", "crowd_rom", error); if (allocated(error)) goto 9
+      call h5%write_attr("/", "config", hdr%config, error); if (allocated(error)) goto 9
+      call h5%write_attr("/", "rom_file", hdr%rom_file, error); if (allocated(error)) goto 9
+      call h5%write_attr("/", "database", hdr%database, error); if (allocated(error)) goto 9
+      call h5%write_attr("/", "database_config_hash", hdr%db_hash, error); if (allocated(error)) goto 9
+      call h5%write_attr("/", "n_agents", hdr%n_agents, error); if (allocated(error)) goto 9
+      call h5%write_attr("/", "n_steps", hdr%n_steps, error); if (allocated(error)) goto 9
+      call h5%write_attr("/", "dt", hdr%dt, error); if (allocated(error)) goto 9
+      call h5%write_attr("/", "agent_radius", hdr%radius, error); if (allocated(error)) goto 9
+      call h5%write_attr("/", "param_names", hdr%param_names, error); if (allocated(error)) goto 9
+      call h5%write_attr("/", "param_min", hdr%param_min, error); if (allocated(error)) goto 9
+      call h5%write_attr("/", "param_max", hdr%param_max, error); if (allocated(error)) goto 9
+      call h5%write_attr("/", "n_settings", hdr%n_settings, error); if (allocated(error)) goto 9
+      call h5%make_group("fom_timing", error); if (allocated(error)) goto 9
+      call h5%write_attr("fom_timing", "t_step_uzawa", hdr%t_uz, error); if (allocated(error)) goto 9
+      call h5%write_attr("fom_timing", "t_step_exact", hdr%t_ex, error); if (allocated(error)) goto 9
+      call h5%write_attr("fom_timing", "exact_solver", hdr%exact_solver, error); if (allocated(error)) goto 9
+      call h5%write_attr("fom_timing", "tolerance", hdr%tolerance, error); if (allocated(error)) goto 9
+      call h5%write_attr("fom_timing", "uzawa_eps", hdr%uzawa_eps, error); if (allocated(error)) goto 9
+      call h5%write_attr("fom_timing", "uzawa_steps", hdr%uzawa_steps, error); if (allocated(error)) goto 9
+      call h5%write_attr("fom_timing", "uzawa_rows", hdr%uzawa_rows, error); if (allocated(error)) goto 9
+      call h5%write_attr("fom_timing", "samples", hdr%timing_samples, error); if (allocated(error)) goto 9
+      call h5%write_attr("fom_timing", "kkt_max_uzawa", hdr%kkt_uz, error); if (allocated(error)) goto 9
+      call h5%write_attr("fom_timing", "kkt_max_exact", hdr%kkt_ex, error); if (allocated(error)) goto 9
+      call h5%write_attr("fom_timing", "nonconverged_steps_uzawa", hdr%nc_uz, error); if (allocated(error)) goto 9
+    end associate
+9   if (allocated(error)) call this%h5%abort()
+  end subroutine writer_open
+
+  !> Write group setting_<k>/<set> (and the setting's attributes).
+  subroutine writer_write_set(this, s, error)
+    class(romrun_writer_t), intent(inout) :: this
+    type(romrun_set_t), intent(in) :: s
+    type(error_t), allocatable, intent(out) :: error
+    character(len=:), allocatable :: g
+    g = "setting_" // str(s%setting)
+    associate (h5 => this%h5)
+      call h5%make_group(g // "/" // trim(s%name), error); if (allocated(error)) return
+      call h5%write_attr(g, "n", s%n, error); if (allocated(error)) return
+      call h5%write_attr(g, "r", s%r, error); if (allocated(error)) return
+      call h5%write_attr(g, "n_basis", s%nb, error); if (allocated(error)) return
+      call h5%write_attr(g, "pair", s%pair, error); if (allocated(error)) return
+      call h5%write_attr(g, "hyper", trim(s%hyper), error); if (allocated(error)) return
+      call h5%write_attr(g, "contacts", trim(s%contacts), error); if (allocated(error)) return
+      call h5%write_attr(g, "solver", trim(s%solver), error); if (allocated(error)) return
+      call h5%write_attr(g, "m_v", s%m(1), error); if (allocated(error)) return
+      call h5%write_attr(g, "m_b", s%m(2), error); if (allocated(error)) return
+      call h5%write_attr(g, "m_d", s%m(3), error); if (allocated(error)) return
+      if (s%summary) then
+        call h5%write_attr(g, "E_avg", s%e_avg, error); if (allocated(error)) return
+        call h5%write_attr(g, "t_step", s%t_step, error); if (allocated(error)) return
+        call h5%write_attr(g, "speedup_uzawa", s%speedup_uzawa, error); if (allocated(error)) return
+        call h5%write_attr(g, "speedup_exact", s%speedup_exact, error); if (allocated(error)) return
+      end if
+      g = g // "/" // trim(s%name)
+      call h5%write(g // "/params", s%params, error); if (allocated(error)) return
+      call h5%write(g // "/alpha", s%alpha, error); if (allocated(error)) return
+      if (size(s%beta, 1) > 0) then
+        call h5%write(g // "/beta", s%beta, error); if (allocated(error)) return
+      end if
+      call h5%write(g // "/positions", s%positions, error); if (allocated(error)) return
+      call h5%write(g // "/err_time", s%err_time, error); if (allocated(error)) return
+      call h5%write(g // "/E_mu", s%e_mu, error); if (allocated(error)) return
+      call h5%write(g // "/E_proj", s%e_proj, error); if (allocated(error)) return
+      call h5%write(g // "/max_overlap", s%max_overlap, error); if (allocated(error)) return
+      call h5%write(g // "/mobility", s%mobility, error); if (allocated(error)) return
+      call h5%write(g // "/n_not_left", s%n_not_left, error); if (allocated(error)) return
+      call h5%write(g // "/n_not_left_fom", s%n_not_left_fom, error); if (allocated(error)) return
+      call h5%write(g // "/n_infeasible", s%n_infeasible, error); if (allocated(error)) return
+      call h5%write(g // "/n_capped", s%n_capped, error); if (allocated(error)) return
+      call h5%write(g // "/extrapolating", s%extrapolating, error); if (allocated(error)) return
+      call h5%write(g // "/time", s%time, error); if (allocated(error)) return
+    end associate
+  end subroutine writer_write_set
+
+  !> Write the sweep table and commit the file.
+  subroutine writer_close(this, hdr, rows, error)
+    class(romrun_writer_t), intent(inout) :: this
+    type(romrun_header_t), intent(in) :: hdr
+    type(romrun_row_t), intent(in) :: rows(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer :: k
+    associate (h5 => this%h5)
+      call h5%make_group("table", error); if (allocated(error)) return
+      call h5%write("table/setting", rows%setting, error); if (allocated(error)) return
+      call h5%write("table/n", rows%n, error); if (allocated(error)) return
+      call h5%write("table/r", rows%r, error); if (allocated(error)) return
+      call h5%write("table/n_basis", rows%nb, error); if (allocated(error)) return
+      call h5%write("table/E_avg", rows%e_avg, error); if (allocated(error)) return
+      call h5%write("table/E_max", rows%e_max, error); if (allocated(error)) return
+      call h5%write("table/E_proj_avg", rows%e_proj, error); if (allocated(error)) return
+      call h5%write("table/max_overlap", rows%overlap, error); if (allocated(error)) return
+      call h5%write("table/mobility", rows%mobility, error); if (allocated(error)) return
+      call h5%write("table/agents_not_left", rows%not_left, error); if (allocated(error)) return
+      call h5%write("table/agents_not_left_fom", rows%not_left_fom, error); if (allocated(error)) return
+      call h5%write("table/infeasible_steps", rows%infeasible, error); if (allocated(error)) return
+      call h5%write("table/capped_steps", rows%capped, error); if (allocated(error)) return
+      call h5%write("table/t_step_rom", rows%t_step, error); if (allocated(error)) return
+      call h5%write("table/speedup_uzawa", [(speedup(hdr%t_uz, rows(k)%t_step), k = 1, size(rows))], error)
+      if (allocated(error)) return
+      call h5%write("table/speedup_exact", [(speedup(hdr%t_ex, rows(k)%t_step), k = 1, size(rows))], error)
+      if (allocated(error)) return
+      call h5%write_attr("table", "columns", "see the CSV header; strings (set, hyper, contacts, solver) in " // &
+        "the setting_<k> attributes", error)
+      if (allocated(error)) return
+      call h5%commit(error)
+    end associate
+  end subroutine writer_close
+
+  !> Close and delete the temporary file.
+  subroutine writer_abort(this)
+    class(romrun_writer_t), intent(inout) :: this
+    call this%h5%abort()
+  end subroutine writer_abort
+
+  ! ------------------------------------------------------------------ read
+
+  !> Read and validate a ROM-run file (serial).
+  subroutine read_romrun(path, run, error)
+    character(len=*), intent(in) :: path
+    type(romrun_t), intent(out) :: run
+    type(error_t), allocatable, intent(out) :: error
+    type(h5file_t) :: h5
+    type(error_t), allocatable :: e2
+    type(romrun_set_t), allocatable :: tmp(:)
+    character(len=:), allocatable :: g, sv
+    integer :: version, ks, is, nset, n, nt, nd
+    integer(i8), allocatable :: d(:)
+    call h5%open(path, error)
+    if (allocated(error)) then
+      error%code = 2; return
+    end if
+    call check_schema(h5, path, ROMRUN_SCHEMA, ROMRUN_VERSIONS_READ, "ROM-run file", version, error)
+    if (allocated(error)) goto 9
+    associate (h => run%hdr)
+      call h5%read_attr("/", "config", h%config, error); if (allocated(error)) goto 9
+      call h5%read_attr("/", "rom_file", h%rom_file, error); if (allocated(error)) goto 9
+      call h5%read_attr("/", "database", h%database, error); if (allocated(error)) goto 9
+      call h5%read_attr("/", "database_config_hash", h%db_hash, error); if (allocated(error)) goto 9
+      call h5%read_attr("/", "n_agents", h%n_agents, error); if (allocated(error)) goto 9
+      call h5%read_attr("/", "n_steps", h%n_steps, error); if (allocated(error)) goto 9
+      call h5%read_attr("/", "dt", h%dt, error); if (allocated(error)) goto 9
+      call h5%read_attr("/", "agent_radius", h%radius, error); if (allocated(error)) goto 9
+      call h5%read_attr("/", "param_names", h%param_names, error); if (allocated(error)) goto 9
+      call h5%read_attr("/", "param_min", h%param_min, error); if (allocated(error)) goto 9
+      call h5%read_attr("/", "param_max", h%param_max, error); if (allocated(error)) goto 9
+      call h5%read_attr("/", "n_settings", h%n_settings, error); if (allocated(error)) goto 9
+      call h5%read_attr("fom_timing", "t_step_uzawa", h%t_uz, error); if (allocated(error)) goto 9
+      call h5%read_attr("fom_timing", "t_step_exact", h%t_ex, error); if (allocated(error)) goto 9
+      call h5%read_attr("fom_timing", "exact_solver", h%exact_solver, error); if (allocated(error)) goto 9
+      call h5%read_attr("fom_timing", "tolerance", h%tolerance, error); if (allocated(error)) goto 9
+      call h5%read_attr("fom_timing", "uzawa_eps", h%uzawa_eps, error); if (allocated(error)) goto 9
+      call h5%read_attr("fom_timing", "uzawa_steps", h%uzawa_steps, error); if (allocated(error)) goto 9
+      call h5%read_attr("fom_timing", "uzawa_rows", h%uzawa_rows, error); if (allocated(error)) goto 9
+      call h5%read_attr("fom_timing", "samples", h%timing_samples, error); if (allocated(error)) goto 9
+      call h5%read_attr("fom_timing", "kkt_max_uzawa", h%kkt_uz, error); if (allocated(error)) goto 9
+      call h5%read_attr("fom_timing", "kkt_max_exact", h%kkt_ex, error); if (allocated(error)) goto 9
+      call h5%read_attr("fom_timing", "nonconverged_steps_uzawa", h%nc_uz, error); if (allocated(error)) goto 9
+      if (h%n_agents < 1 .or. h%n_steps < 1 .or. h%n_settings < 0 .or. size(h%param_min) /= size(h%param_max)) then
+        call product_error(path, "root attributes out of range (n_agents " // str(h%n_agents) // ", n_steps " // &
+          str(h%n_steps) // ", n_settings " // str(h%n_settings) // ")", error); goto 9
+      end if
+      call need_finite(path, "param_min", h%param_min, error); if (allocated(error)) goto 9
+      call need_finite(path, "param_max", h%param_max, error); if (allocated(error)) goto 9
+      nt = h%n_steps; nd = 2 * h%n_agents
+    end associate
+    allocate(tmp(2 * run%hdr%n_settings))
+    nset = 0
+    do ks = 1, run%hdr%n_settings
+      g = "setting_" // str(ks)
+      if (.not. h5%exists(g)) then
+        call product_error(path, "group '" // g // "' missing (n_settings = " // str(run%hdr%n_settings) // ")", error)
+        goto 9
+      end if
+      do is = 1, 3
+        sv = trim(merge('train', 'valid', is == 1))
+        if (is == 3) sv = 'given'
+        if (.not. h5%exists(g // "/" // sv)) cycle
+        nset = nset + 1
+        associate (s => tmp(nset))
+          s%setting = ks; s%name = sv
+          call h5%read_attr(g, "n", s%n, error); if (allocated(error)) goto 9
+          call h5%read_attr(g, "r", s%r, error); if (allocated(error)) goto 9
+          call h5%read_attr(g, "n_basis", s%nb, error); if (allocated(error)) goto 9
+          call h5%read_attr(g, "pair", s%pair, error); if (allocated(error)) goto 9
+          call read_string(g, "hyper", s%hyper); if (allocated(error)) goto 9
+          call read_string(g, "contacts", s%contacts); if (allocated(error)) goto 9
+          call read_string(g, "solver", s%solver); if (allocated(error)) goto 9
+          call h5%read_attr(g, "m_v", s%m(1), error); if (allocated(error)) goto 9
+          call h5%read_attr(g, "m_b", s%m(2), error); if (allocated(error)) goto 9
+          call h5%read_attr(g, "m_d", s%m(3), error); if (allocated(error)) goto 9
+          call h5%read_attr(g, "E_avg", s%e_avg, e2)
+          s%summary = .not. allocated(e2)
+          if (allocated(e2)) deallocate(e2)
+          if (s%summary) then
+            call h5%read_attr(g, "t_step", s%t_step, error); if (allocated(error)) goto 9
+            call h5%read_attr(g, "speedup_uzawa", s%speedup_uzawa, error); if (allocated(error)) goto 9
+            call h5%read_attr(g, "speedup_exact", s%speedup_exact, error); if (allocated(error)) goto 9
+          end if
+          g = g // "/" // sv
+          call h5%read(g // "/params", s%params, error); if (allocated(error)) goto 9
+          n = size(s%params, 2)
+          call need_finite(path, g // "/params", s%params, error); if (allocated(error)) goto 9
+          call need_dims(h5, path, g // "/alpha", [int(s%nb, i8), int(nt, i8) * n], "n_basis x n_steps n_samples", &
+            error); if (allocated(error)) goto 9
+          call need_dims(h5, path, g // "/positions", [int(nd, i8), int(nt + 1, i8) * n], &
+            "2 n_agents x (n_steps + 1) n_samples", error); if (allocated(error)) goto 9
+          call need_dims(h5, path, g // "/err_time", [int(nt + 1, i8), int(n, i8)], "(n_steps + 1) x n_samples", &
+            error); if (allocated(error)) goto 9
+          call h5%read(g // "/alpha", s%alpha, error); if (allocated(error)) goto 9
+          if (h5%exists(g // "/beta")) then
+            call h5%read(g // "/beta", s%beta, error); if (allocated(error)) goto 9
+          else
+            allocate(s%beta(0, nt * n))
+          end if
+          call h5%read(g // "/positions", s%positions, error); if (allocated(error)) goto 9
+          call h5%read(g // "/err_time", s%err_time, error); if (allocated(error)) goto 9
+          call read_vec(g // "/E_mu", s%e_mu); if (allocated(error)) goto 9
+          call read_vec(g // "/E_proj", s%e_proj); if (allocated(error)) goto 9
+          call read_vec(g // "/max_overlap", s%max_overlap); if (allocated(error)) goto 9
+          call read_vec(g // "/mobility", s%mobility); if (allocated(error)) goto 9
+          call read_vec(g // "/time", s%time); if (allocated(error)) goto 9
+          call read_ivec(g // "/n_not_left", s%n_not_left); if (allocated(error)) goto 9
+          call read_ivec(g // "/n_not_left_fom", s%n_not_left_fom); if (allocated(error)) goto 9
+          call read_ivec(g // "/n_infeasible", s%n_infeasible); if (allocated(error)) goto 9
+          call read_ivec(g // "/n_capped", s%n_capped); if (allocated(error)) goto 9
+          call read_ivec(g // "/extrapolating", s%extrapolating); if (allocated(error)) goto 9
+          g = "setting_" // str(ks)
+        end associate
+      end do
+    end do
+    run%sets = tmp(1:nset)
+    call read_table(error)
+9   call h5%close(e2)
+    if (allocated(error)) then
+      if (error%code /= 2) call prefix_error(error, "ROM-run file '" // path // "'")
+      return
+    end if
+    if (allocated(e2)) call move_alloc(e2, error)
+
+  contains
+
+    subroutine read_string(obj, name, out)
+      character(len=*), intent(in) :: obj, name
+      character(len=8), intent(out) :: out
+      character(len=:), allocatable :: v
+      call h5%read_attr(obj, name, v, error)
+      if (.not. allocated(error)) out = v
+    end subroutine read_string
+
+    subroutine read_vec(name, x)
+      character(len=*), intent(in) :: name
+      real(wp), allocatable, intent(out) :: x(:)
+      call need_dims(h5, path, name, [int(n, i8)], "n_samples", error); if (allocated(error)) return
+      call h5%read(name, x, error)
+    end subroutine read_vec
+
+    subroutine read_ivec(name, x)
+      character(len=*), intent(in) :: name
+      integer, allocatable, intent(out) :: x(:)
+      call need_dims(h5, path, name, [int(n, i8)], "n_samples", error); if (allocated(error)) return
+      call h5%read(name, x, error)
+    end subroutine read_ivec
+
+    subroutine read_table(error)
+      type(error_t), allocatable, intent(out) :: error
+      integer, allocatable :: iv(:)
+      real(wp), allocatable :: rv(:)
+      integer :: nr, k
+      call h5%get_dims("table/setting", d, error); if (allocated(error)) return
+      nr = int(d(1))
+      allocate(run%rows(nr))
+      call h5%read("table/setting", iv, error); if (allocated(error)) return
+      run%rows%setting = iv
+      call h5%read("table/n", iv, error); if (allocated(error)) return
+      run%rows%n = iv
+      call h5%read("table/r", iv, error); if (allocated(error)) return
+      run%rows%r = iv
+      call h5%read("table/n_basis", iv, error); if (allocated(error)) return
+      run%rows%nb = iv
+      call h5%read("table/E_avg", rv, error); if (allocated(error)) return
+      run%rows%e_avg = rv
+      call h5%read("table/E_max", rv, error); if (allocated(error)) return
+      run%rows%e_max = rv
+      call h5%read("table/E_proj_avg", rv, error); if (allocated(error)) return
+      run%rows%e_proj = rv
+      call h5%read("table/max_overlap", rv, error); if (allocated(error)) return
+      run%rows%overlap = rv
+      call h5%read("table/mobility", rv, error); if (allocated(error)) return
+      run%rows%mobility = rv
+      call h5%read("table/agents_not_left", iv, error); if (allocated(error)) return
+      run%rows%not_left = iv
+      call h5%read("table/agents_not_left_fom", iv, error); if (allocated(error)) return
+      run%rows%not_left_fom = iv
+      call h5%read("table/infeasible_steps", iv, error); if (allocated(error)) return
+      run%rows%infeasible = iv
+      call h5%read("table/capped_steps", iv, error); if (allocated(error)) return
+      run%rows%capped = iv
+      call h5%read("table/t_step_rom", rv, error); if (allocated(error)) return
+      run%rows%t_step = rv
+      do k = 1, nr
+        if (run%rows(k)%setting < 1 .or. run%rows(k)%setting > run%hdr%n_settings) then
+          call product_error(path, "dataset 'table/setting': setting " // str(run%rows(k)%setting) // &
+            " at row " // str(k) // " outside 1.." // str(run%hdr%n_settings), error); return
+        end if
+      end do
+    end subroutine read_table
+  end subroutine read_romrun
+end module cr_romrun_file
