@@ -10,6 +10,12 @@ readers here return arrays in a "natural" numpy layout and say so in their docst
 * ROM run file (schema ``crowdrom-romrun``): alpha ``[n_S, N_T, n_basis]``, positions
   ``[n_S, N_T + 1, n_dof]``, err_time ``[n_S, N_T + 1]``.
 
+One reader per product, mirroring the Fortran owners in ``src/products``: ``read_fom`` (schema
+``crowdrom-fom``), ``read_database_*`` (``crowdrom-snapshots``), ``read_rom_pair`` (``crowdrom-rom``),
+``romrun_*`` (``crowdrom-romrun``); ``open_h5`` checks the schema name and accepts only the schema
+versions in ``SCHEMA_VERSIONS`` (the versions the Fortran readers accept). ``write_h5_atomic``
+writes a product (the ML output) under a temporary name. No script opens h5py itself.
+
 Every problem with an input raises ``InputError`` with a one-line message naming the file and the
 missing object; the command-line scripts turn it into ``<script>: error: <message>`` and exit 2.
 """
@@ -21,6 +27,12 @@ DB_SCHEMA = "crowdrom-snapshots"
 ROM_SCHEMA = "crowdrom-rom"
 ROMRUN_SCHEMA = "crowdrom-romrun"
 ML_SCHEMA = "crowdrom-ml"
+FOM_SCHEMA = "crowdrom-fom"
+#: schema versions each reader accepts (as in src/products: *_VERSIONS_READ); the figures also
+#: read the offline results of a version-1 ROM file (written before the prepared pairs), which
+#: crowd_rom (pairs needed) refuses
+SCHEMA_VERSIONS = {FOM_SCHEMA: (1,), DB_SCHEMA: (1,), ROM_SCHEMA: (1, 2), ROMRUN_SCHEMA: (1,),
+                   ML_SCHEMA: (1,)}
 
 
 class InputError(Exception):
@@ -61,7 +73,51 @@ def open_h5(path, schema=None, what="file"):
         if got != schema:
             f.close()
             raise InputError(f"'{path}' is not a {schema} file (root attribute schema = {got!r})")
+        check_version(f, path, schema, what)
     return f
+
+
+def check_version(f, path, schema, what="file"):
+    """Root attribute ``schema_version`` must be one the readers know (InputError otherwise)."""
+    known = SCHEMA_VERSIONS.get(schema)
+    if known is None:
+        return
+    if "schema_version" not in f.attrs:
+        f.close()
+        raise InputError(f"'{path}': {what} without a schema_version attribute")
+    try:
+        v = int(scalar(f.attrs["schema_version"]))
+    except (TypeError, ValueError):
+        v = None
+    if v not in known:
+        f.close()
+        raise InputError(f"'{path}': {what} schema version {v} is not supported (supported: "
+                         f"{', '.join(str(k) for k in known)})")
+
+
+def need_finite(path, name, arr):
+    """InputError naming the file and dataset if ``arr`` holds NaN or Inf."""
+    a = np.asarray(arr)
+    if a.dtype.kind == "f" and a.size and not np.all(np.isfinite(a)):
+        i = int(np.flatnonzero(~np.isfinite(a.ravel()))[0])
+        raise InputError(f"'{path}': dataset '{name}': non-finite value at entry {i + 1}")
+    return arr
+
+
+def write_h5_atomic(path, write):
+    """Write an HDF5 product: ``write(f)`` fills ``path + '.partial'``, renamed to ``path`` only
+    when complete (a failure removes the temporary and leaves any previous ``path`` intact)."""
+    import h5py
+
+    tmp = os.fspath(path) + ".partial"
+    try:
+        with h5py.File(tmp, "w") as f:
+            write(f)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
 
 
 def attr(obj, name, kind=float):
@@ -88,6 +144,33 @@ def group(f, name):
     if name not in f:
         raise InputError(f"'{f.file.filename}': missing group '{name}'")
     return f[name]
+
+
+# ------------------------------------------------------------------------------ full-order output
+
+def read_fom(path):
+    """A full-order output file (schema ``crowdrom-fom``): scene (as ``read_scene``), attributes,
+    steps and times [n_out], positions [n_out, n_agents, 2], inside flags [n_out, n_agents] and
+    the sparse multipliers (offset [n_out + 1], ia, ib, ob, lambda [nnz]) when stored."""
+    with open_h5(path, FOM_SCHEMA, "full-order output") as f:
+        d = read_scene(f)
+        d.update({"radius": attr(f, "agent_radius", float), "n_agents": attr(f, "n_agents", int),
+                  "dt": attr(f, "dt", float) if "dt" in f.attrs else None,
+                  "step": dataset(f, "traj/step").astype(int).ravel(),
+                  "time": dataset(f, "traj/time").astype(float).ravel(),
+                  "pos": need_finite(f.filename, "traj/positions",
+                                     dataset(f, "traj/positions").astype(float)),
+                  "inside": dataset(f, "traj/inside").astype(bool)})
+        if "traj/contacts/offset" in f:
+            d["contacts"] = {k: dataset(f, f"traj/contacts/{k}").ravel()
+                             for k in ("offset", "ia", "ib", "ob", "lambda")}
+    n_out, na = d["pos"].shape[0], d["n_agents"]
+    if d["pos"].shape != (n_out, 2 * na) or d["inside"].shape != (n_out, na):
+        raise InputError(f"'{path}': 'traj/positions' / 'traj/inside' have h5py shapes "
+                         f"{d['pos'].shape} / {d['inside'].shape}, expected ({n_out}, {2 * na}) / "
+                         f"({n_out}, {na}) for n_agents = {na}")
+    d["pos"] = d["pos"].reshape(n_out, na, 2)
+    return d
 
 
 # ------------------------------------------------------------------------------ database
@@ -122,12 +205,15 @@ def read_database_set(f, s, velocities=True):
     if params.ndim == 1:
         params = params.reshape(-1, 1)
     n_s = params.shape[0]
+    need_finite(f.filename, f"{s}/params", params)
     out = {"params": params,
-           "positions": _blocks(dataset(f, f"{s}/positions"), n_s, nt + 1, n_dof, f.filename,
-                                f"{s}/positions")}
+           "positions": need_finite(f.filename, f"{s}/positions",
+                                    _blocks(dataset(f, f"{s}/positions"), n_s, nt + 1, n_dof,
+                                            f.filename, f"{s}/positions"))}
     if velocities:
-        out["velocities"] = _blocks(dataset(f, f"{s}/velocities"), n_s, nt, n_dof, f.filename,
-                                    f"{s}/velocities")
+        out["velocities"] = need_finite(f.filename, f"{s}/velocities",
+                                        _blocks(dataset(f, f"{s}/velocities"), n_s, nt, n_dof,
+                                                f.filename, f"{s}/velocities"))
     return out
 
 
@@ -187,6 +273,7 @@ def multipliers_csr(f, s):
     n_col = off.size - 1
     if off[0] != 0 or off[-1] != idx.size or idx.size != val.size:
         raise InputError(f"'{f.filename}': inconsistent multiplier CSR in set '{s}'")
+    need_finite(f.filename, f"{s}/lambda_value", val)
     if idx.size and (idx.min() < 1 or idx.max() > n_dict):
         raise InputError(f"'{f.filename}': multiplier index outside 1..{n_dict} in set '{s}'")
     return csc_matrix((val, idx - 1, off), shape=(n_dict, n_col))
@@ -206,6 +293,7 @@ def read_rom_pair(f, k):
     if v.ndim != 2 or v.shape[0] != p["n_basis"]:
         raise InputError(f"'{f.filename}': '{name}/v' has h5py shape {v.shape}, expected "
                          f"(n_basis = {p['n_basis']}, n_dof)")
+    need_finite(f.filename, f"{name}/v", v)
     p["V"] = np.ascontiguousarray(v.T)
     return p
 

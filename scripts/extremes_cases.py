@@ -26,8 +26,13 @@ import subprocess
 import time
 from dataclasses import dataclass, field
 
+import sys
+
 import h5py
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import crowdrom_io as cio  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 INPUTS = os.path.join(ROOT, "tests", "inputs", "extremes")
@@ -130,7 +135,7 @@ def nonfinite_in_h5(path):
             if not np.all(np.isfinite(obj[...])):
                 bad.append(name)
 
-    with h5py.File(path, "r") as f:
+    with cio.open_h5(path) as f:
         attrs("/", f)
         f.visititems(visit)
     return bad
@@ -193,7 +198,7 @@ class FomResult:
     """The crowd_fom output read back (positions, stats, multipliers, scene, tolerance)."""
 
     def __init__(self, path):
-        with h5py.File(path, "r") as f:
+        with cio.open_h5(path, cio.FOM_SCHEMA, "full-order output") as f:
             self.config = attr_str(f.attrs["config"])
             self.radius = float(f.attrs["agent_radius"])
             self.q = f["traj/positions"][...]            # [T, 2N]
@@ -346,9 +351,9 @@ def parse_fom(r, ctx):
 
 def fom_radius(ctx):
     try:
-        with h5py.File(os.path.join(ctx.workdir, "out.h5"), "r") as f:
+        with cio.open_h5(os.path.join(ctx.workdir, "out.h5"), cio.FOM_SCHEMA, "full-order output") as f:
             return float(f.attrs["agent_radius"])
-    except (OSError, KeyError):
+    except (OSError, KeyError, cio.InputError):
         return 1.0
 
 
@@ -499,7 +504,7 @@ def check_snapshot_db(c, r, ctx):
         return
     bad = nonfinite_in_h5(path)
     c.need(not bad, "NaN/Inf in the database: %s" % bad[:5])
-    with h5py.File(path, "r") as f:
+    with cio.open_h5(path, cio.DB_SCHEMA, "database") as f:
         tol = config_values(attr_str(f.attrs["config"]), "solver")["tol"]
         nc = sum(int(np.sum(f[s]["stats/converged"][...] == 0)) for s in ("train", "valid"))
         kkt_bad = sum(int(np.sum((f[s]["stats/converged"][...] == 1) & (f[s]["stats/kkt"][...] > tol)))
@@ -515,7 +520,7 @@ class Rom:
     """The crowd_offline ROM file read back."""
 
     def __init__(self, path):
-        with h5py.File(path, "r") as f:
+        with cio.open_h5(path, cio.ROM_SCHEMA, "ROM file") as f:
             self.v = f["basis/v"][...].T                       # [n_dof, N]
             self.n_pod = int(f["basis"].attrs["n_pod"])
             self.rank = int(f["pod"].attrs["numerical_rank"])
@@ -848,7 +853,7 @@ def rom_output_ok(c, r, ctx, extra=None):
     c.need(os.path.exists(os.path.join(ctx.workdir, "run.csv")), "no CSV table")
     bad = nonfinite_in_h5(path)
     c.need(not bad, "NaN/Inf in the result file: %s" % bad[:5])
-    with h5py.File(path, "r") as f:
+    with cio.open_h5(path, cio.ROMRUN_SCHEMA, "ROM run file") as f:
         for k in range(1, int(f.attrs["n_settings"]) + 1):
             for sname in f["setting_%d" % k]:
                 g = f["setting_%d/%s" % (k, sname)]
@@ -922,7 +927,7 @@ def online_cases():
                  full_rom="sets = 'valid', n = 10, r = 15, hyper = 'eq', m_b = 1000"))
 
     def eim_clamped(c, r, ctx, f):
-        with h5py.File(os.path.join(ctx.workdir, "rom.h5"), "r") as rom:
+        with cio.open_h5(os.path.join(ctx.workdir, "rom.h5"), cio.ROM_SCHEMA, "ROM file") as rom:
             g = rom["pairs/1/eim"]
             notes = [attr_str(g[t].attrs.get("note", b"")) for t in ("s1", "s2", "s3")]
             ms = [int(g[t].attrs["m"]) for t in ("s1", "s2", "s3")]

@@ -398,17 +398,7 @@ def time_predict(bundle, x, n, repeats):
 # ------------------------------------------------------------------------------ output
 
 def _atomic_h5(path, write):
-    import h5py
-
-    tmp = path + ".partial"
-    try:
-        with h5py.File(tmp, "w") as f:
-            write(f)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
+    cio.write_h5_atomic(path, write)
 
 
 def _atomic_text(path, content):

@@ -8,11 +8,15 @@ panel per selected output step, optionally an animated GIF.
 Exit codes: 0 success, 2 missing/unreadable file or wrong schema (message on stderr).
 """
 import argparse
+import os
 import sys
 
 import numpy as np
 
-SCHEMA = "crowdrom-fom"
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import crowdrom_io as cio  # noqa: E402
+
+SCHEMA = cio.FOM_SCHEMA
 
 
 def _fail(msg):
@@ -20,54 +24,12 @@ def _fail(msg):
     sys.exit(2)
 
 
-def _text(value):
-    """Attribute value as str (fixed-length strings come back as bytes)."""
-    if isinstance(value, (bytes, np.bytes_)):
-        return value.decode("utf-8", errors="replace")
-    if isinstance(value, np.ndarray) and value.shape == ():
-        return _text(value[()])
-    return str(value)
-
-
 def load(path):
     """Load scene and trajectory arrays from a FOM file (exit 2 on a bad file)."""
-    import h5py
-
     try:
-        f = h5py.File(path, "r")
-    except FileNotFoundError:
-        _fail(f"file not found: '{path}'")
-    except OSError as exc:
-        _fail(f"cannot open '{path}' as HDF5: {exc}")
-    with f:
-        if "schema" not in f.attrs or _text(f.attrs["schema"]) != SCHEMA:
-            _fail(f"'{path}' is not a crowdrom FOM file (root attribute schema != '{SCHEMA}')")
-        try:
-            d = {
-                "radius": float(f.attrs["agent_radius"]),
-                "n_agents": int(f.attrs["n_agents"]),
-                "dt": float(f.attrs["dt"]) if "dt" in f.attrs else None,
-                "kind": np.asarray(f["scene/obstacle_kind"][()], dtype=int).ravel(),
-                "oradius": np.asarray(f["scene/obstacle_radius"][()], dtype=float).ravel(),
-                "vstart": np.asarray(f["scene/obstacle_vertex_start"][()], dtype=int).ravel(),
-                "verts": np.asarray(f["scene/obstacle_vertices"][()], dtype=float).reshape(-1, 2),
-                "exit": np.asarray(f["scene/exit_segment"][()], dtype=float).reshape(2, 2),
-                "domain": np.asarray(f["scene/domain"][()], dtype=float).ravel(),
-                "step": np.asarray(f["traj/step"][()], dtype=int).ravel(),
-                "time": np.asarray(f["traj/time"][()], dtype=float).ravel(),
-                "pos": np.asarray(f["traj/positions"][()], dtype=float),
-                "inside": np.asarray(f["traj/inside"][()]).astype(bool),
-            }
-            if "traj/contacts/offset" in f:
-                c = f["traj/contacts"]
-                d["contacts"] = {k: np.asarray(c[k][()]).ravel()
-                                 for k in ("offset", "ia", "ib", "ob", "lambda")}
-        except KeyError as exc:
-            _fail(f"'{path}': missing dataset or attribute in the FOM schema: {exc}")
-    n_out = d["pos"].shape[0]
-    d["pos"] = d["pos"].reshape(n_out, d["n_agents"], 2)
-    d["inside"] = d["inside"].reshape(n_out, d["n_agents"])
-    return d
+        return cio.read_fom(path)
+    except cio.InputError as exc:
+        _fail(str(exc))
 
 
 def draw_scene(ax, d):

@@ -270,7 +270,7 @@ def make_romrun(path, db, rom_path, bases, csv_path=None):
     rows = []
     with h5py.File(path, "w") as f:
         a = f.attrs
-        a["schema"] = np.bytes_("crowdrom-romrun")
+        a["schema"], a["schema_version"] = np.bytes_("crowdrom-romrun"), np.int32(1)
         a["rom_file"], a["database"] = np.bytes_(os.path.abspath(rom_path)), np.bytes_(os.path.abspath(db["path"]))
         a["n_agents"], a["n_steps"], a["dt"], a["agent_radius"] = np.int32(N_AGENTS), np.int32(N_STEPS), DT, RADIUS
         a["param_names"] = np.bytes_(",".join(PARAM_NAMES))
