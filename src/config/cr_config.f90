@@ -19,7 +19,7 @@ module cr_config
 
   !> Namelist groups known to crowdrom programs (a file may hold groups of later stages).
   character(len=16), parameter :: FOM_GROUPS(*) = [character(len=16) :: 'scene', 'obstacles', &
-    'agents', 'desired', 'time', 'solver', 'contacts', 'output', 'study', 'offline', 'rom', 'hyper']
+    'agents', 'desired', 'time', 'solver', 'contacts', 'output', 'study', 'offline', 'rom']
 
   !> &scene: rectangular hall [0, hall_length] x [0, hall_width] closed by walls of thickness
   !> wall_thickness; the top wall has an opening of width l_exit centred at exit_center.
