@@ -203,7 +203,6 @@ contains
       type(rom_solver_cfg_t) :: scfg
       type(rom_traj_t) :: traj, tr2
       type(eval_ctx_t) :: ctx
-      type(config_t) :: c2
       real(wp), allocatable :: alpha(:,:), beta(:,:), pos(:,:), qr(:,:), err_time(:,:)
       real(wp), allocatable :: e_mu(:), e_proj(:), overlap(:), time(:), mobility(:)
       integer, allocatable :: not_left(:), not_left_fom(:), infeas(:), capped(:), extrap(:)
@@ -227,13 +226,9 @@ contains
       err_time = -1; e_mu = -1; e_proj = -1; not_left_fom = -1; mobility = -1
       call log%progress_start()
       do k = 1, blk%n
-        c2 = st%cfg
         call ctx_reset(ctx)
-        ctx%speeds = st%speeds
-        call st%space%apply(blk%mu(:, k), c2, ctx%speeds)
-        call ctx%scene%init(c2%scene, c2%obstacles, error)
-        if (allocated(error)) return
-        call ctx%desired%init(c2%desired, ctx%scene, st%radius, st%n_agents, error)
+        call st%space%sample_model(blk%mu(:, k), st%cfg, st%speeds, st%radius, ctx%scene, ctx%speeds, &
+          ctx%desired, error)
         if (allocated(error)) return
         ctx%radius = st%radius
         ctx%h = st%dt

@@ -248,7 +248,7 @@ contains
     meta%n_expanded = space%n_expanded
     meta%radius = fom_ref%radius
     meta%dt = fom_ref%dt
-    call assemble_database(env, db, dir, meta, fom_ref, q0, sets(1)%n, sets(2)%n, totals, error)
+    call assemble_database(env, db, dir, meta, fom_ref, cfg, space, q0, sets(1)%n, sets(2)%n, totals, error)
     if (allocated(error)) return
     ! the database is committed: the pieces can go
     if (env%is_root()) then

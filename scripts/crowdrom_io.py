@@ -232,34 +232,25 @@ def read_scene(f):
     return d
 
 
-def scene_for_params(scene, param_names, params):
-    """Copy of the reference scene with the exit width of a sample (parameter ``l_exit``).
-
-    The exit opening stays centred where it is; wall vertices that sit on the reference opening's
-    end points (the two barrier walls beside the exit) move with them. Other parameters do not
-    change the geometry."""
-    if "l_exit" not in param_names:
-        return scene
-    l_new = float(params[param_names.index("l_exit")])
-    d = dict(scene)
-    e = scene["exit"].copy()
-    x_lo, x_hi = sorted((e[0, 0], e[1, 0]))
-    yc = e[:, 1].mean()
-    xc = 0.5 * (x_lo + x_hi)
-    n_lo, n_hi = xc - 0.5 * l_new, xc + 0.5 * l_new
-    tol = 1e-9 * max(1.0, abs(x_hi - x_lo))
-    verts = scene["verts"].copy()
-    n_walls = scene.get("n_walls") or len(scene["kind"])
-    for k in range(min(n_walls, len(scene["kind"]))):
-        lo, hi = scene["vstart"][k], scene["vstart"][k + 1]
-        v = verts[lo:hi]
-        near_exit_height = v[:, 1] >= yc - tol
-        v[near_exit_height & (np.abs(v[:, 0] - x_lo) <= tol), 0] = n_lo
-        v[near_exit_height & (np.abs(v[:, 0] - x_hi) <= tol), 0] = n_hi
-    order = np.argsort(e[:, 0])
-    e[order[0], 0], e[order[1], 0] = n_lo, n_hi
-    d["verts"], d["exit"] = verts, e
-    return d
+def read_sample_scenes(f, s):
+    """The scene of every sample of set S as the model mapped it (list of dicts as ``read_scene``):
+    the stored ``<S>/scene_vertices`` (Fortran [2 n_vertices, n_S]) and ``<S>/scene_exit``
+    ([4, n_S]: x_lo, y, x_hi, y). A database written before they were stored is accepted only when
+    no parameter changes the geometry (then every sample has the reference scene)."""
+    ref = read_scene(f)
+    params = dataset(f, f"{s}/params")
+    n_s = params.shape[0] if params.ndim > 1 else params.size
+    if f"{s}/scene_vertices" not in f:
+        if "l_exit" in read_database_meta(f)["param_names"]:
+            raise InputError(f"'{f.filename}': no per-sample scenes ('{s}/scene_vertices'): the "
+                             "database predates them; rerun crowd_snapshots")
+        return [ref] * n_s
+    v = need_finite(f.filename, f"{s}/scene_vertices", dataset(f, f"{s}/scene_vertices"))
+    e = need_finite(f.filename, f"{s}/scene_exit", dataset(f, f"{s}/scene_exit"))
+    if v.shape != (n_s, ref["verts"].size) or e.shape != (n_s, 4):
+        raise InputError(f"'{f.filename}': '{s}/scene_vertices' / '{s}/scene_exit' have h5py shapes "
+                         f"{v.shape} / {e.shape}, expected ({n_s}, {ref['verts'].size}) / ({n_s}, 4)")
+    return [dict(ref, verts=v[i].reshape(-1, 2), exit=e[i].reshape(2, 2)) for i in range(n_s)]
 
 
 def multipliers_csr(f, s):

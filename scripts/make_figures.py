@@ -401,10 +401,10 @@ def _load_run_and_db(ctx, setting_index):
     with cio.open_h5(ctx["database"], cio.DB_SCHEMA, "database") as f:
         dbm = cio.read_database_meta(f)
         dv = cio.read_database_set(f, "valid", velocities=False)
-        scene = cio.read_scene(f)
+        scenes = cio.read_sample_scenes(f, "valid")
     idx = cio.match_samples(dv["params"], rv["params"], ctx["database"],
                             f"'{ctx['romrun']}' setting {setting_index}/valid")
-    return meta, s, rv, dv["positions"][idx], scene, dbm
+    return meta, s, rv, dv["positions"][idx], [scenes[i] for i in idx], dbm
 
 
 def _sample(ctx, n_s):
@@ -435,10 +435,10 @@ def fig_trajectories(ctx, out, dpi):
     if not sets:
         raise Skip("no setting has a validation set")
     runs = [_load_run_and_db(ctx, s["index"]) for s in sets]
-    _, _, rv0, q_fom, scene, dbm = runs[0]
+    _, _, rv0, q_fom, scenes, dbm = runs[0]
     k = _sample(ctx, q_fom.shape[0])
+    sc = scene = scenes[k]
     agents = _pick_agents(ctx, q_fom[k, 0], scene, meta["n_agents"])
-    sc = cio.scene_for_params(scene, dbm["param_names"], rv0["params"][k])
     plt = _plt()
     fig, axes = plt.subplots(1, len(agents), figsize=(4.8 * len(agents), 4.6), squeeze=False)
     for ax, a in zip(axes[0], agents):
@@ -514,7 +514,7 @@ def fig_positions(ctx, out, dpi):
 
     ml = _best_ml(ctx["ml"][0], ctx.get("regressor")) if ctx.get("ml") else None
     setting = ctx.get("setting") or (ml["setting"] if ml else 1)
-    meta, s, rv, q_fom, scene, dbm = _load_run_and_db(ctx, setting)
+    meta, s, rv, q_fom, scenes, dbm = _load_run_and_db(ctx, setting)
     k = _sample(ctx, q_fom.shape[0])
     rows = [("FOM", q_fom[k], "tab:blue"), (f"ROM {_slabel(s)}", rv["positions"][k], "tab:orange")]
     if ml is not None:
@@ -526,7 +526,7 @@ def fig_positions(ctx, out, dpi):
             rows.append((f"ML-corrected ({ml['regressor']}, n = {ml['best_n']})", ml["positions"][k],
                          "tab:green"))
     steps = [min(max(st, 0), meta["n_steps"]) for st in (ctx.get("steps") or [0, 9, 18])]
-    sc = cio.scene_for_params(scene, dbm["param_names"], rv["params"][k])
+    sc = scene = scenes[k]
     plt = _plt()
     fig, axes = plt.subplots(len(rows), len(steps), figsize=(3.8 * len(steps), 3.6 * len(rows)),
                              squeeze=False)

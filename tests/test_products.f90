@@ -156,7 +156,7 @@ contains
     b%name = trim(merge('train', 'valid', set == 1)); b%n = n; b%k0 = k0; b%nloc = nloc
     allocate(b%mu(NE, nloc), b%q(2 * NA, (NT + 1) * nloc), b%u(2 * NA, NT * nloc), b%v(2 * NA, NT * nloc), &
       b%kkt(NT, nloc), b%min_gap(NT, nloc), b%iterations(NT, nloc), b%converged(NT, nloc), b%n_active(NT, nloc), &
-      b%time(nloc), b%rank(nloc), b%lam_ptr(NT * nloc + 1))
+      b%time(nloc), b%rank(nloc), b%lam_ptr(NT * nloc + 1), b%scene_vertices(6, nloc), b%scene_exit(4, nloc))
     nnz = 0
     b%lam_ptr(1) = 0
     do k = 1, nloc
@@ -179,6 +179,8 @@ contains
       b%kkt(:, k) = 1.0e-9_wp * kg; b%min_gap(:, k) = 0.01_wp * kg
       b%iterations(:, k) = kg; b%converged(:, k) = 1; b%n_active(:, k) = kg + 1
       b%time(k) = 0.1_wp * kg; b%rank(k) = 0
+      b%scene_vertices(:, k) = [(0.1_wp * i + kg, i = 1, 6)]
+      b%scene_exit(:, k) = [0.4_wp, 1.0_wp, 0.6_wp + 0.01_wp * kg, 1.0_wp]
     end do
     allocate(b%lam_idx(nnz), b%lam_val(nnz))
     nnz = 0

@@ -36,9 +36,9 @@ AMPS = np.array([1.0, 0.7, 0.5, 0.35, 0.25, 0.18, 0.01, 0.006, 0.003])
 T_UZAWA, T_EXACT = 1.0e-2, 2.0e-3
 
 
-def _scene():
+def _scene(l_exit=L_EXIT):
     L, H, t = HALL_L, HALL_H, WALL
-    x_lo, x_hi = 0.5 * (L - L_EXIT), 0.5 * (L + L_EXIT)
+    x_lo, x_hi = 0.5 * (L - l_exit), 0.5 * (L + l_exit)
     polys = [[(-t, -t), (0, -t), (0, H + t), (-t, H + t)],          # left
              [(L, -t), (L + t, -t), (L + t, H + t), (L, H + t)],    # right
              [(-t, -t), (L + t, -t), (L + t, 0), (-t, 0)],          # bottom
@@ -164,6 +164,10 @@ def make_database(path, seed=7, config_hash="0123456789abcdef"):
             g["positions"] = _flat(q)                        # Fortran [n_dof, (N_T+1) n_S]
             g["velocities"] = _flat(u)                       # Fortran [n_dof, N_T n_S]
             g["desired"] = _flat(u + 0.1)
+            # each sample's scene as crowd_snapshots stores it (Fortran [2 n_v, n_S], [4, n_S])
+            scs = [_scene(l_exit=pk[0]) for pk in p]
+            g["scene_vertices"] = np.array([sc["obstacle_vertices"].ravel() for sc in scs])
+            g["scene_exit"] = np.array([sc["exit_segment"].ravel() for sc in scs])
             off, idx, val = _multipliers(rng, n_s * N_STEPS)
             g["lambda_offset"], g["lambda_index"], g["lambda_value"] = off, idx, val
             st = g.create_group("stats")

@@ -179,11 +179,17 @@ def test_multiplier_pod_errors_against_svd():
     assert mean[0] > mean[3] > mean[8]
 
 
-def test_scene_for_params_moves_the_exit(study):
+def test_sample_scenes_are_read_from_the_database(study):
+    """The figures draw each sample's scene as the model mapped it (stored by crowd_snapshots),
+    not a geometry re-computed in Python."""
     with h5py.File(study["db"], "r") as f:
-        sc = cio.read_scene(f)
-    new = cio.scene_for_params(sc, ["l_exit", "speed"], np.array([0.4, 1.0]))
-    assert new["exit"][:, 0] == pytest.approx([0.3, 0.7])
-    walls = new["verts"][12:20]                               # the two walls beside the exit
-    assert walls[1, 0] == pytest.approx(0.3) and walls[4, 0] == pytest.approx(0.7)
-    assert np.array_equal(sc["exit"][:, 0], [0.35, 0.65])     # the reference is untouched
+        ref = cio.read_scene(f)
+        scenes = cio.read_sample_scenes(f, "valid")
+        params = f["valid/params"][()]
+        stored = f["valid/scene_exit"][()]
+    assert len(scenes) == params.shape[0]
+    for sc, p, e in zip(scenes, params, stored):
+        assert sc["exit"].ravel() == pytest.approx(e)
+        assert sc["exit"][1, 0] - sc["exit"][0, 0] == pytest.approx(p[0])   # l_exit of the sample
+        assert sc["verts"].shape == ref["verts"].shape
+    assert np.array_equal(ref["exit"][:, 0], [0.35, 0.65])     # the reference is untouched

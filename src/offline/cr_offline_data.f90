@@ -10,6 +10,7 @@ module cr_offline_data
   use cr_env, only: env_t
   use cr_config, only: config_t
   use cr_scene, only: scene_t
+  use cr_param_model, only: param_model_t
   use cr_snapshot_file, only: snap_header_t, snap_block_t, read_snap_header, read_snap_block
   use cr_distribution, only: block_range
   use cr_cone, only: sparse_columns_t
@@ -47,8 +48,8 @@ contains
     type(error_t), allocatable, intent(out) :: error
     type(snap_header_t) :: hdr
     type(snap_block_t) :: blk
-    real(wp), allocatable :: params(:,:)
-    integer :: nt, k, nu, il, j
+    type(param_model_t) :: pm
+    integer :: nt, k, nu
     call read_snap_header(path, "&offline: database", hdr, error, env=env)
     if (allocated(error)) return
     data%n_agents = hdr%n_agents; data%n_steps = hdr%n_steps; data%n_train = hdr%n_train
@@ -87,23 +88,17 @@ contains
     call move_alloc(blk%lam_ptr, data%lam%ptr)
     call move_alloc(blk%lam_idx, data%lam%idx)
     call move_alloc(blk%lam_val, data%lam%val)
-    params = blk%mu
-    ! one scene per local sample (l_exit may be a parameter)
-    il = index("," // data%param_names // ",", ",l_exit,")
+    ! one scene per local sample (the parameters may change it)
+    call pm%init_from_components(data%param_names, data%n_agents, error)
+    if (allocated(error)) then
+      call prefix_error(error, "&offline: database '" // path // "': attribute 'param_names'"); return
+    end if
     allocate(data%scenes(max(data%ns, 1)), data%scene_of(data%ns * nt))
     do k = 1, data%ns
-      block
-        type(config_t) :: c2
-        c2 = cfg
-        if (il > 0) then
-          j = count_commas(data%param_names(1:il - 1)) + 1
-          c2%scene%l_exit = params(j, k)
-        end if
-        call data%scenes(k)%init(c2%scene, c2%obstacles, error)
-        if (allocated(error)) then
-          call prefix_error(error, "&offline: scene of training sample " // str(data%s0 + k)); return
-        end if
-      end block
+      call pm%scene_of(blk%mu(:, k), cfg, data%scenes(k), error)
+      if (allocated(error)) then
+        call prefix_error(error, "&offline: scene of training sample " // str(data%s0 + k)); return
+      end if
       data%scene_of((k - 1) * nt + 1:k * nt) = k
     end do
     if (data%ns == 0) call data%scenes(1)%init(cfg%scene, cfg%obstacles, error)
@@ -114,15 +109,5 @@ contains
         str(data%scenes(1)%n_obstacles()) // " obstacles", 2)
     end if
 
-  contains
-
-    pure integer function count_commas(s)
-      character(len=*), intent(in) :: s
-      integer :: i
-      count_commas = 0
-      do i = 1, len(s)
-        if (s(i:i) == ',') count_commas = count_commas + 1
-      end do
-    end function count_commas
   end subroutine load_training
 end module cr_offline_data

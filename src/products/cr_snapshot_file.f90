@@ -78,6 +78,10 @@ module cr_snapshot_file
     integer(i8), allocatable :: lam_ptr(:)
     integer, allocatable :: lam_idx(:)
     real(wp), allocatable :: lam_val(:)
+    !> each sample's mapped scene: the obstacle vertices in the layout of /scene/obstacle_vertices
+    !> [2 * n_vertices, nloc] and the exit segment (x_lo, y, x_hi, y) [4, nloc] (written; the
+    !> Fortran readers do not need them, the Python figures do)
+    real(wp), allocatable :: scene_vertices(:,:), scene_exit(:,:)
   end type snap_block_t
 
 contains
@@ -191,6 +195,12 @@ contains
     call h5%write_block(g // "/lambda_index", b%lam_idx, int(base), error); if (allocated(error)) return
     call h5%create_dataset(g // "/lambda_value", [int(cnt(1))], cr_h5_real, error); if (allocated(error)) return
     call h5%write_block(g // "/lambda_value", b%lam_val, int(base), error); if (allocated(error)) return
+    ! each sample's mapped scene
+    call h5%create_dataset(g // "/scene_vertices", [size(b%scene_vertices, 1), b%n], cr_h5_real, error)
+    if (allocated(error)) return
+    call h5%write_block(g // "/scene_vertices", b%scene_vertices, b%k0 - 1, error); if (allocated(error)) return
+    call h5%create_dataset(g // "/scene_exit", [4, b%n], cr_h5_real, error); if (allocated(error)) return
+    call h5%write_block(g // "/scene_exit", b%scene_exit, b%k0 - 1, error); if (allocated(error)) return
     call h5%write_attr(g, "n_samples", b%n, error)
   end subroutine write_snap_set
 

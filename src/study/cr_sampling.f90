@@ -1,7 +1,6 @@
 !> The parameter space of a study and its training / validation samples.
 !>
-!> mu has n_expanded components: one per parameter, except 'speeds' which contributes
-!> n_agents (speed_1..speed_N). Every rank generates the full sample lists from the seed
+!> mu has n_expanded components (cr_param_model maps them to the model). Every rank generates the full sample lists from the seed
 !> (sample k of a set uses its own random stream), so the samples never depend on the number
 !> of ranks. Training: uniform random in the box or a tensor grid (first parameter fastest,
 !> end points included; one point means the midpoint). Validation: uniform random in the box
@@ -11,25 +10,18 @@ module cr_sampling
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
   use cr_random, only: rng_t
-  use cr_config, only: config_t
+  use cr_param_model, only: param_model_t
   use cr_study_config, only: study_cfg_t
   implicit none
   private
   public :: param_space_t, sample_set_t, generate_samples
 
-  !> The parameters of a study, expanded to components.
-  type :: param_space_t
-    integer :: n_params = 0, n_expanded = 0, n_agents = 0
-    !> study parameter names [n_params]
-    character(len=16), allocatable :: names(:)
-    !> first component and number of components of each parameter [n_params]
-    integer, allocatable :: first(:), width(:)
+  !> The parameters of a study: the mapping to the model (cr_param_model) and the box.
+  type, extends(param_model_t) :: param_space_t
     !> bounds of each component [n_expanded]
     real(wp), allocatable :: lo(:), hi(:)
   contains
     procedure :: init => space_init
-    procedure :: component_names
-    procedure :: apply
   end type param_space_t
 
   !> One sample set (training or validation).
@@ -48,65 +40,14 @@ contains
     type(study_cfg_t), intent(in) :: s
     integer, intent(in) :: n_agents
     integer :: k, m
-    this%n_params = s%n_params
-    this%n_agents = n_agents
-    allocate(this%names(s%n_params), this%first(s%n_params), this%width(s%n_params))
-    m = 0
-    do k = 1, s%n_params
-      this%names(k) = s%param_name(k)
-      this%first(k) = m + 1
-      this%width(k) = 1
-      if (s%param_name(k) == 'speeds') this%width(k) = n_agents
-      m = m + this%width(k)
-    end do
-    this%n_expanded = m
+    call this%init_model(s%param_name(1:s%n_params), n_agents)
+    m = this%n_expanded
     allocate(this%lo(m), this%hi(m))
     do k = 1, s%n_params
       this%lo(this%first(k):this%first(k) + this%width(k) - 1) = s%param_min(k)
       this%hi(this%first(k):this%first(k) + this%width(k) - 1) = s%param_max(k)
     end do
   end subroutine space_init
-
-  !> Comma-separated component names, e.g. "l_exit,speed_1,...,speed_20".
-  function component_names(this) result(s)
-    class(param_space_t), intent(in) :: this
-    character(len=:), allocatable :: s
-    integer :: k, i
-    s = ""
-    do k = 1, this%n_params
-      if (this%width(k) == 1 .and. this%names(k) /= 'speeds') then
-        s = s // trim(this%names(k)) // ","
-      else
-        do i = 1, this%width(k)
-          s = s // "speed_" // str(i) // ","
-        end do
-      end if
-    end do
-    if (len(s) > 0) s = s(1:len(s) - 1)
-  end function component_names
-
-  !> Set the model inputs of sample mu: cfg%scene%l_exit and the per-agent speeds.
-  subroutine apply(this, mu, cfg, speeds)
-    class(param_space_t), intent(in) :: this
-    !> parameter values [n_expanded]
-    real(wp), intent(in) :: mu(:)
-    !> configuration to modify (a copy of the reference)
-    type(config_t), intent(inout) :: cfg
-    !> speeds [n_agents]: reference speeds on entry, the sample's speeds on return
-    real(wp), intent(inout) :: speeds(:)
-    integer :: k, j
-    do k = 1, this%n_params
-      j = this%first(k)
-      select case (trim(this%names(k)))
-      case ('l_exit')
-        cfg%scene%l_exit = mu(j)
-      case ('speed')
-        speeds = mu(j)
-      case ('speeds')
-        speeds = mu(j:j + this%width(k) - 1)
-      end select
-    end do
-  end subroutine apply
 
   !> Training and validation samples of the study (identical on every rank).
   subroutine generate_samples(s, space, train, valid, error)

@@ -15,6 +15,9 @@ module cr_snapshot_db
   use cr_env, only: env_t
   use cr_sort, only: argsort_i8, bsearch_i8
   use cr_fom, only: fom_t
+  use cr_config, only: config_t
+  use cr_scene, only: scene_t
+  use cr_sampling, only: param_space_t
   use cr_h5file, only: h5file_t
   use cr_snapshot_file, only: SNAP_SCHEMA, db_meta_t, snap_block_t, write_snap_header, write_snap_set
   use cr_snapshot_piece, only: sample_result_t, read_piece, piece_path
@@ -91,12 +94,15 @@ contains
   end subroutine probe_database
 
   !> Collective: assemble every piece in `pieces_dir` into the database `path`.
-  subroutine assemble_database(env, path, pieces_dir, meta, fom_ref, q0, n_train, n_valid, totals, error)
+  subroutine assemble_database(env, path, pieces_dir, meta, fom_ref, cfg, space, q0, n_train, n_valid, totals, error)
     type(env_t), intent(in) :: env
     character(len=*), intent(in) :: path, pieces_dir
     type(db_meta_t), intent(in) :: meta
     !> the reference model (for the scene group)
     type(fom_t), intent(in) :: fom_ref
+    !> the reference configuration and the parameter space (each sample's mapped scene)
+    type(config_t), intent(in) :: cfg
+    type(param_space_t), intent(in) :: space
     !> common initial positions [2*n_agents]
     real(wp), intent(in), contiguous :: q0(:)
     integer, intent(in) :: n_train, n_valid
@@ -106,6 +112,7 @@ contains
     integer(i8), allocatable :: dkey(:)
     integer, allocatable :: dia(:), dib(:), dob(:)
     type(h5file_t) :: h5
+    type(snap_block_t) :: blk
     character(len=:), allocatable :: msg
     integer :: is, k, ierr, bad
     sets(1)%name = 'train'; sets(1)%n = n_train
@@ -135,7 +142,9 @@ contains
       call write_snap_header(h5, meta, n_train, n_valid, q0, fom_ref%scene, dkey, dia, dib, dob, error)
       if (allocated(error)) exit ops
       do is = 1, 2
-        call write_snap_set(env, h5, meta, block_of(sets(is)), error); if (allocated(error)) exit ops
+        blk = block_of(sets(is))
+        call env_collective(msg, error); if (allocated(error)) exit ops
+        call write_snap_set(env, h5, meta, blk, error); if (allocated(error)) exit ops
       end do
       call h5%write_attr("/", "complete", 1, error); if (allocated(error)) exit ops
       call h5%commit(error)
@@ -173,7 +182,9 @@ contains
     function block_of(b) result(o)
       type(set_block_t), intent(in) :: b
       type(snap_block_t) :: o
-      integer :: nd, ns, ne, k, j, c0, nnz
+      type(scene_t) :: sc
+      type(error_t), allocatable :: e3
+      integer :: nd, ns, ne, k, j, c0, nnz, nv
       nd = 2 * meta%n_agents; ns = meta%n_steps; ne = meta%n_expanded
       o%name = b%name; o%n = b%n; o%k0 = b%k0; o%nloc = b%nloc
       allocate(o%mu(ne, b%nloc), o%q(nd, (ns + 1) * b%nloc), o%u(nd, ns * b%nloc), o%v(nd, ns * b%nloc), &
@@ -194,6 +205,21 @@ contains
           nnz = nnz + size(s%value)
         end associate
       end do
+      ! each sample's mapped scene (reference vertex layout)
+      nv = size(ref_vertices(fom_ref%scene))
+      allocate(o%scene_vertices(nv, b%nloc), o%scene_exit(4, b%nloc))
+      msg = ""
+      do k = 1, b%nloc
+        call space%scene_of(b%s(k)%mu, cfg, sc, e3)
+        if (allocated(e3)) then
+          msg = "scene of " // trim(b%name) // " sample " // str(b%k0 + k - 1) // ": " // e3%message; exit
+        end if
+        if (size(ref_vertices(sc)) /= nv) then
+          msg = "scene of " // trim(b%name) // " sample " // str(b%k0 + k - 1) // " has another vertex layout"; exit
+        end if
+        o%scene_vertices(:, k) = ref_vertices(sc)
+        o%scene_exit(:, k) = [sc%x_lo, sc%width, sc%x_hi, sc%width]
+      end do
       allocate(o%lam_idx(nnz), o%lam_val(nnz))
       c0 = 0
       do k = 1, b%nloc
@@ -204,6 +230,24 @@ contains
         end do
       end do
     end function block_of
+
+    !> Vertices of every obstacle of a scene, in order [2 * total vertices].
+    function ref_vertices(sc) result(v)
+      type(scene_t), intent(in) :: sc
+      real(wp), allocatable :: v(:)
+      integer :: k
+      allocate(v(0))
+      do k = 1, sc%n_obstacles()
+        v = [v, reshape(sc%obstacles(k)%vertices, [size(sc%obstacles(k)%vertices)])]
+      end do
+    end function ref_vertices
+
+    !> Make this rank's message collective.
+    subroutine env_collective(m, error)
+      character(len=:), allocatable, intent(inout) :: m
+      type(error_t), allocatable, intent(out) :: error
+      call collective_error(env, m, error)
+    end subroutine env_collective
   end subroutine assemble_database
 
   !> Sorted union over all ranks of the contact keys of this rank's samples (with identities).

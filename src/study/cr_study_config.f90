@@ -16,13 +16,13 @@ module cr_study_config
   use cr_namelist_text, only: namelist_text_t
   use cr_config, only: config_t, config_echo, MAX_PATH
   use cr_hash, only: hash_text
+  use cr_param_model, only: KNOWN_PARAMS, KNOWN_PARAMS_TEXT
   implicit none
   private
   public :: study_cfg_t, read_study, check_study, study_echo, study_hash, MAX_PARAMS, KNOWN_PARAMS
 
   !> most parameters in one study ('speeds' counts as one here)
   integer, parameter :: MAX_PARAMS = 8
-  character(len=*), parameter :: KNOWN_PARAMS = "l_exit, speed, speeds"
 
   !> &study: parameters, sampling, database.
   type :: study_cfg_t
@@ -90,10 +90,10 @@ contains
     do k = 1, np
       nm = trim(s%param_name(k))
       select case (nm)
-      case ('l_exit', 'speed', 'speeds')
+      case (KNOWN_PARAMS(1), KNOWN_PARAMS(2), KNOWN_PARAMS(3))
       case default
         call probs%need(.false., "&study: param_name(" // str(k) // ") = '" // nm // &
-          "' is not a known parameter (known: " // KNOWN_PARAMS // ")")
+          "' is not a known parameter (known: " // KNOWN_PARAMS_TEXT // ")")
       end select
       do j = 1, k - 1
         call probs%need(s%param_name(j) /= s%param_name(k), "&study: parameter '" // nm // "' is given twice")
