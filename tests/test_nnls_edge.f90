@@ -714,7 +714,10 @@ contains
     character(len=:), allocatable :: name
     do trial = 1, 400
       mc = randint(1, 6); n = randint(1, 6)
-      allocate(bm(mc, n), u(n), lam(mc), uref(n))
+      ! every array of the trial is allocated with its size: gfortran 12's inlined matmul
+      ! (-O1 and above) does not reallocate d in d = matmul(bm, u0) + slack when d's old
+      ! size equals size(u0)
+      allocate(bm(mc, n), u(n), lam(mc), uref(n), u0(n), slack(mc), d(mc), v(n))
       call randn(bm)
       u0 = randv(n)
       slack = abs(randv(mc))
@@ -729,8 +732,8 @@ contains
         bm(3, :) = bm(1, :) + bm(2, :)
         slack(3) = slack(1) + slack(2)
       end if
-      d = matmul(bm, u0) + slack
-      v = u0 + 2.0_wp * randv(n)
+      d(:) = matmul(bm, u0) + slack
+      v(:) = u0 + 2.0_wp * randv(n)
       name = "ldp enum " // str(trial)
       call enum_ldp(bm, d, v, uref, found)
       call check(found, name // ": enumeration found the projection")
@@ -740,7 +743,7 @@ contains
         name // ": objective = enumeration")
       call check(maxval(abs(u - uref)) <= 1.0e-8_wp * (1.0_wp + maxval(abs(v))), &
         name // ": u = enumeration")
-      deallocate(bm, u, lam, uref)
+      deallocate(bm, u, lam, uref, u0, slack, d, v)
     end do
   end subroutine test_ldp_enumeration
 
@@ -954,16 +957,16 @@ contains
     ! random infeasible systems: a random system plus the reverse of its first row shifted
     do trial = 1, 60
       mc = randint(2, 6); n = randint(1, 5)
-      allocate(bm(mc, n), u(n), lam(mc))
+      allocate(bm(mc, n), u(n), lam(mc), d(mc))
       call randn(bm)
-      d = matmul(bm, randv(n)) + abs(randv(mc))
+      d(:) = matmul(bm, randv(n)) + abs(randv(mc))
       c = 0.5_wp + rng%uniform()
       gap = 0.1_wp + rng%uniform()
       bm(mc, :) = -c * bm(1, :)
       d(mc) = -c * (d(1) + gap)
       v = 3.0_wp * randv(n)
       call solve_infeasible(bm, d, v, u, lam, st, "random infeasible " // str(trial))
-      deallocate(bm, u, lam)
+      deallocate(bm, u, lam, d)
     end do
   end subroutine test_ldp_infeasible
 
@@ -1023,9 +1026,9 @@ contains
     real(wp) :: c
     do trial = 1, 30
       mc = randint(1, 8); n = randint(1, 6)
-      allocate(bm(mc, n), u(n), lam(mc), us(n), ls(mc))
+      allocate(bm(mc, n), u(n), lam(mc), us(n), ls(mc), d(mc))
       call randn(bm)
-      d = matmul(bm, randv(n)) + abs(randv(mc))
+      d(:) = matmul(bm, randv(n)) + abs(randv(mc))
       v = 2.0_wp * randv(n)
       call solve_ldp(bm, d, v, u, lam, st, "ldp scaling base")
       do k = 1, 2
@@ -1048,7 +1051,7 @@ contains
           end if
         end do
       end do
-      deallocate(bm, u, lam, us, ls)
+      deallocate(bm, u, lam, us, ls, d)
     end do
   end subroutine test_ldp_scaling
 
@@ -1062,9 +1065,9 @@ contains
     character(len=:), allocatable :: name
     do trial = 1, 30
       mc = randint(2, 10); n = randint(1, 6)
-      allocate(bm(mc, n), u(n), lam(mc), uw(n), lw(mc))
+      allocate(bm(mc, n), u(n), lam(mc), uw(n), lw(mc), d(mc))
       call randn(bm)
-      d = matmul(bm, randv(n)) + abs(randv(mc))
+      d(:) = matmul(bm, randv(n)) + abs(randv(mc))
       v = 3.0_wp * randv(n)
       call solve_ldp(bm, d, v, u, lam, st, "ldp warm base")
       do g = 1, 3
@@ -1101,7 +1104,7 @@ contains
       lw = 0.0_wp
       call ldp_solve(bm, d, v, uw, lw, stw, err, max_iter=1, work=work)
       call check(.not. allocated(err) .and. all(lw >= 0.0_wp), "ldp cap 1: no error, lambda >= 0")
-      deallocate(bm, u, lam, uw, lw)
+      deallocate(bm, u, lam, uw, lw, d)
     end do
   end subroutine test_ldp_warm_and_cap
 

@@ -1,0 +1,88 @@
+#!/usr/bin/env python3
+"""Time per call of crowdrom's nnls_solve against SciPy's NNLS on small dense problems.
+
+Usage: scripts/bench_nnls.py [--bin build/bin/crowd_nnlsbench] [--seconds 0.2] [--seed 1]
+
+The problems are seeded random: A standard normal [m, n], b standard normal (about half of
+the columns active at the optimum), at the sizes of the online reduced problems (the LDP of
+a reduced step is an NNLS of size (N + 1) x R: (5, 10), (10, 15), (39, 65) on hall20) and a
+few square and tall ones. Both solvers see the same data; crowd_nnlsbench times nnls_solve
+in Fortran (one reusable work space, as the online model calls it), this script times
+scipy.optimize.nnls from Python (timeit, best of 5 runs). Prints a Markdown table with the
+ratio SciPy / crowdrom per size and its geometric mean, and checks the two residuals agree.
+"""
+import argparse
+import os
+import struct
+import subprocess
+import sys
+import tempfile
+import timeit
+
+SIZES = [(6, 10), (11, 15), (20, 20), (40, 65), (30, 20), (60, 40)]
+
+
+def main():
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--bin", default=os.path.join(root, "build", "bin", "crowd_nnlsbench"))
+    ap.add_argument("--seconds", type=float, default=0.2, help="minimum timing per problem and solver")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--per-size", type=int, default=3, help="problems per size")
+    args = ap.parse_args()
+    try:
+        import numpy as np
+        import scipy
+        from scipy.optimize import nnls
+    except ImportError as e:
+        sys.exit("error: bench_nnls.py: %s (run scripts/setup.sh)" % e)
+    if not os.access(args.bin, os.X_OK):
+        sys.exit("error: bench_nnls.py: %s is not an executable (build first: scripts/setup.sh)" % args.bin)
+    rng = np.random.default_rng(args.seed)
+    probs = []
+    for m, n in SIZES:
+        for _ in range(args.per_size):
+            probs.append((rng.standard_normal((m, n)), rng.standard_normal(m)))
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "problems.bin")
+        with open(path, "wb") as f:
+            f.write(struct.pack("<i", len(probs)))
+            for a, b in probs:
+                f.write(struct.pack("<ii", *a.shape))
+                f.write(np.asfortranarray(a).tobytes(order="F"))
+                f.write(b.astype("<f8").tobytes())
+        env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+        out = subprocess.run([args.bin, path, str(args.seconds)], capture_output=True, text=True, env=env)
+        if out.returncode != 0:
+            sys.exit("error: bench_nnls.py: %s failed: %s" % (args.bin, out.stderr.strip().splitlines()[-1:]))
+    ours = [line.split() for line in out.stdout.strip().splitlines()]
+    rows = {}
+    worst_res = 0.0
+    for (a, b), line in zip(probs, ours):
+        t_ours, res_ours, conv = float(line[3]), float(line[4]), int(line[5])
+        timer = timeit.Timer(lambda: nnls(a, b))
+        number, _ = timer.autorange()
+        number = max(number, int(number * args.seconds / 0.2))
+        t_scipy = min(timer.repeat(5, number)) / number * 1e6
+        x, res_scipy = nnls(a, b)
+        worst_res = max(worst_res, (res_ours - res_scipy) / max(np.linalg.norm(b), 1e-300))
+        rows.setdefault(a.shape, []).append((t_ours, t_scipy, conv))
+    print("SciPy %s, numpy %s; times in microseconds per call (mean over a size's %d problems)"
+          % (scipy.__version__, np.__version__, args.per_size))
+    print()
+    print("| m x n | crowdrom nnls_solve | scipy.optimize.nnls | ratio |")
+    print("|---|---:|---:|---:|")
+    logs = []
+    for (m, n), r in rows.items():
+        to = sum(x[0] for x in r) / len(r)
+        ts = sum(x[1] for x in r) / len(r)
+        logs.append(np.log(ts / to))
+        print("| %d x %d | %.2f | %.2f | %.1fx |" % (m, n, to, ts, ts / to))
+    print()
+    print("geometric mean ratio (SciPy / crowdrom): %.2fx" % float(np.exp(np.mean(logs))))
+    print("all converged: %s; largest (residual_crowdrom - residual_scipy) / |b|: %.1e"
+          % (all(x[2] == 1 for r in rows.values() for x in r), worst_res))
+
+
+if __name__ == "__main__":
+    main()
