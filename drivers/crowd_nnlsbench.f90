@@ -70,7 +70,7 @@ program crowd_nnlsbench
       t = real(c1 - c0, wp) / real(rate, wp)
       if (t >= min_seconds) exit
     end do
-    write(*, '(i0, 1x, i0, 1x, i0, 1x, es12.5, 1x, es12.5, 1x, i0, 1x, i0)') p, m, n, 1.0e6_wp * t / reps, &
+    write(*, '(i0, 1x, i0, 1x, i0, 1x, es12.5, 1x, es24.16, 1x, i0, 1x, i0)') p, m, n, 1.0e6_wp * t / reps, &
       st%residual, merge(1, 0, st%converged), st%n_passive
     deallocate(a, b, x)
   end do
