@@ -17,6 +17,17 @@
 !>   coefficient is not positive (the round-off trap that makes textbook Lawson-Hanson cycle).
 !>   Refusals are cleared whenever the passive set changes, so they never hide a real descent
 !>   direction for long; the iteration count is capped in any case.
+!> - Optimality test (Lawson-Hanson's, in the orthogonal complement of the factorisation): the
+!>   residual of the passive least-squares solution is formed as r = Q(:, k+1:m) (Q^T b)(k+1:m)
+!>   and w_j = a_j^T r for the inactive columns. Its rounding is about m eps |a_j| |r|, relative
+!>   to the current residual (a_j^T (b - A_P x_P) would carry eps |a_j| |b| whatever the true
+!>   gradient, and hide the 1e-20..1e-15 gradients of nearly dependent columns of
+!>   ill-conditioned problems). A column may enter when w_j > 16 m eps |r| (scaled units, columns
+!>   of norm < 1): the cosine between a_j and r exceeds the dependence threshold below, so a
+!>   column that passes it is never refused as dependent. At convergence every inactive column
+!>   has a_j^T r <= 16 m eps |a_j| |r|, hence (convexity) |r| <= |r*| + 32 m eps sum_j |a_j| x*_j
+!>   for any optimal x*, plus the backward error of the factorisation (a few m eps |b|): the
+!>   optimal objective to rounding, whatever the conditioning and also when x is not unique.
 !> - Columns are held in compressed sparse form (only non-zeros), which costs nothing for dense
 !>   data and makes the contact matrices (5 non-zeros per column) cheap.
 !> - The returned x is always >= 0 and the statistics (residual, KKT measures, n_passive) are
