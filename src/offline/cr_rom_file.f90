@@ -144,6 +144,10 @@ contains
       end if
       call h5%write(g // "/err_max", c%err_max, error); if (allocated(error)) return
       call h5%write(g // "/err_mean", c%err_mean, error); if (allocated(error)) return
+      ! mCPG: accuracy of each err_max entry (see mcpg_build)
+      if (allocated(c%err_acc)) then
+        call h5%write(g // "/err_acc", c%err_acc, error); if (allocated(error)) return
+      end if
       ! written also when R = 0 (empty datasets): a reader finds the same objects in every file
       if (allocated(c%sigma)) then
         call h5%write(g // "/sigma", c%sigma, error); if (allocated(error)) return
