@@ -13,7 +13,9 @@ scipy.optimize.nnls from Python (timeit, best of 5 runs). Each binary runs --rou
 interleaved, and the best time per problem is kept (the machine may be shared). Prints a
 Markdown table with the ratio SciPy / crowdrom per size and its geometric mean, and checks the
 residuals agree. --baseline times a second build of crowd_nnlsbench (e.g. of an older commit)
-on the same problems, for before/after comparisons.
+on the same problems, for before/after comparisons. --callgrind (with --baseline) instead
+counts the instructions per solve of both builds under valgrind's callgrind (11 solves per
+problem, start-up subtracted): a comparison that the load of a shared machine does not blur.
 """
 import argparse
 import os
@@ -31,6 +33,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--bin", default=os.path.join(root, "build", "bin", "crowd_nnlsbench"))
     ap.add_argument("--baseline", help="a second crowd_nnlsbench to compare with (before/after)")
+    ap.add_argument("--callgrind", action="store_true", help="instructions per solve (valgrind) instead of times")
     ap.add_argument("--rounds", type=int, default=3, help="interleaved runs of each binary (best kept)")
     ap.add_argument("--seconds", type=float, default=0.2, help="minimum timing per problem and solver")
     ap.add_argument("--seed", type=int, default=1)
@@ -49,14 +52,11 @@ def main():
     for m, n in SIZES:
         for _ in range(args.per_size):
             probs.append((rng.standard_normal((m, n)), rng.standard_normal(m)))
+    if args.callgrind:
+        return callgrind(args, probs, np)
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "problems.bin")
-        with open(path, "wb") as f:
-            f.write(struct.pack("<i", len(probs)))
-            for a, b in probs:
-                f.write(struct.pack("<ii", *a.shape))
-                f.write(np.asfortranarray(a).tobytes(order="F"))
-                f.write(b.astype("<f8").tobytes())
+        write_problems(path, probs, np)
         env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
         bins = [args.bin] + ([args.baseline] if args.baseline else [])
         best = {b: None for b in bins}
@@ -110,6 +110,52 @@ def main():
         print("geometric mean ratio (baseline / crowdrom): %.2fx" % float(np.exp(np.mean(blogs))))
     print("all converged: %s; largest (residual_crowdrom - residual_scipy) / |b|: %.1e"
           % (all(x[2] == 1 for r in rows.values() for x in r), worst_res))
+
+
+def write_problems(path, probs, np):
+    with open(path, "wb") as f:
+        f.write(struct.pack("<i", len(probs)))
+        for a, b in probs:
+            f.write(struct.pack("<ii", *a.shape))
+            f.write(np.asfortranarray(a).tobytes(order="F"))
+            f.write(b.astype("<f8").tobytes())
+
+
+def callgrind(args, probs, np):
+    """Instructions per solve of --bin and --baseline, per size, under valgrind's callgrind."""
+    import re
+    import shutil
+    if not args.baseline or not shutil.which("valgrind"):
+        sys.exit("error: bench_nnls.py: --callgrind needs --baseline and valgrind on PATH")
+    bins = [args.bin, args.baseline]
+
+    def count(b, path):
+        out = subprocess.run(["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null", b, path, "1e-9"],
+                             capture_output=True, text=True)
+        m = re.search(r"Collected : (\d+)", out.stderr)
+        if out.returncode != 0 or not m:
+            sys.exit("error: bench_nnls.py: valgrind %s failed: %s" % (b, out.stderr.strip().splitlines()[-1:]))
+        return int(m.group(1))
+
+    sizes = []
+    for a, _ in probs:
+        if a.shape not in sizes:
+            sizes.append(a.shape)
+    print("instructions per solve (valgrind callgrind, 11 solves per problem, start-up subtracted)")
+    print()
+    print("| m x n | crowdrom nnls_solve | baseline | change |")
+    print("|---|---:|---:|---:|")
+    with tempfile.TemporaryDirectory() as tmp:
+        empty = os.path.join(tmp, "empty.bin")
+        write_problems(empty, [], np)
+        start = {b: count(b, empty) for b in bins}
+        for shape in sizes:
+            sub = [p for p in probs if p[0].shape == shape]
+            path = os.path.join(tmp, "p.bin")
+            write_problems(path, sub, np)
+            per = {b: (count(b, path) - start[b]) / (11.0 * len(sub)) for b in bins}
+            print("| %d x %d | %.0f | %.0f | %+.1f%% |" % (shape[0], shape[1], per[args.bin], per[args.baseline],
+                                                     100.0 * (per[args.bin] / per[args.baseline] - 1)))
 
 
 if __name__ == "__main__":
