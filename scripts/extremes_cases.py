@@ -770,6 +770,9 @@ def all_cases():
         other = rom.cone.get("cone_mcpg")
         if c.need(other is not None, "no mCPG comparison"):
             c.need(other["note"] != "" or other["r"] == 100, "mCPG stopped without reaching 0 and without a note")
+            c.need(r.summary.get("cone_comparison_note") == other["note"],
+                   "summary cone_comparison_note %r differs from the ROM file's mCPG note %r"
+                   % (r.summary.get("cone_comparison_note"), other["note"]))
 
     def cone_delta_above(c, r, ctx, rom):
         for g, cone in rom.cone.items():
