@@ -466,7 +466,9 @@ contains
   !> u is formed as v - Bm^T lambda, so stationarity holds to rounding.
   !> Accuracy: den = 1 / (1 + |x'|^2), and x' carries a relative error ~ eps / den, so when
   !> den < 1/4 the balance s is multiplied by |x'| and the NNLS solved again (warm started);
-  !> the LDP is declared infeasible only if den is still at rounding level after that.
+  !> the LDP is declared infeasible only if den is still at rounding level after that: below
+  !> the rounding of its own sum, or below (64 (n + 1) eps sum_j |E_j| y_j)^2, the square of the
+  !> residual nnls_solve guarantees on a consistent problem (E y = f solvable: the Farkas case).
   !>
   !> Infeasible systems. The violation sigma = (Bm u - d)^+ is minimised in the least-squares
   !> sense, and among the minimisers the point closest to v is returned:
