@@ -26,6 +26,7 @@ program crowd_rom
   use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t, make_reduced_ops
   use cr_rom_stepper, only: rom_solver_cfg_t, rom_traj_t, run_trajectory, reduced_positions
   use cr_rom_metrics, only: position_errors, projection_error, max_overlap, agents_not_left
+  use cr_rom_guard, only: rom_guard_t
   use cr_fom, only: fom_t, step_record_t
   use cr_h5file, only: h5file_t
   use cr_fsys, only: rename_file, remove_file
@@ -38,6 +39,8 @@ program crowd_rom
     character(len=8) :: set = '', hyper = '', contacts = '', solver = ''
     real(wp) :: e_avg = -1, e_max = -1, e_proj = -1, overlap = 0, t_step = 0, mobility = -1
     integer :: not_left = 0, not_left_fom = -1, infeasible = 0, capped = 0, extrapolating = 0
+    !> samples whose reduced trajectory diverged (stopped; excluded from every average)
+    integer :: diverged = 0
   end type row_t
 
   type(env_t) :: env
@@ -230,6 +233,11 @@ contains
       type(rom_traj_t) :: traj, tr2
       type(eval_ctx_t) :: ctx
       type(config_t) :: c2
+      type(rom_guard_t) :: guard
+      logical, allocatable :: ok(:)
+      integer, allocatable :: div_step(:), n_done(:)
+      real(wp) :: c_max
+      integer :: kbad
       real(wp), allocatable :: alpha(:,:), beta(:,:), pos(:,:), qr(:,:), err_time(:,:)
       real(wp), allocatable :: e_mu(:), e_proj(:), overlap(:), time(:), mobility(:)
       integer, allocatable :: not_left(:), not_left_fom(:), infeas(:), capped(:), extrap(:)
@@ -249,7 +257,8 @@ contains
       allocate(alpha(nb, nt * blk%n), beta(merge(pair%r, 0, ops%fixed_rows), nt * blk%n), &
         pos(st%n_dof, (nt + 1) * blk%n), err_time(nt + 1, blk%n), e_mu(blk%n), e_proj(blk%n), &
         overlap(blk%n), time(blk%n), mobility(blk%n), not_left(blk%n), not_left_fom(blk%n), infeas(blk%n), capped(blk%n), &
-        extrap(blk%n))
+        extrap(blk%n), div_step(blk%n), n_done(blk%n))
+      div_step = 0
       err_time = -1; e_mu = -1; e_proj = -1; not_left_fom = -1; mobility = -1
       call log%progress_start()
       do k = 1, blk%n
@@ -263,18 +272,38 @@ contains
         if (allocated(error)) return
         ctx%radius = st%radius
         ctx%h = st%dt
-        call run_trajectory(ops, ctx, st%q0, nt, scfg, traj, error)
+        c_max = maxval(abs(ctx%speeds), mask=[(.true., kbad = 1, size(ctx%speeds))])
+        if (size(ctx%speeds) == 0) c_max = 0
+        if (ctx%desired%from_file) c_max = max(c_max, sqrt(2.0_wp) * maxval(abs(ctx%desired%fixed)))
+        call guard%init(ctx%scene, c_max, st%dt * nt, st%n_agents)
+        call run_trajectory(ops, ctx, st%q0, nt, scfg, traj, error, guard=guard)
         if (allocated(error)) then
           call prefix_error(error, "setting " // str(ks) // ", " // trim(blk%name) // " sample " // str(k)); return
         end if
         do rep = 2, rcfg%timing_repeats
-          call run_trajectory(ops, ctx, st%q0, nt, scfg, tr2, error)
+          call run_trajectory(ops, ctx, st%q0, nt, scfg, tr2, error, guard=guard)
           if (allocated(error)) return
           traj%time = min(traj%time, tr2%time)
         end do
+        qr = reduced_positions(st%q0, pair%v, traj%alpha, st%dt)
+        ! every agent checked (the stepper checks only the agents its assembly reads)
+        kbad = guard%first_outside(qr)
+        if (kbad > 0) then
+          if (traj%diverged_step == 0 .or. kbad - 1 < traj%diverged_step) then
+            traj%diverged_step = kbad - 1
+            traj%alpha(:, kbad - 1:) = 0
+            traj%beta(:, kbad - 1:) = 0
+            qr = reduced_positions(st%q0, pair%v, traj%alpha, st%dt)
+          end if
+        end if
+        div_step(k) = traj%diverged_step
+        n_done(k) = merge(traj%diverged_step, nt, traj%diverged_step > 0)
+        if (div_step(k) > 0) call log%warn("setting " // str(ks) // ", " // trim(blk%name) // " sample " // str(k) // &
+          ": the reduced trajectory diverged at step " // str(div_step(k)) // " (non-finite values or an agent " // &
+          "outside the hall's box inflated by its diagonal + 2 c_max T): stopped there, positions frozen, " // &
+          "sample excluded from the averages")
         alpha(:, (k - 1) * nt + 1:k * nt) = traj%alpha
         if (size(beta, 1) > 0) beta(:, (k - 1) * nt + 1:k * nt) = traj%beta
-        qr = reduced_positions(st%q0, pair%v, traj%alpha, st%dt)
         pos(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)) = qr
         time(k) = traj%time
         infeas(k) = traj%n_infeasible
@@ -295,17 +324,20 @@ contains
       end do
       row%setting = ks; row%n = pair%n; row%r = pair%r; row%nb = nb; row%m = ops%m
       row%set = blk%name; row%hyper = rcfg%hyper(kset); row%contacts = rcfg%contacts(kset); row%solver = rcfg%solver
-      row%t_step = sum(time) / max(1, nt * blk%n)
-      row%overlap = maxval(overlap, mask=[(.true., k = 1, blk%n)])
-      if (blk%n == 0) row%overlap = 0
-      row%not_left = sum(not_left); row%infeasible = sum(infeas); row%capped = sum(capped)
+      row%t_step = sum(time) / max(1, sum(n_done))
+      ! every aggregate over the samples that did not diverge (their count is reported)
+      ok = div_step == 0
+      row%diverged = count(.not. ok)
+      row%overlap = 0
+      if (any(ok)) row%overlap = maxval(overlap, mask=ok)
+      row%not_left = sum(not_left, mask=ok); row%infeasible = sum(infeas); row%capped = sum(capped)
       row%extrapolating = sum(extrap)
-      if (blk%has_fom .and. blk%n > 0) then
-        row%e_avg = sum(e_mu) / blk%n
-        row%e_max = maxval(e_mu)
-        row%e_proj = sum(e_proj) / blk%n
-        row%not_left_fom = sum(not_left_fom)
-        if (all(mobility >= 0)) row%mobility = sum(mobility) / blk%n
+      if (blk%has_fom .and. any(ok)) then
+        row%e_avg = sum(e_mu, mask=ok) / count(ok)
+        row%e_max = maxval(e_mu, mask=ok)
+        row%e_proj = sum(e_proj, mask=ok) / count(ok)
+        row%not_left_fom = sum(not_left_fom, mask=ok)
+        if (all(mobility >= 0 .or. .not. ok)) row%mobility = sum(mobility, mask=ok) / count(ok)
       end if
       call log%info("   " // trim(blk%name) // ": E_avg " // str(row%e_avg, "es9.2") // ", E_max " // &
         str(row%e_max, "es9.2") // ", best approximation " // str(row%e_proj, "es9.2") // ", deepest overlap " // &
@@ -313,6 +345,9 @@ contains
         "), mobility " // str(row%mobility, "f6.3") // ", infeasible steps " // str(row%infeasible) // &
         ", capped " // str(row%capped) // ", " // &
         str(row%t_step, "es9.2") // " s/step")
+      if (row%diverged > 0) call log%warn(str(row%diverged) // " of " // str(blk%n) // " " // trim(blk%name) // &
+        " reduced trajectories diverged: E_avg and every other aggregate of this row are over the other " // &
+        str(blk%n - row%diverged) // " samples (column samples_diverged)")
       if (row%infeasible > 0) call log%warn(str(row%infeasible) // " reduced steps were infeasible (the reduced " // &
         "positions already overlap): least-violation coefficients used")
       if (row%capped > 0) call log%warn(str(row%capped) // " reduced solves stopped at their iteration cap " // &
@@ -334,6 +369,7 @@ contains
       call h5%write_attr(g, "m_d", ops%m(3), error); if (allocated(error)) return
       if (trim(blk%name) == trim(blocks(size(blocks))%name)) then
         call h5%write_attr(g, "E_avg", row%e_avg, error); if (allocated(error)) return
+        call h5%write_attr(g, "samples_diverged", row%diverged, error); if (allocated(error)) return
         call h5%write_attr(g, "t_step", row%t_step, error); if (allocated(error)) return
         call h5%write_attr(g, "speedup_uzawa", ratio(t_uz, row%t_step), error); if (allocated(error)) return
         call h5%write_attr(g, "speedup_exact", ratio(t_ex, row%t_step), error); if (allocated(error)) return
@@ -356,6 +392,7 @@ contains
       call h5%write(g // "/n_capped", capped, error); if (allocated(error)) return
       call h5%write(g // "/extrapolating", extrap, error); if (allocated(error)) return
       call h5%write(g // "/time", time, error); if (allocated(error)) return
+      call h5%write(g // "/diverged_step", div_step, error); if (allocated(error)) return
     end subroutine run_setting
 
     !> Mean time per full-order step over the first fom_timing_samples samples of blk.
@@ -444,6 +481,7 @@ contains
       call h5%write("table/infeasible_steps", rows%infeasible, error); if (allocated(error)) return
       call h5%write("table/capped_steps", rows%capped, error); if (allocated(error)) return
       call h5%write("table/t_step_rom", rows%t_step, error); if (allocated(error)) return
+      call h5%write("table/samples_diverged", rows%diverged, error); if (allocated(error)) return
       call h5%write("table/speedup_uzawa", [(ratio(t_uz, rows(ks)%t_step), ks = 1, size(rows))], error)
       if (allocated(error)) return
       call h5%write("table/speedup_exact", [(ratio(t_ex, rows(ks)%t_step), ks = 1, size(rows))], error)
@@ -461,7 +499,7 @@ contains
         "," // e(r%overlap) // "," // str(r%not_left) // "," // str(r%not_left_fom) // "," // str(r%infeasible) // &
         "," // str(r%capped) // "," // e(r%t_step) // "," // e(t_uz) // "," // e(t_ex) // "," // &
         e(ratio(t_uz, r%t_step)) // "," // e(ratio(t_ex, r%t_step)) // "," // str(r%extrapolating) // "," // &
-        e(r%mobility)
+        e(r%mobility) // "," // str(r%diverged)
     end function csv_line
 
     subroutine write_csv(rows, error)
@@ -476,7 +514,7 @@ contains
       end if
       write(u, '(a)') "setting,set,n,r,n_basis,hyper,contacts,solver,m_v,m_b,m_d,E_avg,E_max,E_proj_avg," // &
         "max_overlap,agents_not_left,agents_not_left_fom,infeasible_steps,capped_steps,t_step_rom," // &
-        "t_step_fom_uzawa,t_step_fom_exact,speedup_uzawa,speedup_exact,extrapolating,mobility"
+        "t_step_fom_uzawa,t_step_fom_exact,speedup_uzawa,speedup_exact,extrapolating,mobility,samples_diverged"
       do k = 1, size(rows)
         write(u, '(a)') csv_line(rows(k))
       end do
@@ -492,20 +530,23 @@ contains
       integer :: k
       call log%info("")
       call log%info("| setting | set | N | R | Nb | hyper | contacts | m_v,m_b,m_d | E_avg | E_max | best approx. |" // &
-        " overlap | not out (FOM) | mobility | infeas. | t_step ROM [s] | speedup vs uzawa | speedup vs " // &
+        " overlap | not out (FOM) | mobility | infeas. | diverged | t_step ROM [s] | speedup vs uzawa | speedup vs " // &
         trim(rcfg%fom_exact_solver) // " |")
-      call log%info("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+      call log%info("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
       do k = 1, size(rows)
         associate (r => rows(k))
           call log%info("| " // str(r%setting) // " | " // trim(r%set) // " | " // str(r%n) // " | " // str(r%r) // &
             " | " // str(r%nb) // " | " // trim(r%hyper) // " | " // trim(r%contacts) // " | " // str(r%m(1)) // "," // &
-            str(r%m(2)) // "," // str(r%m(3)) // " | " // str(r%e_avg, "es9.2") // " | " // str(r%e_max, "es9.2") // &
+            str(r%m(2)) // "," // str(r%m(3)) // " | " // str(r%e_avg, "es9.2") // trim(merge("*", " ", r%diverged > 0)) // &
+            " | " // str(r%e_max, "es9.2") // &
             " | " // str(r%e_proj, "es9.2") // " | " // str(r%overlap, "es9.2") // " | " // str(r%not_left) // &
             " (" // str(r%not_left_fom) // ") | " // str(r%mobility, "f6.3") // " | " // str(r%infeasible) // &
-            " | " // str(r%t_step, "es9.2") // " | " // &
+            " | " // str(r%diverged) // " | " // str(r%t_step, "es9.2") // " | " // &
             str(ratio(t_uz, r%t_step), "f9.1") // " | " // str(ratio(t_ex, r%t_step), "f9.1") // " |")
         end associate
       end do
+      if (any(rows%diverged > 0)) call log%info("* some samples of this row diverged (column diverged): its figures " // &
+        "are over the other samples only")
     end subroutine print_table
 
     subroutine write_summary(rows, error)
@@ -528,6 +569,8 @@ contains
       call js%add("agents_not_left", sum(rows%not_left))
       call js%add("agents_not_left_fom", sum(rows%not_left_fom))
       call js%add("extrapolating_samples", sum(rows%extrapolating))
+      call js%add("samples_diverged", sum(rows%diverged))
+      call js%add("rows_with_diverged_samples", count(rows%diverged > 0))
       call js%write_file(cli%summary, error)
     end subroutine write_summary
 
