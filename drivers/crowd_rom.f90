@@ -23,7 +23,7 @@ program crowd_rom
   use cr_rom_config, only: rom_cfg_t, read_rom, check_rom, rom_echo, MAX_SETTINGS
   use cr_rom_model, only: rom_header_t, rom_pair_data_t, read_rom_header, load_rom_pair, find_pair
   use cr_rom_study, only: rom_study_t, sample_block_t, open_study, read_block_set
-  use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t, make_reduced_ops
+  use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t, make_reduced_ops, eim_exact_rows
   use cr_rom_stepper, only: rom_solver_cfg_t, rom_traj_t, run_trajectory, reduced_positions
   use cr_rom_metrics, only: projection_error, sample_measures_t, row_measures_t, measure_sample, &
     aggregate_measures, EVAC_PCT
@@ -354,6 +354,9 @@ contains
         ", overlap agent-agent " // str(row%meas%overlap_aa, "es9.2") // ", agent-wall " // &
         str(row%meas%overlap_aw, "es9.2") // ", evacuation-time error " // evac_text(row%meas, 1) // "; " // &
         evac_text(row%meas, 2))
+      if (eim_exact_rows(ops) > 0) call log%info("   EIM: " // str(eim_exact_rows(ops)) // " row evaluations " // &
+        "were exact (interpolated normal shorter than 1/2), over " // str(sum(n_done) * rcfg%timing_repeats) // &
+        " steps of " // str(pair%r) // " rows")
       if (row%diverged > 0) call log%warn(str(row%diverged) // " of " // str(blk%n) // " " // trim(blk%name) // &
         " reduced trajectories diverged: E_avg and every other aggregate of this row are over the other " // &
         str(blk%n - row%diverged) // " samples (column samples_diverged)")
