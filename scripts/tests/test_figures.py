@@ -187,3 +187,20 @@ def test_scene_for_params_moves_the_exit(study):
     walls = new["verts"][12:20]                               # the two walls beside the exit
     assert walls[1, 0] == pytest.approx(0.3) and walls[4, 0] == pytest.approx(0.7)
     assert np.array_equal(sc["exit"][:, 0], [0.35, 0.65])     # the reference is untouched
+
+
+def test_tradeoff_diverged_rows_off_the_front(study, tmp_path):
+    """A setting with diverged samples (crowd_rom's samples_diverged) is drawn but never on the
+    Pareto front, even when its E_avg (over the other samples) and its cost would put it there;
+    a row without any E_avg (every sample diverged: -1) is left out of the plot."""
+    rows = plot_tradeoff.read_rows(study["csv"])
+    valid = [r for r in rows if r["set"] == "valid"]
+    base = {_r["setting"] for _r in plot_tradeoff.plot_tradeoff(rows, tmp_path / "a.png")}
+    best = min(valid, key=lambda r: float(r["E_avg"]))
+    assert best["setting"] in base
+    marked = [dict(r, samples_diverged=(2 if r is best else 0)) for r in rows]
+    front = {_r["setting"] for _r in plot_tradeoff.plot_tradeoff(marked, tmp_path / "b.png")}
+    assert best["setting"] not in front and front
+    gone = [dict(r, E_avg=(-1.0 if r is best else r["E_avg"])) for r in rows]
+    front = {_r["setting"] for _r in plot_tradeoff.plot_tradeoff(gone, tmp_path / "c.png")}
+    assert best["setting"] not in front
