@@ -66,6 +66,14 @@ module cr_geodesic
     !> the obstacles and their bounding boxes [2, n_obst]
     type(obstacle_t), allocatable :: obst(:)
     real(wp), allocatable :: blo(:,:), bhi(:,:)
+    !> obstacle k is an axis-aligned rectangle outside the box spanning one of its sides (a
+    !> hall wall): the free part of the box is then convex on that side, so a segment between
+    !> free points never meets it and visibility tests skip it
+    logical, allocatable :: slab(:)
+    !> polygon edges that a segment inside the box can come within r of: obstacle k owns
+    !> edges ed_ptr(k) .. ed_ptr(k+1)-1 from ed_a(:, i) to ed_b(:, i)
+    integer, allocatable :: ed_ptr(:)
+    real(wp), allocatable :: ed_a(:,:), ed_b(:,:)
     !> circles: centres [2, nc], radii [nc]
     integer :: nc = 0
     real(wp), allocatable :: cen(:,:), rho(:)
@@ -144,9 +152,25 @@ contains
     this%lo = lo; this%hi = hi; this%r = r; this%ta = ta; this%tb = tb
     this%tol = rtol_len * maxval(hi - lo)
     this%obst = obstacles
-    allocate(this%blo(2, size(obstacles)), this%bhi(2, size(obstacles)))
+    allocate(this%blo(2, size(obstacles)), this%bhi(2, size(obstacles)), this%slab(size(obstacles)))
     do k = 1, size(obstacles)
       call obstacle_bbox(obstacles(k), this%blo(:, k), this%bhi(:, k))
+      this%slab(k) = is_slab(k)
+    end do
+    allocate(this%ed_ptr(size(obstacles) + 1), this%ed_a(2, 0), this%ed_b(2, 0))
+    this%ed_ptr(1) = 1
+    do k = 1, size(obstacles)
+      this%ed_ptr(k + 1) = this%ed_ptr(k)
+      if (obstacles(k)%kind /= OBST_POLYGON) cycle
+      nv = size(obstacles(k)%vertices, 2)
+      do j = 1, nv
+        associate (va => obstacles(k)%vertices(:, j), vb => obstacles(k)%vertices(:, modulo(j, nv) + 1))
+          if (any(min(va, vb) >= hi + r) .or. any(max(va, vb) <= lo - r)) cycle
+          this%ed_a = reshape([this%ed_a, va], [2, size(this%ed_a, 2) + 1])
+          this%ed_b = reshape([this%ed_b, vb], [2, size(this%ed_b, 2) + 1])
+          this%ed_ptr(k + 1) = this%ed_ptr(k + 1) + 1
+        end associate
+      end do
     end do
 
     ! circles and the angular range on which each lies on its own inflated obstacle
@@ -193,6 +217,32 @@ contains
     this%ready = .true.
 
   contains
+
+    !> axis-aligned rectangle, outside the box across one side, spanning that whole side,
+    !> with both target ends at least r from it
+    logical function is_slab(kk)
+      integer, intent(in) :: kk
+      real(wp) :: dd, nrm(2)
+      integer :: jj, ax
+      is_slab = .false.
+      associate (o => obstacles(kk), bl => this%blo(:, kk), bh => this%bhi(:, kk))
+        if (o%kind /= OBST_POLYGON) return
+        if (size(o%vertices, 2) /= 4) return
+        do jj = 1, 4
+          if (.not. all((o%vertices(:, jj) == bl .or. o%vertices(:, jj) == bh))) return
+        end do
+        do ax = 1, 2
+          if (bh(ax) <= lo(ax) .or. bl(ax) >= hi(ax)) then
+            if (bl(3 - ax) <= lo(3 - ax) .and. bh(3 - ax) >= hi(3 - ax)) is_slab = .true.
+          end if
+        end do
+        if (.not. is_slab) return
+        call obstacle_distance(o, ta, dd, nrm)
+        if (dd < r - this%tol) is_slab = .false.
+        call obstacle_distance(o, tb, dd, nrm)
+        if (dd < r - this%tol) is_slab = .false.
+      end associate
+    end function is_slab
 
     subroutine set_circle(ic, kown, c, rad, s, span)
       integer, intent(in) :: ic, kown
@@ -736,7 +786,9 @@ contains
     end do
   end function leg_to_target
 
-  !> .true. if the segment [a, b] keeps at least r - tol from every obstacle.
+  !> .true. if the segment [a, b] keeps at least r - tol from every obstacle. Both points
+  !> must be free (in the box, outside the inflated obstacles, up to tol): then the walls
+  !> marked `slab` (see init) cannot be met and are skipped.
   logical function visible(this, a, b)
     class(geodesic_t), intent(in) :: this
     real(wp), intent(in) :: a(2), b(2)
@@ -747,13 +799,65 @@ contains
     slo = min(a, b) - rr
     shi = max(a, b) + rr
     do k = 1, size(this%obst)
+      if (this%slab(k)) cycle
       if (any(this%blo(:, k) > shi) .or. any(this%bhi(:, k) < slo)) cycle
-      if (segment_obstacle_distance(this%obst(k), a, b) < rr) then
+      if (this%obst(k)%kind == OBST_POLYGON) then
+        if (edges_blocked(this%ed_a(:, this%ed_ptr(k):this%ed_ptr(k + 1) - 1), &
+            this%ed_b(:, this%ed_ptr(k):this%ed_ptr(k + 1) - 1), a, b, rr)) then
+          visible = .false.
+          return
+        end if
+      else if (segment_obstacle_distance(this%obst(k), a, b) < rr) then
         visible = .false.
         return
       end if
     end do
   end function visible
+
+  !> .true. if the segment [a, b] comes closer than rr to one of the edges [ea(:, i), eb(:, i)].
+  !> With both ends outside the polygon this is segment_obstacle_distance < rr: a segment
+  !> entering the polygon crosses an edge (edges farther than rr from the box cannot be met by
+  !> a segment in the box and are left out by init).
+  pure logical function edges_blocked(ea, eb, a, b, rr) result(blocked)
+    real(wp), intent(in) :: ea(:,:), eb(:,:), a(2), b(2), rr
+    integer :: i
+    real(wp) :: r2
+    r2 = rr * rr
+    blocked = .true.
+    do i = 1, size(ea, 2)
+      if (segseg_dist2(a, b, ea(:, i), eb(:, i)) < r2) return
+    end do
+    blocked = .false.
+  end function edges_blocked
+
+  !> Squared distance between the segments [a, b] and [c, d] (0 if they cross).
+  pure real(wp) function segseg_dist2(a, b, c, d) result(d2)
+    real(wp), intent(in) :: a(2), b(2), c(2), d(2)
+    real(wp) :: o1, o2, o3, o4
+    o1 = (b(1) - a(1)) * (c(2) - a(2)) - (b(2) - a(2)) * (c(1) - a(1))
+    o2 = (b(1) - a(1)) * (d(2) - a(2)) - (b(2) - a(2)) * (d(1) - a(1))
+    o3 = (d(1) - c(1)) * (a(2) - c(2)) - (d(2) - c(2)) * (a(1) - c(1))
+    o4 = (d(1) - c(1)) * (b(2) - c(2)) - (d(2) - c(2)) * (b(1) - c(1))
+    if (((o1 > 0.0_wp .and. o2 < 0.0_wp) .or. (o1 < 0.0_wp .and. o2 > 0.0_wp)) .and. &
+        ((o3 > 0.0_wp .and. o4 < 0.0_wp) .or. (o3 < 0.0_wp .and. o4 > 0.0_wp))) then
+      d2 = 0.0_wp
+      return
+    end if
+    d2 = min(pseg2(a, c, d), pseg2(b, c, d), pseg2(c, a, b), pseg2(d, a, b))
+  end function segseg_dist2
+
+  !> Squared distance from p to the segment [a, b].
+  pure real(wp) function pseg2(p, a, b)
+    real(wp), intent(in) :: p(2), a(2), b(2)
+    real(wp) :: e(2), ee, s, w(2)
+    e = b - a
+    ee = e(1) * e(1) + e(2) * e(2)
+    w = p - a
+    s = 0.0_wp
+    if (ee > 0.0_wp) s = min(1.0_wp, max(0.0_wp, (w(1) * e(1) + w(2) * e(2)) / ee))
+    w = w - s * e
+    pseg2 = w(1) * w(1) + w(2) * w(2)
+  end function pseg2
 
   !> Geodesic distance dist from p to the target and unit descent direction dir (first leg).
   !> ok = .false. (dist = huge, dir = 0) if p is outside the box, cannot reach the target,
@@ -857,7 +961,8 @@ contains
   subroutine free(this)
     class(geodesic_t), intent(inout) :: this
     if (allocated(this%obst)) deallocate(this%obst)
-    if (allocated(this%blo)) deallocate(this%blo, this%bhi)
+    if (allocated(this%blo)) deallocate(this%blo, this%bhi, this%slab)
+    if (allocated(this%ed_ptr)) deallocate(this%ed_ptr, this%ed_a, this%ed_b)
     if (allocated(this%cen)) deallocate(this%cen, this%rho)
     if (allocated(this%iv_ptr)) deallocate(this%iv_ptr, this%iv_s, this%iv_e, this%iv_full)
     if (allocated(this%nd_ptr)) deallocate(this%nd_ptr)
