@@ -86,6 +86,8 @@ module cr_geodesic
     integer, allocatable :: nd_ptr(:)
     integer :: nn = 0
     real(wp), allocatable :: nd_pos(:,:), nd_u(:), nd_dist(:)
+    !> smallest node distance on each circle (huge if none): a lower bound for pruning [nc]
+    real(wp), allocatable :: c_min(:)
   contains
     !> build the tangent graph and the node distances
     procedure :: init
@@ -214,6 +216,13 @@ contains
     call collect_nodes(this, b)
     call sort_nodes(this, b)
     call solve_distances(this, b)
+    allocate(this%c_min(nc), source=huge(1.0_wp))
+    do i = 1, nc
+      do k = this%iv_ptr(i), this%iv_ptr(i + 1) - 1
+        if (this%nd_ptr(k + 1) > this%nd_ptr(k)) &
+          this%c_min(i) = min(this%c_min(i), minval(this%nd_dist(this%nd_ptr(k):this%nd_ptr(k + 1) - 1)))
+      end do
+    end do
     this%ready = .true.
 
   contains
@@ -807,6 +816,11 @@ contains
           visible = .false.
           return
         end if
+      else if (this%obst(k)%kind == OBST_DISK) then
+        if (pseg2(this%obst(k)%vertices(:, 1), a, b) < (this%obst(k)%radius + rr)**2) then
+          visible = .false.
+          return
+        end if
       else if (segment_obstacle_distance(this%obst(k), a, b) < rr) then
         visible = .false.
         return
@@ -909,6 +923,9 @@ contains
     ! around obstacles: first leg tangent to a circle, then along its free arc to a node
     do ic = 1, this%nc
       if (this%iv_ptr(ic + 1) == this%iv_ptr(ic)) cycle
+      ! lower bound: tangent length + the circle's smallest node distance
+      d = sum((this%cen(:, ic) - x)**2) - this%rho(ic)**2
+      if (sqrt(max(d, 0.0_wp)) + this%c_min(ic) >= best) cycle
       call point_tangents(x, this%cen(:, ic), this%rho(ic), t, tdir)
       do br = 1, 2
         th = angle_of(t(:, br) - this%cen(:, ic))
@@ -967,6 +984,7 @@ contains
     if (allocated(this%iv_ptr)) deallocate(this%iv_ptr, this%iv_s, this%iv_e, this%iv_full)
     if (allocated(this%nd_ptr)) deallocate(this%nd_ptr)
     if (allocated(this%nd_pos)) deallocate(this%nd_pos, this%nd_u, this%nd_dist)
+    if (allocated(this%c_min)) deallocate(this%c_min)
     this%nc = 0
     this%nn = 0
     this%ready = .false.
