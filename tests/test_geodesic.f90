@@ -287,16 +287,17 @@ contains
     call check(n_lost == 0, name // ": every free point reaches the exit")
   end subroutine grid_convergence
 
-  !> The desired velocity at a subset of agents equals the full evaluation there; forcing
+  !> The desired velocity at a subset of agents equals the full evaluation there; the rules at
+  !> the top wall, in the doorway, past the wall and outside the hall with 'exact'; forcing
   !> 'exact' on an exit narrower than an agent is refused with one line.
   subroutine test_desired_subset()
-    type(scene_t) :: scene, narrow
+    type(scene_t) :: scene, narrow, hall
     type(scene_cfg_t) :: sc
     type(obstacles_cfg_t) :: oc
     type(desired_cfg_t) :: dc
     type(desired_t) :: des
     type(error_t), allocatable :: error
-    real(wp) :: q(2 * 12), speeds(12), v(2 * 12), vs(2, 3)
+    real(wp) :: q(2 * 12), speeds(12), v(2 * 12), vs(2, 3), dir(2)
     integer :: i
     oc%n_disks = 1; oc%disk_x(1) = 0.65_wp; oc%disk_y(1) = 0.5_wp; oc%disk_r(1) = 0.1_wp
     call scene%init(sc, oc, error)
@@ -310,6 +311,26 @@ contains
     call des%evaluate_at(q, speeds, [2, 7, 11], vs)
     call check(all(vs(:, 1) == v(3:4)) .and. all(vs(:, 2) == v(13:14)) .and. all(vs(:, 3) == v(21:22)), &
       "evaluate_at equals evaluate on the subset")
+    ! forced exact in a hall without interior obstacle: an agent touching the top wall left of
+    ! the door walks along it (the straight aim would push into the wall); in the doorway it
+    ! walks out; past the wall it walks away from the exit; outside the hall it still gets a
+    ! unit direction (the analytic rule)
+    dc%field = 'exact'
+    call hall%init(scene_cfg_t(), obstacles_cfg_t(), error)
+    call des%init(dc, hall, 0.05_wp, 1, error)
+    call check(.not. allocated(error) .and. des%model_name() == 'exact', "exact forced without interior obstacle")
+    call des%direction([0.2_wp, hall%width - 0.05_wp], dir)
+    call check(maxval(abs(dir - [1.0_wp, 0.0_wp])) <= tol_touch, "exact: along the top wall towards the door")
+    call des%direction([hall%x_lo + 0.1_wp, hall%width - 0.01_wp], dir)
+    call check(maxval(abs(dir - [0.0_wp, 1.0_wp])) <= tol_exact, "exact: straight out in the doorway")
+    call des%direction([0.9_wp, 1.5_wp], dir)
+    call check(dir(1) > 0 .and. dir(2) > 0 .and. abs(norm2(dir) - 1) <= tol_exact, "exact: away past the wall")
+    call des%direction([-0.3_wp, 0.5_wp], dir)
+    call check(abs(norm2(dir) - 1) <= tol_exact, "exact: unit direction outside the hall")
+    dc%field = 'analytic'
+    call des%init(dc, hall, 0.05_wp, 1, error)
+    call des%direction([0.2_wp, hall%width - 0.05_wp], dir)
+    call check(dir(2) > 0.1_wp, "analytic: aims up at the opening from the top wall")
     sc%l_exit = 0.09_wp
     call narrow%init(sc, oc, error)
     dc%field = 'exact'
