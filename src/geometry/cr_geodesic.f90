@@ -589,9 +589,11 @@ contains
     integer function add_node(ic, arc, p, u) result(id)
       integer, intent(in) :: ic, arc
       real(wp), intent(in) :: p(2), u
+      integer :: cap
       if (b%nn == size(b%circ)) then
+        cap = size(b%circ)
         b%circ = [b%circ, b%circ]; b%arc = [b%arc, b%arc]; b%u = [b%u, b%u]
-        b%pos = reshape([b%pos, b%pos], [2, 2 * size(b%circ) / 2])
+        b%pos = reshape([b%pos, b%pos], [2, 2 * cap])
       end if
       b%nn = b%nn + 1
       id = b%nn
