@@ -243,8 +243,12 @@ contains
     real(wp), parameter :: r = 0.05_wp
     real(wp) :: dx, err(0:3), p(2), de, dg, dir(2), dmin, dd, nrm(2)
     logical :: ok
-    integer :: level, i, j, k, npts, n_lost
+    integer :: level, i, j, k, npts, n_lost, n_lip
+    real(wp), parameter :: eps = 1.0e-4_wp
+    real(wp) :: d2, dir2(2), worst_step
     n_lost = 0
+    n_lip = 0
+    worst_step = 0.0_wp
     call scene%init(sc, oc, error)
     call check(.not. allocated(error), name // ": scene built")
     if (allocated(error)) return
@@ -274,6 +278,13 @@ contains
           call g%query(p, de, dir, ok)
           if (.not. ok) n_lost = n_lost + 1
           if (.not. ok) cycle
+          if (level == 1) then
+            ! the direction is the geodesic's first leg: a step eps along it shortens the
+            ! distance by eps exactly when the leg is longer than eps (1-Lipschitz otherwise)
+            call g%query(p + eps * dir, d2, dir2, ok)
+            worst_step = max(worst_step, abs(d2 - (de - eps)))
+            if (d2 < de - eps - tol_exact) n_lip = n_lip + 1
+          end if
           dg = f%value(p)
           npts = npts + 1
           err(level) = max(err(level), abs(dg - de))
@@ -285,6 +296,9 @@ contains
       if (level > 1) call check(err(level) < err(level - 1), name // ": grid error decreases with dx")
     end do
     call check(n_lost == 0, name // ": every free point reaches the exit")
+    print '(2x, a, a, es10.3)', name, ": largest |T(x + eps dir) - (T(x) - eps)|, eps = 1e-4: ", worst_step
+    call check(n_lip == 0, name // ": the distance is 1-Lipschitz along the direction")
+    call check(worst_step <= tol_exact, name // ": a step along the direction shortens the distance by its length")
   end subroutine grid_convergence
 
   !> The desired velocity at a subset of agents equals the full evaluation there; the rules at
