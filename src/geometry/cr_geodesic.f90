@@ -841,10 +841,31 @@ contains
     r2 = rr * rr
     blocked = .true.
     do i = 1, size(ea, 2)
-      if (segseg_dist2(a, b, ea(:, i), eb(:, i)) < r2) return
+      if (segseg_near(a, b, ea(:, i), eb(:, i), r2)) return
     end do
     blocked = .false.
   end function edges_blocked
+
+  !> .true. if the segments [a, b] and [c, d] are closer than sqrt(r2). Quick exit when the
+  !> ends of one segment lie on the same side of the other's line, both at least sqrt(r2) away.
+  pure logical function segseg_near(a, b, c, d, r2) result(near)
+    real(wp), intent(in) :: a(2), b(2), c(2), d(2), r2
+    real(wp) :: o1, o2, o3, o4, l2
+    near = .false.
+    o1 = (b(1) - a(1)) * (c(2) - a(2)) - (b(2) - a(2)) * (c(1) - a(1))
+    o2 = (b(1) - a(1)) * (d(2) - a(2)) - (b(2) - a(2)) * (d(1) - a(1))
+    if (o1 * o2 > 0.0_wp) then
+      l2 = (b(1) - a(1))**2 + (b(2) - a(2))**2
+      if (min(o1 * o1, o2 * o2) >= r2 * l2) return
+    end if
+    o3 = (d(1) - c(1)) * (a(2) - c(2)) - (d(2) - c(2)) * (a(1) - c(1))
+    o4 = (d(1) - c(1)) * (b(2) - c(2)) - (d(2) - c(2)) * (b(1) - c(1))
+    if (o3 * o4 > 0.0_wp) then
+      l2 = (d(1) - c(1))**2 + (d(2) - c(2))**2
+      if (min(o3 * o3, o4 * o4) >= r2 * l2) return
+    end if
+    near = segseg_dist2(a, b, c, d) < r2
+  end function segseg_near
 
   !> Squared distance between the segments [a, b] and [c, d] (0 if they cross).
   pure real(wp) function segseg_dist2(a, b, c, d) result(d2)
