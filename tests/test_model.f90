@@ -171,12 +171,20 @@ contains
     call des%direction(p, dir)
     call check(dir(2) > 0 .and. dir(1) > 0, "keeps walking away past the exit")
     call check_close(norm2(dir), 1.0_wp, 1e-14_wp, "unit direction")
-    ! with the interior disk, a field is used and the direction is unit and finite
+    ! with the interior disk, the exact geodesic is used (auto) and the direction is unit and finite
     call des%init(dc, scene, r, 1, err)
-    call check(.not. allocated(err) .and. des%use_field, "grid field with an interior obstacle")
+    call check(.not. allocated(err) .and. des%use_exact .and. .not. des%use_field, &
+      "exact geodesic with an interior obstacle (auto)")
     p = [0.65_wp, 0.3_wp]   ! behind the disk: must go around it
     call des%direction(p, dir)
     call check(abs(dir(1)) > 0.2_wp, "goes around the obstacle (not straight through)")
+    call check_close(norm2(dir), 1.0_wp, 1e-12_wp, "unit direction from the exact geodesic")
+    ! the grid field when forced
+    dc%field = 'grid'
+    call des%init(dc, scene, r, 1, err)
+    call check(.not. allocated(err) .and. des%use_field .and. .not. des%use_exact, "grid field when forced")
+    call des%direction(p, dir)
+    call check(abs(dir(1)) > 0.2_wp, "goes around the obstacle (grid)")
     call check_close(norm2(dir), 1.0_wp, 1e-12_wp, "unit direction from the field")
   end subroutine test_aiming
 
