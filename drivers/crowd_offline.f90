@@ -264,6 +264,8 @@ contains
         call js%add("pga_added", pga%n_added)
         call js%add("pga_error", pga%err(pga%n_added + 1))
         call js%add("cone_note", note_of(cone%note))
+        ! the comparison cone's note (e.g. mCPG stopped at the accuracy of its projections); "" if none
+        call js%add("cone_comparison_note", note_of(other%note))
         call js%add("pga_note", note_of(pga%note))
         call js%add("time_read", tab%t_read)
         call js%add("time_pod", tab%t_pod)

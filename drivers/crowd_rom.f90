@@ -23,9 +23,11 @@ program crowd_rom
   use cr_rom_config, only: rom_cfg_t, read_rom, check_rom, rom_echo, MAX_SETTINGS
   use cr_rom_file, only: rom_file_t, rom_pair_t, read_rom_file, read_rom_pair, find_pair
   use cr_rom_study, only: rom_study_t, sample_block_t, open_study, read_block_set
-  use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t, make_reduced_ops
+  use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t, make_reduced_ops, eim_exact_rows
   use cr_rom_stepper, only: rom_solver_cfg_t, rom_traj_t, run_trajectory, reduced_positions
-  use cr_rom_metrics, only: position_errors, projection_error, max_overlap, agents_not_left
+  use cr_rom_metrics, only: projection_error, sample_measures_t, row_measures_t, measure_sample, &
+    aggregate_measures, EVAC_PCT
+  use cr_rom_guard, only: rom_guard_t
   use cr_fom, only: fom_t, step_record_t
   use cr_romrun_file, only: romrun_header_t, romrun_row_t, romrun_set_t, romrun_writer_t, speedup
   use cr_fsys, only: rename_file, remove_file
@@ -203,9 +205,15 @@ contains
       type(rom_solver_cfg_t) :: scfg
       type(rom_traj_t) :: traj, tr2
       type(eval_ctx_t) :: ctx
+      type(rom_guard_t) :: guard
+      logical, allocatable :: ok(:)
+      integer, allocatable :: div_step(:), n_done(:)
+      real(wp) :: c_max
+      integer :: kbad
       real(wp), allocatable :: alpha(:,:), beta(:,:), pos(:,:), qr(:,:), err_time(:,:)
       real(wp), allocatable :: e_mu(:), e_proj(:), overlap(:), time(:), mobility(:)
       integer, allocatable :: not_left(:), not_left_fom(:), infeas(:), capped(:), extrap(:)
+      type(sample_measures_t), allocatable :: ms(:)
       type(romrun_set_t) :: out_set
       integer :: k, nt, nb, rep
       nt = st%n_steps
@@ -222,7 +230,8 @@ contains
       allocate(alpha(nb, nt * blk%n), beta(merge(pair%r, 0, ops%fixed_rows), nt * blk%n), &
         pos(st%n_dof, (nt + 1) * blk%n), err_time(nt + 1, blk%n), e_mu(blk%n), e_proj(blk%n), &
         overlap(blk%n), time(blk%n), mobility(blk%n), not_left(blk%n), not_left_fom(blk%n), infeas(blk%n), capped(blk%n), &
-        extrap(blk%n))
+        extrap(blk%n), div_step(blk%n), n_done(blk%n), ms(blk%n))
+      div_step = 0
       err_time = -1; e_mu = -1; e_proj = -1; not_left_fom = -1; mobility = -1
       call log%progress_start()
       do k = 1, blk%n
@@ -232,56 +241,88 @@ contains
         if (allocated(error)) return
         ctx%radius = st%radius
         ctx%h = st%dt
-        call run_trajectory(ops, ctx, st%q0, nt, scfg, traj, error)
+        c_max = maxval(abs(ctx%speeds), mask=[(.true., kbad = 1, size(ctx%speeds))])
+        if (size(ctx%speeds) == 0) c_max = 0
+        if (ctx%desired%from_file) c_max = max(c_max, sqrt(2.0_wp) * maxval(abs(ctx%desired%fixed)))
+        call guard%init(ctx%scene, c_max, st%dt * nt, st%n_agents)
+        call run_trajectory(ops, ctx, st%q0, nt, scfg, traj, error, guard=guard)
         if (allocated(error)) then
           call prefix_error(error, "setting " // str(ks) // ", " // trim(blk%name) // " sample " // str(k)); return
         end if
         do rep = 2, rcfg%timing_repeats
-          call run_trajectory(ops, ctx, st%q0, nt, scfg, tr2, error)
+          call run_trajectory(ops, ctx, st%q0, nt, scfg, tr2, error, guard=guard)
           if (allocated(error)) return
           traj%time = min(traj%time, tr2%time)
         end do
+        qr = reduced_positions(st%q0, pair%v, traj%alpha, st%dt)
+        ! every agent checked (the stepper checks only the agents its assembly reads)
+        kbad = guard%first_outside(qr)
+        if (kbad > 0) then
+          if (traj%diverged_step == 0 .or. kbad - 1 < traj%diverged_step) then
+            traj%diverged_step = kbad - 1
+            traj%alpha(:, kbad - 1:) = 0
+            traj%beta(:, kbad - 1:) = 0
+            qr = reduced_positions(st%q0, pair%v, traj%alpha, st%dt)
+          end if
+        end if
+        div_step(k) = traj%diverged_step
+        n_done(k) = merge(traj%diverged_step, nt, traj%diverged_step > 0)
+        if (div_step(k) > 0) call log%warn("setting " // str(ks) // ", " // trim(blk%name) // " sample " // str(k) // &
+          ": the reduced trajectory diverged at step " // str(div_step(k)) // " (non-finite values or an agent " // &
+          "outside the hall's box inflated by its diagonal + 2 c_max T): stopped there, positions frozen, " // &
+          "sample excluded from the averages")
         alpha(:, (k - 1) * nt + 1:k * nt) = traj%alpha
         if (size(beta, 1) > 0) beta(:, (k - 1) * nt + 1:k * nt) = traj%beta
-        qr = reduced_positions(st%q0, pair%v, traj%alpha, st%dt)
         pos(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)) = qr
         time(k) = traj%time
         infeas(k) = traj%n_infeasible
         capped(k) = traj%n_capped
-        overlap(k) = max_overlap(ctx%scene, st%radius, qr)
-        not_left(k) = agents_not_left(ctx%scene, st%radius, qr(:, nt + 1))
         extrap(k) = merge(1, 0, any(blk%mu(:, k) < st%space%lo - 1.0e-12_wp * abs(st%space%lo)) .or. &
           any(blk%mu(:, k) > st%space%hi + 1.0e-12_wp * abs(st%space%hi)))
         if (blk%has_fom) then
-          call position_errors(blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), qr, err_time(:, k), e_mu(k))
+          call measure_sample(ctx%scene, st%radius, st%dt, qr, ms(k), q=blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), &
+            err=err_time(:, k))
           e_proj(k) = projection_error(blk%u(:, (k - 1) * nt + 1:k * nt), pair%v)
-          not_left_fom(k) = agents_not_left(ctx%scene, st%radius, blk%q(:, k * (nt + 1)))
-          ! locking indicator: displacement of the reduced crowd relative to the full-order one
-          if (norm2(blk%q(:, k * (nt + 1)) - st%q0) > 0) mobility(k) = norm2(qr(:, nt + 1) - st%q0) / &
-            norm2(blk%q(:, k * (nt + 1)) - st%q0)
+        else
+          call measure_sample(ctx%scene, st%radius, st%dt, qr, ms(k))
         end if
+        ms(k)%diverged = div_step(k) > 0
+        e_mu(k) = ms(k)%e_mu
+        mobility(k) = ms(k)%mobility
+        overlap(k) = max(ms(k)%overlap_aa, ms(k)%overlap_aw)
+        not_left(k) = ms(k)%not_left
+        not_left_fom(k) = ms(k)%not_left_fom
         call log%progress(trim(blk%name) // " sample", k, blk%n)
       end do
       row%setting = ks; row%n = pair%n; row%r = pair%r; row%nb = nb; row%m = ops%m
       row%set = blk%name; row%hyper = rcfg%hyper(kset); row%contacts = rcfg%contacts(kset); row%solver = rcfg%solver
-      row%t_step = sum(time) / max(1, nt * blk%n)
-      row%overlap = maxval(overlap, mask=[(.true., k = 1, blk%n)])
-      if (blk%n == 0) row%overlap = 0
-      row%not_left = sum(not_left); row%infeasible = sum(infeas); row%capped = sum(capped)
+      row%t_step = sum(time) / max(1, sum(n_done))
+      ! every aggregate over the samples that did not diverge (their count is reported)
+      call aggregate_measures(ms, st%dt, row%meas)
+      ok = div_step == 0
+      row%diverged = row%meas%n_diverged
+      row%overlap = max(row%meas%overlap_aa, row%meas%overlap_aw)
+      row%not_left = row%meas%not_left; row%infeasible = sum(infeas); row%capped = sum(capped)
       row%extrapolating = sum(extrap)
-      if (blk%has_fom .and. blk%n > 0) then
-        row%e_avg = sum(e_mu) / blk%n
-        row%e_max = maxval(e_mu)
-        row%e_proj = sum(e_proj) / blk%n
-        row%not_left_fom = sum(not_left_fom)
-        if (all(mobility >= 0)) row%mobility = sum(mobility) / blk%n
-      end if
+      row%e_avg = row%meas%e_avg; row%e_max = row%meas%e_max; row%mobility = row%meas%mobility
+      row%not_left_fom = row%meas%not_left_fom
+      if (blk%has_fom .and. any(ok)) row%e_proj = sum(e_proj, mask=ok) / count(ok)
       call log%info("   " // trim(blk%name) // ": E_avg " // str(row%e_avg, "es9.2") // ", E_max " // &
         str(row%e_max, "es9.2") // ", best approximation " // str(row%e_proj, "es9.2") // ", deepest overlap " // &
         str(row%overlap, "es9.2") // ", agents not out " // str(row%not_left) // " (FOM " // str(row%not_left_fom) // &
         "), mobility " // str(row%mobility, "f6.3") // ", infeasible steps " // str(row%infeasible) // &
         ", capped " // str(row%capped) // ", " // &
         str(row%t_step, "es9.2") // " s/step")
+      call log%info("   " // trim(blk%name) // ": displacement error " // str(row%meas%e_disp, "es9.2") // &
+        ", overlap agent-agent " // str(row%meas%overlap_aa, "es9.2") // ", agent-wall " // &
+        str(row%meas%overlap_aw, "es9.2") // ", evacuation-time error " // evac_text(row%meas, 1) // "; " // &
+        evac_text(row%meas, 2))
+      if (eim_exact_rows(ops) > 0) call log%info("   EIM: " // str(eim_exact_rows(ops)) // " row evaluations " // &
+        "were exact (interpolated normal shorter than 1/2), over " // str(sum(n_done) * rcfg%timing_repeats) // &
+        " steps of " // str(pair%r) // " rows")
+      if (row%diverged > 0) call log%warn(str(row%diverged) // " of " // str(blk%n) // " " // trim(blk%name) // &
+        " reduced trajectories diverged: E_avg and every other aggregate of this row are over the other " // &
+        str(blk%n - row%diverged) // " samples (column samples_diverged)")
       if (row%infeasible > 0) call log%warn(str(row%infeasible) // " reduced steps were infeasible (the reduced " // &
         "positions already overlap): least-violation coefficients used")
       if (row%capped > 0) call log%warn(str(row%capped) // " reduced solves stopped at their iteration cap " // &
@@ -294,7 +335,7 @@ contains
       out_set%hyper = rcfg%hyper(kset); out_set%contacts = rcfg%contacts(kset); out_set%solver = rcfg%solver
       out_set%name = blk%name
       out_set%summary = trim(blk%name) == trim(blocks(size(blocks))%name)
-      out_set%e_avg = row%e_avg; out_set%t_step = row%t_step
+      out_set%e_avg = row%e_avg; out_set%samples_diverged = row%diverged; out_set%t_step = row%t_step
       out_set%speedup_uzawa = speedup(t_uz, row%t_step); out_set%speedup_exact = speedup(t_ex, row%t_step)
       out_set%params = blk%mu
       call move_alloc(alpha, out_set%alpha); call move_alloc(beta, out_set%beta)
@@ -304,8 +345,31 @@ contains
       call move_alloc(not_left, out_set%n_not_left); call move_alloc(not_left_fom, out_set%n_not_left_fom)
       call move_alloc(infeas, out_set%n_infeasible); call move_alloc(capped, out_set%n_capped)
       call move_alloc(extrap, out_set%extrapolating); call move_alloc(time, out_set%time)
+      call move_alloc(div_step, out_set%diverged_step)
+      out_set%e_disp = ms%e_disp; out_set%overlap_aa = ms%overlap_aa; out_set%overlap_aw = ms%overlap_aw
+      allocate(out_set%evac_rom(nt + 1, blk%n), out_set%t_out_rom(size(EVAC_PCT), blk%n))
+      do k = 1, blk%n
+        out_set%evac_rom(:, k) = ms(k)%evac_rom
+        out_set%t_out_rom(:, k) = ms(k)%t_rom
+      end do
+      if (blk%has_fom) then
+        allocate(out_set%evac_fom(nt + 1, blk%n), out_set%t_out_fom(size(EVAC_PCT), blk%n))
+        do k = 1, blk%n
+          out_set%evac_fom(:, k) = ms(k)%evac_fom
+          out_set%t_out_fom(:, k) = ms(k)%t_fom
+        end do
+      end if
       call out%write_set(out_set, error)
     end subroutine run_setting
+
+    !> "t50: error e over n samples (ROM misses a, no FOM reference b)".
+    function evac_text(m, j) result(s)
+      type(row_measures_t), intent(in) :: m
+      integer, intent(in) :: j
+      character(len=:), allocatable :: s
+      s = "t" // str(EVAC_PCT(j)) // " " // str(m%t_err(j), "es9.2") // " over " // str(m%t_n(j)) // &
+        " samples (reduced never reaches it: " // str(m%t_rom_missed(j)) // ", full: " // str(m%t_fom_missed(j)) // ")"
+    end function evac_text
 
     !> Mean time per full-order step over the first fom_timing_samples samples of blk.
     subroutine fom_timing(st, blk, solver, t_step, kkt_max, n_nonconv, error)
@@ -383,8 +447,16 @@ contains
         "," // e(r%overlap) // "," // str(r%not_left) // "," // str(r%not_left_fom) // "," // str(r%infeasible) // &
         "," // str(r%capped) // "," // e(r%t_step) // "," // e(t_uz) // "," // e(t_ex) // "," // &
         e(speedup(t_uz, r%t_step)) // "," // e(speedup(t_ex, r%t_step)) // "," // str(r%extrapolating) // "," // &
-        e(r%mobility)
+        e(r%mobility) // "," // str(r%diverged) // "," // e(r%meas%e_disp) // "," // e(r%meas%overlap_aa) // "," // &
+        e(r%meas%overlap_aw) // "," // evac_csv(r%meas, 1) // "," // evac_csv(r%meas, 2)
     end function csv_line
+
+    function evac_csv(m, j) result(s)
+      type(row_measures_t), intent(in) :: m
+      integer, intent(in) :: j
+      character(len=:), allocatable :: s
+      s = e(m%t_err(j)) // "," // str(m%t_n(j)) // "," // str(m%t_rom_missed(j)) // "," // str(m%t_fom_missed(j))
+    end function evac_csv
 
     subroutine write_csv(rows, error)
       type(romrun_row_t), intent(in) :: rows(:)
@@ -398,7 +470,9 @@ contains
       end if
       write(u, '(a)') "setting,set,n,r,n_basis,hyper,contacts,solver,m_v,m_b,m_d,E_avg,E_max,E_proj_avg," // &
         "max_overlap,agents_not_left,agents_not_left_fom,infeasible_steps,capped_steps,t_step_rom," // &
-        "t_step_fom_uzawa,t_step_fom_exact,speedup_uzawa,speedup_exact,extrapolating,mobility"
+        "t_step_fom_uzawa,t_step_fom_exact,speedup_uzawa,speedup_exact,extrapolating,mobility,samples_diverged," // &
+        "E_disp,max_overlap_agents,max_overlap_walls,t50_err,t50_n,t50_rom_missed,t50_fom_missed," // &
+        "t90_err,t90_n,t90_rom_missed,t90_fom_missed"
       do k = 1, size(rows)
         write(u, '(a)') csv_line(rows(k))
       end do
@@ -414,26 +488,47 @@ contains
       integer :: k
       call log%info("")
       call log%info("| setting | set | N | R | Nb | hyper | contacts | m_v,m_b,m_d | E_avg | E_max | best approx. |" // &
-        " overlap | not out (FOM) | mobility | infeas. | t_step ROM [s] | speedup vs uzawa | speedup vs " // &
-        trim(rcfg%fom_exact_solver) // " |")
-      call log%info("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        " E_disp | t50 err | t90 err | overlap agents / walls | not out (FOM) | mobility | infeas. | diverged |" // &
+        " t_step ROM [s] | speedup vs uzawa | speedup vs " // trim(rcfg%fom_exact_solver) // " |")
+      call log%info("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
       do k = 1, size(rows)
         associate (r => rows(k))
           call log%info("| " // str(r%setting) // " | " // trim(r%set) // " | " // str(r%n) // " | " // str(r%r) // &
             " | " // str(r%nb) // " | " // trim(r%hyper) // " | " // trim(r%contacts) // " | " // str(r%m(1)) // "," // &
-            str(r%m(2)) // "," // str(r%m(3)) // " | " // str(r%e_avg, "es9.2") // " | " // str(r%e_max, "es9.2") // &
-            " | " // str(r%e_proj, "es9.2") // " | " // str(r%overlap, "es9.2") // " | " // str(r%not_left) // &
+            str(r%m(2)) // "," // str(r%m(3)) // " | " // str(r%e_avg, "es9.2") // trim(merge("*", " ", r%diverged > 0)) // &
+            " | " // str(r%e_max, "es9.2") // " | " // str(r%e_proj, "es9.2") // " | " // str(r%meas%e_disp, "es9.2") // &
+            " | " // tcell(r%meas, 1) // " | " // tcell(r%meas, 2) // " | " // str(r%meas%overlap_aa, "es9.2") // &
+            " / " // str(r%meas%overlap_aw, "es9.2") // " | " // str(r%not_left) // &
             " (" // str(r%not_left_fom) // ") | " // str(r%mobility, "f6.3") // " | " // str(r%infeasible) // &
-            " | " // str(r%t_step, "es9.2") // " | " // &
+            " | " // str(r%diverged) // " | " // str(r%t_step, "es9.2") // " | " // &
             str(speedup(t_uz, r%t_step), "f9.1") // " | " // str(speedup(t_ex, r%t_step), "f9.1") // " |")
         end associate
       end do
+      if (any(rows%diverged > 0)) call log%info("* some samples of this row diverged (column diverged): its figures " // &
+        "are over the other samples only")
+      call log%info("t50/t90 err: mean |t_ROM - t_FOM| / t_FOM of the times at which 50% / 90% of the agents are out, " // &
+        "over the (n) samples where both reach it; 'ROM never k': k samples where only the full model reaches it " // &
+        "within the horizon")
     end subroutine print_table
+
+    !> Evacuation-time cell of the printed table.
+    function tcell(m, j) result(s)
+      type(row_measures_t), intent(in) :: m
+      integer, intent(in) :: j
+      character(len=:), allocatable :: s
+      if (m%t_n(j) > 0) then
+        s = str(m%t_err(j), "es9.2") // " (" // str(m%t_n(j)) // ")"
+      else
+        s = "n/a"
+      end if
+      if (m%t_rom_missed(j) > 0) s = s // ", ROM never " // str(m%t_rom_missed(j))
+    end function tcell
 
     subroutine write_summary(rows, error)
       type(romrun_row_t), intent(in) :: rows(:)
       type(error_t), allocatable, intent(out) :: error
       type(json_writer_t) :: js
+      integer :: j, k
       call js%add("program", "crowd_rom")
       call js%add("output", trim(rcfg%output))
       call js%add("settings", size(setting_ids))
@@ -450,6 +545,25 @@ contains
       call js%add("agents_not_left", sum(rows%not_left))
       call js%add("agents_not_left_fom", sum(rows%not_left_fom))
       call js%add("extrapolating_samples", sum(rows%extrapolating))
+      call js%add("samples_diverged", sum(rows%diverged))
+      call js%add("rows_with_diverged_samples", count(rows%diverged > 0))
+      ! one array per column, in table order (-1: not available; t*_err over t*_n samples)
+      call js%begin_object("rows")
+      call js%add("setting", rows%setting)
+      call js%add("samples_diverged", rows%diverged)
+      call js%add("E_avg", rows%e_avg)
+      call js%add("E_disp", rows%meas%e_disp)
+      call js%add("mobility", rows%mobility)
+      call js%add("max_overlap_agents", rows%meas%overlap_aa)
+      call js%add("max_overlap_walls", rows%meas%overlap_aw)
+      do j = 1, size(EVAC_PCT)
+        call js%add("t" // str(EVAC_PCT(j)) // "_err", [(rows(k)%meas%t_err(j), k = 1, size(rows))])
+        call js%add("t" // str(EVAC_PCT(j)) // "_n", [(rows(k)%meas%t_n(j), k = 1, size(rows))])
+        call js%add("t" // str(EVAC_PCT(j)) // "_rom_missed", [(rows(k)%meas%t_rom_missed(j), k = 1, size(rows))])
+        call js%add("t" // str(EVAC_PCT(j)) // "_fom_missed", [(rows(k)%meas%t_fom_missed(j), k = 1, size(rows))])
+      end do
+      call js%add("t_step_rom", rows%t_step)
+      call js%end_object()
       call js%write_file(cli%summary, error)
     end subroutine write_summary
 

@@ -300,7 +300,8 @@ def rom_pair_indices(f):
 
 SETTING_ATTRS = {"n": int, "r": int, "n_basis": int, "pair": int, "hyper": str, "E_avg": float,
                  "t_step": float, "speedup_uzawa": float, "speedup_exact": float}
-SETTING_ATTRS_OPTIONAL = {"contacts": str, "solver": str, "m_v": int, "m_b": int, "m_d": int}
+SETTING_ATTRS_OPTIONAL = {"contacts": str, "solver": str, "m_v": int, "m_b": int, "m_d": int,
+                          "samples_diverged": int}
 
 
 def romrun_meta(f):
@@ -357,9 +358,18 @@ def romrun_set(f, k, s, n_steps, n_dof):
         raise InputError(f"'{f.filename}': '{name}/err_time' has h5py shape {et.shape}, expected "
                          f"({n_s}, {n_steps + 1})")
     out["err_time"] = et
-    for key in ("E_mu", "E_proj", "max_overlap", "n_not_left", "time"):
+    for key in ("E_mu", "E_proj", "max_overlap", "n_not_left", "time", "diverged_step", "E_disp",
+                "max_overlap_agents", "max_overlap_walls", "mobility"):
         if key in g:
             out[key] = np.asarray(g[key][()]).ravel()
+    # evacuation curves [n_S, N_T + 1] and times of 50 % / 90 % out [n_S, 2] (-1: not reached)
+    for key, width in (("evac_rom", n_steps + 1), ("evac_fom", n_steps + 1), ("t_out_rom", 2), ("t_out_fom", 2)):
+        if key in g:
+            x = np.asarray(g[key][()])
+            if x.shape != (n_s, width):
+                raise InputError(f"'{f.filename}': '{name}/{key}' has h5py shape {x.shape}, expected "
+                                 f"({n_s}, {width})")
+            out[key] = x
     return out
 
 

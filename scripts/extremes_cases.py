@@ -526,6 +526,7 @@ class Rom:
             self.rank = int(f["pod"].attrs["numerical_rank"])
             self.sigma = f["pod/sigma"][...]
             self.cone = {g: {"r": int(f[g].attrs["r"]), "err": f[g + "/err_max"][...],
+                             "acc": f[g + "/err_acc"][...] if "err_acc" in f[g] else None,
                              "note": attr_str(f[g].attrs.get("note", ""))}
                          for g in f if g.startswith("cone")}
             self.pga_err = f["pga/err"][...]
@@ -552,7 +553,20 @@ def offline_completes(extra=None):
         for g, cone in rom.cone.items():
             err = cone["err"]
             c.need(len(err) == cone["r"] + 1, "%s: %d errors for R = %d" % (g, len(err), cone["r"]))
-            c.need(np.all(np.diff(err) <= 1e-12), "%s: the error history increases" % g)
+            acc = cone["acc"]
+            if acc is None:
+                # gIS: errors are sums of squares of the uncovered coordinates (exact to rounding)
+                c.need(np.all(np.diff(err) <= 1e-12), "%s: the error history increases" % g)
+            elif c.need(len(acc) == len(err) and np.all(np.isfinite(acc)) and np.all(acc >= 0),
+                        "%s: %d accuracies for %d errors, or not finite and >= 0" % (g, len(acc), len(err))):
+                # mCPG: the exact worst error cannot grow with the cone; the computed one is within
+                # a_r of it at every r (cr_cone's stated accuracy), so e_{r+1} <= e_r + a_r + a_{r+1}
+                bad = np.nonzero(err[1:] > err[:-1] + acc[:-1] + acc[1:])[0]
+                c.need(bad.size == 0, "%s: the error history increases by more than the projection accuracy "
+                       "at r = %s" % (g, (bad + 1).tolist()[:5]))
+                if "accuracy of the inner cone projections" in cone["note"]:
+                    c.need(err[-1] <= acc[-1], "%s: stopped at the projection accuracy with e_R = %.3e > a_R = %.3e"
+                           % (g, err[-1], acc[-1]))
         c.need(r.summary["n_total"] == n and r.summary["n_pod"] == rom.n_pod, "summary and ROM file disagree")
         if extra is not None:
             extra(c, r, ctx, rom)
@@ -761,6 +775,9 @@ def all_cases():
         other = rom.cone.get("cone_mcpg")
         if c.need(other is not None, "no mCPG comparison"):
             c.need(other["note"] != "" or other["r"] == 100, "mCPG stopped without reaching 0 and without a note")
+            c.need(r.summary.get("cone_comparison_note") == other["note"],
+                   "summary cone_comparison_note %r differs from the ROM file's mCPG note %r"
+                   % (r.summary.get("cone_comparison_note"), other["note"]))
 
     def cone_delta_above(c, r, ctx, rom):
         for g, cone in rom.cone.items():

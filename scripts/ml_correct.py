@@ -233,6 +233,11 @@ class Study:
             self.rom_valid = cio.romrun_set(f, setting, "valid", self.n_steps, self.n_dof)
             self.rom_train = (cio.romrun_set(f, setting, "train", self.n_steps, self.n_dof)
                               if need_train else None)
+            for name, rs in (("valid", self.rom_valid), ("train", self.rom_train)):
+                if rs is not None and "diverged_step" in rs and np.any(rs["diverged_step"] > 0):
+                    raise InputError(f"'{romrun}': setting {setting} has {int(np.sum(rs['diverged_step'] > 0))} "
+                                     f"diverged reduced trajectories in its '{name}' set (crowd_rom stopped them); "
+                                     "the correction needs every trajectory: choose another setting")
         self.rom_path = rom or cio.resolve_path(self.meta["rom_file"], romrun)
         self.db_path = database or cio.resolve_path(self.meta["database"], romrun)
         with cio.open_h5(self.rom_path, cio.ROM_SCHEMA, "ROM file") as f:

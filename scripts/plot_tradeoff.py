@@ -8,7 +8,10 @@ then come from each setting's validation E_mu). One PNG with two panels:
 (a) E_avg vs the ROM time per step, with the FOM times per step (Uzawa and exact solver) as
 reference lines; (b) E_avg vs the speedup against both FOM references. The Pareto front
 (settings no other setting beats in both error and cost) is highlighted; points are labelled
-(N, R, hyper). ML-corrected results (files of scripts/ml_correct.py) can be overlaid (--ml):
+(N, R, hyper). A setting with diverged samples (column samples_diverged: crowd_rom stopped
+them, its E_avg is over the other samples) is drawn as a red cross, labelled with the count, and
+kept off the Pareto front; one whose samples all diverged (E_avg -1) is left out, with a note.
+ML-corrected results (files of scripts/ml_correct.py) can be overlaid (--ml):
 the best n of each regressor, at the ROM step time plus the prediction time per step.
 
 Exit codes: 0 success, 2 missing/unreadable input or missing columns (message on stderr).
@@ -62,10 +65,14 @@ def read_romrun_rows(path):
             s = cio.romrun_setting(f, k)
             for name in s["sets"]:
                 e = cio.dataset(f, f"setting_{k}/{name}/E_mu").ravel()
+                g = f[f"setting_{k}/{name}"]
+                div = np.asarray(g["diverged_step"][()]).ravel() > 0 if "diverged_step" in g else np.zeros(e.size, bool)
+                kept = e[~div]
                 rows.append({"setting": k, "set": name, "n": s["n"], "r": s["r"],
                              "n_basis": s["n_basis"], "hyper": s["hyper"],
-                             "contacts": s["contacts"], "E_avg": float(e.mean()),
-                             "E_max": float(e.max()), "t_step_rom": s["t_step"],
+                             "contacts": s["contacts"], "E_avg": float(kept.mean()) if kept.size else -1.0,
+                             "E_max": float(kept.max()) if kept.size else -1.0, "t_step_rom": s["t_step"],
+                             "samples_diverged": int(div.sum()),
                              "t_step_fom_uzawa": m["t_step_uzawa"], "t_step_fom_exact": m["t_step_exact"],
                              "speedup_uzawa": s["speedup_uzawa"], "speedup_exact": s["speedup_exact"]})
     if not rows:
@@ -124,14 +131,21 @@ def plot_tradeoff(rows, out, ml_points=(), set_name="valid", title=None, dpi=120
     rows = [r for r in rows if str(r["set"]) == set_name]
     if not rows:
         raise InputError(f"no rows of set '{set_name}'")
+    lost = [r for r in rows if float(r["E_avg"]) < 0]
+    rows = [r for r in rows if float(r["E_avg"]) >= 0]
+    if not rows:
+        raise InputError(f"no row of set '{set_name}' has an E_avg (every sample diverged, or no reference)")
     err = np.array([float(r["E_avg"]) for r in rows])
     t = np.array([float(r["t_step_rom"]) for r in rows])
     sp_u = np.array([float(r["speedup_uzawa"]) for r in rows])
     sp_e = np.array([float(r["speedup_exact"]) for r in rows])
-    front = pareto_mask(t, err)
+    div = np.array([int(r.get("samples_diverged", 0) or 0) for r in rows])
+    # a setting with diverged samples is not a trade-off a user can take: off the front
+    big = np.full(t.size, np.inf)
+    front = pareto_mask(np.where(div > 0, big, t), np.where(div > 0, big, err)) & (div == 0)
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 5))
     for hyper in sorted({str(r["hyper"]) for r in rows}):
-        sel = np.array([str(r["hyper"]) == hyper for r in rows])
+        sel = np.array([str(r["hyper"]) == hyper for r in rows]) & (div == 0)
         mk = HYPER_MARKERS.get(hyper, "^")
         ax1.scatter(t[sel], err[sel], marker=mk, c="tab:blue", alpha=0.6, label=f"ROM, hyper = {hyper}")
         ax2.scatter(sp_u[sel], err[sel], marker=mk, c="tab:blue", alpha=0.6,
@@ -141,13 +155,20 @@ def plot_tradeoff(rows, out, ml_points=(), set_name="valid", title=None, dpi=120
     o = np.argsort(t[front])
     ax1.plot(t[front][o], err[front][o], "-", color="tab:red", lw=1.5, label="Pareto front")
     ax1.scatter(t[front], err[front], s=90, facecolors="none", edgecolors="tab:red", lw=1.5)
+    if np.any(div > 0):
+        ax1.scatter(t[div > 0], err[div > 0], marker="x", c="tab:red", label="with diverged samples")
+        ax2.scatter(sp_u[div > 0], err[div > 0], marker="x", c="tab:red", label="with diverged samples")
     for sp, color in ((sp_u, "tab:red"), (sp_e, "tab:purple")):
-        f2 = pareto_mask(-sp, err)
+        f2 = pareto_mask(np.where(div > 0, np.inf, -sp), np.where(div > 0, np.inf, err)) & (div == 0)
         o2 = np.argsort(sp[f2])
         ax2.plot(sp[f2][o2], err[f2][o2], "-", color=color, lw=1.2)
     for i, r in enumerate(rows):
-        ax1.annotate(_label(r), (t[i], err[i]), fontsize=7, xytext=(3, 3), textcoords="offset points")
-        ax2.annotate(_label(r), (sp_u[i], err[i]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+        lab = _label(r) + (f" {div[i]} diverged" if div[i] > 0 else "")
+        ax1.annotate(lab, (t[i], err[i]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+        ax2.annotate(lab, (sp_u[i], err[i]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    if lost:
+        fig.text(0.01, 0.01, "not drawn (every sample diverged or no reference): " +
+                 ", ".join(_label(r) for r in lost), fontsize=7)
     t_uz, t_ex = float(rows[0]["t_step_fom_uzawa"]), float(rows[0]["t_step_fom_exact"])
     ax1.axvline(t_uz, color="k", ls="--", lw=1, label=f"FOM Uzawa {t_uz:.2e} s")
     ax1.axvline(t_ex, color="0.4", ls=":", lw=1, label=f"FOM exact {t_ex:.2e} s")

@@ -39,6 +39,13 @@ if "_setting" in cfg:
     print(cfg["_setting"]); sys.exit()
 rows = [r for r in csv.DictReader(open("results/%s_table.csv" % case)) if r["set"] == "valid"
         and r["hyper"] == "eq" and r["contacts"] == "cone"]
+# a setting with diverged reduced trajectories cannot be corrected (on either set)
+bad = {r["setting"] for r in csv.DictReader(open("results/%s_table.csv" % case))
+       if int(r.get("samples_diverged", "0")) > 0}
+rows = [r for r in rows if r["setting"] not in bad]
+if not rows:
+    sys.exit("run_study: error: no 'eq' / 'cone' setting without diverged samples for the ML correction "
+             "(set \"_setting\" in inputs/%s_ml.json)" % case)
 best = max(rows, key=lambda r: (int(r["n"]), -int(r["setting"])))
 print(best["setting"])
 PYEOF
@@ -55,14 +62,25 @@ $PY - "$CASE" <<'PYEOF'
 import csv, sys
 case = sys.argv[1]
 rows = [r for r in csv.DictReader(open("results/%s_table.csv" % case)) if r["set"] == "valid"]
-print("Validation set: E_avg (paper's time-integrated relative position error), time per reduced step,")
-print("speedup over (a) the paper's Uzawa FOM and (b) the exact active-set FOM, both timed in this run.")
-print("| N | R | Nb | hyper | contacts | E_avg | deepest overlap | agents not out (FOM) | t_step [s] | speedup (a) | speedup (b) |")
-print("|---|---|---|---|---|---|---|---|---|---|---|")
+print("Validation set: E_avg (paper's time-integrated relative position error), E_disp (the same error relative")
+print("to the displacement q - q0), relative error of the times at which 50% / 90% of the agents are out")
+print("(over the (n) samples where both models reach it), deepest overlaps, mobility, diverged samples")
+print("(* = E_avg over the other samples), time per reduced step, speedup over (a) the paper's Uzawa FOM")
+print("and (b) the exact active-set FOM, both timed in this run.")
+print("| N | R | Nb | hyper | contacts | E_avg | E_disp | t50 err | t90 err | overlap agents / walls | agents not out (FOM) | mobility | diverged | t_step [s] | speedup (a) | speedup (b) |")
+print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+def t(r, k):
+    n = int(r[k + "_n"])
+    s = "%.2e (%d)" % (float(r[k + "_err"]), n) if n > 0 else "n/a"
+    if int(r[k + "_rom_missed"]) > 0:
+        s += ", ROM never %s" % r[k + "_rom_missed"]
+    return s
 for r in rows:
-    print("| %s | %s | %s | %s | %s | %.2e | %.2e | %s (%s) | %.2e | %.1f | %.1f |" % (
-        r["n"], r["r"], r["n_basis"], r["hyper"], r["contacts"], float(r["E_avg"]), float(r["max_overlap"]),
-        r["agents_not_left"], r["agents_not_left_fom"], float(r["t_step_rom"]), float(r["speedup_uzawa"]),
+    print("| %s | %s | %s | %s | %s | %.2e%s | %.2e | %s | %s | %.2e / %.2e | %s (%s) | %.3f | %s | %.2e | %.1f | %.1f |" % (
+        r["n"], r["r"], r["n_basis"], r["hyper"], r["contacts"], float(r["E_avg"]),
+        "*" if int(r["samples_diverged"]) > 0 else "", float(r["E_disp"]), t(r, "t50"), t(r, "t90"),
+        float(r["max_overlap_agents"]), float(r["max_overlap_walls"]), r["agents_not_left"], r["agents_not_left_fom"],
+        float(r["mobility"]), r["samples_diverged"], float(r["t_step_rom"]), float(r["speedup_uzawa"]),
         float(r["speedup_exact"])))
 PYEOF
 echo

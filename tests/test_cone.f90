@@ -6,6 +6,7 @@ program test_cone
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t
   use cr_env, only: env_t
+  use cr_strings, only: str
   use cr_assert, only: check, check_close, test_summary
   use cr_cone, only: sparse_columns_t, cone_result_t, gis_build, mcpg_build
   implicit none
@@ -18,6 +19,7 @@ program test_cone
   call test_gis_known()
   call test_mcpg_generators()
   call test_empty()
+  call test_mcpg_accuracy()
   call env%free()
   call MPI_Finalize(ierr)
   call test_summary(env%rank)
@@ -122,4 +124,69 @@ contains
     call check(.not. allocated(err) .and. res%r == 0 .and. allocated(res%note), "mcpg: empty cone, no error")
     if (allocated(res%note)) call check(index(res%note, "empty cone") > 0, "says the cone is empty")
   end subroutine test_empty
+  !> mCPG at delta = 0 on snapshots lying in the cone of a few sparse non-negative generators
+  !> (issue 11): in exact arithmetic the error reaches 0; in floating point it reaches the
+  !> accuracy of the Gram-form projections. Checks cr_cone's stated guarantees: the accuracy
+  !> history a_r has R + 1 entries and obeys its bound a_r <= sqrt(reg + (64 r + 2 n_rows) eps
+  !> (1 + sqrt(r))^2) (|k| <= |x| <= n1 since the psi are non-negative); the computed history
+  !> satisfies e_{r+1} <= e_r + a_r + a_{r+1}; the construction stops before r_max with a note,
+  !> and when the note says the accuracy was reached, e_R <= a_R.
+  subroutine test_mcpg_accuracy()
+    integer, parameter :: nrow = 40, ngen = 5, nsnap = 60
+    real(wp) :: g(nrow, ngen), x(nrow, nsnap), w(ngen), bound
+    type(sparse_columns_t) :: lam
+    type(cone_result_t) :: res
+    type(error_t), allocatable :: err
+    integer :: i, j, k, trial, seed
+    character(len=:), allocatable :: name
+    do trial = 1, 4
+      name = "mcpg accuracy " // str(trial)
+      ! deterministic pseudo-random data (identical on every rank)
+      seed = 12345 + 7919 * trial
+      g = 0
+      do j = 1, ngen
+        do i = 1, nrow
+          if (mod(lcg(seed), 3) == 0) g(i, j) = 0.1_wp + real(mod(lcg(seed), 1000), wp) / 1000.0_wp
+        end do
+        g(j, j) = 1.0_wp
+      end do
+      do k = 1, nsnap
+        do j = 1, ngen
+          w(j) = real(mod(lcg(seed), 1000), wp) / 1000.0_wp
+          if (mod(lcg(seed), 4) == 0) w(j) = 0
+        end do
+        x(:, k) = matmul(g, w)
+      end do
+      x(:, 1:ngen) = g
+      call distribute(x, lam)
+      call mcpg_build(env, lam, 0.0_wp, 30, res, err)
+      call check(.not. allocated(err), name // ": runs")
+      if (allocated(err)) cycle
+      call check(allocated(res%err_acc), name // ": accuracy history recorded")
+      if (.not. allocated(res%err_acc)) cycle
+      call check(size(res%err_acc) == res%r + 1 .and. size(res%err_max) == res%r + 1, name // ": R + 1 entries")
+      do k = 1, res%r + 1
+        bound = sqrt(1.0e-12_wp + real(64 * (k - 1) + 2 * nrow, wp) * epsilon(1.0_wp) * (1 + sqrt(real(k - 1, wp)))**2)
+        call check(res%err_acc(k) >= 0 .and. res%err_acc(k) <= bound, name // ": a_" // str(k - 1) // " = " // &
+          str(res%err_acc(k)) // " within its bound " // str(bound))
+      end do
+      do k = 1, res%r
+        call check(res%err_max(k + 1) <= res%err_max(k) + res%err_acc(k) + res%err_acc(k + 1), &
+          name // ": e_" // str(k) // " <= e_" // str(k - 1) // " + a_" // str(k - 1) // " + a_" // str(k))
+      end do
+      call check(res%r < 30 .and. allocated(res%note), name // ": stops before r_max with a note (R = " // &
+        str(res%r) // ")")
+      if (allocated(res%note)) then
+        if (index(res%note, "accuracy of the inner cone projections") > 0) &
+          call check(res%err_max(res%r + 1) <= res%err_acc(res%r + 1), name // ": e_R <= a_R at the accuracy stop")
+      end if
+    end do
+  end subroutine test_mcpg_accuracy
+
+  !> next value of a small linear congruential generator (non-negative)
+  integer function lcg(state)
+    integer, intent(inout) :: state
+    state = mod(1103515245_i8 * state + 12345_i8, 2147483648_i8)
+    lcg = state / 65536
+  end function lcg
 end program test_cone

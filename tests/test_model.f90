@@ -6,7 +6,7 @@ program test_model
   use cr_assert, only: check, check_close, test_summary
   use cr_config, only: scene_cfg_t, obstacles_cfg_t, desired_cfg_t
   use cr_scene, only: scene_t
-  use cr_neighbours, only: cell_list_t, build_contacts
+  use cr_neighbours, only: cell_list_t, build_contacts, grid_size, cell_index
   use cr_contact_set, only: contact_set_t, contact_key
   use cr_desired, only: desired_t
   use cr_random, only: rng_t
@@ -23,6 +23,7 @@ program test_model
   call check(.not. allocated(error), "scene builds")
   call check(scene%n_walls == 5 .and. scene%n_interior() == 1, "5 walls + 1 disk")
   call test_neighbours()
+  call test_far_positions()
   call test_gap_gradient()
   call test_aiming()
   call test_random()
@@ -82,6 +83,45 @@ contains
     end do
   end subroutine test_neighbours
 
+  !> Positions far outside the hall (a diverged reduced trajectory: 1e9 m, 1e300 m, +-huge)
+  !> neither overflow the cell indices nor lose the near pairs: the cell list still equals
+  !> brute force, the grid stays within its cell budget, and every cell index is in range.
+  subroutine test_far_positions()
+    type(cell_list_t) :: cells
+    type(contact_set_t) :: cs
+    real(wp), parameter :: far(4) = [1.0e9_wp, 1.0e300_wp, huge(1.0_wp), -huge(1.0_wp)]
+    real(wp) :: q(12), r, side
+    integer :: k, nx, ny, na
+    logical :: pair12, pair34, others
+    character(len=32) :: tag
+    r = 0.03_wp
+    na = 6
+    do k = 1, size(far)
+      write(tag, '(es10.2)') far(k)
+      ! agents 1, 2 touching in the hall; 3, 4 touching far away; 5 far on x; 6 far on y
+      q = [0.3_wp, 0.4_wp, 0.35_wp, 0.4_wp, far(k), 0.2_wp, far(k), 0.25_wp, far(k), far(k), 0.5_wp, -far(k)]
+      if (abs(far(k)) > 1.0e20_wp) q(7) = far(k) * (1 - 1.0e-16_wp)   ! at 1e300 m, 5 cm is below round-off
+      call cs%init(na, 0.1_wp)
+      call build_contacts(scene, q, r, 0.01_wp, cells, cs)
+      call check(cells%nx >= 1 .and. cells%ny >= 1 .and. real(cells%nx, wp) * cells%ny <= 4 * na + 64, &
+        "far positions " // trim(tag) // ": grid within its cell budget")
+      pair12 = any(cs%ia(1:cs%n) == 1 .and. cs%ib(1:cs%n) == 2)
+      pair34 = any(cs%ia(1:cs%n) == 3 .and. cs%ib(1:cs%n) == 4)
+      others = any(cs%ia(1:cs%n) >= 5 .or. (cs%ib(1:cs%n) >= 5))
+      call check(pair12 .and. .not. others, "far positions " // trim(tag) // ": near pair in the hall found, " // &
+        "far agents without contacts")
+      if (abs(far(k)) < 1.0e20_wp) call check(pair34, "far positions " // trim(tag) // ": far touching pair found")
+    end do
+    ! the grid helpers on extreme boxes
+    call grid_size([0.5_wp * huge(1.0_wp), 0.5_wp * huge(1.0_wp)], 0.1_wp, 100.0_wp, side, nx, ny)
+    call check(nx >= 1 .and. ny >= 1 .and. nx * ny <= 100 .and. side > 0, "grid over [-huge, huge]^2: " // &
+      "at most 100 cells")
+    call check(cell_index(huge(1.0_wp), -huge(1.0_wp), side, nx) == nx - 1 .and. &
+      cell_index(-huge(1.0_wp), -huge(1.0_wp), side, nx) == 0, "cell index of +-huge in range")
+    call check(cell_index(1.0e300_wp, 0.0_wp, 0.1_wp, 7) == 6 .and. cell_index(-1.0e300_wp, 0.0_wp, 0.1_wp, 7) == 0, &
+      "cell index of +-1e300 clamped")
+  end subroutine test_far_positions
+
   !> The pair normal is the gradient of the gap (central differences).
   subroutine test_gap_gradient()
     type(cell_list_t) :: cells
@@ -131,12 +171,20 @@ contains
     call des%direction(p, dir)
     call check(dir(2) > 0 .and. dir(1) > 0, "keeps walking away past the exit")
     call check_close(norm2(dir), 1.0_wp, 1e-14_wp, "unit direction")
-    ! with the interior disk, a field is used and the direction is unit and finite
+    ! with the interior disk, the exact geodesic is used (auto) and the direction is unit and finite
     call des%init(dc, scene, r, 1, err)
-    call check(.not. allocated(err) .and. des%use_field, "grid field with an interior obstacle")
+    call check(.not. allocated(err) .and. des%use_exact .and. .not. des%use_field, &
+      "exact geodesic with an interior obstacle (auto)")
     p = [0.65_wp, 0.3_wp]   ! behind the disk: must go around it
     call des%direction(p, dir)
     call check(abs(dir(1)) > 0.2_wp, "goes around the obstacle (not straight through)")
+    call check_close(norm2(dir), 1.0_wp, 1e-12_wp, "unit direction from the exact geodesic")
+    ! the grid field when forced
+    dc%field = 'grid'
+    call des%init(dc, scene, r, 1, err)
+    call check(.not. allocated(err) .and. des%use_field .and. .not. des%use_exact, "grid field when forced")
+    call des%direction(p, dir)
+    call check(abs(dir(1)) > 0.2_wp, "goes around the obstacle (grid)")
     call check_close(norm2(dir), 1.0_wp, 1e-12_wp, "unit direction from the field")
   end subroutine test_aiming
 

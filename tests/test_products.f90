@@ -601,9 +601,13 @@ contains
     s%e_mu = [0.01_wp, 0.02_wp]; s%e_proj = [0.001_wp, 0.002_wp]; s%max_overlap = [0.0_wp, 1.0e-4_wp]
     s%mobility = [1.0_wp, 0.9_wp]; s%time = [0.1_wp, 0.2_wp]
     s%n_not_left = [0, 1]; s%n_not_left_fom = [0, 0]; s%n_infeasible = [0, 2]; s%n_capped = [1, 0]
-    s%extrapolating = [0, 0]
+    s%extrapolating = [0, 0]; s%diverged_step = [0, 2]; s%samples_diverged = 1
+    s%e_disp = [0.05_wp, -1.0_wp]; s%overlap_aa = [0.0_wp, 1.0e-3_wp]; s%overlap_aw = [2.0e-4_wp, 0.0_wp]
+    s%evac_rom = reshape([0, 1, 2, 0, 0, 1], [NT + 1, 2]); s%t_out_rom = reshape([0.02_wp, 0.04_wp, -1.0_wp, -1.0_wp], [2, 2])
+    s%evac_fom = reshape([0, 1, 3, 0, 1, 2], [NT + 1, 2]); s%t_out_fom = reshape([0.02_wp, 0.04_wp, 0.04_wp, -1.0_wp], [2, 2])
     rows(1)%setting = 1; rows(1)%n = 2; rows(1)%r = 1; rows(1)%nb = 3; rows(1)%e_avg = 0.015_wp
     rows(1)%e_max = 0.02_wp; rows(1)%t_step = 1.0e-5_wp; rows(1)%not_left = 1; rows(1)%capped = 1
+    rows(1)%diverged = 1; rows(1)%meas%e_disp = 0.05_wp; rows(1)%meas%t_err = [0.1_wp, -1.0_wp]
   end subroutine make_romrun
 
   subroutine write_romrun(path)
@@ -642,9 +646,13 @@ contains
         all(r%positions == s%positions) .and. all(r%err_time == s%err_time), "romrun: trajectories")
       call check(all(r%e_mu == s%e_mu) .and. all(r%mobility == s%mobility) .and. all(r%n_infeasible == s%n_infeasible) &
         .and. all(r%n_capped == s%n_capped) .and. all(r%time == s%time), "romrun: per-sample measures")
+      call check(all(r%diverged_step == s%diverged_step) .and. r%samples_diverged == 1 .and. &
+        all(r%e_disp == s%e_disp) .and. all(r%overlap_aw == s%overlap_aw) .and. all(r%evac_rom == s%evac_rom) .and. &
+        all(r%evac_fom == s%evac_fom) .and. all(r%t_out_fom == s%t_out_fom), "romrun: divergence and evacuation")
     end associate
     call check(size(run%rows) == 1 .and. run%rows(1)%e_avg == rows(1)%e_avg .and. run%rows(1)%not_left == 1 .and. &
-      run%rows(1)%capped == 1, "romrun: table")
+      run%rows(1)%capped == 1 .and. run%rows(1)%diverged == 1 .and. run%rows(1)%meas%e_disp == 0.05_wp, &
+      "romrun: table")
     k = remove_file(path)
   end subroutine romrun_roundtrip
 

@@ -109,7 +109,11 @@ contains
           end if
         end do
         g = matmul(bd(idx(1:k), :), transpose(bd(idx(1:k), :)))
-        rhs = matmul(bd(idx(1:k), :), v) - cs%gap(idx(1:k))
+        ! rhs allocated with its size: gfortran 12's inlined matmul does not reallocate an
+        ! allocatable whose old size equals size(v) (here k varies from subset to subset)
+        if (allocated(rhs)) deallocate(rhs)
+        allocate(rhs(k))
+        rhs(:) = matmul(bd(idx(1:k), :), v) - cs%gap(idx(1:k))
         call chol_solve(g, rhs, info, piv)
         if (info /= 0) cycle
         if (any(rhs < -1.0e-14_wp)) cycle

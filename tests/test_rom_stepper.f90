@@ -42,9 +42,10 @@ program test_rom_stepper
   use cr_config, only: scene_cfg_t, obstacles_cfg_t, desired_cfg_t
   use cr_rom_file, only: rom_pair_t
   use cr_sparse_cone, only: sparse_cone_t
-  use cr_reduced_ops, only: reduced_ops_t, make_reduced_ops
+  use cr_reduced_ops, only: reduced_ops_t, make_reduced_ops, eim_exact_rows
   use cr_random, only: rng_t
   use cr_lapack, only: la_geqrf, la_orgqr
+  use cr_rom_guard, only: rom_guard_t
   implicit none
   type(const_ops_t) :: ops
   type(eval_ctx_t) :: ctx
@@ -98,6 +99,7 @@ program test_rom_stepper
   call check(traj%n_capped == 0, "uzawa: converged")
   call check_close(traj%alpha(1, 2), 0.2_wp, 1.0e-10_wp, "uzawa: same projection")
   call check_gram()
+  call check_guard()
   call test_summary()
 
 contains
@@ -149,5 +151,84 @@ contains
     call rops%assemble(c2, q, vh, bh, dh)
     call rops%gram(g)
     call check(maxval(abs(g - matmul(bh, transpose(bh)))) <= 1.0e-14_wp * maxval(abs(g)), "gram: Z P Z^T = Bh Bh^T")
+    call check_eim_rows(pair, c2, q, bh)
   end subroutine check_gram
+
+  !> EIM rows keep unit normals: with every s2 entry interpolated (identity modes) the EIM rows
+  !> are the exact rows and none is evaluated exactly; with one mode on a single entry, the
+  !> interpolated normals of the other rows vanish (the congested150 failure: such a row
+  !> asked for |alpha| ~ 1e14) and are evaluated exactly, so again the exact rows.
+  subroutine check_eim_rows(pair0, c2, q, bh_exact)
+    type(rom_pair_t), intent(in) :: pair0
+    type(eval_ctx_t), intent(in) :: c2
+    real(wp), intent(in) :: q(:), bh_exact(:,:)
+    type(rom_pair_t) :: pe
+    class(reduced_ops_t), allocatable :: rops
+    real(wp), allocatable :: vh(:), bh(:,:), dh(:)
+    integer :: p2, p3, i, j
+    p2 = pair0%terms%p(2); p3 = pair0%terms%p(3)
+    do j = 1, 2
+      pe = pair0
+      pe%hyper = .true.
+      pe%eim(1)%p = pair0%terms%p(1); pe%eim(3)%p = p3
+      allocate(pe%eim(1)%basis(pe%eim(1)%p, 0), pe%eim(1)%idx(0))
+      allocate(pe%eim(3)%basis(p3, 0), pe%eim(3)%idx(0))
+      pe%eim(2)%p = p2
+      if (j == 1) then
+        pe%eim(2)%m = p2
+        allocate(pe%eim(2)%basis(p2, p2))
+        pe%eim(2)%basis = 0
+        do i = 1, p2
+          pe%eim(2)%basis(i, i) = 1
+        end do
+        pe%eim(2)%idx = [(i, i = 1, p2)]
+      else
+        pe%eim(2)%m = 1
+        allocate(pe%eim(2)%basis(p2, 1))
+        pe%eim(2)%basis = 0
+        pe%eim(2)%basis(1, 1) = 1
+        pe%eim(2)%idx = [1]
+      end if
+      call make_reduced_ops('eim', 'cone', pe, [0, pe%eim(2)%m, 0], 1.5_wp, "test", rops, error)
+      call check(.not. allocated(error), "eim rows: ops")
+      if (allocated(error)) return
+      allocate(vh(pe%nb))
+      call rops%assemble(c2, q, vh, bh, dh)
+      call check(maxval(abs(bh - bh_exact)) <= 1.0e-13_wp * maxval(abs(bh_exact)), &
+        "eim rows " // merge("all entries", "one mode   ", j == 1) // ": the exact rows")
+      if (j == 1) call check(eim_exact_rows(rops) == 0, "eim rows all entries: no exact evaluation")
+      if (j == 2) call check(eim_exact_rows(rops) >= p3 - 1, "eim rows one mode: vanishing normals evaluated exactly")
+      deallocate(vh)
+    end do
+  end subroutine check_eim_rows
+
+  !> A reduced row of norm 1e-15 that asks for a negative gap (the EIM failure of congested150,
+  !> README "Reduced model: divergence") is feasible only at |alpha| = 1e12: the guard stops
+  !> the trajectory at that step and zeroes the coefficients from there; a sane trajectory
+  !> is not touched.
+  subroutine check_guard()
+    type(rom_guard_t) :: guard
+    type(scene_cfg_t) :: sc
+    type(eval_ctx_t) :: c3
+    scfg = rom_solver_cfg_t()
+    call c3%scene%init(sc, obstacles_cfg_t(), error)
+    c3%h = 0.5_wp
+    call guard%init(c3%scene, 1.0_wp, 2.5_wp, 2)
+    call check(guard%inside(q0(1:2)) .and. guard%inside(q0(3:4)), "guard: the start is inside")
+    ops%r = 1
+    ops%vh = [0.5_wp]
+    ops%bh = reshape([1.0e-15_wp], [1, 1])
+    ops%dh = [-1.0e-3_wp]
+    call run_trajectory(ops, c3, q0, 5, scfg, traj, error)
+    call check(.not. allocated(error) .and. traj%n_infeasible == 0 .and. abs(traj%alpha(1, 1)) > 1.0e11_wp, &
+      "vanishing row: feasible at |alpha| ~ 1e12, nothing flagged without the guard")
+    call run_trajectory(ops, c3, q0, 5, scfg, traj, error, guard=guard)
+    call check(.not. allocated(error) .and. traj%diverged_step == 1, "guard: diverged at step 1")
+    call check(all(traj%alpha == 0), "guard: coefficients zero from the diverged step on")
+    ops%bh = reshape([1.0_wp], [1, 1])
+    ops%dh = [0.2_wp]
+    call run_trajectory(ops, c3, q0, 5, scfg, traj, error, guard=guard)
+    call check(.not. allocated(error) .and. traj%diverged_step == 0 .and. abs(traj%alpha(1, 5) - 0.2_wp) <= 1.0e-14_wp, &
+      "guard: a sane trajectory runs to the end unchanged")
+  end subroutine check_guard
 end program test_rom_stepper

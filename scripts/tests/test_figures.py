@@ -193,3 +193,20 @@ def test_sample_scenes_are_read_from_the_database(study):
         assert sc["exit"][1, 0] - sc["exit"][0, 0] == pytest.approx(p[0])   # l_exit of the sample
         assert sc["verts"].shape == ref["verts"].shape
     assert np.array_equal(ref["exit"][:, 0], [0.35, 0.65])     # the reference is untouched
+
+
+def test_tradeoff_diverged_rows_off_the_front(study, tmp_path):
+    """A setting with diverged samples (crowd_rom's samples_diverged) is drawn but never on the
+    Pareto front, even when its E_avg (over the other samples) and its cost would put it there;
+    a row without any E_avg (every sample diverged: -1) is left out of the plot."""
+    rows = plot_tradeoff.read_rows(study["csv"])
+    valid = [r for r in rows if r["set"] == "valid"]
+    base = {_r["setting"] for _r in plot_tradeoff.plot_tradeoff(rows, tmp_path / "a.png")}
+    best = min(valid, key=lambda r: float(r["E_avg"]))
+    assert best["setting"] in base
+    marked = [dict(r, samples_diverged=(2 if r is best else 0)) for r in rows]
+    front = {_r["setting"] for _r in plot_tradeoff.plot_tradeoff(marked, tmp_path / "b.png")}
+    assert best["setting"] not in front and front
+    gone = [dict(r, E_avg=(-1.0 if r is best else r["E_avg"])) for r in rows]
+    front = {_r["setting"] for _r in plot_tradeoff.plot_tradeoff(gone, tmp_path / "c.png")}
+    assert best["setting"] not in front

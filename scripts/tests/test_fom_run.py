@@ -20,8 +20,10 @@ REF = os.path.join(ROOT, "tests", "reference", "tiny_final_positions.txt")
 # trajectory to round-off, but the desired velocity from the grid distance field is only
 # piecewise smooth (its gradient jumps across grid cells), so a round-off change in the
 # solver that moves an agent across a cell edge changes the trajectory by ~1e-3 (observed
-# when the NNLS pivoting changed). Regenerate with CROWDROM_WRITE_REFERENCE=1 only after such
-# a deliberate change, with the physical checks (test_fom_scenes) passing.
+# when the NNLS pivoting changed). Since the exact geodesic (&desired field = 'auto' -> 'exact'
+# on tiny's disk) replaced that field, the desired direction is smooth except on the cut locus
+# behind the disk. Regenerate with CROWDROM_WRITE_REFERENCE=1 only after such a deliberate
+# change, with the physical checks (test_fom_scenes) passing.
 REF_TOL = 1e-8
 
 SUMMARY_KEYS = ["program", "input", "solver", "agents", "steps", "agents_left", "agents_inside",

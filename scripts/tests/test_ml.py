@@ -3,6 +3,7 @@ drift that both regressors learn, saved models reused by --predict-only, mismatc
 inputs refused with one clear line and nothing written."""
 import json
 import os
+import shutil
 import subprocess
 import sys
 
@@ -286,3 +287,16 @@ def test_cli_exit_status(tmp_path):
     assert res.stderr.strip() == f"ml_correct: error: ROM run file not found: '{tmp_path / 'missing.h5'}'"
     res = run("--help-output")
     assert res.returncode == 0 and "crowdrom-ml" in res.stdout
+
+
+def test_setting_with_diverged_samples_refused(study, tmp_path, capsys):
+    """A setting whose reduced trajectories crowd_rom stopped (diverged_step > 0) is refused with
+    one line: its frozen positions are not a reduced model to correct."""
+    bad = tmp_path / "diverged.h5"
+    shutil.copy(study["romrun"], bad)
+    with h5py.File(bad, "r+") as f:
+        n_s = f["setting_1/valid/params"].shape[0]
+        f["setting_1/valid/diverged_step"] = np.array([0] * (n_s - 1) + [7], dtype=np.int32)
+    res = call(capsys, bad, "--config", study["cfg"], "-o", tmp_path / "x.h5")
+    assert res.returncode == 2 and "1 diverged reduced trajectories in its 'valid' set" in res.stderr, res.stderr
+    assert not (tmp_path / "x.h5").exists()

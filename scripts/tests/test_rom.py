@@ -105,12 +105,24 @@ def test_full_basis_reproduces_fom(study):
 
 def test_small_rom_reports(study):
     tmp, db, rom, n, r = study
+    # the shape of the congested150 sweep: EQ, online contacts, exact and EIM (paper's default m)
     settings = [dict(n=4, r=3, hyper="'eq'"), dict(n=4, r=3, hyper="'none'", contacts="'online'"),
-                dict(n=4, r=3, hyper="'none'")]
+                dict(n=4, r=3, hyper="'none'"), dict(n=4, r=3, hyper="'eim'")]
     out = tmp / "small.h5"
     p = run(0, "crowd_rom", rom_input(tmp, "small.nml", rom, out, settings, sets="'both'", solver="'nnls'"), tmp)
     assert p.returncode == 0, p.stdout + p.stderr
     assert "| setting | set |" in p.stdout
+    rows = list(csv.DictReader(open(tmp / "small.csv")))
+    assert len(rows) == 8
+    for r_ in rows:
+        n_s = 6 if r_["set"] == "train" else 3
+        div = int(r_["samples_diverged"])
+        assert 0 <= div <= n_s
+        for t in ("t50", "t90"):    # every kept sample is in exactly one class
+            assert int(r_[t + "_n"]) + int(r_[t + "_rom_missed"]) + int(r_[t + "_fom_missed"]) == n_s - div
+        if div < n_s:
+            assert float(r_["E_disp"]) >= 0 and float(r_["E_avg"]) >= 0
+            assert float(r_["max_overlap"]) == max(float(r_["max_overlap_agents"]), float(r_["max_overlap_walls"]))
     with h5py.File(out, "r") as f:
         for k in (1, 2, 3):
             for s in ("train", "valid"):

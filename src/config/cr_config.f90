@@ -67,7 +67,8 @@ module cr_config
     !> 'geodesic' (towards the exit) or 'file' (prescribed per-agent vectors)
     character(len=16) :: mode = 'geodesic'
     character(len=MAX_PATH) :: file = ''
-    !> 'auto' (a distance field only when interior obstacles need it), 'analytic', 'grid'
+    !> 'auto' (straight lines without interior obstacles, else 'exact' where it applies, else
+    !> 'grid'), 'analytic' (straight lines), 'grid' (fast-sweeping field), 'exact' (tangent graph)
     character(len=16) :: field = 'auto'
     !> grid spacing of the distance field; 0 means radius / 4
     real(wp) :: grid_dx = 0.0_wp

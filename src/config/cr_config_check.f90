@@ -81,8 +81,8 @@ contains
       call probs%need(d%mode == 'geodesic' .or. d%mode == 'file', "&desired: mode must be 'geodesic' or 'file' (got '" // &
         trim(d%mode) // "')")
       if (d%mode == 'file') call probs%need(len_trim(d%file) > 0, "&desired: mode = 'file' needs file")
-      call probs%need(d%field == 'auto' .or. d%field == 'analytic' .or. d%field == 'grid', &
-        "&desired: field must be 'auto', 'analytic' or 'grid' (got '" // trim(d%field) // "')")
+      call probs%need(d%field == 'auto' .or. d%field == 'analytic' .or. d%field == 'grid' .or. d%field == 'exact', &
+        "&desired: field must be 'auto', 'analytic', 'grid' or 'exact' (got '" // trim(d%field) // "')")
       call probs%need(d%grid_dx >= 0, "&desired: grid_dx must be >= 0 (0 = radius / 4)")
       if (a%radius > 0) call probs%need(d%grid_dx < a%radius / 2, "&desired: grid_dx must be < radius / 2")
       ! &time

@@ -334,7 +334,8 @@ contains
         dist = smax
         normal = [e(2), -e(1)]
       else
-        ! outside: nearest point over all edges (strictly positive distance since smax > 0)
+        ! outside: nearest point over all edges (positive distance since smax > 0, except
+        ! for a point on an edge whose signed distance rounds to a tiny positive value)
         dbest = huge(1.0_wp)
         do i = 1, nv
           inext = modulo(i, nv) + 1
@@ -346,7 +347,14 @@ contains
           end if
         end do
         dist = dbest
-        normal = normal / dbest
+        if (dbest > 0.0_wp) then
+          normal = normal / dbest
+        else
+          inext = modulo(ibest, nv) + 1
+          e = obst%vertices(:, inext) - obst%vertices(:, ibest)
+          e = e / norm2(e)
+          normal = [e(2), -e(1)]
+        end if
       end if
     case default
       dist = huge(1.0_wp)

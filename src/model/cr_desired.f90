@@ -5,26 +5,37 @@
 !> [x_lo + r, x_hi - r] on the inner face y = hall_width (aiming at the full opening lets an
 !> agent slide under a door corner and stop there for good). Inside the doorway agents walk
 !> straight out (+y); past the wall they keep walking away from the exit centre.
-!> Where the exit is visible the direction is analytic. With interior obstacles a geodesic
-!> distance field is computed once per scene (fast sweeping on a grid whose nodes closer
-!> than r - 1.5 dx to an obstacle are blocked, so the field is that of the agent centres).
+!>
+!> Inside the hall the direction comes from one of three models (&desired field):
+!> - 'analytic': straight to the closest point of the narrowed opening (no obstacle model);
+!> - 'exact': the geodesic distance of the agent centres (every obstacle and wall inflated by r)
+!>   computed exactly at the agents' positions by a tangent graph built once per scene and
+!>   radius (cr_geodesic); it is the limit h -> 0 of the grid field;
+!> - 'grid': a fast-sweeping distance field built once per scene (nodes closer than
+!>   r - 1.5 dx to an obstacle are blocked, so the field is that of the agent centres).
+!> 'auto' keeps 'analytic' when the scene has no interior obstacle, otherwise takes 'exact'
+!> when it applies (see exact_applies) and 'grid' when it does not.
 module cr_desired
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
   use cr_config, only: desired_cfg_t
   use cr_scene, only: scene_t
-  use cr_shapes, only: obstacle_t, make_segment
+  use cr_shapes, only: obstacle_t, make_segment, segment_obstacle_distance, OBST_DISK, OBST_SEGMENT
   use cr_distance_field, only: distance_field_t
+  use cr_geodesic, only: geodesic_t, GEODESIC_MAX_CIRCLES
   implicit none
   private
-  public :: desired_t
+  public :: desired_t, exact_applies
 
   !> Desired-velocity model of one scene.
   type :: desired_t
     logical :: from_file = .false.
     logical :: use_field = .false.
     type(distance_field_t) :: field
+    !> exact geodesic (tangent graph) in use
+    logical :: use_exact = .false.
+    type(geodesic_t) :: exact
     !> prescribed vectors (file mode) [2*n_agents]
     real(wp), allocatable :: fixed(:)
     real(wp) :: r = 0, y_door = 0, y_top = 0, t_lo = 0, t_hi = 0, x_lo = 0, x_hi = 0
@@ -33,6 +44,8 @@ module cr_desired
     procedure :: init
     procedure :: direction
     procedure :: evaluate
+    procedure :: evaluate_at
+    procedure :: model_name
   end type desired_t
 
 contains
@@ -47,6 +60,9 @@ contains
     type(error_t), allocatable, intent(out) :: error
     type(obstacle_t) :: target(1)
     real(wp) :: dx
+    character(len=:), allocatable :: why
+    this%use_field = .false.
+    this%use_exact = .false.
     this%r = radius
     this%y_door = scene%width
     this%y_top = scene%width + scene%wall
@@ -66,9 +82,24 @@ contains
       this%use_field = .true.
     case ('analytic')
       this%use_field = .false.
+    case ('exact')
+      if (.not. exact_applies(scene, radius, why)) then
+        call set_error(error, "&desired: field = 'exact' does not apply to this scene: " // why, 2)
+        return
+      end if
+      this%use_exact = .true.
     case default
-      this%use_field = scene%n_interior() > 0
+      if (scene%n_interior() > 0) then
+        this%use_exact = exact_applies(scene, radius, why)
+        this%use_field = .not. this%use_exact
+      end if
     end select
+    if (this%use_exact) then
+      call this%exact%init([0.0_wp, 0.0_wp], [scene%length, scene%width], scene%obstacles, radius, &
+        [this%t_lo, scene%width], [this%t_hi, scene%width], error)
+      if (allocated(error)) call prefix_error(error, "desired velocity: exact geodesic")
+      return
+    end if
     if (.not. this%use_field) return
     dx = cfg%grid_dx
     if (dx <= 0) dx = radius / 4
@@ -84,7 +115,7 @@ contains
     class(desired_t), intent(in) :: this
     real(wp), intent(in) :: p(2)
     real(wp), intent(out) :: dir(2)
-    real(wp) :: t(2), n
+    real(wp) :: t(2), n, dn
     logical :: ok
     if (p(2) >= this%y_top) then
       ! past the wall: walk away from the exit centre
@@ -92,6 +123,10 @@ contains
     else if (p(2) >= this%y_door - this%r .and. p(1) >= this%t_lo .and. p(1) <= this%t_hi) then
       dir = [0.0_wp, 1.0_wp]
     else
+      if (this%use_exact .and. p(2) < this%y_door) then
+        call this%exact%query(p, dn, dir, ok)
+        if (ok) return
+      end if
       if (this%use_field .and. p(2) < this%y_door - this%r) then
         call this%field%direction(p, dir, ok)
         if (ok) return
@@ -123,6 +158,83 @@ contains
       v(2*i-1:2*i) = speeds(i) * d
     end do
   end subroutine evaluate
+
+  !> v(:, k) = desired velocity of agent idx(k) only, at positions q [2*n_agents] with speeds
+  !> [n_agents]: v [2, size(idx)]. For hyper-reduced models that need a few agents; every
+  !> model (exact, grid, analytic, file) is evaluated pointwise, so the cost is O(size(idx)).
+  subroutine evaluate_at(this, q, speeds, idx, v)
+    class(desired_t), intent(in) :: this
+    real(wp), intent(in) :: q(:), speeds(:)
+    integer, intent(in) :: idx(:)
+    real(wp), intent(out) :: v(:,:)
+    integer :: k, i
+    real(wp) :: d(2)
+    do k = 1, size(idx)
+      i = idx(k)
+      if (this%from_file) then
+        v(:, k) = this%fixed(2*i-1:2*i)
+      else
+        call this%direction(q(2*i-1:2*i), d)
+        v(:, k) = speeds(i) * d
+      end if
+    end do
+  end subroutine evaluate_at
+
+  !> Name of the model in use: 'file', 'exact', 'grid' or 'analytic'.
+  function model_name(this) result(name)
+    class(desired_t), intent(in) :: this
+    character(len=:), allocatable :: name
+    if (this%from_file) then
+      name = 'file'
+    else if (this%use_exact) then
+      name = 'exact'
+    else if (this%use_field) then
+      name = 'grid'
+    else
+      name = 'analytic'
+    end if
+  end function model_name
+
+  !> .true. if the exact geodesic applies to `scene` and agents of radius r; otherwise `why`
+  !> says why not: the opening is narrower than a diameter (no narrowed target), there are
+  !> more than GEODESIC_MAX_CIRCLES obstacle vertices and disks, or an interior obstacle
+  !> inflated by r meets the narrowed opening (its reachable part would not be a segment).
+  function exact_applies(scene, r, why) result(ok)
+    type(scene_t), intent(in) :: scene
+    real(wp), intent(in) :: r
+    character(len=:), allocatable, intent(out) :: why
+    logical :: ok
+    integer :: k, nc
+    real(wp) :: a(2), b(2)
+    ok = .false.
+    why = ''
+    if (scene%x_hi - scene%x_lo <= 2 * r) then
+      why = "the exit (width " // str(scene%x_hi - scene%x_lo) // ") is not wider than an agent (diameter " &
+        // str(2 * r) // ")"
+      return
+    end if
+    nc = 0
+    do k = 1, scene%n_obstacles()
+      select case (scene%obstacles(k)%kind)
+      case (OBST_DISK); nc = nc + 1
+      case (OBST_SEGMENT); nc = nc + 2
+      case default; nc = nc + size(scene%obstacles(k)%vertices, 2)
+      end select
+    end do
+    if (nc > GEODESIC_MAX_CIRCLES) then
+      why = str(nc) // " obstacle vertices and disks exceed the limit of " // str(GEODESIC_MAX_CIRCLES)
+      return
+    end if
+    a = [scene%x_lo + r, scene%width]
+    b = [scene%x_hi - r, scene%width]
+    do k = scene%n_walls + 1, scene%n_obstacles()
+      if (segment_obstacle_distance(scene%obstacles(k), a, b) < r) then
+        why = "obstacle '" // scene%obstacles(k)%label // "' comes closer than the agent radius to the exit opening"
+        return
+      end if
+    end do
+    ok = .true.
+  end function exact_applies
 
   !> Read n lines "vx vy" from a plain text file.
   subroutine read_vectors(path, n, vec, error)

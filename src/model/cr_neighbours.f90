@@ -4,14 +4,21 @@
 !> Cost O(n_agents + n_cells + n_agents * n_obstacles_near): the cell grid covers the
 !> bounding box of the agents with cells of side >= 2 r + cutoff, and is coarsened so that
 !> it never has more than 4 n_agents + 64 cells.
+!>
+!> Any finite coordinates are accepted (a reduced trajectory that has diverged may put agents
+!> at 1e300 m): the grid size and every cell index are computed and clamped in real
+!> arithmetic on half-coordinates (so that hi - lo cannot overflow even for +-huge) before
+!> any conversion to integer. Non-finite coordinates cannot overflow either: such an agent
+!> is put in cell 1 and its gaps are NaN, which the callers' finiteness checks report.
 module cr_neighbours
+  use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
   use cr_kinds, only: wp
   use cr_contact_set, only: contact_set_t
   use cr_shapes, only: obstacle_distance
   use cr_scene, only: scene_t
   implicit none
   private
-  public :: cell_list_t, build_contacts
+  public :: cell_list_t, build_contacts, grid_size, cell_index
 
   !> Linked-cell structure (reused across steps to avoid reallocation).
   type :: cell_list_t
@@ -40,16 +47,15 @@ contains
     ! -- cell grid over the agents' bounding box
     lo = [huge(1.0_wp), huge(1.0_wp)]; hi = -lo
     do i = 1, na
+      if (.not. all(ieee_is_finite(q(2*i-1:2*i)))) cycle
       lo = min(lo, q(2*i-1:2*i)); hi = max(hi, q(2*i-1:2*i))
     end do
-    cells%side = 2 * radius + cutoff
+    if (lo(1) > hi(1)) then   ! no finite agent
+      lo = 0; hi = 0
+    end if
+    call grid_size(0.5_wp * hi - 0.5_wp * lo, 2 * radius + cutoff, real(4 * na + 64, wp), &
+      cells%side, cells%nx, cells%ny)
     cells%x0 = lo(1); cells%y0 = lo(2)
-    do
-      cells%nx = int((hi(1) - lo(1)) / cells%side) + 1
-      cells%ny = int((hi(2) - lo(2)) / cells%side) + 1
-      if (real(cells%nx, wp) * real(cells%ny, wp) <= real(4 * na + 64, wp)) exit
-      cells%side = cells%side * 1.5_wp
-    end do
     if (allocated(cells%head)) then
       if (size(cells%head) < cells%nx * cells%ny) deallocate(cells%head)
     end if
@@ -73,8 +79,8 @@ contains
       use_i = .true.
       if (present(active)) use_i = active(i)
       if (.not. use_i) cycle
-      cx = min(int((q(2*i-1) - cells%x0) / cells%side), cells%nx - 1)
-      cy = min(int((q(2*i) - cells%y0) / cells%side), cells%ny - 1)
+      cx = cell_index(q(2*i-1), cells%x0, cells%side, cells%nx)
+      cy = cell_index(q(2*i), cells%y0, cells%side, cells%ny)
       do iy = max(cy - 1, 0), min(cy + 1, cells%ny - 1)
         do ix = max(cx - 1, 0), min(cx + 1, cells%nx - 1)
           j = cells%head(iy * cells%nx + ix + 1)
@@ -116,10 +122,40 @@ contains
 
     pure integer function cell_of(a)
       integer, intent(in) :: a
-      integer :: ax, ay
-      ax = min(int((q(2*a-1) - cells%x0) / cells%side), cells%nx - 1)
-      ay = min(int((q(2*a) - cells%y0) / cells%side), cells%ny - 1)
-      cell_of = ay * cells%nx + ax + 1
+      cell_of = cell_index(q(2*a), cells%y0, cells%side, cells%ny) * cells%nx + &
+        cell_index(q(2*a-1), cells%x0, cells%side, cells%nx) + 1
     end function cell_of
   end subroutine build_contacts
+
+  !> Cell side >= side0 and grid nx x ny (nx ny <= max_cells) covering a box of half-extent
+  !> half_ext [2] (finite, >= 0). Real arithmetic throughout; nx, ny <= max_cells.
+  pure subroutine grid_size(half_ext, side0, max_cells, side, nx, ny)
+    real(wp), intent(in) :: half_ext(2), side0, max_cells
+    real(wp), intent(out) :: side
+    integer, intent(out) :: nx, ny
+    real(wp) :: hs, rx, ry
+    ! half side; jump close to the final size at once (the grid of a huge box is coarse), then
+    ! coarsen by factors 1.5 until the count fits
+    hs = max(0.5_wp * side0, maxval(half_ext) / max_cells, sqrt(half_ext(1)) * sqrt(half_ext(2)) / sqrt(max_cells))
+    do
+      rx = real(floor(half_ext(1) / hs), wp) + 1
+      ry = real(floor(half_ext(2) / hs), wp) + 1
+      if (rx * ry <= max_cells) exit
+      hs = hs * 1.5_wp
+    end do
+    side = 2 * hs
+    nx = int(rx); ny = int(ry)
+  end subroutine grid_size
+
+  !> 0-based cell index of coordinate x on a grid of n cells of the given side from x0,
+  !> clamped to 0..n-1 in real arithmetic (no integer overflow for any x; NaN gives 0).
+  pure integer function cell_index(x, x0, side, n) result(c)
+    real(wp), intent(in) :: x, x0, side
+    integer, intent(in) :: n
+    real(wp) :: t
+    t = (0.5_wp * x - 0.5_wp * x0) / (0.5_wp * side)
+    if (.not. ieee_is_finite(t)) t = 0   ! NaN coordinate (or Inf): cell 0
+    t = min(max(t, 0.0_wp), real(n - 1, wp))
+    c = int(t)
+  end function cell_index
 end module cr_neighbours

@@ -20,6 +20,9 @@ module cr_cone
   private
   public :: sparse_columns_t, cone_result_t, gis_build, mcpg_build, cone_project_gram
 
+  !> Tikhonov term of the Gram-form cone projections: G + reg I (the psi are unit vectors)
+  real(wp), parameter :: reg = 1.0e-12_wp
+
   !> Local block of sparse snapshot columns.
   type :: sparse_columns_t
     !> dimension of each column (size of the contact dictionary)
@@ -266,8 +269,11 @@ contains
   !> given G = Psi^T Psi [r, r], the upper Cholesky factor rg of G + eps I (eps = 1e-12 times
   !> the largest diagonal of G: cone generators may be linearly dependent, e.g. psi_1 =
   !> (psi_2 + psi_3) / sqrt(2) while the cone still grows), c = Psi^T x and |x|^2.
-  !> Returns k [r] and the squared residual |x - Psi k|^2 (from the unregularised G).
-  subroutine cone_project_gram(rg, g, c, x2, k, res2, error, passive0, work)
+  !> Returns k [r] and the squared residual |x - Psi k|^2 (from the unregularised G), and
+  !> optionally acc2, a bound on |res2 - exact squared distance to the cone| (see mcpg_build):
+  !>   acc2 = reg |k|^2 + (64 r + 2 n_rows) eps (|x| + |k|_1)^2
+  !> (n_rows: length of the dot products that formed G and c; default 0).
+  subroutine cone_project_gram(rg, g, c, x2, k, res2, error, passive0, work, acc2, n_rows)
     real(wp), intent(in) :: rg(:,:), g(:,:)
     real(wp), intent(in) :: c(:)
     real(wp), intent(in) :: x2
@@ -276,9 +282,11 @@ contains
     type(error_t), allocatable, intent(out) :: error
     logical, intent(in), optional :: passive0(:)
     type(nnls_work_t), intent(inout), optional :: work
+    real(wp), intent(out), optional :: acc2
+    integer, intent(in), optional :: n_rows
     real(wp), allocatable :: b(:)
     type(nnls_stats_t) :: st
-    integer :: r, i
+    integer :: r, i, nr
     r = size(c)
     ! |x - Psi k|^2 + eps |k|^2 = |R k - R^{-T} c|^2 + const
     allocate(b(r))
@@ -288,6 +296,11 @@ contains
     call nnls_solve(rg, b, k, st, error, passive0=passive0, work=work)
     if (allocated(error)) return
     res2 = max(x2 - 2 * dot_product(k, c) + dot_product(k, matmul(g, k)), 0.0_wp)
+    if (present(acc2)) then
+      nr = 0
+      if (present(n_rows)) nr = n_rows
+      acc2 = reg * sum(k**2) + real(64 * r + 2 * nr, wp) * epsilon(1.0_wp) * (sqrt(max(x2, 0.0_wp)) + sum(abs(k)))**2
+    end if
   end subroutine cone_project_gram
 
   !> Modified cone projected greedy (Algorithm 1). psi_r is the normalised residual of the
@@ -296,6 +309,23 @@ contains
   !> reduced to least-distance programming and solved by our LDP/NNLS). All other
   !> projections are cone projections in Gram form (nnls), warm started from the previous
   !> iteration's support.
+  !>
+  !> Accuracy and stopping rule. Each snapshot's squared error res2 = |x - Psi k|^2 comes from a
+  !> Gram-form projection: nnls_solve on (R, R^{-T} c) with R^T R = G + reg I, then the expansion
+  !> |x|^2 - 2 k.c + k.G k. Its distance to the exact squared distance to the cone is bounded by
+  !> acc2 = reg |k|^2 (the Tikhonov term: res2 + reg |k|^2 is the regularised objective)
+  !>      + 64 r eps (|x| + |k|_1)^2 (nnls_solve's stated accuracy, |r| <= |r*| + 32 r eps
+  !>        sum_j |R_j| k_j with |R_j| ~ 1 and |r| <= |x|, and the rounding of the expansion,
+  !>        |G_ij| <= 1, |c_j| <= |x|)
+  !>      + 2 n_rows eps (|x| + |k|_1)^2 (the dot products of length n_rows forming G and c).
+  !> The history records e_r = max over the snapshots not yet selected of sqrt(res2) / n1 and
+  !> a_r = max over the same snapshots of sqrt(acc2) / n1. The exact worst error cannot grow
+  !> with the cone; the computed one satisfies e_{r+1} <= e_r + a_r + a_{r+1} (the regularised
+  !> objective of each snapshot does not grow, so res2 grows by at most reg |k_r|^2 plus the
+  !> rounding at r and r + 1). The construction stops when e_r <= delta, at r_max, when the
+  !> worst snapshot's LSI residual vanishes (note), or when e_r <= a_r: the worst error is at
+  !> the accuracy of the projections themselves and further vectors would be fitted to
+  !> rounding (note, also written to the ROM file and the summary).
   subroutine mcpg_build(env, lam, delta, r_max, res, error)
     type(env_t), intent(in) :: env
     type(sparse_columns_t), intent(in) :: lam
@@ -304,11 +334,11 @@ contains
     type(cone_result_t), intent(out) :: res
     type(error_t), allocatable, intent(out) :: error
     real(wp), allocatable :: x2(:), res2(:), c(:,:), kk(:,:), col(:), psi(:,:), rg(:,:), gm(:,:)
-    real(wp), allocatable :: tmp_err(:), tmp_mean(:), resid(:)
+    real(wp), allocatable :: tmp_err(:), tmp_mean(:), resid(:), acc2(:), tmp_acc(:)
     integer(i8), allocatable :: sig(:)
     logical, allocatable :: used(:)
     type(nnls_work_t) :: work
-    real(wp) :: n1, worst, t0, nrm
+    real(wp) :: n1, worst, t0, nrm, acc_max
     integer(i8) :: gcol
     integer :: r, k, p, j
     t0 = env%wtime()
@@ -321,10 +351,12 @@ contains
     allocate(c(max(r_max, 1), max(lam%n_cols, 1)), kk(max(r_max, 1), max(lam%n_cols, 1)))
     allocate(col(max(lam%n_rows, 1)), resid(max(lam%n_rows, 1)), psi(max(lam%n_rows, 1), max(r_max, 1)))
     allocate(rg(max(r_max, 1), max(r_max, 1)), gm(max(r_max, 1), max(r_max, 1)), sig(r_max))
-    allocate(tmp_err(r_max + 1), tmp_mean(r_max + 1))
+    allocate(tmp_err(r_max + 1), tmp_mean(r_max + 1), tmp_acc(r_max + 1), acc2(max(lam%n_cols, 1)))
     used = .false.; kk = 0; rg = 0; gm = 0
     call column_norms2(lam, x2)
     res2 = x2
+    ! r = 0: res2 = |x|^2 is a sum of at most n_rows squares
+    acc2 = 2 * real(lam%n_rows, wp) * epsilon(1.0_wp) * x2
     call global_argmax(env, lam, res2, worst, gcol, error); if (allocated(error)) return
     n1 = sqrt(max(worst, 0.0_wp))
     r = 0
@@ -334,8 +366,16 @@ contains
     end if
     tmp_err(1) = 1.0_wp
     tmp_mean(1) = mean_relative(env, lam, res2, n1)
+    call global_max(acc_max, error); if (allocated(error)) return
+    tmp_acc(1) = acc_max
     do while (r < r_max)
       if (r > 0 .and. sqrt(max(worst, 0.0_wp)) / n1 <= delta) exit
+      if (r > 0 .and. sqrt(max(worst, 0.0_wp)) / n1 <= tmp_acc(r + 1)) then
+        res%note = "the worst projection error e_R = " // str(sqrt(max(worst, 0.0_wp)) / n1) // &
+          " reached the accuracy of the inner cone projections (" // str(tmp_acc(r + 1)) // &
+          "): further cone vectors would be fitted to rounding"
+        exit
+      end if
       call fetch_column(env, lam, gcol, col, error); if (allocated(error)) return
       call mark_used(gcol)
       ! gamma = Psi k*, k* = argmin |col - Psi k| s.t. k >= 0, col - Psi k >= 0
@@ -354,11 +394,11 @@ contains
         gm(r, j) = gm(j, r)
       end do
       rg(1:r, r) = gm(1:r, r)
-      rg(r, r) = rg(r, r) + 1.0e-12_wp
+      rg(r, r) = rg(r, r) + reg
       do j = 1, r - 1
         rg(j, r) = (rg(j, r) - dot_product(rg(1:j-1, j), rg(1:j-1, r))) / rg(j, j)
       end do
-      rg(r, r) = sqrt(max(rg(r, r) - sum(rg(1:r-1, r)**2), 1.0e-12_wp))
+      rg(r, r) = sqrt(max(rg(r, r) - sum(rg(1:r-1, r)**2), reg))
       ! project every local snapshot onto the new cone
       do k = 1, lam%n_cols
         c(r, k) = 0
@@ -366,7 +406,7 @@ contains
           c(r, k) = c(r, k) + psi(lam%idx(p), r) * lam%val(p)
         end do
         call cone_project_gram(rg(1:r, 1:r), gm(1:r, 1:r), c(1:r, k), x2(k), kk(1:r, k), res2(k), error, &
-          passive0=kk(1:r, k) > 0, work=work)
+          passive0=kk(1:r, k) > 0, work=work, acc2=acc2(k), n_rows=lam%n_rows)
         if (allocated(error)) then
           call prefix_error(error, "mcpg: projection of snapshot " // str(lam%col_offset + k)); return
         end if
@@ -377,10 +417,25 @@ contains
       worst = max(worst, 0.0_wp)
       tmp_err(r + 1) = sqrt(worst) / n1
       tmp_mean(r + 1) = mean_relative(env, lam, res2, n1)
+      call global_max(acc_max, error); if (allocated(error)) return
+      tmp_acc(r + 1) = acc_max
     end do
     call finish()
 
   contains
+
+    !> amax = max over all ranks' snapshots not yet selected of sqrt(acc2) / n1
+    subroutine global_max(amax, error)
+      real(wp), intent(out) :: amax
+      type(error_t), allocatable, intent(out) :: error
+      integer :: kk2, ierr
+      amax = 0
+      do kk2 = 1, lam%n_cols
+        if (.not. used(kk2)) amax = max(amax, sqrt(max(acc2(kk2), 0.0_wp)) / n1)
+      end do
+      call MPI_Allreduce(MPI_IN_PLACE, amax, 1, MPI_DOUBLE_PRECISION, MPI_MAX, env%comm, ierr)
+      if (ierr /= MPI_SUCCESS) call set_error(error, "mcpg: MPI_Allreduce(MAX) of the accuracy failed")
+    end subroutine global_max
 
     subroutine mark_used(g)
       integer(i8), intent(in) :: g
@@ -439,6 +494,11 @@ contains
     subroutine finish()
       res%psi = psi(1:lam%n_rows, 1:r)
       call record_history(res, r, sig, tmp_err, tmp_mean, n1, env%wtime() - t0)
+      if (n1 > 0) then
+        res%err_acc = tmp_acc(1:r + 1)
+      else
+        res%err_acc = [0.0_wp]
+      end if
     end subroutine finish
   end subroutine mcpg_build
 end module cr_cone

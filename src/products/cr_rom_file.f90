@@ -46,6 +46,10 @@ module cr_rom_file
     real(wp), allocatable :: err_max(:)
     !> mean relative projection error over the snapshots, r = 0..R [R + 1]
     real(wp), allocatable :: err_mean(:)
+    !> mCPG only: accuracy a_r of the relative errors after r vectors, r = 0..R [R + 1]: every
+    !> computed relative error of a snapshot not yet selected is within a_r of the exact one
+    !> (see mcpg_build); not allocated for gIS, whose errors are exact sums of squares
+    real(wp), allocatable :: err_acc(:)
     !> wall time of the construction (s)
     real(wp) :: time = 0
     character(len=:), allocatable :: note
@@ -186,6 +190,10 @@ contains
     end if
     call h5%write(g // "/err_max", c%err_max, error); if (allocated(error)) return
     call h5%write(g // "/err_mean", c%err_mean, error); if (allocated(error)) return
+    ! mCPG: accuracy of each err_max entry (see mcpg_build)
+    if (allocated(c%err_acc)) then
+      call h5%write(g // "/err_acc", c%err_acc, error); if (allocated(error)) return
+    end if
     ! written also when R = 0 (empty datasets): a reader finds the same objects in every file
     if (allocated(c%sigma)) then
       call h5%write(g // "/sigma", c%sigma, error); if (allocated(error)) return
@@ -412,6 +420,9 @@ contains
     end if
     call h5%read(g // "/err_max", c%err_max, error); if (allocated(error)) return
     call h5%read(g // "/err_mean", c%err_mean, error); if (allocated(error)) return
+    if (h5%exists(g // "/err_acc")) then
+      call h5%read(g // "/err_acc", c%err_acc, error); if (allocated(error)) return
+    end if
     if (h5%exists(g // "/sigma")) then
       call h5%read(g // "/sigma", c%sigma, error); if (allocated(error)) return
     end if

@@ -16,7 +16,7 @@ module cr_romrun_file
   implicit none
   private
   public :: ROMRUN_SCHEMA, ROMRUN_SCHEMA_VERSION, ROMRUN_VERSIONS_READ, romrun_header_t, romrun_row_t, &
-    romrun_set_t, romrun_t, romrun_writer_t, read_romrun, speedup
+    romrun_set_t, romrun_t, romrun_writer_t, read_romrun, speedup, row_measures_t, EVAC_PCT
 
   character(len=*), parameter :: ROMRUN_SCHEMA = "crowdrom-romrun"
   integer, parameter :: ROMRUN_SCHEMA_VERSION = 1
@@ -36,12 +36,34 @@ module cr_romrun_file
     integer :: uzawa_steps = 0, timing_samples = 0, nc_uz = 0
   end type romrun_header_t
 
+  !> Evacuation fractions (per cent of the agents out of the hall) of the evacuation times.
+  integer, parameter :: EVAC_PCT(2) = [50, 90]
+
+  !> Accuracy aggregates of one row (one setting on one set of samples), computed by
+  !> cr_rom_metrics; -1: not available.
+  type :: row_measures_t
+    integer :: n_samples = 0, n_diverged = 0
+    real(wp) :: e_avg = -1, e_max = -1, e_disp = -1, mobility = -1
+    real(wp) :: overlap_aa = 0, overlap_aw = 0
+    !> mean relative error of the evacuation times |t_rom - t_fom| / max(t_fom, h) over the
+    !> samples where both reach the fraction (t_n of them); t_rom_missed: samples where the
+    !> full model reaches it and the reduced one does not; t_fom_missed: the full model does
+    !> not reach it (no reference)
+    real(wp) :: t_err(2) = -1
+    integer :: t_n(2) = 0, t_rom_missed(2) = 0, t_fom_missed(2) = 0
+    integer :: not_left = 0, not_left_fom = -1
+  end type row_measures_t
+
   !> One row of the sweep table (one setting on one set).
   type :: romrun_row_t
     integer :: setting = 0, n = 0, r = 0, nb = 0, m(3) = 0
     character(len=8) :: set = '', hyper = '', contacts = '', solver = ''
     real(wp) :: e_avg = -1, e_max = -1, e_proj = -1, overlap = 0, t_step = 0, mobility = -1
     integer :: not_left = 0, not_left_fom = -1, infeasible = 0, capped = 0, extrapolating = 0
+    !> samples whose reduced trajectory diverged (stopped; excluded from every average)
+    integer :: diverged = 0
+    !> the accuracy measures of the row (cr_rom_metrics)
+    type(row_measures_t) :: meas
   end type romrun_row_t
 
   !> One setting run on one set of samples (n samples, N_T steps, nb basis vectors).
@@ -54,12 +76,21 @@ module cr_romrun_file
     !> the setting's summary attributes are stored with this set (the last set run)
     logical :: summary = .false.
     real(wp) :: e_avg = -1, t_step = 0, speedup_uzawa = 0, speedup_exact = 0
+    integer :: samples_diverged = 0
     !> parameters [n_mu, n]; coefficients [nb, N_T n]; multiplier coefficients [R or 0, N_T n];
     !> positions [n_dof, (N_T + 1) n]; relative position error in time [N_T + 1, n]
     real(wp), allocatable :: params(:,:), alpha(:,:), beta(:,:), positions(:,:), err_time(:,:)
     !> per sample [n]
     real(wp), allocatable :: e_mu(:), e_proj(:), max_overlap(:), mobility(:), time(:)
     integer, allocatable :: n_not_left(:), n_not_left_fom(:), n_infeasible(:), n_capped(:), extrapolating(:)
+    !> step at which the reduced trajectory diverged (0: never) [n]
+    integer, allocatable :: diverged_step(:)
+    !> displacement error, deepest agent-agent and agent-wall overlaps [n]
+    real(wp), allocatable :: e_disp(:), overlap_aa(:), overlap_aw(:)
+    !> agents out at t = nu h [N_T + 1, n] and the times of EVAC_PCT % out [2, n], reduced and
+    !> (with a full-order reference) full
+    integer, allocatable :: evac_rom(:,:), evac_fom(:,:)
+    real(wp), allocatable :: t_out_rom(:,:), t_out_fom(:,:)
   end type romrun_set_t
 
   !> A ROM-run file as read back.
@@ -149,6 +180,7 @@ contains
       call h5%write_attr(g, "m_d", s%m(3), error); if (allocated(error)) return
       if (s%summary) then
         call h5%write_attr(g, "E_avg", s%e_avg, error); if (allocated(error)) return
+        call h5%write_attr(g, "samples_diverged", s%samples_diverged, error); if (allocated(error)) return
         call h5%write_attr(g, "t_step", s%t_step, error); if (allocated(error)) return
         call h5%write_attr(g, "speedup_uzawa", s%speedup_uzawa, error); if (allocated(error)) return
         call h5%write_attr(g, "speedup_exact", s%speedup_exact, error); if (allocated(error)) return
@@ -171,6 +203,18 @@ contains
       call h5%write(g // "/n_capped", s%n_capped, error); if (allocated(error)) return
       call h5%write(g // "/extrapolating", s%extrapolating, error); if (allocated(error)) return
       call h5%write(g // "/time", s%time, error); if (allocated(error)) return
+      call h5%write(g // "/diverged_step", s%diverged_step, error); if (allocated(error)) return
+      call h5%write(g // "/E_disp", s%e_disp, error); if (allocated(error)) return
+      call h5%write(g // "/max_overlap_agents", s%overlap_aa, error); if (allocated(error)) return
+      call h5%write(g // "/max_overlap_walls", s%overlap_aw, error); if (allocated(error)) return
+      ! evacuation: agents out at t = nu h [n_S, N_T + 1] and the times of EVAC_PCT % out [n_S, 2]
+      call h5%write(g // "/evac_rom", s%evac_rom, error); if (allocated(error)) return
+      call h5%write(g // "/t_out_rom", s%t_out_rom, error); if (allocated(error)) return
+      if (allocated(s%evac_fom)) then
+        call h5%write(g // "/evac_fom", s%evac_fom, error); if (allocated(error)) return
+        call h5%write(g // "/t_out_fom", s%t_out_fom, error); if (allocated(error)) return
+      end if
+      call h5%write_attr(g // "/evac_rom", "evac_pct", EVAC_PCT, error); if (allocated(error)) return
     end associate
   end subroutine writer_write_set
 
@@ -180,7 +224,7 @@ contains
     type(romrun_header_t), intent(in) :: hdr
     type(romrun_row_t), intent(in) :: rows(:)
     type(error_t), allocatable, intent(out) :: error
-    integer :: k
+    integer :: k, j
     associate (h5 => this%h5)
       call h5%make_group("table", error); if (allocated(error)) return
       call h5%write("table/setting", rows%setting, error); if (allocated(error)) return
@@ -197,6 +241,22 @@ contains
       call h5%write("table/infeasible_steps", rows%infeasible, error); if (allocated(error)) return
       call h5%write("table/capped_steps", rows%capped, error); if (allocated(error)) return
       call h5%write("table/t_step_rom", rows%t_step, error); if (allocated(error)) return
+      call h5%write("table/samples_diverged", rows%diverged, error); if (allocated(error)) return
+      call h5%write("table/E_disp", rows%meas%e_disp, error); if (allocated(error)) return
+      call h5%write("table/max_overlap_agents", rows%meas%overlap_aa, error); if (allocated(error)) return
+      call h5%write("table/max_overlap_walls", rows%meas%overlap_aw, error); if (allocated(error)) return
+      do k = 1, size(EVAC_PCT)
+        call h5%write("table/t" // str(EVAC_PCT(k)) // "_err", [(rows(j)%meas%t_err(k), j = 1, size(rows))], error)
+        if (allocated(error)) return
+        call h5%write("table/t" // str(EVAC_PCT(k)) // "_n", [(rows(j)%meas%t_n(k), j = 1, size(rows))], error)
+        if (allocated(error)) return
+        call h5%write("table/t" // str(EVAC_PCT(k)) // "_rom_missed", [(rows(j)%meas%t_rom_missed(k), &
+          j = 1, size(rows))], error)
+        if (allocated(error)) return
+        call h5%write("table/t" // str(EVAC_PCT(k)) // "_fom_missed", [(rows(j)%meas%t_fom_missed(k), &
+          j = 1, size(rows))], error)
+        if (allocated(error)) return
+      end do
       call h5%write("table/speedup_uzawa", [(speedup(hdr%t_uz, rows(k)%t_step), k = 1, size(rows))], error)
       if (allocated(error)) return
       call h5%write("table/speedup_exact", [(speedup(hdr%t_ex, rows(k)%t_step), k = 1, size(rows))], error)
@@ -294,6 +354,7 @@ contains
           s%summary = .not. allocated(e2)
           if (allocated(e2)) deallocate(e2)
           if (s%summary) then
+            call h5%read_attr(g, "samples_diverged", s%samples_diverged, error); if (allocated(error)) goto 9
             call h5%read_attr(g, "t_step", s%t_step, error); if (allocated(error)) goto 9
             call h5%read_attr(g, "speedup_uzawa", s%speedup_uzawa, error); if (allocated(error)) goto 9
             call h5%read_attr(g, "speedup_exact", s%speedup_exact, error); if (allocated(error)) goto 9
@@ -326,6 +387,20 @@ contains
           call read_ivec(g // "/n_infeasible", s%n_infeasible); if (allocated(error)) goto 9
           call read_ivec(g // "/n_capped", s%n_capped); if (allocated(error)) goto 9
           call read_ivec(g // "/extrapolating", s%extrapolating); if (allocated(error)) goto 9
+          call read_ivec(g // "/diverged_step", s%diverged_step); if (allocated(error)) goto 9
+          call read_vec(g // "/E_disp", s%e_disp); if (allocated(error)) goto 9
+          call read_vec(g // "/max_overlap_agents", s%overlap_aa); if (allocated(error)) goto 9
+          call read_vec(g // "/max_overlap_walls", s%overlap_aw); if (allocated(error)) goto 9
+          call need_dims(h5, path, g // "/evac_rom", [int(nt + 1, i8), int(n, i8)], "(n_steps + 1) x n_samples", &
+            error); if (allocated(error)) goto 9
+          call h5%read(g // "/evac_rom", s%evac_rom, error); if (allocated(error)) goto 9
+          call h5%read(g // "/t_out_rom", s%t_out_rom, error); if (allocated(error)) goto 9
+          if (h5%exists(g // "/evac_fom")) then
+            call need_dims(h5, path, g // "/evac_fom", [int(nt + 1, i8), int(n, i8)], "(n_steps + 1) x n_samples", &
+              error); if (allocated(error)) goto 9
+            call h5%read(g // "/evac_fom", s%evac_fom, error); if (allocated(error)) goto 9
+            call h5%read(g // "/t_out_fom", s%t_out_fom, error); if (allocated(error)) goto 9
+          end if
           g = "setting_" // str(ks)
         end associate
       end do
@@ -399,6 +474,10 @@ contains
       run%rows%capped = iv
       call h5%read("table/t_step_rom", rv, error); if (allocated(error)) return
       run%rows%t_step = rv
+      call h5%read("table/samples_diverged", iv, error); if (allocated(error)) return
+      run%rows%diverged = iv
+      call h5%read("table/E_disp", rv, error); if (allocated(error)) return
+      run%rows%meas%e_disp = rv
       do k = 1, nr
         if (run%rows(k)%setting < 1 .or. run%rows(k)%setting > run%hdr%n_settings) then
           call product_error(path, "dataset 'table/setting': setting " // str(run%rows(k)%setting) // &

@@ -2,8 +2,12 @@
 !>   min |alpha - vhat|^2  s.t.  bhat alpha <= dhat,
 !> vhat = V^T v(q), bhat = W^T B(q) V, dhat = W^T d(q), by one of the variants
 !>   'none'   exact projection: every agent's desired velocity, every row of the cone's support;
-!>   'eim'    empirical interpolation: the m_k interpolation entries of each term, then
-!>            precomputed reduced images of the EIM modes (cost O(m (R Nb)) per step);
+!>   'eim'    empirical interpolation: the m_k interpolation entries of each term; the contact
+!>            normals of every support row are reconstructed from the s2 modes and
+!>            renormalised to unit length (a row whose interpolated normal is shorter than
+!>            1/2 has lost its direction and is evaluated exactly), then the rows are
+!>            assembled as in the exact variant: O(p2 (m_b + Nb)) per step (README
+!>            "Diverged reduced trajectories" says why the raw interpolated rows diverge);
 !>   'eq'     empirical quadrature: weighted sums over the m_k quadrature entries;
 !>   'online' (contacts = 'online') the rows of B V of the contacts near in the reduced
 !>            positions at this step (cell-list search, as the full-order model), each
@@ -24,7 +28,7 @@ module cr_reduced_ops
   use cr_eim, only: eim_t, eim_interp_matrix
   implicit none
   private
-  public :: eval_ctx_t, reduced_ops_t, make_reduced_ops, HYPER_NAMES
+  public :: eval_ctx_t, reduced_ops_t, make_reduced_ops, HYPER_NAMES, eim_exact_rows
 
   character(len=8), parameter :: HYPER_NAMES(3) = [character(len=8) :: 'none', 'eim', 'eq']
 
@@ -103,10 +107,14 @@ module cr_reduced_ops
   type, extends(reduced_ops_t) :: ops_eim_t
     integer, allocatable :: idx1(:), idx2(:), idx3(:)
     real(wp), allocatable :: minv1(:,:), minv2(:,:), minv3(:,:)
-    !> reduced images of the modes: a1 [nb, m1], a2 [R nb, m2], a3 [R, m3]
-    real(wp), allocatable :: a1(:,:), a2(:,:), a3(:,:)
+    !> reduced images of the modes: a1 [nb, m1], a3 [R, m3]; s2 modes u2 [p2, m2]
+    real(wp), allocatable :: a1(:,:), a3(:,:), u2(:,:)
     integer, allocatable :: ia(:), ib(:), ob(:), s2_row(:), s2_dof(:)
     real(wp), allocatable :: s2_sgn(:)
+    !> s2 entries of each support row (CSR: row l has r2e(r2p(l)+1 : r2p(l+1)))
+    integer, allocatable :: r2p(:), r2e(:)
+    !> rows evaluated exactly because their interpolated normal was shorter than 1/2
+    integer :: n_exact_rows = 0
   contains
     procedure :: assemble => eim_assemble
   end type ops_eim_t
@@ -186,7 +194,9 @@ contains
       ops%s2_row = pair%terms%s2_row; ops%s2_dof = pair%terms%s2_dof; ops%s2_sgn = pair%terms%s2_sgn
       call eim_setup(ops, pair, m, error)
       if (allocated(error)) return
-      call mark(ops%idx1, ops%s2_row(ops%idx2), ops%idx3, ops%ia, ops%ib)
+      ! every support row's agents: a row whose interpolated normal lost its direction is
+      ! evaluated exactly
+      call mark(ops%idx1, [(k, k = 1, size(ops%ia))], ops%idx3, ops%ia, ops%ib)
     type is (ops_eq_t)
       call choose_m('EQ', [(pair%eq(k)%m, k = 1, 3)], [pair%terms%p(1), pair%terms%p(3), pair%terms%p(3)], &
         m, error)
@@ -382,8 +392,7 @@ contains
     integer, intent(in) :: m(3)
     type(error_t), allocatable, intent(out) :: error
     type(eim_t) :: e
-    integer :: j, i, mm, nb, r
-    nb = pair%nb; r = pair%r
+    integer :: j, i
     do j = 1, 3
       e%p = pair%eim(j)%p
       e%m = m(j)
@@ -405,15 +414,24 @@ contains
         if (m(j) > 0) then
           call eim_interp_matrix(e, m(j), ops%minv2, error); if (allocated(error)) return
         end if
-        allocate(ops%a2(r * nb, m(j)))
-        ops%a2 = 0
-        do mm = 1, m(j)
-          do i = 1, e%p
-            if (e%basis(i, mm) == 0) cycle
-            call add_outer(ops%a2(:, mm), e%basis(i, mm), pair%terms%w(pair%terms%s2_row(i), :), &
-              pair%v(pair%terms%s2_dof(i), :))
-          end do
+        ops%u2 = e%basis
+        ! entries of each support row
+        allocate(ops%r2p(size(pair%terms%ia) + 1), ops%r2e(e%p))
+        ops%r2p = 0
+        do i = 1, e%p
+          ops%r2p(pair%terms%s2_row(i) + 1) = ops%r2p(pair%terms%s2_row(i) + 1) + 1
         end do
+        do i = 1, size(pair%terms%ia)
+          ops%r2p(i + 1) = ops%r2p(i + 1) + ops%r2p(i)
+        end do
+        block
+          integer, allocatable :: fill(:)
+          fill = ops%r2p(1:size(pair%terms%ia))
+          do i = 1, e%p
+            fill(pair%terms%s2_row(i)) = fill(pair%terms%s2_row(i)) + 1
+            ops%r2e(fill(pair%terms%s2_row(i))) = i
+          end do
+        end block
       case (3)
         ops%idx3 = e%idx
         if (m(j) > 0) then
@@ -424,20 +442,6 @@ contains
       deallocate(e%basis, e%idx)
     end do
   end subroutine eim_setup
-
-  !> a [R * nb] viewed as [R, nb]: a += s * x y^T (x [R], y [nb]); skips zero entries of x.
-  pure subroutine add_outer(a, s, x, y)
-    real(wp), intent(inout) :: a(:)
-    real(wp), intent(in) :: s, x(:), y(:)
-    integer :: i, j, r
-    r = size(x)
-    do i = 1, r
-      if (x(i) == 0) cycle
-      do j = 1, size(y)
-        a(i + (j - 1) * r) = a(i + (j - 1) * r) + s * x(i) * y(j)
-      end do
-    end do
-  end subroutine add_outer
 
   !> Desired velocity of agent a at q.
   function agent_desired(ctx, q, a) result(va)
@@ -515,7 +519,8 @@ contains
     real(wp), intent(out) :: vhat(:)
     real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
     real(wp) :: s(max(this%m(1), this%m(2), this%m(3), 1)), va(2), gap, g(2), c(max(this%m(2), 1))
-    integer :: j, i, l
+    real(wp) :: st(size(this%s2_row)), gs(2), cnt(2), nrm, bv(this%nb)
+    integer :: j, i, l, p, e, comp
     call ensure(bhat, dhat, this%r, this%nb)
     ! s1 at the interpolation dofs
     do j = 1, this%m(1)
@@ -534,11 +539,33 @@ contains
       call eval_contact(ctx%scene, q, ctx%radius, this%ia(l), this%ib(l), this%ob(l), gap, g)
       s(j) = this%s2_sgn(i) * ctx%h * g(2 - mod(this%s2_dof(i), 2))
     end do
+    bhat = 0
     if (this%m(2) > 0) then
       c(1:this%m(2)) = matmul(this%minv2, s(1:this%m(2)))
-      bhat = reshape(matmul(this%a2, c(1:this%m(2))), [this%r, this%nb])
-    else
-      bhat = 0
+      st = matmul(this%u2(:, 1:this%m(2)), c(1:this%m(2)))
+      ! each support row: interpolated normal (mean over its slots of entry / (sign h)),
+      ! renormalised; exact when shorter than 1/2 (its error is then > 1/2 anyway)
+      do l = 1, size(this%ia)
+        gs = 0; cnt = 0
+        do p = this%r2p(l) + 1, this%r2p(l + 1)
+          e = this%r2e(p)
+          comp = 2 - mod(this%s2_dof(e), 2)
+          gs(comp) = gs(comp) + st(e) / (this%s2_sgn(e) * ctx%h)
+          cnt(comp) = cnt(comp) + 1
+        end do
+        gs = gs / max(cnt, 1.0_wp)
+        nrm = norm2(gs)
+        if (nrm >= 0.5_wp) then
+          g = gs / nrm
+        else
+          call eval_contact(ctx%scene, q, ctx%radius, this%ia(l), this%ib(l), this%ob(l), gap, g)
+          this%n_exact_rows = this%n_exact_rows + 1
+        end if
+        bv = contact_row_image(this%v, this%ia(l), this%ib(l), g, ctx%h)
+        do p = this%wp0(l) + 1, this%wp0(l + 1)
+          bhat(this%wk(p), :) = bhat(this%wk(p), :) + this%wv(p) * bv
+        end do
+      end do
     end if
     ! s3 at the interpolation rows
     do j = 1, this%m(3)
@@ -596,6 +623,17 @@ contains
       end do
     end do
   end subroutine eq_assemble
+
+  !> Rows the EIM assembly evaluated exactly since `ops` was made (interpolated normal shorter
+  !> than 1/2); 0 for the other variants.
+  integer function eim_exact_rows(ops) result(n)
+    class(reduced_ops_t), intent(in) :: ops
+    n = 0
+    select type (ops)
+    type is (ops_eim_t)
+      n = ops%n_exact_rows
+    end select
+  end function eim_exact_rows
 
   !> Allocate bhat [r, nb], dhat [r] if needed.
   subroutine ensure(bhat, dhat, r, nb)

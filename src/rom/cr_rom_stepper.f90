@@ -11,6 +11,7 @@ module cr_rom_stepper
   use cr_strings, only: str
   use cr_nnls, only: ldp_solve, ldp_stats_t, nnls_work_t
   use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t
+  use cr_rom_guard, only: rom_guard_t
   implicit none
   private
   public :: rom_solver_cfg_t, rom_traj_t, run_trajectory, reduced_positions
@@ -37,12 +38,16 @@ module cr_rom_stepper
     real(wp) :: max_violation = 0
     !> wall time of the stepping (seconds)
     real(wp) :: time = 0
+    !> first step whose positions the divergence guard refused (0: none); the stepping
+    !> stopped there and alpha(:, diverged_step:) = 0 (positions frozen at step - 1)
+    integer :: diverged_step = 0
   end type rom_traj_t
 
 contains
 
-  !> Run n_steps reduced steps from q0 [n_dof].
-  subroutine run_trajectory(ops, ctx, q0, n_steps, scfg, traj, error)
+  !> Run n_steps reduced steps from q0 [n_dof]. With `guard`, every step is checked (cr_rom_guard)
+  !> and the stepping stops at the first diverged step (traj%diverged_step).
+  subroutine run_trajectory(ops, ctx, q0, n_steps, scfg, traj, error, guard)
     class(reduced_ops_t), intent(inout) :: ops
     type(eval_ctx_t), intent(in) :: ctx
     real(wp), intent(in) :: q0(:)
@@ -50,6 +55,7 @@ contains
     type(rom_solver_cfg_t), intent(in) :: scfg
     type(rom_traj_t), intent(out) :: traj
     type(error_t), allocatable, intent(out) :: error
+    type(rom_guard_t), intent(in), optional :: guard
     real(wp), allocatable :: q(:), acc(:), vhat(:), alpha(:), bhat(:,:), dhat(:), lam(:), gram(:,:)
     type(nnls_work_t) :: work
     type(ldp_stats_t) :: st
@@ -75,6 +81,12 @@ contains
           q(2*a-1) = q0(2*a-1) + ctx%h * dot_product(ops%v(2*a-1, :), acc)
           q(2*a) = q0(2*a) + ctx%h * dot_product(ops%v(2*a, :), acc)
         end do
+      end if
+      if (present(guard) .and. nu > 1) then
+        ! the positions the previous step produced (those the assembly reads)
+        if (.not. guard%agents_ok(q, ops%agents)) then
+          traj%diverged_step = nu - 1; exit
+        end if
       end if
       call ops%assemble(ctx, q, vhat, bhat, dhat)
       traj%max_rows = max(traj%max_rows, size(dhat))
@@ -116,7 +128,16 @@ contains
       traj%alpha(:, nu) = alpha
       if (size(traj%beta, 1) == size(lam)) traj%beta(:, nu) = lam
       acc = acc + alpha
+      if (present(guard)) then
+        if (.not. guard%coeffs_ok(alpha, acc, ctx%h)) then
+          traj%diverged_step = nu; exit
+        end if
+      end if
     end do
+    if (traj%diverged_step > 0) then
+      traj%alpha(:, traj%diverged_step:) = 0
+      traj%beta(:, traj%diverged_step:) = 0
+    end if
     call system_clock(c1)
     traj%time = real(c1 - c0, wp) / real(rate, wp)
   end subroutine run_trajectory

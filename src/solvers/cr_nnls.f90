@@ -17,6 +17,17 @@
 !>   coefficient is not positive (the round-off trap that makes textbook Lawson-Hanson cycle).
 !>   Refusals are cleared whenever the passive set changes, so they never hide a real descent
 !>   direction for long; the iteration count is capped in any case.
+!> - Optimality test (Lawson-Hanson's, in the orthogonal complement of the factorisation): the
+!>   residual of the passive least-squares solution is formed as r = Q(:, k+1:m) (Q^T b)(k+1:m)
+!>   and w_j = a_j^T r for the inactive columns. Its rounding is about m eps |a_j| |r|, relative
+!>   to the current residual (a_j^T (b - A_P x_P) would carry eps |a_j| |b| whatever the true
+!>   gradient, and hide the 1e-20..1e-15 gradients of nearly dependent columns of
+!>   ill-conditioned problems). A column may enter when w_j > 16 m eps |r| (scaled units, columns
+!>   of norm < 1): the cosine between a_j and r exceeds the dependence threshold below, so a
+!>   column that passes it is never refused as dependent. At convergence every inactive column
+!>   has a_j^T r <= 16 m eps |a_j| |r|, hence (convexity) |r| <= |r*| + 32 m eps sum_j |a_j| x*_j
+!>   for any optimal x*, plus the backward error of the factorisation (a few m eps |b|): the
+!>   optimal objective to rounding, whatever the conditioning and also when x is not unique.
 !> - Columns are held in compressed sparse form (only non-zeros), which costs nothing for dense
 !>   data and makes the contact matrices (5 non-zeros per column) cheap.
 !> - The returned x is always >= 0 and the statistics (residual, KKT measures, n_passive) are
@@ -229,7 +240,7 @@ contains
     type(nnls_stats_t), intent(inout) :: stats
     logical, intent(in), optional :: passive0(:)
     integer :: k, j, t, p, it
-    real(wp) :: tolw, wmax, bn, eps
+    real(wp) :: wmax, bn, eps, rnorm
     logical :: ok, changed
 
     eps = epsilon(1.0_wp)
@@ -253,7 +264,6 @@ contains
       call finish()
       return
     end if
-    tolw = 32.0_wp * eps * sqrt(real(m, wp)) * bn
 
     ! ---- warm start: factor the guessed passive set, then drop non-positive coefficients
     if (present(passive0)) then
@@ -281,8 +291,9 @@ contains
     it = 0
     stats%converged = .false.
     outer: do
-      call gradient(k)
-      wmax = tolw
+      ! optimality test in the orthogonal complement of the factorisation (see nnls_solve)
+      call complement_gradient(k, rnorm)
+      wmax = 16.0_wp * real(m, wp) * eps * rnorm
       t = 0
       do j = 1, n
         if (wk%pos(j) /= 0 .or. wk%refused(j) .or. wk%cs(j) == 0.0_wp) cycle
@@ -365,7 +376,35 @@ contains
       end do
     end subroutine solve_r
 
-    !> res = b - A_P x_P (scaled), w = A^T res (scaled)
+    !> The residual of the least-squares solution on the passive set as the factorisation
+    !> represents it, res = Q(:, kk+1:m) (Q^T b)(kk+1:m), its norm rn = |(Q^T b)(kk+1:m)|, and
+    !> w_j = a_j^T res for the columns not in the passive set (scaled units). Unlike
+    !> a_j^T (b - A_P x_P), whose rounding is about eps |a_j| |b| whatever the true gradient,
+    !> this is accurate to about m eps |a_j| |res|: a column nearly in the span of A_P has
+    !> Q(:, kk+1:m)^T a_j small and a correspondingly small, correctly signed w_j.
+    !> O(m (m - kk) + nnz). Valid when x(plist(1:kk)) is that least-squares solution.
+    subroutine complement_gradient(kk, rn)
+      integer, intent(in) :: kk
+      real(wp), intent(out) :: rn
+      integer :: cc, jj, ii
+      real(wp) :: s
+      wk%res(1:m) = 0.0_wp
+      do cc = kk + 1, m
+        if (wk%qtb(cc) /= 0.0_wp) wk%res(1:m) = wk%res(1:m) + wk%qtb(cc) * wk%q(1:m, cc)
+      end do
+      rn = 0.0_wp
+      if (kk < m) rn = norm2(wk%qtb(kk + 1:m))
+      do jj = 1, n
+        if (wk%pos(jj) /= 0) cycle
+        s = 0.0_wp
+        do ii = wk%col(jj), wk%col(jj + 1) - 1
+          s = s + wk%val(ii) * wk%res(wk%row(ii))
+        end do
+        wk%w(jj) = s
+      end do
+    end subroutine complement_gradient
+
+    !> res = b - A_P x_P (scaled), w = A^T res (scaled): the statistics of the returned x
     subroutine gradient(kk)
       integer, intent(in) :: kk
       integer :: pp, jj, ii
@@ -427,7 +466,9 @@ contains
   !> u is formed as v - Bm^T lambda, so stationarity holds to rounding.
   !> Accuracy: den = 1 / (1 + |x'|^2), and x' carries a relative error ~ eps / den, so when
   !> den < 1/4 the balance s is multiplied by |x'| and the NNLS solved again (warm started);
-  !> the LDP is declared infeasible only if den is still at rounding level after that.
+  !> the LDP is declared infeasible only if den is still at rounding level after that: below
+  !> the rounding of its own sum, or below (64 (n + 1) eps sum_j |E_j| y_j)^2, the square of the
+  !> residual nnls_solve guarantees on a consistent problem (E y = f solvable: the Farkas case).
   !>
   !> Infeasible systems. The violation sigma = (Bm u - d)^+ is minimised in the least-squares
   !> sense, and among the minimisers the point closest to v is returned:
@@ -657,7 +698,7 @@ contains
     type(nnls_work_t), intent(inout) :: wk
     logical, intent(out) :: feasible
     integer :: mc, n, i, j, pass, it1
-    real(wp) :: gmax, emax, s, den, cancel
+    real(wp) :: gmax, emax, s, den, cancel, ysum
     type(nnls_stats_t) :: st1
 
     mc = size(bm, 1); n = size(bm, 2)
@@ -693,11 +734,14 @@ contains
       stats%nnls = st1
       stats%nnls%iterations = it1
       ! den = -r_{n+1} = 1 - (E y)_{n+1} = 1 / (1 + |x'|^2); cancel bounds its rounding error
+      ! ysum = sum_j |E_j| y_j bounds the rounding-level residual the NNLS can reach (see below)
       den = 1.0_wp
       cancel = 1.0_wp
+      ysum = 1.0_wp
       do j = 1, mc
         den = den - wk%e(n + 1, j) * wk%y(j)
         cancel = cancel + abs(wk%e(n + 1, j) * wk%y(j))
+        if (wk%y(j) > 0.0_wp) ysum = ysum + norm2(wk%e(1:n + 1, j)) * wk%y(j)
       end do
       ! |x'| >> 1 loses accuracy (relative error ~ eps / den): rescale so that |x'| ~ 1 and
       ! solve again, warm started (a second pass with den ~ eps confirms infeasibility)
@@ -706,7 +750,11 @@ contains
       s = scale(1.0_wp, exponent(s))
       wk%p0(1:mc) = wk%y(1:mc) > 0.0_wp
     end do
-    if (den > 64.0_wp * epsilon(1.0_wp) * sqrt(real(mc, wp)) * cancel) then
+    ! Infeasible when den cannot be told from 0: below the rounding of its own sum (cancel), or
+    ! den = |r|^2 below the square of the residual nnls_solve guarantees for a consistent
+    ! problem, |r| <= 32 m eps sum_j |E_j| y_j with m = n + 1 (taken twice as a margin)
+    if (den > max(64.0_wp * epsilon(1.0_wp) * sqrt(real(mc, wp)) * cancel, &
+                  (64.0_wp * real(n + 1, wp) * epsilon(1.0_wp) * ysum)**2)) then
       lambda = (s / den) * wk%y(1:mc)
       u = v
       do j = 1, mc
