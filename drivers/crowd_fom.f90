@@ -14,6 +14,8 @@ program crowd_fom
   use cr_cli, only: cli_t
   use cr_program, only: program_start, program_finish, log_level_of
   use cr_config, only: config_t, read_config, config_echo
+  use cr_namelist_text, only: namelist_text_t
+  use cr_inputs, only: check_input_groups
   use cr_config_check, only: check_config
   use cr_fom, only: fom_t, step_record_t
   use cr_fom_file, only: fom_writer_t
@@ -23,6 +25,7 @@ program crowd_fom
   type(logger_t) :: log
   type(cli_t) :: cli
   type(config_t) :: cfg
+  type(namelist_text_t) :: nml
   type(error_t), allocatable :: error
   integer :: code
 
@@ -32,7 +35,8 @@ program crowd_fom
     code = program_finish(env, log, error)
     stop
   end if
-  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error)
+  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, nml)
+  if (.not. allocated(error)) call check_input_groups(nml, error)
   if (.not. allocated(error)) call check_config(cfg, error)
   if (.not. allocated(error)) then
     log%level = log_level_of(cfg%output%log_level)

@@ -3,7 +3,7 @@
 !>   mpirun -np P crowd_offline input.nml [--summary FILE]
 !>
 !> Stages: read the training snapshots (each rank its block of samples), velocity POD
-!> (&offline pod_method), multiplier cone (gIS or mCPG, optionally both for comparison),
+!> (&pod method), multiplier cone (gIS or mCPG, optionally both for comparison),
 !> supremizer enrichment (PGA), reduced inf-sup table, ROM file (&offline rom_file).
 program crowd_offline
   use cr_kinds, only: wp
@@ -14,6 +14,7 @@ program crowd_offline
   use cr_cli, only: cli_t
   use cr_program, only: program_start, program_finish, log_level_of
   use cr_config, only: config_t, read_config, config_echo
+  use cr_inputs, only: check_input_groups
   use cr_config_check, only: check_config
   use cr_namelist_text, only: namelist_text_t
   use cr_offline_config, only: offline_cfg_t, read_offline, check_offline, offline_echo
@@ -43,6 +44,7 @@ program crowd_offline
     stop
   end if
   if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, nml)
+  if (.not. allocated(error)) call check_input_groups(nml, error)
   if (.not. allocated(error)) call check_config(cfg, error)
   if (.not. allocated(error)) call read_offline(nml, ocfg, error)
   if (.not. allocated(error)) call check_offline(cli%input, ocfg, error)
@@ -98,7 +100,7 @@ contains
     eps = ocfg%pod_energy
     nmodes = ocfg%pod_n
     if (nmodes > 0 .and. nmodes > data%n_dof) then
-      call set_error(error, "&offline: pod_n = " // str(nmodes) // " is larger than the number of velocity " // &
+      call set_error(error, "&pod: n = " // str(nmodes) // " is larger than the number of velocity " // &
         "dofs (" // str(data%n_dof) // ")", 2)
     end if
     if (collective_fail()) return
@@ -131,7 +133,7 @@ contains
       end if
     end select
     if (collective_fail()) return
-    if (nmodes > 0 .and. pod%n_modes < nmodes) call log%warn("pod_n = " // str(nmodes) // &
+    if (nmodes > 0 .and. pod%n_modes < nmodes) call log%warn("&pod n = " // str(nmodes) // &
       " exceeds the numerical rank of the snapshots: " // str(pod%n_modes) // " modes kept")
     tab%t_pod = env%wtime() - t0
     n_pod = pod%n_modes
@@ -142,8 +144,8 @@ contains
       if (.not. (pod%total_energy > 0)) then
         call log%warn("POD: the velocity snapshots are all zero (a crowd at rest): no POD mode")
       else
-        call log%warn("POD: pod_energy = " // str(eps) // " keeps no POD mode (1 - retained energy <= " // &
-          "pod_energy already with N = 0)")
+        call log%warn("POD: &pod energy = " // str(eps) // " keeps no POD mode (1 - retained energy <= " // &
+          "energy already with N = 0)")
       end if
     end if
     call log%stage_end()
@@ -307,7 +309,7 @@ contains
     end do
   end subroutine pod_compare
 
-  !> Build the pairs of &offline rom_n / rom_r (default: one pair, all POD modes and the
+  !> Build the pairs of &pairs n / r (default: one pair, all POD modes and the
   !> whole cone, which reuses the enrichment v_full / pga_full already computed).
   subroutine prepare_pairs(data_ref, phi, scone, v_full, pga_full, pairs, error)
     type(offline_data_t), intent(in) :: data_ref
@@ -329,12 +331,12 @@ contains
     allocate(pairs(size(nn)))
     do k = 1, size(nn)
       if (nn(k) > size(phi, 2)) then
-        call set_error(error, cli%input // ": &offline: rom_n(" // str(k) // ") = " // str(nn(k)) // &
-          " exceeds the " // str(size(phi, 2)) // " POD modes kept (pod_n / pod_energy)", 2); return
+        call set_error(error, cli%input // ": &pairs: n(" // str(k) // ") = " // str(nn(k)) // &
+          " exceeds the " // str(size(phi, 2)) // " POD modes kept (&pod n / energy)", 2); return
       end if
       if (rr(k) > scone%r) then
-        call set_error(error, cli%input // ": &offline: rom_r(" // str(k) // ") = " // str(rr(k)) // &
-          " exceeds the " // str(scone%r) // " cone vectors built (cone_r_max / cone_delta)", 2); return
+        call set_error(error, cli%input // ": &pairs: r(" // str(k) // ") = " // str(rr(k)) // &
+          " exceeds the " // str(scone%r) // " cone vectors built (&cone r_max / delta)", 2); return
       end if
       call log%progress("pair", k, size(nn))
       if (nn(k) == size(phi, 2) .and. rr(k) == scone%r) then

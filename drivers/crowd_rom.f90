@@ -18,7 +18,8 @@ program crowd_rom
   use cr_logger, only: logger_t
   use cr_cli, only: cli_t
   use cr_program, only: program_start, program_finish
-  use cr_config, only: config_t, FOM_GROUPS
+  use cr_config, only: config_t
+  use cr_inputs, only: check_input_groups
   use cr_namelist_text, only: namelist_text_t
   use cr_rom_config, only: rom_cfg_t, read_rom, check_rom, rom_echo, MAX_SETTINGS
   use cr_rom_file, only: rom_file_t, rom_pair_t, read_rom_file, read_rom_pair, find_pair
@@ -61,8 +62,8 @@ program crowd_rom
   if (.not. allocated(error) .and. env%size > 1) call set_error(error, "crowd_rom is serial: run it " // &
     "without mpirun (or with -np 1); the parallel stages are crowd_snapshots and crowd_offline", 2)
   if (.not. allocated(error)) call nml%load(cli%input, env, error)
-  if (.not. allocated(error)) call nml%check_groups(FOM_GROUPS, error)
   if (.not. allocated(error)) call read_rom(nml, rcfg, error)
+  if (.not. allocated(error)) call check_input_groups(nml, error)
   if (.not. allocated(error)) call check_rom(cli%input, rcfg, error)
   if (.not. allocated(error)) call run(error)
   code = program_finish(env, log, error)

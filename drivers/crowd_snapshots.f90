@@ -21,6 +21,7 @@ program crowd_snapshots
   use cr_cli, only: cli_t
   use cr_program, only: program_start, program_finish, log_level_of
   use cr_config, only: config_t, read_config, config_echo
+  use cr_inputs, only: check_input_groups
   use cr_config_check, only: check_config
   use cr_namelist_text, only: namelist_text_t
   use cr_fom, only: fom_t
@@ -62,6 +63,7 @@ program crowd_snapshots
     stop
   end if
   if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, nml)
+  if (.not. allocated(error)) call check_input_groups(nml, error)
   if (.not. allocated(error)) call check_config(cfg, error)
   if (.not. allocated(error)) call read_study(nml, study, error)
   if (.not. allocated(error)) call check_study(study, cfg, error)

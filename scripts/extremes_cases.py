@@ -33,6 +33,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import crowdrom_io as cio  # noqa: E402
+import nml_groups  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 INPUTS = os.path.join(ROOT, "tests", "inputs", "extremes")
@@ -58,10 +59,17 @@ def strip_groups(text, groups):
 
 def build_input(base, groups):
     """The namelist file `base` (in tests/inputs/extremes) with `groups` {name: text} replaced
-    or added (a text of None removes the group)."""
-    with open(os.path.join(INPUTS, base)) as f:
-        text = strip_groups(f.read(), list(groups))
+    or added (a text of None removes the group). "offline" and "rom" name the options of
+    crowd_offline / crowd_rom as one flat list, spread over their groups (nml_groups)."""
+    expanded = {}
     for g, t in groups.items():
+        if g in ("offline", "rom") and t is not None:
+            expanded.update((nml_groups.offline_groups if g == "offline" else nml_groups.rom_groups)(t))
+        else:
+            expanded[g] = t
+    with open(os.path.join(INPUTS, base)) as f:
+        text = strip_groups(f.read(), list(expanded))
+    for g, t in expanded.items():
         if t is not None:
             text += "&%s %s /\n" % (g, t)
     return text
@@ -802,7 +810,7 @@ def all_cases():
                  "warning; empty cone", "study_column.nml", "pod_n = 4, cone_compare = .true.",
                  offline_completes(rank_one), full_study=column_full, files={"positions.txt": column}))
     add(off_case("offline_pod_n_above_dofs", "refused: pod_n larger than the number of velocity dofs",
-                 "study_tiny.nml", "pod_n = 100", refused(r"pod_n = 100 is larger than the number of velocity dofs",
+                 "study_tiny.nml", "pod_n = 100", refused(r"&pod: n = 100 is larger than the number of velocity dofs",
                                                          files=("rom.h5", "summary.json")),
                  full_study=HALL20_STUDY))
     add(off_case("offline_at_rest", "completes: zero snapshots give N = 0 (warning: empty basis), an empty "
@@ -830,7 +838,7 @@ def all_cases():
                  "study_tiny.nml", "cone_delta = 10.0, cone_compare = .true.", offline_completes(cone_delta_above),
                  full_study=HALL20_STUDY))
     add(off_case("offline_pga_delta_0", "refused: pga_delta must be > 0", "study_tiny.nml", "pga_delta = 0.0",
-                 refused(r"pga_delta must be > 0", files=("rom.h5", "summary.json")), full_study=HALL20_STUDY))
+                 refused(r"&pga: delta must be > 0", files=("rom.h5", "summary.json")), full_study=HALL20_STUDY))
     add(off_case("offline_pga_delta_tiny", "completes: PGA stops at the whole space or the round-off level "
                  "with a note (never adds noise directions), basis orthonormal", "study_tiny.nml",
                  "pga_delta = 1.0e-300, pod_n = 3", offline_completes(pga_tiny), full_study=HALL20_STUDY,

@@ -27,8 +27,11 @@ cr_bad_input(too_many "&agents: n_agents = 1000.*more agents than fit")
 cr_bad_input(missing_file "&agents: init_file: cannot open 'no_such_positions.txt'")
 cr_bad_input(exit_wider "&scene: l_exit = .* is wider than the wall")
 cr_bad_input(unknown_group "unknown namelist group &agent ")
-# a group no program reads is refused (it used to be accepted silently)
-cr_bad_input(unread_group "unknown namelist group &hyper ")
+# a group or a variable no program reads is refused by every program (crowd_fom used to accept
+# "&hyper eq_tol = 1e-3 /" silently); a variable in the wrong group names that group
+cr_bad_input(unread_group "unknown namelist group &basis ")
+cr_bad_input(unread_variable "namelist group &hyper: .*eq_toll")
+cr_bad_input(misplaced "namelist group &cone: .*energy")
 cr_bad_input(solver "&solver: .*newton.*uzawa")
 cr_bad_input(same_position "agents 1 and 3 are at the same position")
 cr_bad_input(inside_obstacle "agent 2 starts inside obstacle '&obstacles disk 1'")

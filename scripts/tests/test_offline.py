@@ -5,9 +5,14 @@ import os
 import re
 import subprocess
 
+import sys
+
 import h5py
 import numpy as np
 import pytest
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+import nml_groups  # noqa: E402
 
 ROOT = os.environ.get("CROWDROM_ROOT", os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 BIN = os.environ.get("CROWDROM_BIN", os.path.join(ROOT, "build", "bin"))
@@ -27,7 +32,7 @@ def offline_input(tmp, db, rom, **kw):
                 cone_method="'gis'", cone_compare=".true.", mcpg_r_max="8", pga_delta="1e-6",
                 infsup_samples="4", infsup_n="2, 4", infsup_r="2, 4")
     opts.update(kw)
-    text += "&offline " + ", ".join("%s = %s" % (k, v) for k, v in opts.items()) + " /\n"
+    text += nml_groups.as_text(nml_groups.offline_groups(", ".join("%s = %s" % (k, v) for k, v in opts.items())))
     path = tmp / ("off_%d.nml" % abs(hash(tuple(sorted(opts.items())))))
     path.write_text(text)
     return path
@@ -95,9 +100,9 @@ def test_ranks_agree(study):
 
 @pytest.mark.parametrize("kw,message", [
     (dict(database="'missing.h5'"), r"&offline: database: .*missing\.h5"),
-    (dict(pod_n="100"), r"pod_n = 100 is larger than the number of velocity dofs \(16\)"),
-    (dict(pga_delta="0.0"), r"&offline: pga_delta must be > 0"),
-    (dict(pod_method="'qr'"), r"&offline: pod_method must be"),
+    (dict(pod_n="100"), r"&pod: n = 100 is larger than the number of velocity dofs \(16\)"),
+    (dict(pga_delta="0.0"), r"&pga: delta must be > 0"),
+    (dict(pod_method="'qr'"), r"&pod: method must be"),
 ])
 def test_bad_input(study, kw, message):
     tmp, db = study

@@ -8,9 +8,14 @@ import os
 import re
 import subprocess
 
+import sys
+
 import h5py
 import numpy as np
 import pytest
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+import nml_groups  # noqa: E402
 
 ROOT = os.environ.get("CROWDROM_ROOT", os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 BIN = os.environ.get("CROWDROM_BIN", os.path.join(ROOT, "build", "bin"))
@@ -37,8 +42,9 @@ def study_file(tmp, name, db, seed=None):
 
 def offline(tmp, study, db, rom, extra=""):
     text = open(study).read()
-    text += ("&offline database = '%s', rom_file = '%s', pod_energy = 0.0, cone_delta = 0.0, pga_delta = 1e-8, "
-             "infsup_samples = 2, infsup_n = 2, infsup_r = 2%s /\n" % (db, rom, extra))
+    text += nml_groups.as_text(nml_groups.offline_groups(
+        "database = '%s', rom_file = '%s', pod_energy = 0.0, cone_delta = 0.0, pga_delta = 1e-8, "
+        "infsup_samples = 2, infsup_n = 2, infsup_r = 2%s" % (db, rom, extra)))
     path = tmp / (os.path.basename(str(rom)) + ".nml")
     path.write_text(text)
     p = run(1, "crowd_offline", path, tmp)
@@ -49,11 +55,11 @@ def offline(tmp, study, db, rom, extra=""):
 def rom_input(tmp, name, rom, out, settings, **kw):
     opts = dict(rom_file="'%s'" % rom, output="'%s'" % out, fom_timing_samples="1", timing_repeats="1")
     opts.update(kw)
-    lines = ["&rom " + ", ".join("%s = %s" % (k, v) for k, v in opts.items())]
+    flat = [", ".join("%s = %s" % (k, v) for k, v in opts.items())]
     for k, s in enumerate(settings, 1):
-        lines.append(", ".join("%s(%d) = %s" % (key, k, val) for key, val in s.items()))
+        flat.append(", ".join("%s(%d) = %s" % (key, k, val) for key, val in s.items()))
     path = tmp / name
-    path.write_text("\n".join(lines) + " /\n")
+    path.write_text(nml_groups.as_text(nml_groups.rom_groups(", ".join(flat))))
     return path
 
 
@@ -170,8 +176,11 @@ def test_given_parameter_extrapolates(study):
     ("other_study", r"was built from another study"),
     ("not_prepared", r"\(N, R\) = \(5, 2\) is not prepared in ROM file"),
     ("m_too_large", r"m_b = 1000 is larger than the \d+ EQ candidates"),
-    ("bad_hyper", r"&rom: hyper\(1\) must be 'none', 'eim' or 'eq'"),
+    ("bad_hyper", r"&sweep: hyper\(1\) must be 'none', 'eim' or 'eq'"),
     ("misspelt", r"namelist group &rom"),
+    ("misplaced", r"namelist group &rom: .*solver"),
+    ("unread_group", r"unknown namelist group &basis"),
+    ("unread_variable", r"namelist group &hyper: .*eq_toll"),
     ("no_rom_group", r"namelist group &rom is missing"),
     ("parallel", r"crowd_rom is serial"),
 ])
@@ -200,6 +209,12 @@ def test_bad_input(study, case, message):
     nml = rom_input(tmp, "bad_%s.nml" % case, rom, out, setting, **kw)
     if case == "misspelt":
         nml.write_text(nml.read_text().replace("timing_repeats", "timing_repeat"))
+    if case == "misplaced":     # a variable of &reduced given in &rom
+        nml.write_text(nml.read_text().replace("&rom ", "&rom solver = 'nnls', "))
+    if case == "unread_group":  # a group no program reads
+        nml.write_text(nml.read_text() + "&basis n = 3 /\n")
+    if case == "unread_variable":  # a variable crowd_offline's &hyper does not have, seen by crowd_rom too
+        nml.write_text(nml.read_text() + "&hyper eq_toll = 1e-3 /\n")
     if case == "no_rom_group":
         nml.write_text("&scene l_exit = 0.2 /\n")
     p = run(np_, "crowd_rom", nml, tmp)

@@ -17,9 +17,14 @@ module cr_config
 
   integer, parameter :: MAX_OBST = 64, MAX_POLY_V = 16, MAX_PATH = 512
 
-  !> Namelist groups known to crowdrom programs (a file may hold groups of later stages).
+  !> Every namelist group a crowdrom program reads (one file may hold the groups of every stage;
+  !> any other group is refused): the full model (read here), &study (crowd_snapshots,
+  !> cr_study_config), the groups of crowd_offline (cr_offline_config) and of crowd_rom
+  !> (cr_rom_config).
   character(len=16), parameter :: FOM_GROUPS(*) = [character(len=16) :: 'scene', 'obstacles', &
-    'agents', 'desired', 'time', 'solver', 'contacts', 'output', 'study', 'offline', 'rom']
+    'agents', 'desired', 'time', 'solver', 'contacts', 'output', 'study', &
+    'offline', 'pod', 'cone', 'pga', 'infsup', 'pairs', 'hyper', &
+    'rom', 'sweep', 'reduced', 'fom_timing']
 
   !> &scene: rectangular hall [0, hall_length] x [0, hall_width] closed by walls of thickness
   !> wall_thickness; the top wall has an opening of width l_exit centred at exit_center.

@@ -1,4 +1,6 @@
-!> &offline: configuration of crowd_offline (reduced bases from a snapshot database).
+!> Configuration of crowd_offline (reduced bases from a snapshot database), one namelist group
+!> per concern: &offline (the files), &pod, &cone, &pga, &infsup, &pairs (the reduced models to
+!> prepare), &hyper. One type, read and validated here.
 module cr_offline_config
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error, problems_t
@@ -58,53 +60,139 @@ module cr_offline_config
 
 contains
 
-  !> Read &offline (defaults when the group is absent).
+  !> Read the groups of crowd_offline (defaults for absent groups): &offline (files), &pod,
+  !> &cone, &pga, &infsup, &pairs, &hyper.
   subroutine read_offline(t, c, error)
     type(namelist_text_t), intent(in) :: t
     type(offline_cfg_t), intent(inout) :: c
     type(error_t), allocatable, intent(out) :: error
-    character(len=MAX_PATH) :: database, rom_file
-    character(len=16) :: pod_method, rsvd_sketch
-    character(len=8) :: cone_method
-    integer :: pod_n, rsvd_rank, rsvd_oversampling, rsvd_power, rsvd_seed, cone_r_max, mcpg_r_max
-    integer :: pga_max_add, infsup_n(MAX_GRID), infsup_r(MAX_GRID), infsup_samples
-    integer :: rom_n(MAX_GRID), rom_r(MAX_GRID), pod_compare_n(MAX_GRID)
-    real(wp) :: pod_energy, cone_delta, pga_delta, hyper_m_factor, eq_tol
-    logical :: cone_compare, pga, hyper
-    namelist /offline/ database, rom_file, pod_method, pod_n, pod_energy, rsvd_rank, rsvd_oversampling, &
-      rsvd_power, rsvd_sketch, rsvd_seed, cone_method, cone_compare, cone_delta, cone_r_max, mcpg_r_max, &
-      pga, pga_delta, pga_max_add, infsup_n, infsup_r, infsup_samples, rom_n, rom_r, hyper, &
-      hyper_m_factor, eq_tol, pod_compare_n
-    integer :: ios
-    character(len=512) :: msg
-    database = c%database; rom_file = c%rom_file; pod_method = c%pod_method; pod_n = c%pod_n
-    pod_energy = c%pod_energy; rsvd_rank = c%rsvd_rank; rsvd_oversampling = c%rsvd_oversampling
-    rsvd_power = c%rsvd_power; rsvd_sketch = c%rsvd_sketch; rsvd_seed = c%rsvd_seed
-    cone_method = c%cone_method; cone_compare = c%cone_compare; cone_delta = c%cone_delta
-    cone_r_max = c%cone_r_max; mcpg_r_max = c%mcpg_r_max; pga = c%pga; pga_delta = c%pga_delta
-    pga_max_add = c%pga_max_add; infsup_n = c%infsup_n; infsup_r = c%infsup_r
-    infsup_samples = c%infsup_samples
-    pod_compare_n = c%pod_compare_n
-    rom_n = c%rom_n; rom_r = c%rom_r; hyper = c%hyper; hyper_m_factor = c%hyper_m_factor; eq_tol = c%eq_tol
-    msg = ''
-    read(t%lines, nml=offline, iostat=ios, iomsg=msg)
-    if (ios /= 0) then
-      if (.not. (is_iostat_end(ios) .and. .not. t%has_group('offline'))) then
-        call set_error(error, t%path // ": namelist group &offline: " // trim(msg), 2); return
-      end if
-    end if
-    c%database = database; c%rom_file = rom_file; c%pod_method = pod_method; c%pod_n = pod_n
-    c%pod_energy = pod_energy; c%rsvd_rank = rsvd_rank; c%rsvd_oversampling = rsvd_oversampling
-    c%rsvd_power = rsvd_power; c%rsvd_sketch = rsvd_sketch; c%rsvd_seed = rsvd_seed
-    c%cone_method = cone_method; c%cone_compare = cone_compare; c%cone_delta = cone_delta
-    c%cone_r_max = cone_r_max; c%mcpg_r_max = mcpg_r_max; c%pga = pga; c%pga_delta = pga_delta
-    c%pga_max_add = pga_max_add; c%infsup_n = infsup_n; c%infsup_r = infsup_r
-    c%infsup_samples = infsup_samples
-    c%pod_compare_n = pod_compare_n
-    c%rom_n = rom_n; c%rom_r = rom_r; c%hyper = hyper; c%hyper_m_factor = hyper_m_factor; c%eq_tol = eq_tol
+    call read_files(error); if (allocated(error)) return
+    call read_pod(error); if (allocated(error)) return
+    call read_cone(error); if (allocated(error)) return
+    call read_pga(error); if (allocated(error)) return
+    call read_infsup(error); if (allocated(error)) return
+    call read_pairs(error); if (allocated(error)) return
+    call read_hyper(error)
+
+  contains
+
+    !> Error for a failed read of group g (an absent group keeps its defaults).
+    subroutine after_read(g, ios, msg, error)
+      character(len=*), intent(in) :: g, msg
+      integer, intent(in) :: ios
+      type(error_t), allocatable, intent(out) :: error
+      if (ios == 0) return
+      if (is_iostat_end(ios) .and. .not. t%has_group(g)) return
+      call set_error(error, t%path // ": namelist group &" // g // ": " // trim(msg), 2)
+    end subroutine after_read
+
+    subroutine read_files(error)
+      type(error_t), allocatable, intent(out) :: error
+      character(len=MAX_PATH) :: database, rom_file
+      namelist /offline/ database, rom_file
+      integer :: ios
+      character(len=512) :: msg
+      database = c%database; rom_file = c%rom_file
+      msg = ''
+      read(t%lines, nml=offline, iostat=ios, iomsg=msg)
+      call after_read('offline', ios, msg, error); if (allocated(error)) return
+      c%database = database; c%rom_file = rom_file
+    end subroutine read_files
+
+    subroutine read_pod(error)
+      type(error_t), allocatable, intent(out) :: error
+      character(len=16) :: method, rsvd_sketch
+      integer :: n, rsvd_rank, rsvd_oversampling, rsvd_power, rsvd_seed, compare_n(MAX_GRID)
+      real(wp) :: energy
+      namelist /pod/ method, n, energy, rsvd_rank, rsvd_oversampling, rsvd_power, rsvd_sketch, rsvd_seed, compare_n
+      integer :: ios
+      character(len=512) :: msg
+      method = c%pod_method; n = c%pod_n; energy = c%pod_energy; rsvd_rank = c%rsvd_rank
+      rsvd_oversampling = c%rsvd_oversampling; rsvd_power = c%rsvd_power; rsvd_sketch = c%rsvd_sketch
+      rsvd_seed = c%rsvd_seed; compare_n = c%pod_compare_n
+      msg = ''
+      read(t%lines, nml=pod, iostat=ios, iomsg=msg)
+      call after_read('pod', ios, msg, error); if (allocated(error)) return
+      c%pod_method = method; c%pod_n = n; c%pod_energy = energy; c%rsvd_rank = rsvd_rank
+      c%rsvd_oversampling = rsvd_oversampling; c%rsvd_power = rsvd_power; c%rsvd_sketch = rsvd_sketch
+      c%rsvd_seed = rsvd_seed; c%pod_compare_n = compare_n
+    end subroutine read_pod
+
+    subroutine read_cone(error)
+      type(error_t), allocatable, intent(out) :: error
+      character(len=8) :: method
+      logical :: compare
+      real(wp) :: delta
+      integer :: r_max, mcpg_r_max
+      namelist /cone/ method, compare, delta, r_max, mcpg_r_max
+      integer :: ios
+      character(len=512) :: msg
+      method = c%cone_method; compare = c%cone_compare; delta = c%cone_delta; r_max = c%cone_r_max
+      mcpg_r_max = c%mcpg_r_max
+      msg = ''
+      read(t%lines, nml=cone, iostat=ios, iomsg=msg)
+      call after_read('cone', ios, msg, error); if (allocated(error)) return
+      c%cone_method = method; c%cone_compare = compare; c%cone_delta = delta; c%cone_r_max = r_max
+      c%mcpg_r_max = mcpg_r_max
+    end subroutine read_cone
+
+    subroutine read_pga(error)
+      type(error_t), allocatable, intent(out) :: error
+      logical :: enabled
+      real(wp) :: delta
+      integer :: max_add
+      namelist /pga/ enabled, delta, max_add
+      integer :: ios
+      character(len=512) :: msg
+      enabled = c%pga; delta = c%pga_delta; max_add = c%pga_max_add
+      msg = ''
+      read(t%lines, nml=pga, iostat=ios, iomsg=msg)
+      call after_read('pga', ios, msg, error); if (allocated(error)) return
+      c%pga = enabled; c%pga_delta = delta; c%pga_max_add = max_add
+    end subroutine read_pga
+
+    subroutine read_infsup(error)
+      type(error_t), allocatable, intent(out) :: error
+      integer :: n(MAX_GRID), r(MAX_GRID), samples
+      namelist /infsup/ n, r, samples
+      integer :: ios
+      character(len=512) :: msg
+      n = c%infsup_n; r = c%infsup_r; samples = c%infsup_samples
+      msg = ''
+      read(t%lines, nml=infsup, iostat=ios, iomsg=msg)
+      call after_read('infsup', ios, msg, error); if (allocated(error)) return
+      c%infsup_n = n; c%infsup_r = r; c%infsup_samples = samples
+    end subroutine read_infsup
+
+    subroutine read_pairs(error)
+      type(error_t), allocatable, intent(out) :: error
+      integer :: n(MAX_GRID), r(MAX_GRID)
+      namelist /pairs/ n, r
+      integer :: ios
+      character(len=512) :: msg
+      n = c%rom_n; r = c%rom_r
+      msg = ''
+      read(t%lines, nml=pairs, iostat=ios, iomsg=msg)
+      call after_read('pairs', ios, msg, error); if (allocated(error)) return
+      c%rom_n = n; c%rom_r = r
+    end subroutine read_pairs
+
+    subroutine read_hyper(error)
+      type(error_t), allocatable, intent(out) :: error
+      logical :: enabled
+      real(wp) :: m_factor, eq_tol
+      namelist /hyper/ enabled, m_factor, eq_tol
+      integer :: ios
+      character(len=512) :: msg
+      enabled = c%hyper; m_factor = c%hyper_m_factor; eq_tol = c%eq_tol
+      msg = ''
+      read(t%lines, nml=hyper, iostat=ios, iomsg=msg)
+      call after_read('hyper', ios, msg, error); if (allocated(error)) return
+      c%hyper = enabled; c%hyper_m_factor = m_factor; c%eq_tol = eq_tol
+    end subroutine read_hyper
   end subroutine read_offline
 
-  !> Validate &offline; all problems reported at once.
+  !> Validate the groups of crowd_offline; all problems reported at once.
   subroutine check_offline(path, c, error)
     character(len=*), intent(in) :: path
     type(offline_cfg_t), intent(in) :: c
@@ -113,49 +201,51 @@ contains
     call probs%need(len_trim(c%database) > 0, "&offline: database must be given")
     call probs%need(len_trim(c%rom_file) > 0, "&offline: rom_file must be given")
     call probs%need(any(c%pod_method == [character(len=16) :: 'tsqr', 'rsvd', 'scalapack', 'snapshots']), &
-      "&offline: pod_method must be 'tsqr', 'rsvd', 'scalapack' or 'snapshots' (got '" // trim(c%pod_method) // "')")
-    call probs%need(c%pod_n >= 0, "&offline: pod_n must be >= 0 (0: truncate by pod_energy)")
-    call probs%need(c%pod_energy >= 0 .and. c%pod_energy <= 1, "&offline: pod_energy must be in [0, 1]")
-    call probs%need(c%rsvd_rank >= 1, "&offline: rsvd_rank must be >= 1")
-    call probs%need(c%rsvd_oversampling >= 0, "&offline: rsvd_oversampling must be >= 0")
-    call probs%need(c%rsvd_power >= 0, "&offline: rsvd_power must be >= 0")
+      "&pod: method must be 'tsqr', 'rsvd', 'scalapack' or 'snapshots' (got '" // trim(c%pod_method) // "')")
+    call probs%need(c%pod_n >= 0, "&pod: n must be >= 0 (0: truncate by energy)")
+    call probs%need(c%pod_energy >= 0 .and. c%pod_energy <= 1, "&pod: energy must be in [0, 1]")
+    call probs%need(c%rsvd_rank >= 1, "&pod: rsvd_rank must be >= 1")
+    call probs%need(c%rsvd_oversampling >= 0, "&pod: rsvd_oversampling must be >= 0")
+    call probs%need(c%rsvd_power >= 0, "&pod: rsvd_power must be >= 0")
     call probs%need(c%rsvd_sketch == 'gaussian' .or. c%rsvd_sketch == 'srft', &
-      "&offline: rsvd_sketch must be 'gaussian' or 'srft'")
-    call probs%need(c%cone_method == 'gis' .or. c%cone_method == 'mcpg', "&offline: cone_method must be 'gis' or 'mcpg'")
-    call probs%need(c%cone_delta >= 0, "&offline: cone_delta must be >= 0")
-    call probs%need(c%cone_r_max >= 0 .and. c%mcpg_r_max >= 0, "&offline: cone_r_max and mcpg_r_max must be >= 0")
-    call probs%need(c%pga_delta > 0, "&offline: pga_delta must be > 0 (got " // str(c%pga_delta) // ")")
-    call probs%need(c%pga_max_add >= 0, "&offline: pga_max_add must be >= 0")
-    call probs%need(all(c%infsup_n >= 0) .and. all(c%infsup_r >= 0), "&offline: infsup_n and infsup_r must be >= 0")
-    call probs%need(c%infsup_samples >= 0, "&offline: infsup_samples must be >= 0")
-    call probs%need(all(c%rom_n >= 0), "&offline: rom_n must be >= 0")
-    call probs%need(all(c%rom_r >= 0 .or. c%rom_n == 0), &
-      "&offline: rom_r(k) >= 0 must be given for every rom_n(k) > 0")
-    call probs%need(all(c%rom_r < 0 .or. c%rom_n > 0), "&offline: rom_r(k) given without rom_n(k)")
-    call probs%need(all(c%pod_compare_n >= 0), "&offline: pod_compare_n must be >= 0")
-    call probs%need(c%hyper_m_factor >= 1, "&offline: hyper_m_factor must be >= 1 (got " // str(c%hyper_m_factor) // ")")
-    call probs%need(c%eq_tol >= 0 .and. c%eq_tol < 1, "&offline: eq_tol must be in [0, 1)")
+      "&pod: rsvd_sketch must be 'gaussian' or 'srft'")
+    call probs%need(all(c%pod_compare_n >= 0), "&pod: compare_n must be >= 0")
+    call probs%need(c%cone_method == 'gis' .or. c%cone_method == 'mcpg', "&cone: method must be 'gis' or 'mcpg'")
+    call probs%need(c%cone_delta >= 0, "&cone: delta must be >= 0")
+    call probs%need(c%cone_r_max >= 0 .and. c%mcpg_r_max >= 0, "&cone: r_max and mcpg_r_max must be >= 0")
+    call probs%need(c%pga_delta > 0, "&pga: delta must be > 0 (got " // str(c%pga_delta) // ")")
+    call probs%need(c%pga_max_add >= 0, "&pga: max_add must be >= 0")
+    call probs%need(all(c%infsup_n >= 0) .and. all(c%infsup_r >= 0), "&infsup: n and r must be >= 0")
+    call probs%need(c%infsup_samples >= 0, "&infsup: samples must be >= 0")
+    call probs%need(all(c%rom_n >= 0), "&pairs: n must be >= 0")
+    call probs%need(all(c%rom_r >= 0 .or. c%rom_n == 0), "&pairs: r(k) >= 0 must be given for every n(k) > 0")
+    call probs%need(all(c%rom_r < 0 .or. c%rom_n > 0), "&pairs: r(k) given without n(k)")
+    call probs%need(c%hyper_m_factor >= 1, "&hyper: m_factor must be >= 1 (got " // str(c%hyper_m_factor) // ")")
+    call probs%need(c%eq_tol >= 0 .and. c%eq_tol < 1, "&hyper: eq_tol must be in [0, 1)")
     call probs%to_error(path, error)
   end subroutine check_offline
 
-  !> The group as re-readable namelist text.
+  !> The groups as re-readable namelist text.
   function offline_echo(c) result(s)
     type(offline_cfg_t), intent(in) :: c
     character(len=:), allocatable :: s
-    character(len=1024) :: b
-    write(b, '(a, i0, a, es23.16, a, i0, a, i0, a, i0)') ", pod_n = ", c%pod_n, ", pod_energy = ", c%pod_energy, &
-      ", rsvd_rank = ", c%rsvd_rank, ", rsvd_oversampling = ", c%rsvd_oversampling, ", rsvd_power = ", c%rsvd_power
-    s = "&offline database = '" // trim(c%database) // "', rom_file = '" // trim(c%rom_file) // &
-      "', pod_method = '" // trim(c%pod_method) // "'" // trim(b)
-    write(b, '(a, i0, a, es23.16, a, i0, a, i0, a, l1, a, es23.16, a, i0, a, i0)') "', rsvd_seed = ", c%rsvd_seed, &
-      ", cone_delta = ", c%cone_delta, ", cone_r_max = ", c%cone_r_max, ", mcpg_r_max = ", c%mcpg_r_max, &
-      ", pga = ", c%pga, ", pga_delta = ", c%pga_delta, ", pga_max_add = ", c%pga_max_add, &
-      ", infsup_samples = ", c%infsup_samples
-    s = s // ", rsvd_sketch = '" // trim(c%rsvd_sketch) // trim(b) // ", cone_method = '" // trim(c%cone_method) // &
-      "', cone_compare = " // merge("T", "F", c%cone_compare) // ", hyper = " // merge("T", "F", c%hyper)
-    write(b, '(a, es23.16, a, es23.16)') ", hyper_m_factor = ", c%hyper_m_factor, ", eq_tol = ", c%eq_tol
-    s = s // trim(b) // ", rom_n = " // int_list(c%rom_n) // ", rom_r = " // int_list(c%rom_r) // &
-      ", pod_compare_n = " // int_list(c%pod_compare_n) // " /" // new_line('a')
+    character(len=*), parameter :: nl = new_line('a')
+    s = "&offline database = '" // trim(c%database) // "', rom_file = '" // trim(c%rom_file) // "' /" // nl // &
+      "&pod method = '" // trim(c%pod_method) // "', n = " // str(c%pod_n) // ", energy = " // &
+      str(c%pod_energy, "es23.16") // ", rsvd_rank = " // str(c%rsvd_rank) // ", rsvd_oversampling = " // &
+      str(c%rsvd_oversampling) // ", rsvd_power = " // str(c%rsvd_power) // ", rsvd_sketch = '" // &
+      trim(c%rsvd_sketch) // "', rsvd_seed = " // str(c%rsvd_seed) // ", compare_n = " // int_list(c%pod_compare_n) // &
+      " /" // nl // &
+      "&cone method = '" // trim(c%cone_method) // "', compare = " // merge("T", "F", c%cone_compare) // &
+      ", delta = " // str(c%cone_delta, "es23.16") // ", r_max = " // str(c%cone_r_max) // ", mcpg_r_max = " // &
+      str(c%mcpg_r_max) // " /" // nl // &
+      "&pga enabled = " // merge("T", "F", c%pga) // ", delta = " // str(c%pga_delta, "es23.16") // &
+      ", max_add = " // str(c%pga_max_add) // " /" // nl // &
+      "&infsup n = " // int_list(c%infsup_n) // ", r = " // int_list(c%infsup_r) // ", samples = " // &
+      str(c%infsup_samples) // " /" // nl // &
+      "&pairs n = " // int_list(c%rom_n) // ", r = " // int_list(c%rom_r) // " /" // nl // &
+      "&hyper enabled = " // merge("T", "F", c%hyper) // ", m_factor = " // str(c%hyper_m_factor, "es23.16") // &
+      ", eq_tol = " // str(c%eq_tol, "es23.16") // " /" // nl
   contains
     function int_list(a) result(t)
       integer, intent(in) :: a(:)

@@ -55,11 +55,11 @@ contains
     type(pga_result_t) :: res
     real(wp) :: t0
     if (n < 1 .or. n > size(phi, 2)) then
-      call set_error(error, "&offline: rom_n = " // str(n) // " but the POD kept " // str(size(phi, 2)) // &
+      call set_error(error, "&pairs: n = " // str(n) // " but the POD kept " // str(size(phi, 2)) // &
         " modes", 2); return
     end if
     if (r < 0 .or. r > cone%r) then
-      call set_error(error, "&offline: rom_r = " // str(r) // " but the cone has " // str(cone%r) // &
+      call set_error(error, "&pairs: r = " // str(r) // " but the cone has " // str(cone%r) // &
         " vectors", 2); return
     end if
     pair%n = n; pair%r = r

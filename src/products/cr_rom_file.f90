@@ -489,7 +489,7 @@ contains
     end do
     k = 0
     call set_error(error, where // ": (N, R) = (" // str(n) // ", " // str(r) // ") is not prepared in ROM file '" // &
-      rom%path // "' (stored pairs (N, R):" // list // "; add it to &offline rom_n / rom_r and rerun crowd_offline)", 2)
+      rom%path // "' (stored pairs (N, R):" // list // "; add it to &pairs n / r and rerun crowd_offline)", 2)
   end subroutine find_pair
 
   !> Read pair k of the ROM file and validate it (sizes, finite values, indices in range).

@@ -240,7 +240,7 @@ contains
       integer :: dflt(3), j
       if (.not. pair%hyper) then
         call set_error(error, where // ": the ROM file stores no hyper-reduction for (N, R) = (" // str(pair%n) // &
-          ", " // str(pair%r) // ") (&offline hyper = .false.); use hyper = 'none'", 2); return
+          ", " // str(pair%r) // ") (&hyper enabled = .false.); use hyper = 'none'", 2); return
       end if
       dflt = [2 * pair%nb, pair%r, 2 * pair%r]
       do j = 1, 3
@@ -252,7 +252,7 @@ contains
         if (m_req(j) > stored(j)) then
           call set_error(error, where // ": " // names(j) // " = " // str(m_req(j)) // " but the ROM file stores " // &
             str(stored(j)) // " " // what // " points for term s" // str(j) // " of (N, R) = (" // str(pair%n) // &
-            ", " // str(pair%r) // ") (raise &offline hyper_m_factor)", 2); return
+            ", " // str(pair%r) // ") (raise &hyper m_factor)", 2); return
         end if
         if (m_req(j) > 0) then
           m(j) = m_req(j)

@@ -1,6 +1,8 @@
-!> &rom: configuration of crowd_rom (the online reduced model and its accuracy/speed sweep).
+!> Configuration of crowd_rom (the online reduced model and its accuracy/speed sweep), one
+!> namelist group per concern: &rom (files, samples, timing repeats), &sweep (the settings),
+!> &reduced (the reduced solver), &fom_timing (the full-order reference timing).
 !>
-!> A run is a list of settings k = 1..n_settings, one per positive entry of n(:):
+!> A sweep is a list of settings k = 1..n_settings, one per positive entry of &sweep n(:):
 !> (n(k), r(k)) chooses a reduced model prepared by crowd_offline, hyper(k) its assembly
 !> ('none': exact projection of the selected terms, 'eim', 'eq'), contacts(k) the enforced
 !> constraints ('cone': the reduced cone; 'online': the contacts near in the reduced
@@ -64,46 +66,19 @@ module cr_rom_config
 
 contains
 
-  !> Read &rom (required group).
+  !> Read the groups of crowd_rom: &rom (required: files and samples), &sweep (the settings),
+  !> &reduced (the reduced solver), &fom_timing (the full-order reference timing).
   subroutine read_rom(t, c, error)
     type(namelist_text_t), intent(in) :: t
     type(rom_cfg_t), intent(inout) :: c
     type(error_t), allocatable, intent(out) :: error
-    character(len=MAX_PATH) :: rom_file, database, output, table
-    character(len=8) :: sets, solver, hyper(MAX_SETTINGS), contacts(MAX_SETTINGS)
-    character(len=32) :: fom_exact_solver
-    character(len=8) :: fom_uzawa_rows
-    integer :: n_samples, n(MAX_SETTINGS), r(MAX_SETTINGS), m_v(MAX_SETTINGS), m_b(MAX_SETTINGS)
-    integer :: m_d(MAX_SETTINGS), nnls_max_iter, uzawa_max_iter, fom_timing_samples, timing_repeats
-    real(wp) :: mu(MAX_MU), uzawa_rho_factor, uzawa_eps, fom_tol, fom_uzawa_eps
-    integer :: fom_uzawa_steps
-    namelist /rom/ rom_file, database, output, table, sets, n_samples, mu, n, r, hyper, contacts, m_v, m_b, &
-      m_d, solver, nnls_max_iter, uzawa_rho_factor, uzawa_eps, uzawa_max_iter, fom_timing_samples, fom_tol, &
-      fom_uzawa_eps, fom_uzawa_steps, fom_uzawa_rows, fom_exact_solver, timing_repeats
-    integer :: ios
-    character(len=512) :: msg
     if (.not. t%has_group('rom')) then
       call set_error(error, t%path // ": namelist group &rom is missing", 2); return
     end if
-    rom_file = c%rom_file; database = c%database; output = c%output; table = c%table; sets = c%sets
-    n_samples = c%n_samples; mu = c%mu; n = c%n; r = c%r; hyper = c%hyper; contacts = c%contacts
-    m_v = c%m_v; m_b = c%m_b; m_d = c%m_d; solver = c%solver; nnls_max_iter = c%nnls_max_iter
-    uzawa_rho_factor = c%uzawa_rho_factor; uzawa_eps = c%uzawa_eps; uzawa_max_iter = c%uzawa_max_iter
-    fom_timing_samples = c%fom_timing_samples; fom_tol = c%fom_tol; fom_uzawa_eps = c%fom_uzawa_eps
-    fom_uzawa_steps = c%fom_uzawa_steps; fom_uzawa_rows = c%fom_uzawa_rows; fom_exact_solver = c%fom_exact_solver
-    timing_repeats = c%timing_repeats
-    msg = ''
-    read(t%lines, nml=rom, iostat=ios, iomsg=msg)
-    if (ios /= 0) then
-      call set_error(error, t%path // ": namelist group &rom: " // trim(msg), 2); return
-    end if
-    c%rom_file = rom_file; c%database = database; c%output = output; c%table = table; c%sets = sets
-    c%n_samples = n_samples; c%mu = mu; c%n = n; c%r = r; c%hyper = hyper; c%contacts = contacts
-    c%m_v = m_v; c%m_b = m_b; c%m_d = m_d; c%solver = solver; c%nnls_max_iter = nnls_max_iter
-    c%uzawa_rho_factor = uzawa_rho_factor; c%uzawa_eps = uzawa_eps; c%uzawa_max_iter = uzawa_max_iter
-    c%fom_timing_samples = fom_timing_samples; c%fom_tol = fom_tol; c%fom_uzawa_eps = fom_uzawa_eps
-    c%fom_uzawa_steps = fom_uzawa_steps; c%fom_uzawa_rows = fom_uzawa_rows; c%fom_exact_solver = fom_exact_solver
-    c%timing_repeats = timing_repeats
+    call read_files(error); if (allocated(error)) return
+    call read_sweep(error); if (allocated(error)) return
+    call read_reduced(error); if (allocated(error)) return
+    call read_timing(error); if (allocated(error)) return
     if (len_trim(c%table) == 0 .and. len_trim(c%output) > 0) then
       if (index(c%output, '.h5', back=.true.) == len_trim(c%output) - 2 .and. len_trim(c%output) > 3) then
         c%table = c%output(1:len_trim(c%output) - 3) // '.csv'
@@ -111,6 +86,85 @@ contains
         c%table = trim(c%output) // '.csv'
       end if
     end if
+
+  contains
+
+    !> Error for a failed read of group g (an absent optional group keeps its defaults).
+    subroutine after_read(g, ios, msg, error)
+      character(len=*), intent(in) :: g, msg
+      integer, intent(in) :: ios
+      type(error_t), allocatable, intent(out) :: error
+      if (ios == 0) return
+      if (is_iostat_end(ios) .and. .not. t%has_group(g)) return
+      call set_error(error, t%path // ": namelist group &" // g // ": " // trim(msg), 2)
+    end subroutine after_read
+
+    subroutine read_files(error)
+      type(error_t), allocatable, intent(out) :: error
+      character(len=MAX_PATH) :: rom_file, database, output, table
+      character(len=8) :: sets
+      integer :: n_samples, timing_repeats
+      real(wp) :: mu(MAX_MU)
+      namelist /rom/ rom_file, database, output, table, sets, n_samples, mu, timing_repeats
+      integer :: ios
+      character(len=512) :: msg
+      rom_file = c%rom_file; database = c%database; output = c%output; table = c%table; sets = c%sets
+      n_samples = c%n_samples; mu = c%mu; timing_repeats = c%timing_repeats
+      msg = ''
+      read(t%lines, nml=rom, iostat=ios, iomsg=msg)
+      call after_read('rom', ios, msg, error); if (allocated(error)) return
+      c%rom_file = rom_file; c%database = database; c%output = output; c%table = table; c%sets = sets
+      c%n_samples = n_samples; c%mu = mu; c%timing_repeats = timing_repeats
+    end subroutine read_files
+
+    subroutine read_sweep(error)
+      type(error_t), allocatable, intent(out) :: error
+      character(len=8) :: hyper(MAX_SETTINGS), contacts(MAX_SETTINGS)
+      integer :: n(MAX_SETTINGS), r(MAX_SETTINGS), m_v(MAX_SETTINGS), m_b(MAX_SETTINGS), m_d(MAX_SETTINGS)
+      namelist /sweep/ n, r, hyper, contacts, m_v, m_b, m_d
+      integer :: ios
+      character(len=512) :: msg
+      n = c%n; r = c%r; hyper = c%hyper; contacts = c%contacts; m_v = c%m_v; m_b = c%m_b; m_d = c%m_d
+      msg = ''
+      read(t%lines, nml=sweep, iostat=ios, iomsg=msg)
+      call after_read('sweep', ios, msg, error); if (allocated(error)) return
+      c%n = n; c%r = r; c%hyper = hyper; c%contacts = contacts; c%m_v = m_v; c%m_b = m_b; c%m_d = m_d
+    end subroutine read_sweep
+
+    subroutine read_reduced(error)
+      type(error_t), allocatable, intent(out) :: error
+      character(len=8) :: solver
+      integer :: nnls_max_iter, uzawa_max_iter
+      real(wp) :: uzawa_rho_factor, uzawa_eps
+      namelist /reduced/ solver, nnls_max_iter, uzawa_rho_factor, uzawa_eps, uzawa_max_iter
+      integer :: ios
+      character(len=512) :: msg
+      solver = c%solver; nnls_max_iter = c%nnls_max_iter; uzawa_rho_factor = c%uzawa_rho_factor
+      uzawa_eps = c%uzawa_eps; uzawa_max_iter = c%uzawa_max_iter
+      msg = ''
+      read(t%lines, nml=reduced, iostat=ios, iomsg=msg)
+      call after_read('reduced', ios, msg, error); if (allocated(error)) return
+      c%solver = solver; c%nnls_max_iter = nnls_max_iter; c%uzawa_rho_factor = uzawa_rho_factor
+      c%uzawa_eps = uzawa_eps; c%uzawa_max_iter = uzawa_max_iter
+    end subroutine read_reduced
+
+    subroutine read_timing(error)
+      type(error_t), allocatable, intent(out) :: error
+      character(len=32) :: exact_solver
+      character(len=8) :: uzawa_rows
+      integer :: samples, uzawa_steps
+      real(wp) :: tol, uzawa_eps
+      namelist /fom_timing/ samples, tol, uzawa_eps, uzawa_steps, uzawa_rows, exact_solver
+      integer :: ios
+      character(len=512) :: msg
+      samples = c%fom_timing_samples; tol = c%fom_tol; uzawa_eps = c%fom_uzawa_eps
+      uzawa_steps = c%fom_uzawa_steps; uzawa_rows = c%fom_uzawa_rows; exact_solver = c%fom_exact_solver
+      msg = ''
+      read(t%lines, nml=fom_timing, iostat=ios, iomsg=msg)
+      call after_read('fom_timing', ios, msg, error); if (allocated(error)) return
+      c%fom_timing_samples = samples; c%fom_tol = tol; c%fom_uzawa_eps = uzawa_eps
+      c%fom_uzawa_steps = uzawa_steps; c%fom_uzawa_rows = uzawa_rows; c%fom_exact_solver = exact_solver
+    end subroutine read_timing
   end subroutine read_rom
 
   !> Validate &rom; all problems reported at once.
@@ -126,68 +180,66 @@ contains
       "&rom: sets must be 'valid', 'train', 'both' or 'given' (got '" // trim(c%sets) // "')")
     call probs%need(c%sets /= 'given' .or. c%mu(1) > -huge(1.0_wp), "&rom: sets = 'given' needs mu")
     call probs%need(c%n_samples >= 0, "&rom: n_samples must be >= 0 (0: all)")
-    call probs%need(all(c%n >= 0), "&rom: n(:) must be >= 0")
-    call probs%need(all(c%r >= 0), "&rom: r(:) must be >= 0")
+    call probs%need(all(c%n >= 0), "&sweep: n(:) must be >= 0")
+    call probs%need(all(c%r >= 0), "&sweep: r(:) must be >= 0")
     do k = 1, MAX_SETTINGS
       if (c%n(k) == 0) cycle
       call probs%need(any(c%hyper(k) == [character(len=8) :: 'none', 'eim', 'eq']), &
-        "&rom: hyper(" // str(k) // ") must be 'none', 'eim' or 'eq' (got '" // trim(c%hyper(k)) // "')")
+        "&sweep: hyper(" // str(k) // ") must be 'none', 'eim' or 'eq' (got '" // trim(c%hyper(k)) // "')")
       call probs%need(c%contacts(k) == 'cone' .or. c%contacts(k) == 'online', &
-        "&rom: contacts(" // str(k) // ") must be 'cone' or 'online' (got '" // trim(c%contacts(k)) // "')")
+        "&sweep: contacts(" // str(k) // ") must be 'cone' or 'online' (got '" // trim(c%contacts(k)) // "')")
       call probs%need(c%contacts(k) /= 'online' .or. c%hyper(k) == 'none', &
-        "&rom: contacts(" // str(k) // ") = 'online' needs hyper(" // str(k) // ") = 'none' (the online rows " // &
+        "&sweep: contacts(" // str(k) // ") = 'online' needs hyper(" // str(k) // ") = 'none' (the online rows " // &
         "are assembled exactly)")
       call probs%need(c%m_v(k) >= 0 .and. c%m_b(k) >= 0 .and. c%m_d(k) >= 0, &
-        "&rom: m_v, m_b, m_d(" // str(k) // ") must be >= 0 (0: defaults)")
+        "&sweep: m_v, m_b, m_d(" // str(k) // ") must be >= 0 (0: defaults)")
     end do
-    call probs%need(c%solver == 'nnls' .or. c%solver == 'uzawa', "&rom: solver must be 'nnls' or 'uzawa'")
-    call probs%need(c%nnls_max_iter >= 0, "&rom: nnls_max_iter must be >= 0 (0: default)")
-    call probs%need(c%uzawa_rho_factor > 0, "&rom: uzawa_rho_factor must be > 0")
-    call probs%need(c%uzawa_eps > 0, "&rom: uzawa_eps must be > 0")
-    call probs%need(c%uzawa_max_iter >= 1, "&rom: uzawa_max_iter must be >= 1")
-    call probs%need(c%fom_timing_samples >= 0, "&rom: fom_timing_samples must be >= 0")
-    call probs%need(c%fom_tol > 0, "&rom: fom_tol must be > 0")
-    call probs%need(c%fom_uzawa_eps > 0, "&rom: fom_uzawa_eps must be > 0")
-    call probs%need(c%fom_uzawa_steps >= 0, "&rom: fom_uzawa_steps must be >= 0 (0: all steps)")
+    call probs%need(c%solver == 'nnls' .or. c%solver == 'uzawa', "&reduced: solver must be 'nnls' or 'uzawa'")
+    call probs%need(c%nnls_max_iter >= 0, "&reduced: nnls_max_iter must be >= 0 (0: default)")
+    call probs%need(c%uzawa_rho_factor > 0, "&reduced: uzawa_rho_factor must be > 0")
+    call probs%need(c%uzawa_eps > 0, "&reduced: uzawa_eps must be > 0")
+    call probs%need(c%uzawa_max_iter >= 1, "&reduced: uzawa_max_iter must be >= 1")
+    call probs%need(c%fom_timing_samples >= 0, "&fom_timing: samples must be >= 0")
+    call probs%need(c%fom_tol > 0, "&fom_timing: tol must be > 0")
+    call probs%need(c%fom_uzawa_eps > 0, "&fom_timing: uzawa_eps must be > 0")
+    call probs%need(c%fom_uzawa_steps >= 0, "&fom_timing: uzawa_steps must be >= 0 (0: all steps)")
     call probs%need(c%fom_uzawa_rows == 'all' .or. c%fom_uzawa_rows == 'near', &
-      "&rom: fom_uzawa_rows must be 'all' or 'near' (got '" // trim(c%fom_uzawa_rows) // "')")
+      "&fom_timing: uzawa_rows must be 'all' or 'near' (got '" // trim(c%fom_uzawa_rows) // "')")
     call probs%need(any(c%fom_exact_solver == [character(len=32) :: 'active_set', 'gpcg']), &
-      "&rom: fom_exact_solver must be 'active_set' or 'gpcg'")
+      "&fom_timing: exact_solver must be 'active_set' or 'gpcg'")
     call probs%need(c%timing_repeats >= 1, "&rom: timing_repeats must be >= 1")
     call probs%to_error(path, error)
   end subroutine check_rom
 
-  !> The group as re-readable namelist text.
+  !> The groups as re-readable namelist text.
   function rom_echo(c) result(s)
     type(rom_cfg_t), intent(in) :: c
     character(len=:), allocatable :: s
+    character(len=*), parameter :: nl = new_line('a')
     integer :: k
-    character(len=256) :: b
     s = "&rom rom_file = '" // trim(c%rom_file) // "', database = '" // trim(c%database) // "', output = '" // &
       trim(c%output) // "', table = '" // trim(c%table) // "', sets = '" // trim(c%sets) // "', n_samples = " // &
-      str(c%n_samples) // ", solver = '" // trim(c%solver) // "'"
-    write(b, '(a, i0, a, es23.16, a, es23.16, a, i0, a, i0, a, es23.16, a, i0)') ", nnls_max_iter = ", &
-      c%nnls_max_iter, ", uzawa_rho_factor = ", c%uzawa_rho_factor, ", uzawa_eps = ", c%uzawa_eps, &
-      ", uzawa_max_iter = ", c%uzawa_max_iter, ", fom_timing_samples = ", c%fom_timing_samples, &
-      ", fom_tol = ", c%fom_tol, ", timing_repeats = ", c%timing_repeats
-    s = s // trim(b) // ", fom_uzawa_eps = " // str(c%fom_uzawa_eps, "es23.16") // ", fom_uzawa_steps = " // &
-      str(c%fom_uzawa_steps) // ", fom_uzawa_rows = '" // trim(c%fom_uzawa_rows) // "'"
-    b = ''
-    s = s // trim(b) // ", fom_exact_solver = '" // trim(c%fom_exact_solver) // "'"
-    do k = 1, MAX_SETTINGS
-      if (c%n(k) == 0) cycle
-      s = s // new_line('a') // "  n(" // str(k) // ") = " // str(c%n(k)) // ", r(" // str(k) // ") = " // &
-        str(c%r(k)) // ", hyper(" // str(k) // ") = '" // trim(c%hyper(k)) // "', contacts(" // str(k) // &
-        ") = '" // trim(c%contacts(k)) // "', m_v(" // str(k) // ") = " // str(c%m_v(k)) // ", m_b(" // &
-        str(k) // ") = " // str(c%m_b(k)) // ", m_d(" // str(k) // ") = " // str(c%m_d(k))
-    end do
+      str(c%n_samples) // ", timing_repeats = " // str(c%timing_repeats)
     if (c%sets == 'given') then
-      s = s // new_line('a') // "  mu = " // str(c%mu(1), "es23.16")
+      s = s // nl // "  mu = " // str(c%mu(1), "es23.16")
       do k = 2, MAX_MU
         if (c%mu(k) <= -huge(1.0_wp)) exit
         s = s // ", " // str(c%mu(k), "es23.16")
       end do
     end if
-    s = s // " /" // new_line('a')
+    s = s // " /" // nl // "&sweep"
+    do k = 1, MAX_SETTINGS
+      if (c%n(k) == 0) cycle
+      s = s // nl // "  n(" // str(k) // ") = " // str(c%n(k)) // ", r(" // str(k) // ") = " // &
+        str(c%r(k)) // ", hyper(" // str(k) // ") = '" // trim(c%hyper(k)) // "', contacts(" // str(k) // &
+        ") = '" // trim(c%contacts(k)) // "', m_v(" // str(k) // ") = " // str(c%m_v(k)) // ", m_b(" // &
+        str(k) // ") = " // str(c%m_b(k)) // ", m_d(" // str(k) // ") = " // str(c%m_d(k))
+    end do
+    s = s // " /" // nl // "&reduced solver = '" // trim(c%solver) // "', nnls_max_iter = " // str(c%nnls_max_iter) // &
+      ", uzawa_rho_factor = " // str(c%uzawa_rho_factor, "es23.16") // ", uzawa_eps = " // &
+      str(c%uzawa_eps, "es23.16") // ", uzawa_max_iter = " // str(c%uzawa_max_iter) // " /" // nl // &
+      "&fom_timing samples = " // str(c%fom_timing_samples) // ", tol = " // str(c%fom_tol, "es23.16") // &
+      ", uzawa_eps = " // str(c%fom_uzawa_eps, "es23.16") // ", uzawa_steps = " // str(c%fom_uzawa_steps) // &
+      ", uzawa_rows = '" // trim(c%fom_uzawa_rows) // "', exact_solver = '" // trim(c%fom_exact_solver) // "' /" // nl
   end function rom_echo
 end module cr_rom_config
