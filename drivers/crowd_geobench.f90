@@ -32,9 +32,16 @@ program crowd_geobench
   if (command_argument_count() < 1) then
     write(*, '(a)') "usage: crowd_geobench input.nml [repeats]"
     call MPI_Finalize(ierr)
-    error stop 2
+    stop 2, quiet=.true.
   end if
   call get_command_argument(1, path)
+  if (trim(path) == '--help' .or. trim(path) == '-h') then
+    write(*, '(a)') "usage: crowd_geobench input.nml [repeats]"
+    write(*, '(a)') "times the desired-velocity models 'grid', 'exact' and 'auto' on the scene and initial"
+    write(*, '(a)') "placement of input.nml: setup per sample and evaluation at all agents (serial)"
+    call MPI_Finalize(ierr)
+    stop
+  end if
   repeats = 20
   if (command_argument_count() >= 2) then
     call get_command_argument(2, arg)
@@ -97,6 +104,6 @@ contains
     character(len=*), intent(in) :: msg
     write(*, '(a)') "error: " // msg
     call MPI_Finalize(ierr)
-    error stop 2
+    stop 2, quiet=.true.
   end subroutine fail
 end program crowd_geobench

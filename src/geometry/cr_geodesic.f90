@@ -88,6 +88,8 @@ module cr_geodesic
     real(wp), allocatable :: nd_pos(:,:), nd_u(:), nd_dist(:)
     !> smallest node distance on each circle (huge if none): a lower bound for pruning [nc]
     real(wp), allocatable :: c_min(:)
+    !> the circles with a reachable node, the only ones a query looks at
+    integer, allocatable :: act(:)
   contains
     !> build the tangent graph and the node distances
     procedure :: init
@@ -223,6 +225,7 @@ contains
           this%c_min(i) = min(this%c_min(i), minval(this%nd_dist(this%nd_ptr(k):this%nd_ptr(k + 1) - 1)))
       end do
     end do
+    this%act = pack([(i, i = 1, nc)], this%c_min < huge(1.0_wp))
     this%ready = .true.
 
   contains
@@ -907,6 +910,8 @@ contains
     real(wp) :: x(2), shift, d, nrm(2), s(2), l, t(2, 2), tdir(2, 2), th, u, best, cost, arcd
     integer :: it, k, ic, br, arc, m, nb
     logical :: moved, closest
+    real(wp) :: lb(GEODESIC_MAX_CIRCLES)
+    integer :: na
 
     dist = huge(1.0_wp)
     dir = 0.0_wp
@@ -943,12 +948,19 @@ contains
         return
       end if
     end if
-    ! around obstacles: first leg tangent to a circle, then along its free arc to a node
-    do ic = 1, this%nc
-      if (this%iv_ptr(ic + 1) == this%iv_ptr(ic)) cycle
-      ! lower bound: tangent length + the circle's smallest node distance
-      d = sum((this%cen(:, ic) - x)**2) - this%rho(ic)**2
-      if (sqrt(max(d, 0.0_wp)) + this%c_min(ic) >= best) cycle
+    ! around obstacles: first leg tangent to a circle, then along its free arc to a node;
+    ! circles in increasing order of a lower bound (tangent length + the circle's smallest node
+    ! distance) until the bound reaches the best path found
+    na = size(this%act)
+    do k = 1, na
+      ic = this%act(k)
+      lb(k) = sqrt(max(sum((this%cen(:, ic) - x)**2) - this%rho(ic)**2, 0.0_wp)) + this%c_min(ic)
+    end do
+    do it = 1, na
+      k = minloc(lb(1:na), dim=1)
+      if (lb(k) >= best) exit
+      lb(k) = huge(1.0_wp)
+      ic = this%act(k)
       call point_tangents(x, this%cen(:, ic), this%rho(ic), t, tdir)
       do br = 1, 2
         th = angle_of(t(:, br) - this%cen(:, ic))
@@ -1008,6 +1020,7 @@ contains
     if (allocated(this%nd_ptr)) deallocate(this%nd_ptr)
     if (allocated(this%nd_pos)) deallocate(this%nd_pos, this%nd_u, this%nd_dist)
     if (allocated(this%c_min)) deallocate(this%c_min)
+    if (allocated(this%act)) deallocate(this%act)
     this%nc = 0
     this%nn = 0
     this%ready = .false.
