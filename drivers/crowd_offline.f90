@@ -19,7 +19,7 @@ program crowd_offline
   use cr_namelist_text, only: namelist_text_t
   use cr_offline_config, only: offline_cfg_t, read_offline, check_offline, offline_echo
   use cr_offline_data, only: offline_data_t, load_training
-  use cr_pod, only: pod_result_t, pod_tsqr, pod_rsvd, pod_scalapack, pod_snapshots
+  use cr_pod, only: pod_result_t, pod_compute, rsvd_opts_t, pod_rsvd, pod_snapshots
   use cr_cone, only: cone_result_t, gis_build, mcpg_build
   use cr_sparse_cone, only: sparse_cone_t
   use cr_supremizer, only: pga_result_t, pga_enrich
@@ -74,6 +74,7 @@ contains
     type(error_t), allocatable, intent(out) :: error
     type(offline_data_t) :: data
     type(pod_result_t) :: pod
+    type(rsvd_opts_t) :: rsvd
     type(cone_result_t) :: cone, other
     type(sparse_cone_t) :: scone
     type(pga_result_t) :: pga
@@ -104,34 +105,12 @@ contains
         "dofs (" // str(data%n_dof) // ")", 2)
     end if
     if (collective_fail()) return
-    select case (trim(ocfg%pod_method))
-    case ('tsqr')
-      if (nmodes > 0) then
-        call pod_tsqr(env, data%u, pod, error, n_modes=nmodes)
-      else
-        call pod_tsqr(env, data%u, pod, error, eps=eps)
-      end if
-    case ('snapshots')
-      if (nmodes > 0) then
-        call pod_snapshots(env, data%u, pod, error, n_modes=nmodes)
-      else
-        call pod_snapshots(env, data%u, pod, error, eps=eps)
-      end if
-    case ('scalapack')
-      if (nmodes > 0) then
-        call pod_scalapack(env, data%u, pod, error, n_modes=nmodes)
-      else
-        call pod_scalapack(env, data%u, pod, error, eps=eps)
-      end if
-    case ('rsvd')
-      if (nmodes > 0) then
-        call pod_rsvd(env, data%u, ocfg%rsvd_rank, ocfg%rsvd_oversampling, ocfg%rsvd_power, &
-          trim(ocfg%rsvd_sketch), ocfg%rsvd_seed, pod, error, n_modes=nmodes)
-      else
-        call pod_rsvd(env, data%u, ocfg%rsvd_rank, ocfg%rsvd_oversampling, ocfg%rsvd_power, &
-          trim(ocfg%rsvd_sketch), ocfg%rsvd_seed, pod, error, eps=eps)
-      end if
-    end select
+    rsvd = rsvd_opts_t(ocfg%rsvd_rank, ocfg%rsvd_oversampling, ocfg%rsvd_power, ocfg%rsvd_seed, ocfg%rsvd_sketch)
+    if (nmodes > 0) then
+      call pod_compute(env, trim(ocfg%pod_method), data%u, pod, error, n_modes=nmodes, rsvd=rsvd)
+    else
+      call pod_compute(env, trim(ocfg%pod_method), data%u, pod, error, eps=eps, rsvd=rsvd)
+    end if
     if (collective_fail()) return
     if (nmodes > 0 .and. pod%n_modes < nmodes) call log%warn("&pod n = " // str(nmodes) // &
       " exceeds the numerical rank of the snapshots: " // str(pod%n_modes) // " modes kept")

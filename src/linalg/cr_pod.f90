@@ -33,7 +33,7 @@ module cr_pod
   use cr_distribution, only: block_range, blacs_grid_t, cyclic_owner, cyclic_local_index, DLEN
   implicit none
   private
-  public :: pod_result_t, pod_tsqr, pod_snapshots, pod_rsvd, pod_scalapack
+  public :: pod_result_t, pod_tsqr, pod_snapshots, pod_rsvd, pod_scalapack, pod_compute, rsvd_opts_t, POD_METHODS
   public :: snapshot_layout, sketch_gaussian, sketch_srft
 
   include 'fftw3.f03'
@@ -61,7 +61,45 @@ module cr_pod
 
   integer, parameter :: ROOT = 0
 
+  !> the POD methods of pod_compute
+  character(len=16), parameter :: POD_METHODS(4) = [character(len=16) :: 'tsqr', 'rsvd', 'scalapack', 'snapshots']
+
+  !> Settings of the randomized SVD (pod_compute with method 'rsvd').
+  type :: rsvd_opts_t
+    integer :: rank = 50, oversampling = 10, power = 2, seed = 1
+    character(len=16) :: sketch = 'gaussian'
+  end type rsvd_opts_t
+
 contains
+
+  !> The POD of the distributed snapshots by `method` (one of POD_METHODS; 'rsvd' with the
+  !> settings `rsvd`), truncated at n_modes modes or at energy eps (as each method documents).
+  subroutine pod_compute(env, method, s_local, result, error, eps, n_modes, rsvd)
+    type(env_t), intent(in) :: env
+    character(len=*), intent(in) :: method
+    !> snapshots, columns distributed over ranks [n_dof, n_snap_local]
+    real(wp), contiguous, intent(in) :: s_local(:, :)
+    type(pod_result_t), intent(out) :: result
+    type(error_t), allocatable, intent(out) :: error
+    real(wp), intent(in), optional :: eps
+    integer, intent(in), optional :: n_modes
+    type(rsvd_opts_t), intent(in), optional :: rsvd
+    type(rsvd_opts_t) :: ro
+    if (present(rsvd)) ro = rsvd
+    select case (trim(method))
+    case ('tsqr')
+      call pod_tsqr(env, s_local, result, error, eps=eps, n_modes=n_modes)
+    case ('snapshots')
+      call pod_snapshots(env, s_local, result, error, eps=eps, n_modes=n_modes)
+    case ('scalapack')
+      call pod_scalapack(env, s_local, result, error, eps=eps, n_modes=n_modes)
+    case ('rsvd')
+      call pod_rsvd(env, s_local, ro%rank, ro%oversampling, ro%power, trim(ro%sketch), ro%seed, result, error, &
+        eps=eps, n_modes=n_modes)
+    case default
+      call set_error(error, "pod: unknown method '" // trim(method) // "' (known: tsqr, rsvd, scalapack, snapshots)", 2)
+    end select
+  end subroutine pod_compute
 
   !> Global layout of the column blocks: number of snapshots and this rank's offset.
   !> Fails (on every rank) if n_dof differs between ranks.

@@ -6,6 +6,7 @@ module cr_offline_config
   use cr_error, only: error_t, set_error, problems_t
   use cr_strings, only: str
   use cr_namelist_text, only: namelist_text_t
+  use cr_pod, only: POD_METHODS
   implicit none
   private
   public :: offline_cfg_t, read_offline, check_offline, offline_echo, MAX_GRID
@@ -200,7 +201,7 @@ contains
     type(problems_t) :: probs
     call probs%need(len_trim(c%database) > 0, "&offline: database must be given")
     call probs%need(len_trim(c%rom_file) > 0, "&offline: rom_file must be given")
-    call probs%need(any(c%pod_method == [character(len=16) :: 'tsqr', 'rsvd', 'scalapack', 'snapshots']), &
+    call probs%need(any(c%pod_method == POD_METHODS), &
       "&pod: method must be 'tsqr', 'rsvd', 'scalapack' or 'snapshots' (got '" // trim(c%pod_method) // "')")
     call probs%need(c%pod_n >= 0, "&pod: n must be >= 0 (0: truncate by energy)")
     call probs%need(c%pod_energy >= 0 .and. c%pod_energy <= 1, "&pod: energy must be in [0, 1]")

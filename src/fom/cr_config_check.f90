@@ -1,4 +1,5 @@
-!> Validation of a configuration: every range and consistency rule in one place.
+!> Validation of the full model's configuration (src/fom: it asks the solver factory and the model
+!> about names and shapes): every range and consistency rule in one place.
 !> All problems are collected and reported together in one error.
 module cr_config_check
   use cr_kinds, only: wp
