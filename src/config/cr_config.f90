@@ -13,7 +13,7 @@ module cr_config
   private
   public :: config_t, scene_cfg_t, obstacles_cfg_t, agents_cfg_t, desired_cfg_t, time_cfg_t, &
     contacts_cfg_t, output_cfg_t, read_config, parse_config, config_echo, MAX_OBST, MAX_POLY_V, MAX_PATH, &
-    FOM_GROUPS
+    FOM_GROUPS, nml_status
 
   integer, parameter :: MAX_OBST = 64, MAX_POLY_V = 16, MAX_PATH = 512
 
@@ -157,6 +157,8 @@ contains
   end subroutine parse_config
 
   !> Turn a namelist read status into an error naming file and group.
+  !> Error of a namelist read of `group` (iostat ios, iomsg msg) naming the file, the group and
+  !> what the compiler says (e.g. the variable); an absent group keeps its defaults.
   subroutine nml_status(t, group, ios, msg, error)
     type(namelist_text_t), intent(in) :: t
     character(len=*), intent(in) :: group

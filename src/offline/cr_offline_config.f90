@@ -6,6 +6,7 @@ module cr_offline_config
   use cr_error, only: error_t, set_error, problems_t
   use cr_strings, only: str
   use cr_namelist_text, only: namelist_text_t
+  use cr_config, only: nml_status
   use cr_pod, only: POD_METHODS
   implicit none
   private
@@ -77,16 +78,6 @@ contains
 
   contains
 
-    !> Error for a failed read of group g (an absent group keeps its defaults).
-    subroutine after_read(g, ios, msg, error)
-      character(len=*), intent(in) :: g, msg
-      integer, intent(in) :: ios
-      type(error_t), allocatable, intent(out) :: error
-      if (ios == 0) return
-      if (is_iostat_end(ios) .and. .not. t%has_group(g)) return
-      call set_error(error, t%path // ": namelist group &" // g // ": " // trim(msg), 2)
-    end subroutine after_read
-
     subroutine read_files(error)
       type(error_t), allocatable, intent(out) :: error
       character(len=MAX_PATH) :: database, rom_file
@@ -96,7 +87,7 @@ contains
       database = c%database; rom_file = c%rom_file
       msg = ''
       read(t%lines, nml=offline, iostat=ios, iomsg=msg)
-      call after_read('offline', ios, msg, error); if (allocated(error)) return
+      call nml_status(t, 'offline', ios, msg, error); if (allocated(error)) return
       c%database = database; c%rom_file = rom_file
     end subroutine read_files
 
@@ -113,7 +104,7 @@ contains
       rsvd_seed = c%rsvd_seed; compare_n = c%pod_compare_n
       msg = ''
       read(t%lines, nml=pod, iostat=ios, iomsg=msg)
-      call after_read('pod', ios, msg, error); if (allocated(error)) return
+      call nml_status(t, 'pod', ios, msg, error); if (allocated(error)) return
       c%pod_method = method; c%pod_n = n; c%pod_energy = energy; c%rsvd_rank = rsvd_rank
       c%rsvd_oversampling = rsvd_oversampling; c%rsvd_power = rsvd_power; c%rsvd_sketch = rsvd_sketch
       c%rsvd_seed = rsvd_seed; c%pod_compare_n = compare_n
@@ -132,7 +123,7 @@ contains
       mcpg_r_max = c%mcpg_r_max
       msg = ''
       read(t%lines, nml=cone, iostat=ios, iomsg=msg)
-      call after_read('cone', ios, msg, error); if (allocated(error)) return
+      call nml_status(t, 'cone', ios, msg, error); if (allocated(error)) return
       c%cone_method = method; c%cone_compare = compare; c%cone_delta = delta; c%cone_r_max = r_max
       c%mcpg_r_max = mcpg_r_max
     end subroutine read_cone
@@ -148,7 +139,7 @@ contains
       enabled = c%pga; delta = c%pga_delta; max_add = c%pga_max_add
       msg = ''
       read(t%lines, nml=pga, iostat=ios, iomsg=msg)
-      call after_read('pga', ios, msg, error); if (allocated(error)) return
+      call nml_status(t, 'pga', ios, msg, error); if (allocated(error)) return
       c%pga = enabled; c%pga_delta = delta; c%pga_max_add = max_add
     end subroutine read_pga
 
@@ -161,7 +152,7 @@ contains
       n = c%infsup_n; r = c%infsup_r; samples = c%infsup_samples
       msg = ''
       read(t%lines, nml=infsup, iostat=ios, iomsg=msg)
-      call after_read('infsup', ios, msg, error); if (allocated(error)) return
+      call nml_status(t, 'infsup', ios, msg, error); if (allocated(error)) return
       c%infsup_n = n; c%infsup_r = r; c%infsup_samples = samples
     end subroutine read_infsup
 
@@ -174,7 +165,7 @@ contains
       n = c%rom_n; r = c%rom_r
       msg = ''
       read(t%lines, nml=pairs, iostat=ios, iomsg=msg)
-      call after_read('pairs', ios, msg, error); if (allocated(error)) return
+      call nml_status(t, 'pairs', ios, msg, error); if (allocated(error)) return
       c%rom_n = n; c%rom_r = r
     end subroutine read_pairs
 
@@ -188,7 +179,7 @@ contains
       enabled = c%hyper; m_factor = c%hyper_m_factor; eq_tol = c%eq_tol
       msg = ''
       read(t%lines, nml=hyper, iostat=ios, iomsg=msg)
-      call after_read('hyper', ios, msg, error); if (allocated(error)) return
+      call nml_status(t, 'hyper', ios, msg, error); if (allocated(error)) return
       c%hyper = enabled; c%hyper_m_factor = m_factor; c%eq_tol = eq_tol
     end subroutine read_hyper
   end subroutine read_offline

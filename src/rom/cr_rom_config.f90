@@ -13,6 +13,7 @@ module cr_rom_config
   use cr_error, only: error_t, set_error, problems_t
   use cr_strings, only: str
   use cr_namelist_text, only: namelist_text_t
+  use cr_config, only: nml_status
   implicit none
   private
   public :: rom_cfg_t, read_rom, check_rom, rom_echo, MAX_SETTINGS, MAX_MU
@@ -89,16 +90,6 @@ contains
 
   contains
 
-    !> Error for a failed read of group g (an absent optional group keeps its defaults).
-    subroutine after_read(g, ios, msg, error)
-      character(len=*), intent(in) :: g, msg
-      integer, intent(in) :: ios
-      type(error_t), allocatable, intent(out) :: error
-      if (ios == 0) return
-      if (is_iostat_end(ios) .and. .not. t%has_group(g)) return
-      call set_error(error, t%path // ": namelist group &" // g // ": " // trim(msg), 2)
-    end subroutine after_read
-
     subroutine read_files(error)
       type(error_t), allocatable, intent(out) :: error
       character(len=MAX_PATH) :: rom_file, database, output, table
@@ -112,7 +103,7 @@ contains
       n_samples = c%n_samples; mu = c%mu; timing_repeats = c%timing_repeats
       msg = ''
       read(t%lines, nml=rom, iostat=ios, iomsg=msg)
-      call after_read('rom', ios, msg, error); if (allocated(error)) return
+      call nml_status(t, 'rom', ios, msg, error); if (allocated(error)) return
       c%rom_file = rom_file; c%database = database; c%output = output; c%table = table; c%sets = sets
       c%n_samples = n_samples; c%mu = mu; c%timing_repeats = timing_repeats
     end subroutine read_files
@@ -127,7 +118,7 @@ contains
       n = c%n; r = c%r; hyper = c%hyper; contacts = c%contacts; m_v = c%m_v; m_b = c%m_b; m_d = c%m_d
       msg = ''
       read(t%lines, nml=sweep, iostat=ios, iomsg=msg)
-      call after_read('sweep', ios, msg, error); if (allocated(error)) return
+      call nml_status(t, 'sweep', ios, msg, error); if (allocated(error)) return
       c%n = n; c%r = r; c%hyper = hyper; c%contacts = contacts; c%m_v = m_v; c%m_b = m_b; c%m_d = m_d
     end subroutine read_sweep
 
@@ -143,7 +134,7 @@ contains
       uzawa_eps = c%uzawa_eps; uzawa_max_iter = c%uzawa_max_iter
       msg = ''
       read(t%lines, nml=reduced, iostat=ios, iomsg=msg)
-      call after_read('reduced', ios, msg, error); if (allocated(error)) return
+      call nml_status(t, 'reduced', ios, msg, error); if (allocated(error)) return
       c%solver = solver; c%nnls_max_iter = nnls_max_iter; c%uzawa_rho_factor = uzawa_rho_factor
       c%uzawa_eps = uzawa_eps; c%uzawa_max_iter = uzawa_max_iter
     end subroutine read_reduced
@@ -161,7 +152,7 @@ contains
       uzawa_steps = c%fom_uzawa_steps; uzawa_rows = c%fom_uzawa_rows; exact_solver = c%fom_exact_solver
       msg = ''
       read(t%lines, nml=fom_timing, iostat=ios, iomsg=msg)
-      call after_read('fom_timing', ios, msg, error); if (allocated(error)) return
+      call nml_status(t, 'fom_timing', ios, msg, error); if (allocated(error)) return
       c%fom_timing_samples = samples; c%fom_tol = tol; c%fom_uzawa_eps = uzawa_eps
       c%fom_uzawa_steps = uzawa_steps; c%fom_uzawa_rows = uzawa_rows; c%fom_exact_solver = exact_solver
     end subroutine read_timing
