@@ -234,7 +234,7 @@ contains
       real(wp), allocatable :: e_mu(:), e_proj(:), overlap(:), time(:), mobility(:)
       integer, allocatable :: not_left(:), not_left_fom(:), infeas(:), capped(:), extrap(:)
       character(len=:), allocatable :: g
-      integer :: k, nt, nb, rep
+      integer :: k, nt, nb, rep, n_fallback, active_sum
       nt = st%n_steps
       call make_reduced_ops(trim(rcfg%hyper(kset)), trim(rcfg%contacts(kset)), pair, &
         [rcfg%m_v(kset), rcfg%m_b(kset), rcfg%m_d(kset)], st%cfg%contacts%cutoff_factor, &
@@ -251,6 +251,7 @@ contains
         overlap(blk%n), time(blk%n), mobility(blk%n), not_left(blk%n), not_left_fom(blk%n), infeas(blk%n), capped(blk%n), &
         extrap(blk%n))
       err_time = -1; e_mu = -1; e_proj = -1; not_left_fom = -1; mobility = -1
+      n_fallback = 0; active_sum = 0
       call log%progress_start()
       do k = 1, blk%n
         c2 = st%cfg
@@ -279,6 +280,7 @@ contains
         time(k) = traj%time
         infeas(k) = traj%n_infeasible
         capped(k) = traj%n_capped
+        n_fallback = n_fallback + traj%n_fallback; active_sum = active_sum + traj%active_sum
         overlap(k) = max_overlap(ctx%scene, st%radius, qr)
         not_left(k) = agents_not_left(ctx%scene, st%radius, qr(:, nt + 1))
         extrap(k) = merge(1, 0, any(blk%mu(:, k) < st%space%lo - 1.0e-12_wp * abs(st%space%lo)) .or. &
@@ -313,6 +315,9 @@ contains
         "), mobility " // str(row%mobility, "f6.3") // ", infeasible steps " // str(row%infeasible) // &
         ", capped " // str(row%capped) // ", " // &
         str(row%t_step, "es9.2") // " s/step")
+      if (rcfg%solver == 'dual') call log%info("   dual active set: " // str(n_fallback) // " of " // &
+        str(nt * blk%n) // " steps fell back to the NNLS (infeasible ones included), mean active rows " // &
+        str(real(active_sum, wp) / max(1, nt * blk%n), "f6.1"))
       if (row%infeasible > 0) call log%warn(str(row%infeasible) // " reduced steps were infeasible (the reduced " // &
         "positions already overlap): least-violation coefficients used")
       if (row%capped > 0) call log%warn(str(row%capped) // " reduced solves stopped at their iteration cap " // &

@@ -22,6 +22,8 @@ module cr_reduced_ops
   use cr_rom_model, only: rom_pair_data_t
   use cr_hyper_terms, only: contact_row_image
   use cr_eim, only: eim_t, eim_interp_matrix
+  use cr_dual_qp, only: gram_source_t
+  use cr_kinds, only: i8
   implicit none
   private
   public :: eval_ctx_t, reduced_ops_t, make_reduced_ops, HYPER_NAMES
@@ -37,8 +39,9 @@ module cr_reduced_ops
     real(wp) :: radius = 0, h = 0
   end type eval_ctx_t
 
-  !> A way of assembling (vhat, bhat, dhat).
-  type, abstract :: reduced_ops_t
+  !> A way of assembling (vhat, bhat, dhat); also the source of the Gram entries of the
+  !> assembled rows for the dual active-set solver (when has_gram).
+  type, abstract, extends(gram_source_t) :: reduced_ops_t
     integer :: nb = 0, r = 0
     !> agents whose positions `assemble` reads
     integer, allocatable :: agents(:)
@@ -48,6 +51,9 @@ module cr_reduced_ops
     real(wp), allocatable :: v(:,:)
     !> .true. when the rows are the R cone vectors (multipliers comparable across steps)
     logical :: fixed_rows = .true.
+    !> identity of each assembled row when the rows change from step to step ('online':
+    !> the contact key, agent pair or agent-obstacle pair) [rows]
+    integer(i8), allocatable :: keys(:)
     !> the cone by support rows (CSR): row l has cone entries wk(wp0(l)+1 : wp0(l+1)) with
     !> values wv (one entry per row for gIS cones)
     integer, allocatable :: wp0(:), wk(:)
@@ -55,7 +61,8 @@ module cr_reduced_ops
     !> Gram matrix of the reduced rows without touching the basis: row k of bhat is z_k V with
     !> a sparse z_k (at most zmax entries, recorded by `assemble`), so bhat bhat^T =
     !> Z (V V^T) Z^T costs zmax^2 flops per entry instead of Nb (has_gram: cone variants with
-    !> zmax <= 16, Nb >= 4 zmax^2 and n_dof <= 4000)
+    !> zmax <= 16, Nb >= 4 zmax^2 and n_dof <= 4000; online contacts (zmax = 4) when
+    !> Nb >= 16 and n_dof <= 4000)
     logical :: has_gram = .false.
     integer :: zmax = 0
     real(wp), allocatable :: pmat(:,:), zval(:,:)
@@ -63,6 +70,7 @@ module cr_reduced_ops
   contains
     procedure(assemble_i), deferred :: assemble
     procedure :: gram => ops_gram
+    procedure :: gram_entries => ops_gram_entries
     procedure, private :: z_add
   end type reduced_ops_t
 
@@ -172,6 +180,11 @@ contains
       allocate(ops%vfull(2 * n_agents))
       call ops%cs%init(n_agents, 1.0_wp, 8 * n_agents)
       need = .true.
+      ! Gram entries of contact rows (4 dofs each) for the dual active-set solver
+      ops%zmax = 4
+      ops%has_gram = pair%nb >= 16 .and. 2 * n_agents <= 4000
+      if (ops%has_gram) ops%pmat = matmul(pair%v, transpose(pair%v))
+      allocate(ops%zn(0), ops%zdof(4, 0), ops%zval(4, 0), ops%keys(0))
     type is (ops_exact_t)
       ops%ia = pair%terms%ia; ops%ib = pair%terms%ib; ops%ob = pair%terms%ob
       ops%w = pair%terms%w
@@ -355,6 +368,30 @@ contains
     end do
   end subroutine ops_gram
 
+  !> g(j) = (row p) . (row idx(j)) of the last assembled bhat, from the recorded sparse
+  !> rows: z_p P z_j^T (zmax^2 flops per entry; needs has_gram).
+  subroutine ops_gram_entries(this, p, idx, g)
+    class(reduced_ops_t), intent(in) :: this
+    integer, intent(in) :: p, idx(:)
+    real(wp), intent(out) :: g(:)
+    integer :: jj, k, i, j, np
+    real(wp) :: t, zp(this%zmax)
+    integer :: dp(this%zmax)
+    np = this%zn(p)
+    zp(1:np) = this%zval(1:np, p)
+    dp(1:np) = this%zdof(1:np, p)
+    do jj = 1, size(idx)
+      k = idx(jj)
+      t = 0
+      do j = 1, this%zn(k)
+        do i = 1, np
+          t = t + zp(i) * this%zval(j, k) * this%pmat(dp(i), this%zdof(j, k))
+        end do
+      end do
+      g(jj) = t
+    end do
+  end subroutine ops_gram_entries
+
   !> CSR by rows of the cone on its support rows w [p3, R].
   subroutine cone_rows(w, ptr, k, val)
     real(wp), intent(in) :: w(:,:)
@@ -501,10 +538,20 @@ contains
       if (size(bhat, 1) /= this%cs%n) deallocate(bhat, dhat)
     end if
     if (.not. allocated(bhat)) allocate(bhat(this%cs%n, this%nb), dhat(this%cs%n))
+    if (size(this%keys) < this%cs%n) then
+      deallocate(this%keys, this%zn, this%zdof, this%zval)
+      allocate(this%keys(2 * this%cs%n), this%zn(2 * this%cs%n), this%zdof(4, 2 * this%cs%n), &
+        this%zval(4, 2 * this%cs%n))
+    end if
     do l = 1, this%cs%n
       a = this%cs%ia(l); b = this%cs%ib(l)
       bhat(l, :) = contact_row_image(this%v, a, b, this%cs%g(:, l), ctx%h)
       dhat(l) = this%cs%gap(l)
+      this%keys(l) = this%cs%key(l)
+      if (this%has_gram) then
+        this%zn(l) = 0
+        call this%z_add(l, 1.0_wp, a, b, this%cs%g(:, l), ctx%h)
+      end if
     end do
   end subroutine online_assemble
 

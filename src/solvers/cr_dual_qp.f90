@@ -1,0 +1,399 @@
+!> Warm-started dual active-set solver (Goldfarb-Idnani) for the least-distance problem
+!>   min 1/2 |u - v|_2^2  s.t.  Bm u <= d,   Bm: [m, n],
+!> the reduced projection of the reduced-order model (u = alpha, v = vhat, Bm = bhat).
+!>
+!> Method. The Hessian is the identity, so the whole state is an active set A of linearly
+!> independent rows, their multipliers lambda_A >= 0 and the Cholesky factor L L^T = G_A of
+!> the Gram matrix of the active rows only (G_ij = b_i . b_j). The primal point is
+!> u = v - Bm_A^T lambda_A with Bm_A u = d_A. One iteration of the outer loop forms u and the
+!> slacks s = d - Bm u (two matrix-vector products, O(m n)), picks the most violated row p
+!> (largest -s_p / |b_p|) and adds it by the dual step of Goldfarb and Idnani (Math. Prog. 27,
+!> 1983): with r = G_A^{-1} G_Ap and zeta = G_pp - G_pA r (the squared distance of b_p to the
+!> span of the active rows), increasing lambda_p by t moves lambda_A by -t r and raises s_p
+!> by t zeta; the step is the smaller of the full step (s_p = 0, p joins A: one new row of L)
+!> and the partial step at which an active multiplier reaches 0 (that row leaves A: a
+!> Givens downdate of L). Only the Gram entries G_pA of an entering row are formed, through
+!> a `gram_source_t` when the caller has them cheaply, else as dot products of rows. The
+!> work per step is O(m n) per added row plus O(k^2) per factor update, never O(m^2).
+!>
+!> Warm start. The rows with lambda > 0 on entry are factored (numerically dependent ones
+!> skipped), the equality-constrained problem on them is solved, and rows with negative
+!> multipliers are dropped until all are >= 0: a dual-feasible start for the iteration above.
+!>
+!> Certificate. The returned (u, lambda) are accepted (stats%certified) only when they satisfy
+!> the KKT conditions to the stated tolerance tau_i = KKT_FACTOR eps (|b_i|_2 |u|_2 + |d_i|):
+!>   u = v - Bm^T lambda (formed so), lambda >= 0, s_i >= -tau_i for all i, |s_i| <= tau_i
+!>   where lambda_i > 0.
+!> Active residuals above tau (ill-conditioned G_A) get up to two steps of iterative
+!> refinement. For any such point, |u - u*|_2^2 <= tau . (lambda + lambda*) with u* the exact
+!> projection and lambda* its multipliers (see the tests). When the iteration meets a violated
+!> row that depends on the active ones with no multiplier to release (a Farkas-type
+!> certificate that {Bm u <= d} is empty), or hits its cap, or the certificate fails, the
+!> result is not certified and the caller falls back to the Lawson-Hanson LDP (cr_nnls),
+!> which also computes the least-violation point of infeasible problems.
+!> The caller checks finiteness of the data (this module assumes finite input).
+module cr_dual_qp
+  use cr_kinds, only: wp
+  implicit none
+  private
+  public :: gram_source_t, dual_qp_t, dual_qp_stats_t, KKT_FACTOR
+
+  !> tolerance factor of the KKT certificate (tau_i, see the module header)
+  real(wp), parameter :: KKT_FACTOR = 256.0_wp
+  !> a row whose squared distance to the span of the active rows is below ZTOL |b_p|^2 is
+  !> treated as dependent on them (relative pivot of the Cholesky factor below 1e-5)
+  real(wp), parameter :: ZTOL = 1.0e-10_wp
+
+  !> Source of Gram entries b_p . b_j of the constraint rows (when the caller can form them
+  !> more cheaply than an n-term dot product).
+  type, abstract :: gram_source_t
+  contains
+    procedure(gram_entries_i), deferred :: gram_entries
+  end type gram_source_t
+
+  abstract interface
+    !> g(j) = b_p . b_idx(j) for the rows of the last assembled problem [size(idx)].
+    subroutine gram_entries_i(this, p, idx, g)
+      import :: gram_source_t, wp
+      class(gram_source_t), intent(in) :: this
+      integer, intent(in) :: p, idx(:)
+      real(wp), intent(out) :: g(:)
+    end subroutine gram_entries_i
+  end interface
+
+  !> Outcome of one solve.
+  type :: dual_qp_stats_t
+    !> .true. when (u, lambda) satisfy the KKT certificate
+    logical :: certified = .false.
+    !> .true. when a violated row was found dependent on the active ones with no multiplier
+    !> to release: {Bm u <= d} is (numerically) empty
+    logical :: infeasible = .false.
+    !> .true. when the iteration cap stopped the solve
+    logical :: capped = .false.
+    !> rows added, rows dropped, outer sweeps (products with Bm), refinement steps
+    integer :: adds = 0, drops = 0, sweeps = 0, refinements = 0
+    !> size of the final active set
+    integer :: n_active = 0
+    !> max_i (Bm u - d)_i^+ of the returned u
+    real(wp) :: max_violation = 0
+  end type dual_qp_stats_t
+
+  !> Solver state and work space (grown on demand); keep one per trajectory.
+  type :: dual_qp_t
+    integer :: mcap = -1, ncap = -1, kcap = -1
+    !> active rows in factor order [kcap], their multipliers [kcap]
+    integer, allocatable :: act(:)
+    real(wp), allocatable :: lam(:)
+    !> lower Cholesky factor of G_A [kcap, kcap]
+    real(wp), allocatable :: lf(:,:)
+    !> work vectors [kcap]
+    real(wp), allocatable :: gp(:), y(:), r(:), x(:)
+    !> slacks, squared row norms, tolerances [mcap]; membership [mcap]
+    real(wp), allocatable :: s(:), nrm2(:), tau(:)
+    logical, allocatable :: in_a(:)
+  contains
+    procedure :: solve
+    procedure, private :: reserve
+  end type dual_qp_t
+
+contains
+
+  subroutine reserve(this, m, n)
+    class(dual_qp_t), intent(inout) :: this
+    integer, intent(in) :: m, n
+    integer :: kc
+    if (m > this%mcap) then
+      if (allocated(this%s)) deallocate(this%s, this%nrm2, this%tau, this%in_a)
+      allocate(this%s(m), this%nrm2(m), this%tau(m), this%in_a(m))
+      this%mcap = m
+    end if
+    this%ncap = max(this%ncap, n)
+    kc = max(1, min(m, n))
+    if (kc > this%kcap) then
+      if (allocated(this%act)) deallocate(this%act, this%lam, this%lf, this%gp, this%y, this%r, this%x)
+      allocate(this%act(kc), this%lam(kc), this%lf(kc, kc), this%gp(kc), this%y(kc), this%r(kc), this%x(kc))
+      this%kcap = kc
+    end if
+  end subroutine reserve
+
+  !> Solve min 1/2 |u - v|^2 s.t. Bm u <= d. On entry lambda > 0 marks the warm-start guess
+  !> of the active set (ignored when warm = .false.); on return lambda holds the multipliers
+  !> (zero off the active set) and u the projection, both valid only when
+  !> stats%certified (otherwise they are the last iterate: a dual-feasible point and a good
+  !> warm start for a fallback solver). max_iter caps adds + drops (default 4 m + 20).
+  subroutine solve(this, bm, d, v, u, lambda, stats, warm, gsrc, max_iter)
+    class(dual_qp_t), intent(inout) :: this
+    !> constraint rows [m, n]
+    real(wp), intent(in) :: bm(:,:)
+    !> right-hand side [m], point to project [n]
+    real(wp), intent(in) :: d(:), v(:)
+    !> projection [n]
+    real(wp), intent(out) :: u(:)
+    !> multipliers [m] (warm-start guess on entry)
+    real(wp), intent(inout) :: lambda(:)
+    type(dual_qp_stats_t), intent(out) :: stats
+    logical, intent(in), optional :: warm
+    !> Gram entries of the rows of bm (default: dot products of rows)
+    class(gram_source_t), intent(in), optional :: gsrc
+    integer, intent(in), optional :: max_iter
+    integer :: m, n, k, i, j, p, it, itmax, jmin, ref
+    real(wp) :: eps, unorm, best, t1, t2, t, zeta, viol, lp
+    logical :: use_warm, dependent, ok
+
+    m = size(bm, 1); n = size(bm, 2)
+    eps = epsilon(1.0_wp)
+    use_warm = .true.
+    if (present(warm)) use_warm = warm
+    itmax = 4 * m + 20
+    if (present(max_iter)) itmax = max_iter
+    if (m == 0) then
+      u = v
+      stats%certified = .true.
+      return
+    end if
+    call this%reserve(m, n)
+    ! squared row norms (the Gram diagonal)
+    if (present(gsrc)) then
+      do i = 1, m
+        call gsrc%gram_entries(i, [i], this%gp(1:1))
+        this%nrm2(i) = this%gp(1)
+      end do
+    else
+      this%nrm2(1:m) = 0
+      do j = 1, n
+        this%nrm2(1:m) = this%nrm2(1:m) + bm(:, j)**2
+      end do
+    end if
+    this%in_a(1:m) = .false.
+    k = 0
+    it = 0
+
+    ! ---- warm start: factor the guessed rows, solve the equality problem, drop lambda < 0
+    if (use_warm) then
+      do i = 1, m
+        if (lambda(i) > 0 .and. this%nrm2(i) > 0 .and. k < this%kcap) then
+          call entering(i, zeta)
+          if (zeta > ZTOL * this%nrm2(i)) call append(i, zeta)
+        end if
+      end do
+      do
+        if (k == 0) exit
+        ! G_A lambda_A = Bm_A v - d_A
+        do j = 1, k
+          this%y(j) = dot_product(bm(this%act(j), :), v) - d(this%act(j))
+        end do
+        call chol_solve(this%y(1:k), this%lam(1:k))
+        if (all(this%lam(1:k) >= 0)) exit
+        do j = k, 1, -1
+          if (this%lam(j) < 0) call drop(j)
+        end do
+      end do
+    end if
+
+    ! ---- Goldfarb-Idnani iteration
+    outer: do
+      call primal()
+      stats%sweeps = stats%sweeps + 1
+      ! most violated inactive row (scaled by its norm)
+      p = 0
+      best = 0
+      do i = 1, m
+        if (this%in_a(i)) cycle
+        if (-this%s(i) > this%tau(i)) then
+          if (this%nrm2(i) == 0) then
+            stats%infeasible = .true.
+            exit outer
+          end if
+          if (-this%s(i) > best * sqrt(this%nrm2(i))) then
+            best = -this%s(i) / sqrt(this%nrm2(i)); p = i
+          end if
+        end if
+      end do
+      if (p == 0) exit outer
+      viol = -this%s(p)
+      lp = 0
+      inner: do
+        if (it >= itmax) then
+          stats%capped = .true.
+          exit outer
+        end if
+        it = it + 1
+        call entering(p, zeta)
+        dependent = .not. zeta > ZTOL * this%nrm2(p) .or. k >= this%kcap
+        t2 = huge(1.0_wp)
+        if (.not. dependent) t2 = viol / zeta
+        ! r = G_A^{-1} G_Ap: back substitution on y = L^{-1} G_Ap
+        call back_solve(this%y(1:k), this%r(1:k))
+        t1 = huge(1.0_wp)
+        jmin = 0
+        do j = 1, k
+          if (this%r(j) > 0) then
+            if (this%lam(j) / this%r(j) < t1) then
+              t1 = this%lam(j) / this%r(j); jmin = j
+            end if
+          end if
+        end do
+        if (jmin == 0 .and. dependent) then
+          stats%infeasible = .true.
+          exit outer
+        end if
+        t = min(t1, t2)
+        this%lam(1:k) = this%lam(1:k) - t * this%r(1:k)
+        lp = lp + t
+        if (t2 <= t1) then
+          call append(p, zeta)
+          this%lam(k) = lp
+          stats%adds = stats%adds + 1
+          exit inner
+        end if
+        viol = viol - t * zeta
+        this%lam(jmin) = 0
+        call drop(jmin)
+        stats%drops = stats%drops + 1
+      end do inner
+    end do outer
+
+    ! ---- certificate (with up to two refinement steps on the active rows)
+    if (.not. (stats%infeasible .or. stats%capped)) then
+      do ref = 0, 2
+        ok = all(this%lam(1:k) >= 0)
+        do j = 1, k
+          ok = ok .and. abs(this%s(this%act(j))) <= this%tau(this%act(j))
+        end do
+        if (ok .or. ref == 2) exit
+        ! G_A delta = -s_A, lambda_A += delta
+        do j = 1, k
+          this%y(j) = -this%s(this%act(j))
+        end do
+        call chol_solve(this%y(1:k), this%r(1:k))
+        this%lam(1:k) = this%lam(1:k) + this%r(1:k)
+        stats%refinements = stats%refinements + 1
+        call primal()
+      end do
+      do i = 1, m
+        if (.not. this%in_a(i)) ok = ok .and. this%s(i) >= -this%tau(i)
+      end do
+      stats%certified = ok
+    end if
+    u = v
+    lambda = 0
+    do j = 1, k
+      lambda(this%act(j)) = max(this%lam(j), 0.0_wp)
+      u = u - lambda(this%act(j)) * bm(this%act(j), :)
+    end do
+    stats%n_active = k
+    stats%max_violation = 0
+    do i = 1, m
+      stats%max_violation = max(stats%max_violation, -this%s(i))
+    end do
+
+  contains
+
+    !> u = v - Bm_A^T lambda_A, s = d - Bm u, tau (see the module header).
+    subroutine primal()
+      integer :: jj
+      u = v
+      do jj = 1, k
+        u = u - this%lam(jj) * bm(this%act(jj), :)
+      end do
+      this%s(1:m) = d
+      do jj = 1, n
+        this%s(1:m) = this%s(1:m) - bm(:, jj) * u(jj)
+      end do
+      unorm = norm2(u)
+      this%tau(1:m) = KKT_FACTOR * eps * (sqrt(this%nrm2(1:m)) * unorm + abs(d))
+    end subroutine primal
+
+    !> gp = G_{pA}, y = L^{-1} gp, zeta = G_pp - |y|^2.
+    subroutine entering(pp, zz)
+      integer, intent(in) :: pp
+      real(wp), intent(out) :: zz
+      integer :: jj
+      if (k > 0) then
+        if (present(gsrc)) then
+          call gsrc%gram_entries(pp, this%act(1:k), this%gp(1:k))
+        else
+          do jj = 1, k
+            this%gp(jj) = dot_product(bm(pp, :), bm(this%act(jj), :))
+          end do
+        end if
+        call forward_solve(this%gp(1:k), this%y(1:k))
+      end if
+      zz = this%nrm2(pp) - sum(this%y(1:k)**2)
+    end subroutine entering
+
+    !> Append row pp to A (its factor row is y, its pivot sqrt(zz)).
+    subroutine append(pp, zz)
+      integer, intent(in) :: pp
+      real(wp), intent(in) :: zz
+      k = k + 1
+      this%lf(k, 1:k - 1) = this%y(1:k - 1)
+      this%lf(k, k) = sqrt(zz)
+      this%act(k) = pp
+      this%lam(k) = 0
+      this%in_a(pp) = .true.
+    end subroutine append
+
+    !> Remove the row at factor position jj: shift, then a rank-one update of the trailing
+    !> block by the removed column (Givens), O(k^2).
+    subroutine drop(jj)
+      integer, intent(in) :: jj
+      integer :: c, i2, nx
+      real(wp) :: a, xi, rr, cg, sg
+      this%in_a(this%act(jj)) = .false.
+      nx = k - jj
+      this%x(1:nx) = this%lf(jj + 1:k, jj)
+      do c = 1, jj - 1
+        this%lf(jj:k - 1, c) = this%lf(jj + 1:k, c)
+      end do
+      do c = jj + 1, k
+        this%lf(c - 1:k - 1, c - 1) = this%lf(c:k, c)
+      end do
+      this%act(jj:k - 1) = this%act(jj + 1:k)
+      this%lam(jj:k - 1) = this%lam(jj + 1:k)
+      k = k - 1
+      do i2 = jj, k
+        a = this%lf(i2, i2)
+        xi = this%x(i2 - jj + 1)
+        rr = hypot(a, xi)
+        cg = rr / a; sg = xi / a
+        this%lf(i2, i2) = rr
+        this%lf(i2 + 1:k, i2) = (this%lf(i2 + 1:k, i2) + sg * this%x(i2 - jj + 2:nx)) / cg
+        this%x(i2 - jj + 2:nx) = cg * this%x(i2 - jj + 2:nx) - sg * this%lf(i2 + 1:k, i2)
+      end do
+    end subroutine drop
+
+    !> y = L^{-1} g (first size(g) rows of the factor)
+    subroutine forward_solve(g, yy)
+      real(wp), intent(in) :: g(:)
+      real(wp), intent(out) :: yy(:)
+      integer :: jj, kk
+      kk = size(g)
+      yy = g
+      do jj = 1, kk
+        yy(jj) = yy(jj) / this%lf(jj, jj)
+        yy(jj + 1:kk) = yy(jj + 1:kk) - this%lf(jj + 1:kk, jj) * yy(jj)
+      end do
+    end subroutine forward_solve
+
+    !> z = L^{-T} yy
+    subroutine back_solve(yy, z)
+      real(wp), intent(in) :: yy(:)
+      real(wp), intent(out) :: z(:)
+      integer :: jj, kk
+      kk = size(yy)
+      do jj = kk, 1, -1
+        z(jj) = (yy(jj) - dot_product(this%lf(jj + 1:kk, jj), z(jj + 1:kk))) / this%lf(jj, jj)
+      end do
+    end subroutine back_solve
+
+    !> z = G_A^{-1} g
+    subroutine chol_solve(g, z)
+      real(wp), intent(in) :: g(:)
+      real(wp), intent(out) :: z(:)
+      real(wp) :: w(size(g))
+      call forward_solve(g, w)
+      call back_solve(w, z)
+    end subroutine chol_solve
+  end subroutine solve
+end module cr_dual_qp
