@@ -234,7 +234,8 @@ contains
       real(wp), allocatable :: e_mu(:), e_proj(:), overlap(:), time(:), mobility(:)
       integer, allocatable :: not_left(:), not_left_fom(:), infeas(:), capped(:), extrap(:)
       character(len=:), allocatable :: g
-      integer :: k, nt, nb, rep, n_fallback, active_sum
+      integer :: k, nt, nb, rep, n_fallback, active_sum, n_adds, n_drops
+      real(wp) :: t_parts(3)
       nt = st%n_steps
       call make_reduced_ops(trim(rcfg%hyper(kset)), trim(rcfg%contacts(kset)), pair, &
         [rcfg%m_v(kset), rcfg%m_b(kset), rcfg%m_d(kset)], st%cfg%contacts%cutoff_factor, &
@@ -251,7 +252,7 @@ contains
         overlap(blk%n), time(blk%n), mobility(blk%n), not_left(blk%n), not_left_fom(blk%n), infeas(blk%n), capped(blk%n), &
         extrap(blk%n))
       err_time = -1; e_mu = -1; e_proj = -1; not_left_fom = -1; mobility = -1
-      n_fallback = 0; active_sum = 0
+      n_fallback = 0; active_sum = 0; n_adds = 0; n_drops = 0; t_parts = 0
       call log%progress_start()
       do k = 1, blk%n
         c2 = st%cfg
@@ -271,7 +272,10 @@ contains
         do rep = 2, rcfg%timing_repeats
           call run_trajectory(ops, ctx, st%q0, nt, scfg, tr2, error)
           if (allocated(error)) return
-          traj%time = min(traj%time, tr2%time)
+          if (tr2%time < traj%time) then
+            traj%time = tr2%time; traj%time_positions = tr2%time_positions
+            traj%time_assemble = tr2%time_assemble; traj%time_solve = tr2%time_solve
+          end if
         end do
         alpha(:, (k - 1) * nt + 1:k * nt) = traj%alpha
         if (size(beta, 1) > 0) beta(:, (k - 1) * nt + 1:k * nt) = traj%beta
@@ -281,6 +285,8 @@ contains
         infeas(k) = traj%n_infeasible
         capped(k) = traj%n_capped
         n_fallback = n_fallback + traj%n_fallback; active_sum = active_sum + traj%active_sum
+        n_adds = n_adds + traj%dual_adds; n_drops = n_drops + traj%dual_drops
+        t_parts = t_parts + [traj%time_positions, traj%time_assemble, traj%time_solve]
         overlap(k) = max_overlap(ctx%scene, st%radius, qr)
         not_left(k) = agents_not_left(ctx%scene, st%radius, qr(:, nt + 1))
         extrap(k) = merge(1, 0, any(blk%mu(:, k) < st%space%lo - 1.0e-12_wp * abs(st%space%lo)) .or. &
@@ -316,8 +322,13 @@ contains
         ", capped " // str(row%capped) // ", " // &
         str(row%t_step, "es9.2") // " s/step")
       if (rcfg%solver == 'dual') call log%info("   dual active set: " // str(n_fallback) // " of " // &
-        str(nt * blk%n) // " steps fell back to the NNLS (infeasible ones included), mean active rows " // &
-        str(real(active_sum, wp) / max(1, nt * blk%n), "f6.1"))
+        str(nt * blk%n) // " steps fell back to the NNLS (infeasible ones included); per step: active rows " // &
+        str(real(active_sum, wp) / max(1, nt * blk%n), "f6.1") // ", rows added " // &
+        str(real(n_adds, wp) / max(1, nt * blk%n), "f6.2") // ", dropped " // &
+        str(real(n_drops, wp) / max(1, nt * blk%n), "f6.2"))
+      call log%info("   time per step (fastest repeat of each sample): positions " // &
+        str(t_parts(1) / max(1, nt * blk%n), "es9.2") // " s, assembly " // str(t_parts(2) / max(1, nt * blk%n), "es9.2") // &
+        " s, solve " // str(t_parts(3) / max(1, nt * blk%n), "es9.2") // " s")
       if (row%infeasible > 0) call log%warn(str(row%infeasible) // " reduced steps were infeasible (the reduced " // &
         "positions already overlap): least-violation coefficients used")
       if (row%capped > 0) call log%warn(str(row%capped) // " reduced solves stopped at their iteration cap " // &

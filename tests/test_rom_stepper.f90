@@ -19,14 +19,14 @@ module test_rom_stepper_ops
 
 contains
 
-  subroutine assemble(this, ctx, q, vhat, bhat, dhat)
+  subroutine assemble(this, ctx, q, vhat, bt, dhat)
     class(const_ops_t), intent(inout) :: this
     type(eval_ctx_t), intent(in) :: ctx
     real(wp), intent(in) :: q(:)
     real(wp), intent(out) :: vhat(:)
-    real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
+    real(wp), allocatable, intent(inout) :: bt(:,:), dhat(:)
     vhat = this%vh
-    bhat = this%bh
+    bt = transpose(this%bh)
     dhat = this%dh
     if (size(q) < 0 .or. ctx%h < 0) vhat = 0
   end subroutine assemble
@@ -148,6 +148,6 @@ contains
     allocate(vh(nb), g(6, 6))
     call rops%assemble(c2, q, vh, bh, dh)
     call rops%gram(g)
-    call check(maxval(abs(g - matmul(bh, transpose(bh)))) <= 1.0e-14_wp * maxval(abs(g)), "gram: Z P Z^T = Bh Bh^T")
+    call check(maxval(abs(g - matmul(transpose(bh), bh))) <= 1.0e-14_wp * maxval(abs(g)), "gram: Z P Z^T = Bh Bh^T")
   end subroutine check_gram
 end program test_rom_stepper

@@ -20,7 +20,7 @@ module cr_reduced_ops
   use cr_contact_set, only: contact_set_t
   use cr_neighbours, only: cell_list_t, build_contacts
   use cr_rom_model, only: rom_pair_data_t
-  use cr_hyper_terms, only: contact_row_image
+  use cr_lapack, only: la_gemv
   use cr_eim, only: eim_t, eim_interp_matrix
   use cr_dual_qp, only: gram_source_t
   use cr_kinds, only: i8
@@ -47,8 +47,8 @@ module cr_reduced_ops
     integer, allocatable :: agents(:)
     !> number of interpolation / quadrature entries of s1, s2, s3 (0 for exact)
     integer :: m(3) = 0
-    !> velocity basis [n_dof, nb]
-    real(wp), allocatable :: v(:,:)
+    !> velocity basis [n_dof, nb] and its transpose [nb, n_dof] (contiguous rows of V)
+    real(wp), allocatable :: v(:,:), vt(:,:)
     !> .true. when the rows are the R cone vectors (multipliers comparable across steps)
     logical :: fixed_rows = .true.
     !> identity of each assembled row when the rows change from step to step ('online':
@@ -76,14 +76,15 @@ module cr_reduced_ops
 
   abstract interface
     !> Reduced terms at positions q [n_dof] (valid at least for this%agents):
-    !> vhat [nb], bhat [rows, nb], dhat [rows] (rows = R, or the near contacts for 'online').
-    subroutine assemble_i(this, ctx, q, vhat, bhat, dhat)
+    !> vhat [nb], bt = bhat^T [nb, rows] (the rows as contiguous columns), dhat [rows]
+    !> (rows = R, or the near contacts for 'online').
+    subroutine assemble_i(this, ctx, q, vhat, bt, dhat)
       import :: reduced_ops_t, eval_ctx_t, wp
       class(reduced_ops_t), intent(inout) :: this
       type(eval_ctx_t), intent(in) :: ctx
       real(wp), intent(in) :: q(:)
       real(wp), intent(out) :: vhat(:)
-      real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
+      real(wp), allocatable, intent(inout) :: bt(:,:), dhat(:)
     end subroutine assemble_i
   end interface
 
@@ -130,8 +131,8 @@ module cr_reduced_ops
     !> s3 points and their positions, distinct agents of the s1 points and their positions
     integer, allocatable :: urows(:), pos2(:), pos3(:), uagents(:), pos1(:)
     real(wp), allocatable :: ugap(:), ug(:,:), udes(:,:)
-    !> V^T [nb, n_dof] (contiguous rows of V) and bhat^T [nb, R] work space
-    real(wp), allocatable :: vt(:,:), bht(:,:)
+    !> work vector [n_dof]
+    real(wp), allocatable :: xs(:)
   contains
     procedure :: assemble => eq_assemble
   end type ops_eq_t
@@ -170,6 +171,7 @@ contains
     ops%nb = pair%nb
     ops%r = pair%r
     ops%v = pair%v
+    ops%vt = transpose(pair%v)
     call cone_rows(pair%terms%w, ops%wp0, ops%wk, ops%wv)
     allocate(need(n_agents))
     need = .false.
@@ -215,8 +217,7 @@ contains
       call unique_map([ops%idx2, ops%idx3], ops%urows, ops%pos2, ops%pos3, size(ops%idx2))
       call unique_map((ops%idx1 + 1) / 2, ops%uagents, ops%pos1)
       allocate(ops%ugap(size(ops%urows)), ops%ug(2, size(ops%urows)), ops%udes(2, size(ops%uagents)))
-      ops%vt = transpose(pair%v)
-      allocate(ops%bht(pair%nb, pair%r))
+      allocate(ops%xs(size(pair%v, 1)))
     end select
     ops%agents = pack([(k, k = 1, n_agents)], need)
 
@@ -490,42 +491,61 @@ contains
     va = ctx%speeds(a) * d
   end function agent_desired
 
-  subroutine exact_assemble(this, ctx, q, vhat, bhat, dhat)
+  subroutine exact_assemble(this, ctx, q, vhat, bt, dhat)
     class(ops_exact_t), intent(inout) :: this
     type(eval_ctx_t), intent(in) :: ctx
     real(wp), intent(in) :: q(:)
     real(wp), intent(out) :: vhat(:)
-    real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
-    real(wp) :: gap, g(2), bv(this%nb)
+    real(wp), allocatable, intent(inout) :: bt(:,:), dhat(:)
+    real(wp) :: gap, g(2)
     integer :: k, a, b, j, p
     call ctx%desired%evaluate(q, ctx%speeds, this%vfull)
-    vhat = matmul(this%vfull, this%v)
-    call ensure(bhat, dhat, this%r, this%nb)
-    bhat = 0; dhat = 0
+    call la_gemv('N', 1.0_wp, this%vt, this%vfull, 0.0_wp, vhat)
+    call ensure(bt, dhat, this%nb, this%r)
+    bt = 0; dhat = 0
     if (this%has_gram) this%zn = 0
     do k = 1, size(this%ia)
       a = this%ia(k); b = this%ib(k)
       call eval_contact(ctx%scene, q, ctx%radius, a, b, this%ob(k), gap, g)
-      bv = contact_row_image(this%v, a, b, g, ctx%h)
       do p = this%wp0(k) + 1, this%wp0(k + 1)
         j = this%wk(p)
-        bhat(j, :) = bhat(j, :) + this%wv(p) * bv
+        call add_row(bt(:, j), this%vt, this%wv(p) * ctx%h, a, b, g)
         dhat(j) = dhat(j) + this%wv(p) * gap
         if (this%has_gram) call this%z_add(j, this%wv(p), a, b, g, ctx%h)
       end do
     end do
   end subroutine exact_assemble
 
-  subroutine online_assemble(this, ctx, q, vhat, bhat, dhat)
+  !> y += c (-(g . V^T rows of agent a) + (g . V^T rows of agent b)) for vt = V^T [nb, n_dof]:
+  !> the reduced image of a contact row scaled by c / h (b = 0: obstacle contact).
+  pure subroutine add_row(y, vt, c, a, b, g)
+    real(wp), intent(inout) :: y(:)
+    real(wp), intent(in) :: vt(:,:), c, g(2)
+    integer, intent(in) :: a, b
+    real(wp) :: c1, c2
+    integer :: i
+    c1 = c * g(1); c2 = c * g(2)
+    if (b > 0) then
+      do i = 1, size(y)
+        y(i) = y(i) + c1 * (vt(i, 2*b-1) - vt(i, 2*a-1)) + c2 * (vt(i, 2*b) - vt(i, 2*a))
+      end do
+    else
+      do i = 1, size(y)
+        y(i) = y(i) - c1 * vt(i, 2*a-1) - c2 * vt(i, 2*a)
+      end do
+    end if
+  end subroutine add_row
+
+  subroutine online_assemble(this, ctx, q, vhat, bt, dhat)
     class(ops_online_t), intent(inout) :: this
     type(eval_ctx_t), intent(in) :: ctx
     real(wp), intent(in) :: q(:)
     real(wp), intent(out) :: vhat(:)
-    real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
+    real(wp), allocatable, intent(inout) :: bt(:,:), dhat(:)
     real(wp) :: vmax, cutoff
     integer :: l, a, b, i
     call ctx%desired%evaluate(q, ctx%speeds, this%vfull)
-    vhat = matmul(this%vfull, this%v)
+    call la_gemv('N', 1.0_wp, this%vt, this%vfull, 0.0_wp, vhat)
     vmax = 0
     do i = 1, size(ctx%speeds)
       vmax = max(vmax, norm2(this%vfull(2*i-1:2*i)))
@@ -534,10 +554,10 @@ contains
     cutoff = max(this%cutoff_factor * 2 * ctx%h * vmax, 1.0e-12_wp * ctx%radius)
     this%cs%h = ctx%h
     call build_contacts(ctx%scene, q, ctx%radius, cutoff, this%cells, this%cs)
-    if (allocated(bhat)) then
-      if (size(bhat, 1) /= this%cs%n) deallocate(bhat, dhat)
+    if (allocated(bt)) then
+      if (size(bt, 2) /= this%cs%n) deallocate(bt, dhat)
     end if
-    if (.not. allocated(bhat)) allocate(bhat(this%cs%n, this%nb), dhat(this%cs%n))
+    if (.not. allocated(bt)) allocate(bt(this%nb, this%cs%n), dhat(this%cs%n))
     if (size(this%keys) < this%cs%n) then
       deallocate(this%keys, this%zn, this%zdof, this%zval)
       allocate(this%keys(2 * this%cs%n), this%zn(2 * this%cs%n), this%zdof(4, 2 * this%cs%n), &
@@ -545,7 +565,8 @@ contains
     end if
     do l = 1, this%cs%n
       a = this%cs%ia(l); b = this%cs%ib(l)
-      bhat(l, :) = contact_row_image(this%v, a, b, this%cs%g(:, l), ctx%h)
+      bt(:, l) = 0
+      call add_row(bt(:, l), this%vt, ctx%h, a, b, this%cs%g(:, l))
       dhat(l) = this%cs%gap(l)
       this%keys(l) = this%cs%key(l)
       if (this%has_gram) then
@@ -555,15 +576,15 @@ contains
     end do
   end subroutine online_assemble
 
-  subroutine eim_assemble(this, ctx, q, vhat, bhat, dhat)
+  subroutine eim_assemble(this, ctx, q, vhat, bt, dhat)
     class(ops_eim_t), intent(inout) :: this
     type(eval_ctx_t), intent(in) :: ctx
     real(wp), intent(in) :: q(:)
     real(wp), intent(out) :: vhat(:)
-    real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
+    real(wp), allocatable, intent(inout) :: bt(:,:), dhat(:)
     real(wp) :: s(max(this%m(1), this%m(2), this%m(3), 1)), va(2), gap, g(2), c(max(this%m(2), 1))
     integer :: j, i, l
-    call ensure(bhat, dhat, this%r, this%nb)
+    call ensure(bt, dhat, this%nb, this%r)
     ! s1 at the interpolation dofs
     do j = 1, this%m(1)
       i = this%idx1(j)
@@ -583,9 +604,9 @@ contains
     end do
     if (this%m(2) > 0) then
       c(1:this%m(2)) = matmul(this%minv2, s(1:this%m(2)))
-      bhat = reshape(matmul(this%a2, c(1:this%m(2))), [this%r, this%nb])
+      bt = transpose(reshape(matmul(this%a2, c(1:this%m(2))), [this%r, this%nb]))
     else
-      bhat = 0
+      bt = 0
     end if
     ! s3 at the interpolation rows
     do j = 1, this%m(3)
@@ -600,17 +621,17 @@ contains
     end if
   end subroutine eim_assemble
 
-  subroutine eq_assemble(this, ctx, q, vhat, bhat, dhat)
+  subroutine eq_assemble(this, ctx, q, vhat, bt, dhat)
     class(ops_eq_t), intent(inout) :: this
     type(eval_ctx_t), intent(in) :: ctx
     real(wp), intent(in) :: q(:)
     real(wp), intent(out) :: vhat(:)
-    real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
+    real(wp), allocatable, intent(inout) :: bt(:,:), dhat(:)
     real(wp) :: g(2), c
     integer :: j, i, l, k, a, b, p, u
-    call ensure(bhat, dhat, this%r, this%nb)
-    vhat = 0; dhat = 0
-    this%bht = 0
+    call ensure(bt, dhat, this%nb, this%r)
+    dhat = 0
+    bt = 0
     if (this%has_gram) this%zn = 0
     ! each agent and contact row once
     do u = 1, size(this%uagents)
@@ -620,22 +641,32 @@ contains
       l = this%urows(u)
       call eval_contact(ctx%scene, q, ctx%radius, this%ia(l), this%ib(l), this%ob(l), this%ugap(u), this%ug(:, u))
     end do
-    do j = 1, this%m(1)
-      i = this%idx1(j)
-      vhat = vhat + (this%w1(j) * this%udes(2 - mod(i, 2), this%pos1(j))) * this%vt(:, i)
-    end do
+    ! vhat = V^T x with x the weighted desired velocity at the points: one product with V^T
+    ! when the points cover a good part of the dofs, else one column per point
+    if (8 * this%m(1) >= size(this%vt, 2)) then
+      this%xs = 0
+      do j = 1, this%m(1)
+        i = this%idx1(j)
+        this%xs(i) = this%xs(i) + this%w1(j) * this%udes(2 - mod(i, 2), this%pos1(j))
+      end do
+      call la_gemv('N', 1.0_wp, this%vt, this%xs, 0.0_wp, vhat)
+    else
+      vhat = 0
+      do j = 1, this%m(1)
+        i = this%idx1(j)
+        vhat = vhat + (this%w1(j) * this%udes(2 - mod(i, 2), this%pos1(j))) * this%vt(:, i)
+      end do
+    end if
     do j = 1, this%m(2)
       l = this%idx2(j); a = this%ia(l); b = this%ib(l)
       g = this%ug(:, this%pos2(j))
       do p = this%wp0(l) + 1, this%wp0(l + 1)
         k = this%wk(p)
-        c = this%w2(j) * this%wv(p) * ctx%h
-        this%bht(:, k) = this%bht(:, k) - c * (g(1) * this%vt(:, 2*a-1) + g(2) * this%vt(:, 2*a))
-        if (b > 0) this%bht(:, k) = this%bht(:, k) + c * (g(1) * this%vt(:, 2*b-1) + g(2) * this%vt(:, 2*b))
-        if (this%has_gram) call this%z_add(k, this%w2(j) * this%wv(p), a, b, g, ctx%h)
+        c = this%w2(j) * this%wv(p)
+        call add_row(bt(:, k), this%vt, c * ctx%h, a, b, g)
+        if (this%has_gram) call this%z_add(k, c, a, b, g, ctx%h)
       end do
     end do
-    bhat = transpose(this%bht)
     do j = 1, this%m(3)
       l = this%idx3(j)
       do p = this%wp0(l) + 1, this%wp0(l + 1)
@@ -644,14 +675,14 @@ contains
     end do
   end subroutine eq_assemble
 
-  !> Allocate bhat [r, nb], dhat [r] if needed.
-  subroutine ensure(bhat, dhat, r, nb)
-    real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
-    integer, intent(in) :: r, nb
-    if (allocated(bhat)) then
-      if (size(bhat, 1) == r .and. size(bhat, 2) == nb) return
-      deallocate(bhat, dhat)
+  !> Allocate bt [nb, r], dhat [r] if needed.
+  subroutine ensure(bt, dhat, nb, r)
+    real(wp), allocatable, intent(inout) :: bt(:,:), dhat(:)
+    integer, intent(in) :: nb, r
+    if (allocated(bt)) then
+      if (size(bt, 1) == nb .and. size(bt, 2) == r) return
+      deallocate(bt, dhat)
     end if
-    allocate(bhat(r, nb), dhat(r))
+    allocate(bt(nb, r), dhat(r))
   end subroutine ensure
 end module cr_reduced_ops

@@ -12,8 +12,9 @@
 !> reduced positions already overlap) return the least-violation solution and are counted;
 !> so are solves that reach their iteration cap. With rows that change from step to step
 !> (online contacts) the multipliers are carried over by contact identity (ops%keys).
-!> The data of each step are checked for NaN / Inf once (a sum over vhat, bhat, dhat; a
-!> non-finite sum sends the step to ldp_solve, which names the offending entry).
+!> The data of each step are checked for NaN / Inf once: a sum over vhat and dhat here, and
+!> the dual solver sums the slacks of its first sweep (which carry any NaN / Inf of bhat); a
+!> non-finite sum sends the step to ldp_solve, which names the offending entry.
 module cr_rom_stepper
   use cr_kinds, only: wp, i8
   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
@@ -23,6 +24,7 @@ module cr_rom_stepper
   use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t
   use cr_dual_qp, only: dual_qp_t, dual_qp_stats_t
   use cr_sort, only: argsort_i8, bsearch_i8
+  use cr_lapack, only: la_gemv
   implicit none
   private
   public :: rom_solver_cfg_t, rom_traj_t, run_trajectory, reduced_positions
@@ -51,8 +53,9 @@ module cr_rom_stepper
     integer :: iterations = 0, max_rows = 0
     !> largest violation of the reduced constraints by the returned coefficients
     real(wp) :: max_violation = 0
-    !> wall time of the stepping (seconds)
-    real(wp) :: time = 0
+    !> wall time of the stepping (seconds), and its parts: reduced positions, assembly,
+    !> solve (the rest is bookkeeping)
+    real(wp) :: time = 0, time_positions = 0, time_assemble = 0, time_solve = 0
   end type rom_traj_t
 
 contains
@@ -66,19 +69,26 @@ contains
     type(rom_solver_cfg_t), intent(in) :: scfg
     type(rom_traj_t), intent(out) :: traj
     type(error_t), allocatable, intent(out) :: error
-    real(wp), allocatable :: q(:), acc(:), vhat(:), alpha(:), bhat(:,:), dhat(:), lam(:), gram(:,:)
-    real(wp), allocatable :: prev_lam(:)
+    real(wp), allocatable :: q(:), acc(:), vhat(:), alpha(:), bt(:,:), bhat(:,:), dhat(:), lam(:), gram(:,:)
+    real(wp), allocatable :: prev_lam(:), vsub(:,:), qsub(:), q0sub(:)
+    integer, allocatable :: dofs(:)
     integer(i8), allocatable :: prev_keys(:)
     type(nnls_work_t) :: work
     type(ldp_stats_t) :: st
     type(dual_qp_t) :: dqp
     type(dual_qp_stats_t) :: dst
-    integer :: nu, j, a, nb, na, its
-    integer(8) :: c0, c1, rate
-    logical :: all_agents, capped, finite
+    integer :: nu, j, nb, its
+    integer(8) :: c0, c1, rate, t0, t1, t2, t3
+    logical :: capped, finite
     nb = ops%nb
-    na = size(q0) / 2
-    all_agents = size(ops%agents) == na
+    ! the dofs the assembly reads, and their rows of V (contiguous)
+    allocate(dofs(2 * size(ops%agents)))
+    do j = 1, size(ops%agents)
+      dofs(2*j-1:2*j) = [2 * ops%agents(j) - 1, 2 * ops%agents(j)]
+    end do
+    vsub = ops%v(dofs, :)
+    q0sub = q0(dofs)
+    allocate(qsub(size(dofs)))
     allocate(traj%alpha(nb, n_steps), traj%beta(merge(ops%r, 0, ops%fixed_rows), n_steps))
     traj%alpha = 0; traj%beta = 0
     allocate(acc(nb), vhat(nb), alpha(nb), prev_keys(0), prev_lam(0))
@@ -86,17 +96,14 @@ contains
     q = q0
     call system_clock(c0, rate)
     do nu = 1, n_steps
-      ! positions at the start of the step, where needed
-      if (all_agents) then
-        q = q0 + ctx%h * matmul(ops%v, acc)
-      else
-        do j = 1, size(ops%agents)
-          a = ops%agents(j)
-          q(2*a-1) = q0(2*a-1) + ctx%h * dot_product(ops%v(2*a-1, :), acc)
-          q(2*a) = q0(2*a) + ctx%h * dot_product(ops%v(2*a, :), acc)
-        end do
-      end if
-      call ops%assemble(ctx, q, vhat, bhat, dhat)
+      call system_clock(t0)
+      ! positions at the start of the step, where needed: q0 + h V acc on those dofs
+      qsub = q0sub
+      call la_gemv('N', ctx%h, vsub, acc, 1.0_wp, qsub)
+      q(dofs) = qsub
+      call system_clock(t1)
+      call ops%assemble(ctx, q, vhat, bt, dhat)
+      call system_clock(t2)
       traj%max_rows = max(traj%max_rows, size(dhat))
       if (allocated(lam)) then
         if (size(lam) /= size(dhat)) deallocate(lam)
@@ -105,6 +112,7 @@ contains
         allocate(lam(size(dhat))); lam = 0
       end if
       if (.not. ops%fixed_rows .and. allocated(ops%keys)) call match_rows(ops%keys(1:size(dhat)), lam, prev_keys, prev_lam)
+      if (scfg%name /= 'dual') bhat = transpose(bt)
       if (scfg%name == 'uzawa') then
         lam = 0
         call reduced_uzawa(bhat, dhat, vhat, ctx%h, alpha, lam, scfg, its, capped)
@@ -112,13 +120,13 @@ contains
         if (capped) traj%n_capped = traj%n_capped + 1
         if (size(dhat) > 0) traj%max_violation = max(traj%max_violation, maxval(matmul(bhat, alpha) - dhat))
       else if (scfg%name == 'dual') then
-        finite = ieee_is_finite(sum(vhat) + sum(dhat) + sum(bhat))
+        finite = ieee_is_finite(sum(vhat) + sum(dhat))
         dst%certified = .false.
         if (finite) then
           if (ops%has_gram) then
-            call dqp%solve(bhat, dhat, vhat, alpha, lam, dst, warm=.true., gsrc=ops)
+            call dqp%solve(bt, dhat, vhat, alpha, lam, dst, warm=.true., gsrc=ops)
           else
-            call dqp%solve(bhat, dhat, vhat, alpha, lam, dst, warm=.true.)
+            call dqp%solve(bt, dhat, vhat, alpha, lam, dst, warm=.true.)
           end if
           traj%iterations = traj%iterations + dst%adds + dst%drops
           traj%dual_adds = traj%dual_adds + dst%adds
@@ -156,6 +164,10 @@ contains
         if (.not. st%infeasible) traj%max_violation = max(traj%max_violation, st%max_violation)
       end if
       if (.not. ops%fixed_rows .and. allocated(ops%keys)) call keep_rows(ops%keys(1:size(dhat)), lam, prev_keys, prev_lam)
+      call system_clock(t3)
+      traj%time_positions = traj%time_positions + real(t1 - t0, wp) / real(rate, wp)
+      traj%time_assemble = traj%time_assemble + real(t2 - t1, wp) / real(rate, wp)
+      traj%time_solve = traj%time_solve + real(t3 - t2, wp) / real(rate, wp)
       traj%alpha(:, nu) = alpha
       if (size(traj%beta, 1) == size(lam)) traj%beta(:, nu) = lam
       acc = acc + alpha
@@ -167,6 +179,7 @@ contains
 
     !> The certified Lawson-Hanson LDP, warm started from lam (> 0 marks the guess).
     subroutine ldp_fallback()
+      bhat = transpose(bt)
       if (scfg%nnls_max_iter > 0) then
         call ldp_solve(bhat, dhat, vhat, alpha, lam, st, error, warm=.true., max_iter=scfg%nnls_max_iter, work=work)
       else

@@ -1,6 +1,7 @@
 !> Warm-started dual active-set solver (Goldfarb-Idnani) for the least-distance problem
-!>   min 1/2 |u - v|_2^2  s.t.  Bm u <= d,   Bm: [m, n],
-!> the reduced projection of the reduced-order model (u = alpha, v = vhat, Bm = bhat).
+!>   min 1/2 |u - v|_2^2  s.t.  Bm u <= d,   Bm: [m, n], given as its transpose bt [n, m]
+!> (rows as contiguous columns), the reduced projection of the reduced-order model
+!> (u = alpha, v = vhat, Bm = bhat).
 !>
 !> Method. The Hessian is the identity, so the whole state is an active set A of linearly
 !> independent rows, their multipliers lambda_A >= 0 and the Cholesky factor L L^T = G_A of
@@ -31,9 +32,13 @@
 !> certificate that {Bm u <= d} is empty), or hits its cap, or the certificate fails, the
 !> result is not certified and the caller falls back to the Lawson-Hanson LDP (cr_nnls),
 !> which also computes the least-violation point of infeasible problems.
-!> The caller checks finiteness of the data (this module assumes finite input).
+!> Finiteness: the slacks of the first sweep are summed (m additions); a NaN or Inf in Bm or d
+!> shows there (stats%nonfinite, not certified) and the caller's fallback names the entry.
+!> v and the warm-start lambda must be finite (the caller checks them).
 module cr_dual_qp
   use cr_kinds, only: wp
+  use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
+  use cr_lapack, only: la_gemv
   implicit none
   private
   public :: gram_source_t, dual_qp_t, dual_qp_stats_t, KKT_FACTOR
@@ -70,6 +75,8 @@ module cr_dual_qp
     logical :: infeasible = .false.
     !> .true. when the iteration cap stopped the solve
     logical :: capped = .false.
+    !> .true. when the data hold a NaN or Inf (seen in the slacks of the first sweep)
+    logical :: nonfinite = .false.
     !> rows added, rows dropped, outer sweeps (products with Bm), refinement steps
     integer :: adds = 0, drops = 0, sweeps = 0, refinements = 0
     !> size of the final active set
@@ -88,8 +95,8 @@ module cr_dual_qp
     real(wp), allocatable :: lf(:,:)
     !> work vectors [kcap]
     real(wp), allocatable :: gp(:), y(:), r(:), x(:)
-    !> slacks, squared row norms, tolerances [mcap]; membership [mcap]
-    real(wp), allocatable :: s(:), nrm2(:), tau(:)
+    !> slacks, squared row norms, row norms, tolerances [mcap]; membership [mcap]
+    real(wp), allocatable :: s(:), nrm2(:), nrm(:), tau(:)
     logical, allocatable :: in_a(:)
   contains
     procedure :: solve
@@ -103,8 +110,8 @@ contains
     integer, intent(in) :: m, n
     integer :: kc
     if (m > this%mcap) then
-      if (allocated(this%s)) deallocate(this%s, this%nrm2, this%tau, this%in_a)
-      allocate(this%s(m), this%nrm2(m), this%tau(m), this%in_a(m))
+      if (allocated(this%s)) deallocate(this%s, this%nrm2, this%nrm, this%tau, this%in_a)
+      allocate(this%s(m), this%nrm2(m), this%nrm(m), this%tau(m), this%in_a(m))
       this%mcap = m
     end if
     this%ncap = max(this%ncap, n)
@@ -121,10 +128,10 @@ contains
   !> (zero off the active set) and u the projection, both valid only when
   !> stats%certified (otherwise they are the last iterate: a dual-feasible point and a good
   !> warm start for a fallback solver). max_iter caps adds + drops (default 4 m + 20).
-  subroutine solve(this, bm, d, v, u, lambda, stats, warm, gsrc, max_iter)
+  subroutine solve(this, bt, d, v, u, lambda, stats, warm, gsrc, max_iter)
     class(dual_qp_t), intent(inout) :: this
-    !> constraint rows [m, n]
-    real(wp), intent(in) :: bm(:,:)
+    !> constraint rows as columns: Bm^T [n, m]
+    real(wp), contiguous, intent(in) :: bt(:,:)
     !> right-hand side [m], point to project [n]
     real(wp), intent(in) :: d(:), v(:)
     !> projection [n]
@@ -133,14 +140,14 @@ contains
     real(wp), intent(inout) :: lambda(:)
     type(dual_qp_stats_t), intent(out) :: stats
     logical, intent(in), optional :: warm
-    !> Gram entries of the rows of bm (default: dot products of rows)
+    !> Gram entries of the rows (default: dot products of the columns of bt)
     class(gram_source_t), intent(in), optional :: gsrc
     integer, intent(in), optional :: max_iter
     integer :: m, n, k, i, j, p, it, itmax, jmin, ref
     real(wp) :: eps, unorm, best, t1, t2, t, zeta, viol, lp
     logical :: use_warm, dependent, ok
 
-    m = size(bm, 1); n = size(bm, 2)
+    m = size(bt, 2); n = size(bt, 1)
     eps = epsilon(1.0_wp)
     use_warm = .true.
     if (present(warm)) use_warm = warm
@@ -159,11 +166,11 @@ contains
         this%nrm2(i) = this%gp(1)
       end do
     else
-      this%nrm2(1:m) = 0
-      do j = 1, n
-        this%nrm2(1:m) = this%nrm2(1:m) + bm(:, j)**2
+      do i = 1, m
+        this%nrm2(i) = dot_product(bt(:, i), bt(:, i))
       end do
     end if
+    this%nrm(1:m) = sqrt(this%nrm2(1:m))
     this%in_a(1:m) = .false.
     k = 0
     it = 0
@@ -180,7 +187,7 @@ contains
         if (k == 0) exit
         ! G_A lambda_A = Bm_A v - d_A
         do j = 1, k
-          this%y(j) = dot_product(bm(this%act(j), :), v) - d(this%act(j))
+          this%y(j) = dot_product(bt(:, this%act(j)), v) - d(this%act(j))
         end do
         call chol_solve(this%y(1:k), this%lam(1:k))
         if (all(this%lam(1:k) >= 0)) exit
@@ -194,6 +201,12 @@ contains
     outer: do
       call primal()
       stats%sweeps = stats%sweeps + 1
+      if (stats%sweeps == 1) then
+        if (.not. ieee_is_finite(sum(this%s(1:m)))) then
+          stats%nonfinite = .true.
+          exit outer
+        end if
+      end if
       ! most violated inactive row (scaled by its norm)
       p = 0
       best = 0
@@ -204,8 +217,8 @@ contains
             stats%infeasible = .true.
             exit outer
           end if
-          if (-this%s(i) > best * sqrt(this%nrm2(i))) then
-            best = -this%s(i) / sqrt(this%nrm2(i)); p = i
+          if (-this%s(i) > best * this%nrm(i)) then
+            best = -this%s(i) / this%nrm(i); p = i
           end if
         end if
       end do
@@ -254,7 +267,7 @@ contains
     end do outer
 
     ! ---- certificate (with up to two refinement steps on the active rows)
-    if (.not. (stats%infeasible .or. stats%capped)) then
+    if (.not. (stats%infeasible .or. stats%capped .or. stats%nonfinite)) then
       do ref = 0, 2
         ok = all(this%lam(1:k) >= 0)
         do j = 1, k
@@ -279,7 +292,7 @@ contains
     lambda = 0
     do j = 1, k
       lambda(this%act(j)) = max(this%lam(j), 0.0_wp)
-      u = u - lambda(this%act(j)) * bm(this%act(j), :)
+      u = u - lambda(this%act(j)) * bt(:, this%act(j))
     end do
     stats%n_active = k
     stats%max_violation = 0
@@ -294,14 +307,12 @@ contains
       integer :: jj
       u = v
       do jj = 1, k
-        u = u - this%lam(jj) * bm(this%act(jj), :)
+        u = u - this%lam(jj) * bt(:, this%act(jj))
       end do
       this%s(1:m) = d
-      do jj = 1, n
-        this%s(1:m) = this%s(1:m) - bm(:, jj) * u(jj)
-      end do
+      call la_gemv('T', -1.0_wp, bt, u, 1.0_wp, this%s(1:m))
       unorm = norm2(u)
-      this%tau(1:m) = KKT_FACTOR * eps * (sqrt(this%nrm2(1:m)) * unorm + abs(d))
+      this%tau(1:m) = KKT_FACTOR * eps * (this%nrm(1:m) * unorm + abs(d))
     end subroutine primal
 
     !> gp = G_{pA}, y = L^{-1} gp, zeta = G_pp - |y|^2.
@@ -314,7 +325,7 @@ contains
           call gsrc%gram_entries(pp, this%act(1:k), this%gp(1:k))
         else
           do jj = 1, k
-            this%gp(jj) = dot_product(bm(pp, :), bm(this%act(jj), :))
+            this%gp(jj) = dot_product(bt(:, pp), bt(:, this%act(jj)))
           end do
         end if
         call forward_solve(this%gp(1:k), this%y(1:k))
