@@ -202,9 +202,11 @@ contains
     type(ldp_stats_t) :: lst
     type(error_t), allocatable :: error
     type(dense_gram_t) :: src
+    real(wp), allocatable :: bt(:,:)
     integer :: i
+    bt = transpose(b)
     lam = 0
-    call dqp%solve(transpose(b), d, v, u, lam, st, warm=.false.)
+    call dqp%solve(bt, d, v, u, lam, st, warm=.false.)
     if (st%certified) n_cert = n_cert + 1
     call check(st%certified .and. .not. st%infeasible, tag // ": certified")
     call check(kkt_ok(u, lam), tag // ": KKT to the stated tolerance")
@@ -216,18 +218,18 @@ contains
       tag // ": the known projection")
     ! warm from its own answer: no iteration, same point
     lam2 = lam
-    call dqp%solve(transpose(b), d, v, u2, lam2, st2, warm=.true.)
+    call dqp%solve(bt, d, v, u2, lam2, st2, warm=.true.)
     call check(st2%certified .and. st2%adds == 0, tag // ": warm from the answer adds nothing")
     call check(norm2(u2 - u) <= dist_tol(u, lam, u2, lam2), tag // ": warm = cold")
     ! warm from a wrong guess (every other row)
     lam2 = [(merge(1.0_wp, 0.0_wp, mod(i, 2) == 0), i = 1, size(d))]
-    call dqp%solve(transpose(b), d, v, u2, lam2, st2, warm=.true.)
+    call dqp%solve(bt, d, v, u2, lam2, st2, warm=.true.)
     call check(st2%certified, tag // ": warm from a wrong guess certified")
     call check(norm2(u2 - u) <= dist_tol(u, lam, u2, lam2), tag // ": wrong guess = cold")
     ! Gram entries from a source
     src%b = b
     lam2 = 0
-    call dqp%solve(transpose(b), d, v, u2, lam2, st2, warm=.false., gsrc=src)
+    call dqp%solve(bt, d, v, u2, lam2, st2, warm=.false., gsrc=src)
     call check(st2%certified, tag // ": Gram source certified")
     call check(norm2(u2 - u) <= dist_tol(u, lam, u2, lam2), tag // ": Gram source = rows")
   end subroutine compare
@@ -239,8 +241,10 @@ contains
     type(dual_qp_stats_t) :: st
     type(ldp_stats_t) :: lst
     type(error_t), allocatable :: error
+    real(wp), allocatable :: bt(:,:)
+    bt = transpose(b)
     lam = 0
-    call dqp%solve(transpose(b), d, v, u, lam, st, warm=.false.)
+    call dqp%solve(bt, d, v, u, lam, st, warm=.false.)
     call check(.not. st%certified, tag // ": not certified")
     call check(st%infeasible, tag // ": detected")
     call check(all(lam >= 0) .and. all(abs(u) < huge(1.0_wp)), tag // ": finite iterate")

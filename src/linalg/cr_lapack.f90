@@ -243,8 +243,9 @@ contains
   subroutine la_gemv(trans, alpha, a, x, beta, y)
     character, intent(in) :: trans
     real(wp), intent(in) :: alpha, beta
-    real(wp), contiguous, intent(in) :: a(:, :), x(:)
-    real(wp), contiguous, intent(inout) :: y(:)
+    ! not `contiguous`: a contiguous actual is passed as is, another one is packed
+    real(wp), intent(in) :: a(:, :), x(:)
+    real(wp), intent(inout) :: y(:)
     if (size(a, 1) == 0 .or. size(a, 2) == 0) then
       if (beta == 0.0_wp) then
         y = 0.0_wp

@@ -71,6 +71,7 @@ module cr_reduced_ops
     procedure(assemble_i), deferred :: assemble
     procedure :: gram => ops_gram
     procedure :: gram_entries => ops_gram_entries
+    procedure :: gram_diag => ops_gram_diag
     procedure, private :: z_add
   end type reduced_ops_t
 
@@ -375,23 +376,69 @@ contains
     class(reduced_ops_t), intent(in) :: this
     integer, intent(in) :: p, idx(:)
     real(wp), intent(out) :: g(:)
-    integer :: jj, k, i, j, np
-    real(wp) :: t, zp(this%zmax)
-    integer :: dp(this%zmax)
-    np = this%zn(p)
-    zp(1:np) = this%zval(1:np, p)
-    dp(1:np) = this%zdof(1:np, p)
-    do jj = 1, size(idx)
-      k = idx(jj)
-      t = 0
-      do j = 1, this%zn(k)
-        do i = 1, np
-          t = t + zp(i) * this%zval(j, k) * this%pmat(dp(i), this%zdof(j, k))
-        end do
+    integer :: jj
+    if (this%zmax == 4) then
+      do jj = 1, size(idx)
+        g(jj) = zpz4(this, p, idx(jj))
       end do
-      g(jj) = t
-    end do
+    else
+      do jj = 1, size(idx)
+        g(jj) = zpz(this, p, idx(jj))
+      end do
+    end if
   end subroutine ops_gram_entries
+
+  !> g(k) = |row k|^2 of the last assembled bhat [R or rows].
+  subroutine ops_gram_diag(this, g)
+    class(reduced_ops_t), intent(in) :: this
+    real(wp), intent(out) :: g(:)
+    integer :: k
+    if (this%zmax == 4) then
+      do k = 1, size(g)
+        g(k) = zpz4(this, k, k)
+      end do
+    else
+      do k = 1, size(g)
+        g(k) = zpz(this, k, k)
+      end do
+    end if
+  end subroutine ops_gram_diag
+
+  !> z_p P z_k^T, general zmax.
+  pure real(wp) function zpz(this, p, k) result(t)
+    class(reduced_ops_t), intent(in) :: this
+    integer, intent(in) :: p, k
+    integer :: i, j
+    t = 0
+    do j = 1, this%zn(k)
+      do i = 1, this%zn(p)
+        t = t + this%zval(i, p) * this%zval(j, k) * this%pmat(this%zdof(i, p), this%zdof(j, k))
+      end do
+    end do
+  end function zpz
+
+  !> z_p P z_k^T for zmax = 4 (one contact: 2 or 4 entries), unrolled.
+  pure real(wp) function zpz4(this, p, k) result(t)
+    class(reduced_ops_t), intent(in) :: this
+    integer, intent(in) :: p, k
+    integer :: j, c, d1, d2, d3, d4
+    real(wp) :: z1, z2, z3, z4
+    t = 0
+    if (this%zn(p) == 0) return
+    z1 = this%zval(1, p); z2 = this%zval(2, p)
+    d1 = this%zdof(1, p); d2 = this%zdof(2, p)
+    if (this%zn(p) == 4) then
+      z3 = this%zval(3, p); z4 = this%zval(4, p)
+      d3 = this%zdof(3, p); d4 = this%zdof(4, p)
+    else
+      z3 = 0; z4 = 0; d3 = d1; d4 = d2
+    end if
+    do j = 1, this%zn(k)
+      c = this%zdof(j, k)
+      t = t + this%zval(j, k) * (z1 * this%pmat(d1, c) + z2 * this%pmat(d2, c) + z3 * this%pmat(d3, c) + &
+        z4 * this%pmat(d4, c))
+    end do
+  end function zpz4
 
   !> CSR by rows of the cone on its support rows w [p3, R].
   subroutine cone_rows(w, ptr, k, val)

@@ -54,6 +54,7 @@ module cr_dual_qp
   type, abstract :: gram_source_t
   contains
     procedure(gram_entries_i), deferred :: gram_entries
+    procedure :: gram_diag
   end type gram_source_t
 
   abstract interface
@@ -104,6 +105,18 @@ module cr_dual_qp
   end type dual_qp_t
 
 contains
+
+  !> g(i) = |b_i|^2 for the m rows [m] (default: one gram_entries call per row).
+  subroutine gram_diag(this, g)
+    class(gram_source_t), intent(in) :: this
+    real(wp), intent(out) :: g(:)
+    integer :: i
+    real(wp) :: gi(1)
+    do i = 1, size(g)
+      call this%gram_entries(i, [i], gi)
+      g(i) = gi(1)
+    end do
+  end subroutine gram_diag
 
   subroutine reserve(this, m, n)
     class(dual_qp_t), intent(inout) :: this
@@ -161,10 +174,7 @@ contains
     call this%reserve(m, n)
     ! squared row norms (the Gram diagonal)
     if (present(gsrc)) then
-      do i = 1, m
-        call gsrc%gram_entries(i, [i], this%gp(1:1))
-        this%nrm2(i) = this%gp(1)
-      end do
+      call gsrc%gram_diag(this%nrm2(1:m))
     else
       do i = 1, m
         this%nrm2(i) = dot_product(bt(:, i), bt(:, i))
