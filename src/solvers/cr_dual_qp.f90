@@ -6,16 +6,20 @@
 !> Method. The Hessian is the identity, so the whole state is an active set A of linearly
 !> independent rows, their multipliers lambda_A >= 0 and the Cholesky factor L L^T = G_A of
 !> the Gram matrix of the active rows only (G_ij = b_i . b_j). The primal point is
-!> u = v - Bm_A^T lambda_A with Bm_A u = d_A. One iteration of the outer loop forms u and the
-!> slacks s = d - Bm u (two matrix-vector products, O(m n)), picks the most violated row p
-!> (largest -s_p / |b_p|) and adds it by the dual step of Goldfarb and Idnani (Math. Prog. 27,
-!> 1983): with r = G_A^{-1} G_Ap and zeta = G_pp - G_pA r (the squared distance of b_p to the
-!> span of the active rows), increasing lambda_p by t moves lambda_A by -t r and raises s_p
-!> by t zeta; the step is the smaller of the full step (s_p = 0, p joins A: one new row of L)
-!> and the partial step at which an active multiplier reaches 0 (that row leaves A: a
-!> Givens downdate of L). Only the Gram entries G_pA of an entering row are formed, through
-!> a `gram_source_t` when the caller has them cheaply, else as dot products of rows. The
-!> work per step is O(m n) per added row plus O(k^2) per factor update, never O(m^2).
+!> u = v - Bm_A^T lambda_A with Bm_A u = d_A. A sweep forms u and the slacks s = d - Bm u
+!> (two matrix-vector products, O(m n)) and lists the violated rows as candidates. The most
+!> violated candidate p (largest -s_p / |b_p|) is added by the dual step of Goldfarb and
+!> Idnani (Math. Prog. 27, 1983): with r = G_A^{-1} G_Ap and zeta = G_pp - G_pA r (the
+!> squared distance of b_p to the span of the active rows), increasing lambda_p by t moves
+!> lambda_A by -t r, u by -t z (z = b_p - Bm_A^T r) and raises s_p by t zeta; the step is the
+!> smaller of the full step (s_p = 0, p joins A: one new row of L) and the partial step at
+!> which an active multiplier reaches 0 (that row leaves A: a Givens downdate of L). The
+!> other candidates' slacks are carried along (s_c += t b_c . z, O(k n) per step), so the
+!> next candidate is added without a sweep; a new sweep is made when no candidate is
+!> violated, and the solve ends at a sweep that finds no violated row. Only the Gram entries
+!> G_pA of an entering row are formed, through a `gram_source_t` when the caller has them
+!> cheaply, else as dot products of rows. The work per step is O(m n) per sweep plus
+!> O(k n + k^2) per added or dropped row, never O(m^2).
 !>
 !> Warm start. The rows with lambda > 0 on entry are factored (numerically dependent ones
 !> skipped), the equality-constrained problem on them is solved, and rows with negative
@@ -99,6 +103,11 @@ module cr_dual_qp
     !> slacks, squared row norms, row norms, tolerances [mcap]; membership [mcap]
     real(wp), allocatable :: s(:), nrm2(:), nrm(:), tau(:)
     logical, allocatable :: in_a(:)
+    !> candidates (violated rows of the last sweep) and their tracked slacks [mcap]
+    integer, allocatable :: cand(:)
+    real(wp), allocatable :: sc(:)
+    !> step direction in the primal space [ncap]
+    real(wp), allocatable :: zdir(:)
   contains
     procedure :: solve
     procedure, private :: reserve
@@ -123,11 +132,15 @@ contains
     integer, intent(in) :: m, n
     integer :: kc
     if (m > this%mcap) then
-      if (allocated(this%s)) deallocate(this%s, this%nrm2, this%nrm, this%tau, this%in_a)
-      allocate(this%s(m), this%nrm2(m), this%nrm(m), this%tau(m), this%in_a(m))
+      if (allocated(this%s)) deallocate(this%s, this%nrm2, this%nrm, this%tau, this%in_a, this%cand, this%sc)
+      allocate(this%s(m), this%nrm2(m), this%nrm(m), this%tau(m), this%in_a(m), this%cand(m), this%sc(m))
       this%mcap = m
     end if
-    this%ncap = max(this%ncap, n)
+    if (n > this%ncap) then
+      if (allocated(this%zdir)) deallocate(this%zdir)
+      allocate(this%zdir(n))
+      this%ncap = n
+    end if
     kc = max(1, min(m, n))
     if (kc > this%kcap) then
       if (allocated(this%act)) deallocate(this%act, this%lam, this%lf, this%gp, this%y, this%r, this%x)
@@ -156,9 +169,9 @@ contains
     !> Gram entries of the rows (default: dot products of the columns of bt)
     class(gram_source_t), intent(in), optional :: gsrc
     integer, intent(in), optional :: max_iter
-    integer :: m, n, k, i, j, p, it, itmax, jmin, ref
+    integer :: m, n, k, i, j, p, it, itmax, jmin, ref, nc, c, pc
     real(wp) :: eps, unorm, best, t1, t2, t, zeta, viol, lp
-    logical :: use_warm, dependent, ok
+    logical :: use_warm, dependent, ok, need_sweep, track, clamped
 
     m = size(bt, 2); n = size(bt, 1)
     eps = epsilon(1.0_wp)
@@ -208,32 +221,54 @@ contains
     end if
 
     ! ---- Goldfarb-Idnani iteration
+    need_sweep = .true.
+    nc = 0
     outer: do
-      call primal()
-      stats%sweeps = stats%sweeps + 1
-      if (stats%sweeps == 1) then
-        if (.not. ieee_is_finite(sum(this%s(1:m)))) then
-          stats%nonfinite = .true.
-          exit outer
-        end if
-      end if
-      ! most violated inactive row (scaled by its norm)
-      p = 0
-      best = 0
-      do i = 1, m
-        if (this%in_a(i)) cycle
-        if (-this%s(i) > this%tau(i)) then
-          if (this%nrm2(i) == 0) then
-            stats%infeasible = .true.
+      if (need_sweep) then
+        call primal()
+        stats%sweeps = stats%sweeps + 1
+        if (stats%sweeps == 1) then
+          if (.not. ieee_is_finite(sum(this%s(1:m)))) then
+            stats%nonfinite = .true.
             exit outer
           end if
-          if (-this%s(i) > best * this%nrm(i)) then
-            best = -this%s(i) / this%nrm(i); p = i
+        end if
+        ! candidates: the violated inactive rows
+        nc = 0
+        do i = 1, m
+          if (this%in_a(i)) cycle
+          if (-this%s(i) > this%tau(i)) then
+            if (this%nrm2(i) == 0) then
+              stats%infeasible = .true.
+              exit outer
+            end if
+            nc = nc + 1
+            this%cand(nc) = i
+            this%sc(nc) = this%s(i)
           end if
+        end do
+        if (nc == 0) exit outer
+        need_sweep = .false.
+      end if
+      ! most violated candidate (scaled by its norm) by its tracked slack
+      p = 0; pc = 0
+      best = 0
+      do c = 1, nc
+        i = this%cand(c)
+        if (this%in_a(i)) cycle
+        if (-this%sc(c) > this%tau(i) .and. -this%sc(c) > best * this%nrm(i)) then
+          best = -this%sc(c) / this%nrm(i); p = i; pc = c
         end if
       end do
-      if (p == 0) exit outer
-      viol = -this%s(p)
+      if (p == 0) then
+        need_sweep = .true.
+        cycle outer
+      end if
+      track = .false.
+      do c = 1, nc
+        if (c /= pc .and. .not. this%in_a(this%cand(c))) track = .true.
+      end do
+      viol = -this%sc(pc)
       lp = 0
       inner: do
         if (it >= itmax) then
@@ -261,17 +296,34 @@ contains
           exit outer
         end if
         t = min(t1, t2)
+        if (track) then
+          ! the other candidates' slacks move by t b_c . z, z = b_p - Bm_A^T r (O(k n + nc n)
+          ! instead of a sweep)
+          this%zdir(1:n) = bt(:, p)
+          do j = 1, k
+            this%zdir(1:n) = this%zdir(1:n) - this%r(j) * bt(:, this%act(j))
+          end do
+          do c = 1, nc
+            i = this%cand(c)
+            if (c == pc .or. this%in_a(i)) cycle
+            this%sc(c) = this%sc(c) + t * dot_product(bt(:, i), this%zdir(1:n))
+          end do
+        end if
         this%lam(1:k) = this%lam(1:k) - t * this%r(1:k)
         lp = lp + t
         if (t2 <= t1) then
           call append(p, zeta)
           this%lam(k) = lp
+          ! an active row has s = 0; should it leave A later, its slack is tracked from 0
+          this%sc(pc) = 0
           stats%adds = stats%adds + 1
           exit inner
         end if
         viol = viol - t * zeta
         this%lam(jmin) = 0
         call drop(jmin)
+        ! the dropped row may be a candidate, tracked from now on
+        track = nc > 1
         stats%drops = stats%drops + 1
       end do inner
     end do outer
@@ -298,12 +350,20 @@ contains
       end do
       stats%certified = ok
     end if
-    u = v
+    ! u of the last sweep is v - Bm_A^T lambda_A unless the iteration stopped between sweeps
+    ! or a multiplier is clamped at 0
     lambda = 0
+    clamped = .false.
     do j = 1, k
+      clamped = clamped .or. this%lam(j) < 0
       lambda(this%act(j)) = max(this%lam(j), 0.0_wp)
-      u = u - lambda(this%act(j)) * bt(:, this%act(j))
     end do
+    if (clamped .or. .not. stats%certified) then
+      u = v
+      do j = 1, k
+        u = u - lambda(this%act(j)) * bt(:, this%act(j))
+      end do
+    end if
     stats%n_active = k
     stats%max_violation = 0
     do i = 1, m
