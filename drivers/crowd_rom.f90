@@ -234,7 +234,7 @@ contains
       real(wp), allocatable :: e_mu(:), e_proj(:), overlap(:), time(:), mobility(:)
       integer, allocatable :: not_left(:), not_left_fom(:), infeas(:), capped(:), extrap(:)
       character(len=:), allocatable :: g
-      integer :: k, nt, nb, rep, n_fallback, active_sum, n_adds, n_drops
+      integer :: k, nt, nb, rep, n_fallback, active_sum, n_adds, n_drops, why(3)
       real(wp) :: t_parts(3)
       nt = st%n_steps
       call make_reduced_ops(trim(rcfg%hyper(kset)), trim(rcfg%contacts(kset)), pair, &
@@ -252,7 +252,7 @@ contains
         overlap(blk%n), time(blk%n), mobility(blk%n), not_left(blk%n), not_left_fom(blk%n), infeas(blk%n), capped(blk%n), &
         extrap(blk%n))
       err_time = -1; e_mu = -1; e_proj = -1; not_left_fom = -1; mobility = -1
-      n_fallback = 0; active_sum = 0; n_adds = 0; n_drops = 0; t_parts = 0
+      n_fallback = 0; active_sum = 0; n_adds = 0; n_drops = 0; t_parts = 0; why = 0
       call log%progress_start()
       do k = 1, blk%n
         c2 = st%cfg
@@ -285,7 +285,7 @@ contains
         infeas(k) = traj%n_infeasible
         capped(k) = traj%n_capped
         n_fallback = n_fallback + traj%n_fallback; active_sum = active_sum + traj%active_sum
-        n_adds = n_adds + traj%dual_adds; n_drops = n_drops + traj%dual_drops
+        n_adds = n_adds + traj%dual_adds; n_drops = n_drops + traj%dual_drops; why = why + traj%dual_why
         t_parts = t_parts + [traj%time_positions, traj%time_assemble, traj%time_solve]
         overlap(k) = max_overlap(ctx%scene, st%radius, qr)
         not_left(k) = agents_not_left(ctx%scene, st%radius, qr(:, nt + 1))
@@ -322,7 +322,8 @@ contains
         ", capped " // str(row%capped) // ", " // &
         str(row%t_step, "es9.2") // " s/step")
       if (rcfg%solver == 'dual') call log%info("   dual active set: " // str(n_fallback) // " of " // &
-        str(nt * blk%n) // " steps fell back to the NNLS (infeasible ones included); per step: active rows " // &
+        str(nt * blk%n) // " steps fell back to the NNLS (found infeasible " // str(why(1)) // ", capped or > 3/4 Nb active " // &
+        str(why(2)) // ", not certified " // str(why(3)) // "); per step: active rows " // &
         str(real(active_sum, wp) / max(1, nt * blk%n), "f6.1") // ", rows added " // &
         str(real(n_adds, wp) / max(1, nt * blk%n), "f6.2") // ", dropped " // &
         str(real(n_drops, wp) / max(1, nt * blk%n), "f6.2"))

@@ -49,6 +49,9 @@ module cr_rom_stepper
     !> 'dual': steps answered by the Lawson-Hanson fallback (infeasible ones included),
     !> rows added and dropped by the dual iteration, sum of the final active-set sizes
     integer :: n_fallback = 0, dual_adds = 0, dual_drops = 0, active_sum = 0
+    !> why the dual solver handed over: found infeasible, capped or more than 3/4 Nb active
+    !> rows, certificate failed
+    integer :: dual_why(3) = 0
     !> total solver iterations, largest number of constraint rows
     integer :: iterations = 0, max_rows = 0
     !> largest violation of the reduced constraints by the returned coefficients
@@ -70,7 +73,7 @@ contains
     type(rom_traj_t), intent(out) :: traj
     type(error_t), allocatable, intent(out) :: error
     real(wp), allocatable :: q(:), acc(:), vhat(:), alpha(:), bt(:,:), bhat(:,:), dhat(:), lam(:), gram(:,:)
-    real(wp), allocatable :: prev_lam(:), vsub(:,:), qsub(:), q0sub(:)
+    real(wp), allocatable :: prev_lam(:), vsub(:,:), qsub(:), q0sub(:), lam0(:)
     integer, allocatable :: dofs(:)
     integer(i8), allocatable :: prev_keys(:)
     type(nnls_work_t) :: work
@@ -123,20 +126,29 @@ contains
         finite = ieee_is_finite(sum(vhat) + sum(dhat))
         dst%certified = .false.
         if (finite) then
+          lam0 = lam
+          ! at most 3/4 Nb active rows: beyond, their Gram is too ill-conditioned to certify
+          ! (the locked regime of online contacts) and the QR-based NNLS takes the step
           if (ops%has_gram) then
-            call dqp%solve(bt, dhat, vhat, alpha, lam, dst, warm=.true., gsrc=ops)
+            call dqp%solve(bt, dhat, vhat, alpha, lam, dst, warm=.true., gsrc=ops, max_active=(3 * nb) / 4)
           else
-            call dqp%solve(bt, dhat, vhat, alpha, lam, dst, warm=.true.)
+            call dqp%solve(bt, dhat, vhat, alpha, lam, dst, warm=.true., max_active=(3 * nb) / 4)
           end if
           traj%iterations = traj%iterations + dst%adds + dst%drops
           traj%dual_adds = traj%dual_adds + dst%adds
           traj%dual_drops = traj%dual_drops + dst%drops
           traj%active_sum = traj%active_sum + dst%n_active
         end if
+        if (dst%infeasible) traj%dual_why(1) = traj%dual_why(1) + 1
+        if (dst%capped .or. dst%overfull) traj%dual_why(2) = traj%dual_why(2) + 1
+        if (.not. (dst%certified .or. dst%infeasible .or. dst%capped .or. dst%overfull)) &
+          traj%dual_why(3) = traj%dual_why(3) + 1
         if (dst%certified) then
           traj%max_violation = max(traj%max_violation, dst%max_violation)
         else
           traj%n_fallback = traj%n_fallback + 1
+          ! stopped early: the previous step's active set is the better guess
+          if (dst%overfull .or. dst%capped) lam = lam0
           call ldp_fallback()
           if (allocated(error)) return
         end if

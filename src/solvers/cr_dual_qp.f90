@@ -80,6 +80,9 @@ module cr_dual_qp
     logical :: infeasible = .false.
     !> .true. when the iteration cap stopped the solve
     logical :: capped = .false.
+    !> .true. when the active set would exceed max_active rows (left to the caller's
+    !> fallback: a Gram of nearly as many rows as unknowns squares a large condition number)
+    logical :: overfull = .false.
     !> .true. when the data hold a NaN or Inf (seen in the slacks of the first sweep)
     logical :: nonfinite = .false.
     !> rows added, rows dropped, outer sweeps (products with Bm), refinement steps
@@ -154,7 +157,7 @@ contains
   !> (zero off the active set) and u the projection, both valid only when
   !> stats%certified (otherwise they are the last iterate: a dual-feasible point and a good
   !> warm start for a fallback solver). max_iter caps adds + drops (default 4 m + 20).
-  subroutine solve(this, bt, d, v, u, lambda, stats, warm, gsrc, max_iter)
+  subroutine solve(this, bt, d, v, u, lambda, stats, warm, gsrc, max_iter, max_active)
     class(dual_qp_t), intent(inout) :: this
     !> constraint rows as columns: Bm^T [n, m]
     real(wp), contiguous, intent(in) :: bt(:,:)
@@ -169,7 +172,9 @@ contains
     !> Gram entries of the rows (default: dot products of the columns of bt)
     class(gram_source_t), intent(in), optional :: gsrc
     integer, intent(in), optional :: max_iter
-    integer :: m, n, k, i, j, p, it, itmax, jmin, ref, nc, c, pc
+    !> largest active set handled (default min(m, n))
+    integer, intent(in), optional :: max_active
+    integer :: kmax, m, n, k, i, j, p, it, itmax, jmin, ref, nc, c, pc
     real(wp) :: eps, unorm, best, t1, t2, t, zeta, viol, lp
     logical :: use_warm, dependent, ok, need_sweep, track, clamped
 
@@ -185,6 +190,8 @@ contains
       return
     end if
     call this%reserve(m, n)
+    kmax = this%kcap
+    if (present(max_active)) kmax = max(0, min(kmax, max_active))
     ! squared row norms (the Gram diagonal)
     if (present(gsrc)) then
       call gsrc%gram_diag(this%nrm2(1:m))
@@ -199,9 +206,10 @@ contains
     it = 0
 
     ! ---- warm start: factor the guessed rows, solve the equality problem, drop lambda < 0
-    if (use_warm) then
+    if (use_warm) stats%overfull = count(lambda > 0) > kmax
+    if (use_warm .and. .not. stats%overfull) then
       do i = 1, m
-        if (lambda(i) > 0 .and. this%nrm2(i) > 0 .and. k < this%kcap) then
+        if (lambda(i) > 0 .and. this%nrm2(i) > 0 .and. k < kmax) then
           call entering(i, zeta)
           if (zeta > ZTOL * this%nrm2(i)) call append(i, zeta)
         end if
@@ -224,6 +232,7 @@ contains
     need_sweep = .true.
     nc = 0
     outer: do
+      if (stats%overfull) exit outer
       if (need_sweep) then
         call primal()
         stats%sweeps = stats%sweeps + 1
@@ -312,6 +321,10 @@ contains
         this%lam(1:k) = this%lam(1:k) - t * this%r(1:k)
         lp = lp + t
         if (t2 <= t1) then
+          if (k >= kmax) then
+            stats%overfull = .true.
+            exit outer
+          end if
           call append(p, zeta)
           this%lam(k) = lp
           ! an active row has s = 0; should it leave A later, its slack is tracked from 0
@@ -329,7 +342,7 @@ contains
     end do outer
 
     ! ---- certificate (with up to two refinement steps on the active rows)
-    if (.not. (stats%infeasible .or. stats%capped .or. stats%nonfinite)) then
+    if (.not. (stats%infeasible .or. stats%capped .or. stats%nonfinite .or. stats%overfull)) then
       do ref = 0, 2
         ok = all(this%lam(1:k) >= 0)
         do j = 1, k
