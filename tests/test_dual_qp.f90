@@ -226,6 +226,15 @@ contains
     call dqp%solve(bt, d, v, u2, lam2, st2, warm=.true.)
     call check(st2%certified, tag // ": warm from a wrong guess certified")
     call check(norm2(u2 - u) <= dist_tol(u, lam, u2, lam2), tag // ": wrong guess = cold")
+    ! an active-set bound below the answer's size hands over (not certified)
+    if (st%n_active > 0) then
+      lam2 = 0
+      call dqp%solve(bt, d, v, u2, lam2, st2, warm=.false., max_active=st%n_active - 1)
+      call check(st2%overfull .and. .not. st2%certified, tag // ": max_active below the answer: handed over")
+      lam2 = lam
+      call dqp%solve(bt, d, v, u2, lam2, st2, warm=.true., max_active=st%n_active)
+      call check(st2%certified .and. .not. st2%overfull, tag // ": max_active = the answer's size: certified")
+    end if
     ! Gram entries from a source
     src%b = b
     lam2 = 0

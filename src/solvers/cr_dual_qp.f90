@@ -206,7 +206,7 @@ contains
     it = 0
 
     ! ---- warm start: factor the guessed rows, solve the equality problem, drop lambda < 0
-    if (use_warm) stats%overfull = count(lambda > 0) > kmax
+    if (use_warm .and. present(max_active)) stats%overfull = count(lambda > 0) > kmax
     if (use_warm .and. .not. stats%overfull) then
       do i = 1, m
         if (lambda(i) > 0 .and. this%nrm2(i) > 0 .and. k < kmax) then
