@@ -566,8 +566,9 @@ contains
   !> y += c (-(g . V^T rows of agent a) + (g . V^T rows of agent b)) for vt = V^T [nb, n_dof]:
   !> the reduced image of a contact row scaled by c / h (b = 0: obstacle contact).
   pure subroutine add_row(y, vt, c, a, b, g)
-    real(wp), intent(inout) :: y(:)
-    real(wp), intent(in) :: vt(:,:), c, g(2)
+    real(wp), contiguous, intent(inout) :: y(:)
+    real(wp), contiguous, intent(in) :: vt(:,:)
+    real(wp), intent(in) :: c, g(2)
     integer, intent(in) :: a, b
     real(wp) :: c1, c2
     integer :: i
