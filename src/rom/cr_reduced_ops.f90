@@ -134,6 +134,9 @@ module cr_reduced_ops
     real(wp), allocatable :: ugap(:), ug(:,:), udes(:,:)
     !> work vector [n_dof]
     real(wp), allocatable :: xs(:)
+    !> reduced images of the unit directions of each s2 point's contact row: x and y parts of
+    !> (V^T rows of agent b) - (V^T rows of agent a) [nb, 2, m2] (b = 0: minus agent a's)
+    real(wp), allocatable :: dvt(:,:,:)
   contains
     procedure :: assemble => eq_assemble
   end type ops_eq_t
@@ -218,7 +221,14 @@ contains
       call unique_map([ops%idx2, ops%idx3], ops%urows, ops%pos2, ops%pos3, size(ops%idx2))
       call unique_map((ops%idx1 + 1) / 2, ops%uagents, ops%pos1)
       allocate(ops%ugap(size(ops%urows)), ops%ug(2, size(ops%urows)), ops%udes(2, size(ops%uagents)))
-      allocate(ops%xs(size(pair%v, 1)))
+      allocate(ops%xs(size(pair%v, 1)), ops%dvt(pair%nb, 2, m(2)))
+      ops%dvt = 0
+      do k = 1, m(2)
+        associate (l => ops%idx2(k))
+          call add_row(ops%dvt(:, 1, k), ops%vt, 1.0_wp, ops%ia(l), ops%ib(l), [1.0_wp, 0.0_wp])
+          call add_row(ops%dvt(:, 2, k), ops%vt, 1.0_wp, ops%ia(l), ops%ib(l), [0.0_wp, 1.0_wp])
+        end associate
+      end do
     end select
     ops%agents = pack([(k, k = 1, n_agents)], need)
 
@@ -584,6 +594,17 @@ contains
     end if
   end subroutine add_row
 
+  !> y += c1 x1 + c2 x2.
+  pure subroutine add_pair(y, c1, x1, c2, x2)
+    real(wp), contiguous, intent(inout) :: y(:)
+    real(wp), intent(in) :: c1, c2
+    real(wp), contiguous, intent(in) :: x1(:), x2(:)
+    integer :: i
+    do i = 1, size(y)
+      y(i) = y(i) + c1 * x1(i) + c2 * x2(i)
+    end do
+  end subroutine add_pair
+
   subroutine online_assemble(this, ctx, q, vhat, bt, dhat)
     class(ops_online_t), intent(inout) :: this
     type(eval_ctx_t), intent(in) :: ctx
@@ -711,7 +732,7 @@ contains
       do p = this%wp0(l) + 1, this%wp0(l + 1)
         k = this%wk(p)
         c = this%w2(j) * this%wv(p)
-        call add_row(bt(:, k), this%vt, c * ctx%h, a, b, g)
+        call add_pair(bt(:, k), (c * ctx%h) * g(1), this%dvt(:, 1, j), (c * ctx%h) * g(2), this%dvt(:, 2, j))
         if (this%has_gram) call this%z_add(k, c, a, b, g, ctx%h)
       end do
     end do
