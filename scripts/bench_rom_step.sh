@@ -26,7 +26,7 @@ run() {  # run <solver> <tag> <hyper> <contacts> <n_samples> <repeats>
 /
 NML
   echo "=== solver $1, $3 / $4 ($5 samples, fastest of $6 runs)"
-  build/bin/crowd_rom "$f" 2>&1 | grep -E "full-order|E_avg|dual active|time per step|warn" | grep -v "sample .* of" || true
+  build/bin/crowd_rom "$f" 2>&1 | grep -E "s/step \(largest|E_avg|dual active|time per step|warn" | grep -v "sample .* of" || true
 }
 for s in "${SOLVERS[@]}"; do
   run "$s" eq eq cone 0 5
