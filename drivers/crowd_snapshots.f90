@@ -29,7 +29,8 @@ program crowd_snapshots
   use cr_study_config, only: study_cfg_t, read_study, check_study, study_echo, study_hash
   use cr_sampling, only: param_space_t, sample_set_t, generate_samples
   use cr_scheduler, only: scheduler_t
-  use cr_snapshot_piece, only: sample_result_t, compute_sample, write_piece, piece_hash, piece_path
+  use cr_snapshot_piece, only: sample_result_t, compute_sample, write_piece, piece_path
+  use cr_piece_store, only: piece_index_t, scan_pieces
   use cr_snapshot_db, only: SNAP_SCHEMA_VERSION, db_meta_t, db_totals_t, probe_database, &
     assemble_database, collective_error
   implicit none
@@ -77,6 +78,7 @@ contains
 
   subroutine print_help()
     print '(a)', "usage: mpirun -np P crowd_snapshots study.nml [--summary FILE] [--stop-after K]"
+    print '(a)', "         [--quarantine-bad-pieces] [--batch-seconds S]"
     print '(a)', ""
     print '(a)', "Parameter study of the full-order crowd model: samples the parameters of &study,"
     print '(a)', "spreads the runs over the MPI ranks (dynamic assignment) and writes one snapshot"
@@ -86,6 +88,10 @@ contains
     print '(a)', "  --summary FILE   also write the run summary as JSON"
     print '(a)', "  --stop-after K   testing hook: compute at most K samples, then exit with status 3"
     print '(a)', "                   without assembling the database (a rerun resumes)"
+    print '(a)', "  --quarantine-bad-pieces  move pieces that fail their checks (checksum, identity,"
+    print '(a)', "                   finiteness) to <database>.pieces/quarantine/ and recompute them;"
+    print '(a)', "                   without it a bad piece stops the run (status 2) naming it"
+    print '(a)', "  --batch-seconds S  time slice of one piece file (default 2 s; 0: one sample per piece)"
     print '(a)', "  -h, --help       this text"
     print '(a)', ""
     print '(a)', "Exit status: 0 success, 2 bad input, 3 stopped by --stop-after, 1 other failure."
@@ -97,10 +103,11 @@ contains
     type(param_space_t) :: space
     type(db_meta_t) :: meta
     type(scheduler_t) :: sched
-    type(sample_result_t) :: res
+    type(sample_result_t) :: res(1)
+    type(piece_index_t) :: pieces
     real(wp), allocatable :: q0(:)
     integer, allocatable :: done(:), todo(:)
-    character(len=:), allocatable :: dir, msg, path, h
+    character(len=:), allocatable :: dir, msg, path
     integer :: status, g, k, is, t, n_mine, ndone, ierr, maj, mnr, rel, vlen
     real(wp) :: t0, t_start, t_loop, t_sample, busy_mine
     character(len=MPI_MAX_LIBRARY_VERSION_STRING) :: mpiv
@@ -139,34 +146,14 @@ contains
       return
     end if
 
-    ! pieces of earlier runs
+    ! pieces of earlier runs, verified (bad ones stop the run, or are moved aside on request)
+    call scan_pieces(env, dir, hash, sets, 2 * fom_ref%n_agents, cfg%time%n_steps, cli%quarantine, pieces, &
+      msg, error)
+    if (allocated(error)) return
+    if (len(msg) > 0) call log%warn(msg // "the samples of the " // str(pieces%n_quarantined) // &
+      " bad piece(s) are recomputed")
     allocate(done(n_tot))
-    done = 0
-    msg = ""
-    if (env%is_root()) then
-      if (make_dir(dir) /= 0) msg = "cannot create the directory '" // dir // "' for the pieces"
-      do g = 1, n_tot
-        if (len(msg) > 0) exit
-        call set_of(g, is, k)
-        path = piece_path(dir, sets(is)%name, k)
-        if (.not. file_exists(path)) cycle
-        call piece_hash(path, h, error)
-        if (allocated(error)) then
-          msg = "piece '" // path // "' cannot be read (" // error%message // "): remove it to recompute the sample"
-          deallocate(error)
-        else if (h /= hash) then
-          msg = "'" // dir // "' holds pieces of a different configuration (piece config_hash " // h // &
-            ", this input " // trim(hash) // "): refusing to mix them; remove the directory or restore the input"
-        else
-          done(g) = 1
-        end if
-      end do
-    end if
-    call env%bcast_string(msg)
-    if (len(msg) > 0) then
-      call set_error(error, msg, 2); return
-    end if
-    call MPI_Bcast(done, n_tot, MPI_INTEGER, 0, env%comm, ierr)
+    done = merge(1, 0, pieces%piece_of > 0)
     n_prev = count(done == 1)
     todo = pack([(g, g = 1, n_tot)], done == 0)
     n_run = size(todo)
@@ -189,12 +176,13 @@ contains
       g = todo(t)
       call set_of(g, is, k)
       t0 = env%wtime()
-      res%set = sets(is)%name
-      res%index = k
-      res%rank = env%rank
-      call compute_sample(cfg, space, sets(is)%mu(:, k), q0, fom_ref%speeds, res, error)
+      res(1)%set = sets(is)%name
+      res(1)%index = k
+      res(1)%rank = env%rank
+      res(1)%start = t0 - t_start
+      call compute_sample(cfg, space, sets(is)%mu(:, k), q0, fom_ref%speeds, res(1), error)
       if (.not. allocated(error)) then
-        res%time = env%wtime() - t0
+        res(1)%time = env%wtime() - t0
         call write_piece(piece_path(dir, sets(is)%name, k), hash, res, error)
       end if
       if (allocated(error)) then
@@ -248,17 +236,21 @@ contains
     meta%n_expanded = space%n_expanded
     meta%radius = fom_ref%radius
     meta%dt = fom_ref%dt
-    call assemble_database(env, db, dir, meta, fom_ref, q0, sets(1)%n, sets(2)%n, totals, error)
+    call pieces%add_single(dir, sets, todo)
+    call assemble_database(env, db, pieces, meta, fom_ref, q0, sets, totals, error)
     if (allocated(error)) return
     ! the database is committed: the pieces can go
     if (env%is_root()) then
-      do g = 1, n_tot
-        call set_of(g, is, k)
-        path = piece_path(dir, sets(is)%name, k)
+      do g = 1, pieces%n_pieces
+        path = pieces%path_of(g)
         status = remove_file(path)
         status = remove_file(path // ".partial")
       end do
-      if (remove_dir(dir) /= 0) call log%warn("could not remove '" // dir // "' (foreign files in it?)")
+      if (file_exists(dir // "/quarantine/.")) then
+        call log%info("   bad pieces kept in '" // dir // "/quarantine' (inspect, then remove them)")
+      else if (remove_dir(dir) /= 0) then
+        call log%warn("could not remove '" // dir // "' (foreign files in it?)")
+      end if
     end if
     t_asm = env%wtime() - t0
     call log%stage_end()

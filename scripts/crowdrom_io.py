@@ -337,3 +337,41 @@ def resolve_path(path, relative_to):
         return path
     cand = os.path.join(os.path.dirname(os.path.abspath(os.fspath(relative_to))), path)
     return cand if os.path.exists(cand) else path
+
+
+_P1, _P2 = 2147483647, 2147483629
+
+
+def digest(arr, offset=0):
+    """Checksum of a dataset as crowdrom writes it (attribute ``checksum``, 16 hex digits; the
+    algorithm of src/io/cr_digest.f90): a sum over the elements, in file order, of a mix of the
+    element's 64 bits (integers sign-extended to 64 bits) and its 0-based linear index, modulo
+    two 31-bit primes. ``arr`` is the array as h5py reads it (C order = Fortran linear order)."""
+    a = np.ascontiguousarray(arr)
+    if a.dtype.kind == "f":
+        w = a.astype("<f8").reshape(-1).view("<u8")
+    else:
+        w = a.astype("<i8").reshape(-1).view("<u8")
+    lo = (w & np.uint64(0xFFFFFFFF)).astype(np.int64)
+    hi = (w >> np.uint64(32)).astype(np.int64)
+    g = np.arange(offset, offset + w.size, dtype=np.int64)
+    out = []
+    for p, (a1, a2, a3, a4, a5) in ((_P1, (1103515245, 69069, 1664525, 12345, 977)),
+                                    (_P2, (214013, 1812433253, 22695477, 2531011, 1013))):
+        x = ((lo % p) * a1 % p + (hi % p) * a2 % p + (g % p) * a3 % p + a4) % p
+        x = x * ((x + a5) % p) % p
+        out.append(int(x.sum() % p) if x.size else 0)
+    return "%08x%08x" % tuple(out)
+
+
+def verify_checksum(f, name):
+    """Raise InputError if dataset ``name`` of the open file does not match its ``checksum``."""
+    data = dataset(f, name)
+    d = f[name]
+    if "checksum" not in d.attrs:
+        raise InputError("%s: dataset '%s' has no checksum attribute" % (f.filename, name))
+    stored = text(d.attrs["checksum"])
+    got = digest(data)
+    if stored != got:
+        raise InputError("%s: checksum mismatch in dataset '%s' (stored %s, data %s): the file is corrupted"
+                         % (f.filename, name, stored, got))

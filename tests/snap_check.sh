@@ -4,6 +4,10 @@
 #   snap_check.sh stop_resume BIN INPUT         --stop-after 4 at 2 ranks, resume at 3 ranks, compare
 #   snap_check.sh kill_resume BIN INPUT         SIGKILL a running mpirun, resume, compare
 #   snap_check.sh mismatch BIN INPUT OTHER      OTHER (another configuration) must refuse INPUT's database
+#   snap_check.sh corrupt BIN INPUT PYTHON      corrupted pieces (bytes over velocities / lambda_value,
+#                                               velocities * 1.001, a piece copied under another
+#                                               sample's name, NaN) are refused by name; then
+#                                               --quarantine-bad-pieces moves them aside and recomputes
 # The database name is &study database = 'snap_tiny.h5' (snap_kill.h5 for kill_resume).
 # Snapshots are compared bitwise with h5diff (data and attributes), except the per-sample
 # wall time and rank (stats/time, stats/rank).
@@ -90,6 +94,54 @@ mismatch)
   out=$("$MPIRUN" -np 1 "$bin" "$other" 2>&1); rc=$?
   [ $rc -ne 0 ] || fail "pieces of another configuration were accepted"
   grep -qE "^error: .*holds pieces of a different configuration" <<<"$out" || { echo "$out"; fail "message (pieces)"; }
+  ;;
+corrupt)
+  bin=$1; input=$2; py=$3
+  here=$(cd "$(dirname "$0")" && pwd)
+  rm -rf corrupt; mkdir corrupt; cd corrupt || exit 1
+  "$MPIRUN" -np 2 --oversubscribe "$bin" "$input" --stop-after 6 > log0.txt 2>&1; rc=$?
+  [ $rc -eq 3 ] || { cat log0.txt; fail "--stop-after 6: exit status $rc, expected 3"; }
+  cp -r snap_tiny.h5.pieces pristine
+  P=snap_tiny.h5.pieces
+  # a piece (sample_1 of some piece) with stored multipliers, for the lambda_value case
+  lam=$("$py" -c "
+import h5py, glob, sys
+for p in sorted(glob.glob('$P/*.h5')):
+    with h5py.File(p) as f:
+        if f['sample_1/lambda_value'].size > 0:
+            print(p); sys.exit(0)
+sys.exit(1)") || fail "no piece with multipliers to corrupt"
+  expect_refused() {  # expect_refused CASE REGEX: the run fails with status 2 and names the piece
+    out=$("$MPIRUN" -np 2 --oversubscribe "$bin" "$input" 2>&1); rc=$?
+    [ $rc -eq 2 ] || { echo "$out"; fail "$1: exit status $rc, expected 2"; }
+    grep -qE "$2" <<<"$out" || { echo "$out"; fail "$1: message"; }
+    grep -q "quarantine-bad-pieces" <<<"$out" || { echo "$out"; fail "$1: no hint at --quarantine-bad-pieces"; }
+    [ ! -e snap_tiny.h5 ] || fail "$1: a database was written"
+    rm -rf $P; cp -r pristine $P
+  }
+  "$py" "$here/snap_corrupt.py" bytes $P/train_000002.h5 sample_1/velocities || fail "corrupt (bytes)"
+  expect_refused bytes_velocities "piece '$P/train_000002.h5' \\(train sample 2\\): checksum mismatch in dataset 'sample_1/velocities'"
+  "$py" "$here/snap_corrupt.py" bytes "$lam" sample_1/lambda_value || fail "corrupt (bytes, lambda)"
+  expect_refused bytes_lambda "piece '$lam' \\(train sample [0-9]+\\): checksum mismatch in dataset 'sample_1/lambda_value'"
+  "$py" "$here/snap_corrupt.py" scale $P/train_000004.h5 sample_1/velocities || fail "corrupt (scale)"
+  expect_refused scaled "piece '$P/train_000004.h5' \\(train sample 4\\): checksum mismatch in dataset 'sample_1/velocities'"
+  cp $P/train_000003.h5 $P/train_000005.h5
+  expect_refused renamed "piece '$P/train_000005.h5' holds train sample 3 where train sample 5 belongs"
+  "$py" "$here/snap_corrupt.py" nan $P/train_000006.h5 sample_1/velocities || fail "corrupt (nan)"
+  expect_refused nan "piece '$P/train_000006.h5' \\(train sample 6\\): dataset 'velocities' holds a non-finite value"
+  # several bad pieces at once, all named; --quarantine-bad-pieces moves them aside and the run
+  # recomputes them: the database equals the uninterrupted one
+  "$py" "$here/snap_corrupt.py" nan $P/train_000006.h5 sample_1/velocities || fail "corrupt (nan)"
+  cp $P/train_000003.h5 $P/train_000005.h5
+  out=$("$MPIRUN" -np 2 --oversubscribe "$bin" "$input" 2>&1); rc=$?
+  [ $rc -eq 2 ] && grep -q "2 bad piece(s)" <<<"$out" && grep -q "train_000005.h5" <<<"$out" && \
+    grep -q "train_000006.h5" <<<"$out" || { echo "$out"; fail "two bad pieces not both named"; }
+  "$MPIRUN" -np 2 --oversubscribe "$bin" "$input" --quarantine-bad-pieces --summary s.json > log1.txt 2>&1 || \
+    { cat log1.txt; fail "run with --quarantine-bad-pieces"; }
+  grep -q "moved bad piece" log1.txt || { cat log1.txt; fail "no report of the moved pieces"; }
+  [ -f $P/quarantine/train_000005.h5 ] && [ -f $P/quarantine/train_000006.h5 ] || fail "bad pieces not kept in quarantine"
+  grep -q '"samples_resumed": 4' s.json || { cat s.json; fail "the 4 good pieces were not reused"; }
+  same_db snap_tiny.h5 ../snap_np1/snap_tiny.h5
   ;;
 *) fail "unknown mode $mode" ;;
 esac

@@ -17,7 +17,10 @@ module cr_snapshot_db
   use cr_fom, only: fom_t
   use cr_fom_output, only: write_scene
   use cr_h5file, only: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64
-  use cr_snapshot_piece, only: sample_result_t, read_piece, piece_path
+  use cr_snapshot_piece, only: sample_result_t, read_piece, check_sample
+  use cr_sampling, only: sample_set_t
+  use cr_piece_store, only: piece_index_t
+  use cr_digest, only: digest_t, digest_of, digest_allreduce, put_digest, DIGEST_ALGORITHM
   implicit none
   private
   public :: SNAP_SCHEMA, SNAP_SCHEMA_VERSION, SNAP_UNITS, db_meta_t, db_totals_t, probe_database, &
@@ -110,15 +113,18 @@ contains
   end subroutine probe_database
 
   !> Collective: assemble every piece in `pieces_dir` into the database `path`.
-  subroutine assemble_database(env, path, pieces_dir, meta, fom_ref, q0, n_train, n_valid, totals, error)
+  subroutine assemble_database(env, path, pieces, meta, fom_ref, q0, samples, totals, error)
     type(env_t), intent(in) :: env
-    character(len=*), intent(in) :: path, pieces_dir
+    character(len=*), intent(in) :: path
+    !> where each sample is stored (every sample must be)
+    type(piece_index_t), intent(in) :: pieces
     type(db_meta_t), intent(in) :: meta
     !> the reference model (for the scene group)
     type(fom_t), intent(in) :: fom_ref
     !> common initial positions [2*n_agents]
     real(wp), intent(in), contiguous :: q0(:)
-    integer, intent(in) :: n_train, n_valid
+    !> the study's samples (train, valid): each piece's samples are checked against them
+    type(sample_set_t), intent(in) :: samples(2)
     type(db_totals_t), intent(out) :: totals
     type(error_t), allocatable, intent(out) :: error
     type(set_block_t) :: sets(2)
@@ -126,19 +132,34 @@ contains
     integer, allocatable :: dia(:), dib(:), dob(:)
     type(h5file_t) :: h5
     character(len=:), allocatable :: msg
-    integer :: is, k, ierr, bad
-    sets(1)%name = 'train'; sets(1)%n = n_train
-    sets(2)%name = 'valid'; sets(2)%n = n_valid
-    ! 1. read the pieces of this rank's blocks
+    type(sample_result_t), allocatable :: res(:)
+    integer :: is, k, ierr, bad, n_train, n_valid, g, p
+    n_train = samples(1)%n; n_valid = samples(2)%n
+    sets(1)%name = samples(1)%name; sets(1)%n = n_train
+    sets(2)%name = samples(2)%name; sets(2)%n = n_valid
+    ! 1. read the pieces of this rank's blocks (checksums, finiteness, identity verified)
     msg = ""
     do is = 1, 2
       call block_range(sets(is)%n, env%size, env%rank, sets(is)%k0, sets(is)%nloc)
       allocate(sets(is)%s(sets(is)%nloc))
       do k = 1, sets(is)%nloc
         if (len(msg) > 0) exit
-        call read_piece(piece_path(pieces_dir, sets(is)%name, sets(is)%k0 + k - 1), sets(is)%s(k), error)
+        g = sets(is)%k0 + k - 1
+        if (is == 2) g = g + n_train
+        p = pieces%piece_of(g)
+        if (p == 0) then
+          msg = sets(is)%name // " sample " // str(sets(is)%k0 + k - 1) // " is in no piece"; exit
+        end if
+        call read_piece(pieces%path_of(p), res, error)
+        if (.not. allocated(error)) then
+          sets(is)%s(k) = res(pieces%slot_of(g))
+          call check_sample(sets(is)%s(k), sets(is)%name, sets(is)%k0 + k - 1, &
+            samples(is)%mu(:, sets(is)%k0 + k - 1), 2 * meta%n_agents, meta%n_steps, &
+            "piece '" // pieces%path_of(p) // "'", error)
+        end if
         if (allocated(error)) then
-          msg = error%message; deallocate(error)
+          msg = error%message // " (run again with --quarantine-bad-pieces to move it aside and recompute it)"
+          deallocate(error)
         end if
       end do
     end do
@@ -208,14 +229,20 @@ contains
       call h5%write_attr("/", "n_valid", n_valid, error); if (allocated(error)) return
       call h5%write_attr("/", "n_params", meta%n_expanded, error); if (allocated(error)) return
       call h5%write_attr("/", "param_names", meta%param_names, error); if (allocated(error)) return
+      call h5%write_attr("/", "checksum_algorithm", DIGEST_ALGORITHM, error); if (allocated(error)) return
       call h5%write_attr("/", "complete", 0, error); if (allocated(error)) return
       call h5%write("initial_positions", q0, error); if (allocated(error)) return
+      call put_digest(h5, "initial_positions", digest_of(q0, 0_i8), error); if (allocated(error)) return
       call write_scene(h5, fom_ref, error); if (allocated(error)) return
       call h5%make_group("contacts", error); if (allocated(error)) return
       call h5%write("contacts/key", dkey, error); if (allocated(error)) return
+      call put_digest(h5, "contacts/key", digest_of(dkey, 0_i8), error); if (allocated(error)) return
       call h5%write("contacts/ia", dia, error); if (allocated(error)) return
+      call put_digest(h5, "contacts/ia", digest_of(dia, 0_i8), error); if (allocated(error)) return
       call h5%write("contacts/ib", dib, error); if (allocated(error)) return
+      call put_digest(h5, "contacts/ib", digest_of(dib, 0_i8), error); if (allocated(error)) return
       call h5%write("contacts/ob", dob, error); if (allocated(error)) return
+      call put_digest(h5, "contacts/ob", digest_of(dob, 0_i8), error); if (allocated(error)) return
       call h5%write_attr("contacts", "description", "global contact dictionary: every contact " // &
         "with lambda > 0 in some sample and step, sorted by key; ib = 0 for agent-obstacle " // &
         "contacts (ob = obstacle index), ob = 0 for agent pairs", error)
@@ -241,6 +268,7 @@ contains
         rbuf(:, k) = b%s(k)%mu
       end do
       call h5%write_block(g // "/params", rbuf, b%k0 - 1, error); if (allocated(error)) return
+      call seal(g // "/params", digest_of(rbuf, int(b%k0 - 1, i8) * size(rbuf, 1)), error); if (allocated(error)) return
       deallocate(rbuf)
       ! positions
       call h5%create_dataset(g // "/positions", [nd, (ns + 1) * b%n], cr_h5_real, error); if (allocated(error)) return
@@ -249,6 +277,8 @@ contains
         rbuf(:, (k - 1) * (ns + 1) + 1:k * (ns + 1)) = b%s(k)%q
       end do
       call h5%write_block(g // "/positions", rbuf, (b%k0 - 1) * (ns + 1), error); if (allocated(error)) return
+      call seal(g // "/positions", digest_of(rbuf, int((b%k0 - 1) * (ns + 1), i8) * size(rbuf, 1)), error)
+      if (allocated(error)) return
       deallocate(rbuf)
       ! velocities and desired velocities
       allocate(rbuf(nd, ns * b%nloc))
@@ -257,11 +287,13 @@ contains
         rbuf(:, (k - 1) * ns + 1:k * ns) = b%s(k)%u
       end do
       call h5%write_block(g // "/velocities", rbuf, (b%k0 - 1) * ns, error); if (allocated(error)) return
+      call seal(g // "/velocities", digest_of(rbuf, int((b%k0 - 1) * ns, i8) * size(rbuf, 1)), error); if (allocated(error)) return
       call h5%create_dataset(g // "/desired", [nd, ns * b%n], cr_h5_real, error); if (allocated(error)) return
       do k = 1, b%nloc
         rbuf(:, (k - 1) * ns + 1:k * ns) = b%s(k)%v
       end do
       call h5%write_block(g // "/desired", rbuf, (b%k0 - 1) * ns, error); if (allocated(error)) return
+      call seal(g // "/desired", digest_of(rbuf, int((b%k0 - 1) * ns, i8) * size(rbuf, 1)), error); if (allocated(error)) return
       deallocate(rbuf)
       ! per-step statistics [n_steps, n_S]
       allocate(rbuf(ns, b%nloc), ibuf(ns, b%nloc))
@@ -270,26 +302,31 @@ contains
         rbuf(:, k) = b%s(k)%kkt
       end do
       call h5%write_block(g // "/stats/kkt", rbuf, b%k0 - 1, error); if (allocated(error)) return
+      call seal(g // "/stats/kkt", digest_of(rbuf, int(b%k0 - 1, i8) * size(rbuf, 1)), error); if (allocated(error)) return
       call h5%create_dataset(g // "/stats/min_gap", [ns, b%n], cr_h5_real, error); if (allocated(error)) return
       do k = 1, b%nloc
         rbuf(:, k) = b%s(k)%min_gap
       end do
       call h5%write_block(g // "/stats/min_gap", rbuf, b%k0 - 1, error); if (allocated(error)) return
+      call seal(g // "/stats/min_gap", digest_of(rbuf, int(b%k0 - 1, i8) * size(rbuf, 1)), error); if (allocated(error)) return
       call h5%create_dataset(g // "/stats/iterations", [ns, b%n], cr_h5_int, error); if (allocated(error)) return
       do k = 1, b%nloc
         ibuf(:, k) = b%s(k)%iterations
       end do
       call h5%write_block(g // "/stats/iterations", ibuf, b%k0 - 1, error); if (allocated(error)) return
+      call seal(g // "/stats/iterations", digest_of(ibuf, int(b%k0 - 1, i8) * size(ibuf, 1)), error); if (allocated(error)) return
       call h5%create_dataset(g // "/stats/converged", [ns, b%n], cr_h5_int, error); if (allocated(error)) return
       do k = 1, b%nloc
         ibuf(:, k) = b%s(k)%converged
       end do
       call h5%write_block(g // "/stats/converged", ibuf, b%k0 - 1, error); if (allocated(error)) return
+      call seal(g // "/stats/converged", digest_of(ibuf, int(b%k0 - 1, i8) * size(ibuf, 1)), error); if (allocated(error)) return
       call h5%create_dataset(g // "/stats/n_active", [ns, b%n], cr_h5_int, error); if (allocated(error)) return
       do k = 1, b%nloc
         ibuf(:, k) = b%s(k)%n_active
       end do
       call h5%write_block(g // "/stats/n_active", ibuf, b%k0 - 1, error); if (allocated(error)) return
+      call seal(g // "/stats/n_active", digest_of(ibuf, int(b%k0 - 1, i8) * size(ibuf, 1)), error); if (allocated(error)) return
       ! per-sample time and rank [n_S] (not part of the bitwise comparison)
       allocate(r1(b%nloc), i1(b%nloc))
       do k = 1, b%nloc
@@ -297,8 +334,10 @@ contains
       end do
       call h5%create_dataset(g // "/stats/time", [b%n], cr_h5_real, error); if (allocated(error)) return
       call h5%write_block(g // "/stats/time", r1, b%k0 - 1, error); if (allocated(error)) return
+      call seal(g // "/stats/time", digest_of(r1, int(b%k0 - 1, i8)), error); if (allocated(error)) return
       call h5%create_dataset(g // "/stats/rank", [b%n], cr_h5_int, error); if (allocated(error)) return
       call h5%write_block(g // "/stats/rank", i1, b%k0 - 1, error); if (allocated(error)) return
+      call seal(g // "/stats/rank", digest_of(i1, int(b%k0 - 1, i8)), error); if (allocated(error)) return
       ! sparse multipliers, CSR over the snapshot columns
       nnz_loc = 0
       do k = 1, b%nloc
@@ -328,6 +367,7 @@ contains
       if (env%rank > 0) o = (b%k0 - 1) * ns + 1
       call h5%create_dataset(g // "/lambda_offset", [ns * b%n + 1], cr_h5_int64, error); if (allocated(error)) return
       call h5%write_block(g // "/lambda_offset", off, o, error); if (allocated(error)) return
+      call seal(g // "/lambda_offset", digest_of(off, int(o, i8)), error); if (allocated(error)) return
       deallocate(r1, i1)
       allocate(r1(nnz_loc), i1(nnz_loc))
       c0 = 0
@@ -341,10 +381,23 @@ contains
       o = int(base0)
       call h5%create_dataset(g // "/lambda_index", [int(cnt(1))], cr_h5_int, error); if (allocated(error)) return
       call h5%write_block(g // "/lambda_index", i1, o, error); if (allocated(error)) return
+      call seal(g // "/lambda_index", digest_of(i1, int(o, i8)), error); if (allocated(error)) return
       call h5%create_dataset(g // "/lambda_value", [int(cnt(1))], cr_h5_real, error); if (allocated(error)) return
       call h5%write_block(g // "/lambda_value", r1, o, error); if (allocated(error)) return
+      call seal(g // "/lambda_value", digest_of(r1, int(o, i8)), error); if (allocated(error)) return
       call h5%write_attr(g, "n_samples", b%n, error)
     end subroutine write_set
+
+    !> Collective: the digest of a dataset from every rank's part, stored as its checksum.
+    subroutine seal(name, d, error)
+      character(len=*), intent(in) :: name
+      type(digest_t), intent(in) :: d
+      type(error_t), allocatable, intent(out) :: error
+      type(digest_t) :: dd
+      dd = d
+      call digest_allreduce(env, dd)
+      call put_digest(h5, name, dd, error)
+    end subroutine seal
   end subroutine assemble_database
 
   !> Sorted union over all ranks of the contact keys of this rank's samples (with identities).

@@ -1,15 +1,26 @@
-!> One sample of a study: its full-order trajectory (computed by compute_sample) and the
-!> "piece" file that makes it durable before the database is assembled.
+!> The samples of a study: full-order trajectories (computed by compute_sample) and the "piece"
+!> files that make them durable before the database is assembled.
 !>
-!> A piece is a small serial HDF5 file `<database>.pieces/<set>_<k>.h5` written under a
-!> temporary name and renamed when closed (cr_h5file), so a piece exists under its final name
-!> only when all its data is on disk: a killed run leaves only complete pieces (and maybe a
-!> `.partial`, ignored and overwritten). Piece layout (schema "crowdrom-snapshot-piece" v1):
-!> attributes config_hash, set, index, rank, time; datasets mu [n_expanded], positions
-!> [2*n_agents, n_steps+1], velocities / desired [2*n_agents, n_steps], kkt / min_gap /
-!> iterations / converged / n_active [n_steps], lambda_offset int64 [n_steps+1], lambda_key
-!> int64 / lambda_ia / lambda_ib / lambda_ob / lambda_value [nnz] (only lambda > 0).
+!> A piece is a small serial HDF5 file `<database>.pieces/<set>_<k>.h5`, named after its first
+!> sample, holding the samples one rank computed in one time slice (one or more). It is written
+!> under a temporary name and renamed when closed (cr_h5file), so a piece exists under its final
+!> name only when all its data is on disk: a killed run leaves only complete pieces (and maybe
+!> a `.partial`, ignored and overwritten).
+!>
+!> A piece proves what it is: it records its configuration hash, and for every sample its set,
+!> index and parameters (checked against its name and against the study's sampling by
+!> check_sample), and every dataset carries a checksum (cr_digest) verified by read_piece,
+!> which also checks shapes, finiteness and the multiplier layout.
+!>
+!> Layout (schema "crowdrom-snapshot-piece" v2): root attributes schema, schema_version,
+!> config_hash, n_samples, checksum_algorithm, complete; one group `sample_<j>` (j = 1..n_samples)
+!> per sample with attributes set, index, rank, time (s), start (s since the start of the run)
+!> and datasets mu [n_expanded], positions [2*n_agents, n_steps+1], velocities / desired
+!> [2*n_agents, n_steps], kkt / min_gap / iterations / converged / n_active [n_steps],
+!> lambda_offset int64 [n_steps+1], lambda_key int64 / lambda_ia / lambda_ib / lambda_ob /
+!> lambda_value [nnz] (only lambda > 0), each with a `checksum` attribute.
 module cr_snapshot_piece
+  use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
@@ -17,12 +28,14 @@ module cr_snapshot_piece
   use cr_fom, only: fom_t, step_record_t
   use cr_sampling, only: param_space_t
   use cr_h5file, only: h5file_t
+  use cr_digest, only: digest_of, put_digest, check_digest, DIGEST_ALGORITHM
   implicit none
   private
-  public :: sample_result_t, compute_sample, write_piece, read_piece, piece_hash, piece_path, &
-    PIECE_SCHEMA
+  public :: sample_result_t, compute_sample, write_piece, read_piece, piece_header, check_sample, &
+    piece_path, PIECE_SCHEMA, PIECE_SCHEMA_VERSION
 
   character(len=*), parameter :: PIECE_SCHEMA = "crowdrom-snapshot-piece"
+  integer, parameter :: PIECE_SCHEMA_VERSION = 2
 
   !> Trajectory and statistics of one sample.
   type :: sample_result_t
@@ -44,8 +57,9 @@ module cr_snapshot_piece
     integer(i8), allocatable :: key(:)
     integer, allocatable :: ia(:), ib(:), ob(:)
     real(wp), allocatable :: value(:)
-    !> wall time of the sample (s) and the rank that computed it
-    real(wp) :: time = 0
+    !> wall time of the sample (s), its start (s since the start of the run) and the rank that
+    !> computed it
+    real(wp) :: time = 0, start = 0
     integer :: rank = -1
   end type sample_result_t
 
@@ -136,36 +150,27 @@ contains
     end subroutine grow
   end subroutine compute_sample
 
-  !> Write a piece (serial HDF5, temporary name renamed when complete).
+  !> Write the samples res(1:n) as one piece (serial HDF5, temporary name renamed when complete).
   subroutine write_piece(path, hash, res, error)
     character(len=*), intent(in) :: path, hash
-    type(sample_result_t), intent(in) :: res
+    !> the samples, in the order they were computed [n >= 1]
+    type(sample_result_t), intent(in) :: res(:)
     type(error_t), allocatable, intent(out) :: error
     type(h5file_t) :: h5
+    character(len=:), allocatable :: g
+    integer :: j
     call h5%create(path, error)
     if (allocated(error)) return
     ops: block
       call h5%write_attr("/", "schema", PIECE_SCHEMA, error); if (allocated(error)) exit ops
+      call h5%write_attr("/", "schema_version", PIECE_SCHEMA_VERSION, error); if (allocated(error)) exit ops
       call h5%write_attr("/", "config_hash", hash, error); if (allocated(error)) exit ops
-      call h5%write_attr("/", "set", trim(res%set), error); if (allocated(error)) exit ops
-      call h5%write_attr("/", "index", res%index, error); if (allocated(error)) exit ops
-      call h5%write_attr("/", "rank", res%rank, error); if (allocated(error)) exit ops
-      call h5%write_attr("/", "time", res%time, error); if (allocated(error)) exit ops
-      call h5%write("mu", res%mu, error); if (allocated(error)) exit ops
-      call h5%write("positions", res%q, error); if (allocated(error)) exit ops
-      call h5%write("velocities", res%u, error); if (allocated(error)) exit ops
-      call h5%write("desired", res%v, error); if (allocated(error)) exit ops
-      call h5%write("kkt", res%kkt, error); if (allocated(error)) exit ops
-      call h5%write("min_gap", res%min_gap, error); if (allocated(error)) exit ops
-      call h5%write("iterations", res%iterations, error); if (allocated(error)) exit ops
-      call h5%write("converged", res%converged, error); if (allocated(error)) exit ops
-      call h5%write("n_active", res%n_active, error); if (allocated(error)) exit ops
-      call h5%write("lambda_offset", res%offset, error); if (allocated(error)) exit ops
-      call h5%write("lambda_key", res%key, error); if (allocated(error)) exit ops
-      call h5%write("lambda_ia", res%ia, error); if (allocated(error)) exit ops
-      call h5%write("lambda_ib", res%ib, error); if (allocated(error)) exit ops
-      call h5%write("lambda_ob", res%ob, error); if (allocated(error)) exit ops
-      call h5%write("lambda_value", res%value, error); if (allocated(error)) exit ops
+      call h5%write_attr("/", "n_samples", size(res), error); if (allocated(error)) exit ops
+      call h5%write_attr("/", "checksum_algorithm", DIGEST_ALGORITHM, error); if (allocated(error)) exit ops
+      do j = 1, size(res)
+        g = "sample_" // str(j)
+        call write_sample(g, res(j), error); if (allocated(error)) exit ops
+      end do
       call h5%write_attr("/", "complete", 1, error); if (allocated(error)) exit ops
       call h5%commit(error)
     end block ops
@@ -173,66 +178,246 @@ contains
       call h5%abort()
       call prefix_error(error, "piece '" // path // "'")
     end if
+
+  contains
+
+    subroutine write_sample(g, r, error)
+      character(len=*), intent(in) :: g
+      type(sample_result_t), intent(in) :: r
+      type(error_t), allocatable, intent(out) :: error
+      call h5%make_group(g, error); if (allocated(error)) return
+      call h5%write_attr(g, "set", trim(r%set), error); if (allocated(error)) return
+      call h5%write_attr(g, "index", r%index, error); if (allocated(error)) return
+      call h5%write_attr(g, "rank", r%rank, error); if (allocated(error)) return
+      call h5%write_attr(g, "time", r%time, error); if (allocated(error)) return
+      call h5%write_attr(g, "start", r%start, error); if (allocated(error)) return
+      call h5%write(g // "/mu", r%mu, error); if (allocated(error)) return
+      call put_digest(h5, g // "/mu", digest_of(r%mu, 0_i8), error); if (allocated(error)) return
+      call h5%write(g // "/positions", r%q, error); if (allocated(error)) return
+      call put_digest(h5, g // "/positions", digest_of(r%q, 0_i8), error); if (allocated(error)) return
+      call h5%write(g // "/velocities", r%u, error); if (allocated(error)) return
+      call put_digest(h5, g // "/velocities", digest_of(r%u, 0_i8), error); if (allocated(error)) return
+      call h5%write(g // "/desired", r%v, error); if (allocated(error)) return
+      call put_digest(h5, g // "/desired", digest_of(r%v, 0_i8), error); if (allocated(error)) return
+      call h5%write(g // "/kkt", r%kkt, error); if (allocated(error)) return
+      call put_digest(h5, g // "/kkt", digest_of(r%kkt, 0_i8), error); if (allocated(error)) return
+      call h5%write(g // "/min_gap", r%min_gap, error); if (allocated(error)) return
+      call put_digest(h5, g // "/min_gap", digest_of(r%min_gap, 0_i8), error); if (allocated(error)) return
+      call h5%write(g // "/iterations", r%iterations, error); if (allocated(error)) return
+      call put_digest(h5, g // "/iterations", digest_of(r%iterations, 0_i8), error); if (allocated(error)) return
+      call h5%write(g // "/converged", r%converged, error); if (allocated(error)) return
+      call put_digest(h5, g // "/converged", digest_of(r%converged, 0_i8), error); if (allocated(error)) return
+      call h5%write(g // "/n_active", r%n_active, error); if (allocated(error)) return
+      call put_digest(h5, g // "/n_active", digest_of(r%n_active, 0_i8), error); if (allocated(error)) return
+      call h5%write(g // "/lambda_offset", r%offset, error); if (allocated(error)) return
+      call put_digest(h5, g // "/lambda_offset", digest_of(r%offset, 0_i8), error); if (allocated(error)) return
+      call h5%write(g // "/lambda_key", r%key, error); if (allocated(error)) return
+      call put_digest(h5, g // "/lambda_key", digest_of(r%key, 0_i8), error); if (allocated(error)) return
+      call h5%write(g // "/lambda_ia", r%ia, error); if (allocated(error)) return
+      call put_digest(h5, g // "/lambda_ia", digest_of(r%ia, 0_i8), error); if (allocated(error)) return
+      call h5%write(g // "/lambda_ib", r%ib, error); if (allocated(error)) return
+      call put_digest(h5, g // "/lambda_ib", digest_of(r%ib, 0_i8), error); if (allocated(error)) return
+      call h5%write(g // "/lambda_ob", r%ob, error); if (allocated(error)) return
+      call put_digest(h5, g // "/lambda_ob", digest_of(r%ob, 0_i8), error); if (allocated(error)) return
+      call h5%write(g // "/lambda_value", r%value, error); if (allocated(error)) return
+      call put_digest(h5, g // "/lambda_value", digest_of(r%value, 0_i8), error)
+    end subroutine write_sample
   end subroutine write_piece
 
-  !> The config_hash attribute of a piece ('' with an error if it is not a piece).
-  subroutine piece_hash(path, hash, error)
+  !> Header of a piece: configuration hash and the (set, index) of each of its samples.
+  !> An error if it is not a complete piece of this schema version.
+  subroutine piece_header(path, hash, sets, idx, error)
     character(len=*), intent(in) :: path
     character(len=:), allocatable, intent(out) :: hash
+    !> set name and index of each sample [n_samples]
+    character(len=8), allocatable, intent(out) :: sets(:)
+    integer, allocatable, intent(out) :: idx(:)
     type(error_t), allocatable, intent(out) :: error
     type(h5file_t) :: h5
-    character(len=:), allocatable :: schema
+    character(len=:), allocatable :: schema, s
+    integer :: version, n, complete, j
     type(error_t), allocatable :: e2
     hash = ""
-    call h5%open(path, error)
-    if (allocated(error)) return
-    call h5%read_attr("/", "schema", schema, error)
-    if (.not. allocated(error)) then
-      if (schema /= PIECE_SCHEMA) call set_error(error, "piece '" // path // "': schema '" // schema // &
-        "' is not " // PIECE_SCHEMA)
-    end if
-    if (.not. allocated(error)) call h5%read_attr("/", "config_hash", hash, error)
-    call h5%close(e2)
-  end subroutine piece_hash
-
-  !> Read a piece written by write_piece.
-  subroutine read_piece(path, res, error)
-    character(len=*), intent(in) :: path
-    type(sample_result_t), intent(inout) :: res
-    type(error_t), allocatable, intent(out) :: error
-    type(h5file_t) :: h5
-    type(error_t), allocatable :: e2
-    character(len=:), allocatable :: set
+    allocate(sets(0), idx(0))
     call h5%open(path, error)
     if (allocated(error)) return
     ops: block
-      call h5%read_attr("/", "set", set, error); if (allocated(error)) exit ops
-      res%set = set
-      call h5%read_attr("/", "index", res%index, error); if (allocated(error)) exit ops
-      call h5%read_attr("/", "rank", res%rank, error); if (allocated(error)) exit ops
-      call h5%read_attr("/", "time", res%time, error); if (allocated(error)) exit ops
-      call h5%read("mu", res%mu, error); if (allocated(error)) exit ops
-      call h5%read("positions", res%q, error); if (allocated(error)) exit ops
-      call h5%read("velocities", res%u, error); if (allocated(error)) exit ops
-      call h5%read("desired", res%v, error); if (allocated(error)) exit ops
-      call h5%read("kkt", res%kkt, error); if (allocated(error)) exit ops
-      call h5%read("min_gap", res%min_gap, error); if (allocated(error)) exit ops
-      call h5%read("iterations", res%iterations, error); if (allocated(error)) exit ops
-      call h5%read("converged", res%converged, error); if (allocated(error)) exit ops
-      call h5%read("n_active", res%n_active, error); if (allocated(error)) exit ops
-      call h5%read("lambda_offset", res%offset, error); if (allocated(error)) exit ops
-      call h5%read("lambda_key", res%key, error); if (allocated(error)) exit ops
-      call h5%read("lambda_ia", res%ia, error); if (allocated(error)) exit ops
-      call h5%read("lambda_ib", res%ib, error); if (allocated(error)) exit ops
-      call h5%read("lambda_ob", res%ob, error); if (allocated(error)) exit ops
-      call h5%read("lambda_value", res%value, error); if (allocated(error)) exit ops
+      call h5%read_attr("/", "schema", schema, error); if (allocated(error)) exit ops
+      if (schema /= PIECE_SCHEMA) then
+        call set_error(error, "schema '" // schema // "' is not " // PIECE_SCHEMA); exit ops
+      end if
+      call h5%read_attr("/", "schema_version", version, error); if (allocated(error)) exit ops
+      if (version /= PIECE_SCHEMA_VERSION) then
+        call set_error(error, "piece schema version " // str(version) // " is not " // str(PIECE_SCHEMA_VERSION))
+        exit ops
+      end if
+      call h5%read_attr("/", "complete", complete, error); if (allocated(error)) exit ops
+      if (complete /= 1) then
+        call set_error(error, "not marked complete"); exit ops
+      end if
+      call h5%read_attr("/", "config_hash", hash, error); if (allocated(error)) exit ops
+      call h5%read_attr("/", "n_samples", n, error); if (allocated(error)) exit ops
+      if (n < 1) then
+        call set_error(error, "n_samples = " // str(n) // " (must be >= 1)"); exit ops
+      end if
+      deallocate(sets, idx)
+      allocate(sets(n), idx(n))
+      do j = 1, n
+        call h5%read_attr("sample_" // str(j), "set", s, error); if (allocated(error)) exit ops
+        sets(j) = s
+        call h5%read_attr("sample_" // str(j), "index", idx(j), error); if (allocated(error)) exit ops
+      end do
     end block ops
     call h5%close(e2)
     if (allocated(error)) call prefix_error(error, "piece '" // path // "'")
-    if (.not. allocated(error) .and. size(res%offset) > 0) then
-      if (res%offset(size(res%offset)) /= size(res%value)) call set_error(error, "piece '" // path // &
-        "': lambda_offset ends at " // str(res%offset(size(res%offset))) // " but there are " // &
-        str(size(res%value)) // " values")
+  end subroutine piece_header
+
+  !> Read every sample of a piece, verifying each dataset's checksum and the internal
+  !> consistency of each sample (shapes, finite values, multiplier layout). Identity against the
+  !> study is check_sample's job. Errors start with "piece '<path>'".
+  subroutine read_piece(path, res, error)
+    character(len=*), intent(in) :: path
+    type(sample_result_t), allocatable, intent(out) :: res(:)
+    type(error_t), allocatable, intent(out) :: error
+    type(h5file_t) :: h5
+    type(error_t), allocatable :: e2
+    character(len=:), allocatable :: set, what
+    integer :: n, j
+    what = "piece '" // path // "'"
+    allocate(res(0))
+    call h5%open(path, error)
+    if (allocated(error)) then
+      call prefix_error(error, what); return
     end if
+    ops: block
+      call h5%read_attr("/", "n_samples", n, error); if (allocated(error)) exit ops
+      if (n < 1) then
+        call set_error(error, "n_samples = " // str(n)); exit ops
+      end if
+      deallocate(res); allocate(res(n))
+      do j = 1, n
+        call read_sample("sample_" // str(j), res(j), error); if (allocated(error)) exit ops
+      end do
+    end block ops
+    call h5%close(e2)
+    if (allocated(error)) then
+      if (index(error%message, what) /= 1) call prefix_error(error, what)
+    end if
+
+  contains
+
+    subroutine read_sample(g, r, error)
+      character(len=*), intent(in) :: g
+      type(sample_result_t), intent(inout) :: r
+      type(error_t), allocatable, intent(out) :: error
+      character(len=:), allocatable :: w
+      integer :: nd, ns
+      w = what // ", " // g
+      call h5%read_attr(g, "set", set, error); if (allocated(error)) return
+      r%set = set
+      call h5%read_attr(g, "index", r%index, error); if (allocated(error)) return
+      call h5%read_attr(g, "rank", r%rank, error); if (allocated(error)) return
+      call h5%read_attr(g, "time", r%time, error); if (allocated(error)) return
+      call h5%read_attr(g, "start", r%start, error); if (allocated(error)) return
+      w = what // " (" // trim(r%set) // " sample " // str(r%index) // ")"
+      call h5%read(g // "/mu", r%mu, error); if (allocated(error)) return
+      call check_digest(h5, g // "/mu", digest_of(r%mu, 0_i8), w, error); if (allocated(error)) return
+      call h5%read(g // "/positions", r%q, error); if (allocated(error)) return
+      call check_digest(h5, g // "/positions", digest_of(r%q, 0_i8), w, error); if (allocated(error)) return
+      call h5%read(g // "/velocities", r%u, error); if (allocated(error)) return
+      call check_digest(h5, g // "/velocities", digest_of(r%u, 0_i8), w, error); if (allocated(error)) return
+      call h5%read(g // "/desired", r%v, error); if (allocated(error)) return
+      call check_digest(h5, g // "/desired", digest_of(r%v, 0_i8), w, error); if (allocated(error)) return
+      call h5%read(g // "/kkt", r%kkt, error); if (allocated(error)) return
+      call check_digest(h5, g // "/kkt", digest_of(r%kkt, 0_i8), w, error); if (allocated(error)) return
+      call h5%read(g // "/min_gap", r%min_gap, error); if (allocated(error)) return
+      call check_digest(h5, g // "/min_gap", digest_of(r%min_gap, 0_i8), w, error); if (allocated(error)) return
+      call h5%read(g // "/iterations", r%iterations, error); if (allocated(error)) return
+      call check_digest(h5, g // "/iterations", digest_of(r%iterations, 0_i8), w, error); if (allocated(error)) return
+      call h5%read(g // "/converged", r%converged, error); if (allocated(error)) return
+      call check_digest(h5, g // "/converged", digest_of(r%converged, 0_i8), w, error); if (allocated(error)) return
+      call h5%read(g // "/n_active", r%n_active, error); if (allocated(error)) return
+      call check_digest(h5, g // "/n_active", digest_of(r%n_active, 0_i8), w, error); if (allocated(error)) return
+      call h5%read(g // "/lambda_offset", r%offset, error); if (allocated(error)) return
+      call check_digest(h5, g // "/lambda_offset", digest_of(r%offset, 0_i8), w, error); if (allocated(error)) return
+      call h5%read(g // "/lambda_key", r%key, error); if (allocated(error)) return
+      call check_digest(h5, g // "/lambda_key", digest_of(r%key, 0_i8), w, error); if (allocated(error)) return
+      call h5%read(g // "/lambda_ia", r%ia, error); if (allocated(error)) return
+      call check_digest(h5, g // "/lambda_ia", digest_of(r%ia, 0_i8), w, error); if (allocated(error)) return
+      call h5%read(g // "/lambda_ib", r%ib, error); if (allocated(error)) return
+      call check_digest(h5, g // "/lambda_ib", digest_of(r%ib, 0_i8), w, error); if (allocated(error)) return
+      call h5%read(g // "/lambda_ob", r%ob, error); if (allocated(error)) return
+      call check_digest(h5, g // "/lambda_ob", digest_of(r%ob, 0_i8), w, error); if (allocated(error)) return
+      call h5%read(g // "/lambda_value", r%value, error); if (allocated(error)) return
+      call check_digest(h5, g // "/lambda_value", digest_of(r%value, 0_i8), w, error); if (allocated(error)) return
+      ! internal consistency
+      nd = size(r%q, 1); ns = size(r%q, 2) - 1
+      if (ns < 1 .or. any(shape(r%u) /= [nd, ns]) .or. any(shape(r%v) /= [nd, ns]) .or. size(r%kkt) /= ns .or. &
+          size(r%min_gap) /= ns .or. size(r%iterations) /= ns .or. size(r%converged) /= ns .or. &
+          size(r%n_active) /= ns .or. size(r%offset) /= ns + 1) then
+        call set_error(error, w // ": inconsistent dataset shapes"); return
+      end if
+      if (size(r%ia) /= size(r%key) .or. size(r%ib) /= size(r%key) .or. size(r%ob) /= size(r%key) .or. &
+          size(r%value) /= size(r%key)) then
+        call set_error(error, w // ": multiplier arrays of different lengths"); return
+      end if
+      if (r%offset(1) /= 0 .or. any(r%offset(2:) < r%offset(:ns)) .or. r%offset(ns + 1) /= size(r%value)) then
+        call set_error(error, w // ": lambda_offset is not a CSR layout of the " // str(size(r%value)) // " values")
+        return
+      end if
+      call need_finite(r%mu, "mu", w, error); if (allocated(error)) return
+      call need_finite(reshape(r%q, [size(r%q)]), "positions", w, error); if (allocated(error)) return
+      call need_finite(reshape(r%u, [size(r%u)]), "velocities", w, error); if (allocated(error)) return
+      call need_finite(reshape(r%v, [size(r%v)]), "desired", w, error); if (allocated(error)) return
+      call need_finite(r%kkt, "kkt", w, error); if (allocated(error)) return
+      call need_finite(r%value, "lambda_value", w, error); if (allocated(error)) return
+      call need_finite([r%time, r%start], "time", w, error); if (allocated(error)) return
+      if (any(r%value <= 0)) then
+        call set_error(error, w // ": lambda_value holds multipliers <= 0 (only lambda > 0 are stored)"); return
+      end if
+      if (any(r%converged /= 0 .and. r%converged /= 1)) then
+        call set_error(error, w // ": converged holds values other than 0 and 1"); return
+      end if
+    end subroutine read_sample
+
+    subroutine need_finite(x, name, w, error)
+      real(wp), intent(in) :: x(:)
+      character(len=*), intent(in) :: name, w
+      type(error_t), allocatable, intent(out) :: error
+      integer :: i
+      if (all(ieee_is_finite(x))) return
+      do i = 1, size(x)
+        if (.not. ieee_is_finite(x(i))) exit
+      end do
+      call set_error(error, w // ": dataset '" // name // "' holds a non-finite value (NaN or Inf) at element " // &
+        str(i))
+    end subroutine need_finite
   end subroutine read_piece
+
+  !> Check that sample r is sample k of set `set` of the study: its recorded set and index, its
+  !> parameters (bitwise: both come from the same sampling) and its sizes.
+  subroutine check_sample(r, set, k, mu, n_dof, n_steps, what, error)
+    type(sample_result_t), intent(in) :: r
+    character(len=*), intent(in) :: set
+    integer, intent(in) :: k
+    !> the study's parameters of that sample [n_expanded]
+    real(wp), intent(in) :: mu(:)
+    integer, intent(in) :: n_dof, n_steps
+    !> the piece, for the message
+    character(len=*), intent(in) :: what
+    type(error_t), allocatable, intent(out) :: error
+    if (trim(r%set) /= trim(set) .or. r%index /= k) then
+      call set_error(error, what // " holds " // trim(r%set) // " sample " // str(r%index) // " where " // &
+        trim(set) // " sample " // str(k) // " belongs (renamed or copied piece)")
+    else if (size(r%mu) /= size(mu)) then
+      call set_error(error, what // ": " // trim(set) // " sample " // str(k) // " has " // str(size(r%mu)) // &
+        " parameters, the study " // str(size(mu)))
+    else if (any(transfer(r%mu, 0_i8, size(mu)) /= transfer(mu, 0_i8, size(mu)))) then
+      call set_error(error, what // ": the parameters of " // trim(set) // " sample " // str(k) // &
+        " are not those of the study's sampling")
+    else if (size(r%q, 1) /= n_dof .or. size(r%q, 2) /= n_steps + 1) then
+      call set_error(error, what // ": " // trim(set) // " sample " // str(k) // " has positions of shape " // &
+        str(size(r%q, 1)) // " x " // str(size(r%q, 2)) // ", the study " // str(n_dof) // " x " // str(n_steps + 1))
+    end if
+  end subroutine check_sample
 end module cr_snapshot_piece

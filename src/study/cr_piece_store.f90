@@ -1,0 +1,335 @@
+!> The pieces directory of a study (`<database>.pieces/`): which samples are already stored, in
+!> which piece, and whether every stored piece is what it claims to be.
+!>
+!> scan_pieces (collective) finds the pieces of earlier runs (a piece is named after its first
+!> sample, so probing the names of the samples not yet covered finds them all), reads their
+!> headers on rank 0, then has the pieces read in full and verified by the ranks in turn
+!> (checksums, finiteness, shapes: read_piece; identity against the study's sampling:
+!> check_sample). Pieces of another configuration stop the run (exit status 2). A bad piece
+!> (unreadable, corrupted, renamed, claiming a sample another piece holds) is reported by name;
+!> with `quarantine` it is moved to `<pieces>/quarantine/` and its samples are recomputed,
+!> otherwise the run stops (status 2) naming every bad piece. Nothing is ever deleted here.
+module cr_piece_store
+  use mpi_f08
+  use cr_error, only: error_t, set_error
+  use cr_strings, only: str
+  use cr_env, only: env_t
+  use cr_fsys, only: file_exists, make_dir, rename_file
+  use cr_sampling, only: sample_set_t
+  use cr_snapshot_piece, only: sample_result_t, piece_header, read_piece, check_sample, piece_path
+  implicit none
+  private
+  public :: piece_index_t, scan_pieces, global_sample, set_of_sample, quarantine_piece
+
+  !> A variable-length path.
+  type :: path_t
+    character(len=:), allocatable :: s
+  end type path_t
+
+  !> Where each sample of the study is stored.
+  type :: piece_index_t
+    !> number of samples of the study (train then valid) and of pieces found
+    integer :: n_tot = 0, n_pieces = 0
+    !> piece holding global sample g (0: none) and its position in the piece [n_tot]
+    integer, allocatable :: piece_of(:), slot_of(:)
+    !> path of each piece [n_pieces]
+    type(path_t), allocatable :: path(:)
+    !> pieces moved to quarantine by this scan
+    integer :: n_quarantined = 0
+  contains
+    procedure :: path_of
+    procedure :: add_single
+  end type piece_index_t
+
+contains
+
+  !> Path of piece p.
+  function path_of(this, p) result(s)
+    class(piece_index_t), intent(in) :: this
+    integer, intent(in) :: p
+    character(len=:), allocatable :: s
+    s = this%path(p)%s
+  end function path_of
+
+  !> Record one single-sample piece `<dir>/<set>_<k>.h5` for each global sample in gs (every
+  !> rank passes the same list).
+  subroutine add_single(this, dir, sets, gs)
+    class(piece_index_t), intent(inout) :: this
+    character(len=*), intent(in) :: dir
+    type(sample_set_t), intent(in) :: sets(2)
+    integer, intent(in) :: gs(:)
+    type(path_t), allocatable :: tmp(:)
+    integer :: q, j, is, k
+    allocate(tmp(this%n_pieces + size(gs)))
+    do q = 1, this%n_pieces
+      call move_alloc(this%path(q)%s, tmp(q)%s)
+    end do
+    do j = 1, size(gs)
+      call set_of_sample(sets, gs(j), is, k)
+      q = this%n_pieces + j
+      tmp(q)%s = piece_path(dir, sets(is)%name, k)
+      this%piece_of(gs(j)) = q
+      this%slot_of(gs(j)) = 1
+    end do
+    call move_alloc(tmp, this%path)
+    this%n_pieces = this%n_pieces + size(gs)
+  end subroutine add_single
+
+  !> Global sample number (train 1..n_train, then valid) of sample k of set `name`; 0 if none.
+  pure integer function global_sample(sets, name, k) result(g)
+    type(sample_set_t), intent(in) :: sets(2)
+    character(len=*), intent(in) :: name
+    integer, intent(in) :: k
+    g = 0
+    if (trim(name) == trim(sets(1)%name)) then
+      if (k >= 1 .and. k <= sets(1)%n) g = k
+    else if (trim(name) == trim(sets(2)%name)) then
+      if (k >= 1 .and. k <= sets(2)%n) g = sets(1)%n + k
+    end if
+  end function global_sample
+
+  !> Set (1 train, 2 valid) and index in the set of global sample g.
+  pure subroutine set_of_sample(sets, g, is, k)
+    type(sample_set_t), intent(in) :: sets(2)
+    integer, intent(in) :: g
+    integer, intent(out) :: is, k
+    if (g <= sets(1)%n) then
+      is = 1; k = g
+    else
+      is = 2; k = g - sets(1)%n
+    end if
+  end subroutine set_of_sample
+
+  !> Move a bad piece to `<dir>/quarantine/` (never deleting; an existing name gets a suffix).
+  !> Returns the new path, or '' if it could not be moved.
+  function quarantine_piece(dir, path) result(dest)
+    character(len=*), intent(in) :: dir, path
+    character(len=:), allocatable :: dest
+    character(len=:), allocatable :: qdir, base
+    integer :: i, n
+    qdir = dir // "/quarantine"
+    dest = ""
+    if (make_dir(qdir) /= 0) return
+    i = index(path, "/", back=.true.)
+    base = path(i + 1:)
+    dest = qdir // "/" // base
+    n = 0
+    do while (file_exists(dest))
+      n = n + 1
+      dest = qdir // "/" // base // "." // str(n)
+    end do
+    if (rename_file(path, dest) /= 0) dest = ""
+  end function quarantine_piece
+
+  !> Collective: find and verify the pieces in `dir` (see the module header).
+  subroutine scan_pieces(env, dir, hash, sets, n_dof, n_steps, quarantine, idx, warnings, error)
+    type(env_t), intent(in) :: env
+    character(len=*), intent(in) :: dir, hash
+    !> the study's samples (train, valid)
+    type(sample_set_t), intent(in) :: sets(2)
+    integer, intent(in) :: n_dof, n_steps
+    !> move bad pieces aside (and recompute their samples) instead of stopping
+    logical, intent(in) :: quarantine
+    type(piece_index_t), intent(out) :: idx
+    !> one line per quarantined piece (rank 0; '' if none)
+    character(len=:), allocatable, intent(out) :: warnings
+    type(error_t), allocatable, intent(out) :: error
+    character(len=:), allocatable :: fatal, bad_msg, h, path, all_msg, m
+    character(len=8), allocatable :: hsets(:)
+    integer, allocatable :: hidx(:), bad(:), claimed(:)
+    type(sample_result_t), allocatable :: res(:)
+    type(error_t), allocatable :: e
+    type(path_t), allocatable :: tmp(:)
+    integer :: g, is, k, j, p, ierr, n, gj, r, nbad
+    warnings = ""
+    idx%n_tot = sets(1)%n + sets(2)%n
+    allocate(idx%piece_of(idx%n_tot), idx%slot_of(idx%n_tot), idx%path(0))
+    idx%piece_of = 0; idx%slot_of = 0
+    fatal = ""
+    ! 1. headers, on rank 0
+    if (env%is_root()) then
+      if (make_dir(dir) /= 0) fatal = "cannot create the directory '" // dir // "' for the pieces"
+      allocate(claimed(idx%n_tot))
+      claimed = 0
+      do g = 1, idx%n_tot
+        if (len(fatal) > 0) exit
+        if (idx%piece_of(g) > 0) cycle
+        call set_of_sample(sets, g, is, k)
+        path = piece_path(dir, sets(is)%name, k)
+        if (.not. file_exists(path)) cycle
+        ! every piece found gets a number, good or bad (bad ones are marked below)
+        call append_path(path)
+        p = idx%n_pieces
+        call piece_header(path, h, hsets, hidx, e)
+        if (allocated(e)) then
+          call mark_bad(p, e%message // " (unreadable or incomplete piece)")
+          deallocate(e)
+          cycle
+        end if
+        if (h /= hash) then
+          fatal = "'" // dir // "' holds pieces of a different configuration (piece config_hash " // h // &
+            ", this input " // trim(hash) // "): refusing to mix them; remove the directory or restore the input"
+          exit
+        end if
+        if (trim(hsets(1)) /= trim(sets(is)%name) .or. hidx(1) /= k) then
+          call mark_bad(p, "piece '" // path // "' holds " // trim(hsets(1)) // " sample " // str(hidx(1)) // &
+            " where " // trim(sets(is)%name) // " sample " // str(k) // " belongs (renamed or copied piece)")
+          cycle
+        end if
+        m = ""
+        do j = 1, size(hidx)
+          gj = global_sample(sets, hsets(j), hidx(j))
+          if (gj == 0) then
+            m = "piece '" // path // "' holds " // trim(hsets(j)) // " sample " // str(hidx(j)) // &
+              ", which this study does not have"
+          else if (claimed(gj) /= 0) then
+            m = "piece '" // path // "' holds " // trim(hsets(j)) // " sample " // str(hidx(j)) // &
+              ", already held by piece '" // idx%path(claimed(gj))%s // "'"
+          end if
+          if (len(m) > 0) exit
+        end do
+        if (len(m) > 0) then
+          call mark_bad(p, m); cycle
+        end if
+        do j = 1, size(hidx)
+          gj = global_sample(sets, hsets(j), hidx(j))
+          claimed(gj) = p
+          idx%piece_of(gj) = p
+          idx%slot_of(gj) = j
+        end do
+      end do
+    end if
+    call env%bcast_string(fatal)
+    if (len(fatal) > 0) then
+      call set_error(error, fatal, 2); return
+    end if
+    ! share the index
+    n = idx%n_pieces
+    call MPI_Bcast(n, 1, MPI_INTEGER, 0, env%comm, ierr)
+    if (.not. env%is_root()) then
+      deallocate(idx%path); allocate(idx%path(n))
+      idx%n_pieces = n
+    end if
+    do p = 1, n
+      if (.not. env%is_root()) idx%path(p)%s = ""
+      call env%bcast_string(idx%path(p)%s)
+    end do
+    call MPI_Bcast(idx%piece_of, idx%n_tot, MPI_INTEGER, 0, env%comm, ierr)
+    call MPI_Bcast(idx%slot_of, idx%n_tot, MPI_INTEGER, 0, env%comm, ierr)
+    if (.not. allocated(bad_msg)) bad_msg = ""
+    call resize_bad(n)
+    ! 2. full verification of the pieces with good headers, round-robin over the ranks
+    call MPI_Bcast(bad, n, MPI_INTEGER, 0, env%comm, ierr)
+    do p = 1, n
+      if (bad(p) /= 0 .or. mod(p - 1, env%size) /= env%rank) cycle
+      call read_piece(idx%path(p)%s, res, e)
+      if (.not. allocated(e)) then
+        do j = 1, size(res)
+          gj = global_sample(sets, res(j)%set, res(j)%index)
+          if (gj == 0) then
+            call set_error(e, "piece '" // idx%path(p)%s // "' holds " // trim(res(j)%set) // " sample " // &
+              str(res(j)%index) // ", which this study does not have")
+          else if (idx%piece_of(gj) /= p .or. idx%slot_of(gj) /= j) then
+            call set_error(e, "piece '" // idx%path(p)%s // "': sample " // str(j) // " disagrees with the header")
+          else
+            call set_of_sample(sets, gj, is, k)
+            call check_sample(res(j), sets(is)%name, k, sets(is)%mu(:, k), n_dof, n_steps, &
+              "piece '" // idx%path(p)%s // "'", e)
+          end if
+          if (allocated(e)) exit
+        end do
+      end if
+      if (allocated(e)) then
+        call mark_bad(p, e%message); deallocate(e)
+      end if
+    end do
+    call MPI_Allreduce(MPI_IN_PLACE, bad, n, MPI_INTEGER, MPI_MAX, env%comm, ierr)
+    nbad = count(bad /= 0)
+    if (nbad == 0) return
+    ! every rank's messages, in rank order
+    all_msg = ""
+    do r = 0, env%size - 1
+      m = bad_msg
+      call bcast_from(m, r)
+      all_msg = all_msg // m
+    end do
+    do g = 1, idx%n_tot
+      if (idx%piece_of(g) > 0) then
+        if (bad(idx%piece_of(g)) /= 0) then
+          idx%piece_of(g) = 0; idx%slot_of(g) = 0
+        end if
+      end if
+    end do
+    if (.not. quarantine) then
+      call set_error(error, str(nbad) // " bad piece(s) in '" // dir // "':" // new_line('a') // all_msg // &
+        "run again with --quarantine-bad-pieces to move them to '" // dir // "/quarantine' and recompute " // &
+        "their samples", 2)
+      return
+    end if
+    m = ""
+    if (env%is_root()) then
+      do p = 1, n
+        if (bad(p) == 0) cycle
+        h = quarantine_piece(dir, idx%path(p)%s)
+        if (len(h) == 0) then
+          m = "cannot move the bad piece '" // idx%path(p)%s // "' to '" // dir // "/quarantine'"
+          exit
+        end if
+        warnings = warnings // "moved bad piece '" // idx%path(p)%s // "' to '" // h // "'" // new_line('a')
+      end do
+      warnings = all_msg // warnings
+    end if
+    call env%bcast_string(m)
+    if (len(m) > 0) then
+      call set_error(error, m, 2); return
+    end if
+    idx%n_quarantined = nbad
+
+  contains
+
+    subroutine append_path(s)
+      character(len=*), intent(in) :: s
+      integer :: q
+      allocate(tmp(idx%n_pieces + 1))
+      do q = 1, idx%n_pieces
+        call move_alloc(idx%path(q)%s, tmp(q)%s)
+      end do
+      tmp(idx%n_pieces + 1)%s = s
+      call move_alloc(tmp, idx%path)
+      idx%n_pieces = idx%n_pieces + 1
+    end subroutine append_path
+
+    !> bad(1:m) (new entries 0)
+    subroutine resize_bad(m)
+      integer, intent(in) :: m
+      integer, allocatable :: b2(:)
+      if (.not. allocated(bad)) allocate(bad(0))
+      if (size(bad) == m) return
+      allocate(b2(m)); b2 = 0
+      b2(1:min(m, size(bad))) = bad(1:min(m, size(bad)))
+      call move_alloc(b2, bad)
+    end subroutine resize_bad
+
+    subroutine mark_bad(p, msg)
+      integer, intent(in) :: p
+      character(len=*), intent(in) :: msg
+      if (.not. allocated(bad)) allocate(bad(0))
+      if (size(bad) < p) call resize_bad(p)
+      bad(p) = 1
+      if (.not. allocated(bad_msg)) bad_msg = ""
+      bad_msg = bad_msg // "  " // msg // new_line('a')
+    end subroutine mark_bad
+
+    subroutine bcast_from(s, root)
+      character(len=:), allocatable, intent(inout) :: s
+      integer, intent(in) :: root
+      integer :: ls, ie
+      ls = len(s)
+      call MPI_Bcast(ls, 1, MPI_INTEGER, root, env%comm, ie)
+      if (env%rank /= root) then
+        deallocate(s); allocate(character(len=ls) :: s)
+      end if
+      if (ls > 0) call MPI_Bcast(s, ls, MPI_CHARACTER, root, env%comm, ie)
+    end subroutine bcast_from
+  end subroutine scan_pieces
+end module cr_piece_store
