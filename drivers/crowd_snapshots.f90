@@ -29,8 +29,8 @@ program crowd_snapshots
   use cr_study_config, only: study_cfg_t, read_study, check_study, study_echo, study_hash
   use cr_sampling, only: param_space_t, sample_set_t, generate_samples
   use cr_scheduler, only: scheduler_t
-  use cr_snapshot_piece, only: sample_result_t, compute_sample, write_piece, piece_path
-  use cr_piece_store, only: piece_index_t, scan_pieces
+  use cr_snapshot_piece, only: sample_result_t, compute_sample
+  use cr_piece_store, only: piece_index_t, piece_batch_t, scan_pieces
   use cr_snapshot_db, only: SNAP_SCHEMA_VERSION, db_meta_t, db_totals_t, probe_database, &
     assemble_database, collective_error
   implicit none
@@ -105,6 +105,7 @@ contains
     type(scheduler_t) :: sched
     type(sample_result_t) :: res(1)
     type(piece_index_t) :: pieces
+    type(piece_batch_t) :: batch
     real(wp), allocatable :: q0(:)
     integer, allocatable :: done(:), todo(:)
     character(len=:), allocatable :: dir, msg, path
@@ -168,6 +169,7 @@ contains
     if (allocated(error)) return
     call log%progress_start()
     t_loop = env%wtime()
+    call batch%init(dir, hash, merge(cli%batch_seconds, 2.0_wp, cli%batch_seconds >= 0))
     msg = ""
     n_mine = 0; busy_mine = 0; sum_time = 0
     do
@@ -183,7 +185,7 @@ contains
       call compute_sample(cfg, space, sets(is)%mu(:, k), q0, fom_ref%speeds, res(1), error)
       if (.not. allocated(error)) then
         res(1)%time = env%wtime() - t0
-        call write_piece(piece_path(dir, sets(is)%name, k), hash, res, error)
+        call batch%add(res(1), g, sets, env%wtime() - t_start, error)
       end if
       if (allocated(error)) then
         msg = trim(sets(is)%name) // " sample " // str(k) // " (mu = " // shorten(mu_text(sets(is)%mu(:, k)), 60) // &
@@ -198,6 +200,15 @@ contains
       ndone = sched%mark_done()
       if (env%is_root()) call log%progress("samples", n_prev + ndone, n_tot)
     end do
+    if (len(msg) == 0) then
+      t0 = env%wtime()
+      call batch%flush(sets, error)
+      busy_mine = busy_mine + (env%wtime() - t0)
+      sum_time = sum_time + (env%wtime() - t0)
+      if (allocated(error)) then
+        msg = "rank " // str(env%rank) // ": " // error%message; deallocate(error)
+      end if
+    end if
     call collective_error(env, msg, error)
     call sched%free()
     if (allocated(error)) return
@@ -236,7 +247,7 @@ contains
     meta%n_expanded = space%n_expanded
     meta%radius = fom_ref%radius
     meta%dt = fom_ref%dt
-    call pieces%add_single(dir, sets, todo)
+    call pieces%add_written(env, dir, sets, batch%written)
     call assemble_database(env, db, pieces, meta, fom_ref, q0, sets, totals, error)
     if (allocated(error)) return
     ! the database is committed: the pieces can go

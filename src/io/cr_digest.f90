@@ -18,7 +18,7 @@ module cr_digest
   use cr_h5file, only: h5file_t
   implicit none
   private
-  public :: digest_t, digest_of, digest_add, digest_allreduce, digest_hex, put_digest, &
+  public :: digest_t, digest_of, digest_of_ranges, digest_add, digest_allreduce, digest_hex, put_digest, &
     check_digest, check_digest_parts, DIGEST_ATTR, DIGEST_ALGORITHM
 
   !> name of the dataset attribute holding the digest
@@ -39,6 +39,12 @@ module cr_digest
   interface digest_of
     module procedure dg_real1, dg_real2, dg_int1, dg_int2, dg_int64_1
   end interface digest_of
+
+  !> Digest of a packed array whose elements lie in the ranges (0-based offset, count) of the
+  !> dataset's linear index, one range after the other.
+  interface digest_of_ranges
+    module procedure dgr_real1, dgr_int1
+  end interface digest_of_ranges
 
 contains
 
@@ -121,6 +127,31 @@ contains
       call mix_in(d, x(k), offset + k - 1)
     end do
   end function dg_int64_1
+
+  pure function dgr_real1(x, ranges) result(d)
+    real(wp), intent(in) :: x(:)
+    !> (offset, count) of each range [2, n_ranges]; the counts add up to size(x)
+    integer, intent(in) :: ranges(:,:)
+    type(digest_t) :: d
+    integer :: q, c
+    c = 0
+    do q = 1, size(ranges, 2)
+      d = digest_add(d, dg_real1(x(c + 1:c + ranges(2, q)), int(ranges(1, q), i8)))
+      c = c + ranges(2, q)
+    end do
+  end function dgr_real1
+
+  pure function dgr_int1(x, ranges) result(d)
+    integer, intent(in) :: x(:)
+    integer, intent(in) :: ranges(:,:)
+    type(digest_t) :: d
+    integer :: q, c
+    c = 0
+    do q = 1, size(ranges, 2)
+      d = digest_add(d, dg_int1(x(c + 1:c + ranges(2, q)), int(ranges(1, q), i8)))
+      c = c + ranges(2, q)
+    end do
+  end function dgr_int1
 
   !> Digest of the union of two disjoint parts.
   elemental function digest_add(a, b) result(d)

@@ -11,15 +11,16 @@
 !> otherwise the run stops (status 2) naming every bad piece. Nothing is ever deleted here.
 module cr_piece_store
   use mpi_f08
+  use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
   use cr_env, only: env_t
   use cr_fsys, only: file_exists, make_dir, rename_file
   use cr_sampling, only: sample_set_t
-  use cr_snapshot_piece, only: sample_result_t, piece_header, read_piece, check_sample, piece_path
+  use cr_snapshot_piece, only: sample_result_t, piece_header, read_piece, check_sample, piece_path, write_piece
   implicit none
   private
-  public :: piece_index_t, scan_pieces, global_sample, set_of_sample, quarantine_piece
+  public :: piece_index_t, piece_batch_t, scan_pieces, global_sample, set_of_sample, quarantine_piece
 
   !> A variable-length path.
   type :: path_t
@@ -34,12 +35,34 @@ module cr_piece_store
     integer, allocatable :: piece_of(:), slot_of(:)
     !> path of each piece [n_pieces]
     type(path_t), allocatable :: path(:)
+    !> rank that reads piece p at assembly (its writer, or its verifier for earlier runs' pieces)
+    !> [n_pieces]
+    integer, allocatable :: owner(:)
     !> pieces moved to quarantine by this scan
     integer :: n_quarantined = 0
   contains
     procedure :: path_of
-    procedure :: add_single
+    procedure :: add_written
   end type piece_index_t
+
+  !> The samples a rank computed in the current time slice, written together as one piece.
+  type :: piece_batch_t
+    character(len=:), allocatable :: dir, hash
+    !> time slice (s) and memory bound of one piece
+    real(wp) :: slice = 2
+    integer(i8) :: max_bytes = 256_i8 * 1024 * 1024
+    !> samples held [n] and their global numbers
+    integer :: n = 0
+    integer(i8) :: bytes = 0
+    type(sample_result_t), allocatable :: res(:)
+    integer, allocatable :: g(:)
+    !> pieces written so far: [n_1, g_1 .. g_n1, n_2, ...] (for piece_index_t%add_written)
+    integer, allocatable :: written(:)
+  contains
+    procedure :: init => batch_init
+    procedure :: add => batch_add
+    procedure :: flush => batch_flush
+  end type piece_batch_t
 
 contains
 
@@ -51,29 +74,61 @@ contains
     s = this%path(p)%s
   end function path_of
 
-  !> Record one single-sample piece `<dir>/<set>_<k>.h5` for each global sample in gs (every
-  !> rank passes the same list).
-  subroutine add_single(this, dir, sets, gs)
+  !> Collective: record the pieces every rank wrote in this run. `written` is this rank's list
+  !> [n_1, g_1 .. g_n1, n_2, ...] (samples of each piece, global numbers, in piece order); a
+  !> piece is named after its first sample and read at assembly by the rank that wrote it.
+  subroutine add_written(this, env, dir, sets, written)
     class(piece_index_t), intent(inout) :: this
+    type(env_t), intent(in) :: env
     character(len=*), intent(in) :: dir
     type(sample_set_t), intent(in) :: sets(2)
-    integer, intent(in) :: gs(:)
+    integer, intent(in) :: written(:)
+    integer, allocatable :: counts(:), displs(:), all(:), own2(:)
     type(path_t), allocatable :: tmp(:)
-    integer :: q, j, is, k
-    allocate(tmp(this%n_pieces + size(gs)))
+    integer :: ierr, r, m, q, c, n, j, is, k, np_new
+    allocate(counts(env%size), displs(env%size))
+    call MPI_Allgather(size(written), 1, MPI_INTEGER, counts, 1, MPI_INTEGER, env%comm, ierr)
+    displs(1) = 0
+    do r = 2, env%size
+      displs(r) = displs(r - 1) + counts(r - 1)
+    end do
+    m = sum(counts)
+    allocate(all(max(m, 1)))
+    call MPI_Allgatherv(written, size(written), MPI_INTEGER, all, counts, displs, MPI_INTEGER, env%comm, ierr)
+    ! count the new pieces
+    np_new = 0
+    do r = 1, env%size
+      c = displs(r)
+      do while (c < displs(r) + counts(r))
+        np_new = np_new + 1
+        c = c + all(c + 1) + 1
+      end do
+    end do
+    allocate(tmp(this%n_pieces + np_new), own2(this%n_pieces + np_new))
     do q = 1, this%n_pieces
       call move_alloc(this%path(q)%s, tmp(q)%s)
+      own2(q) = this%owner(q)
     end do
-    do j = 1, size(gs)
-      call set_of_sample(sets, gs(j), is, k)
-      q = this%n_pieces + j
-      tmp(q)%s = piece_path(dir, sets(is)%name, k)
-      this%piece_of(gs(j)) = q
-      this%slot_of(gs(j)) = 1
+    q = this%n_pieces
+    do r = 1, env%size
+      c = displs(r)
+      do while (c < displs(r) + counts(r))
+        n = all(c + 1)
+        q = q + 1
+        call set_of_sample(sets, all(c + 2), is, k)
+        tmp(q)%s = piece_path(dir, sets(is)%name, k)
+        own2(q) = r - 1
+        do j = 1, n
+          this%piece_of(all(c + 1 + j)) = q
+          this%slot_of(all(c + 1 + j)) = j
+        end do
+        c = c + n + 1
+      end do
     end do
     call move_alloc(tmp, this%path)
-    this%n_pieces = this%n_pieces + size(gs)
-  end subroutine add_single
+    call move_alloc(own2, this%owner)
+    this%n_pieces = q
+  end subroutine add_written
 
   !> Global sample number (train 1..n_train, then valid) of sample k of set `name`; 0 if none.
   pure integer function global_sample(sets, name, k) result(g)
@@ -143,7 +198,7 @@ contains
     integer :: g, is, k, j, p, ierr, n, gj, r, nbad
     warnings = ""
     idx%n_tot = sets(1)%n + sets(2)%n
-    allocate(idx%piece_of(idx%n_tot), idx%slot_of(idx%n_tot), idx%path(0))
+    allocate(idx%piece_of(idx%n_tot), idx%slot_of(idx%n_tot), idx%path(0), idx%owner(0))
     idx%piece_of = 0; idx%slot_of = 0
     fatal = ""
     ! 1. headers, on rank 0
@@ -244,6 +299,11 @@ contains
       end if
     end do
     call MPI_Allreduce(MPI_IN_PLACE, bad, n, MPI_INTEGER, MPI_MAX, env%comm, ierr)
+    deallocate(idx%owner)
+    allocate(idx%owner(n))
+    do p = 1, n
+      idx%owner(p) = mod(p - 1, env%size)
+    end do
     nbad = count(bad /= 0)
     if (nbad == 0) return
     ! every rank's messages, in rank order
@@ -284,8 +344,34 @@ contains
       call set_error(error, m, 2); return
     end if
     idx%n_quarantined = nbad
+    call drop_bad()
 
   contains
+
+    !> Remove the bad pieces from the index (renumbering the good ones).
+    subroutine drop_bad()
+      integer, allocatable :: newnum(:), own2(:)
+      type(path_t), allocatable :: t2(:)
+      integer :: q, m2
+      allocate(newnum(n), t2(n - nbad), own2(n - nbad))
+      m2 = 0
+      do q = 1, n
+        newnum(q) = 0
+        if (bad(q) /= 0) cycle
+        m2 = m2 + 1
+        newnum(q) = m2
+        call move_alloc(idx%path(q)%s, t2(m2)%s)
+      end do
+      do q = 1, m2
+        own2(q) = mod(q - 1, env%size)
+      end do
+      do q = 1, idx%n_tot
+        if (idx%piece_of(q) > 0) idx%piece_of(q) = newnum(idx%piece_of(q))
+      end do
+      call move_alloc(t2, idx%path)
+      call move_alloc(own2, idx%owner)
+      idx%n_pieces = m2
+    end subroutine drop_bad
 
     subroutine append_path(s)
       character(len=*), intent(in) :: s
@@ -332,4 +418,64 @@ contains
       if (ls > 0) call MPI_Bcast(s, ls, MPI_CHARACTER, root, env%comm, ie)
     end subroutine bcast_from
   end subroutine scan_pieces
+
+  !> Start a batch: samples are kept until `slice` seconds have passed since the batch's first
+  !> sample started (or the batch holds max_bytes of data), then written as one piece.
+  subroutine batch_init(this, dir, hash, slice)
+    class(piece_batch_t), intent(inout) :: this
+    character(len=*), intent(in) :: dir, hash
+    !> time slice of one piece (s); 0: one sample per piece
+    real(wp), intent(in) :: slice
+    this%dir = dir
+    this%hash = hash
+    this%slice = slice
+    this%n = 0
+    this%bytes = 0
+    if (allocated(this%res)) deallocate(this%res)
+    if (allocated(this%g)) deallocate(this%g)
+    allocate(this%res(8), this%g(8))
+    if (allocated(this%written)) deallocate(this%written)
+    allocate(this%written(0))
+  end subroutine batch_init
+
+  !> Add a computed sample (global number g; res%start set); writes the batch when it is due
+  !> (`now`: seconds on the clock of res%start).
+  subroutine batch_add(this, res, g, sets, now, error)
+    class(piece_batch_t), intent(inout) :: this
+    type(sample_result_t), intent(in) :: res
+    integer, intent(in) :: g
+    type(sample_set_t), intent(in) :: sets(2)
+    real(wp), intent(in) :: now
+    type(error_t), allocatable, intent(out) :: error
+    type(sample_result_t), allocatable :: r2(:)
+    integer, allocatable :: g2(:)
+    if (this%n == size(this%res)) then
+      allocate(r2(2 * this%n), g2(2 * this%n))
+      r2(1:this%n) = this%res(1:this%n)
+      g2(1:this%n) = this%g(1:this%n)
+      call move_alloc(r2, this%res)
+      call move_alloc(g2, this%g)
+    end if
+    this%n = this%n + 1
+    this%res(this%n) = res
+    this%g(this%n) = g
+    this%bytes = this%bytes + 8_i8 * (size(res%q, kind=i8) + size(res%u, kind=i8) + size(res%v, kind=i8) + &
+      2 * size(res%value, kind=i8))
+    if (now - this%res(1)%start >= this%slice .or. this%bytes >= this%max_bytes) call this%flush(sets, error)
+  end subroutine batch_add
+
+  !> Write the samples held (if any) as one piece named after the first.
+  subroutine batch_flush(this, sets, error)
+    class(piece_batch_t), intent(inout) :: this
+    type(sample_set_t), intent(in) :: sets(2)
+    type(error_t), allocatable, intent(out) :: error
+    integer :: is, k
+    if (this%n == 0) return
+    call set_of_sample(sets, this%g(1), is, k)
+    call write_piece(piece_path(this%dir, sets(is)%name, k), this%hash, this%res(1:this%n), error)
+    if (allocated(error)) return
+    this%written = [this%written, this%n, this%g(1:this%n)]
+    this%n = 0
+    this%bytes = 0
+  end subroutine batch_flush
 end module cr_piece_store
