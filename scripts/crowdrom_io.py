@@ -339,14 +339,21 @@ def resolve_path(path, relative_to):
     return cand if os.path.exists(cand) else path
 
 
-_P1, _P2 = 2147483647, 2147483629
+_M = 2147483647  # 2^31 - 1
+
+
+def _fold(x):
+    """x mod 2^31-1 for 0 <= x < 2^63 (int64 arrays), as cr_digest's fold."""
+    y = (x & _M) + (x >> 31)
+    y = (y & _M) + (y >> 31)
+    return np.where(y >= _M, y - _M, y)
 
 
 def digest(arr, offset=0):
     """Checksum of a dataset as crowdrom writes it (attribute ``checksum``, 16 hex digits; the
-    algorithm of src/io/cr_digest.f90): a sum over the elements, in file order, of a mix of the
-    element's 64 bits (integers sign-extended to 64 bits) and its 0-based linear index, modulo
-    two 31-bit primes. ``arr`` is the array as h5py reads it (C order = Fortran linear order)."""
+    algorithm of src/io/cr_digest.f90): two sums over the elements, in file order, of a mix of
+    the element's 64 bits (integers sign-extended to 64 bits) and its 0-based linear index,
+    modulo 2^31 - 1. ``arr`` is the array as h5py reads it (C order = Fortran linear order)."""
     a = np.ascontiguousarray(arr)
     if a.dtype.kind == "f":
         w = a.astype("<f8").reshape(-1).view("<u8")
@@ -354,13 +361,13 @@ def digest(arr, offset=0):
         w = a.astype("<i8").reshape(-1).view("<u8")
     lo = (w & np.uint64(0xFFFFFFFF)).astype(np.int64)
     hi = (w >> np.uint64(32)).astype(np.int64)
-    g = np.arange(offset, offset + w.size, dtype=np.int64)
+    g = _fold(np.arange(offset, offset + w.size, dtype=np.int64))
     out = []
-    for p, (a1, a2, a3, a4, a5) in ((_P1, (1103515245, 69069, 1664525, 12345, 977)),
-                                    (_P2, (214013, 1812433253, 22695477, 2531011, 1013))):
-        x = ((lo % p) * a1 % p + (hi % p) * a2 % p + (g % p) * a3 % p + a4) % p
-        x = x * ((x + a5) % p) % p
-        out.append(int(x.sum() % p) if x.size else 0)
+    for a1, a2, a3, a4, a5 in ((1103515245, 69069, 1664525, 12345, 977),
+                               (214013, 1812433253, 22695477, 2531011, 1013)):
+        x = _fold(_fold(lo * a1) + _fold(hi * a2) + _fold(g * a3) + a4)
+        x = _fold(x * (x + a5))
+        out.append(int(x.sum() % _M) if x.size else 0)
     return "%08x%08x" % tuple(out)
 
 

@@ -126,12 +126,12 @@ corrupt)
   [ $rc -eq 3 ] || { cat log0.txt; fail "--stop-after 6: exit status $rc, expected 3"; }
   cp -r snap_tiny.h5.pieces pristine
   P=snap_tiny.h5.pieces
-  # a piece (sample_1 of some piece) with stored multipliers, for the lambda_value case
+  # a piece with stored multipliers, for the lambda_value case
   lam=$("$py" -c "
 import h5py, glob, sys
 for p in sorted(glob.glob('$P/*.h5')):
     with h5py.File(p) as f:
-        if f['sample_1/lambda_value'].size > 0:
+        if f['lambda_value'].size > 0:
             print(p); sys.exit(0)
 sys.exit(1)") || fail "no piece with multipliers to corrupt"
   expect_refused() {  # expect_refused CASE REGEX: the run fails with status 2 and names the piece
@@ -142,19 +142,19 @@ sys.exit(1)") || fail "no piece with multipliers to corrupt"
     [ ! -e snap_tiny.h5 ] || fail "$1: a database was written"
     rm -rf $P; cp -r pristine $P
   }
-  "$py" "$here/snap_corrupt.py" bytes $P/train_000002.h5 sample_1/velocities || fail "corrupt (bytes)"
-  expect_refused bytes_velocities "piece '$P/train_000002.h5' \\(train sample 2\\): checksum mismatch in dataset 'sample_1/velocities'"
-  "$py" "$here/snap_corrupt.py" bytes "$lam" sample_1/lambda_value || fail "corrupt (bytes, lambda)"
-  expect_refused bytes_lambda "piece '$lam' \\(train sample [0-9]+\\): checksum mismatch in dataset 'sample_1/lambda_value'"
-  "$py" "$here/snap_corrupt.py" scale $P/train_000004.h5 sample_1/velocities || fail "corrupt (scale)"
-  expect_refused scaled "piece '$P/train_000004.h5' \\(train sample 4\\): checksum mismatch in dataset 'sample_1/velocities'"
+  "$py" "$here/snap_corrupt.py" bytes $P/train_000002.h5 velocities || fail "corrupt (bytes)"
+  expect_refused bytes_velocities "piece '$P/train_000002.h5' \\(train sample 2\\): checksum mismatch in dataset 'velocities'"
+  "$py" "$here/snap_corrupt.py" bytes "$lam" lambda_value || fail "corrupt (bytes, lambda)"
+  expect_refused bytes_lambda "piece '$lam' \\(train sample [0-9]+\\): checksum mismatch in dataset 'lambda_value'"
+  "$py" "$here/snap_corrupt.py" scale $P/train_000004.h5 velocities || fail "corrupt (scale)"
+  expect_refused scaled "piece '$P/train_000004.h5' \\(train sample 4\\): checksum mismatch in dataset 'velocities'"
   cp $P/train_000003.h5 $P/train_000005.h5
   expect_refused renamed "piece '$P/train_000005.h5' holds train sample 3 where train sample 5 belongs"
-  "$py" "$here/snap_corrupt.py" nan $P/train_000006.h5 sample_1/velocities || fail "corrupt (nan)"
+  "$py" "$here/snap_corrupt.py" nan $P/train_000006.h5 velocities || fail "corrupt (nan)"
   expect_refused nan "piece '$P/train_000006.h5' \\(train sample 6\\): dataset 'velocities' holds a non-finite value"
   # several bad pieces at once, all named; --quarantine-bad-pieces moves them aside and the run
   # recomputes them: the database equals the uninterrupted one
-  "$py" "$here/snap_corrupt.py" nan $P/train_000006.h5 sample_1/velocities || fail "corrupt (nan)"
+  "$py" "$here/snap_corrupt.py" nan $P/train_000006.h5 velocities || fail "corrupt (nan)"
   cp $P/train_000003.h5 $P/train_000005.h5
   out=$("$MPIRUN" -np 2 --oversubscribe "$bin" "$input" 2>&1); rc=$?
   [ $rc -eq 2 ] && grep -q "2 bad piece(s)" <<<"$out" && grep -q "train_000005.h5" <<<"$out" && \

@@ -35,7 +35,7 @@ module cr_h5file
     H5_REAL_KIND, H5_INTEGER_KIND, H5P_DEFAULT_F, H5P_FILE_ACCESS_F, H5P_LINK_CREATE_F, &
     H5P_DATASET_CREATE_F, H5P_DATASET_XFER_F, H5F_ACC_TRUNC_F, H5F_ACC_RDONLY_F, H5F_ACC_RDWR_F, &
     H5S_SCALAR_F, H5S_UNLIMITED_F, H5S_SELECT_SET_F, H5S_SELECT_OR_F, H5T_FLOAT_F, H5T_INTEGER_F, H5T_STRING_F, &
-    H5T_FORTRAN_S1, H5T_STR_NULLPAD_F, H5FD_MPIO_COLLECTIVE_F, &
+    H5T_FORTRAN_S1, H5T_STR_NULLPAD_F, H5FD_MPIO_COLLECTIVE_F, H5FD_MPIO_INDEPENDENT_F, &
     h5pcreate_f, h5pclose_f, h5pset_fapl_mpio_f, h5pset_dxpl_mpio_f, h5pset_chunk_f, &
     h5pset_create_inter_group_f, h5fcreate_f, h5fopen_f, h5fclose_f, h5fis_hdf5_f, &
     h5gcreate_f, h5gclose_f, h5lexists_f, h5ldelete_f, h5oopen_f, h5oclose_f, &
@@ -1281,7 +1281,7 @@ contains
 
   !> Collective write/read of the block dd whose last dimension is the concatenation of the
   !> ranges (0-based offset, count) of the file's last dimension, in increasing order.
-  subroutine ranges_raw(this, name, p, mtype, tclass, dd, ranges, is_write, error)
+  subroutine ranges_raw(this, name, p, mtype, tclass, dd, ranges, is_write, error, independent)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
     type(c_ptr), intent(in) :: p
@@ -1292,6 +1292,8 @@ contains
     integer, intent(in) :: ranges(:,:)
     logical, intent(in) :: is_write
     type(error_t), allocatable, intent(out) :: error
+    !> independent MPI-IO transfer instead of collective (the call stays collective)
+    logical, intent(in), optional :: independent
     integer(hsize_t), allocatable :: d(:), start(:), cnt(:)
     integer(hid_t) :: dset, fspace, mspace, xfer
     integer(i8), target :: dummy(1)
@@ -1371,7 +1373,15 @@ contains
         call h5pcreate_f(H5P_DATASET_XFER_F, xfer, hdferr)
         call check_h5(hdferr, this, error, op, name, "h5pcreate_f", d)
         if (allocated(error)) exit ops
-        call h5pset_dxpl_mpio_f(xfer, H5FD_MPIO_COLLECTIVE_F, hdferr)
+        if (present(independent)) then
+          if (independent) then
+            call h5pset_dxpl_mpio_f(xfer, H5FD_MPIO_INDEPENDENT_F, hdferr)
+          else
+            call h5pset_dxpl_mpio_f(xfer, H5FD_MPIO_COLLECTIVE_F, hdferr)
+          end if
+        else
+          call h5pset_dxpl_mpio_f(xfer, H5FD_MPIO_COLLECTIVE_F, hdferr)
+        end if
         call check_h5(hdferr, this, error, op, name, "h5pset_dxpl_mpio_f", d)
         if (allocated(error)) exit ops
       end if
@@ -1492,7 +1502,7 @@ contains
     integer, intent(in) :: ranges(:,:)
     type(error_t), allocatable, intent(out) :: error
     call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), &
-      H5T_FLOAT_F, int(shape(x), hsize_t), ranges, .true., error)
+      H5T_FLOAT_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
   end subroutine wr_real1
 
   !> Collective: write_ranges of columns of a [n_rows, n_cols] dataset from x [n_rows, n_local].
@@ -1503,7 +1513,7 @@ contains
     integer, intent(in) :: ranges(:,:)
     type(error_t), allocatable, intent(out) :: error
     call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), &
-      H5T_FLOAT_F, int(shape(x), hsize_t), ranges, .true., error)
+      H5T_FLOAT_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
   end subroutine wr_real2
 
   !> Collective: integer version of wr_real1.
@@ -1514,7 +1524,7 @@ contains
     integer, intent(in) :: ranges(:,:)
     type(error_t), allocatable, intent(out) :: error
     call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
-      H5T_INTEGER_F, int(shape(x), hsize_t), ranges, .true., error)
+      H5T_INTEGER_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
   end subroutine wr_int1
 
   !> Collective: integer version of wr_real2.
@@ -1525,7 +1535,7 @@ contains
     integer, intent(in) :: ranges(:,:)
     type(error_t), allocatable, intent(out) :: error
     call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
-      H5T_INTEGER_F, int(shape(x), hsize_t), ranges, .true., error)
+      H5T_INTEGER_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
   end subroutine wr_int2
 
   !> Collective: int64 version of wr_real1.
@@ -1536,7 +1546,7 @@ contains
     integer, intent(in) :: ranges(:,:)
     type(error_t), allocatable, intent(out) :: error
     call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int64), &
-      H5T_INTEGER_F, int(shape(x), hsize_t), ranges, .true., error)
+      H5T_INTEGER_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
   end subroutine wr_int64_1
 
   !> Collective: integer version of rb_real1.

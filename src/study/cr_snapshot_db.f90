@@ -20,7 +20,9 @@ module cr_snapshot_db
   use cr_snapshot_piece, only: sample_result_t, read_piece, check_sample
   use cr_sampling, only: sample_set_t
   use cr_piece_store, only: piece_index_t, global_sample, set_of_sample
-  use cr_digest, only: digest_t, digest_of, digest_of_ranges, digest_add, digest_allreduce, put_digest, DIGEST_ALGORITHM
+  use cr_digest, only: digest_t, digest_of, digest_of_ranges, digest_add, digest_allreduce, put_digest, &
+    DIGEST_ALGORITHM
+  use cr_fsys, only: rename_file, remove_file
   implicit none
   private
   public :: SNAP_SCHEMA, SNAP_SCHEMA_VERSION, SNAP_UNITS, db_meta_t, db_totals_t, probe_database, &
@@ -136,6 +138,11 @@ contains
     character(len=:), allocatable :: msg
     type(sample_result_t), allocatable :: res(:)
     logical, allocatable :: mine(:)
+    !> digests of the datasets written, stored when the parallel file is closed
+    character(len=64), allocatable :: dnames(:)
+    type(digest_t), allocatable :: dvals(:)
+    integer :: nd_noted
+    logical :: closed
     integer :: is, k, ierr, bad, n_train, n_valid, g, p, j, c, k0
     n_train = samples(1)%n; n_valid = samples(2)%n
     sets(1)%name = samples(1)%name; sets(1)%n = n_train
@@ -143,6 +150,9 @@ contains
     ! 1. this rank's samples: those of the pieces it owns (the pieces it wrote, or was given
     !    among those of earlier runs); checksums, finiteness and identity verified again
     msg = ""
+    nd_noted = 0
+    closed = .false.
+    allocate(dnames(64), dvals(64))
     allocate(mine(pieces%n_tot))
     mine = .false.
     do g = 1, pieces%n_tot
@@ -198,14 +208,21 @@ contains
     call h5%create(path, error, env=env)
     if (allocated(error)) return
     ops: block
-      call write_header(error); if (allocated(error)) exit ops
       do is = 1, 2
         call write_set(sets(is), error); if (allocated(error)) exit ops
       end do
-      call h5%write_attr("/", "complete", 1, error); if (allocated(error)) exit ops
-      call h5%commit(error)
+      ! parallel metadata writes cost a collective each: the header, the attributes, the
+      ! checksums and complete = 1 (last) are added by rank 0 alone, serially, before the rename
+      closed = .true.
+      call h5%close(error); if (allocated(error)) exit ops
+      call seal_file(error)
     end block ops
-    if (allocated(error)) then
+    if (allocated(error) .and. closed) then
+      call MPI_Barrier(env%comm, ierr)
+      if (env%is_root()) ierr = remove_file(path // ".partial")
+      call prefix_error(error, "database '" // path // "'")
+      return
+    else if (allocated(error)) then
       call h5%abort()
       call prefix_error(error, "database '" // path // "'")
       return
@@ -234,42 +251,95 @@ contains
 
   contains
 
-    subroutine write_header(error)
+    !> Remember the digest of a dataset (every rank holds the same list).
+    subroutine note(name, d)
+      character(len=*), intent(in) :: name
+      type(digest_t), intent(in) :: d
+      character(len=64), allocatable :: n2(:)
+      type(digest_t), allocatable :: v2(:)
+      if (nd_noted == size(dnames)) then
+        allocate(n2(2 * nd_noted), v2(2 * nd_noted))
+        n2(1:nd_noted) = dnames; v2(1:nd_noted) = dvals
+        call move_alloc(n2, dnames); call move_alloc(v2, dvals)
+      end if
+      nd_noted = nd_noted + 1
+      dnames(nd_noted) = name
+      dvals(nd_noted) = d
+    end subroutine note
+
+    !> Collective: rank 0 writes the checksums and complete = 1 into the closed temporary file
+    !> (serial HDF5) and renames it; every rank gets the status.
+    subroutine seal_file(error)
       type(error_t), allocatable, intent(out) :: error
-      call h5%write_attr("/", "schema", SNAP_SCHEMA, error); if (allocated(error)) return
-      call h5%write_attr("/", "schema_version", SNAP_SCHEMA_VERSION, error); if (allocated(error)) return
-      call h5%write_attr("/", "program", "crowd_snapshots", error); if (allocated(error)) return
-      call h5%write_attr("/", "version", meta%version, error); if (allocated(error)) return
-      call h5%write_attr("/", "hdf5_version", meta%hdf5_version, error); if (allocated(error)) return
-      call h5%write_attr("/", "mpi_version", meta%mpi_version, error); if (allocated(error)) return
-      call h5%write_attr("/", "compiler", meta%compiler, error); if (allocated(error)) return
-      call h5%write_attr("/", "config", meta%config_text, error); if (allocated(error)) return
-      call h5%write_attr("/", "input_text", meta%input_text, error); if (allocated(error)) return
-      call h5%write_attr("/", "config_hash", trim(meta%hash), error); if (allocated(error)) return
-      call h5%write_attr("/", "units", SNAP_UNITS, error); if (allocated(error)) return
-      call h5%write_attr("/", "n_agents", meta%n_agents, error); if (allocated(error)) return
-      call h5%write_attr("/", "agent_radius", meta%radius, error); if (allocated(error)) return
-      call h5%write_attr("/", "dt", meta%dt, error); if (allocated(error)) return
-      call h5%write_attr("/", "n_steps", meta%n_steps, error); if (allocated(error)) return
-      call h5%write_attr("/", "n_train", n_train, error); if (allocated(error)) return
-      call h5%write_attr("/", "n_valid", n_valid, error); if (allocated(error)) return
-      call h5%write_attr("/", "n_params", meta%n_expanded, error); if (allocated(error)) return
-      call h5%write_attr("/", "param_names", meta%param_names, error); if (allocated(error)) return
-      call h5%write_attr("/", "checksum_algorithm", DIGEST_ALGORITHM, error); if (allocated(error)) return
-      call h5%write_attr("/", "complete", 0, error); if (allocated(error)) return
-      call h5%write("initial_positions", q0, error); if (allocated(error)) return
-      call put_digest(h5, "initial_positions", digest_of(q0, 0_i8), error); if (allocated(error)) return
-      call write_scene(h5, fom_ref, error); if (allocated(error)) return
-      call h5%make_group("contacts", error); if (allocated(error)) return
-      call h5%write("contacts/key", dkey, error); if (allocated(error)) return
-      call put_digest(h5, "contacts/key", digest_of(dkey, 0_i8), error); if (allocated(error)) return
-      call h5%write("contacts/ia", dia, error); if (allocated(error)) return
-      call put_digest(h5, "contacts/ia", digest_of(dia, 0_i8), error); if (allocated(error)) return
-      call h5%write("contacts/ib", dib, error); if (allocated(error)) return
-      call put_digest(h5, "contacts/ib", digest_of(dib, 0_i8), error); if (allocated(error)) return
-      call h5%write("contacts/ob", dob, error); if (allocated(error)) return
-      call put_digest(h5, "contacts/ob", digest_of(dob, 0_i8), error); if (allocated(error)) return
-      call h5%write_attr("contacts", "description", "global contact dictionary: every contact " // &
+      type(h5file_t) :: hs
+      character(len=:), allocatable :: m
+      integer :: q, ie
+      m = ""
+      if (env%is_root()) then
+        call hs%open(path // ".partial", error, readwrite=.true.)
+        if (.not. allocated(error)) call write_header(hs, error)
+        if (.not. allocated(error)) call hs%write_attr(trim(sets(1)%name), "n_samples", sets(1)%n, error)
+        if (.not. allocated(error)) call hs%write_attr(trim(sets(2)%name), "n_samples", sets(2)%n, error)
+        do q = 1, nd_noted
+          if (allocated(error)) exit
+          call put_digest(hs, trim(dnames(q)), dvals(q), error)
+        end do
+        if (.not. allocated(error)) call hs%write_attr("/", "complete", 1, error)
+        if (allocated(error)) then
+          m = error%message; deallocate(error)
+          call hs%close(error)
+          if (allocated(error)) deallocate(error)
+        else
+          call hs%close(error)
+          if (allocated(error)) then
+            m = error%message; deallocate(error)
+          else if (rename_file(path // ".partial", path) /= 0) then
+            m = "rename '" // path // ".partial' -> '" // path // "' failed"
+          end if
+        end if
+      end if
+      call env%bcast_string(m)
+      call MPI_Barrier(env%comm, ie)
+      if (len(m) > 0) call set_error(error, m)
+    end subroutine seal_file
+
+    !> Root attributes, initial positions, scene and contact dictionary (serial, rank 0).
+    subroutine write_header(hh, error)
+      type(h5file_t), intent(inout) :: hh
+      type(error_t), allocatable, intent(out) :: error
+      call hh%write_attr("/", "schema", SNAP_SCHEMA, error); if (allocated(error)) return
+      call hh%write_attr("/", "schema_version", SNAP_SCHEMA_VERSION, error); if (allocated(error)) return
+      call hh%write_attr("/", "program", "crowd_snapshots", error); if (allocated(error)) return
+      call hh%write_attr("/", "version", meta%version, error); if (allocated(error)) return
+      call hh%write_attr("/", "hdf5_version", meta%hdf5_version, error); if (allocated(error)) return
+      call hh%write_attr("/", "mpi_version", meta%mpi_version, error); if (allocated(error)) return
+      call hh%write_attr("/", "compiler", meta%compiler, error); if (allocated(error)) return
+      call hh%write_attr("/", "config", meta%config_text, error); if (allocated(error)) return
+      call hh%write_attr("/", "input_text", meta%input_text, error); if (allocated(error)) return
+      call hh%write_attr("/", "config_hash", trim(meta%hash), error); if (allocated(error)) return
+      call hh%write_attr("/", "units", SNAP_UNITS, error); if (allocated(error)) return
+      call hh%write_attr("/", "n_agents", meta%n_agents, error); if (allocated(error)) return
+      call hh%write_attr("/", "agent_radius", meta%radius, error); if (allocated(error)) return
+      call hh%write_attr("/", "dt", meta%dt, error); if (allocated(error)) return
+      call hh%write_attr("/", "n_steps", meta%n_steps, error); if (allocated(error)) return
+      call hh%write_attr("/", "n_train", n_train, error); if (allocated(error)) return
+      call hh%write_attr("/", "n_valid", n_valid, error); if (allocated(error)) return
+      call hh%write_attr("/", "n_params", meta%n_expanded, error); if (allocated(error)) return
+      call hh%write_attr("/", "param_names", meta%param_names, error); if (allocated(error)) return
+      call hh%write_attr("/", "checksum_algorithm", DIGEST_ALGORITHM, error); if (allocated(error)) return
+      call hh%write("initial_positions", q0, error); if (allocated(error)) return
+      call note("initial_positions", digest_of(q0, 0_i8)); if (allocated(error)) return
+      call write_scene(hh, fom_ref, error); if (allocated(error)) return
+      call hh%make_group("contacts", error); if (allocated(error)) return
+      call hh%write("contacts/key", dkey, error); if (allocated(error)) return
+      call note("contacts/key", digest_of(dkey, 0_i8)); if (allocated(error)) return
+      call hh%write("contacts/ia", dia, error); if (allocated(error)) return
+      call note("contacts/ia", digest_of(dia, 0_i8)); if (allocated(error)) return
+      call hh%write("contacts/ib", dib, error); if (allocated(error)) return
+      call note("contacts/ib", digest_of(dib, 0_i8)); if (allocated(error)) return
+      call hh%write("contacts/ob", dob, error); if (allocated(error)) return
+      call note("contacts/ob", digest_of(dob, 0_i8)); if (allocated(error)) return
+      call hh%write_attr("contacts", "description", "global contact dictionary: every contact " // &
         "with lambda > 0 in some sample and step, sorted by key; ib = 0 for agent-obstacle " // &
         "contacts (ob = obstacle index), ob = 0 for agent pairs", error)
     end subroutine write_header
@@ -424,7 +494,6 @@ contains
       call h5%create_dataset(g // "/lambda_value", [int(total)], cr_h5_real, error); if (allocated(error)) return
       call h5%write_ranges(g // "/lambda_value", r1, rg, error); if (allocated(error)) return
       call seal(g // "/lambda_value", digest_of_ranges(r1, rg), error); if (allocated(error)) return
-      call h5%write_attr(g, "n_samples", b%n, error)
     end subroutine write_set
 
     !> Ranges (0-based offset, count) of the samples of b on this rank when each takes w entries
@@ -505,7 +574,8 @@ contains
       end do
     end function sample_digest_i1
 
-    !> Collective: the digest of a dataset from every rank's part, stored as its checksum.
+    !> Collective: the digest of a dataset from every rank's part, noted for its checksum
+    !> (`error` is kept for the call pattern; the checksum is written by seal_file).
     subroutine seal(name, d, error)
       character(len=*), intent(in) :: name
       type(digest_t), intent(in) :: d
@@ -513,7 +583,7 @@ contains
       type(digest_t) :: dd
       dd = d
       call digest_allreduce(env, dd)
-      call put_digest(h5, name, dd, error)
+      call note(name, dd)
     end subroutine seal
   end subroutine assemble_database
 

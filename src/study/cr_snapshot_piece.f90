@@ -12,13 +12,14 @@
 !> check_sample), and every dataset carries a checksum (cr_digest) verified by read_piece,
 !> which also checks shapes, finiteness and the multiplier layout.
 !>
-!> Layout (schema "crowdrom-snapshot-piece" v2): root attributes schema, schema_version,
-!> config_hash, n_samples, checksum_algorithm, complete; one group `sample_<j>` (j = 1..n_samples)
-!> per sample with attributes set, index, rank, time (s), start (s since the start of the run)
-!> and datasets mu [n_expanded], positions [2*n_agents, n_steps+1], velocities / desired
-!> [2*n_agents, n_steps], kkt / min_gap / iterations / converged / n_active [n_steps],
-!> lambda_offset int64 [n_steps+1], lambda_key int64 / lambda_ia / lambda_ib / lambda_ob /
-!> lambda_value [nnz] (only lambda > 0), each with a `checksum` attribute.
+!> Layout (schema "crowdrom-snapshot-piece" v2; n samples, each dataset holds them one after
+!> the other, every dataset with a `checksum` attribute): root attributes schema,
+!> schema_version, config_hash, n_samples, set_names ("train,valid"), checksum_algorithm,
+!> complete; datasets set_id / index / rank [n], time / start [n] (s; start since the start of
+!> the run), mu [n_expanded, n], positions [2*n_agents, (n_steps+1) n], velocities / desired
+!> [2*n_agents, n_steps n], kkt / min_gap / iterations / converged / n_active [n_steps, n],
+!> lambda_offset int64 [(n_steps+1) n] (each sample's CSR over its steps), lambda_key int64 /
+!> lambda_ia / lambda_ib / lambda_ob / lambda_value [total nnz] (only lambda > 0).
 module cr_snapshot_piece
   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
   use cr_kinds, only: wp, i8
@@ -36,6 +37,8 @@ module cr_snapshot_piece
 
   character(len=*), parameter :: PIECE_SCHEMA = "crowdrom-snapshot-piece"
   integer, parameter :: PIECE_SCHEMA_VERSION = 2
+  !> the sets of a study, by set_id
+  character(len=8), parameter :: SET_NAMES(2) = [character(len=8) :: 'train', 'valid']
 
   !> Trajectory and statistics of one sample.
   type :: sample_result_t
@@ -150,27 +153,106 @@ contains
     end subroutine grow
   end subroutine compute_sample
 
-  !> Write the samples res(1:n) as one piece (serial HDF5, temporary name renamed when complete).
+  !> Write the samples res(1:n) as one piece (serial HDF5, temporary name renamed when complete):
+  !> every dataset holds the n samples one after the other (a fixed number of HDF5 objects
+  !> whatever n), each with its checksum.
   subroutine write_piece(path, hash, res, error)
     character(len=*), intent(in) :: path, hash
-    !> the samples, in the order they were computed [n >= 1]
+    !> the samples, in the order they were computed [n >= 1], all of the same shapes
     type(sample_result_t), intent(in) :: res(:)
     type(error_t), allocatable, intent(out) :: error
     type(h5file_t) :: h5
-    character(len=:), allocatable :: g
-    integer :: j
+    integer :: n, nd, ns, ne, j, c
+    integer(i8) :: nnz
+    integer, allocatable :: setid(:), idx(:), rk(:), ibuf(:,:), i1(:)
+    real(wp), allocatable :: r1(:), rbuf(:,:)
+    integer(i8), allocatable :: l1(:)
+    n = size(res)
+    nd = size(res(1)%q, 1); ns = size(res(1)%q, 2) - 1; ne = size(res(1)%mu)
+    allocate(setid(n), idx(n), rk(n))
+    do j = 1, n
+      setid(j) = merge(1, 2, trim(res(j)%set) == SET_NAMES(1))
+      idx(j) = res(j)%index
+      rk(j) = res(j)%rank
+    end do
     call h5%create(path, error)
     if (allocated(error)) return
     ops: block
       call h5%write_attr("/", "schema", PIECE_SCHEMA, error); if (allocated(error)) exit ops
       call h5%write_attr("/", "schema_version", PIECE_SCHEMA_VERSION, error); if (allocated(error)) exit ops
       call h5%write_attr("/", "config_hash", hash, error); if (allocated(error)) exit ops
-      call h5%write_attr("/", "n_samples", size(res), error); if (allocated(error)) exit ops
+      call h5%write_attr("/", "n_samples", n, error); if (allocated(error)) exit ops
+      call h5%write_attr("/", "set_names", SET_NAMES(1) // "," // SET_NAMES(2), error); if (allocated(error)) exit ops
       call h5%write_attr("/", "checksum_algorithm", DIGEST_ALGORITHM, error); if (allocated(error)) exit ops
-      do j = 1, size(res)
-        g = "sample_" // str(j)
-        call write_sample(g, res(j), error); if (allocated(error)) exit ops
+      call wi1("set_id", setid, error); if (allocated(error)) exit ops
+      call wi1("index", idx, error); if (allocated(error)) exit ops
+      call wi1("rank", rk, error); if (allocated(error)) exit ops
+      call wr1("time", [(res(j)%time, j = 1, n)], error); if (allocated(error)) exit ops
+      call wr1("start", [(res(j)%start, j = 1, n)], error); if (allocated(error)) exit ops
+      allocate(rbuf(ne, n))
+      do j = 1, n
+        rbuf(:, j) = res(j)%mu
       end do
+      call wr2("mu", rbuf, error); if (allocated(error)) exit ops
+      deallocate(rbuf); allocate(rbuf(nd, (ns + 1) * n))
+      do j = 1, n
+        rbuf(:, (j - 1) * (ns + 1) + 1:j * (ns + 1)) = res(j)%q
+      end do
+      call wr2("positions", rbuf, error); if (allocated(error)) exit ops
+      deallocate(rbuf); allocate(rbuf(nd, ns * n))
+      do j = 1, n
+        rbuf(:, (j - 1) * ns + 1:j * ns) = res(j)%u
+      end do
+      call wr2("velocities", rbuf, error); if (allocated(error)) exit ops
+      do j = 1, n
+        rbuf(:, (j - 1) * ns + 1:j * ns) = res(j)%v
+      end do
+      call wr2("desired", rbuf, error); if (allocated(error)) exit ops
+      deallocate(rbuf); allocate(rbuf(ns, n), ibuf(ns, n))
+      do j = 1, n
+        rbuf(:, j) = res(j)%kkt
+      end do
+      call wr2("kkt", rbuf, error); if (allocated(error)) exit ops
+      do j = 1, n
+        rbuf(:, j) = res(j)%min_gap
+      end do
+      call wr2("min_gap", rbuf, error); if (allocated(error)) exit ops
+      do j = 1, n
+        ibuf(:, j) = res(j)%iterations
+      end do
+      call wi2("iterations", ibuf, error); if (allocated(error)) exit ops
+      do j = 1, n
+        ibuf(:, j) = res(j)%converged
+      end do
+      call wi2("converged", ibuf, error); if (allocated(error)) exit ops
+      do j = 1, n
+        ibuf(:, j) = res(j)%n_active
+      end do
+      call wi2("n_active", ibuf, error); if (allocated(error)) exit ops
+      ! multipliers: per-sample CSR offsets [(ns+1) n], entries concatenated [sum of nnz]
+      allocate(l1((ns + 1) * n))
+      nnz = 0
+      do j = 1, n
+        l1((j - 1) * (ns + 1) + 1:j * (ns + 1)) = res(j)%offset
+        nnz = nnz + size(res(j)%value)
+      end do
+      call wl1("lambda_offset", l1, error); if (allocated(error)) exit ops
+      deallocate(l1); allocate(l1(nnz), i1(nnz), r1(nnz))
+      c = 0
+      do j = 1, n
+        l1(c + 1:c + size(res(j)%key)) = res(j)%key
+        c = c + size(res(j)%key)
+      end do
+      call wl1("lambda_key", l1, error); if (allocated(error)) exit ops
+      call cat_int(1); call wi1("lambda_ia", i1, error); if (allocated(error)) exit ops
+      call cat_int(2); call wi1("lambda_ib", i1, error); if (allocated(error)) exit ops
+      call cat_int(3); call wi1("lambda_ob", i1, error); if (allocated(error)) exit ops
+      c = 0
+      do j = 1, n
+        r1(c + 1:c + size(res(j)%value)) = res(j)%value
+        c = c + size(res(j)%value)
+      end do
+      call wr1("lambda_value", r1, error); if (allocated(error)) exit ops
       call h5%write_attr("/", "complete", 1, error); if (allocated(error)) exit ops
       call h5%commit(error)
     end block ops
@@ -181,47 +263,60 @@ contains
 
   contains
 
-    subroutine write_sample(g, r, error)
-      character(len=*), intent(in) :: g
-      type(sample_result_t), intent(in) :: r
+    subroutine cat_int(which)
+      integer, intent(in) :: which
+      integer :: q, cc, m
+      cc = 0
+      do q = 1, n
+        m = size(res(q)%ia)
+        select case (which)
+        case (1); i1(cc + 1:cc + m) = res(q)%ia
+        case (2); i1(cc + 1:cc + m) = res(q)%ib
+        case default; i1(cc + 1:cc + m) = res(q)%ob
+        end select
+        cc = cc + m
+      end do
+    end subroutine cat_int
+
+    subroutine wr1(name, x, error)
+      character(len=*), intent(in) :: name
+      real(wp), intent(in) :: x(:)
       type(error_t), allocatable, intent(out) :: error
-      call h5%make_group(g, error); if (allocated(error)) return
-      call h5%write_attr(g, "set", trim(r%set), error); if (allocated(error)) return
-      call h5%write_attr(g, "index", r%index, error); if (allocated(error)) return
-      call h5%write_attr(g, "rank", r%rank, error); if (allocated(error)) return
-      call h5%write_attr(g, "time", r%time, error); if (allocated(error)) return
-      call h5%write_attr(g, "start", r%start, error); if (allocated(error)) return
-      call h5%write(g // "/mu", r%mu, error); if (allocated(error)) return
-      call put_digest(h5, g // "/mu", digest_of(r%mu, 0_i8), error); if (allocated(error)) return
-      call h5%write(g // "/positions", r%q, error); if (allocated(error)) return
-      call put_digest(h5, g // "/positions", digest_of(r%q, 0_i8), error); if (allocated(error)) return
-      call h5%write(g // "/velocities", r%u, error); if (allocated(error)) return
-      call put_digest(h5, g // "/velocities", digest_of(r%u, 0_i8), error); if (allocated(error)) return
-      call h5%write(g // "/desired", r%v, error); if (allocated(error)) return
-      call put_digest(h5, g // "/desired", digest_of(r%v, 0_i8), error); if (allocated(error)) return
-      call h5%write(g // "/kkt", r%kkt, error); if (allocated(error)) return
-      call put_digest(h5, g // "/kkt", digest_of(r%kkt, 0_i8), error); if (allocated(error)) return
-      call h5%write(g // "/min_gap", r%min_gap, error); if (allocated(error)) return
-      call put_digest(h5, g // "/min_gap", digest_of(r%min_gap, 0_i8), error); if (allocated(error)) return
-      call h5%write(g // "/iterations", r%iterations, error); if (allocated(error)) return
-      call put_digest(h5, g // "/iterations", digest_of(r%iterations, 0_i8), error); if (allocated(error)) return
-      call h5%write(g // "/converged", r%converged, error); if (allocated(error)) return
-      call put_digest(h5, g // "/converged", digest_of(r%converged, 0_i8), error); if (allocated(error)) return
-      call h5%write(g // "/n_active", r%n_active, error); if (allocated(error)) return
-      call put_digest(h5, g // "/n_active", digest_of(r%n_active, 0_i8), error); if (allocated(error)) return
-      call h5%write(g // "/lambda_offset", r%offset, error); if (allocated(error)) return
-      call put_digest(h5, g // "/lambda_offset", digest_of(r%offset, 0_i8), error); if (allocated(error)) return
-      call h5%write(g // "/lambda_key", r%key, error); if (allocated(error)) return
-      call put_digest(h5, g // "/lambda_key", digest_of(r%key, 0_i8), error); if (allocated(error)) return
-      call h5%write(g // "/lambda_ia", r%ia, error); if (allocated(error)) return
-      call put_digest(h5, g // "/lambda_ia", digest_of(r%ia, 0_i8), error); if (allocated(error)) return
-      call h5%write(g // "/lambda_ib", r%ib, error); if (allocated(error)) return
-      call put_digest(h5, g // "/lambda_ib", digest_of(r%ib, 0_i8), error); if (allocated(error)) return
-      call h5%write(g // "/lambda_ob", r%ob, error); if (allocated(error)) return
-      call put_digest(h5, g // "/lambda_ob", digest_of(r%ob, 0_i8), error); if (allocated(error)) return
-      call h5%write(g // "/lambda_value", r%value, error); if (allocated(error)) return
-      call put_digest(h5, g // "/lambda_value", digest_of(r%value, 0_i8), error)
-    end subroutine write_sample
+      call h5%write(name, x, error); if (allocated(error)) return
+      call put_digest(h5, name, digest_of(x, 0_i8), error)
+    end subroutine wr1
+
+    subroutine wr2(name, x, error)
+      character(len=*), intent(in) :: name
+      real(wp), intent(in) :: x(:,:)
+      type(error_t), allocatable, intent(out) :: error
+      call h5%write(name, x, error); if (allocated(error)) return
+      call put_digest(h5, name, digest_of(x, 0_i8), error)
+    end subroutine wr2
+
+    subroutine wi1(name, x, error)
+      character(len=*), intent(in) :: name
+      integer, intent(in) :: x(:)
+      type(error_t), allocatable, intent(out) :: error
+      call h5%write(name, x, error); if (allocated(error)) return
+      call put_digest(h5, name, digest_of(x, 0_i8), error)
+    end subroutine wi1
+
+    subroutine wi2(name, x, error)
+      character(len=*), intent(in) :: name
+      integer, intent(in) :: x(:,:)
+      type(error_t), allocatable, intent(out) :: error
+      call h5%write(name, x, error); if (allocated(error)) return
+      call put_digest(h5, name, digest_of(x, 0_i8), error)
+    end subroutine wi2
+
+    subroutine wl1(name, x, error)
+      character(len=*), intent(in) :: name
+      integer(i8), intent(in) :: x(:)
+      type(error_t), allocatable, intent(out) :: error
+      call h5%write(name, x, error); if (allocated(error)) return
+      call put_digest(h5, name, digest_of(x, 0_i8), error)
+    end subroutine wl1
   end subroutine write_piece
 
   !> Header of a piece: configuration hash and the (set, index) of each of its samples.
@@ -234,8 +329,9 @@ contains
     integer, allocatable, intent(out) :: idx(:)
     type(error_t), allocatable, intent(out) :: error
     type(h5file_t) :: h5
-    character(len=:), allocatable :: schema, s
+    character(len=:), allocatable :: schema
     integer :: version, n, complete, j
+    integer, allocatable :: setid(:)
     type(error_t), allocatable :: e2
     hash = ""
     allocate(sets(0), idx(0))
@@ -257,15 +353,18 @@ contains
       end if
       call h5%read_attr("/", "config_hash", hash, error); if (allocated(error)) exit ops
       call h5%read_attr("/", "n_samples", n, error); if (allocated(error)) exit ops
-      if (n < 1) then
-        call set_error(error, "n_samples = " // str(n) // " (must be >= 1)"); exit ops
+      call h5%read("set_id", setid, error); if (allocated(error)) exit ops
+      call h5%read("index", idx, error); if (allocated(error)) exit ops
+      if (n < 1 .or. size(setid) /= n .or. size(idx) /= n) then
+        call set_error(error, "n_samples = " // str(n) // " does not match set_id / index"); exit ops
       end if
-      deallocate(sets, idx)
-      allocate(sets(n), idx(n))
+      if (any(setid < 1 .or. setid > 2)) then
+        call set_error(error, "set_id holds values other than 1 (train) and 2 (valid)"); exit ops
+      end if
+      deallocate(sets)
+      allocate(sets(n))
       do j = 1, n
-        call h5%read_attr("sample_" // str(j), "set", s, error); if (allocated(error)) exit ops
-        sets(j) = s
-        call h5%read_attr("sample_" // str(j), "index", idx(j), error); if (allocated(error)) exit ops
+        sets(j) = SET_NAMES(setid(j))
       end do
     end block ops
     call h5%close(e2)
@@ -281,8 +380,12 @@ contains
     type(error_t), allocatable, intent(out) :: error
     type(h5file_t) :: h5
     type(error_t), allocatable :: e2
-    character(len=:), allocatable :: set, what
-    integer :: n, j
+    character(len=:), allocatable :: what, w
+    integer :: n, j, nd, ns, ne, c
+    integer(i8) :: m, nnz
+    integer, allocatable :: setid(:), idx(:), rk(:), iters(:,:), conv(:,:), nact(:,:), ia(:), ib(:), ob(:)
+    real(wp), allocatable :: tm(:), st(:), mu(:,:), q(:,:), u(:,:), v(:,:), kkt(:,:), gap(:,:), val(:)
+    integer(i8), allocatable :: off(:), key(:)
     what = "piece '" // path // "'"
     allocate(res(0))
     call h5%open(path, error)
@@ -291,98 +394,151 @@ contains
     end if
     ops: block
       call h5%read_attr("/", "n_samples", n, error); if (allocated(error)) exit ops
-      if (n < 1) then
-        call set_error(error, "n_samples = " // str(n)); exit ops
+      call ri1("set_id", setid, error); if (allocated(error)) exit ops
+      call ri1("index", idx, error); if (allocated(error)) exit ops
+      if (n < 1 .or. size(setid) /= n .or. size(idx) /= n .or. any(setid < 1 .or. setid > 2)) then
+        call set_error(error, what // ": n_samples, set_id and index disagree"); exit ops
       end if
-      deallocate(res); allocate(res(n))
+      w = what // " (" // samples_text(setid, idx) // ")"
+      call ri1("rank", rk, error); if (allocated(error)) exit ops
+      call rr1("time", tm, error); if (allocated(error)) exit ops
+      call rr1("start", st, error); if (allocated(error)) exit ops
+      call rr2("mu", mu, error); if (allocated(error)) exit ops
+      call rr2("positions", q, error); if (allocated(error)) exit ops
+      call rr2("velocities", u, error); if (allocated(error)) exit ops
+      call rr2("desired", v, error); if (allocated(error)) exit ops
+      call rr2("kkt", kkt, error); if (allocated(error)) exit ops
+      call rr2("min_gap", gap, error); if (allocated(error)) exit ops
+      call ri2("iterations", iters, error); if (allocated(error)) exit ops
+      call ri2("converged", conv, error); if (allocated(error)) exit ops
+      call ri2("n_active", nact, error); if (allocated(error)) exit ops
+      call rl1("lambda_offset", off, error); if (allocated(error)) exit ops
+      call rl1("lambda_key", key, error); if (allocated(error)) exit ops
+      call ri1("lambda_ia", ia, error); if (allocated(error)) exit ops
+      call ri1("lambda_ib", ib, error); if (allocated(error)) exit ops
+      call ri1("lambda_ob", ob, error); if (allocated(error)) exit ops
+      call rr1("lambda_value", val, error); if (allocated(error)) exit ops
+      ! shapes
+      ns = size(kkt, 1); nd = size(q, 1); ne = size(mu, 1)
+      if (ns < 1 .or. size(rk) /= n .or. size(tm) /= n .or. size(st) /= n .or. size(mu, 2) /= n .or. &
+          size(q, 2) /= (ns + 1) * n .or. any(shape(u) /= [nd, ns * n]) .or. any(shape(v) /= [nd, ns * n]) .or. &
+          any(shape(kkt) /= [ns, n]) .or. any(shape(gap) /= [ns, n]) .or. any(shape(iters) /= [ns, n]) .or. &
+          any(shape(conv) /= [ns, n]) .or. any(shape(nact) /= [ns, n]) .or. size(off) /= (ns + 1) * n) then
+        call set_error(error, w // ": inconsistent dataset shapes"); exit ops
+      end if
+      nnz = size(val, kind=i8)
+      if (size(key, kind=i8) /= nnz .or. size(ia, kind=i8) /= nnz .or. size(ib, kind=i8) /= nnz .or. &
+          size(ob, kind=i8) /= nnz) then
+        call set_error(error, w // ": multiplier arrays of different lengths"); exit ops
+      end if
+      m = 0
       do j = 1, n
-        call read_sample("sample_" // str(j), res(j), error); if (allocated(error)) exit ops
+        associate (o => off((j - 1) * (ns + 1) + 1:j * (ns + 1)))
+          if (o(1) /= 0 .or. any(o(2:) < o(:ns))) then
+            call set_error(error, w // ": lambda_offset is not a CSR layout"); exit ops
+          end if
+          m = m + o(ns + 1)
+        end associate
+      end do
+      if (m /= nnz) then
+        call set_error(error, w // ": lambda_offset counts " // str(m) // " multipliers, lambda_value holds " // &
+          str(nnz)); exit ops
+      end if
+      ! values
+      call need_finite(reshape(mu, [size(mu)]), "mu", error); if (allocated(error)) exit ops
+      call need_finite(reshape(q, [size(q)]), "positions", error); if (allocated(error)) exit ops
+      call need_finite(reshape(u, [size(u)]), "velocities", error); if (allocated(error)) exit ops
+      call need_finite(reshape(v, [size(v)]), "desired", error); if (allocated(error)) exit ops
+      call need_finite(reshape(kkt, [size(kkt)]), "kkt", error); if (allocated(error)) exit ops
+      call need_finite(val, "lambda_value", error); if (allocated(error)) exit ops
+      call need_finite([tm, st], "time", error); if (allocated(error)) exit ops
+      if (any(val <= 0)) then
+        call set_error(error, w // ": lambda_value holds multipliers <= 0 (only lambda > 0 are stored)"); exit ops
+      end if
+      if (any(conv /= 0 .and. conv /= 1)) then
+        call set_error(error, w // ": converged holds values other than 0 and 1"); exit ops
+      end if
+      ! split into samples
+      deallocate(res); allocate(res(n))
+      c = 0
+      do j = 1, n
+        res(j)%set = SET_NAMES(setid(j)); res(j)%index = idx(j); res(j)%rank = rk(j)
+        res(j)%time = tm(j); res(j)%start = st(j)
+        res(j)%mu = mu(:, j)
+        res(j)%q = q(:, (j - 1) * (ns + 1) + 1:j * (ns + 1))
+        res(j)%u = u(:, (j - 1) * ns + 1:j * ns)
+        res(j)%v = v(:, (j - 1) * ns + 1:j * ns)
+        res(j)%kkt = kkt(:, j); res(j)%min_gap = gap(:, j)
+        res(j)%iterations = iters(:, j); res(j)%converged = conv(:, j); res(j)%n_active = nact(:, j)
+        res(j)%offset = off((j - 1) * (ns + 1) + 1:j * (ns + 1))
+        m = res(j)%offset(ns + 1)
+        res(j)%key = key(c + 1:c + m); res(j)%ia = ia(c + 1:c + m); res(j)%ib = ib(c + 1:c + m)
+        res(j)%ob = ob(c + 1:c + m); res(j)%value = val(c + 1:c + m)
+        c = c + int(m)
       end do
     end block ops
     call h5%close(e2)
     if (allocated(error)) then
+      if (size(res) > 0) deallocate(res)
+      if (.not. allocated(res)) allocate(res(0))
       if (index(error%message, what) /= 1) call prefix_error(error, what)
     end if
 
   contains
 
-    subroutine read_sample(g, r, error)
-      character(len=*), intent(in) :: g
-      type(sample_result_t), intent(inout) :: r
+    subroutine rr1(name, x, error)
+      character(len=*), intent(in) :: name
+      real(wp), allocatable, intent(out) :: x(:)
       type(error_t), allocatable, intent(out) :: error
-      character(len=:), allocatable :: w
-      integer :: nd, ns
-      w = what // ", " // g
-      call h5%read_attr(g, "set", set, error); if (allocated(error)) return
-      r%set = set
-      call h5%read_attr(g, "index", r%index, error); if (allocated(error)) return
-      call h5%read_attr(g, "rank", r%rank, error); if (allocated(error)) return
-      call h5%read_attr(g, "time", r%time, error); if (allocated(error)) return
-      call h5%read_attr(g, "start", r%start, error); if (allocated(error)) return
-      w = what // " (" // trim(r%set) // " sample " // str(r%index) // ")"
-      call h5%read(g // "/mu", r%mu, error); if (allocated(error)) return
-      call check_digest(h5, g // "/mu", digest_of(r%mu, 0_i8), w, error); if (allocated(error)) return
-      call h5%read(g // "/positions", r%q, error); if (allocated(error)) return
-      call check_digest(h5, g // "/positions", digest_of(r%q, 0_i8), w, error); if (allocated(error)) return
-      call h5%read(g // "/velocities", r%u, error); if (allocated(error)) return
-      call check_digest(h5, g // "/velocities", digest_of(r%u, 0_i8), w, error); if (allocated(error)) return
-      call h5%read(g // "/desired", r%v, error); if (allocated(error)) return
-      call check_digest(h5, g // "/desired", digest_of(r%v, 0_i8), w, error); if (allocated(error)) return
-      call h5%read(g // "/kkt", r%kkt, error); if (allocated(error)) return
-      call check_digest(h5, g // "/kkt", digest_of(r%kkt, 0_i8), w, error); if (allocated(error)) return
-      call h5%read(g // "/min_gap", r%min_gap, error); if (allocated(error)) return
-      call check_digest(h5, g // "/min_gap", digest_of(r%min_gap, 0_i8), w, error); if (allocated(error)) return
-      call h5%read(g // "/iterations", r%iterations, error); if (allocated(error)) return
-      call check_digest(h5, g // "/iterations", digest_of(r%iterations, 0_i8), w, error); if (allocated(error)) return
-      call h5%read(g // "/converged", r%converged, error); if (allocated(error)) return
-      call check_digest(h5, g // "/converged", digest_of(r%converged, 0_i8), w, error); if (allocated(error)) return
-      call h5%read(g // "/n_active", r%n_active, error); if (allocated(error)) return
-      call check_digest(h5, g // "/n_active", digest_of(r%n_active, 0_i8), w, error); if (allocated(error)) return
-      call h5%read(g // "/lambda_offset", r%offset, error); if (allocated(error)) return
-      call check_digest(h5, g // "/lambda_offset", digest_of(r%offset, 0_i8), w, error); if (allocated(error)) return
-      call h5%read(g // "/lambda_key", r%key, error); if (allocated(error)) return
-      call check_digest(h5, g // "/lambda_key", digest_of(r%key, 0_i8), w, error); if (allocated(error)) return
-      call h5%read(g // "/lambda_ia", r%ia, error); if (allocated(error)) return
-      call check_digest(h5, g // "/lambda_ia", digest_of(r%ia, 0_i8), w, error); if (allocated(error)) return
-      call h5%read(g // "/lambda_ib", r%ib, error); if (allocated(error)) return
-      call check_digest(h5, g // "/lambda_ib", digest_of(r%ib, 0_i8), w, error); if (allocated(error)) return
-      call h5%read(g // "/lambda_ob", r%ob, error); if (allocated(error)) return
-      call check_digest(h5, g // "/lambda_ob", digest_of(r%ob, 0_i8), w, error); if (allocated(error)) return
-      call h5%read(g // "/lambda_value", r%value, error); if (allocated(error)) return
-      call check_digest(h5, g // "/lambda_value", digest_of(r%value, 0_i8), w, error); if (allocated(error)) return
-      ! internal consistency
-      nd = size(r%q, 1); ns = size(r%q, 2) - 1
-      if (ns < 1 .or. any(shape(r%u) /= [nd, ns]) .or. any(shape(r%v) /= [nd, ns]) .or. size(r%kkt) /= ns .or. &
-          size(r%min_gap) /= ns .or. size(r%iterations) /= ns .or. size(r%converged) /= ns .or. &
-          size(r%n_active) /= ns .or. size(r%offset) /= ns + 1) then
-        call set_error(error, w // ": inconsistent dataset shapes"); return
-      end if
-      if (size(r%ia) /= size(r%key) .or. size(r%ib) /= size(r%key) .or. size(r%ob) /= size(r%key) .or. &
-          size(r%value) /= size(r%key)) then
-        call set_error(error, w // ": multiplier arrays of different lengths"); return
-      end if
-      if (r%offset(1) /= 0 .or. any(r%offset(2:) < r%offset(:ns)) .or. r%offset(ns + 1) /= size(r%value)) then
-        call set_error(error, w // ": lambda_offset is not a CSR layout of the " // str(size(r%value)) // " values")
-        return
-      end if
-      call need_finite(r%mu, "mu", w, error); if (allocated(error)) return
-      call need_finite(reshape(r%q, [size(r%q)]), "positions", w, error); if (allocated(error)) return
-      call need_finite(reshape(r%u, [size(r%u)]), "velocities", w, error); if (allocated(error)) return
-      call need_finite(reshape(r%v, [size(r%v)]), "desired", w, error); if (allocated(error)) return
-      call need_finite(r%kkt, "kkt", w, error); if (allocated(error)) return
-      call need_finite(r%value, "lambda_value", w, error); if (allocated(error)) return
-      call need_finite([r%time, r%start], "time", w, error); if (allocated(error)) return
-      if (any(r%value <= 0)) then
-        call set_error(error, w // ": lambda_value holds multipliers <= 0 (only lambda > 0 are stored)"); return
-      end if
-      if (any(r%converged /= 0 .and. r%converged /= 1)) then
-        call set_error(error, w // ": converged holds values other than 0 and 1"); return
-      end if
-    end subroutine read_sample
+      call h5%read(name, x, error); if (allocated(error)) return
+      call check_digest(h5, name, digest_of(x, 0_i8), wdesc(), error)
+    end subroutine rr1
 
-    subroutine need_finite(x, name, w, error)
+    subroutine rr2(name, x, error)
+      character(len=*), intent(in) :: name
+      real(wp), allocatable, intent(out) :: x(:,:)
+      type(error_t), allocatable, intent(out) :: error
+      call h5%read(name, x, error); if (allocated(error)) return
+      call check_digest(h5, name, digest_of(x, 0_i8), wdesc(), error)
+    end subroutine rr2
+
+    subroutine ri1(name, x, error)
+      character(len=*), intent(in) :: name
+      integer, allocatable, intent(out) :: x(:)
+      type(error_t), allocatable, intent(out) :: error
+      call h5%read(name, x, error); if (allocated(error)) return
+      call check_digest(h5, name, digest_of(x, 0_i8), wdesc(), error)
+    end subroutine ri1
+
+    subroutine ri2(name, x, error)
+      character(len=*), intent(in) :: name
+      integer, allocatable, intent(out) :: x(:,:)
+      type(error_t), allocatable, intent(out) :: error
+      call h5%read(name, x, error); if (allocated(error)) return
+      call check_digest(h5, name, digest_of(x, 0_i8), wdesc(), error)
+    end subroutine ri2
+
+    subroutine rl1(name, x, error)
+      character(len=*), intent(in) :: name
+      integer(i8), allocatable, intent(out) :: x(:)
+      type(error_t), allocatable, intent(out) :: error
+      call h5%read(name, x, error); if (allocated(error)) return
+      call check_digest(h5, name, digest_of(x, 0_i8), wdesc(), error)
+    end subroutine rl1
+
+    !> the piece and, once known, its samples (for messages)
+    function wdesc() result(t)
+      character(len=:), allocatable :: t
+      if (allocated(w)) then
+        t = w
+      else
+        t = what
+      end if
+    end function wdesc
+
+    subroutine need_finite(x, name, error)
       real(wp), intent(in) :: x(:)
-      character(len=*), intent(in) :: name, w
+      character(len=*), intent(in) :: name
       type(error_t), allocatable, intent(out) :: error
       integer :: i
       if (all(ieee_is_finite(x))) return
@@ -393,6 +549,23 @@ contains
         str(i))
     end subroutine need_finite
   end subroutine read_piece
+
+  !> "train sample 3" or "train samples 3, 7, valid sample 2" (at most 6 listed).
+  function samples_text(setid, idx) result(t)
+    integer, intent(in) :: setid(:), idx(:)
+    character(len=:), allocatable :: t
+    integer :: j
+    if (size(idx) == 1) then
+      t = trim(SET_NAMES(setid(1))) // " sample " // str(idx(1)); return
+    end if
+    t = ""
+    do j = 1, min(size(idx), 6)
+      if (j > 1) t = t // ", "
+      t = t // trim(SET_NAMES(setid(j))) // " " // str(idx(j))
+    end do
+    if (size(idx) > 6) t = t // ", ..."
+    t = str(size(idx)) // " samples: " // t
+  end function samples_text
 
   !> Check that sample r is sample k of set `set` of the study: its recorded set and index, its
   !> parameters (bitwise: both come from the same sampling) and its sizes.
