@@ -28,7 +28,7 @@ program crowd_snapshots
   use cr_json, only: json_writer_t
   use cr_study_config, only: study_cfg_t, read_study, check_study, study_echo, study_hash
   use cr_sampling, only: param_space_t, sample_set_t, generate_samples
-  use cr_scheduler, only: scheduler_t
+  use cr_scheduler, only: scheduler_t, collective_latency
   use cr_snapshot_piece, only: sample_result_t, compute_sample
   use cr_piece_store, only: piece_index_t, piece_batch_t, scan_pieces
   use cr_snapshot_db, only: SNAP_SCHEMA_VERSION, db_meta_t, db_totals_t, probe_database, &
@@ -54,6 +54,9 @@ program crowd_snapshots
   integer, allocatable :: nsamp(:)
   real(wp), allocatable :: busy(:)
   real(wp) :: sum_time, t_compute, t_asm, t_total
+  !> inputs of the scaling model (summed over ranks): counter operations and their time, pieces
+  !> written, their bytes and write time; collective latency; setup time and assembly start
+  real(wp) :: counter(2), pieces_out(3), t_coll, t_setup, t_asm_start
   integer(i8) :: bytes
 
   call program_start("crowd_snapshots", env, log, cli, error, allow_stop_after=.true.)
@@ -210,6 +213,8 @@ contains
       end if
     end if
     call collective_error(env, msg, error)
+    counter = [real(sched%n_calls, wp), sched%t_calls]
+    pieces_out = [real(batch%n_pieces, wp), real(batch%bytes_written, wp), batch%t_write]
     call sched%free()
     if (allocated(error)) return
     call env%barrier()
@@ -218,6 +223,10 @@ contains
     call MPI_Allgather(busy_mine, 1, MPI_DOUBLE_PRECISION, busy, 1, MPI_DOUBLE_PRECISION, env%comm, ierr)
     call MPI_Allgather(n_mine, 1, MPI_INTEGER, nsamp, 1, MPI_INTEGER, env%comm, ierr)
     sum_time = env%sum_real(sum_time)
+    call env%sum_real_array(counter)
+    call env%sum_real_array(pieces_out)
+    t_coll = collective_latency(env, 20)
+    t_setup = t_loop - t_start
     call log%info("   samples " // str(n_prev + n_run) // " of " // str(n_tot) // " complete")
     call log%stage_end()
     if (n_run < size(todo)) then
@@ -230,6 +239,7 @@ contains
     ! the database
     call log%stage_begin("crowd_snapshots: assembling '" // db // "'")
     t0 = env%wtime()
+    t_asm_start = t0 - t_start
     meta%config_text = config_echo(cfg) // study_echo(study)
     meta%input_text = cfg%text
     meta%hash = hash
@@ -305,10 +315,16 @@ contains
       end do
       text = text // &
         "  load balance        " // str(balance, 'f0.3') // " (mean / max busy time)" // new_line('a') // &
-        "  parallel efficiency " // str(eff_compute, 'f0.3') // " (sample loop), " // str(eff_total, 'f0.3') // &
-        " (whole run: sum of sample times / (P x wall))" // new_line('a') // &
+        "  busy-time efficiency " // str(eff_compute, 'f0.3') // " (sample loop), " // str(eff_total, 'f0.3') // &
+        " (whole run: sum of busy times / (P x wall))" // new_line('a') // &
+        "  overheads           counter " // str(1.0e6_wp * counter(2) / max(counter(1), 1.0_wp), 'f0.1') // &
+        " us per operation, " // str(nint(pieces_out(1))) // " pieces (" // &
+        str(pieces_out(2) / 1.0e6_wp, 'f0.2') // " MB, " // str(pieces_out(3), 'f0.3') // " s), collective " // &
+        str(1.0e6_wp * t_coll, 'f0.1') // " us" // new_line('a') // &
         "  wall time           " // str(t_total, 'f0.2') // " s (samples " // str(t_compute, 'f0.2') // &
-        " s, assembly " // str(t_asm, 'f0.2') // " s)" // new_line('a') // &
+        " s, assembly " // str(t_asm, 'f0.2') // " s: read " // str(totals%t_read, 'f0.2') // ", dictionary " // &
+        str(totals%t_dict, 'f0.2') // ", write " // str(totals%t_write, 'f0.2') // ", header " // &
+        str(totals%t_seal, 'f0.2') // ")" // new_line('a') // &
         "  non-converged steps " // str(totals%nonconverged_steps) // " in " // str(totals%nonconverged_samples) // &
         " samples (largest KKT residual " // str(totals%kkt_max) // ")" // new_line('a') // &
         "  contact dictionary  " // str(totals%n_dict) // " contacts, " // str(totals%nnz) // " stored multipliers"
@@ -335,6 +351,22 @@ contains
       call js%add("wall_time", t_total)
       call js%add("wall_time_samples", t_compute)
       call js%add("wall_time_assembly", t_asm)
+      call js%add("busy_time_efficiency", eff_total)
+      call js%add("busy_time_efficiency_sample_loop", eff_compute)
+      call js%add("wall_time_setup", t_setup)
+      call js%add("assembly_start", t_asm_start)
+      call js%add("counter_operations", nint(counter(1)))
+      call js%add("counter_latency_mean", counter(2) / max(counter(1), 1.0_wp))
+      call js%add("collective_latency", t_coll)
+      call js%add("pieces_written", nint(pieces_out(1)))
+      call js%add("piece_bytes_written", pieces_out(2))
+      call js%add("piece_write_time", pieces_out(3))
+      call js%add("assembly_read_time", totals%t_read)
+      call js%add("assembly_read_bytes", totals%bytes_read)
+      call js%add("assembly_dictionary_time", totals%t_dict)
+      call js%add("assembly_write_time", totals%t_write)
+      call js%add("assembly_header_time", totals%t_seal)
+      call js%add("batch_seconds", merge(cli%batch_seconds, 2.0_wp, cli%batch_seconds >= 0))
       call js%add("nonconverged_steps", totals%nonconverged_steps)
       call js%add("nonconverged_samples", totals%nonconverged_samples)
       call js%add("largest_kkt_residual", totals%kkt_max)

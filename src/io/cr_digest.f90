@@ -171,18 +171,34 @@ contains
     d%s2 = fold(a%s2 + b%s2)
   end function digest_add
 
-  !> Collective: the sum of every rank's part (each rank gets the digest of the whole).
+  !> Collective: the sum of every rank's parts (each rank gets the digests of the wholes), for
+  !> one digest or several at once (one MPI_Allreduce).
   subroutine digest_allreduce(env, d)
     type(env_t), intent(in) :: env
-    type(digest_t), intent(inout) :: d
-    integer(i8) :: s(2)
-    integer :: ierr
+    type(digest_t), intent(inout) :: d(..)
+    integer(i8), allocatable :: s(:)
+    integer :: ierr, k, n
     if (env%size == 1) return
-    s = [d%s1, d%s2]
+    select rank (d)
+    rank (0)
+      s = [d%s1, d%s2]
+    rank (1)
+      n = size(d)
+      allocate(s(2 * n))
+      do k = 1, n
+        s(2 * k - 1) = d(k)%s1; s(2 * k) = d(k)%s2
+      end do
+    end select
     ! at most 2^31 ranks of residues < 2^31: no overflow
-    call MPI_Allreduce(MPI_IN_PLACE, s, 2, MPI_INTEGER8, MPI_SUM, env%comm, ierr)
-    d%s1 = fold(s(1))
-    d%s2 = fold(s(2))
+    call MPI_Allreduce(MPI_IN_PLACE, s, size(s), MPI_INTEGER8, MPI_SUM, env%comm, ierr)
+    select rank (d)
+    rank (0)
+      d%s1 = fold(s(1)); d%s2 = fold(s(2))
+    rank (1)
+      do k = 1, size(d)
+        d(k)%s1 = fold(s(2 * k - 1)); d(k)%s2 = fold(s(2 * k))
+      end do
+    end select
   end subroutine digest_allreduce
 
   !> 16 lower-case hex digits.

@@ -58,6 +58,10 @@ module cr_piece_store
     integer, allocatable :: g(:)
     !> pieces written so far: [n_1, g_1 .. g_n1, n_2, ...] (for piece_index_t%add_written)
     integer, allocatable :: written(:)
+    !> pieces written, their data bytes and the wall time spent writing them (s)
+    integer :: n_pieces = 0
+    integer(i8) :: bytes_written = 0
+    real(wp) :: t_write = 0
   contains
     procedure :: init => batch_init
     procedure :: add => batch_add
@@ -470,10 +474,15 @@ contains
     type(sample_set_t), intent(in) :: sets(2)
     type(error_t), allocatable, intent(out) :: error
     integer :: is, k
+    real(wp) :: t0
     if (this%n == 0) return
     call set_of_sample(sets, this%g(1), is, k)
+    t0 = MPI_Wtime()
     call write_piece(piece_path(this%dir, sets(is)%name, k), this%hash, this%res(1:this%n), error)
     if (allocated(error)) return
+    this%t_write = this%t_write + (MPI_Wtime() - t0)
+    this%n_pieces = this%n_pieces + 1
+    this%bytes_written = this%bytes_written + this%bytes
     this%written = [this%written, this%n, this%g(1:this%n)]
     this%n = 0
     this%bytes = 0

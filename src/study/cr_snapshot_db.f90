@@ -51,6 +51,11 @@ module cr_snapshot_db
     integer :: n_dict = 0, nonconverged_steps = 0, nonconverged_samples = 0
     integer(i8) :: nnz = 0
     real(wp) :: kkt_max = 0, time_sum = 0, time_max = 0
+    !> wall time of the assembly's phases on rank 0 (s): reading and checking this rank's pieces,
+    !> contact dictionary, parallel data writes (create, write, close), serial header/checksums
+    real(wp) :: t_read = 0, t_dict = 0, t_write = 0, t_seal = 0
+    !> bytes of piece data read by all ranks
+    real(wp) :: bytes_read = 0
   end type db_totals_t
 
   !> The samples of one set held by this rank (a contiguous block).
@@ -143,12 +148,14 @@ contains
     type(digest_t), allocatable :: dvals(:)
     integer :: nd_noted
     logical :: closed
+    real(wp) :: tph
     integer :: is, k, ierr, bad, n_train, n_valid, g, p, j, c, k0
     n_train = samples(1)%n; n_valid = samples(2)%n
     sets(1)%name = samples(1)%name; sets(1)%n = n_train
     sets(2)%name = samples(2)%name; sets(2)%n = n_valid
     ! 1. this rank's samples: those of the pieces it owns (the pieces it wrote, or was given
     !    among those of earlier runs); checksums, finiteness and identity verified again
+    tph = MPI_Wtime()
     msg = ""
     nd_noted = 0
     closed = .false.
@@ -201,9 +208,18 @@ contains
     end do
     call collective_error(env, msg, error)
     if (allocated(error)) return
+    do is = 1, 2
+      do k = 1, sets(is)%nloc
+        totals%bytes_read = totals%bytes_read + 8.0_wp * (size(sets(is)%s(k)%q) + size(sets(is)%s(k)%u) + &
+          size(sets(is)%s(k)%v) + 2 * size(sets(is)%s(k)%value))
+      end do
+    end do
+    totals%bytes_read = env%sum_real(totals%bytes_read)
+    totals%t_read = MPI_Wtime() - tph
     ! 2. the global contact dictionary
     call build_dictionary(env, sets, dkey, dia, dib, dob)
     totals%n_dict = size(dkey)
+    totals%t_dict = MPI_Wtime() - tph - totals%t_read
     ! 3. the file
     call h5%create(path, error, env=env)
     if (allocated(error)) return
@@ -215,7 +231,10 @@ contains
       ! checksums and complete = 1 (last) are added by rank 0 alone, serially, before the rename
       closed = .true.
       call h5%close(error); if (allocated(error)) exit ops
+      call digest_allreduce(env, dvals(1:nd_noted))
+      totals%t_write = MPI_Wtime() - tph - totals%t_read - totals%t_dict
       call seal_file(error)
+      totals%t_seal = MPI_Wtime() - tph - totals%t_read - totals%t_dict - totals%t_write
     end block ops
     if (allocated(error) .and. closed) then
       call MPI_Barrier(env%comm, ierr)
@@ -574,16 +593,14 @@ contains
       end do
     end function sample_digest_i1
 
-    !> Collective: the digest of a dataset from every rank's part, noted for its checksum
-    !> (`error` is kept for the call pattern; the checksum is written by seal_file).
+    !> This rank's part of the digest of a dataset, noted for its checksum (the parts are summed
+    !> over the ranks in one MPI_Allreduce and written by seal_file; `error` keeps the call
+    !> pattern of the writes).
     subroutine seal(name, d, error)
       character(len=*), intent(in) :: name
       type(digest_t), intent(in) :: d
       type(error_t), allocatable, intent(out) :: error
-      type(digest_t) :: dd
-      dd = d
-      call digest_allreduce(env, dd)
-      call note(name, dd)
+      call note(name, d)
     end subroutine seal
   end subroutine assemble_database
 
