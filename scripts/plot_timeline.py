@@ -68,7 +68,7 @@ def main():
         for s in ("train", "valid"):
             m = (rank == r) & (sets == s)
             ax.broken_barh(list(zip(start[m], time[m])), (r - 0.4, 0.8), facecolors=colors[s],
-                           edgecolor="k", linewidth=0.2, label=s if r == 0 else None)
+                           edgecolor="none", label=s if r == 0 else None)
         ax.broken_barh([(0.0, setup)], (r - 0.4, 0.8), facecolors="0.8", label="setup" if r == 0 else None)
         ax.broken_barh([(asm0, wall - asm0)], (r - 0.4, 0.8), facecolors="tab:green",
                        label="assembly" if r == 0 else None)
@@ -79,7 +79,7 @@ def main():
     eff = js.get("busy_time_efficiency", js.get("parallel_efficiency"))
     ax.set_title(a.title or "%s: %d samples on %d ranks, busy-time efficiency %.2f, load balance %.3f" % (
         os.path.basename(a.database), len(start), p, eff, js["load_balance"]))
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.25 if p > 2 else -0.45), ncol=4, fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=8)
     fig.tight_layout()
     tmp = a.out + ".partial.png"
     fig.savefig(tmp, dpi=120)
