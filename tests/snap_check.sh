@@ -6,7 +6,8 @@
 #   snap_check.sh mismatch BIN INPUT OTHER      OTHER (another configuration) must refuse INPUT's database
 #   snap_check.sh corrupt BIN INPUT PYTHON      corrupted pieces (bytes over velocities / lambda_value,
 #                                               velocities * 1.001, a piece copied under another
-#                                               sample's name, NaN) are refused by name; then
+#                                               sample's name, empty, truncated, NaN) are refused by
+#                                               name; then
 #                                               --quarantine-bad-pieces moves them aside and recomputes
 # The database name is &study database = 'snap_tiny.h5' (snap_kill.h5 for kill_resume).
 # Snapshots are compared bitwise with h5diff (data and attributes), except the per-sample
@@ -150,6 +151,10 @@ sys.exit(1)") || fail "no piece with multipliers to corrupt"
   expect_refused scaled "piece '$P/train_000004.h5' \\(train sample 4\\): checksum mismatch in dataset 'velocities'"
   cp $P/train_000003.h5 $P/train_000005.h5
   expect_refused renamed "piece '$P/train_000005.h5' holds train sample 3 where train sample 5 belongs"
+  : > $P/train_000003.h5
+  expect_refused empty "piece '$P/train_000003.h5'.*not an HDF5 file \\(unreadable or incomplete piece\\)"
+  head -c 2000 pristine/train_000003.h5 > $P/train_000003.h5
+  expect_refused truncated "piece '$P/train_000003.h5'.*\\(unreadable or incomplete piece\\)"
   "$py" "$here/snap_corrupt.py" nan $P/train_000006.h5 velocities || fail "corrupt (nan)"
   expect_refused nan "piece '$P/train_000006.h5' \\(train sample 6\\): dataset 'velocities' holds a non-finite value"
   # several bad pieces at once, all named; --quarantine-bad-pieces moves them aside and the run

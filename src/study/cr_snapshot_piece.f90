@@ -336,7 +336,9 @@ contains
     hash = ""
     allocate(sets(0), idx(0))
     call h5%open(path, error)
-    if (allocated(error)) return
+    if (allocated(error)) then
+      call prefix_error(error, "piece '" // path // "'"); return
+    end if
     ops: block
       call h5%read_attr("/", "schema", schema, error); if (allocated(error)) exit ops
       if (schema /= PIECE_SCHEMA) then
