@@ -11,6 +11,7 @@ module cr_offline_data
   use cr_config, only: config_t
   use cr_scene, only: scene_t
   use cr_h5file, only: h5file_t
+  use cr_digest, only: digest_of, check_digest, check_digest_parts
   use cr_distribution, only: block_range
   use cr_cone, only: sparse_columns_t
   implicit none
@@ -47,7 +48,7 @@ contains
     type(error_t), allocatable, intent(out) :: error
     type(h5file_t) :: h5
     type(error_t), allocatable :: e2
-    character(len=:), allocatable :: schema
+    character(len=:), allocatable :: schema, w
     integer(i8), allocatable :: off(:)
     integer, allocatable :: idx(:)
     real(wp), allocatable :: val(:), pos(:,:), params(:,:)
@@ -90,6 +91,14 @@ contains
     call h5%read_block("train/positions", pos, data%s0 * (nt + 1), error); if (allocated(error)) goto 9
     allocate(data%v(data%n_dof, data%ns * nt))
     call h5%read_block("train/desired", data%v, data%s0 * nt, error); if (allocated(error)) goto 9
+    ! checksums of what was read (each rank its blocks; together the whole datasets)
+    w = "&offline: database '" // path // "'"
+    call check_digest_parts(h5, env, "train/velocities", digest_of(data%u, int(data%s0, i8) * nt * data%n_dof), &
+      w, error); if (allocated(error)) goto 9
+    call check_digest_parts(h5, env, "train/positions", digest_of(pos, int(data%s0, i8) * (nt + 1) * data%n_dof), &
+      w, error); if (allocated(error)) goto 9
+    call check_digest_parts(h5, env, "train/desired", digest_of(data%v, int(data%s0, i8) * nt * data%n_dof), &
+      w, error); if (allocated(error)) goto 9
     allocate(data%q(data%n_dof, data%ns * nt))
     do k = 1, data%ns
       do nu = 1, nt
@@ -104,6 +113,12 @@ contains
     call h5%read("train/lambda_offset", off, error); if (allocated(error)) goto 9
     call h5%read("train/lambda_index", idx, error); if (allocated(error)) goto 9
     call h5%read("train/lambda_value", val, error); if (allocated(error)) goto 9
+    call check_digest(h5, "contacts/ia", digest_of(data%dict_ia, 0_i8), w, error); if (allocated(error)) goto 9
+    call check_digest(h5, "contacts/ib", digest_of(data%dict_ib, 0_i8), w, error); if (allocated(error)) goto 9
+    call check_digest(h5, "contacts/ob", digest_of(data%dict_ob, 0_i8), w, error); if (allocated(error)) goto 9
+    call check_digest(h5, "train/lambda_offset", digest_of(off, 0_i8), w, error); if (allocated(error)) goto 9
+    call check_digest(h5, "train/lambda_index", digest_of(idx, 0_i8), w, error); if (allocated(error)) goto 9
+    call check_digest(h5, "train/lambda_value", digest_of(val, 0_i8), w, error); if (allocated(error)) goto 9
     data%lam%n_rows = data%n_dict
     data%lam%n_cols = data%ns * nt
     data%lam%col_offset = int(data%s0, i8) * nt
@@ -119,6 +134,7 @@ contains
     end do
     ! one scene per local sample (l_exit may be a parameter)
     call h5%read("train/params", params, error); if (allocated(error)) goto 9
+    call check_digest(h5, "train/params", digest_of(params, 0_i8), w, error); if (allocated(error)) goto 9
     il = index("," // data%param_names // ",", ",l_exit,")
     allocate(data%scenes(max(data%ns, 1)), data%scene_of(data%ns * nt))
     do k = 1, data%ns
