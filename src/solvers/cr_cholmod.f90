@@ -32,6 +32,7 @@ module cr_cholmod
     procedure :: rowdel => chol_rowdel
     procedure :: solve => chol_solve
     procedure :: factor_nnz => chol_factor_nnz
+    procedure :: min_pivot => chol_min_pivot
   end type chol_t
 
   interface
@@ -94,6 +95,10 @@ module cr_cholmod
       real(c_double), intent(in) :: b(*)
       real(c_double), intent(out) :: x(*)
     end function c_solve
+    real(c_double) function c_min_pivot(h) bind(C, name='cr_chol_min_pivot')
+      import :: c_ptr, c_double
+      type(c_ptr), value :: h
+    end function c_min_pivot
     integer(c_long) function c_factor_nnz(h) bind(C, name='cr_chol_factor_nnz')
       import :: c_ptr, c_long
       type(c_ptr), value :: h
@@ -227,6 +232,12 @@ contains
     rc = c_solve(this%h, b, x)
     if (rc /= 0) call shim_error(this, "solve", rc, error)
   end subroutine chol_solve
+
+  !> Smallest pivot D(i,i) over the active rows (NaN-safe: a NaN pivot is returned as is).
+  real(wp) function chol_min_pivot(this) result(d)
+    class(chol_t), intent(in) :: this
+    d = real(c_min_pivot(this%h), wp)
+  end function chol_min_pivot
 
   !> Stored entries of the current factor.
   integer function chol_factor_nnz(this) result(nnz)

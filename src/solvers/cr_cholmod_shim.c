@@ -185,6 +185,18 @@ int cr_chol_rowadd(void *hp, int t, int nz, const int *idx, const double *val, d
   return 0;
 }
 
+/* Smallest pivot D(i,i) over the active rows (1 when none is active). */
+double cr_chol_min_pivot(void *hp) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  int j, *lp, *p;
+  double *lx, d = 1.0;
+  if (!h->l) return 0.0;
+  lp = (int *)h->l->p; lx = (double *)h->l->x; p = (int *)h->l->Perm;
+  for (j = 0; j < h->n; j++)
+    if (h->active[p[j]] && !(lx[lp[j]] >= d)) d = lx[lp[j]];
+  return d;
+}
+
 /* Delete row/column t (0-based) from the factor (it becomes an identity row). */
 int cr_chol_rowdel(void *hp, int t) {
   cr_chol_t *h = (cr_chol_t *)hp;

@@ -5,6 +5,7 @@
 !> make_projection_solver builds one from its name (the factory lives in the submodule
 !> cr_projection_factory so that this module does not depend on the variants).
 module cr_projection
+  use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
@@ -158,6 +159,9 @@ contains
     type(solve_stats_t), intent(inout) :: stats
     call kkt_residuals(cs, v, u, lambda(1:cs%n), stats%primal, stats%dual, stats%compl, stats%stat)
     stats%kkt = max(stats%primal, stats%dual, stats%compl, stats%stat)
+    ! a NaN residual must not hide behind max()
+    if (stats%primal /= stats%primal .or. stats%dual /= stats%dual .or. stats%compl /= stats%compl &
+        .or. stats%stat /= stats%stat) stats%kkt = ieee_value(1.0_wp, ieee_quiet_nan)
     if (.not. allocated(stats%note)) stats%note = ""
     if (stats%converged .and. stats%kkt > tol) then
       call add_note(stats, "stopping test met but KKT residual " // str(stats%kkt, "es9.2") // &

@@ -53,13 +53,15 @@ module cr_sparse_as
     logical :: check_drift = .false.
     !> more violated rows than max(bulk_min, k / bulk_div) enter by refactorisation
     integer :: bulk_min = 24, bulk_div = 4
+    !> at most this many primal-dual active-set sweeps before the monotone loop
+    integer :: pdas_max = 0
     !> rows: normalised coefficients [2, m], norms, rhs, B v - d, multipliers, slacks, minimiser
     real(wp), allocatable :: c(:,:), rn(:), dd(:), cc(:), lam(:), slack(:), z(:), rhs(:), piv(:)
     real(wp), allocatable :: w(:)
     !> multipliers on entry (original units), for the safe path [m]
     real(wp), allocatable :: l0(:)
     logical, allocatable :: act(:), refused(:), newact(:)
-    integer, allocatable :: viol(:)
+    integer, allocatable :: viol(:), rem(:)
     !> rows of each agent (CSR) [n_agents + 1], [2 m]
     integer, allocatable :: astart(:), arows(:)
     !> M = B B^T, full symmetric CSC [m + 1], [nnz] and its upper triangle
@@ -198,7 +200,7 @@ contains
       call rgrow(this%l0, m)
       this%l0(1:m) = lambda(1:m)
       call lgrow(this%act, m); call lgrow(this%refused, m); call lgrow(this%newact, m)
-      call igrow(this%viol, m); call igrow(this%mark, m)
+      call igrow(this%viol, m); call igrow(this%rem, m); call igrow(this%mark, m)
       call rgrow(this%uu, 2 * na)
       if (allocated(this%c)) then
         if (size(this%c, 2) < m) deallocate(this%c)
@@ -312,7 +314,7 @@ contains
     !> (non-empty) when the safe path must take over.
     subroutine run(why)
       character(len=:), allocatable, intent(inout) :: why
-      integer :: q, pmin, nadd, ntry, n_ref
+      integer :: q, pmin, nadd, ntry, n_ref, nrem
       integer, parameter :: n_refine = 3
       real(wp) :: pivot, tau, xmax, r, r_ref
       why = ""
@@ -357,8 +359,84 @@ contains
       end if
       this%refused(1:m) = .false.
 
-      ! ---- main loop
+      ! ---- primal-dual active-set sweeps (semismooth Newton on the dual): all violated rows
+      ! enter and all rows with a non-positive minimiser leave at once. Not monotone, so at
+      ! most pdas_max sweeps; a dependent pivot ends them. The block Lawson-Hanson loop below
+      ! then finishes from lambda = z > 0 on P (usually with nothing left to do).
       it = 0
+      sweeps: do ntry = 1, this%pdas_max
+        ! lambda = z on P (signs unrestricted), then the slacks it gives
+        call solve_p(); if (allocated(error)) return
+        do j = 1, m
+          this%lam(j) = merge(this%z(j), 0.0_wp, this%act(j))
+        end do
+        call slacks()
+        nv = 0; nrem = 0
+        do j = 1, m
+          if (this%act(j)) then
+            if (this%z(j) <= 0.0_wp) then
+              nrem = nrem + 1; this%rem(nrem) = j
+            end if
+          else if (this%slack(j) < -thr) then
+            nv = nv + 1; this%viol(nv) = j
+          end if
+        end do
+        if (nv == 0 .and. nrem == 0) exit sweeps
+        it = it + 1
+        stats%iterations = stats%iterations + 1
+        k = count(this%act(1:m))
+        this%newact(1:m) = this%act(1:m)
+        this%newact(this%viol(1:nv)) = .true.
+        this%newact(this%rem(1:nrem)) = .false.
+        if (nv + nrem > max(this%bulk_min, k / this%bulk_div)) then
+          call this%chol%factor(this%newact(1:m), error); if (allocated(error)) return
+          call this%chol%pivots(this%piv(1:m), error); if (allocated(error)) return
+          bad = .false.
+          do j = 1, m
+            if (this%newact(j) .and. .not. (this%piv(j) > dep_tol)) bad = .true.
+          end do
+          if (bad) then
+            call this%chol%factor(this%act(1:m), error); if (allocated(error)) return
+            exit sweeps
+          end if
+          this%act(1:m) = this%newact(1:m)
+        else
+          do q = 1, nrem
+            call this%chol%rowdel(this%rem(q), error); if (allocated(error)) return
+            this%act(this%rem(q)) = .false.
+          end do
+          do q = 1, nv
+            t = this%viol(q)
+            call this%chol%rowadd(t, this%fi(this%fp(t):this%fp(t + 1) - 1), &
+              this%fv(this%fp(t):this%fp(t + 1) - 1), pivot, error)
+            if (allocated(error)) return
+            this%act(t) = .true.
+            if (.not. (pivot > dep_tol)) then
+              ! dependent: the rank-2 update is unreliable; refactorise without it and stop
+              this%act(t) = .false.
+              call this%chol%factor(this%act(1:m), error); if (allocated(error)) return
+              exit sweeps
+            end if
+          end do
+        end if
+      end do sweeps
+      ! back to the invariant of the monotone loop: lambda = z > 0 on P
+      do
+        call solve_p(); if (allocated(error)) return
+        nv = 0
+        do j = 1, m
+          if (this%act(j) .and. this%z(j) <= 0.0_wp) then
+            nv = nv + 1; this%viol(nv) = j
+          end if
+        end do
+        if (nv == 0) exit
+        call remove_rows(nv); if (allocated(error)) return
+      end do
+      do j = 1, m
+        this%lam(j) = merge(this%z(j), 0.0_wp, this%act(j))
+      end do
+
+      ! ---- main loop (block Lawson-Hanson)
       itmax = min(this%settings%max_iter, 10 * m + 100)
       n_ref = 0; r_ref = huge(1.0_wp)
       outer: do
@@ -452,7 +530,7 @@ contains
           end do
           this%refused(t) = .false.
           ! alpha = M_P^{-1} B_P b_t (this%w, left by add_row)
-          call add_row(t, pivot); if (allocated(error)) return
+          call add_row(t, pivot, precheck=.true.); if (allocated(error)) return
           if (this%act(t)) then
             call step_back(); if (allocated(error)) return
             if (len(why) > 0) return
@@ -481,7 +559,8 @@ contains
           this%lam(pmin) = 0.0_wp
           call this%chol%rowdel(pmin, error); if (allocated(error)) return
           this%act(pmin) = .false.
-          call add_row(t, pivot, 1.0e3_wp * epsilon(1.0_wp)); if (allocated(error)) return
+          call add_row(t, pivot, 1.0e3_wp * epsilon(1.0_wp), precheck=.true.)
+          if (allocated(error)) return
           if (this%act(t)) then
             this%lam(t) = tau
           else
@@ -582,33 +661,51 @@ contains
     !> Row tt enters the factor unless dependent on P: pivot = 1 - w^T M_P^{-1} w (w = M(P, tt),
     !> alpha = M_P^{-1} w left in this%w) is checked before the addition (a near-zero pivot would
     !> spoil the rank-2 update of the trailing factor); pivot is then the factor's new D(tt,tt).
-    subroutine add_row(tt, pivot, min_pivot)
+    subroutine add_row(tt, pivot, min_pivot, precheck)
       integer, intent(in) :: tt
       real(wp), intent(out) :: pivot
       !> relative pivot below which tt counts as dependent (default dep_tol)
       real(wp), intent(in), optional :: min_pivot
+      !> test the pivot by a solve before the addition (default; leaves alpha in this%w);
+      !> otherwise the row is added and, when its pivot or a later one became too small, the
+      !> factor is rebuilt without it (cheaper when rows are rarely dependent)
+      logical, intent(in), optional :: precheck
       integer :: q1, q2, q
       real(wp) :: s, dtt, pmin_rel
-      q1 = this%fp(tt); q2 = this%fp(tt + 1) - 1
-      this%rhs(1:m) = 0.0_wp
-      dtt = 0.0_wp
-      do q = q1, q2
-        if (this%act(this%fi(q))) this%rhs(this%fi(q)) = this%fv(q)
-        if (this%fi(q) == tt) dtt = this%fv(q)
-      end do
-      call this%chol%solve(this%rhs(1:m), this%w(1:m), error)
-      if (allocated(error)) return
-      s = 0.0_wp
-      do q = q1, q2
-        if (this%act(this%fi(q))) s = s + this%fv(q) * this%w(this%fi(q))
-      end do
-      pivot = dtt - s
+      logical :: pre
+      pre = .true.
+      if (present(precheck)) pre = precheck
       pmin_rel = dep_tol
       if (present(min_pivot)) pmin_rel = min_pivot
-      if (.not. (pivot > pmin_rel * dtt)) return
+      q1 = this%fp(tt); q2 = this%fp(tt + 1) - 1
+      dtt = 0.0_wp
+      do q = q1, q2
+        if (this%fi(q) == tt) dtt = this%fv(q)
+      end do
+      if (pre) then
+        this%rhs(1:m) = 0.0_wp
+        do q = q1, q2
+          if (this%act(this%fi(q))) this%rhs(this%fi(q)) = this%fv(q)
+        end do
+        call this%chol%solve(this%rhs(1:m), this%w(1:m), error)
+        if (allocated(error)) return
+        s = 0.0_wp
+        do q = q1, q2
+          if (this%act(this%fi(q))) s = s + this%fv(q) * this%w(this%fi(q))
+        end do
+        pivot = dtt - s
+        if (.not. (pivot > pmin_rel * dtt)) return
+      end if
       call this%chol%rowadd(tt, this%fi(q1:q2), this%fv(q1:q2), pivot, error)
       if (allocated(error)) return
       this%act(tt) = .true.
+      ! the addition also lowers the later pivots: if any became tiny, tt depends on P
+      if (.not. pre) pivot = min(pivot, this%chol%min_pivot())
+      if (.not. (pivot > pmin_rel * dtt)) then
+        ! dependent row: the rank-2 update of the trailing factor is unreliable, rebuild
+        this%act(tt) = .false.
+        call this%chol%factor(this%act(1:m), error)
+      end if
     end subroutine add_row
 
     !> z = (B_P B_P^T)^{-1} (B v - d)_P (zero off P).
