@@ -54,7 +54,10 @@ module cr_sparse_as
     !> more violated rows than max(bulk_min, k / bulk_div) enter by refactorisation
     integer :: bulk_min = 24, bulk_div = 4
     !> at most this many primal-dual active-set sweeps before the monotone loop
-    integer :: pdas_max = 0
+    integer :: pdas_max = 30
+    !> the sweeps are used on problems with at least this many rows (on small ones the
+    !> monotone loop with factor updates is cheaper)
+    integer :: pdas_rows = 2000
     !> rows: normalised coefficients [2, m], norms, rhs, B v - d, multipliers, slacks, minimiser
     real(wp), allocatable :: c(:,:), rn(:), dd(:), cc(:), lam(:), slack(:), z(:), rhs(:), piv(:)
     real(wp), allocatable :: w(:)
@@ -364,7 +367,7 @@ contains
       ! most pdas_max sweeps; a dependent pivot ends them. The block Lawson-Hanson loop below
       ! then finishes from lambda = z > 0 on P (usually with nothing left to do).
       it = 0
-      sweeps: do ntry = 1, this%pdas_max
+      sweeps: do ntry = 1, merge(this%pdas_max, 0, m >= this%pdas_rows)
         ! lambda = z on P (signs unrestricted), then the slacks it gives
         call solve_p(); if (allocated(error)) return
         do j = 1, m
@@ -391,9 +394,18 @@ contains
         if (nv + nrem > max(this%bulk_min, k / this%bulk_div)) then
           call this%chol%factor(this%newact(1:m), error); if (allocated(error)) return
           call this%chol%pivots(this%piv(1:m), error); if (allocated(error)) return
-          bad = .false.
-          do j = 1, m
-            if (this%newact(j) .and. .not. (this%piv(j) > dep_tol)) bad = .true.
+          ! rows with a dependent pivot stay out (sweeps are heuristic; the monotone loop
+          ! below settles them); refactorise without them
+          do q = 1, 3
+            bad = .false.
+            do j = 1, m
+              if (this%newact(j) .and. .not. (this%piv(j) > dep_tol)) then
+                this%newact(j) = .false.; bad = .true.
+              end if
+            end do
+            if (.not. bad) exit
+            call this%chol%factor(this%newact(1:m), error); if (allocated(error)) return
+            call this%chol%pivots(this%piv(1:m), error); if (allocated(error)) return
           end do
           if (bad) then
             call this%chol%factor(this%act(1:m), error); if (allocated(error)) return
