@@ -33,6 +33,7 @@ module cr_cholmod
     procedure :: solve => chol_solve
     procedure :: factor_nnz => chol_factor_nnz
     procedure :: min_pivot => chol_min_pivot
+    procedure :: schur => chol_schur
   end type chol_t
 
   interface
@@ -95,6 +96,14 @@ module cr_cholmod
       real(c_double), intent(in) :: b(*)
       real(c_double), intent(out) :: x(*)
     end function c_solve
+    integer(c_int) function c_schur(h, t, nz, idx, val, s) bind(C, name='cr_chol_schur')
+      import :: c_ptr, c_int, c_double
+      type(c_ptr), value :: h
+      integer(c_int), value :: t, nz
+      integer(c_int), intent(in) :: idx(*)
+      real(c_double), intent(in) :: val(*)
+      real(c_double), intent(out) :: s
+    end function c_schur
     real(c_double) function c_min_pivot(h) bind(C, name='cr_chol_min_pivot')
       import :: c_ptr, c_double
       type(c_ptr), value :: h
@@ -232,6 +241,20 @@ contains
     rc = c_solve(this%h, b, x)
     if (rc /= 0) call shim_error(this, "solve", rc, error)
   end subroutine chol_solve
+
+  !> s = w^T A_P^{-1} w for w = M(P, t) given by its entries idx, val [nz] (entries off the
+  !> active rows and t itself are ignored): row t's pivot would be M(t,t) - s.
+  subroutine chol_schur(this, t, idx, val, s, error)
+    class(chol_t), intent(inout) :: this
+    integer, intent(in) :: t
+    integer, intent(in) :: idx(:)
+    real(wp), intent(in) :: val(:)
+    real(wp), intent(out) :: s
+    type(error_t), allocatable, intent(out) :: error
+    integer(c_int) :: rc
+    rc = c_schur(this%h, int(t - 1, c_int), int(size(idx), c_int), int(idx - 1, c_int), val, s)
+    if (rc /= 0) call shim_error(this, "schur", rc, error)
+  end subroutine chol_schur
 
   !> Smallest pivot D(i,i) over the active rows (NaN-safe: a NaN pivot is returned as is).
   real(wp) function chol_min_pivot(this) result(d)

@@ -26,6 +26,7 @@ typedef struct {
   cholmod_dense *b, *x, *y, *e;  /* solve: right-hand side, solution, workspace */
   int *iperm;             /* position of each row in the factor [n] */
   int *active;            /* current active flags [n] */
+  double *yw;             /* zero work vector of the Schur-complement test [n] */
   char msg[256];
 } cr_chol_t;
 
@@ -46,6 +47,7 @@ static void release(cr_chol_t *h) {
   if (h->e) cholmod_free_dense(&h->e, &h->c);
   free(h->iperm); h->iperm = NULL;
   free(h->active); h->active = NULL;
+  free(h->yw); h->yw = NULL;
   h->n = 0;
 }
 
@@ -105,7 +107,8 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
   if (!h->sym || h->c.status < CHOLMOD_OK) return fail(h, 4, "analyze");
   h->iperm = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
   h->active = calloc((size_t)(n > 0 ? n : 1), sizeof(int));
-  if (!h->iperm || !h->active) { snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5; }
+  h->yw = calloc((size_t)(n > 0 ? n : 1), sizeof(double));
+  if (!h->iperm || !h->active || !h->yw) { snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5; }
   p = (int *)h->sym->Perm; ip = h->iperm;
   for (j = 0; j < n; j++) ip[p[j]] = j;
   h->r = cholmod_allocate_sparse(n, 1, n > 0 ? n : 1, 1, 1, 0, CHOLMOD_REAL, &h->c);
@@ -182,6 +185,34 @@ int cr_chol_rowadd(void *hp, int t, int nz, const int *idx, const double *val, d
   h->active[t] = 1;
   lp = (int *)h->l->p;
   *pivot = ((double *)h->l->x)[lp[k]];
+  return 0;
+}
+
+/* s = w' A^{-1} w for the column w = (idx[q], val[q]), q < nz, restricted to the active rows
+ * other than t: the part of M(t,t) that the active rows explain (the pivot row t would get is
+ * M(t,t) - s). One sparse forward solve y = L^{-1} P w, s = sum y_j^2 / D(j,j). */
+int cr_chol_schur(void *hp, int t, int nz, const int *idx, const double *val, double *s) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  int q, k, j, p, jmin, *lp, *li, *lnz;
+  double *lx, *y = h->yw, yj, acc = 0.0;
+  if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_schur without a factor"); return 21; }
+  lp = (int *)h->l->p; li = (int *)h->l->i; lnz = (int *)h->l->nz; lx = (double *)h->l->x;
+  jmin = h->n;
+  for (q = 0; q < nz; q++) {
+    k = idx[q];
+    if (k == t || !h->active[k]) continue;
+    p = h->iperm[k];
+    y[p] += val[q];
+    if (p < jmin) jmin = p;
+  }
+  for (j = jmin; j < h->n; j++) {
+    yj = y[j];
+    if (yj == 0.0) continue;
+    y[j] = 0.0;
+    acc += yj * yj / lx[lp[j]];
+    for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) y[li[p]] -= lx[p] * yj;
+  }
+  *s = acc;
   return 0;
 }
 

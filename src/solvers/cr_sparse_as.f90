@@ -542,7 +542,7 @@ contains
           end do
           this%refused(t) = .false.
           ! alpha = M_P^{-1} B_P b_t (this%w, left by add_row)
-          call add_row(t, pivot, precheck=.true.); if (allocated(error)) return
+          call add_row(t, pivot, precheck=.true., alpha=.true.); if (allocated(error)) return
           if (this%act(t)) then
             call step_back(); if (allocated(error)) return
             if (len(why) > 0) return
@@ -673,7 +673,7 @@ contains
     !> Row tt enters the factor unless dependent on P: pivot = 1 - w^T M_P^{-1} w (w = M(P, tt),
     !> alpha = M_P^{-1} w left in this%w) is checked before the addition (a near-zero pivot would
     !> spoil the rank-2 update of the trailing factor); pivot is then the factor's new D(tt,tt).
-    subroutine add_row(tt, pivot, min_pivot, precheck)
+    subroutine add_row(tt, pivot, min_pivot, precheck, alpha)
       integer, intent(in) :: tt
       real(wp), intent(out) :: pivot
       !> relative pivot below which tt counts as dependent (default dep_tol)
@@ -682,6 +682,9 @@ contains
       !> otherwise the row is added and, when its pivot or a later one became too small, the
       !> factor is rebuilt without it (cheaper when rows are rarely dependent)
       logical, intent(in), optional :: precheck
+      !> present: compute alpha = M_P^{-1} M(P, tt) into this%w by a full solve (the
+      !> exchange step needs it); otherwise the test is one sparse forward solve
+      logical, intent(in), optional :: alpha
       integer :: q1, q2, q
       real(wp) :: s, dtt, pmin_rel
       logical :: pre
@@ -695,16 +698,22 @@ contains
         if (this%fi(q) == tt) dtt = this%fv(q)
       end do
       if (pre) then
-        this%rhs(1:m) = 0.0_wp
-        do q = q1, q2
-          if (this%act(this%fi(q))) this%rhs(this%fi(q)) = this%fv(q)
-        end do
-        call this%chol%solve(this%rhs(1:m), this%w(1:m), error)
-        if (allocated(error)) return
-        s = 0.0_wp
-        do q = q1, q2
-          if (this%act(this%fi(q))) s = s + this%fv(q) * this%w(this%fi(q))
-        end do
+        if (present(alpha)) then
+          ! alpha = M_P^{-1} M(P, tt) in this%w (the exchange needs it)
+          this%rhs(1:m) = 0.0_wp
+          do q = q1, q2
+            if (this%act(this%fi(q))) this%rhs(this%fi(q)) = this%fv(q)
+          end do
+          call this%chol%solve(this%rhs(1:m), this%w(1:m), error)
+          if (allocated(error)) return
+          s = 0.0_wp
+          do q = q1, q2
+            if (this%act(this%fi(q))) s = s + this%fv(q) * this%w(this%fi(q))
+          end do
+        else
+          call this%chol%schur(tt, this%fi(q1:q2), this%fv(q1:q2), s, error)
+          if (allocated(error)) return
+        end if
         pivot = dtt - s
         if (.not. (pivot > pmin_rel * dtt)) return
       end if
