@@ -149,10 +149,11 @@ contains
 
   !> A long trajectory (agents pulled into a jam, contacts rebuilt every step, warm started by
   !> identity) with many active-set changes. With refresh_every = 7 the updated factor is
-  !> compared with a fresh factorisation every 7 modifications (stats%factor_drift: relative
-  !> difference of the minimiser on P). The solver trusts an updated factor while the drift
-  !> stays below sqrt(eps) (it refreshes long before that can matter: refresh_every and the
-  !> KKT check with a fresh refactorisation); the test checks the drift stays there and that
+  !> checked every 7 modifications before a fresh factorisation replaces it
+  !> (stats%factor_drift: backward error |M_P z - c_P| / (|M_P| |z| + |c_P|) of a solve with
+  !> the updated factor; a fresh factor gives about eps). The solver relies on updated factors
+  !> being backward stable to well within sqrt(eps) (the final iterative refinement and the KKT
+  !> check with a fresh refactorisation cover the rest); the test checks that bound and that
   !> every step agrees with active_set.
   subroutine test_drift()
     integer, parameter :: na = 144, nsteps = 60
@@ -214,10 +215,10 @@ contains
       deallocate(l, la)
     end do
     print '(2x,a,i0,a,i0,a,es9.2,a,es9.2)', "drift: ", nsteps, " steps, ", nmod, &
-      " factor modifications, largest drift ", drift, ", largest |u - u_active_set| ", du
+      " factor modifications, largest backward error of an updated factor ", drift, ", largest |u - u_active_set| ", du
     call check(nfail == 0, "drift: every step converged on the sparse path")
     call check(nmod > 5 * nsteps, "drift: many active-set changes")
-    call check(drift <= sqrt(epsilon(1.0_wp)), "drift: updated factor within sqrt(eps) of a fresh one")
+    call check(drift <= sqrt(epsilon(1.0_wp)), "drift: backward error of updated factors <= sqrt(eps)")
     call check(du <= 10.0_wp * s%tol, "drift: agrees with active_set on every step")
   end subroutine test_drift
 

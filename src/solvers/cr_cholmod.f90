@@ -34,6 +34,8 @@ module cr_cholmod
     procedure :: factor_nnz => chol_factor_nnz
     procedure :: min_pivot => chol_min_pivot
     procedure :: schur => chol_schur
+    procedure :: symbolic_nnz => chol_symbolic_nnz
+    procedure :: perm => chol_perm
   end type chol_t
 
   interface
@@ -104,6 +106,15 @@ module cr_cholmod
       real(c_double), intent(in) :: val(*)
       real(c_double), intent(out) :: s
     end function c_schur
+    real(c_double) function c_symbolic_nnz(h) bind(C, name='cr_chol_symbolic_nnz')
+      import :: c_ptr, c_double
+      type(c_ptr), value :: h
+    end function c_symbolic_nnz
+    integer(c_int) function c_perm(h, perm) bind(C, name='cr_chol_perm')
+      import :: c_ptr, c_int
+      type(c_ptr), value :: h
+      integer(c_int), intent(out) :: perm(*)
+    end function c_perm
     real(c_double) function c_min_pivot(h) bind(C, name='cr_chol_min_pivot')
       import :: c_ptr, c_double
       type(c_ptr), value :: h
@@ -255,6 +266,27 @@ contains
     rc = c_schur(this%h, int(t - 1, c_int), int(size(idx), c_int), int(idx - 1, c_int), val, s)
     if (rc /= 0) call shim_error(this, "schur", rc, error)
   end subroutine chol_schur
+
+  !> Predicted entries of the factor of the whole M (analysis).
+  real(wp) function chol_symbolic_nnz(this) result(s)
+    class(chol_t), intent(in) :: this
+    s = real(c_symbolic_nnz(this%h), wp)
+  end function chol_symbolic_nnz
+
+  !> The ordering in use, 1-based: perm(k) is the row at position k [n].
+  subroutine chol_perm(this, perm, error)
+    class(chol_t), intent(inout) :: this
+    integer, intent(out) :: perm(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer(c_int) :: rc
+    integer(c_int), allocatable :: p(:)
+    allocate(p(max(this%n, 1)))
+    rc = c_perm(this%h, p)
+    if (rc /= 0) then
+      call shim_error(this, "perm", rc, error); return
+    end if
+    perm(1:this%n) = int(p(1:this%n)) + 1
+  end subroutine chol_perm
 
   !> Smallest pivot D(i,i) over the active rows (NaN-safe: a NaN pivot is returned as is).
   real(wp) function chol_min_pivot(this) result(d)

@@ -117,6 +117,25 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
   return 0;
 }
 
+/* Predicted entries of the factor of the whole M (sum of the symbolic column counts). */
+double cr_chol_symbolic_nnz(void *hp) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  int j, *cc;
+  double s = 0.0;
+  if (!h->sym || !h->sym->ColCount) return 0.0;
+  cc = (int *)h->sym->ColCount;
+  for (j = 0; j < h->n; j++) s += cc[j];
+  return s;
+}
+
+/* The ordering in use: perm [n] (0-based, perm[k] = row at position k). */
+int cr_chol_perm(void *hp, int *perm) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  if (!h->sym) { snprintf(h->msg, sizeof h->msg, "cr_chol_perm before cr_chol_analyze"); return 22; }
+  memcpy(perm, h->sym->Perm, (size_t)h->n * sizeof(int));
+  return 0;
+}
+
 /* Factorise A = M on the rows with active[i] != 0, identity elsewhere (numeric refactorisation
  * on the stored analysis; the previous factor is discarded). */
 int cr_chol_factor(void *hp, const int *active) {

@@ -55,7 +55,8 @@ module cr_projection
     !> sparse_active_set: numeric factorisations, factor row additions + deletions, solves
     !> handed to the safe path (failed factorisation, dependent rows, iteration cap)
     integer :: n_factor = 0, n_modify = 0, n_fallback = 0
-    !> sparse_active_set: largest relative drift of an updated factor found at a refresh
+    !> sparse_active_set (check_drift): largest backward error of a solve with an updated
+    !> factor, measured before each refresh
     real(wp) :: factor_drift = 0.0_wp
     !> human-readable remarks (empty when nothing to say)
     character(len=:), allocatable :: note
