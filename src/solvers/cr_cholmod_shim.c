@@ -101,7 +101,7 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
     h->c.nmethods = 1; h->c.method[0].ordering = CHOLMOD_GIVEN; h->c.postorder = 0;
     h->sym = cholmod_analyze_p(h->m, (int *)perm, NULL, 0, &h->c);
   } else {
-    h->c.nmethods = 1; h->c.method[0].ordering = CHOLMOD_AMD; h->c.postorder = 1;
+    h->c.nmethods = 1; h->c.method[0].ordering = CHOLMOD_AMD; h->c.postorder = 0;
     h->sym = cholmod_analyze(h->m, &h->c);
   }
   if (!h->sym || h->c.status < CHOLMOD_OK) return fail(h, 4, "analyze");
