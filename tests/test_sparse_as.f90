@@ -35,10 +35,11 @@ contains
     class(projection_solver_t), allocatable :: sa
     type(sparse_as_solver_t) :: sp
     type(projection_settings_t) :: s
-    type(solve_stats_t) :: st, sta
+    type(solve_stats_t) :: st, sta, std
+    type(projection_settings_t) :: defaults
     type(error_t), allocatable :: err
-    real(wp), allocatable :: ua(:), us(:), la(:), ls(:)
-    allocate(ua(size(v)), us(size(v)), la(cs%n), ls(cs%n))
+    real(wp), allocatable :: ua(:), us(:), ud(:), la(:), ls(:)
+    allocate(ua(size(v)), us(size(v)), ud(size(v)), la(cs%n), ls(cs%n))
     s = projection_settings_t(); s%tol = tol; s%name = 'active_set'
     call make_projection_solver(s, sa, err)
     la = 0; ls = 0
@@ -52,6 +53,16 @@ contains
     call check(st%n_fallback == 0, name // ": sparse path, no fallback")
     call check(maxval(abs(us - ua)) <= 10.0_wp * tol * max(maxval(abs(v)), 1.0_wp), &
       name // ": same u as active_set")
+    ! the default split (small clusters to the dense kernel, the rest sparse): same u
+    s%dense_rows = defaults%dense_rows
+    call sp%free()
+    call sp%init(s, err)
+    ls = 0
+    call sp%solve(cs, v, ud, ls, std, err)
+    call check(.not. allocated(err) .and. std%converged .and. std%kkt <= tol, &
+      name // ": default dense_rows reaches tol")
+    call check(maxval(abs(ud - ua)) <= 10.0_wp * tol * max(maxval(abs(v)), 1.0_wp), &
+      name // ": default dense_rows, same u")
     print '(2x,a,": rows ",i0," active ",i0," it ",i0," fac ",i0," mod ",i0," kkt ",es9.2," |du| ",es9.2, 1x, a)', &
       name, cs%n, count(ls > 0), st%iterations, st%n_factor, st%n_modify, st%kkt, &
       maxval(abs(us - ua)) / maxval(abs(v)), st%note

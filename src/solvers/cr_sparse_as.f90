@@ -48,6 +48,12 @@ module cr_sparse_as
     type(chol_t) :: chol
     !> dense solver: tiny problems and the safe path
     type(active_set_solver_t) :: dense
+    !> clusters of the contact graph: union-find parents [n_agents], rows per cluster root
+    integer, allocatable :: parent(:), crows(:)
+    !> the rows of small clusters (dense kernel) and of large ones (sparse path)
+    type(contact_set_t) :: cs_small, cs_large
+    integer, allocatable :: map_small(:), map_large(:)
+    real(wp), allocatable :: u_small(:), u_large(:), l_small(:), l_large(:)
     logical :: dense_ready = .false.
     !> compare updated and fresh factors at every refresh (tests; costs one extra solve)
     logical :: check_drift = .false.
@@ -79,7 +85,113 @@ module cr_sparse_as
 
 contains
 
+  !> Split the contact graph into connected clusters; clusters of at most dense_rows rows go
+  !> to the dense kernel (faster there: no analysis, no CHOLMOD call overhead), the others
+  !> together to the sparse path (sparse_core).
   subroutine sparse_as_solve(this, cs, v, u, lambda, stats, error)
+    class(sparse_as_solver_t), intent(inout) :: this
+    type(contact_set_t), intent(in) :: cs
+    real(wp), intent(in) :: v(:)
+    real(wp), intent(out) :: u(:)
+    real(wp), intent(inout) :: lambda(:)
+    type(solve_stats_t), intent(out) :: stats
+    type(error_t), allocatable, intent(out) :: error
+    type(solve_stats_t) :: s1
+    integer :: m, na, i, j, a, b, ns, nl
+    logical :: to_dense
+    call check_sizes("sparse_active_set", cs, v, u, lambda, error)
+    if (allocated(error)) return
+    m = cs%n; na = cs%n_agents
+    if (m <= this%settings%dense_rows .or. this%settings%dense_rows == 0) then
+      call sparse_core(this, cs, v, u, lambda, stats, error)
+      return
+    end if
+    if (allocated(this%parent)) then
+      if (size(this%parent) < na) deallocate(this%parent, this%crows)
+    end if
+    if (.not. allocated(this%parent)) allocate(this%parent(max(na, 16)), this%crows(max(na, 16)))
+    do i = 1, na
+      this%parent(i) = i
+    end do
+    do j = 1, m
+      if (cs%ib(j) > 0) then
+        a = find(cs%ia(j)); b = find(cs%ib(j))
+        if (a /= b) this%parent(max(a, b)) = min(a, b)
+      end if
+    end do
+    this%crows(1:na) = 0
+    do j = 1, m
+      a = find(cs%ia(j))
+      this%crows(a) = this%crows(a) + 1
+    end do
+    ns = 0
+    do j = 1, m
+      if (this%crows(find(cs%ia(j))) <= this%settings%dense_rows) ns = ns + 1
+    end do
+    if (ns == 0 .or. ns == m) then
+      ! one kind only: no copies
+      call sparse_core(this, cs, v, u, lambda, stats, error)
+      return
+    end if
+    nl = m - ns
+    call this%cs_small%init(na, cs%h, ns); call this%cs_large%init(na, cs%h, nl)
+    if (allocated(this%map_small)) deallocate(this%map_small, this%map_large, this%l_small, &
+      this%l_large, this%u_small, this%u_large)
+    allocate(this%map_small(ns), this%map_large(nl), this%l_small(ns), this%l_large(nl), &
+      this%u_small(2 * na), this%u_large(2 * na))
+    ns = 0; nl = 0
+    do j = 1, m
+      to_dense = this%crows(find(cs%ia(j))) <= this%settings%dense_rows
+      if (to_dense) then
+        call this%cs_small%add(cs%ia(j), cs%ib(j), cs%ob(j), cs%g(:, j), cs%gap(j))
+        ns = ns + 1; this%map_small(ns) = j; this%l_small(ns) = lambda(j)
+      else
+        call this%cs_large%add(cs%ia(j), cs%ib(j), cs%ob(j), cs%g(:, j), cs%gap(j))
+        nl = nl + 1; this%map_large(nl) = j; this%l_large(nl) = lambda(j)
+      end if
+    end do
+    ! sparse path on the large clusters (its own dense fallback when needed)
+    call sparse_core(this, this%cs_large, v, this%u_large, this%l_large, stats, error)
+    if (allocated(error)) return
+    ! dense kernel on the small clusters
+    if (.not. this%dense_ready) then
+      call this%dense%init(this%settings, error)
+      if (allocated(error)) return
+      this%dense_ready = .true.
+    end if
+    call this%dense%solve(this%cs_small, v, this%u_small, this%l_small, s1, error)
+    if (allocated(error)) then
+      call prefix_error(error, "sparse_active_set: small clusters"); return
+    end if
+    stats%iterations = stats%iterations + s1%iterations
+    stats%converged = stats%converged .and. s1%converged
+    if (allocated(s1%note)) then
+      if (len(s1%note) > 0) call add_note(stats, "small clusters: " // s1%note)
+    end if
+    ! the two sets of clusters share no agent: each solver leaves the other's agents at v
+    u = this%u_large
+    do i = 1, na
+      if (this%crows(find(i)) > 0 .and. this%crows(find(i)) <= this%settings%dense_rows) &
+        u(2*i - 1:2*i) = this%u_small(2*i - 1:2*i)
+    end do
+    lambda(this%map_small) = this%l_small
+    lambda(this%map_large) = this%l_large
+    call finish_stats(cs, v, u, lambda, this%settings%tol, stats)
+
+  contains
+
+    integer function find(x) result(r)
+      integer, intent(in) :: x
+      r = x
+      do while (this%parent(r) /= r)
+        this%parent(r) = this%parent(this%parent(r))
+        r = this%parent(r)
+      end do
+    end function find
+
+  end subroutine sparse_as_solve
+
+  subroutine sparse_core(this, cs, v, u, lambda, stats, error)
     class(sparse_as_solver_t), intent(inout) :: this
     type(contact_set_t), intent(in) :: cs
     real(wp), intent(in) :: v(:)
@@ -794,7 +906,7 @@ contains
       end do
     end subroutine velocities
 
-  end subroutine sparse_as_solve
+  end subroutine sparse_core
 
   subroutine sparse_as_free(this)
     class(sparse_as_solver_t), intent(inout) :: this
