@@ -7,3 +7,4 @@ cr_unit_test(test_nnls_edge)
 cr_unit_test(test_rom_stepper LABELS "unit;extremes")
 # dual active-set reduced solver against the LDP: random, degenerate, infeasible; warm = cold
 cr_unit_test(test_dual_qp)
+cr_unit_test(test_sparse_as)
