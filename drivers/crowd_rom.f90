@@ -216,7 +216,8 @@ contains
       integer, allocatable :: not_left(:), not_left_fom(:), infeas(:), capped(:), extrap(:)
       type(sample_measures_t), allocatable :: ms(:)
       type(romrun_set_t) :: out_set
-      integer :: k, nt, nb, rep
+      integer :: k, nt, nb, rep, n_fallback, active_sum, n_adds, n_drops, why(3)
+      real(wp) :: t_parts(3)
       nt = st%n_steps
       call make_reduced_ops(trim(rcfg%hyper(kset)), trim(rcfg%contacts(kset)), pair, &
         [rcfg%m_v(kset), rcfg%m_b(kset), rcfg%m_d(kset)], st%cfg%contacts%cutoff_factor, &
@@ -234,6 +235,7 @@ contains
         extrap(blk%n), div_step(blk%n), n_done(blk%n), ms(blk%n))
       div_step = 0
       err_time = -1; e_mu = -1; e_proj = -1; not_left_fom = -1; mobility = -1
+      n_fallback = 0; active_sum = 0; n_adds = 0; n_drops = 0; t_parts = 0; why = 0
       call log%progress_start()
       do k = 1, blk%n
         call ctx_reset(ctx)
@@ -253,7 +255,10 @@ contains
         do rep = 2, rcfg%timing_repeats
           call run_trajectory(ops, ctx, st%q0, nt, scfg, tr2, error, guard=guard)
           if (allocated(error)) return
-          traj%time = min(traj%time, tr2%time)
+          if (tr2%time < traj%time) then
+            traj%time = tr2%time; traj%time_positions = tr2%time_positions
+            traj%time_assemble = tr2%time_assemble; traj%time_solve = tr2%time_solve
+          end if
         end do
         qr = reduced_positions(st%q0, pair%v, traj%alpha, st%dt)
         ! every agent checked (the stepper checks only the agents its assembly reads)
@@ -278,6 +283,9 @@ contains
         time(k) = traj%time
         infeas(k) = traj%n_infeasible
         capped(k) = traj%n_capped
+        n_fallback = n_fallback + traj%n_fallback; active_sum = active_sum + traj%active_sum
+        n_adds = n_adds + traj%dual_adds; n_drops = n_drops + traj%dual_drops; why = why + traj%dual_why
+        t_parts = t_parts + [traj%time_positions, traj%time_assemble, traj%time_solve]
         extrap(k) = merge(1, 0, any(blk%mu(:, k) < st%space%lo - 1.0e-12_wp * abs(st%space%lo)) .or. &
           any(blk%mu(:, k) > st%space%hi + 1.0e-12_wp * abs(st%space%hi)))
         if (blk%has_fom) then
@@ -324,6 +332,15 @@ contains
       if (row%diverged > 0) call log%warn(str(row%diverged) // " of " // str(blk%n) // " " // trim(blk%name) // &
         " reduced trajectories diverged: E_avg and every other aggregate of this row are over the other " // &
         str(blk%n - row%diverged) // " samples (column samples_diverged)")
+      if (rcfg%solver == 'dual') call log%info("   dual active set: " // str(n_fallback) // " of " // &
+        str(nt * blk%n) // " steps fell back to the NNLS (found infeasible " // str(why(1)) // ", capped or > 3/4 Nb active " // &
+        str(why(2)) // ", not certified " // str(why(3)) // "); per step: active rows " // &
+        str(real(active_sum, wp) / max(1, nt * blk%n), "f6.1") // ", rows added " // &
+        str(real(n_adds, wp) / max(1, nt * blk%n), "f6.2") // ", dropped " // &
+        str(real(n_drops, wp) / max(1, nt * blk%n), "f6.2"))
+      call log%info("   time per step (fastest repeat of each sample): positions " // &
+        str(t_parts(1) / max(1, nt * blk%n), "es9.2") // " s, assembly " // str(t_parts(2) / max(1, nt * blk%n), "es9.2") // &
+        " s, solve " // str(t_parts(3) / max(1, nt * blk%n), "es9.2") // " s")
       if (row%infeasible > 0) call log%warn(str(row%infeasible) // " reduced steps were infeasible (the reduced " // &
         "positions already overlap): least-violation coefficients used")
       if (row%capped > 0) call log%warn(str(row%capped) // " reduced solves stopped at their iteration cap " // &

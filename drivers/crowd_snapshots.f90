@@ -29,8 +29,9 @@ program crowd_snapshots
   use cr_json, only: json_writer_t
   use cr_study_config, only: study_cfg_t, read_study, check_study, study_echo, study_hash
   use cr_sampling, only: param_space_t, sample_set_t, generate_samples
-  use cr_scheduler, only: scheduler_t
-  use cr_snapshot_piece, only: sample_result_t, compute_sample, write_piece, piece_hash, piece_path
+  use cr_scheduler, only: scheduler_t, collective_latency
+  use cr_snapshot_piece, only: sample_result_t, compute_sample
+  use cr_piece_store, only: piece_index_t, piece_batch_t, scan_pieces
   use cr_snapshot_file, only: SNAP_SCHEMA_VERSION, db_meta_t
   use cr_snapshot_db, only: db_totals_t, probe_database, assemble_database, collective_error
   implicit none
@@ -54,6 +55,9 @@ program crowd_snapshots
   integer, allocatable :: nsamp(:)
   real(wp), allocatable :: busy(:)
   real(wp) :: sum_time, t_compute, t_asm, t_total
+  !> inputs of the scaling model (summed over ranks): counter operations and their time, pieces
+  !> written, their bytes and write time; collective latency; setup time and assembly start
+  real(wp) :: counter(2), pieces_out(3), t_coll, t_setup, t_asm_start
   integer(i8) :: bytes
 
   call program_start("crowd_snapshots", env, log, cli, error, allow_stop_after=.true.)
@@ -79,6 +83,7 @@ contains
 
   subroutine print_help()
     print '(a)', "usage: mpirun -np P crowd_snapshots study.nml [--summary FILE] [--stop-after K]"
+    print '(a)', "         [--quarantine-bad-pieces] [--batch-seconds S]"
     print '(a)', ""
     print '(a)', "Parameter study of the full-order crowd model: samples the parameters of &study,"
     print '(a)', "spreads the runs over the MPI ranks (dynamic assignment) and writes one snapshot"
@@ -88,6 +93,10 @@ contains
     print '(a)', "  --summary FILE   also write the run summary as JSON"
     print '(a)', "  --stop-after K   testing hook: compute at most K samples, then exit with status 3"
     print '(a)', "                   without assembling the database (a rerun resumes)"
+    print '(a)', "  --quarantine-bad-pieces  move pieces that fail their checks (checksum, identity,"
+    print '(a)', "                   finiteness) to <database>.pieces/quarantine/ and recompute them;"
+    print '(a)', "                   without it a bad piece stops the run (status 2) naming it"
+    print '(a)', "  --batch-seconds S  time slice of one piece file (default 2 s; 0: one sample per piece)"
     print '(a)', "  -h, --help       this text"
     print '(a)', ""
     print '(a)', "Exit status: 0 success, 2 bad input, 3 stopped by --stop-after, 1 other failure."
@@ -99,10 +108,12 @@ contains
     type(param_space_t) :: space
     type(db_meta_t) :: meta
     type(scheduler_t) :: sched
-    type(sample_result_t) :: res
+    type(sample_result_t) :: res(1)
+    type(piece_index_t) :: pieces
+    type(piece_batch_t) :: batch
     real(wp), allocatable :: q0(:)
     integer, allocatable :: done(:), todo(:)
-    character(len=:), allocatable :: dir, msg, path, h
+    character(len=:), allocatable :: dir, msg, path
     integer :: status, g, k, is, t, n_mine, ndone, ierr, maj, mnr, rel, vlen
     real(wp) :: t0, t_start, t_loop, t_sample, busy_mine
     character(len=MPI_MAX_LIBRARY_VERSION_STRING) :: mpiv
@@ -141,34 +152,14 @@ contains
       return
     end if
 
-    ! pieces of earlier runs
+    ! pieces of earlier runs, verified (bad ones stop the run, or are moved aside on request)
+    call scan_pieces(env, dir, hash, sets, 2 * fom_ref%n_agents, cfg%time%n_steps, cli%quarantine, pieces, &
+      msg, error)
+    if (allocated(error)) return
+    if (len(msg) > 0) call log%warn(msg // "the samples of the " // str(pieces%n_quarantined) // &
+      " bad piece(s) are recomputed")
     allocate(done(n_tot))
-    done = 0
-    msg = ""
-    if (env%is_root()) then
-      if (make_dir(dir) /= 0) msg = "cannot create the directory '" // dir // "' for the pieces"
-      do g = 1, n_tot
-        if (len(msg) > 0) exit
-        call set_of(g, is, k)
-        path = piece_path(dir, sets(is)%name, k)
-        if (.not. file_exists(path)) cycle
-        call piece_hash(path, h, error)
-        if (allocated(error)) then
-          msg = "piece '" // path // "' cannot be read (" // error%message // "): remove it to recompute the sample"
-          deallocate(error)
-        else if (h /= hash) then
-          msg = "'" // dir // "' holds pieces of a different configuration (piece config_hash " // h // &
-            ", this input " // trim(hash) // "): refusing to mix them; remove the directory or restore the input"
-        else
-          done(g) = 1
-        end if
-      end do
-    end if
-    call env%bcast_string(msg)
-    if (len(msg) > 0) then
-      call set_error(error, msg, 2); return
-    end if
-    call MPI_Bcast(done, n_tot, MPI_INTEGER, 0, env%comm, ierr)
+    done = merge(1, 0, pieces%piece_of > 0)
     n_prev = count(done == 1)
     todo = pack([(g, g = 1, n_tot)], done == 0)
     n_run = size(todo)
@@ -183,6 +174,7 @@ contains
     if (allocated(error)) return
     call log%progress_start()
     t_loop = env%wtime()
+    call batch%init(dir, hash, merge(cli%batch_seconds, 2.0_wp, cli%batch_seconds >= 0))
     msg = ""
     n_mine = 0; busy_mine = 0; sum_time = 0
     do
@@ -191,13 +183,14 @@ contains
       g = todo(t)
       call set_of(g, is, k)
       t0 = env%wtime()
-      res%set = sets(is)%name
-      res%index = k
-      res%rank = env%rank
-      call compute_sample(cfg, space, sets(is)%mu(:, k), q0, fom_ref%speeds, res, error)
+      res(1)%set = sets(is)%name
+      res(1)%index = k
+      res(1)%rank = env%rank
+      res(1)%start = t0 - t_start
+      call compute_sample(cfg, space, sets(is)%mu(:, k), q0, fom_ref%speeds, res(1), error)
       if (.not. allocated(error)) then
-        res%time = env%wtime() - t0
-        call write_piece(piece_path(dir, sets(is)%name, k), hash, res, error)
+        res(1)%time = env%wtime() - t0
+        call batch%add(res(1), g, sets, env%wtime() - t_start, error)
       end if
       if (allocated(error)) then
         msg = trim(sets(is)%name) // " sample " // str(k) // " (mu = " // shorten(mu_text(sets(is)%mu(:, k)), 60) // &
@@ -212,7 +205,18 @@ contains
       ndone = sched%mark_done()
       if (env%is_root()) call log%progress("samples", n_prev + ndone, n_tot)
     end do
+    if (len(msg) == 0) then
+      t0 = env%wtime()
+      call batch%flush(sets, error)
+      busy_mine = busy_mine + (env%wtime() - t0)
+      sum_time = sum_time + (env%wtime() - t0)
+      if (allocated(error)) then
+        msg = "rank " // str(env%rank) // ": " // error%message; deallocate(error)
+      end if
+    end if
     call collective_error(env, msg, error)
+    counter = [real(sched%n_calls, wp), sched%t_calls]
+    pieces_out = [real(batch%n_pieces, wp), real(batch%bytes_written, wp), batch%t_write]
     call sched%free()
     if (allocated(error)) return
     call env%barrier()
@@ -221,6 +225,10 @@ contains
     call MPI_Allgather(busy_mine, 1, MPI_DOUBLE_PRECISION, busy, 1, MPI_DOUBLE_PRECISION, env%comm, ierr)
     call MPI_Allgather(n_mine, 1, MPI_INTEGER, nsamp, 1, MPI_INTEGER, env%comm, ierr)
     sum_time = env%sum_real(sum_time)
+    call env%sum_real_array(counter)
+    call env%sum_real_array(pieces_out)
+    t_coll = collective_latency(env, 20)
+    t_setup = t_loop - t_start
     call log%info("   samples " // str(n_prev + n_run) // " of " // str(n_tot) // " complete")
     call log%stage_end()
     if (n_run < size(todo)) then
@@ -233,6 +241,7 @@ contains
     ! the database
     call log%stage_begin("crowd_snapshots: assembling '" // db // "'")
     t0 = env%wtime()
+    t_asm_start = t0 - t_start
     meta%config_text = config_echo(cfg) // study_echo(study)
     meta%input_text = cfg%text
     meta%hash = hash
@@ -250,17 +259,21 @@ contains
     meta%n_expanded = space%n_expanded
     meta%radius = fom_ref%radius
     meta%dt = fom_ref%dt
-    call assemble_database(env, db, dir, meta, fom_ref, cfg, space, q0, sets(1)%n, sets(2)%n, totals, error)
+    call pieces%add_written(env, dir, sets, batch%written)
+    call assemble_database(env, db, pieces, meta, fom_ref, cfg, space, q0, sets, totals, error)
     if (allocated(error)) return
     ! the database is committed: the pieces can go
     if (env%is_root()) then
-      do g = 1, n_tot
-        call set_of(g, is, k)
-        path = piece_path(dir, sets(is)%name, k)
+      do g = 1, pieces%n_pieces
+        path = pieces%path_of(g)
         status = remove_file(path)
         status = remove_file(path // ".partial")
       end do
-      if (remove_dir(dir) /= 0) call log%warn("could not remove '" // dir // "' (foreign files in it?)")
+      if (file_exists(dir // "/quarantine/.")) then
+        call log%info("   bad pieces kept in '" // dir // "/quarantine' (inspect, then remove them)")
+      else if (remove_dir(dir) /= 0) then
+        call log%warn("could not remove '" // dir // "' (foreign files in it?)")
+      end if
     end if
     t_asm = env%wtime() - t0
     call log%stage_end()
@@ -304,10 +317,16 @@ contains
       end do
       text = text // &
         "  load balance        " // str(balance, 'f0.3') // " (mean / max busy time)" // new_line('a') // &
-        "  parallel efficiency " // str(eff_compute, 'f0.3') // " (sample loop), " // str(eff_total, 'f0.3') // &
-        " (whole run: sum of sample times / (P x wall))" // new_line('a') // &
+        "  busy-time efficiency " // str(eff_compute, 'f0.3') // " (sample loop), " // str(eff_total, 'f0.3') // &
+        " (whole run: sum of busy times / (P x wall))" // new_line('a') // &
+        "  overheads           counter " // str(1.0e6_wp * counter(2) / max(counter(1), 1.0_wp), 'f0.1') // &
+        " us per operation, " // str(nint(pieces_out(1))) // " pieces (" // &
+        str(pieces_out(2) / 1.0e6_wp, 'f0.2') // " MB, " // str(pieces_out(3), 'f0.3') // " s), collective " // &
+        str(1.0e6_wp * t_coll, 'f0.1') // " us" // new_line('a') // &
         "  wall time           " // str(t_total, 'f0.2') // " s (samples " // str(t_compute, 'f0.2') // &
-        " s, assembly " // str(t_asm, 'f0.2') // " s)" // new_line('a') // &
+        " s, assembly " // str(t_asm, 'f0.2') // " s: read " // str(totals%t_read, 'f0.2') // ", dictionary " // &
+        str(totals%t_dict, 'f0.2') // ", write " // str(totals%t_write, 'f0.2') // ", header " // &
+        str(totals%t_seal, 'f0.2') // ")" // new_line('a') // &
         "  non-converged steps " // str(totals%nonconverged_steps) // " in " // str(totals%nonconverged_samples) // &
         " samples (largest KKT residual " // str(totals%kkt_max) // ")" // new_line('a') // &
         "  contact dictionary  " // str(totals%n_dict) // " contacts, " // str(totals%nnz) // " stored multipliers"
@@ -334,6 +353,22 @@ contains
       call js%add("wall_time", t_total)
       call js%add("wall_time_samples", t_compute)
       call js%add("wall_time_assembly", t_asm)
+      call js%add("busy_time_efficiency", eff_total)
+      call js%add("busy_time_efficiency_sample_loop", eff_compute)
+      call js%add("wall_time_setup", t_setup)
+      call js%add("assembly_start", t_asm_start)
+      call js%add("counter_operations", nint(counter(1)))
+      call js%add("counter_latency_mean", counter(2) / max(counter(1), 1.0_wp))
+      call js%add("collective_latency", t_coll)
+      call js%add("pieces_written", nint(pieces_out(1)))
+      call js%add("piece_bytes_written", pieces_out(2))
+      call js%add("piece_write_time", pieces_out(3))
+      call js%add("assembly_read_time", totals%t_read)
+      call js%add("assembly_read_bytes", totals%bytes_read)
+      call js%add("assembly_dictionary_time", totals%t_dict)
+      call js%add("assembly_write_time", totals%t_write)
+      call js%add("assembly_header_time", totals%t_seal)
+      call js%add("batch_seconds", merge(cli%batch_seconds, 2.0_wp, cli%batch_seconds >= 0))
       call js%add("nonconverged_steps", totals%nonconverged_steps)
       call js%add("nonconverged_samples", totals%nonconverged_samples)
       call js%add("largest_kkt_residual", totals%kkt_max)

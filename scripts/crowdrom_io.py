@@ -426,3 +426,48 @@ def resolve_path(path, relative_to):
         return path
     cand = os.path.join(os.path.dirname(os.path.abspath(os.fspath(relative_to))), path)
     return cand if os.path.exists(cand) else path
+
+
+_M = 2147483647  # 2^31 - 1
+
+
+def _fold(x):
+    """x mod 2^31-1 for 0 <= x < 2^63 (int64 arrays), as cr_digest's fold."""
+    y = (x & _M) + (x >> 31)
+    y = (y & _M) + (y >> 31)
+    return np.where(y >= _M, y - _M, y)
+
+
+def digest(arr, offset=0):
+    """Checksum of a dataset as crowdrom writes it (attribute ``checksum``, 16 hex digits; the
+    algorithm of src/io/cr_digest.f90): two sums over the elements, in file order, of a mix of
+    the element's 64 bits (integers sign-extended to 64 bits) and its 0-based linear index,
+    modulo 2^31 - 1. ``arr`` is the array as h5py reads it (C order = Fortran linear order)."""
+    a = np.ascontiguousarray(arr)
+    if a.dtype.kind == "f":
+        w = a.astype("<f8").reshape(-1).view("<u8")
+    else:
+        w = a.astype("<i8").reshape(-1).view("<u8")
+    lo = (w & np.uint64(0xFFFFFFFF)).astype(np.int64)
+    hi = (w >> np.uint64(32)).astype(np.int64)
+    g = _fold(np.arange(offset, offset + w.size, dtype=np.int64))
+    out = []
+    for a1, a2, a3, a4, a5 in ((1103515245, 69069, 1664525, 12345, 977),
+                               (214013, 1812433253, 22695477, 2531011, 1013)):
+        x = _fold(_fold(lo * a1) + _fold(hi * a2) + _fold(g * a3) + a4)
+        x = _fold(x * (x + a5))
+        out.append(int(x.sum() % _M) if x.size else 0)
+    return "%08x%08x" % tuple(out)
+
+
+def verify_checksum(f, name):
+    """Raise InputError if dataset ``name`` of the open file does not match its ``checksum``."""
+    data = dataset(f, name)
+    d = f[name]
+    if "checksum" not in d.attrs:
+        raise InputError("%s: dataset '%s' has no checksum attribute" % (f.filename, name))
+    stored = text(d.attrs["checksum"])
+    got = digest(data)
+    if stored != got:
+        raise InputError("%s: checksum mismatch in dataset '%s' (stored %s, data %s): the file is corrupted"
+                         % (f.filename, name, stored, got))

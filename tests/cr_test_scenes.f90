@@ -5,7 +5,7 @@ module cr_test_scenes
   use cr_contact_set, only: contact_set_t
   implicit none
   private
-  public :: seed_random, lattice_scene
+  public :: seed_random, lattice_scene, hex_scene
 
 contains
 
@@ -73,4 +73,42 @@ contains
       v(2*k - 1:2*k) = -(q(:, k) - c) / max(norm2(q(:, k) - c), 1.0e-3_wp) + (nz(2*k - 1:2*k) - 0.5_wp)
     end do
   end subroutine lattice_scene
+
+  !> nx x ny disks of radius rad in hexagonal packing (touching neighbours, plus jitter) resting
+  !> on the wall y = 0 and against the wall x = 0, every pair closer than 1e-3 a row (3 per
+  !> agent: many linearly dependent rows), step h; v pushes into the corner, plus noise.
+  subroutine hex_scene(nx, ny, jitter, rad, h, cs, v)
+    integer, intent(in) :: nx, ny
+    real(wp), intent(in) :: jitter, rad, h
+    type(contact_set_t), intent(out) :: cs
+    real(wp), allocatable, intent(out) :: v(:)
+    real(wp), allocatable :: q(:,:), jit(:,:), nz(:)
+    real(wp) :: dist
+    integer :: na, i, j, k
+    na = nx * ny
+    allocate(q(2, na), jit(2, na), nz(2 * na))
+    call random_number(jit)
+    do j = 1, ny
+      do i = 1, nx
+        k = i + (j - 1) * nx
+        q(:, k) = [rad + 2.0_wp * rad * (i - 1) + rad * mod(j - 1, 2), &
+          rad + sqrt(3.0_wp) * rad * (j - 1)] + jitter * (jit(:, k) - 0.5_wp)
+      end do
+    end do
+    call cs%init(na, h, 4 * na)
+    do i = 1, na
+      do j = i + 1, na
+        dist = norm2(q(:, i) - q(:, j))
+        if (dist - 2.0_wp * rad < 1.0e-3_wp) call cs%add(i, j, 0, (q(:, i) - q(:, j)) / dist, &
+          dist - 2.0_wp * rad)
+      end do
+      if (q(2, i) - rad < 1.0e-3_wp) call cs%add(i, 0, 1, [0.0_wp, 1.0_wp], q(2, i) - rad)
+      if (q(1, i) - rad < 1.0e-3_wp) call cs%add(i, 0, 2, [1.0_wp, 0.0_wp], q(1, i) - rad)
+    end do
+    call random_number(nz)
+    allocate(v(2 * na))
+    do k = 1, na
+      v(2*k - 1:2*k) = [-0.5_wp, -1.0_wp] + 0.6_wp * (nz(2*k - 1:2*k) - 0.5_wp)
+    end do
+  end subroutine hex_scene
 end module cr_test_scenes

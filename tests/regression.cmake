@@ -38,6 +38,8 @@ cr_bad_input(inside_obstacle "agent 2 starts inside obstacle '&obstacles disk 1'
 cr_bad_input(desired_field "&desired: field must be 'auto', 'analytic', 'grid' or 'exact' \\(got 'exakt'\\)")
 cr_bad_input(desired_exact "&desired: field = 'exact' does not apply to this scene: the exit")
 cr_bad_input(dt "&time: dt must be > 0")
+cr_bad_input(dense_rows "&solver: .*dense_rows must be >= 0")
+cr_bad_input(refresh_every "&solver: .*refresh_every must be >= 1")
 add_test(NAME bad_input_missing_namelist
   COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/expect_fail.sh "no_such_input.nml: cannot open input file" bad_out.h5
     $<TARGET_FILE:crowd_fom> no_such_input.nml

@@ -5,3 +5,6 @@ cr_unit_test(test_contact_ldp)
 cr_unit_test(test_nnls_edge)
 # reduced time stepping: infeasible reduced problems, Uzawa caps (also a case of the extremes campaign)
 cr_unit_test(test_rom_stepper LABELS "unit;extremes")
+# dual active-set reduced solver against the LDP: random, degenerate, infeasible; warm = cold
+cr_unit_test(test_dual_qp)
+cr_unit_test(test_sparse_as)

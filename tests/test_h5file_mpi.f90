@@ -1,21 +1,28 @@
 !> Parallel cr_h5file: collective column blocks of a [7, ncols] dataset with an uneven split
 !> (the last rank has no columns when np > 1), rank-0 whole writes, appends, commit; read back
 !> by every rank and compared exactly. Run at 1, 2 and 4 ranks.
+!> Also: write_ranges with round-robin columns (many disjoint ranges per rank), and cr_digest:
+!> the ranks' partial digests add up to the digest of the whole dataset; one changed bit or
+!> two swapped columns change it.
 program test_h5file_mpi
   use mpi_f08
-  use cr_kinds, only: wp
+  use cr_kinds, only: wp, i8
   use cr_error, only: error_t
   use cr_env, only: env_t
   use cr_assert, only: check, test_summary
   use cr_fsys, only: file_exists
   use cr_h5file, only: h5file_t, cr_h5_real, cr_h5_int
+  use cr_digest, only: digest_t, digest_of, digest_add, digest_allreduce, digest_hex
   implicit none
   integer, parameter :: n_rows = 7
   type(env_t) :: env
   type(h5file_t) :: f
   type(error_t), allocatable :: error
   integer :: ierr, r, i, j, ncols, nloc, off, peer, poff, pn, nv
-  integer, allocatable :: counts(:), iblk(:,:), iall(:,:), steps(:)
+  integer, allocatable :: counts(:), iblk(:,:), iall(:,:), steps(:), rg(:,:)
+  integer, parameter :: n_cyc = 11
+  type(digest_t) :: dpart, dwhole
+  real(wp), allocatable :: cyc(:,:), cycall(:,:), tmp(:,:)
   real(wp), allocatable :: a(:,:), whole(:,:), mine(:,:), theirs(:,:), v(:)
   character(len=32) :: fname
   character(len=:), allocatable :: s
@@ -67,6 +74,25 @@ program test_h5file_mpi
   ! a bad offset on one rank is reported on every rank (no hang)
   call f%write_block("basis/phi", mine, merge(ncols, off, env%rank == 0), error)
   if (nloc > 0 .or. env%size > 1) call check(allocated(error), "bad block fails on all ranks")
+  ! round-robin columns: rank r owns columns r+1, r+1+P, ... (one range each, plus an empty one)
+  call f%create_dataset("cyc/phi", [n_rows, n_cyc], cr_h5_real, error)
+  nv = 0
+  do j = env%rank + 1, n_cyc, env%size
+    nv = nv + 1
+  end do
+  allocate(cyc(n_rows, nv), rg(2, nv + 1))
+  rg(:, 1) = [0, 0]
+  nv = 0
+  dpart = digest_t()
+  do j = env%rank + 1, n_cyc, env%size
+    nv = nv + 1
+    cyc(:, nv) = [(real(i * j, wp) / 3.0_wp - 1.0_wp, i = 1, n_rows)]
+    rg(:, nv + 1) = [j - 1, 1]
+    dpart = digest_add(dpart, digest_of(cyc(:, nv:nv), int(j - 1, i8) * n_rows))
+  end do
+  call f%write_ranges("cyc/phi", cyc, rg, error)
+  call check(.not. allocated(error), "write_ranges (round-robin columns)")
+  call digest_allreduce(env, dpart)
   call f%commit(error)
   call check(.not. allocated(error), "parallel commit")
   call check(file_exists(trim(fname)) .and. .not. file_exists(trim(fname) // ".partial"), &
@@ -98,6 +124,20 @@ program test_h5file_mpi
   call f%read_attr("/", "n_ranks_written", nv, error); call check(nv == env%size, "attr")
   call f%read("traj/step", steps, error)
   call check(all(steps == [10, 20, 30]), "appends came from rank 0")
+  call f%read("cyc/phi", cycall, error)
+  call check(.not. allocated(error), "read cyc")
+  do j = 1, n_cyc
+    call check(all(cycall(:, j) == [(real(i * j, wp) / 3.0_wp - 1.0_wp, i = 1, n_rows)]), &
+      "write_ranges: every column where it belongs")
+  end do
+  dwhole = digest_of(cycall, 0_i8)
+  call check(digest_hex(dpart) == digest_hex(dwhole), "digest: the ranks' parts add up to the whole")
+  tmp = cycall
+  tmp(3, 5) = nearest(tmp(3, 5), 1.0_wp)
+  call check(digest_hex(digest_of(tmp, 0_i8)) /= digest_hex(dwhole), "digest: one changed bit is seen")
+  tmp = cycall
+  tmp(:, 2) = cycall(:, 7); tmp(:, 7) = cycall(:, 2)
+  call check(digest_hex(digest_of(tmp, 0_i8)) /= digest_hex(dwhole), "digest: swapped columns are seen")
   call f%close(error)
   call check(.not. allocated(error), "parallel close")
 

@@ -21,8 +21,9 @@ program test_products
   use cr_fom, only: fom_t, step_record_t
   use cr_sparse_cone, only: sparse_cone_t
   use cr_fom_file, only: fom_writer_t, fom_file_t, read_fom_file
-  use cr_snapshot_file, only: db_meta_t, snap_header_t, snap_block_t, write_snap_header, write_snap_set, &
-    read_snap_header, read_snap_block
+  use cr_snapshot_file, only: SNAP_SCHEMA, SNAP_SCHEMA_VERSION, snap_header_t, snap_block_t, read_snap_header, &
+    read_snap_block
+  use cr_digest, only: digest_of, put_digest
   use cr_rom_file, only: rom_file_t, rom_pair_t, write_rom_file, read_rom_file, read_rom_pair
   use cr_romrun_file, only: romrun_header_t, romrun_row_t, romrun_set_t, romrun_t, romrun_writer_t, read_romrun
   implicit none
@@ -156,7 +157,7 @@ contains
     b%name = trim(merge('train', 'valid', set == 1)); b%n = n; b%k0 = k0; b%nloc = nloc
     allocate(b%mu(NE, nloc), b%q(2 * NA, (NT + 1) * nloc), b%u(2 * NA, NT * nloc), b%v(2 * NA, NT * nloc), &
       b%kkt(NT, nloc), b%min_gap(NT, nloc), b%iterations(NT, nloc), b%converged(NT, nloc), b%n_active(NT, nloc), &
-      b%time(nloc), b%rank(nloc), b%lam_ptr(NT * nloc + 1), b%scene_vertices(6, nloc), b%scene_exit(4, nloc))
+      b%time(nloc), b%rank(nloc), b%lam_ptr(NT * nloc + 1))
     nnz = 0
     b%lam_ptr(1) = 0
     do k = 1, nloc
@@ -179,8 +180,6 @@ contains
       b%kkt(:, k) = 1.0e-9_wp * kg; b%min_gap(:, k) = 0.01_wp * kg
       b%iterations(:, k) = kg; b%converged(:, k) = 1; b%n_active(:, k) = kg + 1
       b%time(k) = 0.1_wp * kg; b%rank(k) = 0
-      b%scene_vertices(:, k) = [(0.1_wp * i + kg, i = 1, 6)]
-      b%scene_exit(:, k) = [0.4_wp, 1.0_wp, 0.6_wp + 0.01_wp * kg, 1.0_wp]
     end do
     allocate(b%lam_idx(nnz), b%lam_val(nnz))
     nnz = 0
@@ -196,32 +195,62 @@ contains
     end do
   end function make_block
 
-  !> Write the synthetic database (3 train, 2 valid samples) with the ranks of `e`.
+  !> Write the synthetic database (3 train, 2 valid samples; every dataset with its checksum) on
+  !> the ranks of `e` (the file is opened in parallel; rank 0 writes the data).
   subroutine write_db(e, path)
     type(env_t), intent(in) :: e
     character(len=*), intent(in) :: path
-    type(db_meta_t) :: meta
     type(h5file_t) :: h5
-    type(config_t) :: cfg
-    type(scene_t) :: scene
-    integer :: set, n, off, nloc
-    meta%config_text = "&time n_steps = 2 /"; meta%input_text = "input"; meta%hash = "0123456789abcdef"
-    meta%param_names = "l_exit,speed"; meta%version = "test"; meta%hdf5_version = "1"; meta%mpi_version = "1"
-    meta%compiler = "gfortran"; meta%n_agents = NA; meta%n_steps = NT; meta%n_expanded = NE
-    meta%radius = 0.04_wp; meta%dt = 0.02_wp
-    call scene%init(cfg%scene, cfg%obstacles, error)
-    call check(.not. allocated(error), "db: default scene")
+    type(snap_block_t) :: b
+    real(wp), allocatable :: q0(:)
+    integer :: set, n
+    character(len=:), allocatable :: g
+    q0 = [(0.1_wp * n, n = 1, 2 * NA)]
     call h5%create(path, error, env=e); call check(.not. allocated(error), "db: create")
-    call write_snap_header(h5, meta, 3, 2, [(0.1_wp * n, n = 1, 2 * NA)], scene, [(int(n, i8), n = 1, NDICT)], &
-      DICT_IA, DICT_IB, DICT_OB, error)
+    call h5%write_attr("/", "schema", SNAP_SCHEMA, error)
+    call h5%write_attr("/", "schema_version", SNAP_SCHEMA_VERSION, error)
+    call h5%write_attr("/", "config", "&time n_steps = 2 /", error)
+    call h5%write_attr("/", "config_hash", "0123456789abcdef", error)
+    call h5%write_attr("/", "param_names", "l_exit,speed", error)
+    call h5%write_attr("/", "n_agents", NA, error)
+    call h5%write_attr("/", "n_steps", NT, error)
+    call h5%write_attr("/", "n_train", 3, error)
+    call h5%write_attr("/", "n_valid", 2, error)
+    call h5%write_attr("/", "n_params", NE, error)
+    call h5%write_attr("/", "agent_radius", 0.04_wp, error)
+    call h5%write_attr("/", "dt", 0.02_wp, error)
+    call h5%write_attr("/", "complete", 1, error)
+    call h5%write("initial_positions", q0, error)
+    call put_digest(h5, "initial_positions", digest_of(q0, 0_i8), error)
+    call h5%make_group("contacts", error)
+    call h5%write("contacts/ia", DICT_IA, error)
+    call put_digest(h5, "contacts/ia", digest_of(DICT_IA, 0_i8), error)
+    call h5%write("contacts/ib", DICT_IB, error)
+    call put_digest(h5, "contacts/ib", digest_of(DICT_IB, 0_i8), error)
+    call h5%write("contacts/ob", DICT_OB, error)
+    call put_digest(h5, "contacts/ob", digest_of(DICT_OB, 0_i8), error)
     call check(.not. allocated(error), "db: header")
     do set = 1, 2
       n = merge(3, 2, set == 1)
-      call block_range(n, e%size, e%rank, off, nloc)
-      call write_snap_set(e, h5, meta, make_block(set, n, off + 1, nloc), error)
+      b = make_block(set, n, 1, n)
+      g = trim(b%name) // "/"
+      call h5%make_group(trim(b%name), error)
+      call h5%write(g // "params", b%mu, error)
+      call put_digest(h5, g // "params", digest_of(b%mu, 0_i8), error)
+      call h5%write(g // "positions", b%q, error)
+      call put_digest(h5, g // "positions", digest_of(b%q, 0_i8), error)
+      call h5%write(g // "velocities", b%u, error)
+      call put_digest(h5, g // "velocities", digest_of(b%u, 0_i8), error)
+      call h5%write(g // "desired", b%v, error)
+      call put_digest(h5, g // "desired", digest_of(b%v, 0_i8), error)
+      call h5%write(g // "lambda_offset", b%lam_ptr, error)
+      call put_digest(h5, g // "lambda_offset", digest_of(b%lam_ptr, 0_i8), error)
+      call h5%write(g // "lambda_index", b%lam_idx, error)
+      call put_digest(h5, g // "lambda_index", digest_of(b%lam_idx, 0_i8), error)
+      call h5%write(g // "lambda_value", b%lam_val, error)
+      call put_digest(h5, g // "lambda_value", digest_of(b%lam_val, 0_i8), error)
       call check(.not. allocated(error), "db: set " // str(set))
     end do
-    call h5%write_attr("/", "complete", 1, error)
     call h5%commit(error); call check(.not. allocated(error), "db: commit")
   end subroutine write_db
 
@@ -293,6 +322,11 @@ contains
         call expect_refusal(error, path, trim(floats(k)), "db " // trim(BAD_NAMES(b)) // " in " // trim(floats(k)))
       end do
     end do
+    ! a finite value changed: the checksum of the dataset no longer matches
+    call write_db(self, path)
+    call poke_real(path, "train/positions", 5, 123.0_wp)
+    call read_db(path, error)
+    call expect_refusal(error, path, "checksum mismatch in dataset 'train/positions'", "db value edited")
     ! indices out of range
     call db_int_case("contacts/ia", 2, 0)
     call db_int_case("contacts/ia", 3, NA + 1)

@@ -19,14 +19,14 @@ module test_rom_stepper_ops
 
 contains
 
-  subroutine assemble(this, ctx, q, vhat, bhat, dhat)
+  subroutine assemble(this, ctx, q, vhat, bt, dhat)
     class(const_ops_t), intent(inout) :: this
     type(eval_ctx_t), intent(in) :: ctx
     real(wp), intent(in) :: q(:)
     real(wp), intent(out) :: vhat(:)
-    real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
+    real(wp), allocatable, intent(inout) :: bt(:,:), dhat(:)
     vhat = this%vh
-    bhat = this%bh
+    bt = transpose(this%bh)
     dhat = this%dh
     if (size(q) < 0 .or. ctx%h < 0) vhat = 0
   end subroutine assemble
@@ -115,7 +115,7 @@ contains
     type(sparse_cone_t) :: cone
     class(reduced_ops_t), allocatable :: rops
     type(rng_t) :: rng
-    real(wp), allocatable :: a(:,:), tau(:), q(:), vh(:), bh(:,:), dh(:), g(:,:)
+    real(wp), allocatable :: a(:,:), tau(:), q(:), vh(:), bh(:,:), dh(:), g(:,:), gd(:)
     integer :: ia(nd), ib(nd), ob(nd), i, j
     call rng%seed(11, 1)
     call c2%scene%init(sc, oc, error)
@@ -150,7 +150,15 @@ contains
     allocate(vh(nb), g(6, 6))
     call rops%assemble(c2, q, vh, bh, dh)
     call rops%gram(g)
-    call check(maxval(abs(g - matmul(bh, transpose(bh)))) <= 1.0e-14_wp * maxval(abs(g)), "gram: Z P Z^T = Bh Bh^T")
+    call check(maxval(abs(g - matmul(transpose(bh), bh))) <= 1.0e-14_wp * maxval(abs(g)), "gram: Z P Z^T = Bh Bh^T")
+    ! the entries the dual solver asks for, and the diagonal
+    allocate(gd(6))
+    do i = 1, 6
+      call rops%gram_entries(i, [6, 1, i, 3], gd(1:4))
+      call check(maxval(abs(gd(1:4) - g(i, [6, 1, i, 3]))) <= 1.0e-14_wp * maxval(abs(g)), "gram: entries of row")
+    end do
+    call rops%gram_diag(gd)
+    call check(maxval(abs(gd - [(g(i, i), i = 1, 6)])) <= 1.0e-14_wp * maxval(abs(g)), "gram: diagonal")
     call check_eim_rows(pair, c2, q, bh)
   end subroutine check_gram
 

@@ -115,3 +115,34 @@ def test_bad_input(study, kw, message):
     err = [l for l in (p.stdout + p.stderr).splitlines() if l.startswith("error:")]
     assert len(err) >= 1 and re.search(message, err[0]), p.stdout + p.stderr
     assert not rom.exists() and not os.path.exists(str(rom) + ".partial")
+
+
+def test_database_checksums(study):
+    """Every dataset of the database carries a checksum that the Python reader recomputes
+    (crowdrom_io.digest, the algorithm of src/io/cr_digest.f90), and crowd_offline refuses a
+    database whose velocities were overwritten, naming the dataset."""
+    import shutil
+    import sys
+    sys.path.insert(0, os.path.join(ROOT, "scripts"))
+    import crowdrom_io as cio
+    tmp, db = study
+    names = []
+    with h5py.File(db, "r") as f:
+        f.visititems(lambda n, o: names.append(n) if isinstance(o, h5py.Dataset) and "checksum" in o.attrs else None)
+        for n in names:
+            cio.verify_checksum(f, n)
+        off, nbytes = f["train/velocities"].id.get_offset(), f["train/velocities"].id.get_storage_size()
+    assert {"train/velocities", "train/lambda_value", "valid/positions", "contacts/key"} <= set(names)
+    bad = tmp / "corrupt.h5"
+    shutil.copy(db, bad)
+    with open(bad, "r+b") as fh:
+        fh.seek(off + nbytes // 2)
+        fh.write(np.random.default_rng(3).integers(0, 256, 32, dtype=np.uint8).tobytes())
+    with h5py.File(bad, "r") as f, pytest.raises(cio.InputError, match="checksum mismatch in dataset 'train/velocities'"):
+        cio.verify_checksum(f, "train/velocities")
+    for np_ in (1, 2):
+        p = mpirun(np_, "crowd_offline", offline_input(tmp, bad, tmp / "rom_bad.h5"), tmp)
+        assert p.returncode != 0
+        assert re.search(r"error: .*checksum mismatch in dataset 'train/velocities'", p.stdout + p.stderr), \
+            p.stdout + p.stderr
+        assert not (tmp / "rom_bad.h5").exists()

@@ -276,18 +276,21 @@ contains
     type(error_t), allocatable, intent(out) :: error
     character(len=32) :: name
     real(wp) :: tol, uzawa_rho_factor, uzawa_eps
-    integer :: max_iter, uzawa_max_iter
+    integer :: max_iter, uzawa_max_iter, dense_rows, refresh_every
     logical :: warm_start
-    namelist /solver/ name, tol, max_iter, uzawa_rho_factor, uzawa_eps, uzawa_max_iter, warm_start
+    namelist /solver/ name, tol, max_iter, uzawa_rho_factor, uzawa_eps, uzawa_max_iter, warm_start, &
+      dense_rows, refresh_every
     integer :: ios
     character(len=512) :: msg
     name = c%name; tol = c%tol; max_iter = c%max_iter; uzawa_rho_factor = c%uzawa_rho_factor
     uzawa_eps = c%uzawa_eps; uzawa_max_iter = c%uzawa_max_iter; warm_start = c%warm_start
+    dense_rows = c%dense_rows; refresh_every = c%refresh_every
     msg = ''
     read(t%lines, nml=solver, iostat=ios, iomsg=msg)
     call nml_status(t, 'solver', ios, msg, error); if (allocated(error)) return
     c%name = name; c%tol = tol; c%max_iter = max_iter; c%uzawa_rho_factor = uzawa_rho_factor
     c%uzawa_eps = uzawa_eps; c%uzawa_max_iter = uzawa_max_iter; c%warm_start = warm_start
+    c%dense_rows = dense_rows; c%refresh_every = refresh_every
   end subroutine read_solver
 
   subroutine read_contacts(t, c, error)
@@ -374,7 +377,8 @@ contains
       s = s // "&solver name = '" // trim(v%name) // "', tol = " // r(v%tol) // ", max_iter = " // &
         i(v%max_iter) // ", uzawa_rho_factor = " // r(v%uzawa_rho_factor) // ", uzawa_eps = " // &
         r(v%uzawa_eps) // ", uzawa_max_iter = " // i(v%uzawa_max_iter) // ", warm_start = " // &
-        merge(".true. ", ".false.", v%warm_start) // " /" // new_line('a')
+        merge(".true. ", ".false.", v%warm_start) // ", dense_rows = " // i(v%dense_rows) // &
+        ", refresh_every = " // i(v%refresh_every) // " /" // new_line('a')
     end associate
     s = s // "&contacts cutoff_factor = " // r(cfg%contacts%cutoff_factor) // " /" // new_line('a')
     associate (o => cfg%output)

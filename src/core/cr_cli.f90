@@ -1,5 +1,6 @@
 !> Command-line handling shared by the drivers: `program input.nml [--summary FILE] [--help]`.
 module cr_cli
+  use cr_kinds, only: wp
   use cr_error, only: error_t, set_error
   implicit none
   private
@@ -12,6 +13,10 @@ module cr_cli
     logical :: help = .false.
     !> --stop-after K (crowd_snapshots testing hook): stop after K samples; -1 when not given
     integer :: stop_after = -1
+    !> --quarantine-bad-pieces (crowd_snapshots): move bad pieces aside and recompute them
+    logical :: quarantine = .false.
+    !> --batch-seconds S (crowd_snapshots): time slice of one piece; < 0 when not given
+    real(wp) :: batch_seconds = -1
   end type cli_t
 
 contains
@@ -21,7 +26,8 @@ contains
     character(len=*), intent(in) :: program_name
     type(cli_t), intent(out) :: cli
     type(error_t), allocatable, intent(out) :: error
-    !> accept `--stop-after K` (default .false.: it is an unknown option)
+    !> accept the crowd_snapshots options `--stop-after K`, `--quarantine-bad-pieces` and
+    !> `--batch-seconds S` (default .false.: they are unknown options)
     logical, intent(in), optional :: allow_stop_after
     integer :: k, n, length, ios
     logical :: stop_ok
@@ -62,6 +68,27 @@ contains
         read(arg, *, iostat=ios) cli%stop_after
         if (ios /= 0 .or. cli%stop_after < 0) then
           call set_error(error, program_name // ": --stop-after '" // arg // "' is not a number >= 0", 2); return
+        end if
+      case ('--quarantine-bad-pieces')
+        if (.not. stop_ok) then
+          call set_error(error, program_name // ": unknown option '" // arg // "' (see --help)", 2); return
+        end if
+        cli%quarantine = .true.
+      case ('--batch-seconds')
+        if (.not. stop_ok) then
+          call set_error(error, program_name // ": unknown option '" // arg // "' (see --help)", 2); return
+        end if
+        if (k == n) then
+          call set_error(error, program_name // ": --batch-seconds needs a time in seconds", 2); return
+        end if
+        k = k + 1
+        call get_command_argument(k, length=length)
+        deallocate(arg); allocate(character(len=length) :: arg)
+        call get_command_argument(k, arg)
+        read(arg, *, iostat=ios) cli%batch_seconds
+        if (ios /= 0 .or. .not. (cli%batch_seconds >= 0 .and. cli%batch_seconds <= 1.0e6_wp)) then
+          call set_error(error, program_name // ": --batch-seconds '" // arg // "' is not a time in [0, 1e6] s", 2)
+          return
         end if
       case default
         if (arg(1:1) == '-') then

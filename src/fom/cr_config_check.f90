@@ -98,6 +98,9 @@ contains
       call probs%need(v%uzawa_rho_factor > 0, "&solver: uzawa_rho_factor must be > 0")
       call probs%need(v%uzawa_eps > 0, "&solver: uzawa_eps must be > 0")
       call probs%need(v%uzawa_max_iter >= 1, "&solver: uzawa_max_iter must be >= 1")
+      call probs%need(v%dense_rows >= 0, "&solver: dense_rows must be >= 0 (got " // str(v%dense_rows) // ")")
+      call probs%need(v%refresh_every >= 1, "&solver: refresh_every must be >= 1 (got " // &
+        str(v%refresh_every) // ")")
       ! &contacts
       call probs%need(c%cutoff_factor >= 1, "&contacts: cutoff_factor must be >= 1 (got " // str(c%cutoff_factor) // ")")
       ! &output

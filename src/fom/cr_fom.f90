@@ -35,6 +35,9 @@ module cr_fom
     !> smallest true gap over the candidate rows after the step
     real(wp) :: min_gap = huge(1.0_wp)
     real(wp) :: t_solve = 0, t_step = 0
+    !> sparse_active_set: numeric factorisations, factor row additions/deletions, solves handed
+    !> to the safe path (summed over the re-solves of the step)
+    integer :: n_factor = 0, n_modify = 0, n_fallback = 0
   end type step_record_t
 
   !> State of a full-order simulation.
@@ -157,6 +160,9 @@ contains
         call prefix_error(error, "fom: step " // str(this%step)); return
       end if
       rec%iterations = rec%iterations + st%iterations
+      rec%n_factor = rec%n_factor + st%n_factor
+      rec%n_modify = rec%n_modify + st%n_modify
+      rec%n_fallback = rec%n_fallback + st%n_fallback
       umax = 0
       do i = 1, this%n_agents
         umax = max(umax, norm2(this%u(2*i-1:2*i)))

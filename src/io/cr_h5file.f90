@@ -34,8 +34,8 @@ module cr_h5file
   use hdf5, only: hid_t, hsize_t, size_t, h5open_f, h5eset_auto_f, h5kind_to_type, &
     H5_REAL_KIND, H5_INTEGER_KIND, H5P_DEFAULT_F, H5P_FILE_ACCESS_F, H5P_LINK_CREATE_F, &
     H5P_DATASET_CREATE_F, H5P_DATASET_XFER_F, H5F_ACC_TRUNC_F, H5F_ACC_RDONLY_F, H5F_ACC_RDWR_F, &
-    H5S_SCALAR_F, H5S_UNLIMITED_F, H5S_SELECT_SET_F, H5T_FLOAT_F, H5T_INTEGER_F, H5T_STRING_F, &
-    H5T_FORTRAN_S1, H5T_STR_NULLPAD_F, H5FD_MPIO_COLLECTIVE_F, &
+    H5S_SCALAR_F, H5S_UNLIMITED_F, H5S_SELECT_SET_F, H5S_SELECT_OR_F, H5T_FLOAT_F, H5T_INTEGER_F, H5T_STRING_F, &
+    H5T_FORTRAN_S1, H5T_STR_NULLPAD_F, H5FD_MPIO_COLLECTIVE_F, H5FD_MPIO_INDEPENDENT_F, &
     h5pcreate_f, h5pclose_f, h5pset_fapl_mpio_f, h5pset_dxpl_mpio_f, h5pset_chunk_f, &
     h5pset_create_inter_group_f, h5fcreate_f, h5fopen_f, h5fclose_f, h5fis_hdf5_f, &
     h5gcreate_f, h5gclose_f, h5lexists_f, h5ldelete_f, h5oopen_f, h5oclose_f, &
@@ -101,6 +101,8 @@ module cr_h5file
     generic :: append => a_real0, a_real1, a_real2, a_int0, a_int1, a_int2, a_int64_0, a_int64_1
     procedure, private :: wb_real1, wb_real2, wb_int1, wb_int2, wb_int64_1
     generic :: write_block => wb_real1, wb_real2, wb_int1, wb_int2, wb_int64_1
+    procedure, private :: wr_real1, wr_real2, wr_int1, wr_int2, wr_int64_1
+    generic :: write_ranges => wr_real1, wr_real2, wr_int1, wr_int2, wr_int64_1
     procedure, private :: rb_real1, rb_real2, rb_int1, rb_int2, rb_int64_1
     generic :: read_block => rb_real1, rb_real2, rb_int1, rb_int2, rb_int64_1
     procedure, private :: wa_string, wa_real, wa_int, wa_real1, wa_int1
@@ -1271,11 +1273,33 @@ contains
     integer, intent(in) :: offset
     logical, intent(in) :: is_write
     type(error_t), allocatable, intent(out) :: error
-    integer(hsize_t), allocatable :: d(:), start(:)
+    integer :: rg(2, 1)
+    rg(1, 1) = offset
+    rg(2, 1) = int(dd(size(dd)))
+    call ranges_raw(this, name, p, mtype, tclass, dd, rg, is_write, error)
+  end subroutine block_raw
+
+  !> Collective write/read of the block dd whose last dimension is the concatenation of the
+  !> ranges (0-based offset, count) of the file's last dimension, in increasing order.
+  subroutine ranges_raw(this, name, p, mtype, tclass, dd, ranges, is_write, error, independent)
+    class(h5file_t), intent(inout) :: this
+    character(len=*), intent(in) :: name
+    type(c_ptr), intent(in) :: p
+    integer(hid_t), intent(in) :: mtype
+    integer, intent(in) :: tclass
+    integer(hsize_t), intent(in) :: dd(:)
+    !> (offset, count) of each range along the last dimension [2, n_ranges]
+    integer, intent(in) :: ranges(:,:)
+    logical, intent(in) :: is_write
+    type(error_t), allocatable, intent(out) :: error
+    !> independent MPI-IO transfer instead of collective (the call stays collective)
+    logical, intent(in), optional :: independent
+    integer(hsize_t), allocatable :: d(:), start(:), cnt(:)
     integer(hid_t) :: dset, fspace, mspace, xfer
     integer(i8), target :: dummy(1)
     type(c_ptr) :: pp
-    integer :: hdferr, r
+    integer :: hdferr, r, q, sel
+    integer(i8) :: total, last
     character(len=:), allocatable :: op
     dset = -1; fspace = -1; mspace = -1; xfer = -1
     op = "read_block"
@@ -1285,9 +1309,21 @@ contains
     if (.not. allocated(error)) call query(this, name, op, size(dd), tclass, d, error)
     if (.not. allocated(error)) then
       r = size(d)
-      if (offset < 0 .or. int(offset, hsize_t) + dd(r) > d(r)) then
-        call fail(this, error, op, name, "range " // str(offset + 1) // ".." // &
-          str(offset + int(dd(r))) // " of the last dimension is out of bounds", d)
+      total = 0; last = 0
+      do q = 1, size(ranges, 2)
+        if (ranges(1, q) < last .or. ranges(2, q) < 0 .or. int(ranges(1, q), hsize_t) + ranges(2, q) > d(r)) then
+          call fail(this, error, op, name, "range " // str(ranges(1, q) + 1) // ".." // &
+            str(ranges(1, q) + ranges(2, q)) // " of the last dimension is out of bounds or out of order", d)
+          exit
+        end if
+        total = total + ranges(2, q)
+        last = int(ranges(1, q), i8) + ranges(2, q)
+      end do
+      if (allocated(error)) then
+        continue
+      else if (total /= int(dd(r), i8)) then
+        call fail(this, error, op, name, "the ranges hold " // str(total) // " entries of the last dimension, " // &
+          "the data " // str(int(dd(r), i8)), d)
       else if (dd(r) > 0 .and. r > 1) then
         if (any(dd(1:r-1) /= d(1:r-1))) call fail(this, error, op, name, &
           "leading dims mismatch: data dims " // dims_str(dd), d)
@@ -1303,12 +1339,19 @@ contains
       call check_h5(hdferr, this, error, op, name, "h5dget_space_f", d)
       if (allocated(error)) exit ops
       if (product(dd) > 0) then
-        allocate(start(r))
+        allocate(start(r), cnt(r))
         start = 0
-        start(r) = int(offset, hsize_t)
-        call h5sselect_hyperslab_f(fspace, H5S_SELECT_SET_F, start, dd, hdferr)
-        call check_h5(hdferr, this, error, op, name, "h5sselect_hyperslab_f", dd)
-        if (allocated(error)) exit ops
+        cnt = dd
+        sel = H5S_SELECT_SET_F
+        do q = 1, size(ranges, 2)
+          if (ranges(2, q) == 0) cycle
+          start(r) = int(ranges(1, q), hsize_t)
+          cnt(r) = int(ranges(2, q), hsize_t)
+          call h5sselect_hyperslab_f(fspace, sel, start, cnt, hdferr)
+          call check_h5(hdferr, this, error, op, name, "h5sselect_hyperslab_f", cnt)
+          if (allocated(error)) exit ops
+          sel = H5S_SELECT_OR_F
+        end do
         call h5screate_simple_f(r, dd, mspace, hdferr)
         call check_h5(hdferr, this, error, op, name, "h5screate_simple_f", dd)
         if (allocated(error)) exit ops
@@ -1330,7 +1373,15 @@ contains
         call h5pcreate_f(H5P_DATASET_XFER_F, xfer, hdferr)
         call check_h5(hdferr, this, error, op, name, "h5pcreate_f", d)
         if (allocated(error)) exit ops
-        call h5pset_dxpl_mpio_f(xfer, H5FD_MPIO_COLLECTIVE_F, hdferr)
+        if (present(independent)) then
+          if (independent) then
+            call h5pset_dxpl_mpio_f(xfer, H5FD_MPIO_INDEPENDENT_F, hdferr)
+          else
+            call h5pset_dxpl_mpio_f(xfer, H5FD_MPIO_COLLECTIVE_F, hdferr)
+          end if
+        else
+          call h5pset_dxpl_mpio_f(xfer, H5FD_MPIO_COLLECTIVE_F, hdferr)
+        end if
         call check_h5(hdferr, this, error, op, name, "h5pset_dxpl_mpio_f", d)
         if (allocated(error)) exit ops
       end if
@@ -1347,7 +1398,7 @@ contains
     if (xfer == H5P_DEFAULT_F) xfer = -1
     call close_ids(dset=dset, space=fspace, mspace=mspace, ptype=xfer)
     call sync_error(this, error, op, name)
-  end subroutine block_raw
+  end subroutine ranges_raw
 
   !> Collective: write this rank's elements offset+1..offset+size(x) of a 1D dataset.
   subroutine wb_real1(this, name, x, offset, error)
@@ -1440,6 +1491,63 @@ contains
     call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int64), &
       H5T_INTEGER_F, int(shape(x), hsize_t), offset, .true., error)
   end subroutine wb_int64_1
+
+  !> Collective: write this rank's ranges of the last dimension (ranges(:, q) = 0-based offset,
+  !> count; increasing, disjoint), packed one after the other in x [n_local]. Ranks may own any
+  !> set of ranges (the ranks' ranges must not overlap); a rank with none passes size(x) = 0.
+  subroutine wr_real1(this, name, x, ranges, error)
+    class(h5file_t), intent(inout) :: this
+    character(len=*), intent(in) :: name
+    real(wp), intent(in), target, contiguous :: x(:)
+    integer, intent(in) :: ranges(:,:)
+    type(error_t), allocatable, intent(out) :: error
+    call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), &
+      H5T_FLOAT_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
+  end subroutine wr_real1
+
+  !> Collective: write_ranges of columns of a [n_rows, n_cols] dataset from x [n_rows, n_local].
+  subroutine wr_real2(this, name, x, ranges, error)
+    class(h5file_t), intent(inout) :: this
+    character(len=*), intent(in) :: name
+    real(wp), intent(in), target, contiguous :: x(:,:)
+    integer, intent(in) :: ranges(:,:)
+    type(error_t), allocatable, intent(out) :: error
+    call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), &
+      H5T_FLOAT_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
+  end subroutine wr_real2
+
+  !> Collective: integer version of wr_real1.
+  subroutine wr_int1(this, name, x, ranges, error)
+    class(h5file_t), intent(inout) :: this
+    character(len=*), intent(in) :: name
+    integer, intent(in), target, contiguous :: x(:)
+    integer, intent(in) :: ranges(:,:)
+    type(error_t), allocatable, intent(out) :: error
+    call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
+      H5T_INTEGER_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
+  end subroutine wr_int1
+
+  !> Collective: integer version of wr_real2.
+  subroutine wr_int2(this, name, x, ranges, error)
+    class(h5file_t), intent(inout) :: this
+    character(len=*), intent(in) :: name
+    integer, intent(in), target, contiguous :: x(:,:)
+    integer, intent(in) :: ranges(:,:)
+    type(error_t), allocatable, intent(out) :: error
+    call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
+      H5T_INTEGER_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
+  end subroutine wr_int2
+
+  !> Collective: int64 version of wr_real1.
+  subroutine wr_int64_1(this, name, x, ranges, error)
+    class(h5file_t), intent(inout) :: this
+    character(len=*), intent(in) :: name
+    integer(i8), intent(in), target, contiguous :: x(:)
+    integer, intent(in) :: ranges(:,:)
+    type(error_t), allocatable, intent(out) :: error
+    call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int64), &
+      H5T_INTEGER_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
+  end subroutine wr_int64_1
 
   !> Collective: integer version of rb_real1.
   subroutine rb_int1(this, name, x, offset, error)

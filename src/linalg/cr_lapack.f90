@@ -15,7 +15,7 @@ module cr_lapack
   private
   public :: la_geqrf, la_orgqr, la_gesvd, la_syevd, la_gemm, la_pdgesvd
   public :: lapack_info_message, pause_fpe_halting, restore_fpe_halting
-  public :: la_syrk
+  public :: la_syrk, la_gemv
 
   interface
     subroutine dgeqrf(m, n, a, lda, tau, work, lwork, info)
@@ -237,6 +237,25 @@ contains
     call restore_fpe_halting(saved)
     if (info /= 0) call set_error(error, lapack_info_message("dsyevd", info, "n = " // str(n)))
   end subroutine la_syevd
+
+  !> y = alpha op(a) x + beta y with op = 'N' or 'T' (a hot kernel: the caller passes
+  !> consistent sizes, x [size(op(a), 2)], y [size(op(a), 1)]; nothing is checked).
+  subroutine la_gemv(trans, alpha, a, x, beta, y)
+    character, intent(in) :: trans
+    real(wp), intent(in) :: alpha, beta
+    ! not `contiguous`: a contiguous actual is passed as is, another one is packed
+    real(wp), intent(in) :: a(:, :), x(:)
+    real(wp), intent(inout) :: y(:)
+    if (size(a, 1) == 0 .or. size(a, 2) == 0) then
+      if (beta == 0.0_wp) then
+        y = 0.0_wp
+      else
+        y = beta * y
+      end if
+      return
+    end if
+    call dgemv(trans, size(a, 1), size(a, 2), alpha, a, size(a, 1), x, 1, beta, y, 1)
+  end subroutine la_gemv
 
   !> c = alpha op(a) op(b) + beta c with op = 'N' or 'T'; shapes checked.
   subroutine la_gemm(transa, transb, alpha, a, b, beta, c, error)

@@ -3,26 +3,25 @@
 !> pieces), read by crowd_offline (a block of training samples per rank), crowd_rom (the study
 !> and its full-order trajectories) and the Python scripts.
 !>
-!> This module owns the schema: the root attributes and dictionary (`write_snap_header`), one
-!> set's datasets written from per-rank blocks of samples (`write_snap_set`, collective), and
-!> the readers `read_snap_header` and `read_snap_block`. Readers accept the versions in
-!> SNAP_VERSIONS_READ and validate what they read: dataset shapes against the root attributes,
-!> dictionary identities and multiplier indices in range, CSR offsets monotone, positions,
-!> velocities, desired velocities, parameters and multipliers finite.
+!> This module owns the schema's name, version, units and metadata type (the writer,
+!> cr_snapshot_db, assembles the pieces with them) and the readers `read_snap_header` and
+!> `read_snap_block`. Readers accept the versions in SNAP_VERSIONS_READ and validate what they
+!> read: dataset shapes against the root attributes, dictionary identities and multiplier indices
+!> in range, CSR offsets monotone, positions, velocities, desired velocities, parameters and
+!> multipliers finite, and the checksums of what they read (cr_digest; the ranks' blocks of a
+!> parallel read add up to the whole datasets).
 module cr_snapshot_file
-  use mpi_f08, only: MPI_Exscan, MPI_Allreduce, MPI_IN_PLACE, MPI_INTEGER8, MPI_SUM
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
   use cr_env, only: env_t
-  use cr_scene, only: scene_t
-  use cr_h5file, only: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64
-  use cr_fom_file, only: write_scene
+  use cr_h5file, only: h5file_t
+  use cr_digest, only: digest_t, digest_of, digest_add, check_digest, check_digest_parts
   use cr_product_check, only: check_schema, need_finite, need_range, need_dims, product_error
   implicit none
   private
   public :: SNAP_SCHEMA, SNAP_SCHEMA_VERSION, SNAP_VERSIONS_READ, SNAP_UNITS, db_meta_t, snap_header_t, &
-    snap_block_t, write_snap_header, write_snap_set, read_snap_header, read_snap_block
+    snap_block_t, read_snap_header, read_snap_block
 
   character(len=*), parameter :: SNAP_SCHEMA = "crowdrom-snapshots"
   integer, parameter :: SNAP_SCHEMA_VERSION = 1
@@ -78,131 +77,9 @@ module cr_snapshot_file
     integer(i8), allocatable :: lam_ptr(:)
     integer, allocatable :: lam_idx(:)
     real(wp), allocatable :: lam_val(:)
-    !> each sample's mapped scene: the obstacle vertices in the layout of /scene/obstacle_vertices
-    !> [2 * n_vertices, nloc] and the exit segment (x_lo, y, x_hi, y) [4, nloc] (written; the
-    !> Fortran readers do not need them, the Python figures do)
-    real(wp), allocatable :: scene_vertices(:,:), scene_exit(:,:)
   end type snap_block_t
 
 contains
-
-  ! ------------------------------------------------------------------ write
-
-  !> Root attributes (`complete` = 0), initial positions, reference scene and contact dictionary
-  !> of a database being written (collective when h5 is parallel).
-  subroutine write_snap_header(h5, meta, n_train, n_valid, q0, scene, dkey, dia, dib, dob, error)
-    type(h5file_t), intent(inout) :: h5
-    type(db_meta_t), intent(in) :: meta
-    integer, intent(in) :: n_train, n_valid
-    real(wp), intent(in) :: q0(:)
-    type(scene_t), intent(in) :: scene
-    integer(i8), intent(in) :: dkey(:)
-    integer, intent(in) :: dia(:), dib(:), dob(:)
-    type(error_t), allocatable, intent(out) :: error
-    call h5%write_attr("/", "schema", SNAP_SCHEMA, error); if (allocated(error)) return
-    call h5%write_attr("/", "schema_version", SNAP_SCHEMA_VERSION, error); if (allocated(error)) return
-    call h5%write_attr("/", "program", "crowd_snapshots", error); if (allocated(error)) return
-    call h5%write_attr("/", "version", meta%version, error); if (allocated(error)) return
-    call h5%write_attr("/", "hdf5_version", meta%hdf5_version, error); if (allocated(error)) return
-    call h5%write_attr("/", "mpi_version", meta%mpi_version, error); if (allocated(error)) return
-    call h5%write_attr("/", "compiler", meta%compiler, error); if (allocated(error)) return
-    call h5%write_attr("/", "config", meta%config_text, error); if (allocated(error)) return
-    call h5%write_attr("/", "input_text", meta%input_text, error); if (allocated(error)) return
-    call h5%write_attr("/", "config_hash", trim(meta%hash), error); if (allocated(error)) return
-    call h5%write_attr("/", "units", SNAP_UNITS, error); if (allocated(error)) return
-    call h5%write_attr("/", "n_agents", meta%n_agents, error); if (allocated(error)) return
-    call h5%write_attr("/", "agent_radius", meta%radius, error); if (allocated(error)) return
-    call h5%write_attr("/", "dt", meta%dt, error); if (allocated(error)) return
-    call h5%write_attr("/", "n_steps", meta%n_steps, error); if (allocated(error)) return
-    call h5%write_attr("/", "n_train", n_train, error); if (allocated(error)) return
-    call h5%write_attr("/", "n_valid", n_valid, error); if (allocated(error)) return
-    call h5%write_attr("/", "n_params", meta%n_expanded, error); if (allocated(error)) return
-    call h5%write_attr("/", "param_names", meta%param_names, error); if (allocated(error)) return
-    call h5%write_attr("/", "complete", 0, error); if (allocated(error)) return
-    call h5%write("initial_positions", q0, error); if (allocated(error)) return
-    call write_scene(h5, scene, error); if (allocated(error)) return
-    call h5%make_group("contacts", error); if (allocated(error)) return
-    call h5%write("contacts/key", dkey, error); if (allocated(error)) return
-    call h5%write("contacts/ia", dia, error); if (allocated(error)) return
-    call h5%write("contacts/ib", dib, error); if (allocated(error)) return
-    call h5%write("contacts/ob", dob, error); if (allocated(error)) return
-    call h5%write_attr("contacts", "description", "global contact dictionary: every contact " // &
-      "with lambda > 0 in some sample and step, sorted by key; ib = 0 for agent-obstacle " // &
-      "contacts (ob = obstacle index), ob = 0 for agent pairs", error)
-  end subroutine write_snap_header
-
-  !> Collective: the datasets of one set, each rank writing its block b (ranks' blocks are
-  !> contiguous and ordered by rank; a rank may hold none).
-  subroutine write_snap_set(env, h5, meta, b, error)
-    type(env_t), intent(in) :: env
-    type(h5file_t), intent(inout) :: h5
-    type(db_meta_t), intent(in) :: meta
-    type(snap_block_t), intent(in) :: b
-    type(error_t), allocatable, intent(out) :: error
-    character(len=:), allocatable :: g
-    integer(i8), allocatable :: off(:), cnt(:)
-    integer(i8) :: base, mine
-    integer :: nd, ns, ne, n0, o, ierr
-    g = trim(b%name)
-    nd = 2 * meta%n_agents; ns = meta%n_steps; ne = meta%n_expanded
-    call h5%make_group(g, error); if (allocated(error)) return
-    call h5%make_group(g // "/stats", error); if (allocated(error)) return
-    call h5%create_dataset(g // "/params", [ne, b%n], cr_h5_real, error); if (allocated(error)) return
-    call h5%write_block(g // "/params", b%mu, b%k0 - 1, error); if (allocated(error)) return
-    call h5%create_dataset(g // "/positions", [nd, (ns + 1) * b%n], cr_h5_real, error); if (allocated(error)) return
-    call h5%write_block(g // "/positions", b%q, (b%k0 - 1) * (ns + 1), error); if (allocated(error)) return
-    call h5%create_dataset(g // "/velocities", [nd, ns * b%n], cr_h5_real, error); if (allocated(error)) return
-    call h5%write_block(g // "/velocities", b%u, (b%k0 - 1) * ns, error); if (allocated(error)) return
-    call h5%create_dataset(g // "/desired", [nd, ns * b%n], cr_h5_real, error); if (allocated(error)) return
-    call h5%write_block(g // "/desired", b%v, (b%k0 - 1) * ns, error); if (allocated(error)) return
-    ! per-step statistics [n_steps, n_S]
-    call h5%create_dataset(g // "/stats/kkt", [ns, b%n], cr_h5_real, error); if (allocated(error)) return
-    call h5%write_block(g // "/stats/kkt", b%kkt, b%k0 - 1, error); if (allocated(error)) return
-    call h5%create_dataset(g // "/stats/min_gap", [ns, b%n], cr_h5_real, error); if (allocated(error)) return
-    call h5%write_block(g // "/stats/min_gap", b%min_gap, b%k0 - 1, error); if (allocated(error)) return
-    call h5%create_dataset(g // "/stats/iterations", [ns, b%n], cr_h5_int, error); if (allocated(error)) return
-    call h5%write_block(g // "/stats/iterations", b%iterations, b%k0 - 1, error); if (allocated(error)) return
-    call h5%create_dataset(g // "/stats/converged", [ns, b%n], cr_h5_int, error); if (allocated(error)) return
-    call h5%write_block(g // "/stats/converged", b%converged, b%k0 - 1, error); if (allocated(error)) return
-    call h5%create_dataset(g // "/stats/n_active", [ns, b%n], cr_h5_int, error); if (allocated(error)) return
-    call h5%write_block(g // "/stats/n_active", b%n_active, b%k0 - 1, error); if (allocated(error)) return
-    ! per-sample time and rank [n_S] (not part of the bitwise comparison)
-    call h5%create_dataset(g // "/stats/time", [b%n], cr_h5_real, error); if (allocated(error)) return
-    call h5%write_block(g // "/stats/time", b%time, b%k0 - 1, error); if (allocated(error)) return
-    call h5%create_dataset(g // "/stats/rank", [b%n], cr_h5_int, error); if (allocated(error)) return
-    call h5%write_block(g // "/stats/rank", b%rank, b%k0 - 1, error); if (allocated(error)) return
-    ! sparse multipliers, CSR over the snapshot columns
-    mine = b%lam_ptr(size(b%lam_ptr))
-    base = 0
-    call MPI_Exscan(mine, base, 1, MPI_INTEGER8, MPI_SUM, env%comm, ierr)
-    if (env%rank == 0) base = 0
-    allocate(cnt(1))
-    cnt(1) = mine
-    call MPI_Allreduce(MPI_IN_PLACE, cnt, 1, MPI_INTEGER8, MPI_SUM, env%comm, ierr)
-    if (cnt(1) > huge(1)) then
-      call set_error(error, g // ": " // str(cnt(1)) // " multipliers exceed the 32-bit block offsets"); return
-    end if
-    ! rank 0 writes the leading 0, every rank the ends of its columns
-    n0 = merge(1, 0, env%rank == 0)
-    allocate(off(n0 + ns * b%nloc))
-    if (n0 == 1) off(1) = 0
-    off(n0 + 1:) = base + b%lam_ptr(2:)
-    o = 0
-    if (env%rank > 0) o = (b%k0 - 1) * ns + 1
-    call h5%create_dataset(g // "/lambda_offset", [ns * b%n + 1], cr_h5_int64, error); if (allocated(error)) return
-    call h5%write_block(g // "/lambda_offset", off, o, error); if (allocated(error)) return
-    call h5%create_dataset(g // "/lambda_index", [int(cnt(1))], cr_h5_int, error); if (allocated(error)) return
-    call h5%write_block(g // "/lambda_index", b%lam_idx, int(base), error); if (allocated(error)) return
-    call h5%create_dataset(g // "/lambda_value", [int(cnt(1))], cr_h5_real, error); if (allocated(error)) return
-    call h5%write_block(g // "/lambda_value", b%lam_val, int(base), error); if (allocated(error)) return
-    ! each sample's mapped scene
-    call h5%create_dataset(g // "/scene_vertices", [size(b%scene_vertices, 1), b%n], cr_h5_real, error)
-    if (allocated(error)) return
-    call h5%write_block(g // "/scene_vertices", b%scene_vertices, b%k0 - 1, error); if (allocated(error)) return
-    call h5%create_dataset(g // "/scene_exit", [4, b%n], cr_h5_real, error); if (allocated(error)) return
-    call h5%write_block(g // "/scene_exit", b%scene_exit, b%k0 - 1, error); if (allocated(error)) return
-    call h5%write_attr(g, "n_samples", b%n, error)
-  end subroutine write_snap_set
 
   ! ------------------------------------------------------------------ read
 
@@ -232,7 +109,7 @@ contains
   end subroutine read_snap_header
 
   subroutine header_of(h5, path, hdr, error)
-    type(h5file_t), intent(in) :: h5
+    type(h5file_t), intent(inout) :: h5
     character(len=*), intent(in) :: path
     type(snap_header_t), intent(out) :: hdr
     type(error_t), allocatable, intent(out) :: error
@@ -275,7 +152,14 @@ contains
     call h5%read("contacts/ob", hdr%dict_ob, error); if (allocated(error)) return
     call need_range(path, "contacts/ia", hdr%dict_ia, 1, hdr%n_agents, error); if (allocated(error)) return
     call need_range(path, "contacts/ib", hdr%dict_ib, 0, hdr%n_agents, error); if (allocated(error)) return
-    call need_range(path, "contacts/ob", hdr%dict_ob, 0, huge(1), error)
+    call need_range(path, "contacts/ob", hdr%dict_ob, 0, huge(1), error); if (allocated(error)) return
+    call check_digest(h5, "initial_positions", digest_of(hdr%q0, 0_i8), "'" // path // "'", error)
+    if (allocated(error)) return
+    call check_digest(h5, "contacts/ia", digest_of(hdr%dict_ia, 0_i8), "'" // path // "'", error)
+    if (allocated(error)) return
+    call check_digest(h5, "contacts/ib", digest_of(hdr%dict_ib, 0_i8), "'" // path // "'", error)
+    if (allocated(error)) return
+    call check_digest(h5, "contacts/ob", digest_of(hdr%dict_ob, 0_i8), "'" // path // "'", error)
   end subroutine header_of
 
   !> Read samples k0..k0+nloc-1 of set `name` ('train' or 'valid') and validate them. With env
@@ -357,25 +241,77 @@ contains
       call h5%read_block(g // "lambda_index", blk%lam_idx, int(base), error); if (allocated(error)) goto 9
       call h5%read_block(g // "lambda_value", blk%lam_val, int(base), error); if (allocated(error)) goto 9
     end if
-    ! ... then this rank's checks
+    ! ... then this rank's checks (made collective before the collective checksums)
+    checks: block
     if (len(bad) > 0) then
-      call product_error(path, "dataset '" // g // "lambda_offset': " // bad, error); goto 9
+      call product_error(path, "dataset '" // g // "lambda_offset': " // bad, error); exit checks
     end if
-    call need_finite(path, g // "params", blk%mu, error); if (allocated(error)) goto 9
-    call need_finite(path, g // "positions", blk%q, error); if (allocated(error)) goto 9
-    call need_finite(path, g // "velocities", blk%u, error); if (allocated(error)) goto 9
+    call need_finite(path, g // "params", blk%mu, error); if (allocated(error)) exit checks
+    call need_finite(path, g // "positions", blk%q, error); if (allocated(error)) exit checks
+    call need_finite(path, g // "velocities", blk%u, error); if (allocated(error)) exit checks
     if (desired) then
-      call need_finite(path, g // "desired", blk%v, error); if (allocated(error)) goto 9
+      call need_finite(path, g // "desired", blk%v, error); if (allocated(error)) exit checks
     end if
     if (multipliers) then
-      call need_range(path, g // "lambda_index", blk%lam_idx, 1, hdr%n_dict, error); if (allocated(error)) goto 9
-      call need_finite(path, g // "lambda_value", blk%lam_val, error); if (allocated(error)) goto 9
+      call need_range(path, g // "lambda_index", blk%lam_idx, 1, hdr%n_dict, error); if (allocated(error)) exit checks
+      call need_finite(path, g // "lambda_value", blk%lam_val, error); if (allocated(error)) exit checks
+    end if
+    end block checks
+    if (present(env)) then
+      if (env%any_true(allocated(error)) .and. .not. allocated(error)) call set_error(error, "'" // path // &
+        "': another rank found a corrupt block of set " // name, 2)
+    end if
+    if (allocated(error)) goto 9
+    ! checksums: in parallel every rank's block is a part of the whole; serially only a whole set
+    if (present(env) .and. n > 0) then
+      call verify(.true., error); if (allocated(error)) goto 9
+    else if (k0 == 1 .and. nloc == n .and. n > 0) then
+      call verify(.false., error); if (allocated(error)) goto 9
     end if
 9   call h5%close(e2)
     if (allocated(error)) then
       if (error%code /= 2) call prefix_error(error, "database '" // path // "', set " // name)
+      error%code = 2
       return
     end if
     if (allocated(e2)) call move_alloc(e2, error)
+
+  contains
+
+    !> Compare the checksums of the datasets read (parts: this rank's block is one part).
+    subroutine verify(parts, error)
+      logical, intent(in) :: parts
+      type(error_t), allocatable, intent(out) :: error
+      character(len=:), allocatable :: w
+      type(digest_t) :: d
+      integer(i8) :: o
+      w = "'" // path // "'"
+      o = int(k0 - 1, i8)
+      call one(g // "params", digest_of(blk%mu, o * hdr%n_params), parts, error); if (allocated(error)) return
+      call one(g // "positions", digest_of(blk%q, o * (nt + 1) * nd), parts, error); if (allocated(error)) return
+      call one(g // "velocities", digest_of(blk%u, o * nt * nd), parts, error); if (allocated(error)) return
+      if (desired) then
+        call one(g // "desired", digest_of(blk%v, o * nt * nd), parts, error); if (allocated(error)) return
+      end if
+      if (multipliers) then
+        d = digest_of(off(1:nt * nloc), o * nt)
+        if (nloc > 0 .and. k0 - 1 + nloc == n) d = digest_add(d, digest_of(off(nt * nloc + 1:), int(nt, i8) * n))
+        call one(g // "lambda_offset", d, parts, error); if (allocated(error)) return
+        call one(g // "lambda_index", digest_of(blk%lam_idx, base), parts, error); if (allocated(error)) return
+        call one(g // "lambda_value", digest_of(blk%lam_val, base), parts, error); if (allocated(error)) return
+      end if
+    end subroutine verify
+
+    subroutine one(name, d, parts, error)
+      character(len=*), intent(in) :: name
+      type(digest_t), intent(in) :: d
+      logical, intent(in) :: parts
+      type(error_t), allocatable, intent(out) :: error
+      if (parts) then
+        call check_digest_parts(h5, env, name, d, "'" // path // "'", error)
+      else
+        call check_digest(h5, name, d, "'" // path // "'", error)
+      end if
+    end subroutine one
   end subroutine read_snap_block
 end module cr_snapshot_file

@@ -25,7 +25,10 @@ module cr_reduced_ops
   use cr_neighbours, only: cell_list_t, build_contacts
   use cr_rom_file, only: rom_pair_t
   use cr_hyper_terms, only: contact_row_image
+  use cr_lapack, only: la_gemv
   use cr_eim, only: eim_t, eim_interp_matrix
+  use cr_dual_qp, only: gram_source_t
+  use cr_kinds, only: i8
   implicit none
   private
   public :: eval_ctx_t, reduced_ops_t, make_reduced_ops, HYPER_NAMES, eim_exact_rows
@@ -41,17 +44,21 @@ module cr_reduced_ops
     real(wp) :: radius = 0, h = 0
   end type eval_ctx_t
 
-  !> A way of assembling (vhat, bhat, dhat).
-  type, abstract :: reduced_ops_t
+  !> A way of assembling (vhat, bhat, dhat); also the source of the Gram entries of the
+  !> assembled rows for the dual active-set solver (when has_gram).
+  type, abstract, extends(gram_source_t) :: reduced_ops_t
     integer :: nb = 0, r = 0
     !> agents whose positions `assemble` reads
     integer, allocatable :: agents(:)
     !> number of interpolation / quadrature entries of s1, s2, s3 (0 for exact)
     integer :: m(3) = 0
-    !> velocity basis [n_dof, nb]
-    real(wp), allocatable :: v(:,:)
+    !> velocity basis [n_dof, nb] and its transpose [nb, n_dof] (contiguous rows of V)
+    real(wp), allocatable :: v(:,:), vt(:,:)
     !> .true. when the rows are the R cone vectors (multipliers comparable across steps)
     logical :: fixed_rows = .true.
+    !> identity of each assembled row when the rows change from step to step ('online':
+    !> the contact key, agent pair or agent-obstacle pair) [rows]
+    integer(i8), allocatable :: keys(:)
     !> the cone by support rows (CSR): row l has cone entries wk(wp0(l)+1 : wp0(l+1)) with
     !> values wv (one entry per row for gIS cones)
     integer, allocatable :: wp0(:), wk(:)
@@ -59,7 +66,8 @@ module cr_reduced_ops
     !> Gram matrix of the reduced rows without touching the basis: row k of bhat is z_k V with
     !> a sparse z_k (at most zmax entries, recorded by `assemble`), so bhat bhat^T =
     !> Z (V V^T) Z^T costs zmax^2 flops per entry instead of Nb (has_gram: cone variants with
-    !> zmax <= 16, Nb >= 4 zmax^2 and n_dof <= 4000)
+    !> zmax <= 16, Nb >= 4 zmax^2 and n_dof <= 4000; online contacts (zmax = 4) when
+    !> Nb >= 16 and n_dof <= 4000)
     logical :: has_gram = .false.
     integer :: zmax = 0
     real(wp), allocatable :: pmat(:,:), zval(:,:)
@@ -67,19 +75,22 @@ module cr_reduced_ops
   contains
     procedure(assemble_i), deferred :: assemble
     procedure :: gram => ops_gram
+    procedure :: gram_entries => ops_gram_entries
+    procedure :: gram_diag => ops_gram_diag
     procedure, private :: z_add
   end type reduced_ops_t
 
   abstract interface
     !> Reduced terms at positions q [n_dof] (valid at least for this%agents):
-    !> vhat [nb], bhat [rows, nb], dhat [rows] (rows = R, or the near contacts for 'online').
-    subroutine assemble_i(this, ctx, q, vhat, bhat, dhat)
+    !> vhat [nb], bt = bhat^T [nb, rows] (the rows as contiguous columns), dhat [rows]
+    !> (rows = R, or the near contacts for 'online').
+    subroutine assemble_i(this, ctx, q, vhat, bt, dhat)
       import :: reduced_ops_t, eval_ctx_t, wp
       class(reduced_ops_t), intent(inout) :: this
       type(eval_ctx_t), intent(in) :: ctx
       real(wp), intent(in) :: q(:)
       real(wp), intent(out) :: vhat(:)
-      real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
+      real(wp), allocatable, intent(inout) :: bt(:,:), dhat(:)
     end subroutine assemble_i
   end interface
 
@@ -130,8 +141,11 @@ module cr_reduced_ops
     !> s3 points and their positions, distinct agents of the s1 points and their positions
     integer, allocatable :: urows(:), pos2(:), pos3(:), uagents(:), pos1(:)
     real(wp), allocatable :: ugap(:), ug(:,:), udes(:,:)
-    !> V^T [nb, n_dof] (contiguous rows of V) and bhat^T [nb, R] work space
-    real(wp), allocatable :: vt(:,:), bht(:,:)
+    !> work vector [n_dof]
+    real(wp), allocatable :: xs(:)
+    !> reduced images of the unit directions of each s2 point's contact row: x and y parts of
+    !> (V^T rows of agent b) - (V^T rows of agent a) [nb, 2, m2] (b = 0: minus agent a's)
+    real(wp), allocatable :: dvt(:,:,:)
   contains
     procedure :: assemble => eq_assemble
   end type ops_eq_t
@@ -170,6 +184,7 @@ contains
     ops%nb = pair%nb
     ops%r = pair%r
     ops%v = pair%v
+    ops%vt = transpose(pair%v)
     call cone_rows(pair%terms%w, ops%wp0, ops%wk, ops%wv)
     allocate(need(n_agents))
     need = .false.
@@ -180,6 +195,11 @@ contains
       allocate(ops%vfull(2 * n_agents))
       call ops%cs%init(n_agents, 1.0_wp, 8 * n_agents)
       need = .true.
+      ! Gram entries of contact rows (4 dofs each) for the dual active-set solver
+      ops%zmax = 4
+      ops%has_gram = pair%nb >= 16 .and. 2 * n_agents <= 4000
+      if (ops%has_gram) ops%pmat = matmul(pair%v, transpose(pair%v))
+      allocate(ops%zn(0), ops%zdof(4, 0), ops%zval(4, 0), ops%keys(0))
     type is (ops_exact_t)
       ops%ia = pair%terms%ia; ops%ib = pair%terms%ib; ops%ob = pair%terms%ob
       ops%w = pair%terms%w
@@ -212,8 +232,14 @@ contains
       call unique_map([ops%idx2, ops%idx3], ops%urows, ops%pos2, ops%pos3, size(ops%idx2))
       call unique_map((ops%idx1 + 1) / 2, ops%uagents, ops%pos1)
       allocate(ops%ugap(size(ops%urows)), ops%ug(2, size(ops%urows)), ops%udes(2, size(ops%uagents)))
-      ops%vt = transpose(pair%v)
-      allocate(ops%bht(pair%nb, pair%r))
+      allocate(ops%xs(size(pair%v, 1)), ops%dvt(pair%nb, 2, m(2)))
+      ops%dvt = 0
+      do k = 1, m(2)
+        associate (l => ops%idx2(k))
+          call add_row(ops%dvt(:, 1, k), ops%vt, 1.0_wp, ops%ia(l), ops%ib(l), [1.0_wp, 0.0_wp])
+          call add_row(ops%dvt(:, 2, k), ops%vt, 1.0_wp, ops%ia(l), ops%ib(l), [0.0_wp, 1.0_wp])
+        end associate
+      end do
     end select
     ops%agents = pack([(k, k = 1, n_agents)], need)
 
@@ -365,6 +391,76 @@ contains
     end do
   end subroutine ops_gram
 
+  !> g(j) = (row p) . (row idx(j)) of the last assembled bhat, from the recorded sparse
+  !> rows: z_p P z_j^T (zmax^2 flops per entry; needs has_gram).
+  subroutine ops_gram_entries(this, p, idx, g)
+    class(reduced_ops_t), intent(in) :: this
+    integer, intent(in) :: p, idx(:)
+    real(wp), intent(out) :: g(:)
+    integer :: jj
+    if (this%zmax == 4) then
+      do jj = 1, size(idx)
+        g(jj) = zpz4(this, p, idx(jj))
+      end do
+    else
+      do jj = 1, size(idx)
+        g(jj) = zpz(this, p, idx(jj))
+      end do
+    end if
+  end subroutine ops_gram_entries
+
+  !> g(k) = |row k|^2 of the last assembled bhat [R or rows].
+  subroutine ops_gram_diag(this, g)
+    class(reduced_ops_t), intent(in) :: this
+    real(wp), intent(out) :: g(:)
+    integer :: k
+    if (this%zmax == 4) then
+      do k = 1, size(g)
+        g(k) = zpz4(this, k, k)
+      end do
+    else
+      do k = 1, size(g)
+        g(k) = zpz(this, k, k)
+      end do
+    end if
+  end subroutine ops_gram_diag
+
+  !> z_p P z_k^T, general zmax.
+  pure real(wp) function zpz(this, p, k) result(t)
+    class(reduced_ops_t), intent(in) :: this
+    integer, intent(in) :: p, k
+    integer :: i, j
+    t = 0
+    do j = 1, this%zn(k)
+      do i = 1, this%zn(p)
+        t = t + this%zval(i, p) * this%zval(j, k) * this%pmat(this%zdof(i, p), this%zdof(j, k))
+      end do
+    end do
+  end function zpz
+
+  !> z_p P z_k^T for zmax = 4 (one contact: 2 or 4 entries), unrolled.
+  pure real(wp) function zpz4(this, p, k) result(t)
+    class(reduced_ops_t), intent(in) :: this
+    integer, intent(in) :: p, k
+    integer :: j, c, d1, d2, d3, d4
+    real(wp) :: z1, z2, z3, z4
+    t = 0
+    if (this%zn(p) == 0) return
+    z1 = this%zval(1, p); z2 = this%zval(2, p)
+    d1 = this%zdof(1, p); d2 = this%zdof(2, p)
+    if (this%zn(p) == 4) then
+      z3 = this%zval(3, p); z4 = this%zval(4, p)
+      d3 = this%zdof(3, p); d4 = this%zdof(4, p)
+    else
+      z3 = 0; z4 = 0; d3 = d1; d4 = d2
+    end if
+    do j = 1, this%zn(k)
+      c = this%zdof(j, k)
+      t = t + this%zval(j, k) * (z1 * this%pmat(d1, c) + z2 * this%pmat(d2, c) + z3 * this%pmat(d3, c) + &
+        z4 * this%pmat(d4, c))
+    end do
+  end function zpz4
+
   !> CSR by rows of the cone on its support rows w [p3, R].
   subroutine cone_rows(w, ptr, k, val)
     real(wp), intent(in) :: w(:,:)
@@ -457,42 +553,73 @@ contains
     va = ctx%speeds(a) * d
   end function agent_desired
 
-  subroutine exact_assemble(this, ctx, q, vhat, bhat, dhat)
+  subroutine exact_assemble(this, ctx, q, vhat, bt, dhat)
     class(ops_exact_t), intent(inout) :: this
     type(eval_ctx_t), intent(in) :: ctx
     real(wp), intent(in) :: q(:)
     real(wp), intent(out) :: vhat(:)
-    real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
-    real(wp) :: gap, g(2), bv(this%nb)
+    real(wp), allocatable, intent(inout) :: bt(:,:), dhat(:)
+    real(wp) :: gap, g(2)
     integer :: k, a, b, j, p
     call ctx%desired%evaluate(q, ctx%speeds, this%vfull)
-    vhat = matmul(this%vfull, this%v)
-    call ensure(bhat, dhat, this%r, this%nb)
-    bhat = 0; dhat = 0
+    call la_gemv('N', 1.0_wp, this%vt, this%vfull, 0.0_wp, vhat)
+    call ensure(bt, dhat, this%nb, this%r)
+    bt = 0; dhat = 0
     if (this%has_gram) this%zn = 0
     do k = 1, size(this%ia)
       a = this%ia(k); b = this%ib(k)
       call eval_contact(ctx%scene, q, ctx%radius, a, b, this%ob(k), gap, g)
-      bv = contact_row_image(this%v, a, b, g, ctx%h)
       do p = this%wp0(k) + 1, this%wp0(k + 1)
         j = this%wk(p)
-        bhat(j, :) = bhat(j, :) + this%wv(p) * bv
+        call add_row(bt(:, j), this%vt, this%wv(p) * ctx%h, a, b, g)
         dhat(j) = dhat(j) + this%wv(p) * gap
         if (this%has_gram) call this%z_add(j, this%wv(p), a, b, g, ctx%h)
       end do
     end do
   end subroutine exact_assemble
 
-  subroutine online_assemble(this, ctx, q, vhat, bhat, dhat)
+  !> y += c (-(g . V^T rows of agent a) + (g . V^T rows of agent b)) for vt = V^T [nb, n_dof]:
+  !> the reduced image of a contact row scaled by c / h (b = 0: obstacle contact).
+  pure subroutine add_row(y, vt, c, a, b, g)
+    real(wp), contiguous, intent(inout) :: y(:)
+    real(wp), contiguous, intent(in) :: vt(:,:)
+    real(wp), intent(in) :: c, g(2)
+    integer, intent(in) :: a, b
+    real(wp) :: c1, c2
+    integer :: i
+    c1 = c * g(1); c2 = c * g(2)
+    if (b > 0) then
+      do i = 1, size(y)
+        y(i) = y(i) + c1 * (vt(i, 2*b-1) - vt(i, 2*a-1)) + c2 * (vt(i, 2*b) - vt(i, 2*a))
+      end do
+    else
+      do i = 1, size(y)
+        y(i) = y(i) - c1 * vt(i, 2*a-1) - c2 * vt(i, 2*a)
+      end do
+    end if
+  end subroutine add_row
+
+  !> y += c1 x1 + c2 x2.
+  pure subroutine add_pair(y, c1, x1, c2, x2)
+    real(wp), contiguous, intent(inout) :: y(:)
+    real(wp), intent(in) :: c1, c2
+    real(wp), contiguous, intent(in) :: x1(:), x2(:)
+    integer :: i
+    do i = 1, size(y)
+      y(i) = y(i) + c1 * x1(i) + c2 * x2(i)
+    end do
+  end subroutine add_pair
+
+  subroutine online_assemble(this, ctx, q, vhat, bt, dhat)
     class(ops_online_t), intent(inout) :: this
     type(eval_ctx_t), intent(in) :: ctx
     real(wp), intent(in) :: q(:)
     real(wp), intent(out) :: vhat(:)
-    real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
+    real(wp), allocatable, intent(inout) :: bt(:,:), dhat(:)
     real(wp) :: vmax, cutoff
     integer :: l, a, b, i
     call ctx%desired%evaluate(q, ctx%speeds, this%vfull)
-    vhat = matmul(this%vfull, this%v)
+    call la_gemv('N', 1.0_wp, this%vt, this%vfull, 0.0_wp, vhat)
     vmax = 0
     do i = 1, size(ctx%speeds)
       vmax = max(vmax, norm2(this%vfull(2*i-1:2*i)))
@@ -501,27 +628,38 @@ contains
     cutoff = max(this%cutoff_factor * 2 * ctx%h * vmax, 1.0e-12_wp * ctx%radius)
     this%cs%h = ctx%h
     call build_contacts(ctx%scene, q, ctx%radius, cutoff, this%cells, this%cs)
-    if (allocated(bhat)) then
-      if (size(bhat, 1) /= this%cs%n) deallocate(bhat, dhat)
+    if (allocated(bt)) then
+      if (size(bt, 2) /= this%cs%n) deallocate(bt, dhat)
     end if
-    if (.not. allocated(bhat)) allocate(bhat(this%cs%n, this%nb), dhat(this%cs%n))
+    if (.not. allocated(bt)) allocate(bt(this%nb, this%cs%n), dhat(this%cs%n))
+    if (size(this%keys) < this%cs%n) then
+      deallocate(this%keys, this%zn, this%zdof, this%zval)
+      allocate(this%keys(2 * this%cs%n), this%zn(2 * this%cs%n), this%zdof(4, 2 * this%cs%n), &
+        this%zval(4, 2 * this%cs%n))
+    end if
     do l = 1, this%cs%n
       a = this%cs%ia(l); b = this%cs%ib(l)
-      bhat(l, :) = contact_row_image(this%v, a, b, this%cs%g(:, l), ctx%h)
+      bt(:, l) = 0
+      call add_row(bt(:, l), this%vt, ctx%h, a, b, this%cs%g(:, l))
       dhat(l) = this%cs%gap(l)
+      this%keys(l) = this%cs%key(l)
+      if (this%has_gram) then
+        this%zn(l) = 0
+        call this%z_add(l, 1.0_wp, a, b, this%cs%g(:, l), ctx%h)
+      end if
     end do
   end subroutine online_assemble
 
-  subroutine eim_assemble(this, ctx, q, vhat, bhat, dhat)
+  subroutine eim_assemble(this, ctx, q, vhat, bt, dhat)
     class(ops_eim_t), intent(inout) :: this
     type(eval_ctx_t), intent(in) :: ctx
     real(wp), intent(in) :: q(:)
     real(wp), intent(out) :: vhat(:)
-    real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
+    real(wp), allocatable, intent(inout) :: bt(:,:), dhat(:)
     real(wp) :: s(max(this%m(1), this%m(2), this%m(3), 1)), va(2), gap, g(2), c(max(this%m(2), 1))
-    real(wp) :: st(size(this%s2_row)), gs(2), cnt(2), nrm, bv(this%nb)
+    real(wp) :: st(size(this%s2_row)), gs(2), cnt(2), nrm
     integer :: j, i, l, p, e, comp
-    call ensure(bhat, dhat, this%r, this%nb)
+    call ensure(bt, dhat, this%nb, this%r)
     ! s1 at the interpolation dofs
     do j = 1, this%m(1)
       i = this%idx1(j)
@@ -539,7 +677,7 @@ contains
       call eval_contact(ctx%scene, q, ctx%radius, this%ia(l), this%ib(l), this%ob(l), gap, g)
       s(j) = this%s2_sgn(i) * ctx%h * g(2 - mod(this%s2_dof(i), 2))
     end do
-    bhat = 0
+    bt = 0
     if (this%m(2) > 0) then
       c(1:this%m(2)) = matmul(this%minv2, s(1:this%m(2)))
       st = matmul(this%u2(:, 1:this%m(2)), c(1:this%m(2)))
@@ -561,11 +699,12 @@ contains
           call eval_contact(ctx%scene, q, ctx%radius, this%ia(l), this%ib(l), this%ob(l), gap, g)
           this%n_exact_rows = this%n_exact_rows + 1
         end if
-        bv = contact_row_image(this%v, this%ia(l), this%ib(l), g, ctx%h)
         do p = this%wp0(l) + 1, this%wp0(l + 1)
-          bhat(this%wk(p), :) = bhat(this%wk(p), :) + this%wv(p) * bv
+          call add_row(bt(:, this%wk(p)), this%vt, this%wv(p) * ctx%h, this%ia(l), this%ib(l), g)
         end do
       end do
+    else
+      bt = 0
     end if
     ! s3 at the interpolation rows
     do j = 1, this%m(3)
@@ -580,17 +719,17 @@ contains
     end if
   end subroutine eim_assemble
 
-  subroutine eq_assemble(this, ctx, q, vhat, bhat, dhat)
+  subroutine eq_assemble(this, ctx, q, vhat, bt, dhat)
     class(ops_eq_t), intent(inout) :: this
     type(eval_ctx_t), intent(in) :: ctx
     real(wp), intent(in) :: q(:)
     real(wp), intent(out) :: vhat(:)
-    real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
+    real(wp), allocatable, intent(inout) :: bt(:,:), dhat(:)
     real(wp) :: g(2), c
     integer :: j, i, l, k, a, b, p, u
-    call ensure(bhat, dhat, this%r, this%nb)
-    vhat = 0; dhat = 0
-    this%bht = 0
+    call ensure(bt, dhat, this%nb, this%r)
+    dhat = 0
+    bt = 0
     if (this%has_gram) this%zn = 0
     ! each agent and contact row once
     do u = 1, size(this%uagents)
@@ -600,22 +739,32 @@ contains
       l = this%urows(u)
       call eval_contact(ctx%scene, q, ctx%radius, this%ia(l), this%ib(l), this%ob(l), this%ugap(u), this%ug(:, u))
     end do
-    do j = 1, this%m(1)
-      i = this%idx1(j)
-      vhat = vhat + (this%w1(j) * this%udes(2 - mod(i, 2), this%pos1(j))) * this%vt(:, i)
-    end do
+    ! vhat = V^T x with x the weighted desired velocity at the points: one product with V^T
+    ! when the points cover a good part of the dofs, else one column per point
+    if (8 * this%m(1) >= size(this%vt, 2)) then
+      this%xs = 0
+      do j = 1, this%m(1)
+        i = this%idx1(j)
+        this%xs(i) = this%xs(i) + this%w1(j) * this%udes(2 - mod(i, 2), this%pos1(j))
+      end do
+      call la_gemv('N', 1.0_wp, this%vt, this%xs, 0.0_wp, vhat)
+    else
+      vhat = 0
+      do j = 1, this%m(1)
+        i = this%idx1(j)
+        vhat = vhat + (this%w1(j) * this%udes(2 - mod(i, 2), this%pos1(j))) * this%vt(:, i)
+      end do
+    end if
     do j = 1, this%m(2)
       l = this%idx2(j); a = this%ia(l); b = this%ib(l)
       g = this%ug(:, this%pos2(j))
       do p = this%wp0(l) + 1, this%wp0(l + 1)
         k = this%wk(p)
-        c = this%w2(j) * this%wv(p) * ctx%h
-        this%bht(:, k) = this%bht(:, k) - c * (g(1) * this%vt(:, 2*a-1) + g(2) * this%vt(:, 2*a))
-        if (b > 0) this%bht(:, k) = this%bht(:, k) + c * (g(1) * this%vt(:, 2*b-1) + g(2) * this%vt(:, 2*b))
-        if (this%has_gram) call this%z_add(k, this%w2(j) * this%wv(p), a, b, g, ctx%h)
+        c = this%w2(j) * this%wv(p)
+        call add_pair(bt(:, k), (c * ctx%h) * g(1), this%dvt(:, 1, j), (c * ctx%h) * g(2), this%dvt(:, 2, j))
+        if (this%has_gram) call this%z_add(k, c, a, b, g, ctx%h)
       end do
     end do
-    bhat = transpose(this%bht)
     do j = 1, this%m(3)
       l = this%idx3(j)
       do p = this%wp0(l) + 1, this%wp0(l + 1)
@@ -635,14 +784,14 @@ contains
     end select
   end function eim_exact_rows
 
-  !> Allocate bhat [r, nb], dhat [r] if needed.
-  subroutine ensure(bhat, dhat, r, nb)
-    real(wp), allocatable, intent(inout) :: bhat(:,:), dhat(:)
-    integer, intent(in) :: r, nb
-    if (allocated(bhat)) then
-      if (size(bhat, 1) == r .and. size(bhat, 2) == nb) return
-      deallocate(bhat, dhat)
+  !> Allocate bt [nb, r], dhat [r] if needed.
+  subroutine ensure(bt, dhat, nb, r)
+    real(wp), allocatable, intent(inout) :: bt(:,:), dhat(:)
+    integer, intent(in) :: nb, r
+    if (allocated(bt)) then
+      if (size(bt, 1) == nb .and. size(bt, 2) == r) return
+      deallocate(bt, dhat)
     end if
-    allocate(bhat(r, nb), dhat(r))
+    allocate(bt(nb, r), dhat(r))
   end subroutine ensure
 end module cr_reduced_ops

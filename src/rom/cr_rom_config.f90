@@ -42,8 +42,10 @@ module cr_rom_config
     integer :: m_v(MAX_SETTINGS) = 0
     integer :: m_b(MAX_SETTINGS) = 0
     integer :: m_d(MAX_SETTINGS) = 0
-    !> reduced solver: 'nnls' (exact active set, warm started) or 'uzawa' (the paper's)
-    character(len=8) :: solver = 'nnls'
+    !> reduced solver: 'dual' (warm-started dual active set on the active rows' Gram, with
+    !> 'nnls' as certified fallback), 'nnls' (Lawson-Hanson active set, warm started) or
+    !> 'uzawa' (the paper's)
+    character(len=8) :: solver = 'dual'
     integer :: nnls_max_iter = 0
     !> reduced Uzawa: rho = uzawa_rho_factor / h^2, stopping test, cap
     real(wp) :: uzawa_rho_factor = 0.2_wp
@@ -185,7 +187,8 @@ contains
       call probs%need(c%m_v(k) >= 0 .and. c%m_b(k) >= 0 .and. c%m_d(k) >= 0, &
         "&sweep: m_v, m_b, m_d(" // str(k) // ") must be >= 0 (0: defaults)")
     end do
-    call probs%need(c%solver == 'nnls' .or. c%solver == 'uzawa', "&reduced: solver must be 'nnls' or 'uzawa'")
+    call probs%need(c%solver == 'dual' .or. c%solver == 'nnls' .or. c%solver == 'uzawa', &
+      "&reduced: solver must be 'dual', 'nnls' or 'uzawa'")
     call probs%need(c%nnls_max_iter >= 0, "&reduced: nnls_max_iter must be >= 0 (0: default)")
     call probs%need(c%uzawa_rho_factor > 0, "&reduced: uzawa_rho_factor must be > 0")
     call probs%need(c%uzawa_eps > 0, "&reduced: uzawa_eps must be > 0")

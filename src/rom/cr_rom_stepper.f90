@@ -1,24 +1,39 @@
 !> Time stepping of the reduced model for one parameter (the paper's section 3.2):
 !>   q^(nu-1) = q^0 + h V sum_{k < nu} alpha^k          (only the agents the assembly reads)
 !>   (alpha^nu, beta^nu) = reduced projection at q^(nu-1)
-!> solved exactly by the active-set least-distance solver (warm-started from the previous
-!> step's multipliers), or by the paper's Uzawa iteration for comparison. Infeasible reduced
-!> problems (the reduced positions already overlap) return the least-violation solution and
-!> are counted; so are solves that reach their iteration cap.
+!> solved exactly by
+!>  'dual' (default) the warm-started dual active-set solver on the Gram of the active rows
+!>         (cr_dual_qp), whose answer is accepted only with its KKT certificate; otherwise
+!>         (infeasible problem, cap, failed certificate) the step falls back to the
+!>         Lawson-Hanson LDP below, warm started from the dual iterate, and is counted;
+!>  'nnls' the Lawson-Hanson least-distance solver (cr_nnls) warm-started from the previous
+!>         step's multipliers;
+!> or by the paper's Uzawa iteration for comparison. Infeasible reduced problems (the
+!> reduced positions already overlap) return the least-violation solution and are counted;
+!> so are solves that reach their iteration cap. With rows that change from step to step
+!> (online contacts) the multipliers are carried over by contact identity (ops%keys).
+!> The data of each step are checked for NaN / Inf once: a sum over vhat and dhat here, and
+!> the dual solver sums the slacks of its first sweep (which carry any NaN / Inf of bhat); a
+!> non-finite sum sends the step to ldp_solve, which names the offending entry.
 module cr_rom_stepper
-  use cr_kinds, only: wp
+  use cr_kinds, only: wp, i8
+  use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
   use cr_error, only: error_t, prefix_error
   use cr_strings, only: str
   use cr_nnls, only: ldp_solve, ldp_stats_t, nnls_work_t
   use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t
   use cr_rom_guard, only: rom_guard_t
+  use cr_dual_qp, only: dual_qp_t, dual_qp_stats_t
+  use cr_sort, only: argsort_i8, bsearch_i8
+  use cr_lapack, only: la_gemv
   implicit none
   private
   public :: rom_solver_cfg_t, rom_traj_t, run_trajectory, reduced_positions
 
   !> Reduced solver settings.
   type :: rom_solver_cfg_t
-    character(len=8) :: name = 'nnls'
+    !> 'dual', 'nnls' or 'uzawa'
+    character(len=8) :: name = 'dual'
     !> NNLS iteration cap (0: the solver's default 3 n + 50)
     integer :: nnls_max_iter = 0
     real(wp) :: uzawa_rho_factor = 0.2_wp
@@ -32,12 +47,19 @@ module cr_rom_stepper
     real(wp), allocatable :: alpha(:,:), beta(:,:)
     !> steps with an infeasible reduced problem / a solve stopped by its cap
     integer :: n_infeasible = 0, n_capped = 0
+    !> 'dual': steps answered by the Lawson-Hanson fallback (infeasible ones included),
+    !> rows added and dropped by the dual iteration, sum of the final active-set sizes
+    integer :: n_fallback = 0, dual_adds = 0, dual_drops = 0, active_sum = 0
+    !> why the dual solver handed over: found infeasible, capped or more than 3/4 Nb active
+    !> rows, certificate failed
+    integer :: dual_why(3) = 0
     !> total solver iterations, largest number of constraint rows
     integer :: iterations = 0, max_rows = 0
     !> largest violation of the reduced constraints by the returned coefficients
     real(wp) :: max_violation = 0
-    !> wall time of the stepping (seconds)
-    real(wp) :: time = 0
+    !> wall time of the stepping (seconds), and its parts: reduced positions, assembly,
+    !> solve (the rest is bookkeeping)
+    real(wp) :: time = 0, time_positions = 0, time_assemble = 0, time_solve = 0
     !> first step whose positions the divergence guard refused (0: none); the stepping
     !> stopped there and alpha(:, diverged_step:) = 0 (positions frozen at step - 1)
     integer :: diverged_step = 0
@@ -56,39 +78,47 @@ contains
     type(rom_traj_t), intent(out) :: traj
     type(error_t), allocatable, intent(out) :: error
     type(rom_guard_t), intent(in), optional :: guard
-    real(wp), allocatable :: q(:), acc(:), vhat(:), alpha(:), bhat(:,:), dhat(:), lam(:), gram(:,:)
+    real(wp), allocatable :: q(:), acc(:), vhat(:), alpha(:), bt(:,:), bhat(:,:), dhat(:), lam(:), gram(:,:)
+    real(wp), allocatable :: prev_lam(:), vsub(:,:), qsub(:), q0sub(:), lam0(:)
+    integer, allocatable :: dofs(:)
+    integer(i8), allocatable :: prev_keys(:)
     type(nnls_work_t) :: work
     type(ldp_stats_t) :: st
-    integer :: nu, j, a, nb, na, its
-    integer(8) :: c0, c1, rate
-    logical :: all_agents, capped
+    type(dual_qp_t) :: dqp
+    type(dual_qp_stats_t) :: dst
+    integer :: nu, j, nb, its
+    integer(8) :: c0, c1, rate, t0, t1, t2, t3
+    logical :: capped, finite
     nb = ops%nb
-    na = size(q0) / 2
-    all_agents = size(ops%agents) == na
+    ! the dofs the assembly reads, and their rows of V (contiguous)
+    allocate(dofs(2 * size(ops%agents)))
+    do j = 1, size(ops%agents)
+      dofs(2*j-1:2*j) = [2 * ops%agents(j) - 1, 2 * ops%agents(j)]
+    end do
+    vsub = ops%v(dofs, :)
+    q0sub = q0(dofs)
+    allocate(qsub(size(dofs)))
     allocate(traj%alpha(nb, n_steps), traj%beta(merge(ops%r, 0, ops%fixed_rows), n_steps))
     traj%alpha = 0; traj%beta = 0
-    allocate(acc(nb), vhat(nb), alpha(nb))
+    allocate(acc(nb), vhat(nb), alpha(nb), prev_keys(0), prev_lam(0))
     acc = 0
     q = q0
     call system_clock(c0, rate)
     do nu = 1, n_steps
-      ! positions at the start of the step, where needed
-      if (all_agents) then
-        q = q0 + ctx%h * matmul(ops%v, acc)
-      else
-        do j = 1, size(ops%agents)
-          a = ops%agents(j)
-          q(2*a-1) = q0(2*a-1) + ctx%h * dot_product(ops%v(2*a-1, :), acc)
-          q(2*a) = q0(2*a) + ctx%h * dot_product(ops%v(2*a, :), acc)
-        end do
-      end if
+      call system_clock(t0)
+      ! positions at the start of the step, where needed: q0 + h V acc on those dofs
+      qsub = q0sub
+      call la_gemv('N', ctx%h, vsub, acc, 1.0_wp, qsub)
+      q(dofs) = qsub
+      call system_clock(t1)
       if (present(guard) .and. nu > 1) then
         ! the positions the previous step produced (those the assembly reads)
         if (.not. guard%agents_ok(q, ops%agents)) then
           traj%diverged_step = nu - 1; exit
         end if
       end if
-      call ops%assemble(ctx, q, vhat, bhat, dhat)
+      call ops%assemble(ctx, q, vhat, bt, dhat)
+      call system_clock(t2)
       traj%max_rows = max(traj%max_rows, size(dhat))
       if (allocated(lam)) then
         if (size(lam) /= size(dhat)) deallocate(lam)
@@ -96,12 +126,44 @@ contains
       if (.not. allocated(lam)) then
         allocate(lam(size(dhat))); lam = 0
       end if
+      if (.not. ops%fixed_rows .and. allocated(ops%keys)) call match_rows(ops%keys(1:size(dhat)), lam, prev_keys, prev_lam)
+      if (scfg%name /= 'dual') bhat = transpose(bt)
       if (scfg%name == 'uzawa') then
         lam = 0
         call reduced_uzawa(bhat, dhat, vhat, ctx%h, alpha, lam, scfg, its, capped)
         traj%iterations = traj%iterations + its
         if (capped) traj%n_capped = traj%n_capped + 1
         if (size(dhat) > 0) traj%max_violation = max(traj%max_violation, maxval(matmul(bhat, alpha) - dhat))
+      else if (scfg%name == 'dual') then
+        finite = ieee_is_finite(sum(vhat) + sum(dhat))
+        dst%certified = .false.
+        if (finite) then
+          lam0 = lam
+          ! at most 3/4 Nb active rows: beyond, their Gram is too ill-conditioned to certify
+          ! (the locked regime of online contacts) and the QR-based NNLS takes the step
+          if (ops%has_gram) then
+            call dqp%solve(bt, dhat, vhat, alpha, lam, dst, warm=.true., gsrc=ops, max_active=(3 * nb) / 4)
+          else
+            call dqp%solve(bt, dhat, vhat, alpha, lam, dst, warm=.true., max_active=(3 * nb) / 4)
+          end if
+          traj%iterations = traj%iterations + dst%adds + dst%drops
+          traj%dual_adds = traj%dual_adds + dst%adds
+          traj%dual_drops = traj%dual_drops + dst%drops
+          traj%active_sum = traj%active_sum + dst%n_active
+        end if
+        if (dst%infeasible) traj%dual_why(1) = traj%dual_why(1) + 1
+        if (dst%capped .or. dst%overfull) traj%dual_why(2) = traj%dual_why(2) + 1
+        if (.not. (dst%certified .or. dst%infeasible .or. dst%capped .or. dst%overfull)) &
+          traj%dual_why(3) = traj%dual_why(3) + 1
+        if (dst%certified) then
+          traj%max_violation = max(traj%max_violation, dst%max_violation)
+        else
+          traj%n_fallback = traj%n_fallback + 1
+          ! stopped early: the previous step's active set is the better guess
+          if (dst%overfull .or. dst%capped) lam = lam0
+          call ldp_fallback()
+          if (allocated(error)) return
+        end if
       else
         if (ops%has_gram .and. ops%fixed_rows) then
           if (.not. allocated(gram)) allocate(gram(ops%r, ops%r))
@@ -125,6 +187,11 @@ contains
         if (.not. st%nnls%converged) traj%n_capped = traj%n_capped + 1
         if (.not. st%infeasible) traj%max_violation = max(traj%max_violation, st%max_violation)
       end if
+      if (.not. ops%fixed_rows .and. allocated(ops%keys)) call keep_rows(ops%keys(1:size(dhat)), lam, prev_keys, prev_lam)
+      call system_clock(t3)
+      traj%time_positions = traj%time_positions + real(t1 - t0, wp) / real(rate, wp)
+      traj%time_assemble = traj%time_assemble + real(t2 - t1, wp) / real(rate, wp)
+      traj%time_solve = traj%time_solve + real(t3 - t2, wp) / real(rate, wp)
       traj%alpha(:, nu) = alpha
       if (size(traj%beta, 1) == size(lam)) traj%beta(:, nu) = lam
       acc = acc + alpha
@@ -140,7 +207,63 @@ contains
     end if
     call system_clock(c1)
     traj%time = real(c1 - c0, wp) / real(rate, wp)
+
+  contains
+
+    !> The certified Lawson-Hanson LDP, warm started from lam (> 0 marks the guess).
+    subroutine ldp_fallback()
+      bhat = transpose(bt)
+      if (scfg%nnls_max_iter > 0) then
+        call ldp_solve(bhat, dhat, vhat, alpha, lam, st, error, warm=.true., max_iter=scfg%nnls_max_iter, work=work)
+      else
+        call ldp_solve(bhat, dhat, vhat, alpha, lam, st, error, warm=.true., work=work)
+      end if
+      if (allocated(error)) then
+        call prefix_error(error, "reduced step " // str(nu)); return
+      end if
+      traj%iterations = traj%iterations + st%nnls%iterations
+      if (st%infeasible) traj%n_infeasible = traj%n_infeasible + 1
+      if (.not. st%nnls%converged) traj%n_capped = traj%n_capped + 1
+      if (.not. st%infeasible) traj%max_violation = max(traj%max_violation, st%max_violation)
+    end subroutine ldp_fallback
   end subroutine run_trajectory
+
+  !> Multipliers of the current rows (identities keys [rows]) from the previous step's
+  !> positive ones (sorted identities pkeys, values plam); lam is (re)allocated [rows].
+  subroutine match_rows(keys, lam, pkeys, plam)
+    integer(i8), intent(in) :: keys(:)
+    real(wp), allocatable, intent(inout) :: lam(:)
+    integer(i8), intent(in) :: pkeys(:)
+    real(wp), intent(in) :: plam(:)
+    integer :: l, pos
+    if (allocated(lam)) then
+      if (size(lam) /= size(keys)) deallocate(lam)
+    end if
+    if (.not. allocated(lam)) allocate(lam(size(keys)))
+    lam = 0
+    if (size(pkeys) == 0) return
+    do l = 1, size(keys)
+      pos = bsearch_i8(pkeys, keys(l))
+      if (pos > 0) lam(l) = plam(pos)
+    end do
+  end subroutine match_rows
+
+  !> Keep the positive multipliers of this step, sorted by identity, for match_rows.
+  subroutine keep_rows(keys, lam, pkeys, plam)
+    integer(i8), intent(in) :: keys(:)
+    real(wp), intent(in) :: lam(:)
+    integer(i8), allocatable, intent(inout) :: pkeys(:)
+    real(wp), allocatable, intent(inout) :: plam(:)
+    integer(i8), allocatable :: k1(:)
+    real(wp), allocatable :: l1(:)
+    integer, allocatable :: idx(:)
+    k1 = pack(keys, lam > 0)
+    l1 = pack(lam, lam > 0)
+    allocate(idx(size(k1)))
+    call argsort_i8(k1, idx)
+    pkeys = k1(idx)
+    plam = l1(idx)
+  end subroutine keep_rows
 
   !> The paper's reduced Uzawa iteration from beta = 0: alpha = vhat - bhat^T beta,
   !> beta = max(0, beta + rho (bhat alpha - dhat)), rho = factor / h^2 as in the full-order

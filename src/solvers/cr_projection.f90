@@ -5,6 +5,7 @@
 !> make_projection_solver builds one from its name (the factory lives in the submodule
 !> cr_projection_factory so that this module does not depend on the variants).
 module cr_projection
+  use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
@@ -15,12 +16,13 @@ module cr_projection
     known_projection_solvers, finish_stats, check_sizes, add_note
 
   !> names accepted by make_projection_solver
-  character(len=*), parameter :: known_projection_solvers = "'uzawa', 'apgd', 'active_set', 'gpcg'"
+  character(len=*), parameter :: known_projection_solvers = &
+    "'sparse_active_set', 'active_set', 'gpcg', 'apgd', 'uzawa'"
 
   !> Settings of the projection solvers (one namelist group 'solver' upstream).
   type :: projection_settings_t
-    !> solver name: 'uzawa', 'apgd', 'active_set' or 'gpcg'
-    character(len=32) :: name = 'active_set'
+    !> solver name: 'sparse_active_set', 'active_set', 'gpcg', 'apgd' or 'uzawa'
+    character(len=32) :: name = 'sparse_active_set'
     !> requested scaled KKT tolerance (see kkt_residuals)
     real(wp) :: tol = 1.0e-10_wp
     !> iteration cap of apgd, active_set and gpcg
@@ -33,6 +35,10 @@ module cr_projection
     integer :: uzawa_max_iter = 10000000
     !> start from the multipliers given on entry (otherwise from zero)
     logical :: warm_start = .true.
+    !> sparse_active_set: problems with at most this many rows use the dense kernel
+    integer :: dense_rows = 64
+    !> sparse_active_set: refactorise after this many row additions/deletions of the factor
+    integer :: refresh_every = 1000
   end type projection_settings_t
 
   !> What a solve did and how good its result is.
@@ -46,6 +52,12 @@ module cr_projection
     real(wp) :: kkt = 0.0_wp
     !> Uzawa only: rho > 2 / L (L upper bound of ||B||^2): convergence not guaranteed
     logical :: rho_above_bound = .false.
+    !> sparse_active_set: numeric factorisations, factor row additions + deletions, solves
+    !> handed to the safe path (failed factorisation, dependent rows, iteration cap)
+    integer :: n_factor = 0, n_modify = 0, n_fallback = 0
+    !> sparse_active_set (check_drift): largest backward error of a solve with an updated
+    !> factor, measured before each refresh
+    real(wp) :: factor_drift = 0.0_wp
     !> human-readable remarks (empty when nothing to say)
     character(len=:), allocatable :: note
   end type solve_stats_t
@@ -99,6 +111,10 @@ contains
       call set_error(error, "projection solver: tol must be > 0, got " // str(settings%tol), 2)
       return
     end if
+    if (settings%dense_rows < 0 .or. settings%refresh_every < 1) then
+      call set_error(error, "projection solver: dense_rows must be >= 0 and refresh_every >= 1", 2)
+      return
+    end if
     if (settings%max_iter < 1 .or. settings%uzawa_max_iter < 1) then
       call set_error(error, "projection solver: max_iter and uzawa_max_iter must be >= 1", 2)
       return
@@ -144,6 +160,9 @@ contains
     type(solve_stats_t), intent(inout) :: stats
     call kkt_residuals(cs, v, u, lambda(1:cs%n), stats%primal, stats%dual, stats%compl, stats%stat)
     stats%kkt = max(stats%primal, stats%dual, stats%compl, stats%stat)
+    ! a NaN residual must not hide behind max()
+    if (stats%primal /= stats%primal .or. stats%dual /= stats%dual .or. stats%compl /= stats%compl &
+        .or. stats%stat /= stats%stat) stats%kkt = ieee_value(1.0_wp, ieee_quiet_nan)
     if (.not. allocated(stats%note)) stats%note = ""
     if (stats%converged .and. stats%kkt > tol) then
       call add_note(stats, "stopping test met but KKT residual " // str(stats%kkt, "es9.2") // &

@@ -6,6 +6,7 @@ submodule (cr_projection) cr_projection_factory
   use cr_apgd, only: apgd_solver_t
   use cr_active_set, only: active_set_solver_t
   use cr_gpcg, only: gpcg_solver_t
+  use cr_sparse_as, only: sparse_as_solver_t
   implicit none
 contains
   module subroutine make_projection_solver(settings, solver, error)
@@ -22,6 +23,8 @@ contains
       allocate(apgd_solver_t :: solver)
     case ('active_set')
       allocate(active_set_solver_t :: solver)
+    case ('sparse_active_set')
+      allocate(sparse_as_solver_t :: solver)
     case ('gpcg')
       allocate(gpcg_solver_t :: solver)
     case default

@@ -8,12 +8,12 @@
 module cr_scheduler
   use, intrinsic :: iso_c_binding, only: c_ptr, c_f_pointer
   use mpi_f08
-  use cr_kinds, only: i8
+  use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error
   use cr_env, only: env_t
   implicit none
   private
-  public :: scheduler_t
+  public :: scheduler_t, collective_latency
 
   !> Shared ticket counter over n_tasks tasks.
   type :: scheduler_t
@@ -21,6 +21,9 @@ module cr_scheduler
     type(MPI_Comm) :: comm = MPI_COMM_NULL
     integer(i8), pointer :: counters(:) => null()
     integer :: n_tasks = 0
+    !> this rank's counter operations and the wall time spent in them (s)
+    integer :: n_calls = 0
+    real(wp) :: t_calls = 0
   contains
     procedure :: init
     procedure :: next
@@ -64,6 +67,8 @@ contains
     integer(i8), intent(in) :: inc
     integer(i8) :: one(1), res(1)
     integer :: ierr
+    real(wp) :: t0
+    t0 = MPI_Wtime()
     one = inc
     res = 0
     call MPI_Win_lock(MPI_LOCK_SHARED, 0, 0, this%win, ierr)
@@ -74,6 +79,8 @@ contains
     end if
     call MPI_Win_unlock(0, this%win, ierr)
     old = res(1)
+    this%n_calls = this%n_calls + 1
+    this%t_calls = this%t_calls + (MPI_Wtime() - t0)
   end function fetch_add
 
   !> The next task (1..n_tasks) for this rank, or 0 when every task has been taken.
@@ -105,4 +112,22 @@ contains
     this%win = MPI_WIN_NULL
     this%counters => null()
   end subroutine free
+
+  !> Collective: mean wall time of a one-integer MPI_Allreduce over `reps` repetitions (s): the
+  !> latency of one collective (an input of the stage's scaling model).
+  function collective_latency(env, reps) result(t)
+    type(env_t), intent(in) :: env
+    integer, intent(in) :: reps
+    real(wp) :: t
+    integer :: k, ierr, one
+    real(wp) :: t0
+    call MPI_Barrier(env%comm, ierr)
+    t0 = MPI_Wtime()
+    do k = 1, reps
+      one = 1
+      call MPI_Allreduce(MPI_IN_PLACE, one, 1, MPI_INTEGER, MPI_SUM, env%comm, ierr)
+    end do
+    t = (MPI_Wtime() - t0) / max(reps, 1)
+    call MPI_Bcast(t, 1, MPI_DOUBLE_PRECISION, 0, env%comm, ierr)
+  end function collective_latency
 end module cr_scheduler

@@ -1,15 +1,27 @@
-!> One sample of a study: its full-order trajectory (computed by compute_sample) and the
-!> "piece" file that makes it durable before the database is assembled.
+!> The samples of a study: full-order trajectories (computed by compute_sample) and the "piece"
+!> files that make them durable before the database is assembled.
 !>
-!> A piece is a small serial HDF5 file `<database>.pieces/<set>_<k>.h5` written under a
-!> temporary name and renamed when closed (cr_h5file), so a piece exists under its final name
-!> only when all its data is on disk: a killed run leaves only complete pieces (and maybe a
-!> `.partial`, ignored and overwritten). Piece layout (schema "crowdrom-snapshot-piece" v1):
-!> attributes config_hash, set, index, rank, time; datasets mu [n_expanded], positions
-!> [2*n_agents, n_steps+1], velocities / desired [2*n_agents, n_steps], kkt / min_gap /
-!> iterations / converged / n_active [n_steps], lambda_offset int64 [n_steps+1], lambda_key
-!> int64 / lambda_ia / lambda_ib / lambda_ob / lambda_value [nnz] (only lambda > 0).
+!> A piece is a small serial HDF5 file `<database>.pieces/<set>_<k>.h5`, named after its first
+!> sample, holding the samples one rank computed in one time slice (one or more). It is written
+!> under a temporary name and renamed when closed (cr_h5file), so a piece exists under its final
+!> name only when all its data is on disk: a killed run leaves only complete pieces (and maybe
+!> a `.partial`, ignored and overwritten).
+!>
+!> A piece proves what it is: it records its configuration hash, and for every sample its set,
+!> index and parameters (checked against its name and against the study's sampling by
+!> check_sample), and every dataset carries a checksum (cr_digest) verified by read_piece,
+!> which also checks shapes, finiteness and the multiplier layout.
+!>
+!> Layout (schema "crowdrom-snapshot-piece" v2; n samples, each dataset holds them one after
+!> the other, every dataset with a `checksum` attribute): root attributes schema,
+!> schema_version, config_hash, n_samples, set_names ("train,valid"), checksum_algorithm,
+!> complete; datasets set_id / index / rank [n], time / start [n] (s; start since the start of
+!> the run), mu [n_expanded, n], positions [2*n_agents, (n_steps+1) n], velocities / desired
+!> [2*n_agents, n_steps n], kkt / min_gap / iterations / converged / n_active [n_steps, n],
+!> lambda_offset int64 [(n_steps+1) n] (each sample's CSR over its steps), lambda_key int64 /
+!> lambda_ia / lambda_ib / lambda_ob / lambda_value [total nnz] (only lambda > 0).
 module cr_snapshot_piece
+  use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
@@ -17,12 +29,16 @@ module cr_snapshot_piece
   use cr_fom, only: fom_t, step_record_t
   use cr_sampling, only: param_space_t
   use cr_h5file, only: h5file_t
+  use cr_digest, only: digest_of, put_digest, check_digest, DIGEST_ALGORITHM
   implicit none
   private
-  public :: sample_result_t, compute_sample, write_piece, read_piece, piece_hash, piece_path, &
-    PIECE_SCHEMA
+  public :: sample_result_t, compute_sample, write_piece, read_piece, piece_header, check_sample, &
+    piece_path, PIECE_SCHEMA, PIECE_SCHEMA_VERSION
 
   character(len=*), parameter :: PIECE_SCHEMA = "crowdrom-snapshot-piece"
+  integer, parameter :: PIECE_SCHEMA_VERSION = 2
+  !> the sets of a study, by set_id
+  character(len=8), parameter :: SET_NAMES(2) = [character(len=8) :: 'train', 'valid']
 
   !> Trajectory and statistics of one sample.
   type :: sample_result_t
@@ -44,8 +60,9 @@ module cr_snapshot_piece
     integer(i8), allocatable :: key(:)
     integer, allocatable :: ia(:), ib(:), ob(:)
     real(wp), allocatable :: value(:)
-    !> wall time of the sample (s) and the rank that computed it
-    real(wp) :: time = 0
+    !> wall time of the sample (s), its start (s since the start of the run) and the rank that
+    !> computed it
+    real(wp) :: time = 0, start = 0
     integer :: rank = -1
   end type sample_result_t
 
@@ -136,36 +153,106 @@ contains
     end subroutine grow
   end subroutine compute_sample
 
-  !> Write a piece (serial HDF5, temporary name renamed when complete).
+  !> Write the samples res(1:n) as one piece (serial HDF5, temporary name renamed when complete):
+  !> every dataset holds the n samples one after the other (a fixed number of HDF5 objects
+  !> whatever n), each with its checksum.
   subroutine write_piece(path, hash, res, error)
     character(len=*), intent(in) :: path, hash
-    type(sample_result_t), intent(in) :: res
+    !> the samples, in the order they were computed [n >= 1], all of the same shapes
+    type(sample_result_t), intent(in) :: res(:)
     type(error_t), allocatable, intent(out) :: error
     type(h5file_t) :: h5
+    integer :: n, nd, ns, ne, j, c
+    integer(i8) :: nnz
+    integer, allocatable :: setid(:), idx(:), rk(:), ibuf(:,:), i1(:)
+    real(wp), allocatable :: r1(:), rbuf(:,:)
+    integer(i8), allocatable :: l1(:)
+    n = size(res)
+    nd = size(res(1)%q, 1); ns = size(res(1)%q, 2) - 1; ne = size(res(1)%mu)
+    allocate(setid(n), idx(n), rk(n))
+    do j = 1, n
+      setid(j) = merge(1, 2, trim(res(j)%set) == SET_NAMES(1))
+      idx(j) = res(j)%index
+      rk(j) = res(j)%rank
+    end do
     call h5%create(path, error)
     if (allocated(error)) return
     ops: block
       call h5%write_attr("/", "schema", PIECE_SCHEMA, error); if (allocated(error)) exit ops
+      call h5%write_attr("/", "schema_version", PIECE_SCHEMA_VERSION, error); if (allocated(error)) exit ops
       call h5%write_attr("/", "config_hash", hash, error); if (allocated(error)) exit ops
-      call h5%write_attr("/", "set", trim(res%set), error); if (allocated(error)) exit ops
-      call h5%write_attr("/", "index", res%index, error); if (allocated(error)) exit ops
-      call h5%write_attr("/", "rank", res%rank, error); if (allocated(error)) exit ops
-      call h5%write_attr("/", "time", res%time, error); if (allocated(error)) exit ops
-      call h5%write("mu", res%mu, error); if (allocated(error)) exit ops
-      call h5%write("positions", res%q, error); if (allocated(error)) exit ops
-      call h5%write("velocities", res%u, error); if (allocated(error)) exit ops
-      call h5%write("desired", res%v, error); if (allocated(error)) exit ops
-      call h5%write("kkt", res%kkt, error); if (allocated(error)) exit ops
-      call h5%write("min_gap", res%min_gap, error); if (allocated(error)) exit ops
-      call h5%write("iterations", res%iterations, error); if (allocated(error)) exit ops
-      call h5%write("converged", res%converged, error); if (allocated(error)) exit ops
-      call h5%write("n_active", res%n_active, error); if (allocated(error)) exit ops
-      call h5%write("lambda_offset", res%offset, error); if (allocated(error)) exit ops
-      call h5%write("lambda_key", res%key, error); if (allocated(error)) exit ops
-      call h5%write("lambda_ia", res%ia, error); if (allocated(error)) exit ops
-      call h5%write("lambda_ib", res%ib, error); if (allocated(error)) exit ops
-      call h5%write("lambda_ob", res%ob, error); if (allocated(error)) exit ops
-      call h5%write("lambda_value", res%value, error); if (allocated(error)) exit ops
+      call h5%write_attr("/", "n_samples", n, error); if (allocated(error)) exit ops
+      call h5%write_attr("/", "set_names", SET_NAMES(1) // "," // SET_NAMES(2), error); if (allocated(error)) exit ops
+      call h5%write_attr("/", "checksum_algorithm", DIGEST_ALGORITHM, error); if (allocated(error)) exit ops
+      call wi1("set_id", setid, error); if (allocated(error)) exit ops
+      call wi1("index", idx, error); if (allocated(error)) exit ops
+      call wi1("rank", rk, error); if (allocated(error)) exit ops
+      call wr1("time", [(res(j)%time, j = 1, n)], error); if (allocated(error)) exit ops
+      call wr1("start", [(res(j)%start, j = 1, n)], error); if (allocated(error)) exit ops
+      allocate(rbuf(ne, n))
+      do j = 1, n
+        rbuf(:, j) = res(j)%mu
+      end do
+      call wr2("mu", rbuf, error); if (allocated(error)) exit ops
+      deallocate(rbuf); allocate(rbuf(nd, (ns + 1) * n))
+      do j = 1, n
+        rbuf(:, (j - 1) * (ns + 1) + 1:j * (ns + 1)) = res(j)%q
+      end do
+      call wr2("positions", rbuf, error); if (allocated(error)) exit ops
+      deallocate(rbuf); allocate(rbuf(nd, ns * n))
+      do j = 1, n
+        rbuf(:, (j - 1) * ns + 1:j * ns) = res(j)%u
+      end do
+      call wr2("velocities", rbuf, error); if (allocated(error)) exit ops
+      do j = 1, n
+        rbuf(:, (j - 1) * ns + 1:j * ns) = res(j)%v
+      end do
+      call wr2("desired", rbuf, error); if (allocated(error)) exit ops
+      deallocate(rbuf); allocate(rbuf(ns, n), ibuf(ns, n))
+      do j = 1, n
+        rbuf(:, j) = res(j)%kkt
+      end do
+      call wr2("kkt", rbuf, error); if (allocated(error)) exit ops
+      do j = 1, n
+        rbuf(:, j) = res(j)%min_gap
+      end do
+      call wr2("min_gap", rbuf, error); if (allocated(error)) exit ops
+      do j = 1, n
+        ibuf(:, j) = res(j)%iterations
+      end do
+      call wi2("iterations", ibuf, error); if (allocated(error)) exit ops
+      do j = 1, n
+        ibuf(:, j) = res(j)%converged
+      end do
+      call wi2("converged", ibuf, error); if (allocated(error)) exit ops
+      do j = 1, n
+        ibuf(:, j) = res(j)%n_active
+      end do
+      call wi2("n_active", ibuf, error); if (allocated(error)) exit ops
+      ! multipliers: per-sample CSR offsets [(ns+1) n], entries concatenated [sum of nnz]
+      allocate(l1((ns + 1) * n))
+      nnz = 0
+      do j = 1, n
+        l1((j - 1) * (ns + 1) + 1:j * (ns + 1)) = res(j)%offset
+        nnz = nnz + size(res(j)%value)
+      end do
+      call wl1("lambda_offset", l1, error); if (allocated(error)) exit ops
+      deallocate(l1); allocate(l1(nnz), i1(nnz), r1(nnz))
+      c = 0
+      do j = 1, n
+        l1(c + 1:c + size(res(j)%key)) = res(j)%key
+        c = c + size(res(j)%key)
+      end do
+      call wl1("lambda_key", l1, error); if (allocated(error)) exit ops
+      call cat_int(1); call wi1("lambda_ia", i1, error); if (allocated(error)) exit ops
+      call cat_int(2); call wi1("lambda_ib", i1, error); if (allocated(error)) exit ops
+      call cat_int(3); call wi1("lambda_ob", i1, error); if (allocated(error)) exit ops
+      c = 0
+      do j = 1, n
+        r1(c + 1:c + size(res(j)%value)) = res(j)%value
+        c = c + size(res(j)%value)
+      end do
+      call wr1("lambda_value", r1, error); if (allocated(error)) exit ops
       call h5%write_attr("/", "complete", 1, error); if (allocated(error)) exit ops
       call h5%commit(error)
     end block ops
@@ -173,66 +260,339 @@ contains
       call h5%abort()
       call prefix_error(error, "piece '" // path // "'")
     end if
+
+  contains
+
+    subroutine cat_int(which)
+      integer, intent(in) :: which
+      integer :: q, cc, m
+      cc = 0
+      do q = 1, n
+        m = size(res(q)%ia)
+        select case (which)
+        case (1); i1(cc + 1:cc + m) = res(q)%ia
+        case (2); i1(cc + 1:cc + m) = res(q)%ib
+        case default; i1(cc + 1:cc + m) = res(q)%ob
+        end select
+        cc = cc + m
+      end do
+    end subroutine cat_int
+
+    subroutine wr1(name, x, error)
+      character(len=*), intent(in) :: name
+      real(wp), intent(in) :: x(:)
+      type(error_t), allocatable, intent(out) :: error
+      call h5%write(name, x, error); if (allocated(error)) return
+      call put_digest(h5, name, digest_of(x, 0_i8), error)
+    end subroutine wr1
+
+    subroutine wr2(name, x, error)
+      character(len=*), intent(in) :: name
+      real(wp), intent(in) :: x(:,:)
+      type(error_t), allocatable, intent(out) :: error
+      call h5%write(name, x, error); if (allocated(error)) return
+      call put_digest(h5, name, digest_of(x, 0_i8), error)
+    end subroutine wr2
+
+    subroutine wi1(name, x, error)
+      character(len=*), intent(in) :: name
+      integer, intent(in) :: x(:)
+      type(error_t), allocatable, intent(out) :: error
+      call h5%write(name, x, error); if (allocated(error)) return
+      call put_digest(h5, name, digest_of(x, 0_i8), error)
+    end subroutine wi1
+
+    subroutine wi2(name, x, error)
+      character(len=*), intent(in) :: name
+      integer, intent(in) :: x(:,:)
+      type(error_t), allocatable, intent(out) :: error
+      call h5%write(name, x, error); if (allocated(error)) return
+      call put_digest(h5, name, digest_of(x, 0_i8), error)
+    end subroutine wi2
+
+    subroutine wl1(name, x, error)
+      character(len=*), intent(in) :: name
+      integer(i8), intent(in) :: x(:)
+      type(error_t), allocatable, intent(out) :: error
+      call h5%write(name, x, error); if (allocated(error)) return
+      call put_digest(h5, name, digest_of(x, 0_i8), error)
+    end subroutine wl1
   end subroutine write_piece
 
-  !> The config_hash attribute of a piece ('' with an error if it is not a piece).
-  subroutine piece_hash(path, hash, error)
+  !> Header of a piece: configuration hash and the (set, index) of each of its samples.
+  !> An error if it is not a complete piece of this schema version.
+  subroutine piece_header(path, hash, sets, idx, error)
     character(len=*), intent(in) :: path
     character(len=:), allocatable, intent(out) :: hash
+    !> set name and index of each sample [n_samples]
+    character(len=8), allocatable, intent(out) :: sets(:)
+    integer, allocatable, intent(out) :: idx(:)
     type(error_t), allocatable, intent(out) :: error
     type(h5file_t) :: h5
     character(len=:), allocatable :: schema
+    integer :: version, n, complete, j
+    integer, allocatable :: setid(:)
     type(error_t), allocatable :: e2
     hash = ""
+    allocate(sets(0), idx(0))
     call h5%open(path, error)
-    if (allocated(error)) return
-    call h5%read_attr("/", "schema", schema, error)
-    if (.not. allocated(error)) then
-      if (schema /= PIECE_SCHEMA) call set_error(error, "piece '" // path // "': schema '" // schema // &
-        "' is not " // PIECE_SCHEMA)
+    if (allocated(error)) then
+      call prefix_error(error, "piece '" // path // "'"); return
     end if
-    if (.not. allocated(error)) call h5%read_attr("/", "config_hash", hash, error)
-    call h5%close(e2)
-  end subroutine piece_hash
-
-  !> Read a piece written by write_piece.
-  subroutine read_piece(path, res, error)
-    character(len=*), intent(in) :: path
-    type(sample_result_t), intent(inout) :: res
-    type(error_t), allocatable, intent(out) :: error
-    type(h5file_t) :: h5
-    type(error_t), allocatable :: e2
-    character(len=:), allocatable :: set
-    call h5%open(path, error)
-    if (allocated(error)) return
     ops: block
-      call h5%read_attr("/", "set", set, error); if (allocated(error)) exit ops
-      res%set = set
-      call h5%read_attr("/", "index", res%index, error); if (allocated(error)) exit ops
-      call h5%read_attr("/", "rank", res%rank, error); if (allocated(error)) exit ops
-      call h5%read_attr("/", "time", res%time, error); if (allocated(error)) exit ops
-      call h5%read("mu", res%mu, error); if (allocated(error)) exit ops
-      call h5%read("positions", res%q, error); if (allocated(error)) exit ops
-      call h5%read("velocities", res%u, error); if (allocated(error)) exit ops
-      call h5%read("desired", res%v, error); if (allocated(error)) exit ops
-      call h5%read("kkt", res%kkt, error); if (allocated(error)) exit ops
-      call h5%read("min_gap", res%min_gap, error); if (allocated(error)) exit ops
-      call h5%read("iterations", res%iterations, error); if (allocated(error)) exit ops
-      call h5%read("converged", res%converged, error); if (allocated(error)) exit ops
-      call h5%read("n_active", res%n_active, error); if (allocated(error)) exit ops
-      call h5%read("lambda_offset", res%offset, error); if (allocated(error)) exit ops
-      call h5%read("lambda_key", res%key, error); if (allocated(error)) exit ops
-      call h5%read("lambda_ia", res%ia, error); if (allocated(error)) exit ops
-      call h5%read("lambda_ib", res%ib, error); if (allocated(error)) exit ops
-      call h5%read("lambda_ob", res%ob, error); if (allocated(error)) exit ops
-      call h5%read("lambda_value", res%value, error); if (allocated(error)) exit ops
+      call h5%read_attr("/", "schema", schema, error); if (allocated(error)) exit ops
+      if (schema /= PIECE_SCHEMA) then
+        call set_error(error, "schema '" // schema // "' is not " // PIECE_SCHEMA); exit ops
+      end if
+      call h5%read_attr("/", "schema_version", version, error); if (allocated(error)) exit ops
+      if (version /= PIECE_SCHEMA_VERSION) then
+        call set_error(error, "piece schema version " // str(version) // " is not " // str(PIECE_SCHEMA_VERSION))
+        exit ops
+      end if
+      call h5%read_attr("/", "complete", complete, error); if (allocated(error)) exit ops
+      if (complete /= 1) then
+        call set_error(error, "not marked complete"); exit ops
+      end if
+      call h5%read_attr("/", "config_hash", hash, error); if (allocated(error)) exit ops
+      call h5%read_attr("/", "n_samples", n, error); if (allocated(error)) exit ops
+      call h5%read("set_id", setid, error); if (allocated(error)) exit ops
+      call h5%read("index", idx, error); if (allocated(error)) exit ops
+      if (n < 1 .or. size(setid) /= n .or. size(idx) /= n) then
+        call set_error(error, "n_samples = " // str(n) // " does not match set_id / index"); exit ops
+      end if
+      if (any(setid < 1 .or. setid > 2)) then
+        call set_error(error, "set_id holds values other than 1 (train) and 2 (valid)"); exit ops
+      end if
+      deallocate(sets)
+      allocate(sets(n))
+      do j = 1, n
+        sets(j) = SET_NAMES(setid(j))
+      end do
     end block ops
     call h5%close(e2)
     if (allocated(error)) call prefix_error(error, "piece '" // path // "'")
-    if (.not. allocated(error) .and. size(res%offset) > 0) then
-      if (res%offset(size(res%offset)) /= size(res%value)) call set_error(error, "piece '" // path // &
-        "': lambda_offset ends at " // str(res%offset(size(res%offset))) // " but there are " // &
-        str(size(res%value)) // " values")
+  end subroutine piece_header
+
+  !> Read every sample of a piece, verifying each dataset's checksum and the internal
+  !> consistency of each sample (shapes, finite values, multiplier layout). Identity against the
+  !> study is check_sample's job. Errors start with "piece '<path>'".
+  subroutine read_piece(path, res, error)
+    character(len=*), intent(in) :: path
+    type(sample_result_t), allocatable, intent(out) :: res(:)
+    type(error_t), allocatable, intent(out) :: error
+    type(h5file_t) :: h5
+    type(error_t), allocatable :: e2
+    character(len=:), allocatable :: what, w
+    integer :: n, j, nd, ns, ne, c
+    integer(i8) :: m, nnz
+    integer, allocatable :: setid(:), idx(:), rk(:), iters(:,:), conv(:,:), nact(:,:), ia(:), ib(:), ob(:)
+    real(wp), allocatable :: tm(:), st(:), mu(:,:), q(:,:), u(:,:), v(:,:), kkt(:,:), gap(:,:), val(:)
+    integer(i8), allocatable :: off(:), key(:)
+    what = "piece '" // path // "'"
+    allocate(res(0))
+    call h5%open(path, error)
+    if (allocated(error)) then
+      call prefix_error(error, what); return
     end if
+    ops: block
+      call h5%read_attr("/", "n_samples", n, error); if (allocated(error)) exit ops
+      call ri1("set_id", setid, error); if (allocated(error)) exit ops
+      call ri1("index", idx, error); if (allocated(error)) exit ops
+      if (n < 1 .or. size(setid) /= n .or. size(idx) /= n .or. any(setid < 1 .or. setid > 2)) then
+        call set_error(error, what // ": n_samples, set_id and index disagree"); exit ops
+      end if
+      w = what // " (" // samples_text(setid, idx) // ")"
+      call ri1("rank", rk, error); if (allocated(error)) exit ops
+      call rr1("time", tm, error); if (allocated(error)) exit ops
+      call rr1("start", st, error); if (allocated(error)) exit ops
+      call rr2("mu", mu, error); if (allocated(error)) exit ops
+      call rr2("positions", q, error); if (allocated(error)) exit ops
+      call rr2("velocities", u, error); if (allocated(error)) exit ops
+      call rr2("desired", v, error); if (allocated(error)) exit ops
+      call rr2("kkt", kkt, error); if (allocated(error)) exit ops
+      call rr2("min_gap", gap, error); if (allocated(error)) exit ops
+      call ri2("iterations", iters, error); if (allocated(error)) exit ops
+      call ri2("converged", conv, error); if (allocated(error)) exit ops
+      call ri2("n_active", nact, error); if (allocated(error)) exit ops
+      call rl1("lambda_offset", off, error); if (allocated(error)) exit ops
+      call rl1("lambda_key", key, error); if (allocated(error)) exit ops
+      call ri1("lambda_ia", ia, error); if (allocated(error)) exit ops
+      call ri1("lambda_ib", ib, error); if (allocated(error)) exit ops
+      call ri1("lambda_ob", ob, error); if (allocated(error)) exit ops
+      call rr1("lambda_value", val, error); if (allocated(error)) exit ops
+      ! shapes
+      ns = size(kkt, 1); nd = size(q, 1); ne = size(mu, 1)
+      if (ns < 1 .or. size(rk) /= n .or. size(tm) /= n .or. size(st) /= n .or. size(mu, 2) /= n .or. &
+          size(q, 2) /= (ns + 1) * n .or. any(shape(u) /= [nd, ns * n]) .or. any(shape(v) /= [nd, ns * n]) .or. &
+          any(shape(kkt) /= [ns, n]) .or. any(shape(gap) /= [ns, n]) .or. any(shape(iters) /= [ns, n]) .or. &
+          any(shape(conv) /= [ns, n]) .or. any(shape(nact) /= [ns, n]) .or. size(off) /= (ns + 1) * n) then
+        call set_error(error, w // ": inconsistent dataset shapes"); exit ops
+      end if
+      nnz = size(val, kind=i8)
+      if (size(key, kind=i8) /= nnz .or. size(ia, kind=i8) /= nnz .or. size(ib, kind=i8) /= nnz .or. &
+          size(ob, kind=i8) /= nnz) then
+        call set_error(error, w // ": multiplier arrays of different lengths"); exit ops
+      end if
+      m = 0
+      do j = 1, n
+        associate (o => off((j - 1) * (ns + 1) + 1:j * (ns + 1)))
+          if (o(1) /= 0 .or. any(o(2:) < o(:ns))) then
+            call set_error(error, w // ": lambda_offset is not a CSR layout"); exit ops
+          end if
+          m = m + o(ns + 1)
+        end associate
+      end do
+      if (m /= nnz) then
+        call set_error(error, w // ": lambda_offset counts " // str(m) // " multipliers, lambda_value holds " // &
+          str(nnz)); exit ops
+      end if
+      ! values
+      call need_finite(reshape(mu, [size(mu)]), "mu", error); if (allocated(error)) exit ops
+      call need_finite(reshape(q, [size(q)]), "positions", error); if (allocated(error)) exit ops
+      call need_finite(reshape(u, [size(u)]), "velocities", error); if (allocated(error)) exit ops
+      call need_finite(reshape(v, [size(v)]), "desired", error); if (allocated(error)) exit ops
+      call need_finite(reshape(kkt, [size(kkt)]), "kkt", error); if (allocated(error)) exit ops
+      call need_finite(val, "lambda_value", error); if (allocated(error)) exit ops
+      call need_finite([tm, st], "time", error); if (allocated(error)) exit ops
+      if (any(val <= 0)) then
+        call set_error(error, w // ": lambda_value holds multipliers <= 0 (only lambda > 0 are stored)"); exit ops
+      end if
+      if (any(conv /= 0 .and. conv /= 1)) then
+        call set_error(error, w // ": converged holds values other than 0 and 1"); exit ops
+      end if
+      ! split into samples
+      deallocate(res); allocate(res(n))
+      c = 0
+      do j = 1, n
+        res(j)%set = SET_NAMES(setid(j)); res(j)%index = idx(j); res(j)%rank = rk(j)
+        res(j)%time = tm(j); res(j)%start = st(j)
+        res(j)%mu = mu(:, j)
+        res(j)%q = q(:, (j - 1) * (ns + 1) + 1:j * (ns + 1))
+        res(j)%u = u(:, (j - 1) * ns + 1:j * ns)
+        res(j)%v = v(:, (j - 1) * ns + 1:j * ns)
+        res(j)%kkt = kkt(:, j); res(j)%min_gap = gap(:, j)
+        res(j)%iterations = iters(:, j); res(j)%converged = conv(:, j); res(j)%n_active = nact(:, j)
+        res(j)%offset = off((j - 1) * (ns + 1) + 1:j * (ns + 1))
+        m = res(j)%offset(ns + 1)
+        res(j)%key = key(c + 1:c + m); res(j)%ia = ia(c + 1:c + m); res(j)%ib = ib(c + 1:c + m)
+        res(j)%ob = ob(c + 1:c + m); res(j)%value = val(c + 1:c + m)
+        c = c + int(m)
+      end do
+    end block ops
+    call h5%close(e2)
+    if (allocated(error)) then
+      if (size(res) > 0) deallocate(res)
+      if (.not. allocated(res)) allocate(res(0))
+      if (index(error%message, what) /= 1) call prefix_error(error, what)
+    end if
+
+  contains
+
+    subroutine rr1(name, x, error)
+      character(len=*), intent(in) :: name
+      real(wp), allocatable, intent(out) :: x(:)
+      type(error_t), allocatable, intent(out) :: error
+      call h5%read(name, x, error); if (allocated(error)) return
+      call check_digest(h5, name, digest_of(x, 0_i8), wdesc(), error)
+    end subroutine rr1
+
+    subroutine rr2(name, x, error)
+      character(len=*), intent(in) :: name
+      real(wp), allocatable, intent(out) :: x(:,:)
+      type(error_t), allocatable, intent(out) :: error
+      call h5%read(name, x, error); if (allocated(error)) return
+      call check_digest(h5, name, digest_of(x, 0_i8), wdesc(), error)
+    end subroutine rr2
+
+    subroutine ri1(name, x, error)
+      character(len=*), intent(in) :: name
+      integer, allocatable, intent(out) :: x(:)
+      type(error_t), allocatable, intent(out) :: error
+      call h5%read(name, x, error); if (allocated(error)) return
+      call check_digest(h5, name, digest_of(x, 0_i8), wdesc(), error)
+    end subroutine ri1
+
+    subroutine ri2(name, x, error)
+      character(len=*), intent(in) :: name
+      integer, allocatable, intent(out) :: x(:,:)
+      type(error_t), allocatable, intent(out) :: error
+      call h5%read(name, x, error); if (allocated(error)) return
+      call check_digest(h5, name, digest_of(x, 0_i8), wdesc(), error)
+    end subroutine ri2
+
+    subroutine rl1(name, x, error)
+      character(len=*), intent(in) :: name
+      integer(i8), allocatable, intent(out) :: x(:)
+      type(error_t), allocatable, intent(out) :: error
+      call h5%read(name, x, error); if (allocated(error)) return
+      call check_digest(h5, name, digest_of(x, 0_i8), wdesc(), error)
+    end subroutine rl1
+
+    !> the piece and, once known, its samples (for messages)
+    function wdesc() result(t)
+      character(len=:), allocatable :: t
+      if (allocated(w)) then
+        t = w
+      else
+        t = what
+      end if
+    end function wdesc
+
+    subroutine need_finite(x, name, error)
+      real(wp), intent(in) :: x(:)
+      character(len=*), intent(in) :: name
+      type(error_t), allocatable, intent(out) :: error
+      integer :: i
+      if (all(ieee_is_finite(x))) return
+      do i = 1, size(x)
+        if (.not. ieee_is_finite(x(i))) exit
+      end do
+      call set_error(error, w // ": dataset '" // name // "' holds a non-finite value (NaN or Inf) at element " // &
+        str(i))
+    end subroutine need_finite
   end subroutine read_piece
+
+  !> "train sample 3" or "train samples 3, 7, valid sample 2" (at most 6 listed).
+  function samples_text(setid, idx) result(t)
+    integer, intent(in) :: setid(:), idx(:)
+    character(len=:), allocatable :: t
+    integer :: j
+    if (size(idx) == 1) then
+      t = trim(SET_NAMES(setid(1))) // " sample " // str(idx(1)); return
+    end if
+    t = ""
+    do j = 1, min(size(idx), 6)
+      if (j > 1) t = t // ", "
+      t = t // trim(SET_NAMES(setid(j))) // " " // str(idx(j))
+    end do
+    if (size(idx) > 6) t = t // ", ..."
+    t = str(size(idx)) // " samples: " // t
+  end function samples_text
+
+  !> Check that sample r is sample k of set `set` of the study: its recorded set and index, its
+  !> parameters (bitwise: both come from the same sampling) and its sizes.
+  subroutine check_sample(r, set, k, mu, n_dof, n_steps, what, error)
+    type(sample_result_t), intent(in) :: r
+    character(len=*), intent(in) :: set
+    integer, intent(in) :: k
+    !> the study's parameters of that sample [n_expanded]
+    real(wp), intent(in) :: mu(:)
+    integer, intent(in) :: n_dof, n_steps
+    !> the piece, for the message
+    character(len=*), intent(in) :: what
+    type(error_t), allocatable, intent(out) :: error
+    if (trim(r%set) /= trim(set) .or. r%index /= k) then
+      call set_error(error, what // " holds " // trim(r%set) // " sample " // str(r%index) // " where " // &
+        trim(set) // " sample " // str(k) // " belongs (renamed or copied piece)")
+    else if (size(r%mu) /= size(mu)) then
+      call set_error(error, what // ": " // trim(set) // " sample " // str(k) // " has " // str(size(r%mu)) // &
+        " parameters, the study " // str(size(mu)))
+    else if (any(transfer(r%mu, 0_i8, size(mu)) /= transfer(mu, 0_i8, size(mu)))) then
+      call set_error(error, what // ": the parameters of " // trim(set) // " sample " // str(k) // &
+        " are not those of the study's sampling")
+    else if (size(r%q, 1) /= n_dof .or. size(r%q, 2) /= n_steps + 1) then
+      call set_error(error, what // ": " // trim(set) // " sample " // str(k) // " has positions of shape " // &
+        str(size(r%q, 1)) // " x " // str(size(r%q, 2)) // ", the study " // str(n_dof) // " x " // str(n_steps + 1))
+    end if
+  end subroutine check_sample
 end module cr_snapshot_piece

@@ -1,0 +1,91 @@
+#!/usr/bin/env python3
+"""Timeline of a crowd_snapshots run: one row per rank, one bar per sample (its start and wall
+time from the database's stats/start, stats/time, stats/rank), the setup before the sample loop
+and the assembly at the end (from the run's --summary JSON).
+
+Usage: plot_timeline.py DATABASE.h5 SUMMARY.json --out timeline.png [--title TEXT]
+
+Samples resumed from an earlier run carry that run's clock: the figure is meant for
+uninterrupted runs.
+Exit status 2 with a one-line message on a bad input; the figure is written only when complete.
+"""
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import crowdrom_io as cio  # noqa: E402
+
+
+def load(db, summary):
+    with cio.open_h5(db, cio.DB_SCHEMA, "snapshot database") as f:
+        rows = []
+        for s in ("train", "valid"):
+            if s + "/stats/start" not in f:
+                raise cio.InputError("'%s' has no %s/stats/start (written before the timeline was recorded)"
+                                     % (db, s))
+            st = cio.dataset(f, s + "/stats/start").reshape(-1)
+            tm = cio.dataset(f, s + "/stats/time").reshape(-1)
+            rk = cio.dataset(f, s + "/stats/rank").reshape(-1)
+            rows.append((np.full(st.shape, s), st, tm, rk))
+    sets = np.concatenate([r[0] for r in rows])
+    start = np.concatenate([r[1] for r in rows])
+    time = np.concatenate([r[2] for r in rows])
+    rank = np.concatenate([r[3] for r in rows])
+    try:
+        js = json.load(open(summary))
+    except (OSError, ValueError) as exc:
+        raise cio.InputError("cannot read the summary '%s': %s" % (summary, exc)) from None
+    return sets, start, time, rank, js
+
+
+def main():
+    ap = argparse.ArgumentParser(description="timeline figure of a crowd_snapshots run")
+    ap.add_argument("database")
+    ap.add_argument("summary")
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--title", default=None)
+    a = ap.parse_args()
+    try:
+        sets, start, time, rank, js = load(a.database, a.summary)
+    except cio.InputError as exc:
+        print("plot_timeline.py: error: %s" % exc, file=sys.stderr)
+        sys.exit(2)
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    p = int(js["ranks"])
+    setup = float(js.get("wall_time_setup", 0.0))
+    asm0 = float(js.get("assembly_start", js["wall_time"] - js["wall_time_assembly"]))
+    wall = float(js["wall_time"])
+    fig, ax = plt.subplots(figsize=(10, 1.0 + 0.45 * p))
+    colors = {"train": "tab:blue", "valid": "tab:orange"}
+    for r in range(p):
+        for s in ("train", "valid"):
+            m = (rank == r) & (sets == s)
+            ax.broken_barh(list(zip(start[m], time[m])), (r - 0.4, 0.8), facecolors=colors[s],
+                           edgecolor="none", label=s if r == 0 else None)
+        ax.broken_barh([(0.0, setup)], (r - 0.4, 0.8), facecolors="0.8", label="setup" if r == 0 else None)
+        ax.broken_barh([(asm0, wall - asm0)], (r - 0.4, 0.8), facecolors="tab:green",
+                       label="assembly" if r == 0 else None)
+    ax.set_yticks(range(p))
+    ax.set_yticklabels(["rank %d" % r for r in range(p)])
+    ax.set_xlabel("wall time since the start of the run (s)")
+    ax.set_xlim(0, wall * 1.01)
+    eff = js.get("busy_time_efficiency", js.get("parallel_efficiency"))
+    ax.set_title(a.title or "%s: %d samples on %d ranks, busy-time efficiency %.2f, load balance %.3f" % (
+        os.path.basename(a.database), len(start), p, eff, js["load_balance"]))
+    ax.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=8)
+    fig.tight_layout()
+    tmp = a.out + ".partial.png"
+    fig.savefig(tmp, dpi=120)
+    os.replace(tmp, a.out)
+    print("wrote %s" % a.out)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,83 @@
+"""The snapshot-stage scaling model (scripts/snapshot_model.py) and the timeline figure
+(scripts/plot_timeline.py): schedule simulation on cases with known answers, validation and
+prediction on a real (tiny) run, the figure written, bad input refused."""
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+ROOT = os.environ.get("CROWDROM_ROOT", os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+BIN = os.environ.get("CROWDROM_BIN", os.path.join(ROOT, "build", "bin"))
+sys.path.insert(0, os.path.join(ROOT, "scripts"))
+import snapshot_model as sm  # noqa: E402
+
+ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+           OMPI_MCA_rmaps_base_oversubscribe="1", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+
+
+def test_schedule_known_cases():
+    ones = np.ones(8)
+    # equal samples, no overheads: ceil(n / P) rounds
+    assert sm.simulate_loop(ones, 2, 0.0, 1e9, 0.0, 0.0) == pytest.approx(4.0)
+    assert sm.simulate_loop(ones, 3, 0.0, 1e9, 0.0, 0.0) == pytest.approx(3.0)
+    # more ranks than samples: one round
+    assert sm.simulate_loop(ones, 16, 0.0, 1e9, 0.0, 0.0) == pytest.approx(1.0)
+    # one long sample and many short ones: the long one sets the end
+    t = np.array([5.0] + [0.1] * 20)
+    assert sm.simulate_loop(t, 2, 0.0, 1e9, 0.0, 0.0) == pytest.approx(5.0)
+    # counter latency: 2 operations per sample plus the final ticket, per rank
+    assert sm.simulate_loop(ones, 1, 0.01, 1e9, 0.0, 0.0) == pytest.approx(8 + 17 * 0.01)
+    # piece writes: every slice (here every sample) plus nothing left at the end
+    assert sm.simulate_loop(ones, 1, 0.0, 0.0, 100.0, 0.001) == pytest.approx(8 * 1.1)
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("snapmodel")
+    text = open(os.path.join(ROOT, "tests", "inputs", "snap_tiny.nml")).read()
+    runs = []
+    for np_ in (1, 2):
+        db = tmp / ("tiny_np%d.h5" % np_)
+        nml = tmp / ("tiny_np%d.nml" % np_)
+        nml.write_text(text.replace("database = 'snap_tiny.h5'", "database = '%s'" % db))
+        js = tmp / ("tiny_np%d.json" % np_)
+        p = subprocess.run(["mpiexec", "-n", str(np_), os.path.join(BIN, "crowd_snapshots"), str(nml),
+                            "--summary", str(js)], cwd=tmp, capture_output=True, text=True, env=ENV)
+        assert p.returncode == 0, p.stdout + p.stderr
+        runs.append((str(js), str(db)))
+    return tmp, runs
+
+
+def test_validate_and_predict(tiny_run):
+    tmp, runs = tiny_run
+    rows, c = sm.validate(runs, runs[1])
+    assert [r["ranks"] for r in rows] == [1, 2]
+    for r in rows:
+        assert np.isfinite(r["model"]) and r["model"] > 0
+        # the model's loop cannot be shorter than the work of the busiest rank allows
+        assert r["loop_model"] >= 0
+    assert c is not None and c >= 0
+    pred = sm.predict(runs[0][1], runs[0][0], ranks=(1, 4, 64))
+    eff = [r["efficiency"] for r in pred]
+    assert all(0 < e <= 1 for e in eff)
+    # 9 samples: 64 ranks cannot be more than 9/64 efficient
+    assert eff[2] <= 9 / 64 + 1e-12
+
+
+def test_timeline(tiny_run):
+    tmp, runs = tiny_run
+    js, db = runs[1]
+    out = tmp / "timeline.png"
+    p = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "plot_timeline.py"), db, js, "--out", str(out)],
+                       capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert out.exists() and out.stat().st_size > 1000
+    s = json.load(open(js))
+    assert 0 < s["busy_time_efficiency"] <= 1 and s["pieces_written"] >= 1
+    bad = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "plot_timeline.py"), str(tmp / "nothing.h5"), js,
+                          "--out", str(tmp / "bad.png")], capture_output=True, text=True)
+    assert bad.returncode == 2 and "plot_timeline.py: error:" in bad.stderr
+    assert not (tmp / "bad.png").exists()

@@ -1,0 +1,302 @@
+!> Fortran side of the CHOLMOD shim (src/solvers/cr_cholmod_shim.c): a sparse symmetric matrix
+!> M [n, n], its fill-reducing analysis, and a simplicial LDL' factor of the "active" matrix
+!> (M on the active rows, identity elsewhere) that is modified by row additions and deletions
+!> (cholmod_rowadd / cholmod_rowdel) instead of being rebuilt. Indices here are 1-based; every
+!> CHOLMOD status is checked by the shim and returned as an error_t naming the call.
+module cr_cholmod
+  use, intrinsic :: iso_c_binding, only: c_ptr, c_null_ptr, c_int, c_double, c_char, c_long, &
+    c_associated
+  use cr_kinds, only: wp
+  use cr_error, only: error_t, set_error
+  use cr_strings, only: str
+  implicit none
+  private
+  public :: chol_t
+
+  !> A CHOLMOD factor of an active submatrix, with row add/delete.
+  type :: chol_t
+    type(c_ptr), private :: h = c_null_ptr
+    !> dimension of M
+    integer :: n = 0
+    !> number of numeric factorisations and of row modifications since init
+    integer :: n_factor = 0, n_modify = 0
+    !> row modifications since the last numeric factorisation
+    integer :: n_since = 0
+  contains
+    procedure :: init => chol_init
+    procedure :: free => chol_free
+    procedure :: analyze => chol_analyze
+    procedure :: factor => chol_factor
+    procedure :: pivots => chol_pivots
+    procedure :: rowadd => chol_rowadd
+    procedure :: rowdel => chol_rowdel
+    procedure :: solve => chol_solve
+    procedure :: factor_nnz => chol_factor_nnz
+    procedure :: min_pivot => chol_min_pivot
+    procedure :: schur => chol_schur
+    procedure :: symbolic_nnz => chol_symbolic_nnz
+    procedure :: perm => chol_perm
+  end type chol_t
+
+  interface
+    integer(c_int) function c_new(hp) bind(C, name='cr_chol_new')
+      import :: c_ptr, c_int
+      type(c_ptr), intent(out) :: hp
+    end function c_new
+    subroutine c_free(hp) bind(C, name='cr_chol_free')
+      import :: c_ptr
+      type(c_ptr), intent(inout) :: hp
+    end subroutine c_free
+    subroutine c_message(h, buf, len) bind(C, name='cr_chol_message')
+      import :: c_ptr, c_char, c_int
+      type(c_ptr), value :: h
+      character(kind=c_char), intent(out) :: buf(*)
+      integer(c_int), value :: len
+    end subroutine c_message
+    integer(c_int) function c_analyze(h, n, colptr, rowind, val, perm) bind(C, name='cr_chol_analyze')
+      import :: c_ptr, c_int, c_double
+      type(c_ptr), value :: h
+      integer(c_int), value :: n
+      integer(c_int), intent(in) :: colptr(*), rowind(*)
+      real(c_double), intent(in) :: val(*)
+      type(c_ptr), value :: perm
+    end function c_analyze
+    integer(c_int) function c_analyze_perm(h, n, colptr, rowind, val, perm) bind(C, name='cr_chol_analyze')
+      import :: c_ptr, c_int, c_double
+      type(c_ptr), value :: h
+      integer(c_int), value :: n
+      integer(c_int), intent(in) :: colptr(*), rowind(*)
+      real(c_double), intent(in) :: val(*)
+      integer(c_int), intent(in) :: perm(*)
+    end function c_analyze_perm
+    integer(c_int) function c_factor(h, active) bind(C, name='cr_chol_factor')
+      import :: c_ptr, c_int
+      type(c_ptr), value :: h
+      integer(c_int), intent(in) :: active(*)
+    end function c_factor
+    integer(c_int) function c_pivots(h, d) bind(C, name='cr_chol_pivots')
+      import :: c_ptr, c_int, c_double
+      type(c_ptr), value :: h
+      real(c_double), intent(out) :: d(*)
+    end function c_pivots
+    integer(c_int) function c_rowadd(h, t, nz, idx, val, pivot) bind(C, name='cr_chol_rowadd')
+      import :: c_ptr, c_int, c_double
+      type(c_ptr), value :: h
+      integer(c_int), value :: t, nz
+      integer(c_int), intent(in) :: idx(*)
+      real(c_double), intent(in) :: val(*)
+      real(c_double), intent(out) :: pivot
+    end function c_rowadd
+    integer(c_int) function c_rowdel(h, t) bind(C, name='cr_chol_rowdel')
+      import :: c_ptr, c_int
+      type(c_ptr), value :: h
+      integer(c_int), value :: t
+    end function c_rowdel
+    integer(c_int) function c_solve(h, b, x) bind(C, name='cr_chol_solve')
+      import :: c_ptr, c_int, c_double
+      type(c_ptr), value :: h
+      real(c_double), intent(in) :: b(*)
+      real(c_double), intent(out) :: x(*)
+    end function c_solve
+    integer(c_int) function c_schur(h, t, nz, idx, val, s) bind(C, name='cr_chol_schur')
+      import :: c_ptr, c_int, c_double
+      type(c_ptr), value :: h
+      integer(c_int), value :: t, nz
+      integer(c_int), intent(in) :: idx(*)
+      real(c_double), intent(in) :: val(*)
+      real(c_double), intent(out) :: s
+    end function c_schur
+    real(c_double) function c_symbolic_nnz(h) bind(C, name='cr_chol_symbolic_nnz')
+      import :: c_ptr, c_double
+      type(c_ptr), value :: h
+    end function c_symbolic_nnz
+    integer(c_int) function c_perm(h, perm) bind(C, name='cr_chol_perm')
+      import :: c_ptr, c_int
+      type(c_ptr), value :: h
+      integer(c_int), intent(out) :: perm(*)
+    end function c_perm
+    real(c_double) function c_min_pivot(h) bind(C, name='cr_chol_min_pivot')
+      import :: c_ptr, c_double
+      type(c_ptr), value :: h
+    end function c_min_pivot
+    integer(c_long) function c_factor_nnz(h) bind(C, name='cr_chol_factor_nnz')
+      import :: c_ptr, c_long
+      type(c_ptr), value :: h
+    end function c_factor_nnz
+  end interface
+
+contains
+
+  !> Start CHOLMOD (idempotent).
+  subroutine chol_init(this, error)
+    class(chol_t), intent(inout) :: this
+    type(error_t), allocatable, intent(out) :: error
+    if (c_associated(this%h)) return
+    if (c_new(this%h) /= 0) call set_error(error, "cholmod: cholmod_start failed (out of memory?)")
+  end subroutine chol_init
+
+  subroutine chol_free(this)
+    class(chol_t), intent(inout) :: this
+    if (c_associated(this%h)) call c_free(this%h)
+    this%h = c_null_ptr
+    this%n = 0
+  end subroutine chol_free
+
+  !> Error with the shim's message.
+  subroutine shim_error(this, what, code, error)
+    type(chol_t), intent(in) :: this
+    character(len=*), intent(in) :: what
+    integer(c_int), intent(in) :: code
+    type(error_t), allocatable, intent(out) :: error
+    character(kind=c_char) :: buf(256)
+    character(len=256) :: msg
+    integer :: i
+    call c_message(this%h, buf, 256_c_int)
+    do i = 1, 256
+      msg(i:i) = buf(i)
+    end do
+    call set_error(error, "cholmod " // what // ": " // trim(msg) // " (code " // str(int(code)) // ")")
+  end subroutine shim_error
+
+  !> Set M (upper triangle, compressed columns, 1-based, rows sorted within each column) and
+  !> analyse it; perm [n] (1-based) is the ordering to use, AMD when absent.
+  subroutine chol_analyze(this, n, colptr, rowind, val, error, perm)
+    class(chol_t), intent(inout) :: this
+    integer, intent(in) :: n
+    !> column starts [n + 1], row indices and values [colptr(n+1) - 1]
+    integer, intent(in) :: colptr(:), rowind(:)
+    real(wp), intent(in) :: val(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer, intent(in), optional :: perm(:)
+    integer(c_int) :: rc
+    integer :: nz
+    call this%init(error)
+    if (allocated(error)) return
+    nz = colptr(n + 1) - 1
+    if (present(perm)) then
+      rc = c_analyze_perm(this%h, int(n, c_int), int(colptr(1:n + 1) - 1, c_int), &
+        int(rowind(1:max(nz, 1)) - 1, c_int), val, int(perm(1:max(n, 1)) - 1, c_int))
+    else
+      rc = c_analyze(this%h, int(n, c_int), int(colptr(1:n + 1) - 1, c_int), &
+        int(rowind(1:max(nz, 1)) - 1, c_int), val, c_null_ptr)
+    end if
+    if (rc /= 0) then
+      call shim_error(this, "analyze", rc, error); return
+    end if
+    this%n = n
+  end subroutine chol_analyze
+
+  !> Numeric factorisation of M on the rows with active(i), identity elsewhere.
+  subroutine chol_factor(this, active, error)
+    class(chol_t), intent(inout) :: this
+    logical, intent(in) :: active(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer(c_int) :: rc
+    rc = c_factor(this%h, merge(1_c_int, 0_c_int, active(1:this%n)))
+    if (rc /= 0) then
+      call shim_error(this, "factor", rc, error); return
+    end if
+    this%n_factor = this%n_factor + 1
+    this%n_since = 0
+  end subroutine chol_factor
+
+  !> Pivots D(i,i) of the current factor (1 on inactive rows) [n].
+  subroutine chol_pivots(this, d, error)
+    class(chol_t), intent(inout) :: this
+    real(wp), intent(out) :: d(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer(c_int) :: rc
+    rc = c_pivots(this%h, d)
+    if (rc /= 0) call shim_error(this, "pivots", rc, error)
+  end subroutine chol_pivots
+
+  !> Make row t active: idx, val [nz] are its entries in M (entries on inactive rows other
+  !> than t are ignored). pivot: the new D(t,t).
+  subroutine chol_rowadd(this, t, idx, val, pivot, error)
+    class(chol_t), intent(inout) :: this
+    integer, intent(in) :: t
+    integer, intent(in) :: idx(:)
+    real(wp), intent(in) :: val(:)
+    real(wp), intent(out) :: pivot
+    type(error_t), allocatable, intent(out) :: error
+    integer(c_int) :: rc
+    rc = c_rowadd(this%h, int(t - 1, c_int), int(size(idx), c_int), int(idx - 1, c_int), val, pivot)
+    if (rc /= 0) then
+      call shim_error(this, "rowadd", rc, error); return
+    end if
+    this%n_modify = this%n_modify + 1
+    this%n_since = this%n_since + 1
+  end subroutine chol_rowadd
+
+  !> Make row t inactive (identity row).
+  subroutine chol_rowdel(this, t, error)
+    class(chol_t), intent(inout) :: this
+    integer, intent(in) :: t
+    type(error_t), allocatable, intent(out) :: error
+    integer(c_int) :: rc
+    rc = c_rowdel(this%h, int(t - 1, c_int))
+    if (rc /= 0) then
+      call shim_error(this, "rowdel", rc, error); return
+    end if
+    this%n_modify = this%n_modify + 1
+    this%n_since = this%n_since + 1
+  end subroutine chol_rowdel
+
+  !> x = A^{-1} b with the current factor [n].
+  subroutine chol_solve(this, b, x, error)
+    class(chol_t), intent(inout) :: this
+    real(wp), intent(in) :: b(:)
+    real(wp), intent(out) :: x(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer(c_int) :: rc
+    rc = c_solve(this%h, b, x)
+    if (rc /= 0) call shim_error(this, "solve", rc, error)
+  end subroutine chol_solve
+
+  !> s = w^T A_P^{-1} w for w = M(P, t) given by its entries idx, val [nz] (entries off the
+  !> active rows and t itself are ignored): row t's pivot would be M(t,t) - s.
+  subroutine chol_schur(this, t, idx, val, s, error)
+    class(chol_t), intent(inout) :: this
+    integer, intent(in) :: t
+    integer, intent(in) :: idx(:)
+    real(wp), intent(in) :: val(:)
+    real(wp), intent(out) :: s
+    type(error_t), allocatable, intent(out) :: error
+    integer(c_int) :: rc
+    rc = c_schur(this%h, int(t - 1, c_int), int(size(idx), c_int), int(idx - 1, c_int), val, s)
+    if (rc /= 0) call shim_error(this, "schur", rc, error)
+  end subroutine chol_schur
+
+  !> Predicted entries of the factor of the whole M (analysis).
+  real(wp) function chol_symbolic_nnz(this) result(s)
+    class(chol_t), intent(in) :: this
+    s = real(c_symbolic_nnz(this%h), wp)
+  end function chol_symbolic_nnz
+
+  !> The ordering in use, 1-based: perm(k) is the row at position k [n].
+  subroutine chol_perm(this, perm, error)
+    class(chol_t), intent(inout) :: this
+    integer, intent(out) :: perm(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer(c_int) :: rc
+    integer(c_int), allocatable :: p(:)
+    allocate(p(max(this%n, 1)))
+    rc = c_perm(this%h, p)
+    if (rc /= 0) then
+      call shim_error(this, "perm", rc, error); return
+    end if
+    perm(1:this%n) = int(p(1:this%n)) + 1
+  end subroutine chol_perm
+
+  !> Smallest pivot D(i,i) over the active rows (NaN-safe: a NaN pivot is returned as is).
+  real(wp) function chol_min_pivot(this) result(d)
+    class(chol_t), intent(in) :: this
+    d = real(c_min_pivot(this%h), wp)
+  end function chol_min_pivot
+
+  !> Stored entries of the current factor.
+  integer function chol_factor_nnz(this) result(nnz)
+    class(chol_t), intent(in) :: this
+    nnz = int(c_factor_nnz(this%h))
+  end function chol_factor_nnz
+end module cr_cholmod

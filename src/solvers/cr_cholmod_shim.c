@@ -1,0 +1,282 @@
+/* Thin C shim over SuiteSparse CHOLMOD for the sparse dual active-set projection
+ * (src/solvers/cr_sparse_as.f90, Fortran interfaces in src/solvers/cr_cholmod.f90).
+ *
+ * One handle holds a symmetric matrix M [n, n] (upper triangle, compressed columns, 0-based,
+ * rows sorted within each column), its symbolic analysis (fill-reducing ordering and pattern)
+ * and a simplicial LDL' factor of the "active" matrix
+ *     A = M restricted to the active rows and columns, identity on the other rows,
+ * which the caller modifies with row additions and deletions (cholmod_rowadd / cholmod_rowdel)
+ * as the active set changes. Every function returns 0 on success and a nonzero code otherwise;
+ * cr_chol_message gives the reason. The shim allocates nothing the caller sees; all indices
+ * at this interface are 0-based and in the caller's (unpermuted) numbering.
+ */
+#include <stdlib.h>
+#include <string.h>
+#include <stdio.h>
+#include <suitesparse/cholmod.h>
+
+typedef struct {
+  cholmod_common c;
+  int started;
+  int n;
+  cholmod_sparse *m;      /* full matrix M, upper, stype = 1 */
+  cholmod_factor *sym;    /* symbolic analysis of M */
+  cholmod_factor *l;      /* numeric LDL' factor of the active matrix */
+  cholmod_sparse *r;      /* rowadd column [n, 1] */
+  cholmod_dense *b, *x, *y, *e;  /* solve: right-hand side, solution, workspace */
+  int *iperm;             /* position of each row in the factor [n] */
+  int *active;            /* current active flags [n] */
+  double *yw;             /* zero work vector of the Schur-complement test [n] */
+  char msg[256];
+} cr_chol_t;
+
+static int fail(cr_chol_t *h, int code, const char *what) {
+  snprintf(h->msg, sizeof h->msg, "CHOLMOD %s failed (status %d, n = %d)", what, h->c.status, h->n);
+  return code;
+}
+
+static void release(cr_chol_t *h) {
+  if (!h->started) return;
+  if (h->m) cholmod_free_sparse(&h->m, &h->c);
+  if (h->sym) cholmod_free_factor(&h->sym, &h->c);
+  if (h->l) cholmod_free_factor(&h->l, &h->c);
+  if (h->r) cholmod_free_sparse(&h->r, &h->c);
+  if (h->b) cholmod_free_dense(&h->b, &h->c);
+  if (h->x) cholmod_free_dense(&h->x, &h->c);
+  if (h->y) cholmod_free_dense(&h->y, &h->c);
+  if (h->e) cholmod_free_dense(&h->e, &h->c);
+  free(h->iperm); h->iperm = NULL;
+  free(h->active); h->active = NULL;
+  free(h->yw); h->yw = NULL;
+  h->n = 0;
+}
+
+/* Create a handle (*hp = NULL on failure). */
+int cr_chol_new(void **hp) {
+  cr_chol_t *h = calloc(1, sizeof(cr_chol_t));
+  *hp = NULL;
+  if (!h) return 1;
+  if (!cholmod_start(&h->c)) { free(h); return 2; }
+  h->started = 1;
+  h->c.supernodal = CHOLMOD_SIMPLICIAL;  /* row add/delete need a simplicial LDL' factor */
+  h->c.final_ll = 0;
+  h->c.print = 0;
+  h->c.error_handler = NULL;
+  h->msg[0] = '\0';
+  *hp = h;
+  return 0;
+}
+
+void cr_chol_free(void **hp) {
+  cr_chol_t *h = (cr_chol_t *)(*hp);
+  if (!h) return;
+  release(h);
+  cholmod_finish(&h->c);
+  free(h);
+  *hp = NULL;
+}
+
+/* Copy the last message into buf [len] (blank padded, for Fortran). */
+void cr_chol_message(void *hp, char *buf, int len) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  int i, k = (int)strlen(h->msg);
+  for (i = 0; i < len; i++) buf[i] = i < k ? h->msg[i] : ' ';
+}
+
+/* Set M [n, n] (upper triangle, colptr [n+1], rowind and val [colptr[n]], 0-based, each
+ * column's rows sorted) and analyse its pattern. perm [n] (0-based) is the ordering to use,
+ * or NULL for AMD. */
+int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const double *val,
+                    const int *perm) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  int nz = colptr[n], j, *p, *ip;
+  release(h);
+  h->n = n;
+  h->m = cholmod_allocate_sparse(n, n, nz > 0 ? nz : 1, 1, 1, 1, CHOLMOD_REAL, &h->c);
+  if (!h->m) return fail(h, 3, "allocate_sparse (M)");
+  memcpy(h->m->p, colptr, (size_t)(n + 1) * sizeof(int));
+  memcpy(h->m->i, rowind, (size_t)nz * sizeof(int));
+  memcpy(h->m->x, val, (size_t)nz * sizeof(double));
+  if (perm) {
+    h->c.nmethods = 1; h->c.method[0].ordering = CHOLMOD_GIVEN; h->c.postorder = 0;
+    h->sym = cholmod_analyze_p(h->m, (int *)perm, NULL, 0, &h->c);
+  } else {
+    h->c.nmethods = 1; h->c.method[0].ordering = CHOLMOD_AMD; h->c.postorder = 0;
+    h->sym = cholmod_analyze(h->m, &h->c);
+  }
+  if (!h->sym || h->c.status < CHOLMOD_OK) return fail(h, 4, "analyze");
+  h->iperm = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
+  h->active = calloc((size_t)(n > 0 ? n : 1), sizeof(int));
+  h->yw = calloc((size_t)(n > 0 ? n : 1), sizeof(double));
+  if (!h->iperm || !h->active || !h->yw) { snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5; }
+  p = (int *)h->sym->Perm; ip = h->iperm;
+  for (j = 0; j < n; j++) ip[p[j]] = j;
+  h->r = cholmod_allocate_sparse(n, 1, n > 0 ? n : 1, 1, 1, 0, CHOLMOD_REAL, &h->c);
+  h->b = cholmod_zeros(n, 1, CHOLMOD_REAL, &h->c);
+  if (!h->r || !h->b) return fail(h, 6, "allocate (work space)");
+  return 0;
+}
+
+/* Predicted entries of the factor of the whole M (sum of the symbolic column counts). */
+double cr_chol_symbolic_nnz(void *hp) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  int j, *cc;
+  double s = 0.0;
+  if (!h->sym || !h->sym->ColCount) return 0.0;
+  cc = (int *)h->sym->ColCount;
+  for (j = 0; j < h->n; j++) s += cc[j];
+  return s;
+}
+
+/* The ordering in use: perm [n] (0-based, perm[k] = row at position k). */
+int cr_chol_perm(void *hp, int *perm) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  if (!h->sym) { snprintf(h->msg, sizeof h->msg, "cr_chol_perm before cr_chol_analyze"); return 22; }
+  memcpy(perm, h->sym->Perm, (size_t)h->n * sizeof(int));
+  return 0;
+}
+
+/* Factorise A = M on the rows with active[i] != 0, identity elsewhere (numeric refactorisation
+ * on the stored analysis; the previous factor is discarded). */
+int cr_chol_factor(void *hp, const int *active) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  int n = h->n, j, k, q, nz = 0;
+  int *mp = (int *)h->m->p, *mi = (int *)h->m->i;
+  double *mx = (double *)h->m->x;
+  cholmod_sparse *a;
+  if (!h->sym) { snprintf(h->msg, sizeof h->msg, "cr_chol_factor before cr_chol_analyze"); return 7; }
+  memcpy(h->active, active, (size_t)n * sizeof(int));
+  a = cholmod_allocate_sparse(n, n, mp[n] + n + 1, 1, 1, 1, CHOLMOD_REAL, &h->c);
+  if (!a) return fail(h, 8, "allocate_sparse (active matrix)");
+  {
+    int *ap = (int *)a->p, *ai = (int *)a->i;
+    double *ax = (double *)a->x;
+    for (j = 0; j < n; j++) {
+      ap[j] = nz;
+      if (!active[j]) { ai[nz] = j; ax[nz] = 1.0; nz++; continue; }
+      for (q = mp[j]; q < mp[j + 1]; q++) {
+        k = mi[q];
+        if (k <= j && active[k]) { ai[nz] = k; ax[nz] = mx[q]; nz++; }
+      }
+    }
+    ap[n] = nz;
+  }
+  if (h->l) cholmod_free_factor(&h->l, &h->c);
+  h->l = cholmod_copy_factor(h->sym, &h->c);
+  if (!h->l) { cholmod_free_sparse(&a, &h->c); return fail(h, 9, "copy_factor"); }
+  k = cholmod_factorize(a, h->l, &h->c);
+  cholmod_free_sparse(&a, &h->c);
+  /* CHOLMOD_NOT_POSDEF / DSMALL are warnings: the caller inspects the pivots (cr_chol_pivots) */
+  if (!k || h->c.status < CHOLMOD_OK) return fail(h, 10, "factorize");
+  if (h->l->is_super || h->l->is_ll) { snprintf(h->msg, sizeof h->msg, "CHOLMOD returned a supernodal or LL' factor"); return 11; }
+  return 0;
+}
+
+/* Pivots D(i,i) of the current factor, in the caller's numbering: d [n]. */
+int cr_chol_pivots(void *hp, double *d) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  int j, *lp, *p;
+  double *lx;
+  if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_pivots without a factor"); return 12; }
+  lp = (int *)h->l->p; lx = (double *)h->l->x; p = (int *)h->l->Perm;
+  for (j = 0; j < h->n; j++) d[p[j]] = lx[lp[j]];
+  return 0;
+}
+
+/* Add row/column t (0-based) to the factor; its entries are (idx[q], val[q]), q < nz, over the
+ * active rows and t itself (others are ignored). On return *pivot is the new D(t,t). */
+int cr_chol_rowadd(void *hp, int t, int nz, const int *idx, const double *val, double *pivot) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  int q, cnt = 0, k, *ri, *rp, *lp;
+  double *rx;
+  if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowadd without a factor"); return 13; }
+  if (h->active[t]) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowadd: row %d already active", t + 1); return 14; }
+  rp = (int *)h->r->p; ri = (int *)h->r->i; rx = (double *)h->r->x;
+  for (q = 0; q < nz; q++) {
+    k = idx[q];
+    if (k == t || h->active[k]) { ri[cnt] = h->iperm[k]; rx[cnt] = val[q]; cnt++; }
+  }
+  rp[0] = 0; rp[1] = cnt;
+  h->r->sorted = 0;
+  k = h->iperm[t];
+  if (!cholmod_rowadd((size_t)k, h->r, h->l, &h->c) || h->c.status < CHOLMOD_OK)
+    return fail(h, 15, "rowadd");
+  h->active[t] = 1;
+  lp = (int *)h->l->p;
+  *pivot = ((double *)h->l->x)[lp[k]];
+  return 0;
+}
+
+/* s = w' A^{-1} w for the column w = (idx[q], val[q]), q < nz, restricted to the active rows
+ * other than t: the part of M(t,t) that the active rows explain (the pivot row t would get is
+ * M(t,t) - s). One sparse forward solve y = L^{-1} P w, s = sum y_j^2 / D(j,j). */
+int cr_chol_schur(void *hp, int t, int nz, const int *idx, const double *val, double *s) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  int q, k, j, p, jmin, *lp, *li, *lnz;
+  double *lx, *y = h->yw, yj, acc = 0.0;
+  if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_schur without a factor"); return 21; }
+  lp = (int *)h->l->p; li = (int *)h->l->i; lnz = (int *)h->l->nz; lx = (double *)h->l->x;
+  jmin = h->n;
+  for (q = 0; q < nz; q++) {
+    k = idx[q];
+    if (k == t || !h->active[k]) continue;
+    p = h->iperm[k];
+    y[p] += val[q];
+    if (p < jmin) jmin = p;
+  }
+  for (j = jmin; j < h->n; j++) {
+    yj = y[j];
+    if (yj == 0.0) continue;
+    y[j] = 0.0;
+    acc += yj * yj / lx[lp[j]];
+    for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) y[li[p]] -= lx[p] * yj;
+  }
+  *s = acc;
+  return 0;
+}
+
+/* Smallest pivot D(i,i) over the active rows (1 when none is active). */
+double cr_chol_min_pivot(void *hp) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  int j, *lp, *p;
+  double *lx, d = 1.0;
+  if (!h->l) return 0.0;
+  lp = (int *)h->l->p; lx = (double *)h->l->x; p = (int *)h->l->Perm;
+  for (j = 0; j < h->n; j++)
+    if (h->active[p[j]] && !(lx[lp[j]] >= d)) d = lx[lp[j]];
+  return d;
+}
+
+/* Delete row/column t (0-based) from the factor (it becomes an identity row). */
+int cr_chol_rowdel(void *hp, int t) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowdel without a factor"); return 16; }
+  if (!h->active[t]) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowdel: row %d not active", t + 1); return 17; }
+  if (!cholmod_rowdel((size_t)h->iperm[t], NULL, h->l, &h->c) || h->c.status < CHOLMOD_OK)
+    return fail(h, 18, "rowdel");
+  h->active[t] = 0;
+  return 0;
+}
+
+/* x = A^{-1} b (b, x [n]; may alias). */
+int cr_chol_solve(void *hp, const double *b, double *x) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_solve without a factor"); return 19; }
+  memcpy(h->b->x, b, (size_t)h->n * sizeof(double));
+  if (!cholmod_solve2(CHOLMOD_A, h->l, h->b, NULL, &h->x, NULL, &h->y, &h->e, &h->c) ||
+      h->c.status < CHOLMOD_OK)
+    return fail(h, 20, "solve");
+  memcpy(x, h->x->x, (size_t)h->n * sizeof(double));
+  return 0;
+}
+
+/* Number of stored entries of the factor (nnz(L) including the diagonal). */
+long cr_chol_factor_nnz(void *hp) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  long s = 0;
+  int j, *nzc;
+  if (!h->l) return 0;
+  nzc = (int *)h->l->nz;
+  for (j = 0; j < h->n; j++) s += nzc[j];
+  return s;
+}

@@ -1,0 +1,493 @@
+!> Warm-started dual active-set solver (Goldfarb-Idnani) for the least-distance problem
+!>   min 1/2 |u - v|_2^2  s.t.  Bm u <= d,   Bm: [m, n], given as its transpose bt [n, m]
+!> (rows as contiguous columns), the reduced projection of the reduced-order model
+!> (u = alpha, v = vhat, Bm = bhat).
+!>
+!> Method. The Hessian is the identity, so the whole state is an active set A of linearly
+!> independent rows, their multipliers lambda_A >= 0 and the Cholesky factor L L^T = G_A of
+!> the Gram matrix of the active rows only (G_ij = b_i . b_j). The primal point is
+!> u = v - Bm_A^T lambda_A with Bm_A u = d_A. A sweep forms u and the slacks s = d - Bm u
+!> (two matrix-vector products, O(m n)) and lists the violated rows as candidates. The most
+!> violated candidate p (largest -s_p / |b_p|) is added by the dual step of Goldfarb and
+!> Idnani (Math. Prog. 27, 1983): with r = G_A^{-1} G_Ap and zeta = G_pp - G_pA r (the
+!> squared distance of b_p to the span of the active rows), increasing lambda_p by t moves
+!> lambda_A by -t r, u by -t z (z = b_p - Bm_A^T r) and raises s_p by t zeta; the step is the
+!> smaller of the full step (s_p = 0, p joins A: one new row of L) and the partial step at
+!> which an active multiplier reaches 0 (that row leaves A: a Givens downdate of L). The
+!> other candidates' slacks are carried along (s_c += t b_c . z, O(k n) per step), so the
+!> next candidate is added without a sweep; a new sweep is made when no candidate is
+!> violated, and the solve ends at a sweep that finds no violated row. Only the Gram entries
+!> G_pA of an entering row are formed, through a `gram_source_t` when the caller has them
+!> cheaply, else as dot products of rows. The work per step is O(m n) per sweep plus
+!> O(k n + k^2) per added or dropped row, never O(m^2).
+!>
+!> Warm start. The rows with lambda > 0 on entry are factored (numerically dependent ones
+!> skipped), the equality-constrained problem on them is solved, and rows with negative
+!> multipliers are dropped until all are >= 0: a dual-feasible start for the iteration above.
+!>
+!> Certificate. The returned (u, lambda) are accepted (stats%certified) only when they satisfy
+!> the KKT conditions to the stated tolerance tau_i = KKT_FACTOR eps (|b_i|_2 |u|_2 + |d_i|):
+!>   u = v - Bm^T lambda (formed so), lambda >= 0, s_i >= -tau_i for all i, |s_i| <= tau_i
+!>   where lambda_i > 0.
+!> Active residuals above tau (ill-conditioned G_A) get up to two steps of iterative
+!> refinement. For any such point, |u - u*|_2^2 <= tau . (lambda + lambda*) with u* the exact
+!> projection and lambda* its multipliers (see the tests). When the iteration meets a violated
+!> row that depends on the active ones with no multiplier to release (a Farkas-type
+!> certificate that {Bm u <= d} is empty), or hits its cap, or the certificate fails, the
+!> result is not certified and the caller falls back to the Lawson-Hanson LDP (cr_nnls),
+!> which also computes the least-violation point of infeasible problems.
+!> Finiteness: the slacks of the first sweep are summed (m additions); a NaN or Inf in Bm or d
+!> shows there (stats%nonfinite, not certified) and the caller's fallback names the entry.
+!> v and the warm-start lambda must be finite (the caller checks them).
+module cr_dual_qp
+  use cr_kinds, only: wp
+  use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
+  use cr_lapack, only: la_gemv
+  implicit none
+  private
+  public :: gram_source_t, dual_qp_t, dual_qp_stats_t, KKT_FACTOR
+
+  !> tolerance factor of the KKT certificate (tau_i, see the module header)
+  real(wp), parameter :: KKT_FACTOR = 256.0_wp
+  !> a row whose squared distance to the span of the active rows is below ZTOL |b_p|^2 is
+  !> treated as dependent on them (relative pivot of the Cholesky factor below 1e-5)
+  real(wp), parameter :: ZTOL = 1.0e-10_wp
+
+  !> Source of Gram entries b_p . b_j of the constraint rows (when the caller can form them
+  !> more cheaply than an n-term dot product).
+  type, abstract :: gram_source_t
+  contains
+    procedure(gram_entries_i), deferred :: gram_entries
+    procedure :: gram_diag
+  end type gram_source_t
+
+  abstract interface
+    !> g(j) = b_p . b_idx(j) for the rows of the last assembled problem [size(idx)].
+    subroutine gram_entries_i(this, p, idx, g)
+      import :: gram_source_t, wp
+      class(gram_source_t), intent(in) :: this
+      integer, intent(in) :: p, idx(:)
+      real(wp), intent(out) :: g(:)
+    end subroutine gram_entries_i
+  end interface
+
+  !> Outcome of one solve.
+  type :: dual_qp_stats_t
+    !> .true. when (u, lambda) satisfy the KKT certificate
+    logical :: certified = .false.
+    !> .true. when a violated row was found dependent on the active ones with no multiplier
+    !> to release: {Bm u <= d} is (numerically) empty
+    logical :: infeasible = .false.
+    !> .true. when the iteration cap stopped the solve
+    logical :: capped = .false.
+    !> .true. when the active set would exceed max_active rows (left to the caller's
+    !> fallback: a Gram of nearly as many rows as unknowns squares a large condition number)
+    logical :: overfull = .false.
+    !> .true. when the data hold a NaN or Inf (seen in the slacks of the first sweep)
+    logical :: nonfinite = .false.
+    !> rows added, rows dropped, outer sweeps (products with Bm), refinement steps
+    integer :: adds = 0, drops = 0, sweeps = 0, refinements = 0
+    !> size of the final active set
+    integer :: n_active = 0
+    !> max_i (Bm u - d)_i^+ of the returned u
+    real(wp) :: max_violation = 0
+  end type dual_qp_stats_t
+
+  !> Solver state and work space (grown on demand); keep one per trajectory.
+  type :: dual_qp_t
+    integer :: mcap = -1, ncap = -1, kcap = -1
+    !> active rows in factor order [kcap], their multipliers [kcap]
+    integer, allocatable :: act(:)
+    real(wp), allocatable :: lam(:)
+    !> lower Cholesky factor of G_A [kcap, kcap]
+    real(wp), allocatable :: lf(:,:)
+    !> work vectors [kcap]
+    real(wp), allocatable :: gp(:), y(:), r(:), x(:)
+    !> slacks, squared row norms, row norms, tolerances [mcap]; membership [mcap]
+    real(wp), allocatable :: s(:), nrm2(:), nrm(:), tau(:)
+    logical, allocatable :: in_a(:)
+    !> candidates (violated rows of the last sweep) and their tracked slacks [mcap]
+    integer, allocatable :: cand(:)
+    real(wp), allocatable :: sc(:)
+    !> step direction in the primal space [ncap]
+    real(wp), allocatable :: zdir(:)
+  contains
+    procedure :: solve
+    procedure, private :: reserve
+  end type dual_qp_t
+
+contains
+
+  !> g(i) = |b_i|^2 for the m rows [m] (default: one gram_entries call per row).
+  subroutine gram_diag(this, g)
+    class(gram_source_t), intent(in) :: this
+    real(wp), intent(out) :: g(:)
+    integer :: i
+    real(wp) :: gi(1)
+    do i = 1, size(g)
+      call this%gram_entries(i, [i], gi)
+      g(i) = gi(1)
+    end do
+  end subroutine gram_diag
+
+  subroutine reserve(this, m, n)
+    class(dual_qp_t), intent(inout) :: this
+    integer, intent(in) :: m, n
+    integer :: kc
+    if (m > this%mcap) then
+      if (allocated(this%s)) deallocate(this%s, this%nrm2, this%nrm, this%tau, this%in_a, this%cand, this%sc)
+      allocate(this%s(m), this%nrm2(m), this%nrm(m), this%tau(m), this%in_a(m), this%cand(m), this%sc(m))
+      this%mcap = m
+    end if
+    if (n > this%ncap) then
+      if (allocated(this%zdir)) deallocate(this%zdir)
+      allocate(this%zdir(n))
+      this%ncap = n
+    end if
+    kc = max(1, min(m, n))
+    if (kc > this%kcap) then
+      if (allocated(this%act)) deallocate(this%act, this%lam, this%lf, this%gp, this%y, this%r, this%x)
+      allocate(this%act(kc), this%lam(kc), this%lf(kc, kc), this%gp(kc), this%y(kc), this%r(kc), this%x(kc))
+      this%kcap = kc
+    end if
+  end subroutine reserve
+
+  !> Solve min 1/2 |u - v|^2 s.t. Bm u <= d. On entry lambda > 0 marks the warm-start guess
+  !> of the active set (ignored when warm = .false.); on return lambda holds the multipliers
+  !> (zero off the active set) and u the projection, both valid only when
+  !> stats%certified (otherwise they are the last iterate: a dual-feasible point and a good
+  !> warm start for a fallback solver). max_iter caps adds + drops (default 4 m + 20).
+  subroutine solve(this, bt, d, v, u, lambda, stats, warm, gsrc, max_iter, max_active)
+    class(dual_qp_t), intent(inout) :: this
+    !> constraint rows as columns: Bm^T [n, m]
+    real(wp), contiguous, intent(in) :: bt(:,:)
+    !> right-hand side [m], point to project [n]
+    real(wp), intent(in) :: d(:), v(:)
+    !> projection [n]
+    real(wp), intent(out) :: u(:)
+    !> multipliers [m] (warm-start guess on entry)
+    real(wp), intent(inout) :: lambda(:)
+    type(dual_qp_stats_t), intent(out) :: stats
+    logical, intent(in), optional :: warm
+    !> Gram entries of the rows (default: dot products of the columns of bt)
+    class(gram_source_t), intent(in), optional :: gsrc
+    integer, intent(in), optional :: max_iter
+    !> largest active set handled (default min(m, n))
+    integer, intent(in), optional :: max_active
+    integer :: kmax, m, n, k, i, j, p, it, itmax, jmin, ref, nc, c, pc
+    real(wp) :: eps, unorm, best, t1, t2, t, zeta, viol, lp
+    logical :: use_warm, dependent, ok, need_sweep, track, clamped
+
+    m = size(bt, 2); n = size(bt, 1)
+    eps = epsilon(1.0_wp)
+    use_warm = .true.
+    if (present(warm)) use_warm = warm
+    itmax = 4 * m + 20
+    if (present(max_iter)) itmax = max_iter
+    if (m == 0) then
+      u = v
+      stats%certified = .true.
+      return
+    end if
+    call this%reserve(m, n)
+    kmax = this%kcap
+    if (present(max_active)) kmax = max(0, min(kmax, max_active))
+    ! squared row norms (the Gram diagonal)
+    if (present(gsrc)) then
+      call gsrc%gram_diag(this%nrm2(1:m))
+    else
+      do i = 1, m
+        this%nrm2(i) = dot_product(bt(:, i), bt(:, i))
+      end do
+    end if
+    this%nrm(1:m) = sqrt(this%nrm2(1:m))
+    this%in_a(1:m) = .false.
+    k = 0
+    it = 0
+
+    ! ---- warm start: factor the guessed rows, solve the equality problem, drop lambda < 0
+    if (use_warm .and. present(max_active)) stats%overfull = count(lambda > 0) > kmax
+    if (use_warm .and. .not. stats%overfull) then
+      do i = 1, m
+        if (lambda(i) > 0 .and. this%nrm2(i) > 0 .and. k < kmax) then
+          call entering(i, zeta)
+          if (zeta > ZTOL * this%nrm2(i)) call append(i, zeta)
+        end if
+      end do
+      do
+        if (k == 0) exit
+        ! G_A lambda_A = Bm_A v - d_A
+        do j = 1, k
+          this%y(j) = dot_product(bt(:, this%act(j)), v) - d(this%act(j))
+        end do
+        call chol_solve(this%y(1:k), this%lam(1:k))
+        if (all(this%lam(1:k) >= 0)) exit
+        do j = k, 1, -1
+          if (this%lam(j) < 0) call drop(j)
+        end do
+      end do
+    end if
+
+    ! ---- Goldfarb-Idnani iteration
+    need_sweep = .true.
+    nc = 0
+    outer: do
+      if (stats%overfull) exit outer
+      if (need_sweep) then
+        call primal()
+        stats%sweeps = stats%sweeps + 1
+        if (stats%sweeps == 1) then
+          if (.not. ieee_is_finite(sum(this%s(1:m)))) then
+            stats%nonfinite = .true.
+            exit outer
+          end if
+        end if
+        ! candidates: the violated inactive rows
+        nc = 0
+        do i = 1, m
+          if (this%in_a(i)) cycle
+          if (-this%s(i) > this%tau(i)) then
+            if (this%nrm2(i) == 0) then
+              stats%infeasible = .true.
+              exit outer
+            end if
+            nc = nc + 1
+            this%cand(nc) = i
+            this%sc(nc) = this%s(i)
+          end if
+        end do
+        if (nc == 0) exit outer
+        need_sweep = .false.
+      end if
+      ! most violated candidate (scaled by its norm) by its tracked slack
+      p = 0; pc = 0
+      best = 0
+      do c = 1, nc
+        i = this%cand(c)
+        if (this%in_a(i)) cycle
+        if (-this%sc(c) > this%tau(i) .and. -this%sc(c) > best * this%nrm(i)) then
+          best = -this%sc(c) / this%nrm(i); p = i; pc = c
+        end if
+      end do
+      if (p == 0) then
+        need_sweep = .true.
+        cycle outer
+      end if
+      track = .false.
+      do c = 1, nc
+        if (c /= pc .and. .not. this%in_a(this%cand(c))) track = .true.
+      end do
+      viol = -this%sc(pc)
+      lp = 0
+      inner: do
+        if (it >= itmax) then
+          stats%capped = .true.
+          exit outer
+        end if
+        it = it + 1
+        call entering(p, zeta)
+        dependent = .not. zeta > ZTOL * this%nrm2(p) .or. k >= this%kcap
+        t2 = huge(1.0_wp)
+        if (.not. dependent) t2 = viol / zeta
+        ! r = G_A^{-1} G_Ap: back substitution on y = L^{-1} G_Ap
+        call back_solve(this%y(1:k), this%r(1:k))
+        t1 = huge(1.0_wp)
+        jmin = 0
+        do j = 1, k
+          if (this%r(j) > 0) then
+            if (this%lam(j) / this%r(j) < t1) then
+              t1 = this%lam(j) / this%r(j); jmin = j
+            end if
+          end if
+        end do
+        if (jmin == 0 .and. dependent) then
+          stats%infeasible = .true.
+          exit outer
+        end if
+        t = min(t1, t2)
+        if (track) then
+          ! the other candidates' slacks move by t b_c . z, z = b_p - Bm_A^T r (O(k n + nc n)
+          ! instead of a sweep)
+          this%zdir(1:n) = bt(:, p)
+          do j = 1, k
+            this%zdir(1:n) = this%zdir(1:n) - this%r(j) * bt(:, this%act(j))
+          end do
+          do c = 1, nc
+            i = this%cand(c)
+            if (c == pc .or. this%in_a(i)) cycle
+            this%sc(c) = this%sc(c) + t * dot_product(bt(:, i), this%zdir(1:n))
+          end do
+        end if
+        this%lam(1:k) = this%lam(1:k) - t * this%r(1:k)
+        lp = lp + t
+        if (t2 <= t1) then
+          if (k >= kmax) then
+            stats%overfull = .true.
+            exit outer
+          end if
+          call append(p, zeta)
+          this%lam(k) = lp
+          ! an active row has s = 0; should it leave A later, its slack is tracked from 0
+          this%sc(pc) = 0
+          stats%adds = stats%adds + 1
+          exit inner
+        end if
+        viol = viol - t * zeta
+        this%lam(jmin) = 0
+        call drop(jmin)
+        ! the dropped row may be a candidate, tracked from now on
+        track = nc > 1
+        stats%drops = stats%drops + 1
+      end do inner
+    end do outer
+
+    ! ---- certificate (with up to two refinement steps on the active rows)
+    if (.not. (stats%infeasible .or. stats%capped .or. stats%nonfinite .or. stats%overfull)) then
+      do ref = 0, 2
+        ok = all(this%lam(1:k) >= 0)
+        do j = 1, k
+          ok = ok .and. abs(this%s(this%act(j))) <= this%tau(this%act(j))
+        end do
+        if (ok .or. ref == 2) exit
+        ! G_A delta = -s_A, lambda_A += delta
+        do j = 1, k
+          this%y(j) = -this%s(this%act(j))
+        end do
+        call chol_solve(this%y(1:k), this%r(1:k))
+        this%lam(1:k) = this%lam(1:k) + this%r(1:k)
+        stats%refinements = stats%refinements + 1
+        call primal()
+      end do
+      do i = 1, m
+        if (.not. this%in_a(i)) ok = ok .and. this%s(i) >= -this%tau(i)
+      end do
+      stats%certified = ok
+    end if
+    ! u of the last sweep is v - Bm_A^T lambda_A unless the iteration stopped between sweeps
+    ! or a multiplier is clamped at 0
+    lambda = 0
+    clamped = .false.
+    do j = 1, k
+      clamped = clamped .or. this%lam(j) < 0
+      lambda(this%act(j)) = max(this%lam(j), 0.0_wp)
+    end do
+    if (clamped .or. .not. stats%certified) then
+      u = v
+      do j = 1, k
+        u = u - lambda(this%act(j)) * bt(:, this%act(j))
+      end do
+    end if
+    stats%n_active = k
+    stats%max_violation = 0
+    do i = 1, m
+      stats%max_violation = max(stats%max_violation, -this%s(i))
+    end do
+
+  contains
+
+    !> u = v - Bm_A^T lambda_A, s = d - Bm u, tau (see the module header).
+    subroutine primal()
+      integer :: jj
+      u = v
+      do jj = 1, k
+        u = u - this%lam(jj) * bt(:, this%act(jj))
+      end do
+      this%s(1:m) = d
+      call la_gemv('T', -1.0_wp, bt, u, 1.0_wp, this%s(1:m))
+      unorm = norm2(u)
+      this%tau(1:m) = KKT_FACTOR * eps * (this%nrm(1:m) * unorm + abs(d))
+    end subroutine primal
+
+    !> gp = G_{pA}, y = L^{-1} gp, zeta = G_pp - |y|^2.
+    subroutine entering(pp, zz)
+      integer, intent(in) :: pp
+      real(wp), intent(out) :: zz
+      integer :: jj
+      if (k > 0) then
+        if (present(gsrc)) then
+          call gsrc%gram_entries(pp, this%act(1:k), this%gp(1:k))
+        else
+          do jj = 1, k
+            this%gp(jj) = dot_product(bt(:, pp), bt(:, this%act(jj)))
+          end do
+        end if
+        call forward_solve(this%gp(1:k), this%y(1:k))
+      end if
+      zz = this%nrm2(pp) - sum(this%y(1:k)**2)
+    end subroutine entering
+
+    !> Append row pp to A (its factor row is y, its pivot sqrt(zz)).
+    subroutine append(pp, zz)
+      integer, intent(in) :: pp
+      real(wp), intent(in) :: zz
+      k = k + 1
+      this%lf(k, 1:k - 1) = this%y(1:k - 1)
+      this%lf(k, k) = sqrt(zz)
+      this%act(k) = pp
+      this%lam(k) = 0
+      this%in_a(pp) = .true.
+    end subroutine append
+
+    !> Remove the row at factor position jj: shift, then a rank-one update of the trailing
+    !> block by the removed column (Givens), O(k^2).
+    subroutine drop(jj)
+      integer, intent(in) :: jj
+      integer :: c, i2, nx
+      real(wp) :: a, xi, rr, cg, sg
+      this%in_a(this%act(jj)) = .false.
+      nx = k - jj
+      this%x(1:nx) = this%lf(jj + 1:k, jj)
+      do c = 1, jj - 1
+        this%lf(jj:k - 1, c) = this%lf(jj + 1:k, c)
+      end do
+      do c = jj + 1, k
+        this%lf(c - 1:k - 1, c - 1) = this%lf(c:k, c)
+      end do
+      this%act(jj:k - 1) = this%act(jj + 1:k)
+      this%lam(jj:k - 1) = this%lam(jj + 1:k)
+      k = k - 1
+      do i2 = jj, k
+        a = this%lf(i2, i2)
+        xi = this%x(i2 - jj + 1)
+        rr = hypot(a, xi)
+        cg = rr / a; sg = xi / a
+        this%lf(i2, i2) = rr
+        this%lf(i2 + 1:k, i2) = (this%lf(i2 + 1:k, i2) + sg * this%x(i2 - jj + 2:nx)) / cg
+        this%x(i2 - jj + 2:nx) = cg * this%x(i2 - jj + 2:nx) - sg * this%lf(i2 + 1:k, i2)
+      end do
+    end subroutine drop
+
+    !> y = L^{-1} g (first size(g) rows of the factor)
+    subroutine forward_solve(g, yy)
+      real(wp), intent(in) :: g(:)
+      real(wp), intent(out) :: yy(:)
+      integer :: jj, kk
+      kk = size(g)
+      yy = g
+      do jj = 1, kk
+        yy(jj) = yy(jj) / this%lf(jj, jj)
+        yy(jj + 1:kk) = yy(jj + 1:kk) - this%lf(jj + 1:kk, jj) * yy(jj)
+      end do
+    end subroutine forward_solve
+
+    !> z = L^{-T} yy
+    subroutine back_solve(yy, z)
+      real(wp), intent(in) :: yy(:)
+      real(wp), intent(out) :: z(:)
+      integer :: jj, kk
+      kk = size(yy)
+      do jj = kk, 1, -1
+        z(jj) = (yy(jj) - dot_product(this%lf(jj + 1:kk, jj), z(jj + 1:kk))) / this%lf(jj, jj)
+      end do
+    end subroutine back_solve
+
+    !> z = G_A^{-1} g
+    subroutine chol_solve(g, z)
+      real(wp), intent(in) :: g(:)
+      real(wp), intent(out) :: z(:)
+      real(wp) :: w(size(g))
+      call forward_solve(g, w)
+      call back_solve(w, z)
+    end subroutine chol_solve
+  end subroutine solve
+end module cr_dual_qp

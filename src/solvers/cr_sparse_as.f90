@@ -1,0 +1,947 @@
+!> Exact projection by a dual active-set method whose linear algebra is a sparse LDL'
+!> factorisation (SuiteSparse CHOLMOD, through cr_cholmod) of the Gram matrix of the active rows,
+!> modified (cholmod_rowadd / cholmod_rowdel) rather than rebuilt when the active set changes:
+!>
+!>   min |u - v|^2  s.t.  B u <= d   <=>   min_{lambda >= 0} f = 1/2 |B^T lambda|^2 - lambda^T (B v - d),
+!>   u = v - B^T lambda,  grad f = d - B u (the slacks).
+!>
+!> Rows are normalised to unit norm (same problem, lambda rescaled on exit). M = B B^T over all
+!> candidate rows is assembled once per solve (linear in rows: each row meets the rows of its
+!> two agents) and analysed once (AMD); the factor holds M on the passive set P and the identity
+!> elsewhere.
+!> - Warm start: P = {rows with lambda > 0 on entry} (the FOM matches rows across steps by their
+!>   contact identity), factorised once; rows with non-positive minimiser leave.
+!> - Outer iteration (block Lawson-Hanson): all violated rows V enter at once (few: row
+!>   additions of the factor; many: one numeric refactorisation), then the step-back loop moves
+!>   lambda towards the minimiser z on P until z > 0, removing the rows that reach zero. f falls
+!>   strictly at every outer iteration (at the start lambda minimises f on P, so grad f is zero
+!>   on P and negative on V, and the directional derivative towards z is negative), so no face
+!>   repeats and the method is finite.
+!> - Linearly dependent rows (jammed crowds): an entering row whose new pivot D(t,t) is below
+!>   dep_tol is taken out again; if every violated row is dependent, the most violated enters by
+!>   exchange (b_t = B_P^T alpha: lambda_P -= tau alpha, lambda_t = tau, the row reaching zero
+!>   leaves; u does not move). No alpha > 0: the constraints are infeasible (Farkas).
+!> - At convergence one step of iterative refinement is applied on P and the test repeated.
+!> - Safe path: a CHOLMOD failure, an infeasible or capped solve, or a KKT residual above tol
+!>   after a fresh refactorisation hands the problem to the dense cluster solver of cr_active_set
+!>   (counted in stats%n_fallback and noted, never silent).
+!> - Problems with at most settings%dense_rows rows go to the dense kernel directly (faster there).
+!> - After settings%refresh_every row modifications the factor is rebuilt; with check_drift the
+!>   backward error of a solve with the updated factor is measured first (stats%factor_drift).
+module cr_sparse_as
+  use cr_kinds, only: wp
+  use cr_error, only: error_t, prefix_error
+  use cr_strings, only: str
+  use cr_contact_set, only: contact_set_t, velocity_scale
+  use cr_cholmod, only: chol_t
+  use cr_active_set, only: active_set_solver_t
+  use cr_projection, only: projection_solver_t, solve_stats_t, finish_stats, check_sizes, add_note
+  implicit none
+  private
+  public :: sparse_as_solver_t
+
+  !> relative pivot (rows of unit norm) below which an entering row counts as dependent
+  real(wp), parameter :: dep_tol = 1.0e-10_wp
+
+  !> Sparse dual active-set projection with CHOLMOD factor updates.
+  type, extends(projection_solver_t) :: sparse_as_solver_t
+    type(chol_t) :: chol
+    !> dense solver: tiny problems and the safe path
+    type(active_set_solver_t) :: dense
+    !> clusters of the contact graph: union-find parents [n_agents], rows per cluster root
+    integer, allocatable :: parent(:), crows(:)
+    !> the rows of small clusters (dense kernel) and of large ones (sparse path)
+    type(contact_set_t) :: cs_small, cs_large
+    integer, allocatable :: map_small(:), map_large(:)
+    real(wp), allocatable :: u_small(:), u_large(:), l_small(:), l_large(:)
+    logical :: dense_ready = .false.
+    !> compare updated and fresh factors at every refresh (tests; costs one extra solve)
+    logical :: check_drift = .false.
+    !> more violated rows than max(bulk_min, k / bulk_div) enter by refactorisation
+    integer :: bulk_min = 24, bulk_div = 4
+    !> at most this many primal-dual active-set sweeps before the monotone loop
+    integer :: pdas_max = 30
+    !> the sweeps are used on problems with at least this many rows (on small ones the
+    !> monotone loop with factor updates is cheaper)
+    integer :: pdas_rows = 2000
+    !> rows: normalised coefficients [2, m], norms, rhs, B v - d, multipliers, slacks, minimiser
+    real(wp), allocatable :: c(:,:), rn(:), dd(:), cc(:), lam(:), slack(:), z(:), rhs(:), piv(:)
+    real(wp), allocatable :: w(:)
+    !> multipliers on entry (original units), for the safe path [m]
+    real(wp), allocatable :: l0(:)
+    logical, allocatable :: act(:), refused(:), newact(:)
+    integer, allocatable :: viol(:), rem(:)
+    !> rows of each agent (CSR) [n_agents + 1], [2 m]
+    integer, allocatable :: astart(:), arows(:)
+    !> M = B B^T, full symmetric CSC [m + 1], [nnz] and its upper triangle
+    integer, allocatable :: fp(:), fi(:), up(:), ui(:), mark(:)
+    real(wp), allocatable :: fv(:), uv(:)
+    !> velocities [2 n_agents]
+    real(wp), allocatable :: uu(:)
+  contains
+    procedure :: solve => sparse_as_solve
+    procedure :: free => sparse_as_free
+  end type sparse_as_solver_t
+
+contains
+
+  !> Split the contact graph into connected clusters; clusters of at most dense_rows rows go
+  !> to the dense kernel (faster there: no analysis, no CHOLMOD call overhead), the others
+  !> together to the sparse path (sparse_core).
+  subroutine sparse_as_solve(this, cs, v, u, lambda, stats, error)
+    class(sparse_as_solver_t), intent(inout) :: this
+    type(contact_set_t), intent(in) :: cs
+    real(wp), intent(in) :: v(:)
+    real(wp), intent(out) :: u(:)
+    real(wp), intent(inout) :: lambda(:)
+    type(solve_stats_t), intent(out) :: stats
+    type(error_t), allocatable, intent(out) :: error
+    type(solve_stats_t) :: s1
+    integer :: m, na, i, j, a, b, ns, nl
+    logical :: to_dense
+    call check_sizes("sparse_active_set", cs, v, u, lambda, error)
+    if (allocated(error)) return
+    m = cs%n; na = cs%n_agents
+    if (m <= this%settings%dense_rows .or. this%settings%dense_rows == 0) then
+      call sparse_core(this, cs, v, u, lambda, stats, error)
+      return
+    end if
+    if (allocated(this%parent)) then
+      if (size(this%parent) < na) deallocate(this%parent, this%crows)
+    end if
+    if (.not. allocated(this%parent)) allocate(this%parent(max(na, 16)), this%crows(max(na, 16)))
+    do i = 1, na
+      this%parent(i) = i
+    end do
+    do j = 1, m
+      if (cs%ib(j) > 0) then
+        a = find(cs%ia(j)); b = find(cs%ib(j))
+        if (a /= b) this%parent(max(a, b)) = min(a, b)
+      end if
+    end do
+    this%crows(1:na) = 0
+    do j = 1, m
+      a = find(cs%ia(j))
+      this%crows(a) = this%crows(a) + 1
+    end do
+    ns = 0
+    do j = 1, m
+      if (this%crows(find(cs%ia(j))) <= this%settings%dense_rows) ns = ns + 1
+    end do
+    if (ns == 0 .or. ns == m) then
+      ! one kind only: no copies
+      call sparse_core(this, cs, v, u, lambda, stats, error)
+      return
+    end if
+    nl = m - ns
+    call this%cs_small%init(na, cs%h, ns); call this%cs_large%init(na, cs%h, nl)
+    if (allocated(this%map_small)) deallocate(this%map_small, this%map_large, this%l_small, &
+      this%l_large, this%u_small, this%u_large)
+    allocate(this%map_small(ns), this%map_large(nl), this%l_small(ns), this%l_large(nl), &
+      this%u_small(2 * na), this%u_large(2 * na))
+    ns = 0; nl = 0
+    do j = 1, m
+      to_dense = this%crows(find(cs%ia(j))) <= this%settings%dense_rows
+      if (to_dense) then
+        call this%cs_small%add(cs%ia(j), cs%ib(j), cs%ob(j), cs%g(:, j), cs%gap(j))
+        ns = ns + 1; this%map_small(ns) = j; this%l_small(ns) = lambda(j)
+      else
+        call this%cs_large%add(cs%ia(j), cs%ib(j), cs%ob(j), cs%g(:, j), cs%gap(j))
+        nl = nl + 1; this%map_large(nl) = j; this%l_large(nl) = lambda(j)
+      end if
+    end do
+    ! sparse path on the large clusters (its own dense fallback when needed)
+    call sparse_core(this, this%cs_large, v, this%u_large, this%l_large, stats, error)
+    if (allocated(error)) return
+    ! dense kernel on the small clusters
+    if (.not. this%dense_ready) then
+      call this%dense%init(this%settings, error)
+      if (allocated(error)) return
+      this%dense_ready = .true.
+    end if
+    call this%dense%solve(this%cs_small, v, this%u_small, this%l_small, s1, error)
+    if (allocated(error)) then
+      call prefix_error(error, "sparse_active_set: small clusters"); return
+    end if
+    stats%iterations = stats%iterations + s1%iterations
+    stats%converged = stats%converged .and. s1%converged
+    if (allocated(s1%note)) then
+      if (len(s1%note) > 0) call add_note(stats, "small clusters: " // s1%note)
+    end if
+    ! the two sets of clusters share no agent: each solver leaves the other's agents at v
+    u = this%u_large
+    do i = 1, na
+      if (this%crows(find(i)) > 0 .and. this%crows(find(i)) <= this%settings%dense_rows) &
+        u(2*i - 1:2*i) = this%u_small(2*i - 1:2*i)
+    end do
+    lambda(this%map_small) = this%l_small
+    lambda(this%map_large) = this%l_large
+    call finish_stats(cs, v, u, lambda, this%settings%tol, stats)
+
+  contains
+
+    integer function find(x) result(r)
+      integer, intent(in) :: x
+      r = x
+      do while (this%parent(r) /= r)
+        this%parent(r) = this%parent(this%parent(r))
+        r = this%parent(r)
+      end do
+    end function find
+
+  end subroutine sparse_as_solve
+
+  subroutine sparse_core(this, cs, v, u, lambda, stats, error)
+    class(sparse_as_solver_t), intent(inout) :: this
+    type(contact_set_t), intent(in) :: cs
+    real(wp), intent(in) :: v(:)
+    real(wp), intent(out) :: u(:)
+    real(wp), intent(inout) :: lambda(:)
+    type(solve_stats_t), intent(out) :: stats
+    type(error_t), allocatable, intent(out) :: error
+    integer :: m, na, j, it, itmax, nv, k, nmod0, nfac0, t
+    real(wp) :: sv, thr, tolv
+    logical :: ok, bad, exch
+    character(len=:), allocatable :: why
+
+    call check_sizes("sparse_active_set", cs, v, u, lambda, error)
+    if (allocated(error)) return
+    m = cs%n; na = cs%n_agents
+    stats%note = ""
+    stats%converged = .true.
+    if (.not. this%settings%warm_start) lambda(1:m) = 0.0_wp
+    if (m <= this%settings%dense_rows) then
+      call dense_path(.false.)
+      return
+    end if
+    call prepare()
+    if (all(this%cc(1:m) <= thr)) then
+      u = v
+      lambda(1:m) = 0.0_wp
+      call finish_stats(cs, v, u, lambda, this%settings%tol, stats)
+      return
+    end if
+    call assemble()
+    nfac0 = this%chol%n_factor; nmod0 = this%chol%n_modify
+    call order_and_analyze()
+    if (allocated(error)) then
+      call fallback(error%message); return
+    end if
+    why = ""
+    call run(why)
+    if (allocated(error)) then
+      call fallback(error%message); return
+    end if
+    stats%n_factor = this%chol%n_factor - nfac0
+    stats%n_modify = this%chol%n_modify - nmod0
+    if (len(why) > 0) then
+      call fallback(why); return
+    end if
+    call velocities()
+    do j = 1, m
+      lambda(j) = this%lam(j) / this%rn(j)
+    end do
+    u = this%uu(1:2 * na)
+    call finish_stats(cs, v, u, lambda, this%settings%tol, stats)
+    if (.not. (stats%kkt <= this%settings%tol)) then
+      ! the updated factor may have drifted: one fresh refactorisation and restart from here
+      call this%chol%factor(this%act(1:m), error)
+      if (.not. allocated(error)) call run(why)
+      if (allocated(error)) then
+        call fallback(error%message); return
+      end if
+      stats%n_factor = this%chol%n_factor - nfac0
+      stats%n_modify = this%chol%n_modify - nmod0
+      if (len(why) > 0) then
+        call fallback(why); return
+      end if
+      call velocities()
+      do j = 1, m
+        lambda(j) = this%lam(j) / this%rn(j)
+      end do
+      u = this%uu(1:2 * na)
+      call finish_stats(cs, v, u, lambda, this%settings%tol, stats)
+      if (.not. (stats%kkt <= this%settings%tol)) call fallback("KKT residual " // str(stats%kkt, "es9.2") // &
+        " > tol after a fresh refactorisation")
+    end if
+
+  contains
+
+    !> The dense cluster solver on the whole problem; as safe path, counted and noted.
+    subroutine dense_path(as_fallback)
+      logical, intent(in) :: as_fallback
+      type(solve_stats_t) :: ds
+      if (.not. this%dense_ready) then
+        call this%dense%init(this%settings, error)
+        if (allocated(error)) return
+        this%dense_ready = .true.
+      end if
+      call this%dense%solve(cs, v, u, lambda, ds, error)
+      if (allocated(error)) then
+        call prefix_error(error, "sparse_active_set: dense path"); return
+      end if
+      stats%iterations = stats%iterations + ds%iterations
+      stats%converged = ds%converged
+      if (as_fallback) stats%n_fallback = stats%n_fallback + 1
+      call finish_stats(cs, v, u, lambda, this%settings%tol, stats)
+      if (allocated(ds%note)) then
+        if (len(ds%note) > 0) call add_note(stats, ds%note)
+      end if
+    end subroutine dense_path
+
+    subroutine fallback(reason)
+      character(len=*), intent(in) :: reason
+      character(len=:), allocatable :: r
+      r = reason
+      if (allocated(error)) deallocate(error)
+      ! restart the dense path from the warm start the caller gave (the sparse multipliers may
+      ! be half-way)
+      if (this%settings%warm_start) then
+        lambda(1:m) = this%l0(1:m)
+      else
+        lambda(1:m) = 0.0_wp
+      end if
+      call dense_path(.true.)
+      if (allocated(error)) return
+      call add_note(stats, "sparse path failed (" // r // "): dense active-set solution")
+    end subroutine fallback
+
+    !> Normalised rows, B v - d, scale, thresholds; work arrays sized.
+    subroutine prepare()
+      integer :: a, b
+      call rgrow(this%rn, m); call rgrow(this%dd, m); call rgrow(this%cc, m)
+      call rgrow(this%lam, m); call rgrow(this%slack, m); call rgrow(this%z, m)
+      call rgrow(this%rhs, m); call rgrow(this%piv, m); call rgrow(this%w, m)
+      call rgrow(this%l0, m)
+      this%l0(1:m) = lambda(1:m)
+      call lgrow(this%act, m); call lgrow(this%refused, m); call lgrow(this%newact, m)
+      call igrow(this%viol, m); call igrow(this%rem, m); call igrow(this%mark, m)
+      call rgrow(this%uu, 2 * na)
+      if (allocated(this%c)) then
+        if (size(this%c, 2) < m) deallocate(this%c)
+      end if
+      if (.not. allocated(this%c)) allocate(this%c(2, max(m, 16)))
+      tolv = max(1.0e-3_wp * this%settings%tol, 256.0_wp * epsilon(1.0_wp))
+      sv = tiny(1.0_wp) * 1.0e10_wp
+      if (size(v) > 0) sv = max(sv, maxval(abs(v)))
+      do j = 1, m
+        this%c(:, j) = -cs%h * cs%g(:, j)
+        this%rn(j) = norm2(this%c(:, j))
+        if (cs%ib(j) > 0) this%rn(j) = this%rn(j) * sqrt(2.0_wp)
+        this%c(:, j) = this%c(:, j) / this%rn(j)
+        this%dd(j) = cs%gap(j) / this%rn(j)
+        sv = max(sv, -this%dd(j))
+        a = cs%ia(j); b = cs%ib(j)
+        this%cc(j) = this%c(1, j) * v(2*a - 1) + this%c(2, j) * v(2*a)
+        if (b > 0) this%cc(j) = this%cc(j) - this%c(1, j) * v(2*b - 1) - this%c(2, j) * v(2*b)
+        this%cc(j) = this%cc(j) - this%dd(j)
+        this%lam(j) = 0.0_wp
+        if (this%settings%warm_start .and. lambda(j) > 0.0_wp) this%lam(j) = lambda(j) * this%rn(j)
+        this%act(j) = .false.
+        this%refused(j) = .false.
+      end do
+      thr = tolv * sv
+    end subroutine prepare
+
+    !> M = B B^T (normalised rows): full CSC (fp, fi, fv) and upper triangle (up, ui, uv).
+    subroutine assemble()
+      integer :: a, i, l, q, nz, nzu, jj, s0, p1, p2, ag(2)
+      real(wp) :: sj, sl, val
+      call igrow(this%astart, na + 1)
+      this%astart(1:na + 1) = 0
+      do j = 1, m
+        this%astart(cs%ia(j) + 1) = this%astart(cs%ia(j) + 1) + 1
+        if (cs%ib(j) > 0) this%astart(cs%ib(j) + 1) = this%astart(cs%ib(j) + 1) + 1
+      end do
+      this%astart(1) = 1
+      do a = 1, na
+        this%astart(a + 1) = this%astart(a + 1) + this%astart(a)
+      end do
+      call igrow(this%arows, this%astart(na + 1))
+      ! fill pointers live in fp (size na + 1 at least)
+      call igrow(this%fp, max(m, na) + 1)
+      this%fp(1:na) = this%astart(1:na)
+      do j = 1, m
+        a = cs%ia(j); this%arows(this%fp(a)) = j; this%fp(a) = this%fp(a) + 1
+        a = cs%ib(j)
+        if (a > 0) then
+          this%arows(this%fp(a)) = j; this%fp(a) = this%fp(a) + 1
+        end if
+      end do
+      ! upper bound of the entries: sum over rows of the rows of their agents
+      nz = 0
+      do j = 1, m
+        nz = nz + this%astart(cs%ia(j) + 1) - this%astart(cs%ia(j))
+        if (cs%ib(j) > 0) nz = nz + this%astart(cs%ib(j) + 1) - this%astart(cs%ib(j))
+      end do
+      call igrow(this%fi, nz); call rgrow(this%fv, nz)
+      call igrow(this%ui, nz); call rgrow(this%uv, nz)
+      call igrow(this%up, m + 1)
+      this%mark(1:m) = 0
+      nz = 0; nzu = 0
+      do j = 1, m
+        this%fp(j) = nz + 1
+        s0 = nz
+        ag = [cs%ia(j), cs%ib(j)]
+        do i = 1, 2
+          a = ag(i)
+          if (a == 0) cycle
+          sj = merge(1.0_wp, -1.0_wp, i == 1)
+          do q = this%astart(a), this%astart(a + 1) - 1
+            l = this%arows(q)
+            sl = merge(1.0_wp, -1.0_wp, cs%ia(l) == a)
+            val = sj * sl * (this%c(1, j) * this%c(1, l) + this%c(2, j) * this%c(2, l))
+            if (this%mark(l) > s0) then
+              this%fv(this%mark(l)) = this%fv(this%mark(l)) + val
+            else
+              nz = nz + 1
+              this%fi(nz) = l; this%fv(nz) = val
+              this%mark(l) = nz
+            end if
+          end do
+        end do
+        ! sort the column by row index (insertion sort: columns are short)
+        do p1 = s0 + 2, nz
+          l = this%fi(p1); val = this%fv(p1)
+          p2 = p1 - 1
+          do while (p2 > s0)
+            if (this%fi(p2) <= l) exit
+            this%fi(p2 + 1) = this%fi(p2); this%fv(p2 + 1) = this%fv(p2)
+            p2 = p2 - 1
+          end do
+          this%fi(p2 + 1) = l; this%fv(p2 + 1) = val
+        end do
+        do jj = s0 + 1, nz
+          this%mark(this%fi(jj)) = 0
+        end do
+        this%up(j) = nzu + 1
+        do jj = s0 + 1, nz
+          if (this%fi(jj) > j) exit
+          nzu = nzu + 1
+          this%ui(nzu) = this%fi(jj); this%uv(nzu) = this%fv(jj)
+        end do
+      end do
+      this%fp(m + 1) = nz + 1
+      this%up(m + 1) = nzu + 1
+    end subroutine assemble
+
+    !> Analyse M (AMD ordering). Reusing the previous call's ordering (carried over by contact
+    !> identity, CHOLMOD_GIVEN) was measured and is not cheaper: the symbolic analysis costs
+    !> about as much as AMD on these graphs.
+    subroutine order_and_analyze()
+      call this%chol%analyze(m, this%up, this%ui, this%uv, error)
+    end subroutine order_and_analyze
+
+    !> The active-set iteration from this%lam (warm start) on the current analysis. why is set
+    !> (non-empty) when the safe path must take over.
+    subroutine run(why)
+      character(len=:), allocatable, intent(inout) :: why
+      integer :: q, pmin, nadd, ntry, n_ref, nrem
+      integer, parameter :: n_refine = 3
+      real(wp) :: pivot, tau, xmax, r, r_ref
+      why = ""
+      ! ---- warm start: factor the guessed passive set, drop dependent rows, then rows whose
+      ! minimiser is not positive
+      do j = 1, m
+        this%act(j) = this%lam(j) > 0.0_wp
+      end do
+      k = count(this%act(1:m))
+      if (k > 0) then
+        do ntry = 1, 4
+          call this%chol%factor(this%act(1:m), error); if (allocated(error)) return
+          call this%chol%pivots(this%piv(1:m), error); if (allocated(error)) return
+          bad = .false.
+          do j = 1, m
+            if (this%act(j) .and. .not. (this%piv(j) > dep_tol)) then
+              this%act(j) = .false.; this%lam(j) = 0.0_wp; bad = .true.
+            end if
+          end do
+          if (.not. bad) exit
+        end do
+        if (bad) then
+          call this%chol%factor(this%act(1:m), error); if (allocated(error)) return
+        end if
+        do
+          call solve_p(); if (allocated(error)) return
+          nv = 0
+          do j = 1, m
+            if (this%act(j) .and. this%z(j) <= 0.0_wp) then
+              nv = nv + 1; this%viol(nv) = j
+            end if
+          end do
+          if (nv == 0) exit
+          call remove_rows(nv); if (allocated(error)) return
+        end do
+        do j = 1, m
+          this%lam(j) = merge(this%z(j), 0.0_wp, this%act(j))
+        end do
+      else
+        this%lam(1:m) = 0.0_wp
+        call this%chol%factor(this%act(1:m), error); if (allocated(error)) return
+      end if
+      this%refused(1:m) = .false.
+
+      ! ---- primal-dual active-set sweeps (semismooth Newton on the dual): all violated rows
+      ! enter and all rows with a non-positive minimiser leave at once. Not monotone, so at
+      ! most pdas_max sweeps; a dependent pivot ends them. The block Lawson-Hanson loop below
+      ! then finishes from lambda = z > 0 on P (usually with nothing left to do).
+      it = 0
+      sweeps: do ntry = 1, merge(this%pdas_max, 0, m >= this%pdas_rows)
+        ! lambda = z on P (signs unrestricted), then the slacks it gives
+        call solve_p(); if (allocated(error)) return
+        do j = 1, m
+          this%lam(j) = merge(this%z(j), 0.0_wp, this%act(j))
+        end do
+        call slacks()
+        nv = 0; nrem = 0
+        do j = 1, m
+          if (this%act(j)) then
+            if (this%z(j) <= 0.0_wp) then
+              nrem = nrem + 1; this%rem(nrem) = j
+            end if
+          else if (this%slack(j) < -thr) then
+            nv = nv + 1; this%viol(nv) = j
+          end if
+        end do
+        if (nv == 0 .and. nrem == 0) exit sweeps
+        it = it + 1
+        stats%iterations = stats%iterations + 1
+        k = count(this%act(1:m))
+        this%newact(1:m) = this%act(1:m)
+        this%newact(this%viol(1:nv)) = .true.
+        this%newact(this%rem(1:nrem)) = .false.
+        if (nv + nrem > max(this%bulk_min, k / this%bulk_div)) then
+          call this%chol%factor(this%newact(1:m), error); if (allocated(error)) return
+          call this%chol%pivots(this%piv(1:m), error); if (allocated(error)) return
+          ! rows with a dependent pivot stay out (sweeps are heuristic; the monotone loop
+          ! below settles them); refactorise without them
+          do q = 1, 3
+            bad = .false.
+            do j = 1, m
+              if (this%newact(j) .and. .not. (this%piv(j) > dep_tol)) then
+                this%newact(j) = .false.; bad = .true.
+              end if
+            end do
+            if (.not. bad) exit
+            call this%chol%factor(this%newact(1:m), error); if (allocated(error)) return
+            call this%chol%pivots(this%piv(1:m), error); if (allocated(error)) return
+          end do
+          if (bad) then
+            call this%chol%factor(this%act(1:m), error); if (allocated(error)) return
+            exit sweeps
+          end if
+          this%act(1:m) = this%newact(1:m)
+        else
+          do q = 1, nrem
+            call this%chol%rowdel(this%rem(q), error); if (allocated(error)) return
+            this%act(this%rem(q)) = .false.
+          end do
+          do q = 1, nv
+            t = this%viol(q)
+            call this%chol%rowadd(t, this%fi(this%fp(t):this%fp(t + 1) - 1), &
+              this%fv(this%fp(t):this%fp(t + 1) - 1), pivot, error)
+            if (allocated(error)) return
+            this%act(t) = .true.
+            if (.not. (pivot > dep_tol)) then
+              ! dependent: the rank-2 update is unreliable; refactorise without it and stop
+              this%act(t) = .false.
+              call this%chol%factor(this%act(1:m), error); if (allocated(error)) return
+              exit sweeps
+            end if
+          end do
+        end if
+      end do sweeps
+      ! back to the invariant of the monotone loop: lambda = z > 0 on P
+      do
+        call solve_p(); if (allocated(error)) return
+        nv = 0
+        do j = 1, m
+          if (this%act(j) .and. this%z(j) <= 0.0_wp) then
+            nv = nv + 1; this%viol(nv) = j
+          end if
+        end do
+        if (nv == 0) exit
+        call remove_rows(nv); if (allocated(error)) return
+      end do
+      do j = 1, m
+        this%lam(j) = merge(this%z(j), 0.0_wp, this%act(j))
+      end do
+
+      ! ---- main loop (block Lawson-Hanson)
+      itmax = min(this%settings%max_iter, 10 * m + 100)
+      n_ref = 0; r_ref = huge(1.0_wp)
+      outer: do
+        if (this%chol%n_since >= this%settings%refresh_every) then
+          call refresh(); if (allocated(error)) return
+        end if
+        call slacks()
+        nv = 0
+        do j = 1, m
+          if (this%act(j) .or. this%refused(j)) cycle
+          if (this%slack(j) < -thr) then
+            nv = nv + 1; this%viol(nv) = j
+          end if
+        end do
+        if (nv == 0) then
+          ! rows refused as dependent but still violated: exchange them in
+          do j = 1, m
+            if (this%refused(j) .and. .not. this%act(j) .and. this%slack(j) < -thr) then
+              nv = nv + 1; this%viol(nv) = j
+            end if
+          end do
+        end if
+        exch = nv > 0 .and. all(this%refused(this%viol(1:nv)))
+        if (nv == 0) then
+          k = count(this%act(1:m))
+          if (k == 0) exit outer
+          ! iterative refinement on P (at most n_refine steps while the slacks on P shrink)
+          r = 0.0_wp
+          do j = 1, m
+            if (this%act(j)) r = max(r, abs(this%slack(j)))
+          end do
+          if (n_ref >= n_refine .or. r <= 1.0e-2_wp * thr .or. r >= 0.5_wp * r_ref) exit outer
+          n_ref = n_ref + 1; r_ref = r
+          this%rhs(1:m) = merge(this%slack(1:m), 0.0_wp, this%act(1:m))
+          call this%chol%solve(this%rhs(1:m), this%z(1:m), error); if (allocated(error)) return
+          ok = .true.
+          do j = 1, m
+            if (this%act(j) .and. .not. (this%lam(j) - this%z(j) > 0.0_wp)) ok = .false.
+          end do
+          if (.not. ok) exit outer
+          do j = 1, m
+            if (this%act(j)) this%lam(j) = this%lam(j) - this%z(j)
+          end do
+          cycle outer
+        end if
+        n_ref = 0; r_ref = huge(1.0_wp)
+        if (it >= itmax) then
+          why = "iteration cap " // str(itmax) // " reached"
+          return
+        end if
+        it = it + 1
+        stats%iterations = stats%iterations + 1
+        k = count(this%act(1:m))
+        nadd = 0
+        if (exch) then
+          continue
+        else if (nv > max(this%bulk_min, k / this%bulk_div)) then
+          ! many entering rows: one refactorisation of P + V
+          this%newact(1:m) = this%act(1:m)
+          this%newact(this%viol(1:nv)) = .true.
+          call this%chol%factor(this%newact(1:m), error); if (allocated(error)) return
+          call this%chol%pivots(this%piv(1:m), error); if (allocated(error)) return
+          bad = .false.
+          do j = 1, m
+            if (this%newact(j) .and. .not. (this%piv(j) > dep_tol)) bad = .true.
+          end do
+          if (bad) then
+            ! dependent rows among them: back to P, and add one at a time below
+            call this%chol%factor(this%act(1:m), error); if (allocated(error)) return
+          else
+            this%act(1:m) = this%newact(1:m)
+            nadd = nv
+          end if
+        end if
+        if (nadd == 0 .and. .not. exch) then
+          do q = 1, nv
+            t = this%viol(q)
+            call add_row(t, pivot); if (allocated(error)) return
+            if (this%act(t)) then
+              nadd = nadd + 1
+            else
+              this%refused(t) = .true.
+            end if
+          end do
+        end if
+        if (nadd == 0) then
+          ! every violated row is dependent on P: exchange the most violated one
+          t = this%viol(1)
+          do q = 2, nv
+            if (this%slack(this%viol(q)) < this%slack(t)) t = this%viol(q)
+          end do
+          this%refused(t) = .false.
+          ! alpha = M_P^{-1} B_P b_t (this%w, left by add_row)
+          call add_row(t, pivot, precheck=.true., alpha=.true.); if (allocated(error)) return
+          if (this%act(t)) then
+            call step_back(); if (allocated(error)) return
+            if (len(why) > 0) return
+            cycle outer
+          end if
+          xmax = 0.0_wp
+          do j = 1, m
+            if (this%act(j)) xmax = max(xmax, abs(this%w(j)))
+          end do
+          tau = huge(1.0_wp); pmin = 0
+          do j = 1, m
+            if (this%act(j) .and. this%w(j) > 1.0e-12_wp * xmax) then
+              r = this%lam(j) / this%w(j)
+              if (r < tau) then
+                tau = r; pmin = j
+              end if
+            end if
+          end do
+          if (pmin == 0) then
+            why = "constraints infeasible (Farkas certificate)"
+            return
+          end if
+          do j = 1, m
+            if (this%act(j)) this%lam(j) = max(0.0_wp, this%lam(j) - tau * this%w(j))
+          end do
+          this%lam(pmin) = 0.0_wp
+          call this%chol%rowdel(pmin, error); if (allocated(error)) return
+          this%act(pmin) = .false.
+          call add_row(t, pivot, 1.0e3_wp * epsilon(1.0_wp), precheck=.true.)
+          if (allocated(error)) return
+          if (this%act(t)) then
+            this%lam(t) = tau
+          else
+            this%refused(t) = .true.
+            this%lam(t) = 0.0_wp
+          end if
+          nv = 0
+          do j = 1, m
+            if (this%act(j) .and. this%lam(j) <= 0.0_wp) then
+              nv = nv + 1; this%viol(nv) = j
+            end if
+          end do
+          if (nv > 0) then
+            call remove_rows(nv); if (allocated(error)) return
+          end if
+        else
+          this%refused(1:m) = .false.
+        end if
+        call step_back(); if (allocated(error)) return
+        if (len(why) > 0) return
+      end do outer
+    end subroutine run
+
+    !> Move lambda towards the minimiser z on P until z > 0 (rows reaching zero leave P).
+    subroutine step_back()
+      real(wp) :: alpha, r, lmax
+      integer :: jj
+      do
+        call solve_p(); if (allocated(error)) return
+        alpha = 1.0_wp
+        do jj = 1, m
+          if (this%act(jj) .and. this%z(jj) <= 0.0_wp) then
+            r = this%lam(jj) / (this%lam(jj) - this%z(jj))
+            alpha = min(alpha, r)
+          end if
+        end do
+        if (alpha >= 1.0_wp) then
+          do jj = 1, m
+            if (this%act(jj)) this%lam(jj) = this%z(jj)
+          end do
+          return
+        end if
+        if (it >= itmax) then
+          why = "iteration cap " // str(itmax) // " reached"
+          return
+        end if
+        it = it + 1
+        stats%iterations = stats%iterations + 1
+        lmax = 0.0_wp
+        do jj = 1, m
+          if (this%act(jj)) then
+            this%lam(jj) = this%lam(jj) + alpha * (this%z(jj) - this%lam(jj))
+            lmax = max(lmax, this%lam(jj))
+          end if
+        end do
+        nv = 0
+        do jj = 1, m
+          if (this%act(jj) .and. this%z(jj) <= 0.0_wp .and. this%lam(jj) <= 64.0_wp * epsilon(1.0_wp) * lmax) then
+            this%lam(jj) = 0.0_wp
+            nv = nv + 1; this%viol(nv) = jj
+          end if
+        end do
+        if (nv == 0) then
+          ! round-off: take out the row that defined alpha
+          do jj = 1, m
+            if (this%act(jj) .and. this%z(jj) <= 0.0_wp) then
+              if (this%lam(jj) <= 0.0_wp .or. nv == 0) then
+                if (nv == 0) then
+                  nv = 1; this%viol(1) = jj
+                else if (this%lam(jj) < this%lam(this%viol(1))) then
+                  this%viol(1) = jj
+                end if
+              end if
+            end if
+          end do
+          this%lam(this%viol(1)) = 0.0_wp
+        end if
+        call remove_rows(nv); if (allocated(error)) return
+      end do
+    end subroutine step_back
+
+    !> Take rows viol(1:n) out of P (row deletions, or one refactorisation when many).
+    subroutine remove_rows(n)
+      integer, intent(in) :: n
+      integer :: q
+      if (n > max(this%bulk_min, count(this%act(1:m)) / this%bulk_div)) then
+        this%act(this%viol(1:n)) = .false.
+        call this%chol%factor(this%act(1:m), error)
+      else
+        do q = 1, n
+          call this%chol%rowdel(this%viol(q), error); if (allocated(error)) return
+          this%act(this%viol(q)) = .false.
+        end do
+      end if
+      this%lam(this%viol(1:n)) = 0.0_wp
+    end subroutine remove_rows
+
+    !> Row tt enters the factor unless dependent on P: pivot = 1 - w^T M_P^{-1} w (w = M(P, tt),
+    !> alpha = M_P^{-1} w left in this%w) is checked before the addition (a near-zero pivot would
+    !> spoil the rank-2 update of the trailing factor); pivot is then the factor's new D(tt,tt).
+    subroutine add_row(tt, pivot, min_pivot, precheck, alpha)
+      integer, intent(in) :: tt
+      real(wp), intent(out) :: pivot
+      !> relative pivot below which tt counts as dependent (default dep_tol)
+      real(wp), intent(in), optional :: min_pivot
+      !> test the pivot by a solve before the addition (default; leaves alpha in this%w);
+      !> otherwise the row is added and, when its pivot or a later one became too small, the
+      !> factor is rebuilt without it (cheaper when rows are rarely dependent)
+      logical, intent(in), optional :: precheck
+      !> present: compute alpha = M_P^{-1} M(P, tt) into this%w by a full solve (the
+      !> exchange step needs it); otherwise the test is one sparse forward solve
+      logical, intent(in), optional :: alpha
+      integer :: q1, q2, q
+      real(wp) :: s, dtt, pmin_rel
+      logical :: pre
+      pre = .true.
+      if (present(precheck)) pre = precheck
+      pmin_rel = dep_tol
+      if (present(min_pivot)) pmin_rel = min_pivot
+      q1 = this%fp(tt); q2 = this%fp(tt + 1) - 1
+      dtt = 0.0_wp
+      do q = q1, q2
+        if (this%fi(q) == tt) dtt = this%fv(q)
+      end do
+      if (pre) then
+        if (present(alpha)) then
+          ! alpha = M_P^{-1} M(P, tt) in this%w (the exchange needs it)
+          this%rhs(1:m) = 0.0_wp
+          do q = q1, q2
+            if (this%act(this%fi(q))) this%rhs(this%fi(q)) = this%fv(q)
+          end do
+          call this%chol%solve(this%rhs(1:m), this%w(1:m), error)
+          if (allocated(error)) return
+          s = 0.0_wp
+          do q = q1, q2
+            if (this%act(this%fi(q))) s = s + this%fv(q) * this%w(this%fi(q))
+          end do
+        else
+          call this%chol%schur(tt, this%fi(q1:q2), this%fv(q1:q2), s, error)
+          if (allocated(error)) return
+        end if
+        pivot = dtt - s
+        if (.not. (pivot > pmin_rel * dtt)) return
+      end if
+      call this%chol%rowadd(tt, this%fi(q1:q2), this%fv(q1:q2), pivot, error)
+      if (allocated(error)) return
+      this%act(tt) = .true.
+      ! the addition also lowers the later pivots: if any became tiny, tt depends on P
+      if (.not. pre) pivot = min(pivot, this%chol%min_pivot())
+      if (.not. (pivot > pmin_rel * dtt)) then
+        ! dependent row: the rank-2 update of the trailing factor is unreliable, rebuild
+        this%act(tt) = .false.
+        call this%chol%factor(this%act(1:m), error)
+      end if
+    end subroutine add_row
+
+    !> z = (B_P B_P^T)^{-1} (B v - d)_P (zero off P).
+    subroutine solve_p()
+      this%rhs(1:m) = merge(this%cc(1:m), 0.0_wp, this%act(1:m))
+      call this%chol%solve(this%rhs(1:m), this%z(1:m), error)
+    end subroutine solve_p
+
+    !> Refactorise P afresh. With check_drift, first measure the backward error of a solve with
+    !> the updated factor, |M_P z - c_P|_inf / (|M_P|_inf |z|_inf + |c_P|_inf) (about eps for a
+    !> fresh factor, whatever the conditioning of M_P), into stats%factor_drift.
+    subroutine refresh()
+      real(wp) :: r, rmax, mnorm, rs, zmax, cmax
+      integer :: jj, q
+      if (this%check_drift) then
+        call solve_p(); if (allocated(error)) return
+        rmax = 0.0_wp; mnorm = 0.0_wp; zmax = 0.0_wp; cmax = 0.0_wp
+        do jj = 1, m
+          if (.not. this%act(jj)) cycle
+          r = -this%cc(jj); rs = 0.0_wp
+          do q = this%fp(jj), this%fp(jj + 1) - 1
+            if (this%act(this%fi(q))) then
+              r = r + this%fv(q) * this%z(this%fi(q))
+              rs = rs + abs(this%fv(q))
+            end if
+          end do
+          rmax = max(rmax, abs(r)); mnorm = max(mnorm, rs)
+          zmax = max(zmax, abs(this%z(jj))); cmax = max(cmax, abs(this%cc(jj)))
+        end do
+        if (mnorm * zmax + cmax > 0.0_wp) &
+          stats%factor_drift = max(stats%factor_drift, rmax / (mnorm * zmax + cmax))
+      end if
+      call this%chol%factor(this%act(1:m), error)
+    end subroutine refresh
+
+    !> uu = v - B_P^T lambda_P, slack = d - B uu (normalised rows).
+    subroutine slacks()
+      integer :: a, b
+      call velocities()
+      do j = 1, m
+        a = cs%ia(j); b = cs%ib(j)
+        this%slack(j) = this%c(1, j) * this%uu(2*a - 1) + this%c(2, j) * this%uu(2*a)
+        if (b > 0) this%slack(j) = this%slack(j) - this%c(1, j) * this%uu(2*b - 1) - &
+          this%c(2, j) * this%uu(2*b)
+        this%slack(j) = this%dd(j) - this%slack(j)
+      end do
+    end subroutine slacks
+
+    subroutine velocities()
+      integer :: a, b, jj
+      this%uu(1:2 * na) = v
+      do jj = 1, m
+        if (.not. this%act(jj)) cycle
+        if (this%lam(jj) == 0.0_wp) cycle
+        a = cs%ia(jj); b = cs%ib(jj)
+        this%uu(2*a - 1:2*a) = this%uu(2*a - 1:2*a) - this%lam(jj) * this%c(:, jj)
+        if (b > 0) this%uu(2*b - 1:2*b) = this%uu(2*b - 1:2*b) + this%lam(jj) * this%c(:, jj)
+      end do
+    end subroutine velocities
+
+  end subroutine sparse_core
+
+  subroutine sparse_as_free(this)
+    class(sparse_as_solver_t), intent(inout) :: this
+    call this%chol%free()
+    if (this%dense_ready) call this%dense%free()
+    this%dense_ready = .false.
+  end subroutine sparse_as_free
+
+  subroutine igrow(a, n)
+    integer, allocatable, intent(inout) :: a(:)
+    integer, intent(in) :: n
+    if (allocated(a)) then
+      if (size(a) >= n) return
+      deallocate(a)
+    end if
+    allocate(a(max(n, 16)))
+  end subroutine igrow
+
+  subroutine rgrow(a, n)
+    real(wp), allocatable, intent(inout) :: a(:)
+    integer, intent(in) :: n
+    if (allocated(a)) then
+      if (size(a) >= n) return
+      deallocate(a)
+    end if
+    allocate(a(max(n, 16)))
+  end subroutine rgrow
+
+  subroutine lgrow(a, n)
+    logical, allocatable, intent(inout) :: a(:)
+    integer, intent(in) :: n
+    if (allocated(a)) then
+      if (size(a) >= n) return
+      deallocate(a)
+    end if
+    allocate(a(max(n, 16)))
+  end subroutine lgrow
+end module cr_sparse_as

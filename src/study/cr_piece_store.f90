@@ -1,0 +1,490 @@
+!> The pieces directory of a study (`<database>.pieces/`): which samples are already stored, in
+!> which piece, and whether every stored piece is what it claims to be.
+!>
+!> scan_pieces (collective) finds the pieces of earlier runs (a piece is named after its first
+!> sample, so probing the names of the samples not yet covered finds them all), reads their
+!> headers on rank 0, then has the pieces read in full and verified by the ranks in turn
+!> (checksums, finiteness, shapes: read_piece; identity against the study's sampling:
+!> check_sample). Pieces of another configuration stop the run (exit status 2). A bad piece
+!> (unreadable, corrupted, renamed, claiming a sample another piece holds) is reported by name;
+!> with `quarantine` it is moved to `<pieces>/quarantine/` and its samples are recomputed,
+!> otherwise the run stops (status 2) naming every bad piece. Nothing is ever deleted here.
+module cr_piece_store
+  use mpi_f08
+  use cr_kinds, only: wp, i8
+  use cr_error, only: error_t, set_error
+  use cr_strings, only: str
+  use cr_env, only: env_t
+  use cr_fsys, only: file_exists, make_dir, rename_file
+  use cr_sampling, only: sample_set_t
+  use cr_snapshot_piece, only: sample_result_t, piece_header, read_piece, check_sample, piece_path, write_piece
+  implicit none
+  private
+  public :: piece_index_t, piece_batch_t, scan_pieces, global_sample, set_of_sample, quarantine_piece
+
+  !> A variable-length path.
+  type :: path_t
+    character(len=:), allocatable :: s
+  end type path_t
+
+  !> Where each sample of the study is stored.
+  type :: piece_index_t
+    !> number of samples of the study (train then valid) and of pieces found
+    integer :: n_tot = 0, n_pieces = 0
+    !> piece holding global sample g (0: none) and its position in the piece [n_tot]
+    integer, allocatable :: piece_of(:), slot_of(:)
+    !> path of each piece [n_pieces]
+    type(path_t), allocatable :: path(:)
+    !> rank that reads piece p at assembly (its writer, or its verifier for earlier runs' pieces)
+    !> [n_pieces]
+    integer, allocatable :: owner(:)
+    !> pieces moved to quarantine by this scan
+    integer :: n_quarantined = 0
+  contains
+    procedure :: path_of
+    procedure :: add_written
+  end type piece_index_t
+
+  !> The samples a rank computed in the current time slice, written together as one piece.
+  type :: piece_batch_t
+    character(len=:), allocatable :: dir, hash
+    !> time slice (s) and memory bound of one piece
+    real(wp) :: slice = 2
+    integer(i8) :: max_bytes = 256_i8 * 1024 * 1024
+    !> samples held [n] and their global numbers
+    integer :: n = 0
+    integer(i8) :: bytes = 0
+    type(sample_result_t), allocatable :: res(:)
+    integer, allocatable :: g(:)
+    !> pieces written so far: [n_1, g_1 .. g_n1, n_2, ...] (for piece_index_t%add_written)
+    integer, allocatable :: written(:)
+    !> pieces written, their data bytes and the wall time spent writing them (s)
+    integer :: n_pieces = 0
+    integer(i8) :: bytes_written = 0
+    real(wp) :: t_write = 0
+  contains
+    procedure :: init => batch_init
+    procedure :: add => batch_add
+    procedure :: flush => batch_flush
+  end type piece_batch_t
+
+contains
+
+  !> Path of piece p.
+  function path_of(this, p) result(s)
+    class(piece_index_t), intent(in) :: this
+    integer, intent(in) :: p
+    character(len=:), allocatable :: s
+    s = this%path(p)%s
+  end function path_of
+
+  !> Collective: record the pieces every rank wrote in this run. `written` is this rank's list
+  !> [n_1, g_1 .. g_n1, n_2, ...] (samples of each piece, global numbers, in piece order); a
+  !> piece is named after its first sample and read at assembly by the rank that wrote it.
+  subroutine add_written(this, env, dir, sets, written)
+    class(piece_index_t), intent(inout) :: this
+    type(env_t), intent(in) :: env
+    character(len=*), intent(in) :: dir
+    type(sample_set_t), intent(in) :: sets(2)
+    integer, intent(in) :: written(:)
+    integer, allocatable :: counts(:), displs(:), all(:), own2(:)
+    type(path_t), allocatable :: tmp(:)
+    integer :: ierr, r, m, q, c, n, j, is, k, np_new
+    allocate(counts(env%size), displs(env%size))
+    call MPI_Allgather(size(written), 1, MPI_INTEGER, counts, 1, MPI_INTEGER, env%comm, ierr)
+    displs(1) = 0
+    do r = 2, env%size
+      displs(r) = displs(r - 1) + counts(r - 1)
+    end do
+    m = sum(counts)
+    allocate(all(max(m, 1)))
+    call MPI_Allgatherv(written, size(written), MPI_INTEGER, all, counts, displs, MPI_INTEGER, env%comm, ierr)
+    ! count the new pieces
+    np_new = 0
+    do r = 1, env%size
+      c = displs(r)
+      do while (c < displs(r) + counts(r))
+        np_new = np_new + 1
+        c = c + all(c + 1) + 1
+      end do
+    end do
+    allocate(tmp(this%n_pieces + np_new), own2(this%n_pieces + np_new))
+    do q = 1, this%n_pieces
+      call move_alloc(this%path(q)%s, tmp(q)%s)
+      own2(q) = this%owner(q)
+    end do
+    q = this%n_pieces
+    do r = 1, env%size
+      c = displs(r)
+      do while (c < displs(r) + counts(r))
+        n = all(c + 1)
+        q = q + 1
+        call set_of_sample(sets, all(c + 2), is, k)
+        tmp(q)%s = piece_path(dir, sets(is)%name, k)
+        own2(q) = r - 1
+        do j = 1, n
+          this%piece_of(all(c + 1 + j)) = q
+          this%slot_of(all(c + 1 + j)) = j
+        end do
+        c = c + n + 1
+      end do
+    end do
+    call move_alloc(tmp, this%path)
+    call move_alloc(own2, this%owner)
+    this%n_pieces = q
+  end subroutine add_written
+
+  !> Global sample number (train 1..n_train, then valid) of sample k of set `name`; 0 if none.
+  pure integer function global_sample(sets, name, k) result(g)
+    type(sample_set_t), intent(in) :: sets(2)
+    character(len=*), intent(in) :: name
+    integer, intent(in) :: k
+    g = 0
+    if (trim(name) == trim(sets(1)%name)) then
+      if (k >= 1 .and. k <= sets(1)%n) g = k
+    else if (trim(name) == trim(sets(2)%name)) then
+      if (k >= 1 .and. k <= sets(2)%n) g = sets(1)%n + k
+    end if
+  end function global_sample
+
+  !> Set (1 train, 2 valid) and index in the set of global sample g.
+  pure subroutine set_of_sample(sets, g, is, k)
+    type(sample_set_t), intent(in) :: sets(2)
+    integer, intent(in) :: g
+    integer, intent(out) :: is, k
+    if (g <= sets(1)%n) then
+      is = 1; k = g
+    else
+      is = 2; k = g - sets(1)%n
+    end if
+  end subroutine set_of_sample
+
+  !> Move a bad piece to `<dir>/quarantine/` (never deleting; an existing name gets a suffix).
+  !> Returns the new path, or '' if it could not be moved.
+  function quarantine_piece(dir, path) result(dest)
+    character(len=*), intent(in) :: dir, path
+    character(len=:), allocatable :: dest
+    character(len=:), allocatable :: qdir, base
+    integer :: i, n
+    qdir = dir // "/quarantine"
+    dest = ""
+    if (make_dir(qdir) /= 0) return
+    i = index(path, "/", back=.true.)
+    base = path(i + 1:)
+    dest = qdir // "/" // base
+    n = 0
+    do while (file_exists(dest))
+      n = n + 1
+      dest = qdir // "/" // base // "." // str(n)
+    end do
+    if (rename_file(path, dest) /= 0) dest = ""
+  end function quarantine_piece
+
+  !> Collective: find and verify the pieces in `dir` (see the module header).
+  subroutine scan_pieces(env, dir, hash, sets, n_dof, n_steps, quarantine, idx, warnings, error)
+    type(env_t), intent(in) :: env
+    character(len=*), intent(in) :: dir, hash
+    !> the study's samples (train, valid)
+    type(sample_set_t), intent(in) :: sets(2)
+    integer, intent(in) :: n_dof, n_steps
+    !> move bad pieces aside (and recompute their samples) instead of stopping
+    logical, intent(in) :: quarantine
+    type(piece_index_t), intent(out) :: idx
+    !> one line per quarantined piece (rank 0; '' if none)
+    character(len=:), allocatable, intent(out) :: warnings
+    type(error_t), allocatable, intent(out) :: error
+    character(len=:), allocatable :: fatal, bad_msg, h, path, all_msg, m
+    character(len=8), allocatable :: hsets(:)
+    integer, allocatable :: hidx(:), bad(:), claimed(:)
+    type(sample_result_t), allocatable :: res(:)
+    type(error_t), allocatable :: e
+    type(path_t), allocatable :: tmp(:)
+    integer :: g, is, k, j, p, ierr, n, gj, r, nbad
+    warnings = ""
+    idx%n_tot = sets(1)%n + sets(2)%n
+    allocate(idx%piece_of(idx%n_tot), idx%slot_of(idx%n_tot), idx%path(0), idx%owner(0))
+    idx%piece_of = 0; idx%slot_of = 0
+    fatal = ""
+    ! 1. headers, on rank 0
+    if (env%is_root()) then
+      if (make_dir(dir) /= 0) fatal = "cannot create the directory '" // dir // "' for the pieces"
+      allocate(claimed(idx%n_tot))
+      claimed = 0
+      do g = 1, idx%n_tot
+        if (len(fatal) > 0) exit
+        if (idx%piece_of(g) > 0) cycle
+        call set_of_sample(sets, g, is, k)
+        path = piece_path(dir, sets(is)%name, k)
+        if (.not. file_exists(path)) cycle
+        ! every piece found gets a number, good or bad (bad ones are marked below)
+        call append_path(path)
+        p = idx%n_pieces
+        call piece_header(path, h, hsets, hidx, e)
+        if (allocated(e)) then
+          call mark_bad(p, e%message // " (unreadable or incomplete piece)")
+          deallocate(e)
+          cycle
+        end if
+        if (h /= hash) then
+          fatal = "'" // dir // "' holds pieces of a different configuration (piece config_hash " // h // &
+            ", this input " // trim(hash) // "): refusing to mix them; remove the directory or restore the input"
+          exit
+        end if
+        if (trim(hsets(1)) /= trim(sets(is)%name) .or. hidx(1) /= k) then
+          call mark_bad(p, "piece '" // path // "' holds " // trim(hsets(1)) // " sample " // str(hidx(1)) // &
+            " where " // trim(sets(is)%name) // " sample " // str(k) // " belongs (renamed or copied piece)")
+          cycle
+        end if
+        m = ""
+        do j = 1, size(hidx)
+          gj = global_sample(sets, hsets(j), hidx(j))
+          if (gj == 0) then
+            m = "piece '" // path // "' holds " // trim(hsets(j)) // " sample " // str(hidx(j)) // &
+              ", which this study does not have"
+          else if (claimed(gj) /= 0) then
+            m = "piece '" // path // "' holds " // trim(hsets(j)) // " sample " // str(hidx(j)) // &
+              ", already held by piece '" // idx%path(claimed(gj))%s // "'"
+          end if
+          if (len(m) > 0) exit
+        end do
+        if (len(m) > 0) then
+          call mark_bad(p, m); cycle
+        end if
+        do j = 1, size(hidx)
+          gj = global_sample(sets, hsets(j), hidx(j))
+          claimed(gj) = p
+          idx%piece_of(gj) = p
+          idx%slot_of(gj) = j
+        end do
+      end do
+    end if
+    call env%bcast_string(fatal)
+    if (len(fatal) > 0) then
+      call set_error(error, fatal, 2); return
+    end if
+    ! share the index
+    n = idx%n_pieces
+    call MPI_Bcast(n, 1, MPI_INTEGER, 0, env%comm, ierr)
+    if (.not. env%is_root()) then
+      deallocate(idx%path); allocate(idx%path(n))
+      idx%n_pieces = n
+    end if
+    do p = 1, n
+      if (.not. env%is_root()) idx%path(p)%s = ""
+      call env%bcast_string(idx%path(p)%s)
+    end do
+    call MPI_Bcast(idx%piece_of, idx%n_tot, MPI_INTEGER, 0, env%comm, ierr)
+    call MPI_Bcast(idx%slot_of, idx%n_tot, MPI_INTEGER, 0, env%comm, ierr)
+    if (.not. allocated(bad_msg)) bad_msg = ""
+    call resize_bad(n)
+    ! 2. full verification of the pieces with good headers, round-robin over the ranks
+    call MPI_Bcast(bad, n, MPI_INTEGER, 0, env%comm, ierr)
+    do p = 1, n
+      if (bad(p) /= 0 .or. mod(p - 1, env%size) /= env%rank) cycle
+      call read_piece(idx%path(p)%s, res, e)
+      if (.not. allocated(e)) then
+        do j = 1, size(res)
+          gj = global_sample(sets, res(j)%set, res(j)%index)
+          if (gj == 0) then
+            call set_error(e, "piece '" // idx%path(p)%s // "' holds " // trim(res(j)%set) // " sample " // &
+              str(res(j)%index) // ", which this study does not have")
+          else if (idx%piece_of(gj) /= p .or. idx%slot_of(gj) /= j) then
+            call set_error(e, "piece '" // idx%path(p)%s // "': sample " // str(j) // " disagrees with the header")
+          else
+            call set_of_sample(sets, gj, is, k)
+            call check_sample(res(j), sets(is)%name, k, sets(is)%mu(:, k), n_dof, n_steps, &
+              "piece '" // idx%path(p)%s // "'", e)
+          end if
+          if (allocated(e)) exit
+        end do
+      end if
+      if (allocated(e)) then
+        call mark_bad(p, e%message); deallocate(e)
+      end if
+    end do
+    call MPI_Allreduce(MPI_IN_PLACE, bad, n, MPI_INTEGER, MPI_MAX, env%comm, ierr)
+    deallocate(idx%owner)
+    allocate(idx%owner(n))
+    do p = 1, n
+      idx%owner(p) = mod(p - 1, env%size)
+    end do
+    nbad = count(bad /= 0)
+    if (nbad == 0) return
+    ! every rank's messages, in rank order
+    all_msg = ""
+    do r = 0, env%size - 1
+      m = bad_msg
+      call bcast_from(m, r)
+      all_msg = all_msg // m
+    end do
+    do g = 1, idx%n_tot
+      if (idx%piece_of(g) > 0) then
+        if (bad(idx%piece_of(g)) /= 0) then
+          idx%piece_of(g) = 0; idx%slot_of(g) = 0
+        end if
+      end if
+    end do
+    if (.not. quarantine) then
+      call set_error(error, str(nbad) // " bad piece(s) in '" // dir // "':" // new_line('a') // all_msg // &
+        "run again with --quarantine-bad-pieces to move them to '" // dir // "/quarantine' and recompute " // &
+        "their samples", 2)
+      return
+    end if
+    m = ""
+    if (env%is_root()) then
+      do p = 1, n
+        if (bad(p) == 0) cycle
+        h = quarantine_piece(dir, idx%path(p)%s)
+        if (len(h) == 0) then
+          m = "cannot move the bad piece '" // idx%path(p)%s // "' to '" // dir // "/quarantine'"
+          exit
+        end if
+        warnings = warnings // "moved bad piece '" // idx%path(p)%s // "' to '" // h // "'" // new_line('a')
+      end do
+      warnings = all_msg // warnings
+    end if
+    call env%bcast_string(m)
+    if (len(m) > 0) then
+      call set_error(error, m, 2); return
+    end if
+    idx%n_quarantined = nbad
+    call drop_bad()
+
+  contains
+
+    !> Remove the bad pieces from the index (renumbering the good ones).
+    subroutine drop_bad()
+      integer, allocatable :: newnum(:), own2(:)
+      type(path_t), allocatable :: t2(:)
+      integer :: q, m2
+      allocate(newnum(n), t2(n - nbad), own2(n - nbad))
+      m2 = 0
+      do q = 1, n
+        newnum(q) = 0
+        if (bad(q) /= 0) cycle
+        m2 = m2 + 1
+        newnum(q) = m2
+        call move_alloc(idx%path(q)%s, t2(m2)%s)
+      end do
+      do q = 1, m2
+        own2(q) = mod(q - 1, env%size)
+      end do
+      do q = 1, idx%n_tot
+        if (idx%piece_of(q) > 0) idx%piece_of(q) = newnum(idx%piece_of(q))
+      end do
+      call move_alloc(t2, idx%path)
+      call move_alloc(own2, idx%owner)
+      idx%n_pieces = m2
+    end subroutine drop_bad
+
+    subroutine append_path(s)
+      character(len=*), intent(in) :: s
+      integer :: q
+      allocate(tmp(idx%n_pieces + 1))
+      do q = 1, idx%n_pieces
+        call move_alloc(idx%path(q)%s, tmp(q)%s)
+      end do
+      tmp(idx%n_pieces + 1)%s = s
+      call move_alloc(tmp, idx%path)
+      idx%n_pieces = idx%n_pieces + 1
+    end subroutine append_path
+
+    !> bad(1:m) (new entries 0)
+    subroutine resize_bad(m)
+      integer, intent(in) :: m
+      integer, allocatable :: b2(:)
+      if (.not. allocated(bad)) allocate(bad(0))
+      if (size(bad) == m) return
+      allocate(b2(m)); b2 = 0
+      b2(1:min(m, size(bad))) = bad(1:min(m, size(bad)))
+      call move_alloc(b2, bad)
+    end subroutine resize_bad
+
+    subroutine mark_bad(p, msg)
+      integer, intent(in) :: p
+      character(len=*), intent(in) :: msg
+      if (.not. allocated(bad)) allocate(bad(0))
+      if (size(bad) < p) call resize_bad(p)
+      bad(p) = 1
+      if (.not. allocated(bad_msg)) bad_msg = ""
+      bad_msg = bad_msg // "  " // msg // new_line('a')
+    end subroutine mark_bad
+
+    subroutine bcast_from(s, root)
+      character(len=:), allocatable, intent(inout) :: s
+      integer, intent(in) :: root
+      integer :: ls, ie
+      ls = len(s)
+      call MPI_Bcast(ls, 1, MPI_INTEGER, root, env%comm, ie)
+      if (env%rank /= root) then
+        deallocate(s); allocate(character(len=ls) :: s)
+      end if
+      if (ls > 0) call MPI_Bcast(s, ls, MPI_CHARACTER, root, env%comm, ie)
+    end subroutine bcast_from
+  end subroutine scan_pieces
+
+  !> Start a batch: samples are kept until `slice` seconds have passed since the batch's first
+  !> sample started (or the batch holds max_bytes of data), then written as one piece.
+  subroutine batch_init(this, dir, hash, slice)
+    class(piece_batch_t), intent(inout) :: this
+    character(len=*), intent(in) :: dir, hash
+    !> time slice of one piece (s); 0: one sample per piece
+    real(wp), intent(in) :: slice
+    this%dir = dir
+    this%hash = hash
+    this%slice = slice
+    this%n = 0
+    this%bytes = 0
+    if (allocated(this%res)) deallocate(this%res)
+    if (allocated(this%g)) deallocate(this%g)
+    allocate(this%res(8), this%g(8))
+    if (allocated(this%written)) deallocate(this%written)
+    allocate(this%written(0))
+  end subroutine batch_init
+
+  !> Add a computed sample (global number g; res%start set); writes the batch when it is due
+  !> (`now`: seconds on the clock of res%start).
+  subroutine batch_add(this, res, g, sets, now, error)
+    class(piece_batch_t), intent(inout) :: this
+    type(sample_result_t), intent(in) :: res
+    integer, intent(in) :: g
+    type(sample_set_t), intent(in) :: sets(2)
+    real(wp), intent(in) :: now
+    type(error_t), allocatable, intent(out) :: error
+    type(sample_result_t), allocatable :: r2(:)
+    integer, allocatable :: g2(:)
+    if (this%n == size(this%res)) then
+      allocate(r2(2 * this%n), g2(2 * this%n))
+      r2(1:this%n) = this%res(1:this%n)
+      g2(1:this%n) = this%g(1:this%n)
+      call move_alloc(r2, this%res)
+      call move_alloc(g2, this%g)
+    end if
+    this%n = this%n + 1
+    this%res(this%n) = res
+    this%g(this%n) = g
+    this%bytes = this%bytes + 8_i8 * (size(res%q, kind=i8) + size(res%u, kind=i8) + size(res%v, kind=i8) + &
+      2 * size(res%value, kind=i8))
+    if (now - this%res(1)%start >= this%slice .or. this%bytes >= this%max_bytes) call this%flush(sets, error)
+  end subroutine batch_add
+
+  !> Write the samples held (if any) as one piece named after the first.
+  subroutine batch_flush(this, sets, error)
+    class(piece_batch_t), intent(inout) :: this
+    type(sample_set_t), intent(in) :: sets(2)
+    type(error_t), allocatable, intent(out) :: error
+    integer :: is, k
+    real(wp) :: t0
+    if (this%n == 0) return
+    call set_of_sample(sets, this%g(1), is, k)
+    t0 = MPI_Wtime()
+    call write_piece(piece_path(this%dir, sets(is)%name, k), this%hash, this%res(1:this%n), error)
+    if (allocated(error)) return
+    this%t_write = this%t_write + (MPI_Wtime() - t0)
+    this%n_pieces = this%n_pieces + 1
+    this%bytes_written = this%bytes_written + this%bytes
+    this%written = [this%written, this%n, this%g(1:this%n)]
+    this%n = 0
+    this%bytes = 0
+  end subroutine batch_flush
+end module cr_piece_store
