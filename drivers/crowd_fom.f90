@@ -32,7 +32,8 @@ program crowd_fom
     code = program_finish(env, log, error)
     stop
   end if
-  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error)
+  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, &
+    program='crowd_fom', needed=[character(len=8) :: 'scene', 'agents'])
   if (.not. allocated(error)) call check_config(cfg, error)
   if (.not. allocated(error)) then
     log%level = log_level_of(cfg%output%log_level)

@@ -42,7 +42,8 @@ program crowd_offline
     code = program_finish(env, log, error)
     stop
   end if
-  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, nml)
+  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, nml, &
+    program='crowd_offline', needed=[character(len=8) :: 'scene', 'agents', 'offline'])
   if (.not. allocated(error)) call check_config(cfg, error)
   if (.not. allocated(error)) call read_offline(nml, ocfg, error)
   if (.not. allocated(error)) call check_offline(cli%input, ocfg, error)
@@ -358,8 +359,7 @@ contains
   !> True on every rank if any rank has an error (the message is kept where it arose;
   !> ranks without one get a generic message so that all stop together).
   logical function collective_fail()
-    collective_fail = env%any_true(allocated(error))
-    if (collective_fail .and. .not. allocated(error)) &
-      call set_error(error, "another rank failed (see its message)")
+    call env%agree_error(error)
+    collective_fail = allocated(error)
   end function collective_fail
 end program crowd_offline

@@ -66,7 +66,7 @@ program crowd_rom
   if (.not. allocated(error) .and. env%size > 1) call set_error(error, "crowd_rom is serial: run it " // &
     "without mpirun (or with -np 1); the parallel stages are crowd_snapshots and crowd_offline", 2)
   if (.not. allocated(error)) call nml%load(cli%input, env, error)
-  if (.not. allocated(error)) call nml%check_groups(FOM_GROUPS, error)
+  if (.not. allocated(error)) call nml%require_groups('crowd_rom', ['rom'], FOM_GROUPS, error)
   if (.not. allocated(error)) call read_rom(nml, rcfg, error)
   if (.not. allocated(error)) call check_rom(cli%input, rcfg, error)
   if (.not. allocated(error)) call run(error)

@@ -61,7 +61,8 @@ program crowd_snapshots
     code = program_finish(env, log, error)
     stop
   end if
-  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, nml)
+  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, nml, &
+    program='crowd_snapshots', needed=[character(len=8) :: 'scene', 'agents', 'study'])
   if (.not. allocated(error)) call check_config(cfg, error)
   if (.not. allocated(error)) call read_study(nml, study, error)
   if (.not. allocated(error)) call check_study(study, cfg, error)

@@ -114,17 +114,32 @@ module cr_config
 contains
 
   !> Read every group of the full-order model from `path` into `cfg` (defaults for absent
-  !> groups). Errors name the file, the group and (from the runtime) the variable.
-  subroutine read_config(path, env, cfg, error, nml)
+  !> optional groups). Errors name the file, the group and (from the runtime) the variable.
+  !> A program passes the groups it cannot run without (`needed`, e.g. scene and agents):
+  !> a file without them (empty, binary, another program's input) is refused, never run
+  !> with the defaults.
+  subroutine read_config(path, env, cfg, error, nml, program, needed)
     character(len=*), intent(in) :: path
     type(env_t), intent(in) :: env
     type(config_t), intent(out) :: cfg
     type(error_t), allocatable, intent(out) :: error
     !> the loaded text, for programs that read further groups
     type(namelist_text_t), intent(out), optional :: nml
+    !> name of the calling program (for the message about missing groups)
+    character(len=*), intent(in), optional :: program
+    !> groups that must be present
+    character(len=*), intent(in), optional :: needed(:)
     type(namelist_text_t) :: t
     call t%load(path, env, error)
     if (allocated(error)) return
+    if (present(needed)) then
+      if (present(program)) then
+        call t%require_groups(program, needed, FOM_GROUPS, error)
+      else
+        call t%require_groups("this program", needed, FOM_GROUPS, error)
+      end if
+      if (allocated(error)) return
+    end if
     call parse_config(t, cfg, error)
     if (allocated(error)) return
     if (present(nml)) nml = t

@@ -47,7 +47,7 @@ module cr_h5file
     h5awrite_f, h5aread_f, h5aget_space_f, h5aget_type_f
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error
-  use cr_env, only: env_t
+  use cr_env, only: env_t, agree_error_on
   use cr_strings, only: str
   use cr_fsys, only: rename_file, remove_file
   implicit none
@@ -161,16 +161,11 @@ contains
   end subroutine check_h5
 
   !> In parallel, make an error collective: if any rank failed, every rank returns an error.
-  subroutine sync_error(this, error, op, name)
+  subroutine sync_error(this, error)
     class(h5file_t), intent(in) :: this
     type(error_t), allocatable, intent(inout) :: error
-    character(len=*), intent(in) :: op, name
-    logical :: mine, anyone
-    integer :: ierr
     if (.not. this%parallel .or. this%comm == MPI_COMM_NULL) return
-    mine = allocated(error)
-    call MPI_Allreduce(mine, anyone, 1, MPI_LOGICAL, MPI_LOR, this%comm, ierr)
-    if (anyone .and. .not. mine) call fail(this, error, op, name, "failed on another rank")
+    call agree_error_on(this%comm, error)
   end subroutine sync_error
 
   subroutine init_hdf5(error)
@@ -394,7 +389,7 @@ contains
       call make_lcpl(this, hdferr)
       call check_h5(hdferr, this, error, op, "/", "h5pset_create_inter_group_f")
     end if
-    call sync_error(this, error, op, "/")
+    call sync_error(this, error)
     if (allocated(error)) call h5_abort(this)
   end subroutine h5_create
 
@@ -444,7 +439,7 @@ contains
       call make_lcpl(this, hdferr)
       call check_h5(hdferr, this, error, op, "/", "h5pset_create_inter_group_f")
     end if
-    call sync_error(this, error, op, "/")
+    call sync_error(this, error)
     if (allocated(error)) then
       if (this%lcpl >= 0) call h5pclose_f(this%lcpl, e)
       this%lcpl = -1
@@ -487,7 +482,7 @@ contains
     if (this%fid < 0) return
     call close_file(this, hdferr)
     call check_h5(hdferr, this, error, "close", "/", "h5fclose_f")
-    call sync_error(this, error, "close", "/")
+    call sync_error(this, error)
     call release_comm(this)
   end subroutine h5_close
 
@@ -507,7 +502,7 @@ contains
     end if
     call close_file(this, hdferr)
     call check_h5(hdferr, this, error, op, "/", "h5fclose_f")
-    call sync_error(this, error, op, "/")
+    call sync_error(this, error)
     if (allocated(error)) then
       call release_comm(this); return
     end if
@@ -583,7 +578,7 @@ contains
       call check_h5(hdferr, this, error, op, name, "h5gcreate_f")
       if (hdferr >= 0) call h5gclose_f(gid, e)
     end if
-    call sync_error(this, error, op, name)
+    call sync_error(this, error)
   end subroutine make_group
 
   !> Dataset dims, class and element size (dataset closed again).
@@ -767,7 +762,7 @@ contains
         if (.not. allocated(error)) call close_ids(dset=dset)
       end if
     end if
-    call sync_error(this, error, op, name)
+    call sync_error(this, error)
   end subroutine create_dataset
 
   !> Create (collectively) a chunked dataset [row_shape..., 0] with an unlimited last dimension,
@@ -806,7 +801,7 @@ contains
         if (.not. allocated(error)) call close_ids(dset=dset)
       end if
     end if
-    call sync_error(this, error, op, name)
+    call sync_error(this, error)
   end subroutine create_extendible
 
   ! ------------------------------------------------------------------ whole datasets
@@ -834,7 +829,7 @@ contains
       end if
     end if
     call close_ids(dset=dset)
-    call sync_error(this, error, op, name)
+    call sync_error(this, error)
   end subroutine write_raw
 
   !> Read a whole dataset into p (memory type mtype); caller has checked dims.
@@ -1175,7 +1170,7 @@ contains
       end if
     end block ops
     call close_ids(dset=dset, space=fspace, mspace=mspace)
-    call sync_error(this, error, op, name)
+    call sync_error(this, error)
   end subroutine append_raw
 
   !> Append one real(wp) element to a 1D extendible dataset.
@@ -1293,7 +1288,7 @@ contains
           "leading dims mismatch: data dims " // dims_str(dd), d)
       end if
     end if
-    call sync_error(this, error, op, name)
+    call sync_error(this, error)
     if (allocated(error)) return
     ops: block
       call h5dopen_f(this%fid, name, dset, hdferr)
@@ -1346,7 +1341,7 @@ contains
     end block ops
     if (xfer == H5P_DEFAULT_F) xfer = -1
     call close_ids(dset=dset, space=fspace, mspace=mspace, ptype=xfer)
-    call sync_error(this, error, op, name)
+    call sync_error(this, error)
   end subroutine block_raw
 
   !> Collective: write this rank's elements offset+1..offset+size(x) of a 1D dataset.
@@ -1522,7 +1517,7 @@ contains
     if (aid >= 0) call h5aclose_f(aid, e)
     call close_ids(space=space)
     if (oid >= 0) call h5oclose_f(oid, e)
-    call sync_error(this, error, op, label)
+    call sync_error(this, error)
   end subroutine attr_write_raw
 
   !> Read attribute `name` of `obj` into p after checking class and dims (expected_rank -1:
@@ -1677,7 +1672,7 @@ contains
     if (size(value) == 0) then
       call fail(this, error, "write_attr", obj_path(obj) // "@" // name, &
         "empty array attributes are not supported")
-      call sync_error(this, error, "write_attr", name)
+      call sync_error(this, error)
       return
     end if
     call attr_write_raw(this, obj, name, c_loc(value), type_of(cr_h5_real), &
@@ -1693,7 +1688,7 @@ contains
     if (size(value) == 0) then
       call fail(this, error, "write_attr", obj_path(obj) // "@" // name, &
         "empty array attributes are not supported")
-      call sync_error(this, error, "write_attr", name)
+      call sync_error(this, error)
       return
     end if
     call attr_write_raw(this, obj, name, c_loc(value), type_of(cr_h5_int), &
