@@ -28,10 +28,12 @@
 !>  * Failures of writing procedures are made collective: if one rank fails, all return an error.
 module cr_h5file
   use, intrinsic :: iso_c_binding, only: c_ptr, c_null_ptr, c_loc, c_char, c_null_char, &
-    c_associated
+    c_associated, c_int, c_f_pointer, c_int64_t
   use mpi_f08, only: MPI_Comm, MPI_COMM_NULL, MPI_INFO_NULL, MPI_Comm_dup, MPI_Comm_free, &
-    MPI_Allreduce, MPI_Bcast, MPI_Barrier, MPI_LOGICAL, MPI_LOR, MPI_INTEGER, operator(/=), operator(==)
-  use hdf5, only: hid_t, hsize_t, size_t, h5open_f, h5eset_auto_f, h5kind_to_type, &
+    MPI_Allreduce, MPI_Bcast, MPI_Barrier, MPI_LOGICAL, MPI_LOR, MPI_INTEGER, MPI_INTEGER8, MPI_SUM, &
+    MPI_IN_PLACE, operator(/=), operator(==)
+  use hdf5, only: hid_t, hsize_t, size_t, h5open_f, h5close_f, h5fflush_f, H5F_SCOPE_GLOBAL_F, &
+    h5eset_auto_f, h5kind_to_type, &
     H5_REAL_KIND, H5_INTEGER_KIND, H5P_DEFAULT_F, H5P_FILE_ACCESS_F, H5P_LINK_CREATE_F, &
     H5P_DATASET_CREATE_F, H5P_DATASET_XFER_F, H5F_ACC_TRUNC_F, H5F_ACC_RDONLY_F, H5F_ACC_RDWR_F, &
     H5S_SCALAR_F, H5S_UNLIMITED_F, H5S_SELECT_SET_F, H5T_FLOAT_F, H5T_INTEGER_F, H5T_STRING_F, &
@@ -49,10 +51,11 @@ module cr_h5file
   use cr_error, only: error_t, set_error
   use cr_env, only: env_t, agree_error_on
   use cr_strings, only: str
-  use cr_fsys, only: rename_file, remove_file
+  use cr_fsys, only: rename_file, remove_file, truncate_file, clear_errno, io_fault_text, discard_fd, &
+    reserve_space, errno_name, file_size, truncate_to
   implicit none
   private
-  public :: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64
+  public :: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64, h5_library_close
 
   !> element kinds for `create_extendible` / `create_dataset`: real(wp), integer, integer(int64)
   integer, parameter :: cr_h5_real = 1, cr_h5_int = 2, cr_h5_int64 = 3
@@ -75,6 +78,9 @@ module cr_h5file
     logical :: parallel = .false.
     !> duplicate of the env communicator (owned, parallel only)
     type(MPI_Comm) :: comm = MPI_COMM_NULL
+    !> bytes of the file on disk reserved by ensure_space (a writable temporary only);
+    !> -1: the file system cannot reserve, writes go on unreserved
+    integer(i8) :: reserved = 0
     integer :: rank = 0
   contains
     procedure :: create => h5_create
@@ -108,6 +114,27 @@ module cr_h5file
     procedure, private :: ra_string, ra_real, ra_int, ra_real1, ra_int1
     generic :: read_attr => ra_string, ra_real, ra_int, ra_real1, ra_int1
   end type h5file_t
+
+  !> bytes reserved past the allocated address range before the final flush (superblock,
+  !> free-space and cache entries the close may still allocate)
+  integer(i8), parameter :: SPACE_MARGIN = 131072_i8
+  integer, parameter :: ERRNO_ENOSPC = 28, ERRNO_EDQUOT = 122, ERRNO_EFBIG = 27
+
+  interface
+    !> C H5Fget_eoa: the end of the file's allocated address space (bytes).
+    integer(c_int) function h5fget_eoa_c(file_id, eoa) bind(c, name="H5Fget_eoa")
+      import :: c_int, c_int64_t
+      integer(c_int64_t), value :: file_id
+      integer(c_int64_t), intent(out) :: eoa
+    end function h5fget_eoa_c
+    !> C H5Fget_vfd_handle: the low-level handle of an open file (for the sec2 driver, a
+    !> pointer to its file descriptor). No Fortran wrapper exists in HDF5 1.10.
+    integer(c_int) function h5fget_vfd_handle_c(file_id, fapl_id, handle) bind(c, name="H5Fget_vfd_handle")
+      import :: c_int, c_ptr, c_int64_t
+      integer(c_int64_t), value :: file_id, fapl_id
+      type(c_ptr), intent(out) :: handle
+    end function h5fget_vfd_handle_c
+  end interface
 
 contains
 
@@ -156,8 +183,18 @@ contains
     type(error_t), allocatable, intent(inout) :: error
     character(len=*), intent(in) :: op, name, routine
     integer(hsize_t), intent(in), optional :: d(:)
-    if (hdferr >= 0 .or. allocated(error)) return
-    call fail(this, error, op, name, routine // " failed", d)
+    character(len=:), allocatable :: why
+    if (hdferr >= 0 .or. allocated(error)) then
+      call clear_errno(); return
+    end if
+    ! the system's reason (disk full, read-only, ...) when the failure was a storage fault
+    why = io_fault_text()
+    if (len(why) > 0) then
+      call fail(this, error, op, name, routine // " failed: " // why, d)
+    else
+      call fail(this, error, op, name, routine // " failed", d)
+    end if
+    call clear_errno()
   end subroutine check_h5
 
   !> In parallel, make an error collective: if any rank failed, every rank returns an error.
@@ -179,6 +216,16 @@ contains
     call h5eset_auto_f(0, hdferr)
     h5_ready = .true.
   end subroutine init_hdf5
+
+  !> Close the HDF5 library if this module opened it (every object still open is closed by
+  !> HDF5). Programs call it before MPI_Finalize, also on error paths, so that HDF5 never
+  !> shuts down inside MPI_Finalize with a file whose close failed (full disk).
+  subroutine h5_library_close()
+    integer :: hdferr
+    if (.not. h5_ready) return
+    call h5close_f(hdferr)
+    h5_ready = .false.
+  end subroutine h5_library_close
 
   !> HDF5 memory type of a crowdrom element kind code
   integer(hid_t) function type_of(kind_code)
@@ -295,6 +342,50 @@ contains
     end if
   end subroutine need_open
 
+  !> Before a write of about `nbytes` (summed over the ranks in parallel): reserve disk
+  !> blocks up to the end of the allocated address range plus the write and a margin, so
+  !> that HDF5 itself never meets a full disk. HDF5 1.10 cannot close a file after a failed
+  !> metadata flush, and the file left registered crashes the library shutdown inside
+  !> MPI_Finalize; a reservation that fails instead gives a clean error ("No space left on
+  !> device") and h5_abort can still close and delete the temporary. Collective in parallel.
+  subroutine ensure_space(this, nbytes, op, name, error)
+    class(h5file_t), intent(inout) :: this
+    integer(i8), intent(in) :: nbytes
+    character(len=*), intent(in) :: op, name
+    type(error_t), allocatable, intent(inout) :: error
+    integer(i8) :: total, need, want
+    integer(c_int64_t) :: eoa
+    integer :: status, ierr
+    if (this%fid < 0 .or. .not. this%writable) return
+    if (this%reserved < 0) return
+    total = max(nbytes, 0_i8)
+    if (this%parallel) call MPI_Allreduce(MPI_IN_PLACE, total, 1, MPI_INTEGER8, MPI_SUM, this%comm, ierr)
+    status = 0
+    if (this%rank == 0) then
+      eoa = 0
+      if (h5fget_eoa_c(this%fid, eoa) < 0) eoa = int(max(file_size(this%disk_path), 0_i8), c_int64_t)
+      need = int(eoa, i8) + total + SPACE_MARGIN
+      if (need > this%reserved) then
+        ! grow in steps (1/16 of what is reserved, at least the margin, at most 64 MiB)
+        want = need + min(max(this%reserved / 16, SPACE_MARGIN), 67108864_i8)
+        status = reserve_space(this%disk_path, want)
+        if (status == 0) then
+          this%reserved = want
+        else if (status /= ERRNO_ENOSPC .and. status /= ERRNO_EDQUOT .and. status /= ERRNO_EFBIG) then
+          ! no fallocate on this file system: go on without reservations
+          this%reserved = -1
+          status = 0
+        end if
+      end if
+    end if
+    if (this%parallel) then
+      call MPI_Bcast(status, 1, MPI_INTEGER, 0, this%comm, ierr)
+      call MPI_Bcast(this%reserved, 1, MPI_INTEGER8, 0, this%comm, ierr)
+    end if
+    if (status /= 0 .and. .not. allocated(error)) &
+      call fail(this, error, op, name, errno_name(status) // " (" // str(total) // " more bytes to write)")
+  end subroutine ensure_space
+
   ! ------------------------------------------------------------------ life cycle
 
   !> Take parallel settings from env (MPI-IO when env%size > 1).
@@ -377,6 +468,7 @@ contains
       this%disk_path = path
     end if
     this%writable = .true.
+    this%reserved = 0
     call make_fapl(this, fapl, hdferr)
     call check_h5(hdferr, this, error, op, "/", "h5pset_fapl_mpio_f")
     if (.not. allocated(error)) then
@@ -425,6 +517,7 @@ contains
     this%temporary = .false.
     this%writable = .false.
     if (present(readwrite)) this%writable = readwrite
+    this%reserved = 0
     flag = H5F_ACC_RDONLY_F
     if (this%writable) flag = H5F_ACC_RDWR_F
     call make_fapl(this, fapl, hdferr)
@@ -478,10 +571,14 @@ contains
   subroutine h5_close(this, error)
     class(h5file_t), intent(inout) :: this
     type(error_t), allocatable, intent(out) :: error
-    integer :: hdferr
+    integer :: hdferr, status
+    logical :: trim_reserve
     if (this%fid < 0) return
+    trim_reserve = this%writable .and. this%reserved > 0 .and. this%rank == 0
     call close_file(this, hdferr)
     call check_h5(hdferr, this, error, "close", "/", "h5fclose_f")
+    ! give back the blocks reserved past the end of the file
+    if (trim_reserve .and. hdferr >= 0) status = truncate_to(this%disk_path, file_size(this%disk_path))
     call sync_error(this, error)
     call release_comm(this)
   end subroutine h5_close
@@ -500,6 +597,22 @@ contains
     if (.not. this%temporary) then
       call h5_close(this, error); return
     end if
+    ! A metadata flush that fails (full disk) leaves HDF5 1.10 unable to close the file, and
+    ! the freed file still registered crashes the library shutdown inside MPI_Finalize. So
+    ! the space the last writes need is reserved first (the whole allocated address range
+    ! plus a margin, without changing the size): if it cannot be, the file is abandoned
+    ! before any flush (h5_abort sends the pending writes to memory) and the error says why.
+    call ensure_space(this, 0_i8, op, "/", error)
+    if (allocated(error)) then
+      call h5_abort(this); return
+    end if
+    call clear_errno()
+    call h5fflush_f(this%fid, H5F_SCOPE_GLOBAL_F, hdferr)
+    call check_h5(hdferr, this, error, op, "/", "h5fflush_f")
+    call sync_error(this, error)
+    if (allocated(error)) then
+      call h5_abort(this); return
+    end if
     call close_file(this, hdferr)
     call check_h5(hdferr, this, error, op, "/", "h5fclose_f")
     call sync_error(this, error)
@@ -508,7 +621,11 @@ contains
     end if
     if (this%parallel) call MPI_Barrier(this%comm, ierr)
     status = 0
-    if (this%rank == 0) status = rename_file(this%disk_path, this%final_path)
+    if (this%rank == 0) then
+      ! give back the reserved blocks past the end of the file
+      status = truncate_to(this%disk_path, file_size(this%disk_path))
+      status = rename_file(this%disk_path, this%final_path)
+    end if
     if (this%parallel) call MPI_Bcast(status, 1, MPI_INTEGER, 0, this%comm, ierr)
     call release_comm(this)
     if (status /= 0) then
@@ -524,6 +641,28 @@ contains
   subroutine h5_abort(this)
     class(h5file_t), intent(inout) :: this
     integer :: hdferr, ierr, status
+    integer(c_int), pointer :: fd
+    type(c_ptr) :: handle
+    ! An abandoned temporary must close even when its pending writes cannot succeed (full
+    ! disk): a failed h5fclose leaves HDF5 1.10 with a freed file still registered, which
+    ! crashes at library shutdown (inside MPI_Finalize). Serial files: the remaining writes
+    ! go to an in-memory file. Parallel (MPI-IO) files: the temporary is emptied, which frees
+    ! its blocks for the last metadata writes.
+    if (this%temporary .and. this%writable .and. this%fid >= 0 .and. allocated(this%disk_path)) then
+      if (.not. this%parallel) then
+        handle = c_null_ptr
+        if (h5fget_vfd_handle_c(this%fid, H5P_DEFAULT_F, handle) >= 0) then
+          if (c_associated(handle)) then
+            call c_f_pointer(handle, fd)
+            status = discard_fd(fd)
+          end if
+        end if
+      else
+        call MPI_Barrier(this%comm, ierr)
+        if (this%rank == 0) status = truncate_file(this%disk_path)
+        call MPI_Barrier(this%comm, ierr)
+      end if
+    end if
     call close_file(this, hdferr)
     if (this%temporary .and. allocated(this%disk_path)) then
       if (this%parallel) call MPI_Barrier(this%comm, ierr)
@@ -572,6 +711,8 @@ contains
     integer :: hdferr, e
     character(len=*), parameter :: op = "make_group"
     call need_open(this, error, op, name, .true.)
+    if (allocated(error)) return
+    call ensure_space(this, 0_i8, op, name, error)
     if (allocated(error)) return
     if (.not. this%exists(name)) then
       call h5gcreate_f(this%fid, name, gid, hdferr, lcpl_id=this%lcpl)
@@ -753,6 +894,7 @@ contains
     integer(hid_t) :: dset
     character(len=*), parameter :: op = "create_dataset"
     call need_open(this, error, op, name, .true.)
+    if (.not. allocated(error)) call ensure_space(this, 8_i8 * product(int(global_dims, i8)), op, name, error)
     if (.not. allocated(error)) then
       if (type_of(kind) < 0) then
         call fail(this, error, op, name, "unknown kind code " // str(kind))
@@ -781,6 +923,7 @@ contains
     integer :: r, nrow
     character(len=*), parameter :: op = "create_extendible"
     call need_open(this, error, op, name, .true.)
+    if (.not. allocated(error)) call ensure_space(this, 0_i8, op, name, error)
     if (.not. allocated(error)) then
       r = size(row_shape) + 1
       nrow = max(1, product(row_shape))
@@ -820,6 +963,7 @@ contains
     character(len=*), parameter :: op = "write"
     dset = -1
     call need_open(this, error, op, name, .true.)
+    if (.not. allocated(error)) call ensure_space(this, 8_i8 * product(int(d, i8)), op, name, error)
     if (.not. allocated(error)) then
       call create_raw(this, name, op, mtype, tclass, d, dset, error)
       if (.not. allocated(error) .and. (.not. this%parallel .or. this%rank == 0) &
@@ -1124,6 +1268,8 @@ contains
     ops: block
       call need_open(this, error, op, name, .true.)
       if (allocated(error)) exit ops
+      call ensure_space(this, 8_i8 * product(int(dd, i8)), op, name, error)
+      if (allocated(error)) exit ops
       call query(this, name, op, size(dd), tclass, d, error)
       if (allocated(error)) then
         if (size(d) /= size(dd) + 1) exit ops
@@ -1290,6 +1436,10 @@ contains
     end if
     call sync_error(this, error)
     if (allocated(error)) return
+    if (is_write) then
+      call ensure_space(this, 8_i8 * product(int(dd, i8)), op, name, error)
+      if (allocated(error)) return
+    end if
     ops: block
       call h5dopen_f(this%fid, name, dset, hdferr)
       call check_h5(hdferr, this, error, op, name, "h5dopen_f", d)
@@ -1487,6 +1637,8 @@ contains
     label = obj_path(obj) // "@" // name
     ops: block
       call need_open(this, error, op, label, .true.)
+      if (allocated(error)) exit ops
+      call ensure_space(this, 8_i8 * product(int(d, i8)), op, label, error)
       if (allocated(error)) exit ops
       call h5oopen_f(this%fid, obj_path(obj), oid, hdferr)
       call check_h5(hdferr, this, error, op, label, "h5oopen_f (no such object?)")
