@@ -20,7 +20,7 @@ program crowd_rom
   use cr_program, only: program_start, program_finish
   use cr_config, only: config_t, FOM_GROUPS
   use cr_namelist_text, only: namelist_text_t
-  use cr_rom_config, only: rom_cfg_t, read_rom, check_rom, rom_echo, MAX_SETTINGS
+  use cr_rom_config, only: rom_cfg_t, read_rom, check_rom, rom_echo, MAX_SETTINGS, check_rom_paths
   use cr_rom_model, only: rom_header_t, rom_pair_data_t, read_rom_header, load_rom_pair, find_pair
   use cr_rom_study, only: rom_study_t, sample_block_t, open_study, read_block_set
   use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t, make_reduced_ops
@@ -101,6 +101,8 @@ contains
     if (allocated(error)) return
     dbpath = trim(rcfg%database)
     if (len(dbpath) == 0) dbpath = hdr%database
+    call check_rom_paths(cli%input, cli%summary, rcfg, dbpath, error)
+    if (allocated(error)) return
     call open_study(dbpath, where // ": database", hdr, st, error)
     if (allocated(error)) return
     call log%info("   " // str(st%n_agents) // " agents, " // str(st%n_steps) // " steps, parameters " // &
@@ -418,6 +420,8 @@ contains
         call set_error(error, where // ": mu has " // str(nmu) // " values but the study has " // &
           str(st%space%n_expanded) // " parameter components (" // shorten(st%param_names, 60) // ")", 2); return
       end if
+      call st%space%check_values(rcfg%mu(1:nmu), st%cfg, where // ": mu", error)
+      if (allocated(error)) return
       blk%name = 'given'
       blk%n = 1
       blk%mu = reshape(rcfg%mu(1:nmu), [nmu, 1])

@@ -51,7 +51,7 @@ module cr_h5file
   use cr_error, only: error_t, set_error
   use cr_env, only: env_t, agree_error_on
   use cr_strings, only: str
-  use cr_fsys, only: rename_file, remove_file, truncate_file, clear_errno, io_fault_text, discard_fd, &
+  use cr_fsys, only: rename_file, remove_file, truncate_file, clear_errno, io_fault_text, discard_fd, errno_text, &
     reserve_space, errno_name, file_size, truncate_to
   implicit none
   private
@@ -451,6 +451,7 @@ contains
     logical, intent(in), optional :: in_place
     integer(hid_t) :: fapl
     integer :: hdferr, e
+    character(len=:), allocatable :: why
     character(len=*), parameter :: op = "create"
     if (this%fid >= 0) then
       call fail(this, error, op, path, "handle is already open"); return
@@ -472,9 +473,15 @@ contains
     call make_fapl(this, fapl, hdferr)
     call check_h5(hdferr, this, error, op, "/", "h5pset_fapl_mpio_f")
     if (.not. allocated(error)) then
+      call clear_errno()
       call h5fcreate_f(this%disk_path, H5F_ACC_TRUNC_F, this%fid, hdferr, access_prp=fapl)
-      if (hdferr < 0) this%fid = -1
-      call check_h5(hdferr, this, error, op, "/", "h5fcreate_f")
+      if (hdferr < 0) then
+        this%fid = -1
+        ! any system reason is the one that matters here (missing directory, permission, ...)
+        why = errno_text()
+        if (len(why) == 0) why = "h5fcreate_f failed"
+        call fail(this, error, op, "/", "cannot create the file: " // why)
+      end if
     end if
     if (fapl /= H5P_DEFAULT_F .and. fapl >= 0) call h5pclose_f(fapl, e)
     if (.not. allocated(error)) then

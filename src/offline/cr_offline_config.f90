@@ -4,8 +4,11 @@ module cr_offline_config
   use cr_error, only: error_t, set_error, problems_t
   use cr_strings, only: str
   use cr_namelist_text, only: namelist_text_t
+  use cr_paths, only: io_paths_t
+  use cr_config_check, only: need_sane
   implicit none
   private
+  public :: check_offline_paths
   public :: offline_cfg_t, read_offline, check_offline, offline_echo, MAX_GRID
 
   integer, parameter :: MAX_GRID = 32, MAX_PATH = 512
@@ -104,6 +107,20 @@ contains
     c%rom_n = rom_n; c%rom_r = rom_r; c%hyper = hyper; c%hyper_m_factor = hyper_m_factor; c%eq_tol = eq_tol
   end subroutine read_offline
 
+  !> crowd_offline's outputs (&offline rom_file, the --summary file) checked against its
+  !> inputs (the namelist, the snapshot database) and each other, before any work.
+  subroutine check_offline_paths(input, summary, c, error)
+    character(len=*), intent(in) :: input, summary
+    type(offline_cfg_t), intent(in) :: c
+    type(error_t), allocatable, intent(out) :: error
+    type(io_paths_t) :: paths
+    call paths%input("file", input)
+    call paths%input("&offline database", c%database)
+    call paths%output("&offline rom_file", c%rom_file)
+    call paths%output("--summary", summary)
+    call paths%check(input, error)
+  end subroutine check_offline_paths
+
   !> Validate &offline; all problems reported at once.
   subroutine check_offline(path, c, error)
     character(len=*), intent(in) :: path
@@ -135,6 +152,12 @@ contains
     call probs%need(all(c%pod_compare_n >= 0), "&offline: pod_compare_n must be >= 0")
     call probs%need(c%hyper_m_factor >= 1, "&offline: hyper_m_factor must be >= 1 (got " // str(c%hyper_m_factor) // ")")
     call probs%need(c%eq_tol >= 0 .and. c%eq_tol < 1, "&offline: eq_tol must be in [0, 1)")
+    ! every real finite and of a sane magnitude
+    call need_sane(probs, c%pod_energy, "&offline: pod_energy", 1.0_wp)
+    call need_sane(probs, c%cone_delta, "&offline: cone_delta", 1.0e6_wp)
+    call need_sane(probs, c%pga_delta, "&offline: pga_delta", 1.0e6_wp)
+    call need_sane(probs, c%hyper_m_factor, "&offline: hyper_m_factor", 1.0e6_wp)
+    call need_sane(probs, c%eq_tol, "&offline: eq_tol", 1.0_wp)
     call probs%to_error(path, error)
   end subroutine check_offline
 
