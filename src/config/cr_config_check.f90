@@ -13,7 +13,7 @@ module cr_config_check
 
   !> Sane magnitudes of input values (SI units): beyond them a run is meaningless and sizes
   !> derived from them (grids, cell lists, step counts) overflow.
-  real(wp), parameter :: MAX_LENGTH = 1.0e4_wp, MIN_LENGTH = 1.0e-6_wp, MAX_SPEED = 1.0e3_wp
+  real(wp), parameter :: MAX_LENGTH = 1.0e4_wp, MIN_LENGTH = 1.0e-6_wp, MAX_SPEED = 1.0e6_wp
   !> the largest number of time steps (records of every step are kept in memory)
   integer, parameter :: MAX_STEPS = 10000000
   !> the largest distance-field grid (cells) and hall size in agent radii (cell lists)
