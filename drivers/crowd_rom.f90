@@ -69,6 +69,7 @@ program crowd_rom
   if (.not. allocated(error)) call nml%require_groups('crowd_rom', ['rom'], FOM_GROUPS, error)
   if (.not. allocated(error)) call read_rom(nml, rcfg, error)
   if (.not. allocated(error)) call check_rom(cli%input, rcfg, error)
+  if (.not. allocated(error)) call check_rom_paths(cli%input, cli%summary, rcfg, trim(rcfg%database), error)
   if (.not. allocated(error)) call run(error)
   code = program_finish(env, log, error)
   if (code /= 0) stop code, quiet=.true.

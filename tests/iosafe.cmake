@@ -38,3 +38,19 @@ cr_refused(podbench_args_zero "argument 2 = 0 must be in" $<TARGET_FILE:crowd_po
 cr_refused(podbench_args_negative "argument 1 = -3 must be in" $<TARGET_FILE:crowd_podbench> -3 4)
 cr_refused(podbench_args_real "argument 1 '1e99' is not a whole number" $<TARGET_FILE:crowd_podbench> 1e99 5)
 cr_refused(podbench_args_huge "n_dof \\* n_snap exceeds" $<TARGET_FILE:crowd_podbench> 100000 100000)
+
+# Issue 11 item 7 / 18: hostile namelist values (Inf, NaN, 1e308, 1e-308, 2147483647, size
+# products that overflow), a generated family per program
+foreach(p crowd_fom crowd_snapshots crowd_offline crowd_rom)
+  add_test(NAME hostile_values_${p}
+    COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/hostile_values.sh ${p} $<TARGET_FILE:${p}>)
+  set_tests_properties(hostile_values_${p} PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}")
+endforeach()
+
+# Issue 18: an output naming an input (./x, dir/../x, absolute, symbolic link), outputs that
+# coincide, a missing directory, a directory under the output's name: a family per program
+foreach(p crowd_fom crowd_snapshots crowd_offline crowd_rom)
+  add_test(NAME output_paths_${p}
+    COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/output_paths.sh ${p} $<TARGET_FILE:${p}>)
+  set_tests_properties(output_paths_${p} PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}")
+endforeach()

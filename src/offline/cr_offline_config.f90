@@ -127,6 +127,15 @@ contains
     type(offline_cfg_t), intent(in) :: c
     type(error_t), allocatable, intent(out) :: error
     type(problems_t) :: probs
+    ! every real finite and of a sane magnitude, first: the range checks below would trap on NaN
+    call need_sane(probs, c%pod_energy, "&offline: pod_energy", 1.0_wp)
+    call need_sane(probs, c%cone_delta, "&offline: cone_delta", 1.0e6_wp)
+    call need_sane(probs, c%pga_delta, "&offline: pga_delta", 1.0e6_wp)
+    call need_sane(probs, c%hyper_m_factor, "&offline: hyper_m_factor", 1.0e6_wp)
+    call need_sane(probs, c%eq_tol, "&offline: eq_tol", 1.0_wp)
+    if (probs%n > 0) then
+      call probs%to_error(path, error); return
+    end if
     call probs%need(len_trim(c%database) > 0, "&offline: database must be given")
     call probs%need(len_trim(c%rom_file) > 0, "&offline: rom_file must be given")
     call probs%need(any(c%pod_method == [character(len=16) :: 'tsqr', 'rsvd', 'scalapack', 'snapshots']), &
@@ -152,12 +161,6 @@ contains
     call probs%need(all(c%pod_compare_n >= 0), "&offline: pod_compare_n must be >= 0")
     call probs%need(c%hyper_m_factor >= 1, "&offline: hyper_m_factor must be >= 1 (got " // str(c%hyper_m_factor) // ")")
     call probs%need(c%eq_tol >= 0 .and. c%eq_tol < 1, "&offline: eq_tol must be in [0, 1)")
-    ! every real finite and of a sane magnitude
-    call need_sane(probs, c%pod_energy, "&offline: pod_energy", 1.0_wp)
-    call need_sane(probs, c%cone_delta, "&offline: cone_delta", 1.0e6_wp)
-    call need_sane(probs, c%pga_delta, "&offline: pga_delta", 1.0e6_wp)
-    call need_sane(probs, c%hyper_m_factor, "&offline: hyper_m_factor", 1.0e6_wp)
-    call need_sane(probs, c%eq_tol, "&offline: eq_tol", 1.0_wp)
     call probs%to_error(path, error)
   end subroutine check_offline
 

@@ -12,7 +12,7 @@ module cr_rom_config
   use cr_strings, only: str
   use cr_namelist_text, only: namelist_text_t
   use cr_paths, only: io_paths_t
-  use cr_config_check, only: need_sane, MAX_LENGTH
+  use cr_config_check, only: need_sane, MAX_SPEED
   implicit none
   private
   public :: check_rom_paths
@@ -140,6 +140,18 @@ contains
     type(error_t), allocatable, intent(out) :: error
     type(problems_t) :: probs
     integer :: k
+    ! every real finite and of a sane magnitude (a parameter of Inf or 1e308 would never end)
+    call need_sane(probs, c%uzawa_rho_factor, "&rom: uzawa_rho_factor", 1.0e12_wp)
+    call need_sane(probs, c%uzawa_eps, "&rom: uzawa_eps", 1.0_wp)
+    call need_sane(probs, c%fom_tol, "&rom: fom_tol", 1.0_wp)
+    call need_sane(probs, c%fom_uzawa_eps, "&rom: fom_uzawa_eps", 1.0_wp)
+    do k = 1, MAX_MU
+      if (c%mu(k) == -huge(1.0_wp)) cycle
+      call need_sane(probs, c%mu(k), "&rom: mu(" // str(k) // ")", MAX_SPEED)
+    end do
+    if (probs%n > 0) then
+      call probs%to_error(path, error); return
+    end if
     call probs%need(len_trim(c%rom_file) > 0, "&rom: rom_file must be given")
     call probs%need(len_trim(c%output) > 0, "&rom: output must be given")
     call probs%need(any(c%sets == [character(len=8) :: 'valid', 'train', 'both', 'given']), &
@@ -174,15 +186,6 @@ contains
     call probs%need(any(c%fom_exact_solver == [character(len=32) :: 'active_set', 'gpcg']), &
       "&rom: fom_exact_solver must be 'active_set' or 'gpcg'")
     call probs%need(c%timing_repeats >= 1, "&rom: timing_repeats must be >= 1")
-    ! every real finite and of a sane magnitude (a parameter of Inf or 1e308 would never end)
-    call need_sane(probs, c%uzawa_rho_factor, "&rom: uzawa_rho_factor", 1.0e12_wp)
-    call need_sane(probs, c%uzawa_eps, "&rom: uzawa_eps", 1.0_wp)
-    call need_sane(probs, c%fom_tol, "&rom: fom_tol", 1.0_wp)
-    call need_sane(probs, c%fom_uzawa_eps, "&rom: fom_uzawa_eps", 1.0_wp)
-    do k = 1, MAX_MU
-      if (c%mu(k) == -huge(1.0_wp)) cycle
-      call need_sane(probs, c%mu(k), "&rom: mu(" // str(k) // ")", MAX_LENGTH)
-    end do
     call probs%to_error(path, error)
   end subroutine check_rom
 

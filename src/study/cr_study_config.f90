@@ -106,6 +106,19 @@ contains
     integer(i8) :: ngrid8
     character(len=:), allocatable :: nm
     np = min(max(s%n_params, 0), MAX_PARAMS)
+    do k = 1, np
+      if (trim(s%param_name(k)) == 'speed' .or. trim(s%param_name(k)) == 'speeds') then
+        call need_sane(probs, s%param_min(k), "&study: param_min(" // str(k) // ")", MAX_SPEED)
+        call need_sane(probs, s%param_max(k), "&study: param_max(" // str(k) // ")", MAX_SPEED)
+      else
+        call need_sane(probs, s%param_min(k), "&study: param_min(" // str(k) // ")", MAX_LENGTH)
+        call need_sane(probs, s%param_max(k), "&study: param_max(" // str(k) // ")", MAX_LENGTH)
+      end if
+    end do
+    ! non-finite bounds are reported alone (the comparisons below would trap on NaN)
+    if (probs%n > 0) then
+      call probs%to_error("", error); return
+    end if
     call probs%need(s%n_params >= 1 .and. s%n_params <= MAX_PARAMS, "&study: n_params must be in 1.." // &
       str(MAX_PARAMS) // " (got " // str(s%n_params) // ")")
     do k = 1, np
@@ -156,15 +169,6 @@ contains
         "&study: (n_train + n_valid) * n_steps = " // str((int(s%n_train, i8) + s%n_valid) * cfg%time%n_steps) // &
         " snapshots exceeds " // str(huge(1)))
     end if
-    do k = 1, np
-      if (trim(s%param_name(k)) == 'speed' .or. trim(s%param_name(k)) == 'speeds') then
-        call need_sane(probs, s%param_min(k), "&study: param_min(" // str(k) // ")", MAX_SPEED)
-        call need_sane(probs, s%param_max(k), "&study: param_max(" // str(k) // ")", MAX_SPEED)
-      else
-        call need_sane(probs, s%param_min(k), "&study: param_min(" // str(k) // ")", MAX_LENGTH)
-        call need_sane(probs, s%param_max(k), "&study: param_max(" // str(k) // ")", MAX_LENGTH)
-      end if
-    end do
     call probs%need(s%seed >= 0, "&study: seed must be >= 0 (got " // str(s%seed) // ")")
     call probs%need(len_trim(s%database) > 0, "&study: database must name a file")
     select case (trim(s%sampling))
@@ -176,7 +180,7 @@ contains
       if (all(s%grid_n(1:np) >= 1) .and. np >= 1) then
         ngrid8 = product(int(s%grid_n(1:np), i8))
         ngrid = int(min(ngrid8, int(huge(1), i8)))
-        call probs%need(ngrid8 == s%n_train, "&study: grid_n gives " // str(ngrid) // " training samples but n_train = " &
+        call probs%need(ngrid8 == s%n_train, "&study: grid_n gives " // str(ngrid8) // " training samples but n_train = " &
           // str(s%n_train))
       end if
     case default
