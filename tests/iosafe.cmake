@@ -54,3 +54,11 @@ foreach(p crowd_fom crowd_snapshots crowd_offline crowd_rom)
     COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/output_paths.sh ${p} $<TARGET_FILE:${p}>)
   set_tests_properties(output_paths_${p} PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}")
 endforeach()
+
+# Full disk (a 64 KiB and larger tmpfs; root only, skipped otherwise): one error line saying
+# why, old output kept, no temporary, clean MPI shutdown (no SIGSEGV), every program
+add_test(NAME full_disk
+  COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/full_disk.sh $<TARGET_FILE_DIR:crowd_fom> ${MPIEXEC_EXECUTABLE}
+    ${CMAKE_CURRENT_SOURCE_DIR}/inputs/snap_tiny.nml)
+set_tests_properties(full_disk PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}" SKIP_RETURN_CODE 77
+  PROCESSORS 2)

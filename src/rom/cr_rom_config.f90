@@ -130,7 +130,7 @@ contains
     call paths%output("&rom output", c%output)
     call paths%output("&rom table", c%table)
     call paths%output("--summary", summary)
-    call paths%check(input // ": &rom", error)
+    call paths%check(input, error)
   end subroutine check_rom_paths
 
   !> Validate &rom; all problems reported at once.
