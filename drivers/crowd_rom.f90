@@ -28,7 +28,7 @@ program crowd_rom
   use cr_rom_metrics, only: position_errors, projection_error, max_overlap, agents_not_left
   use cr_fom, only: fom_t, step_record_t
   use cr_h5file, only: h5file_t
-  use cr_fsys, only: rename_file, remove_file
+  use cr_fsys, only: rename_file, remove_file, write_whole_file
   use cr_json, only: json_writer_t
   implicit none
 
@@ -94,7 +94,7 @@ contains
     logical, allocatable :: loaded(:)
     type(row_t), allocatable :: rows(:)
     integer, allocatable :: pair_of(:)
-    integer :: ks, ib, kp, nrow
+    integer :: ks, ib, kp, nrow, k
 
     where = cli%input // ": &rom"
     call log%stage_begin("crowd_rom: read ROM file and study")
@@ -180,10 +180,19 @@ contains
       call log%stage_end()
     end do
     call write_table(rows(1:nrow), error); if (allocated(error)) goto 9
+    ! the run file and the table are one result: the table is written completely first, then
+    ! both are renamed; if either fails, neither replaces an earlier result
+    call write_csv(rows(1:nrow), error); if (allocated(error)) goto 9
     call h5%commit(error)
-    if (allocated(error)) goto 9
-    call write_csv(rows(1:nrow), error)
-    if (allocated(error)) return
+    if (allocated(error)) then
+      k = remove_file(trim(rcfg%table) // ".partial"); return
+    end if
+    if (rename_file(trim(rcfg%table) // ".partial", trim(rcfg%table)) /= 0) then
+      call set_error(error, where // ": table: cannot rename '" // trim(rcfg%table) // ".partial' to '" // &
+        trim(rcfg%table) // "'; the run file is kept as '" // trim(rcfg%output) // ".partial'")
+      k = rename_file(trim(rcfg%output), trim(rcfg%output) // ".partial")
+      return
+    end if
     call print_table(rows(1:nrow))
     if (len(cli%summary) > 0) call write_summary(rows(1:nrow), error)
     return
@@ -472,24 +481,18 @@ contains
     subroutine write_csv(rows, error)
       type(row_t), intent(in) :: rows(:)
       type(error_t), allocatable, intent(out) :: error
-      integer :: u, ios, k
-      character(len=:), allocatable :: tmp
-      tmp = trim(rcfg%table) // ".partial"
-      open(newunit=u, file=tmp, status='replace', action='write', iostat=ios)
-      if (ios /= 0) then
-        call set_error(error, where // ": table: cannot write '" // tmp // "'", 2); return
-      end if
-      write(u, '(a)') "setting,set,n,r,n_basis,hyper,contacts,solver,m_v,m_b,m_d,E_avg,E_max,E_proj_avg," // &
-        "max_overlap,agents_not_left,agents_not_left_fom,infeasible_steps,capped_steps,t_step_rom," // &
-        "t_step_fom_uzawa,t_step_fom_exact,speedup_uzawa,speedup_exact,extrapolating,mobility"
+      integer :: k
+      character(len=:), allocatable :: text, msg
+      ! written (and checked on disk) under a temporary name; run() renames it together with
+      ! the run file
+      text = "setting,set,n,r,n_basis,hyper,contacts,solver,m_v,m_b,m_d,E_avg," // &
+        "E_max,E_proj_avg,max_overlap,agents_not_left,agents_not_left_fom,infeasible_steps,capped_steps,t_step_rom," // &
+        "t_step_fom_uzawa,t_step_fom_exact,speedup_uzawa,speedup_exact,extrapolating,mobility" // new_line('a')
       do k = 1, size(rows)
-        write(u, '(a)') csv_line(rows(k))
+        text = text // csv_line(rows(k)) // new_line('a')
       end do
-      close(u)
-      if (rename_file(tmp, trim(rcfg%table)) /= 0) then
-        call set_error(error, where // ": table: cannot rename '" // tmp // "'")
-        ios = remove_file(tmp)
-      end if
+      call write_whole_file(trim(rcfg%table) // ".partial", text, msg)
+      if (len(msg) > 0) call set_error(error, where // ": table: " // msg)
     end subroutine write_csv
 
     subroutine print_table(rows)

@@ -47,6 +47,10 @@ sed "s#rom_file = 'rom.h5'#rom_file = '$disk/rom2.h5'#" offline.nml > offline2.n
 check crowd_offline "$disk/rom2.h5" "$bin/crowd_offline" offline2.nml
 echo "&rom rom_file = 'rom.h5', output = '$disk/run.h5', table = 'run.csv', n = 3, r = 3, fom_timing_samples = 1, timing_repeats = 1 /" > rom.nml
 check crowd_rom "$disk/run.h5" "$bin/crowd_rom" rom.nml
+# the table on the full disk, the run file elsewhere: the run file must not be replaced
+echo "&rom rom_file = 'rom.h5', output = 'run.h5', table = '$disk/run.csv', n = 3, r = 3, fom_timing_samples = 1, timing_repeats = 1 /" > rom_table.nml
+dd if=/dev/zero of="$disk/fill" bs=4k 2>/dev/null   # the table is small: fill the disk first
+check crowd_rom_table "run.h5" "$bin/crowd_rom" rom_table.nml
 # a disk that fills in the middle of the writing: a longer run (crowd_fom), and a database
 # assembled in parallel (MPI-IO) after its pieces fit
 umount "$disk" && mount -t tmpfs -o size=512k tmpfs "$disk" || exit 1

@@ -6,7 +6,7 @@ module cr_fsys
   private
   public :: rename_file, remove_file, file_exists, make_dir, remove_dir, file_size, truncate_file, &
     clear_errno, errno_text, io_fault_text, discard_fd, reserve_space, errno_name, truncate_to, &
-    real_path, is_directory, dir_writable, dir_of
+    real_path, is_directory, dir_writable, dir_of, write_whole_file
 
   interface
     integer(c_int) function c_rename(old, new) bind(c, name="rename")
@@ -98,6 +98,50 @@ contains
     if (c_fallocate(fd, 1_c_int, 0_c_long, int(max(nbytes, 1_8), c_long)) /= 0) status = int(err)
     e = c_close(fd)
   end function reserve_space
+
+  !> Write `text` as the whole content of `path` (replaced), and make sure it is on disk: the
+  !> space is reserved first (a full disk is an error here, not a silently empty file: the
+  !> Fortran runtime does not report a failed flush at close), and the size is checked after
+  !> closing. `message` is "" on success, else why it failed.
+  subroutine write_whole_file(path, text, message)
+    character(len=*), intent(in) :: path, text
+    character(len=:), allocatable, intent(out) :: message
+    integer :: u, ios, status
+    character(len=256) :: msg
+    message = ""
+    open(newunit=u, file=path, status="replace", action="write", access="stream", form="unformatted", &
+      iostat=ios, iomsg=msg)
+    if (ios /= 0) then
+      message = "cannot create '" // path // "' (" // trim(msg) // ")"; return
+    end if
+    status = reserve_space(path, int(len(text), 8))
+    if (status == 28 .or. status == 122 .or. status == 27) then
+      close(u, status="delete")
+      message = "cannot write '" // path // "': " // errno_name(status); return
+    end if
+    write(u, iostat=ios, iomsg=msg) text
+    if (ios == 0) then
+      close(u, iostat=ios, iomsg=msg)
+    else
+      close(u, status="delete")
+    end if
+    if (ios /= 0) then
+      message = "cannot write '" // path // "' (" // trim(msg) // ")"; status = remove_file(path); return
+    end if
+    if (file_size(path) /= len(text)) then
+      message = "cannot write '" // path // "': only " // itoa8(file_size(path)) // " of " // &
+        itoa8(int(len(text), 8)) // " bytes reached the disk"
+      status = remove_file(path)
+    end if
+  contains
+    function itoa8(i) result(s)
+      integer(8), intent(in) :: i
+      character(len=:), allocatable :: s
+      character(len=24) :: b
+      write(b, '(i0)') i
+      s = trim(b)
+    end function itoa8
+  end subroutine write_whole_file
 
   !> Truncate (or extend with a hole) a file to `n` bytes; 0 on success.
   integer function truncate_to(path, n) result(status)
