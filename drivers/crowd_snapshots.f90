@@ -26,7 +26,7 @@ program crowd_snapshots
   use cr_fom, only: fom_t
   use cr_fsys, only: make_dir, remove_dir, remove_file, file_exists, file_size
   use cr_json, only: json_writer_t
-  use cr_study_config, only: study_cfg_t, read_study, check_study, study_echo, study_hash
+  use cr_study_config, only: study_cfg_t, read_study, check_study, study_echo, study_hash, check_study_paths
   use cr_sampling, only: param_space_t, sample_set_t, generate_samples
   use cr_scheduler, only: scheduler_t, collective_latency
   use cr_snapshot_piece, only: sample_result_t, compute_sample
@@ -65,10 +65,12 @@ program crowd_snapshots
     code = program_finish(env, log, error)
     stop
   end if
-  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, nml)
+  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, nml, &
+    program='crowd_snapshots', needed=[character(len=8) :: 'scene', 'agents', 'study'])
   if (.not. allocated(error)) call check_config(cfg, error)
   if (.not. allocated(error)) call read_study(nml, study, error)
   if (.not. allocated(error)) call check_study(study, cfg, error)
+  if (.not. allocated(error)) call check_study_paths(cli%input, cli%summary, cfg, study, error)
   if (.not. allocated(error)) then
     log%level = log_level_of(cfg%output%log_level)
     call run(error)

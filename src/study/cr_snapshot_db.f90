@@ -687,22 +687,14 @@ contains
     call move_alloc(a%ob, b%ob); call move_alloc(a%value, b%value)
   end subroutine move_sample
 
-  !> Make a per-rank error message collective (the lowest failing rank's message wins).
+  !> Make a per-rank error message (empty: no error) collective: env%agree_error, the lowest
+  !> failing rank's message wins and every rank returns it.
   subroutine collective_error(env, msg, error)
     type(env_t), intent(in) :: env
     character(len=:), allocatable, intent(inout) :: msg
     type(error_t), allocatable, intent(out) :: error
-    integer :: who, ierr, n
-    who = huge(1)
-    if (len(msg) > 0) who = env%rank
-    call MPI_Allreduce(MPI_IN_PLACE, who, 1, MPI_INTEGER, MPI_MIN, env%comm, ierr)
-    if (who == huge(1)) return
-    n = len(msg)
-    call MPI_Bcast(n, 1, MPI_INTEGER, who, env%comm, ierr)
-    if (env%rank /= who) then
-      deallocate(msg); allocate(character(len=n) :: msg)
-    end if
-    call MPI_Bcast(msg, n, MPI_CHARACTER, who, env%comm, ierr)
-    call set_error(error, msg)
+    if (len(msg) > 0) call set_error(error, msg)
+    call env%agree_error(error)
+    if (allocated(error)) msg = error%message
   end subroutine collective_error
 end module cr_snapshot_db
