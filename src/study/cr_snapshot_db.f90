@@ -612,7 +612,7 @@ contains
     integer, allocatable, intent(out) :: dia(:), dib(:), dob(:)
     integer(i8), allocatable :: keys(:), allk(:)
     integer, allocatable :: ids(:,:), allid(:,:), idx(:), counts(:), displs(:), c3(:), d3(:)
-    integer :: n, is, k, j, m, ierr, r
+    integer :: n, is, k, m, ierr, r
     ! local unique
     n = 0
     do is = 1, size(sets)
@@ -621,14 +621,16 @@ contains
       end do
     end do
     allocate(keys(n), ids(3, n))
+    ! each sample's keys made unique first (a contact lasts many steps): the sorts stay small
     n = 0
     do is = 1, size(sets)
       do k = 1, sets(is)%nloc
         associate (s => sets(is)%s(k))
-          do j = 1, size(s%key)
-            n = n + 1
-            keys(n) = s%key(j); ids(:, n) = [s%ia(j), s%ib(j), s%ob(j)]
-          end do
+          m = size(s%key)
+          keys(n + 1:n + m) = s%key
+          ids(1, n + 1:n + m) = s%ia; ids(2, n + 1:n + m) = s%ib; ids(3, n + 1:n + m) = s%ob
+          call unique(keys(n + 1:n + m), ids(:, n + 1:n + m), m)
+          n = n + m
         end associate
       end do
     end do
