@@ -400,7 +400,7 @@ def check_outputs(outputs, inputs=()):
     """Refuse, before any work, outputs that would destroy an input or each other.
 
     ``outputs`` and ``inputs`` are ``(what, path)`` pairs (paths may be None). Paths are compared
-    resolved (``./x``, ``dir/../x`` and symbolic links are ``x``). Also refused: an output that is
+    resolved (``./x``, ``dir/../x``, symbolic links; hard links by inode). Also refused: an output that is
     a directory, or whose directory does not exist or is not writable. Raises ``InputError``.
     """
     seen = []
@@ -418,7 +418,8 @@ def check_outputs(outputs, inputs=()):
             raise InputError(f"{what} '{path}': cannot write in the directory '{d}'")
         real = os.path.realpath(path)
         for w, p, r in ins:
-            if r == real:
+            # the same file also through a hard link (same device and inode)
+            if r == real or (os.path.exists(path) and os.path.samefile(path, p)):
                 raise InputError(f"{what} '{path}' is the input {w} '{p}' (both are {r}): "
                                  "refusing to overwrite an input")
         for w, p, r in seen:

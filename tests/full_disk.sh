@@ -59,5 +59,16 @@ check crowd_fom_midway "$disk/fom.h5" "$bin/crowd_fom" fom_long.nml
 umount "$disk" && mount -t tmpfs -o size=1400k tmpfs "$disk" || exit 1
 sed 's/n_steps = 10/n_steps = 200/' study2.nml > study3.nml
 check crowd_snapshots_np2_assembly "$work/marker" "$mpiexec" -np 2 --oversubscribe "$bin/crowd_snapshots" study3.nml
+# a read-only file system: refused before any work (exit 2), saying why
+umount "$disk" && mount -t tmpfs -o ro,size=64k tmpfs "$disk" || exit 1
+for p in crowd_fom crowd_offline; do
+  nml=fom.nml; [ $p = crowd_offline ] && nml=offline2.nml
+  log=$("$bin/$p" $nml 2>&1); rc=$?
+  if [ $rc -eq 2 ] && grep -q "^error: .*Read-only file system" <<<"$log" && [ "$(grep -c '^error:' <<<"$log")" -eq 1 ]; then
+    echo "ok: ${p}_read_only: $(grep '^error:' <<<"$log")"; pass=$((pass + 1))
+  else
+    echo "FAIL: ${p}_read_only: exit $rc"; echo "$log" | tail -5; fail=$((fail + 1))
+  fi
+done
 echo "$pass passed, $fail failed"
 [ $fail -eq 0 ]

@@ -55,7 +55,8 @@ foreach(p crowd_fom crowd_snapshots crowd_offline crowd_rom)
   set_tests_properties(output_paths_${p} PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}")
 endforeach()
 
-# Full disk (a 64 KiB and larger tmpfs; root only, skipped otherwise): one error line saying
+# Full disk (a 64 KiB and larger tmpfs) and a read-only file system (root only, skipped
+# otherwise): one error line saying
 # why, old output kept, no temporary, clean MPI shutdown (no SIGSEGV), every program
 add_test(NAME full_disk
   COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/full_disk.sh $<TARGET_FILE_DIR:crowd_fom> ${MPIEXEC_EXECUTABLE}

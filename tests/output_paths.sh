@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Issue 18 / 11 item 7: an output that names an input (directly, as ./x, dir/../x, or through
-# a symbolic link), two outputs that are the same file, an output in a missing directory or
+# a symbolic or hard link), two outputs that are the same file, an output in a missing directory or
 # with a directory under its name: refused before any work with one line, exit 2, nothing
 # written and every input untouched. A generated family per program.
 #   output_paths.sh crowd_fom|crowd_snapshots|crowd_offline|crowd_rom EXECUTABLE
@@ -35,6 +35,7 @@ setup own_input;        write_input in.nml in.nml;            refused own_input 
 setup dot_slash;        write_input in.nml ./in.nml;          refused dot_slash "$same" "$exe" in.nml
 setup dot_dot;          write_input in.nml sub/../in.nml;     refused dot_dot "$same" "$exe" in.nml
 setup symlink;          ln -s in.nml link.nml; write_input in.nml link.nml; refused symlink "$same" "$exe" in.nml
+setup hard_link;        write_input in.nml hard.nml; ln in.nml hard.nml; refused hard_link "'hard.nml' $same" "$exe" in.nml
 setup abs_path;         write_input in.nml "$PWD/in.nml";     refused abs_path "$same" "$exe" in.nml
 setup summary_input;    write_input in.nml out.h5;            refused summary_input "--summary 'in.nml' $same" "$exe" in.nml --summary in.nml
 setup summary_output;   write_input in.nml out.h5;            refused summary_output "--summary 'out.h5' and .* are the same file" "$exe" in.nml --summary out.h5

@@ -112,6 +112,7 @@ def test_make_figures_missing_output_dir_left_absent_on_error(study, tmp_path):
     (["-o", "./fom.h5"], "is the input file"),
     (["-o", "sub/../fom.h5"], "is the input file"),
     (["-o", "link.h5"], "is the input file"),
+    (["-o", "hard.h5"], "is the input file"),
     (["-o", "nodir/x.png"], "does not exist"),
     (["-o", "sub"], "is a directory"),
     (["-o", "x.png", "--animate", "./x.png"], "are the same file"),
@@ -123,6 +124,7 @@ def test_plot_scene_refusals(fom, tmp_path, extra, expect):
     (d / "sub").mkdir()
     (d / "fom.h5").write_bytes(fom.read_bytes())
     os.symlink("fom.h5", d / "link.h5")
+    os.link(d / "fom.h5", d / "hard.h5")
     before = listing(d)
     res = run("plot_scene.py", "fom.h5", *extra, cwd=d)
     assert_refused(res, expect)

@@ -6,7 +6,7 @@ module cr_fsys
   private
   public :: rename_file, remove_file, file_exists, make_dir, remove_dir, file_size, truncate_file, &
     clear_errno, errno_text, io_fault_text, discard_fd, reserve_space, errno_name, truncate_to, &
-    real_path, is_directory, dir_writable, dir_of, write_whole_file
+    real_path, is_directory, dir_writable, dir_of, write_whole_file, same_file
 
   interface
     integer(c_int) function c_rename(old, new) bind(c, name="rename")
@@ -62,6 +62,11 @@ module cr_fsys
       integer(c_int), value :: fd, mode
       integer(c_long), value :: offset, length
     end function c_fallocate
+    integer(c_int) function c_stat(path, buf) bind(c, name="stat")
+      import :: c_int, c_char, c_long
+      character(kind=c_char), intent(in) :: path(*)
+      integer(c_long), intent(out) :: buf(*)
+    end function c_stat
     integer(c_int) function c_memfd_create(name, flags) bind(c, name="memfd_create")
       import :: c_int, c_char
       character(kind=c_char), intent(in) :: name(*)
@@ -142,6 +147,19 @@ contains
       s = trim(b)
     end function itoa8
   end subroutine write_whole_file
+
+  !> True if both paths exist and are the same file (same device and inode: also through a
+  !> hard link). Linux (x86_64, aarch64): st_dev and st_ino are the first two 8-byte fields
+  !> of struct stat.
+  logical function same_file(a, b)
+    character(len=*), intent(in) :: a, b
+    integer(c_long) :: sa(32), sb(32)
+    same_file = .false.
+    sa = 0; sb = 0
+    if (c_stat(a // c_null_char, sa) /= 0) return
+    if (c_stat(b // c_null_char, sb) /= 0) return
+    same_file = sa(1) == sb(1) .and. sa(2) == sb(2)
+  end function same_file
 
   !> Truncate (or extend with a hole) a file to `n` bytes; 0 on success.
   integer function truncate_to(path, n) result(status)

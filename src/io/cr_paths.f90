@@ -1,10 +1,12 @@
 !> The files a program reads and writes, checked before any work: every output must be
 !> creatable (its directory exists and is writable, it is not a directory) and must not be
 !> one of the inputs or another output. Paths are compared resolved (absolute, symbolic
-!> links, `.` and `..` removed), so `./x.h5`, `dir/../x.h5` and a link to x.h5 are x.h5.
+!> links, `.` and `..` removed), so `./x.h5`, `dir/../x.h5` and a link to x.h5 are x.h5; a hard
+!> link is caught by its inode.
 module cr_paths
   use cr_error, only: error_t, problems_t
-  use cr_fsys, only: real_path, is_directory, dir_writable, dir_of, file_exists, clear_errno, errno_text
+  use cr_fsys, only: real_path, is_directory, dir_writable, dir_of, file_exists, clear_errno, errno_text, &
+    same_file
   implicit none
   private
   public :: io_paths_t, resolved_output
@@ -117,7 +119,8 @@ contains
             if (.not. (file_exists(this%inputs(j)%path))) cycle
             ri = real_path(this%inputs(j)%path)
             if (len(ri) == 0) cycle
-            call probs%need(ri /= r .and. ri /= r // ".partial", o%what // " '" // o%path // &
+            call probs%need(ri /= r .and. ri /= r // ".partial" .and. .not. same_file(o%path, this%inputs(j)%path), &
+              o%what // " '" // o%path // &
               "' is the input " // this%inputs(j)%what // " '" // this%inputs(j)%path // &
               "' (both are " // ri // "): refusing to overwrite an input")
           end do
