@@ -33,8 +33,9 @@
 !> refinement. For any such point, |u - u*|_2^2 <= tau . (lambda + lambda*) with u* the exact
 !> projection and lambda* its multipliers (see the tests). When the iteration meets a violated
 !> row that depends on the active ones with no multiplier to release (a Farkas-type
-!> certificate that {Bm u <= d} is empty), or hits its cap, or the certificate fails, the
-!> result is not certified and the caller falls back to the Lawson-Hanson LDP (cr_nnls),
+!> certificate that {Bm u <= d} is empty), or hits its cap or the caller's bound on the active
+!> set (max_active: a Gram of nearly as many rows as unknowns cannot be certified), or the
+!> certificate fails, the result is not certified and the caller falls back to the Lawson-Hanson LDP (cr_nnls),
 !> which also computes the least-violation point of infeasible problems.
 !> Finiteness: the slacks of the first sweep are summed (m additions); a NaN or Inf in Bm or d
 !> shows there (stats%nonfinite, not certified) and the caller's fallback names the entry.
