@@ -13,7 +13,7 @@ program crowd_fom
   use cr_logger, only: logger_t
   use cr_cli, only: cli_t
   use cr_program, only: program_start, program_finish, log_level_of
-  use cr_config, only: config_t, read_config, config_echo
+  use cr_config, only: config_t, read_config, config_echo, check_fom_paths
   use cr_namelist_text, only: namelist_text_t
   use cr_inputs, only: check_input_groups
   use cr_config_check, only: check_config
@@ -35,9 +35,11 @@ program crowd_fom
     code = program_finish(env, log, error)
     stop
   end if
-  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, nml)
+  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, nml, &
+    program='crowd_fom', needed=[character(len=8) :: 'scene', 'agents'])
   if (.not. allocated(error)) call check_input_groups(nml, error)
   if (.not. allocated(error)) call check_config(cfg, error)
+  if (.not. allocated(error)) call check_fom_paths(cli%input, cli%summary, cfg, error)
   if (.not. allocated(error)) then
     log%level = log_level_of(cfg%output%log_level)
     if (env%is_root()) call run(cfg, cli, log, error)

@@ -17,7 +17,8 @@ program crowd_offline
   use cr_inputs, only: check_input_groups
   use cr_config_check, only: check_config
   use cr_namelist_text, only: namelist_text_t
-  use cr_offline_config, only: offline_cfg_t, read_offline, check_offline, offline_echo
+  use cr_study_match, only: check_database_matches
+  use cr_offline_config, only: offline_cfg_t, read_offline, check_offline, offline_echo, check_offline_paths
   use cr_offline_data, only: offline_data_t, load_training
   use cr_pod, only: pod_result_t, pod_compute, rsvd_opts_t, pod_rsvd, pod_snapshots
   use cr_cone, only: cone_result_t, gis_build, mcpg_build
@@ -43,11 +44,15 @@ program crowd_offline
     code = program_finish(env, log, error)
     stop
   end if
-  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, nml)
+  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, nml, &
+    program='crowd_offline', needed=[character(len=8) :: 'scene', 'agents', 'offline'])
   if (.not. allocated(error)) call check_input_groups(nml, error)
   if (.not. allocated(error)) call check_config(cfg, error)
   if (.not. allocated(error)) call read_offline(nml, ocfg, error)
   if (.not. allocated(error)) call check_offline(cli%input, ocfg, error)
+  if (.not. allocated(error)) call check_offline_paths(cli%input, cli%summary, ocfg, error)
+  if (.not. allocated(error)) call check_database_matches(env, cli%input // ": &offline", trim(ocfg%database), &
+    cfg, nml, error)
   if (.not. allocated(error)) then
     log%level = log_level_of(cfg%output%log_level)
     call run(error)
@@ -354,8 +359,7 @@ contains
   !> True on every rank if any rank has an error (the message is kept where it arose;
   !> ranks without one get a generic message so that all stop together).
   logical function collective_fail()
-    collective_fail = env%any_true(allocated(error))
-    if (collective_fail .and. .not. allocated(error)) &
-      call set_error(error, "another rank failed (see its message)")
+    call env%agree_error(error)
+    collective_fail = allocated(error)
   end function collective_fail
 end program crowd_offline

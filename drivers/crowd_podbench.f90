@@ -17,19 +17,35 @@ program crowd_podbench
   implicit none
   type(env_t) :: env
   type(error_t), allocatable :: error
-  integer :: ierr, ncase, c, nargs
+  integer :: ierr, ncase, c, nargs, ios, length
   integer, allocatable :: sizes(:)
-  character(len=32) :: arg
+  character(len=:), allocatable :: arg
 
   call MPI_Init(ierr)
   call env%init(MPI_COMM_WORLD, error)
   nargs = command_argument_count()
+  if (nargs == 1 .or. mod(nargs, 2) /= 0) call refuse("crowd_podbench: the arguments are pairs " // &
+    "'n_dof n_snap' (got " // trim(count_text(nargs)) // " arguments)")
   if (nargs >= 2) then
     ncase = nargs / 2
     allocate(sizes(2 * ncase))
     do c = 1, 2 * ncase
+      call get_command_argument(c, length=length)
+      if (allocated(arg)) deallocate(arg)
+      allocate(character(len=length) :: arg)
       call get_command_argument(c, arg)
-      read(arg, *) sizes(c)
+      read(arg, *, iostat=ios) sizes(c)
+      if (ios /= 0) then
+        call refuse("crowd_podbench: argument " // trim(count_text(c)) // " '" // arg // &
+          "' is not a whole number (usage: crowd_podbench [n_dof n_snap] ...)")
+      else if (sizes(c) < 1 .or. sizes(c) > 10000000) then
+        call refuse("crowd_podbench: argument " // trim(count_text(c)) // " = " // arg // &
+          " must be in 1..10000000")
+      end if
+    end do
+    do c = 1, ncase
+      if (int(sizes(2 * c - 1), 8) * sizes(2 * c) > 2000000000_8) call refuse("crowd_podbench: case " // &
+        trim(count_text(c)) // ": n_dof * n_snap exceeds 2e9 entries (the snapshot matrix would not fit)")
     end do
   else
     ncase = 2
@@ -48,6 +64,22 @@ program crowd_podbench
   call MPI_Finalize(ierr)
 
 contains
+
+  !> Bad command line: one error line (rank 0), MPI finalised, exit 2.
+  subroutine refuse(msg)
+    character(len=*), intent(in) :: msg
+    if (env%is_root()) write(*, '(a)') "error: " // msg
+    call env%free()
+    call MPI_Finalize(ierr)
+    stop 2, quiet=.true.
+  end subroutine refuse
+
+  !> Decimal text of an integer.
+  function count_text(i) result(s)
+    integer, intent(in) :: i
+    character(len=12) :: s
+    write(s, '(i0)') i
+  end function count_text
 
   subroutine run_case(n_dof, n_snap)
     integer, intent(in) :: n_dof, n_snap

@@ -18,10 +18,10 @@ program crowd_rom
   use cr_logger, only: logger_t
   use cr_cli, only: cli_t
   use cr_program, only: program_start, program_finish
-  use cr_config, only: config_t
+  use cr_config, only: config_t, FOM_GROUPS
   use cr_inputs, only: check_input_groups
   use cr_namelist_text, only: namelist_text_t
-  use cr_rom_config, only: rom_cfg_t, read_rom, check_rom, rom_echo, MAX_SETTINGS
+  use cr_rom_config, only: rom_cfg_t, read_rom, check_rom, rom_echo, MAX_SETTINGS, check_rom_paths
   use cr_rom_file, only: rom_file_t, rom_pair_t, read_rom_file, read_rom_pair, find_pair
   use cr_rom_study, only: rom_study_t, sample_block_t, open_study, read_block_set
   use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t, make_reduced_ops, eim_exact_rows
@@ -31,7 +31,7 @@ program crowd_rom
   use cr_rom_guard, only: rom_guard_t
   use cr_fom, only: fom_t, step_record_t
   use cr_romrun_file, only: romrun_header_t, romrun_row_t, romrun_set_t, romrun_writer_t, speedup
-  use cr_fsys, only: rename_file, remove_file
+  use cr_fsys, only: rename_file, remove_file, write_whole_file
   use cr_json, only: json_writer_t
   implicit none
 
@@ -62,9 +62,11 @@ program crowd_rom
   if (.not. allocated(error) .and. env%size > 1) call set_error(error, "crowd_rom is serial: run it " // &
     "without mpirun (or with -np 1); the parallel stages are crowd_snapshots and crowd_offline", 2)
   if (.not. allocated(error)) call nml%load(cli%input, env, error)
+  if (.not. allocated(error)) call nml%require_groups('crowd_rom', ['rom'], FOM_GROUPS, error)
   if (.not. allocated(error)) call read_rom(nml, rcfg, error)
   if (.not. allocated(error)) call check_input_groups(nml, error)
   if (.not. allocated(error)) call check_rom(cli%input, rcfg, error)
+  if (.not. allocated(error)) call check_rom_paths(cli%input, cli%summary, rcfg, trim(rcfg%database), error)
   if (.not. allocated(error)) call run(error)
   code = program_finish(env, log, error)
   if (code /= 0) stop code, quiet=.true.
@@ -89,7 +91,7 @@ contains
     logical, allocatable :: loaded(:)
     type(romrun_row_t), allocatable :: rows(:)
     integer, allocatable :: pair_of(:)
-    integer :: ks, ib, kp, nrow
+    integer :: ks, ib, kp, nrow, k
 
     where = cli%input // ": &rom"
     call log%stage_begin("crowd_rom: read ROM file and study")
@@ -97,6 +99,8 @@ contains
     if (allocated(error)) return
     dbpath = trim(rcfg%database)
     if (len(dbpath) == 0) dbpath = hdr%database
+    call check_rom_paths(cli%input, cli%summary, rcfg, dbpath, error)
+    if (allocated(error)) return
     call open_study(dbpath, where // ": database", hdr, st, error)
     if (allocated(error)) return
     call log%info("   " // str(st%n_agents) // " agents, " // str(st%n_steps) // " steps, parameters " // &
@@ -172,10 +176,20 @@ contains
       end do
       call log%stage_end()
     end do
-    call out%close(rhdr, rows(1:nrow), error)
-    if (allocated(error)) goto 9
-    call write_csv(rows(1:nrow), error)
-    if (allocated(error)) return
+    call out%write_table(rhdr, rows(1:nrow), error); if (allocated(error)) goto 9
+    ! the run file and the table are one result: the table is written completely first, then
+    ! both are renamed; if either fails, neither replaces an earlier result
+    call write_csv(rows(1:nrow), error); if (allocated(error)) goto 9
+    call out%commit(error)
+    if (allocated(error)) then
+      k = remove_file(trim(rcfg%table) // ".partial"); return
+    end if
+    if (rename_file(trim(rcfg%table) // ".partial", trim(rcfg%table)) /= 0) then
+      call set_error(error, where // ": table: cannot rename '" // trim(rcfg%table) // ".partial' to '" // &
+        trim(rcfg%table) // "'; the run file is kept as '" // trim(rcfg%output) // ".partial'")
+      k = rename_file(trim(rcfg%output), trim(rcfg%output) // ".partial")
+      return
+    end if
     call print_table(rows(1:nrow))
     if (len(cli%summary) > 0) call write_summary(rows(1:nrow), error)
     return
@@ -449,6 +463,8 @@ contains
         call set_error(error, where // ": mu has " // str(nmu) // " values but the study has " // &
           str(st%space%n_expanded) // " parameter components (" // shorten(st%param_names, 60) // ")", 2); return
       end if
+      call st%space%check_values(rcfg%mu(1:nmu), st%cfg, where // ": mu", error)
+      if (allocated(error)) return
       blk%name = 'given'
       blk%n = 1
       blk%mu = reshape(rcfg%mu(1:nmu), [nmu, 1])
@@ -479,26 +495,20 @@ contains
     subroutine write_csv(rows, error)
       type(romrun_row_t), intent(in) :: rows(:)
       type(error_t), allocatable, intent(out) :: error
-      integer :: u, ios, k
-      character(len=:), allocatable :: tmp
-      tmp = trim(rcfg%table) // ".partial"
-      open(newunit=u, file=tmp, status='replace', action='write', iostat=ios)
-      if (ios /= 0) then
-        call set_error(error, where // ": table: cannot write '" // tmp // "'", 2); return
-      end if
-      write(u, '(a)') "setting,set,n,r,n_basis,hyper,contacts,solver,m_v,m_b,m_d,E_avg,E_max,E_proj_avg," // &
+      integer :: k
+      character(len=:), allocatable :: text, msg
+      ! written (and checked on disk) under a temporary name; run() renames it together with
+      ! the run file
+      text = "setting,set,n,r,n_basis,hyper,contacts,solver,m_v,m_b,m_d,E_avg,E_max,E_proj_avg," // &
         "max_overlap,agents_not_left,agents_not_left_fom,infeasible_steps,capped_steps,t_step_rom," // &
         "t_step_fom_uzawa,t_step_fom_exact,speedup_uzawa,speedup_exact,extrapolating,mobility,samples_diverged," // &
         "E_disp,max_overlap_agents,max_overlap_walls,t50_err,t50_n,t50_rom_missed,t50_fom_missed," // &
-        "t90_err,t90_n,t90_rom_missed,t90_fom_missed"
+        "t90_err,t90_n,t90_rom_missed,t90_fom_missed" // new_line('a')
       do k = 1, size(rows)
-        write(u, '(a)') csv_line(rows(k))
+        text = text // csv_line(rows(k)) // new_line('a')
       end do
-      close(u)
-      if (rename_file(tmp, trim(rcfg%table)) /= 0) then
-        call set_error(error, where // ": table: cannot rename '" // tmp // "'")
-        ios = remove_file(tmp)
-      end if
+      call write_whole_file(trim(rcfg%table) // ".partial", text, msg)
+      if (len(msg) > 0) call set_error(error, where // ": table: " // msg)
     end subroutine write_csv
 
     subroutine print_table(rows)

@@ -25,12 +25,12 @@ program crowd_snapshots
   use cr_config_check, only: check_config
   use cr_namelist_text, only: namelist_text_t
   use cr_fom, only: fom_t
-  use cr_fsys, only: make_dir, remove_dir, remove_file, file_exists, file_size
+  use cr_fsys, only: remove_dir, remove_file, file_exists, file_size
   use cr_json, only: json_writer_t
-  use cr_study_config, only: study_cfg_t, read_study, check_study, study_echo, study_hash
+  use cr_study_config, only: study_cfg_t, read_study, check_study, study_echo, study_hash, check_study_paths
   use cr_sampling, only: param_space_t, sample_set_t, generate_samples
   use cr_scheduler, only: scheduler_t, collective_latency
-  use cr_snapshot_piece, only: sample_result_t, compute_sample
+  use cr_snapshot_piece, only: sample_result_t, compute_sample, piece_path
   use cr_piece_store, only: piece_index_t, piece_batch_t, scan_pieces
   use cr_snapshot_file, only: SNAP_SCHEMA_VERSION, db_meta_t
   use cr_snapshot_db, only: db_totals_t, probe_database, assemble_database, collective_error
@@ -66,11 +66,13 @@ program crowd_snapshots
     code = program_finish(env, log, error)
     stop
   end if
-  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, nml)
+  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, nml, &
+    program='crowd_snapshots', needed=[character(len=8) :: 'scene', 'agents', 'study'])
   if (.not. allocated(error)) call check_input_groups(nml, error)
   if (.not. allocated(error)) call check_config(cfg, error)
   if (.not. allocated(error)) call read_study(nml, study, error)
   if (.not. allocated(error)) call check_study(study, cfg, error)
+  if (.not. allocated(error)) call check_study_paths(cli%input, cli%summary, cfg, study, error)
   if (.not. allocated(error)) then
     log%level = log_level_of(cfg%output%log_level)
     call run(error)
@@ -108,12 +110,12 @@ contains
     type(param_space_t) :: space
     type(db_meta_t) :: meta
     type(scheduler_t) :: sched
-    type(sample_result_t) :: res(1)
+    type(sample_result_t) :: res
     type(piece_index_t) :: pieces
     type(piece_batch_t) :: batch
     real(wp), allocatable :: q0(:)
     integer, allocatable :: done(:), todo(:)
-    character(len=:), allocatable :: dir, msg, path
+    character(len=:), allocatable :: dir, msg
     integer :: status, g, k, is, t, n_mine, ndone, ierr, maj, mnr, rel, vlen
     real(wp) :: t0, t_start, t_loop, t_sample, busy_mine
     character(len=MPI_MAX_LIBRARY_VERSION_STRING) :: mpiv
@@ -183,14 +185,14 @@ contains
       g = todo(t)
       call set_of(g, is, k)
       t0 = env%wtime()
-      res(1)%set = sets(is)%name
-      res(1)%index = k
-      res(1)%rank = env%rank
-      res(1)%start = t0 - t_start
-      call compute_sample(cfg, space, sets(is)%mu(:, k), q0, fom_ref%speeds, res(1), error)
+      res%set = sets(is)%name
+      res%index = k
+      res%rank = env%rank
+      res%start = t0 - t_start
+      call compute_sample(cfg, space, sets(is)%mu(:, k), q0, fom_ref%speeds, res, error)
       if (.not. allocated(error)) then
-        res(1)%time = env%wtime() - t0
-        call batch%add(res(1), g, sets, env%wtime() - t_start, error)
+        res%time = env%wtime() - t0
+        call batch%add(res, g, sets, env%wtime() - t_start, error)
       end if
       if (allocated(error)) then
         msg = trim(sets(is)%name) // " sample " // str(k) // " (mu = " // shorten(mu_text(sets(is)%mu(:, k)), 60) // &
@@ -265,9 +267,12 @@ contains
     ! the database is committed: the pieces can go
     if (env%is_root()) then
       do g = 1, pieces%n_pieces
-        path = pieces%path_of(g)
-        status = remove_file(path)
-        status = remove_file(path // ".partial")
+        status = remove_file(pieces%path_of(g))
+      end do
+      ! temporaries of pieces a killed run did not finish (named after any sample)
+      do g = 1, n_tot
+        call set_of(g, is, k)
+        status = remove_file(piece_path(dir, sets(is)%name, k) // ".partial")
       end do
       if (file_exists(dir // "/quarantine/.")) then
         call log%info("   bad pieces kept in '" // dir // "/quarantine' (inspect, then remove them)")

@@ -471,3 +471,98 @@ def verify_checksum(f, name):
     if stored != got:
         raise InputError("%s: checksum mismatch in dataset '%s' (stored %s, data %s): the file is corrupted"
                          % (f.filename, name, stored, got))
+
+
+# ------------------------------------------------------------------------------ outputs
+
+def check_outputs(outputs, inputs=()):
+    """Refuse, before any work, outputs that would destroy an input or each other.
+
+    ``outputs`` and ``inputs`` are ``(what, path)`` pairs (paths may be None). Paths are compared
+    resolved (``./x``, ``dir/../x``, symbolic links; hard links by inode). Also refused: an output that is
+    a directory, or whose directory does not exist or is not writable. Raises ``InputError``.
+    """
+    seen = []
+    ins = [(w, p, os.path.realpath(p)) for w, p in inputs if p and os.path.exists(p)]
+    for what, path in outputs:
+        if not path:
+            continue
+        path = os.fspath(path)
+        if os.path.isdir(path):
+            raise InputError(f"{what} '{path}' is a directory")
+        d = os.path.dirname(os.path.abspath(path))
+        if not os.path.isdir(d):
+            raise InputError(f"{what} '{path}': the directory '{d}' does not exist")
+        if not os.access(d, os.W_OK | os.X_OK):
+            raise InputError(f"{what} '{path}': cannot write in the directory '{d}'")
+        real = os.path.realpath(path)
+        for w, p, r in ins:
+            # the same file also through a hard link (same device and inode)
+            if r == real or (os.path.exists(path) and os.path.samefile(path, p)):
+                raise InputError(f"{what} '{path}' is the input {w} '{p}' (both are {r}): "
+                                 "refusing to overwrite an input")
+        for w, p, r in seen:
+            if r == real:
+                raise InputError(f"{what} '{path}' and {w} '{p}' are the same file ({r})")
+        seen.append((what, path, real))
+
+
+def partial_name(path):
+    """Temporary name next to ``path`` keeping its extension (matplotlib picks the format
+    from it): ``dir/name.partial.png`` for ``dir/name.png``."""
+    stem, ext = os.path.splitext(os.fspath(path))
+    return f"{stem}.partial{ext}"
+
+
+class OutputSet:
+    """Files written together or not at all: ``tmp(final)`` names a temporary to write;
+    ``commit()`` renames every temporary to its final name; leaving the ``with`` block by an
+    exception (or ``abort()``) removes the temporaries and leaves earlier outputs untouched."""
+
+    def __init__(self):
+        self.items = []
+
+    def tmp(self, final):
+        t = partial_name(final)
+        self.items.append((t, os.fspath(final)))
+        return t
+
+    def commit(self):
+        for t, final in self.items:
+            os.replace(t, final)
+        self.items = []
+
+    def abort(self):
+        for t, _ in self.items:
+            try:
+                os.remove(t)
+            except OSError:
+                pass
+        self.items = []
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, value, tb):
+        if kind is not None:
+            self.abort()
+        return False
+
+
+def one_line_errors(prog, main, argv=None):
+    """Run ``main(argv)``; any failure ends with one line ``<prog>: error: ...`` on stderr, never
+    a traceback: exit 2 for bad input (InputError), 1 for anything else (an output fault, a bug)."""
+    import sys
+    try:
+        return main(argv)
+    except InputError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        where = f"'{exc.filename}': " if getattr(exc, "filename", None) else ""
+        print(f"{prog}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 1
+    except Exception as exc:  # noqa: BLE001 - the one-line promise covers unexpected failures too
+        msg = " ".join(str(exc).split()) or type(exc).__name__
+        print(f"{prog}: error: {type(exc).__name__}: {msg}", file=sys.stderr)
+        return 1

@@ -260,7 +260,7 @@ def fig_eim(ctx, out, dpi):
         pairs = _pairs(f)
         if not pairs:
             raise Skip("the ROM file has no prepared pairs (schema_version 2)")
-        want = ctx.get("pair") or pairs[0][0]
+        want = ctx["pair"] if ctx.get("pair") is not None else pairs[0][0]
         sel = [p for p in pairs if p[0] == want]
         if not sel:
             raise InputError(f"'{ctx['rom']}': no pair {want} (pairs {[p[0] for p in pairs]})")
@@ -408,7 +408,7 @@ def _load_run_and_db(ctx, setting_index):
 
 
 def _sample(ctx, n_s):
-    k = ctx.get("sample") or 1
+    k = ctx["sample"] if ctx.get("sample") is not None else 1
     if not 1 <= k <= n_s:
         raise InputError(f"--sample {k} outside 1..{n_s} (validation samples)")
     return k - 1
@@ -594,21 +594,60 @@ FIGURES = [
 ]
 
 
+def check_args(ctx):
+    """Every numeric argument checked before anything is drawn (InputError)."""
+    for key in ("sample", "pair", "setting", "dpi"):
+        v = ctx.get(key)
+        if v is not None and v < 1:
+            raise InputError(f"--{key} {v}: must be >= 1")
+    for key in ("settings", "agents"):
+        v = ctx.get(key)
+        if v is not None and any(x < 1 for x in v):
+            raise InputError(f"--{key} {' '.join(map(str, v))}: every value must be >= 1")
+    if ctx.get("steps") is not None and any(x < 0 for x in ctx["steps"]):
+        raise InputError(f"--steps {' '.join(map(str, ctx['steps']))}: every value must be >= 0")
+
+
 def make_all(ctx, outdir, only=None, dpi=120, log=print):
-    """Draw every figure possible; return (written paths, {name: reason skipped})."""
-    os.makedirs(outdir, exist_ok=True)
-    written, skipped = [], {}
-    for name, fn in FIGURES:
-        if only and name not in only:
-            continue
-        out = os.path.join(outdir, name + ".png")
-        try:
-            fn(ctx, out, dpi)
-        except Skip as exc:
-            skipped[name] = str(exc)
-            log(f"{PROG}: skip {name}: {exc}")
-            continue
-        written.append(out)
+    """Draw every figure possible; return (written paths, {name: reason skipped}).
+
+    All or nothing: the figures are drawn under temporary names and renamed together at the
+    end; any failure (a bad argument found while drawing, a full disk) leaves every earlier
+    figure in `outdir` untouched and no new one."""
+    if os.path.exists(outdir) and not os.path.isdir(outdir):
+        raise InputError(f"output directory '{outdir}' is a file")
+    inputs = [(k, ctx.get(k)) for k in ("database", "rom", "romrun", "csv")] + \
+        [("ML output", p) for p in ctx.get("ml") or []]
+    created = not os.path.isdir(outdir)
+    try:
+        os.makedirs(outdir, exist_ok=True)
+        cio.check_outputs([(f"figure {name}", os.path.join(outdir, name + ".png")) for name, _ in FIGURES],
+                          inputs)
+        written, skipped = [], {}
+        with cio.OutputSet() as outs:
+            for name, fn in FIGURES:
+                if only and name not in only:
+                    continue
+                out = os.path.join(outdir, name + ".png")
+                try:
+                    fn(ctx, outs.tmp(out), dpi)
+                except Skip as exc:
+                    t, _ = outs.items.pop()
+                    if os.path.exists(t):
+                        os.remove(t)
+                    skipped[name] = str(exc)
+                    log(f"{PROG}: skip {name}: {exc}")
+                    continue
+                written.append(out)
+            outs.commit()
+    except BaseException:
+        if created:
+            try:
+                os.rmdir(outdir)
+            except OSError:
+                pass
+        raise
+    for out in written:
         log(f"{PROG}: wrote {out}")
     return written, skipped
 
@@ -639,6 +678,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     ctx = vars(args).copy()
     try:
+        check_args(ctx)
         for key, schema in (("database", cio.DB_SCHEMA), ("rom", cio.ROM_SCHEMA),
                             ("romrun", cio.ROMRUN_SCHEMA)):
             if ctx.get(key):
@@ -656,4 +696,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cio.one_line_errors(PROG, main))

@@ -406,13 +406,6 @@ def _atomic_h5(path, write):
     cio.write_h5_atomic(path, write)
 
 
-def _atomic_text(path, content):
-    tmp = path + ".partial"
-    with open(tmp, "w") as fh:
-        fh.write(content)
-    os.replace(tmp, path)
-
-
 def table_rows(res):
     rows = []
     for reg in res["regressors"]:
@@ -648,19 +641,29 @@ def main(argv=None):
             if path and not os.path.isdir(os.path.dirname(os.path.abspath(path))):
                 raise InputError(f"{what} directory does not exist: "
                                  f"'{os.path.dirname(os.path.abspath(path))}'")
+        # outputs must not name an input (nor each other): checked before any work
+        cio.check_outputs([("output", out), ("--csv", args.csv)],
+                          [("ROM run file", args.romrun), ("ROM file", st.rom_path),
+                           ("database", st.db_path), ("--config", args.config)])
+        if os.path.isfile(models_dir):
+            raise InputError(f"models directory '{models_dir}' is a file")
         log(f"romrun '{args.romrun}', ROM '{st.rom_path}', database '{st.db_path}'; n = {n_values}; "
             f"regressors {cfg['regressors']}; models in '{models_dir}'", args.quiet)
         res = run(st, cfg, n_values, models_dir, args.predict_only, args.quiet)
     except InputError as exc:
         fail(str(exc))
-    write_output(out, st, res, cfg, "predict-only" if args.predict_only else "train")
     rows = table_rows(res)
-    if args.csv:
-        _atomic_text(args.csv, csv_text(rows))
+    # the output file and the CSV are one result: both written, then renamed together
+    with cio.OutputSet() as outs:
+        write_output(outs.tmp(out), st, res, cfg, "predict-only" if args.predict_only else "train")
+        if args.csv:
+            with open(outs.tmp(args.csv), "w") as fh:
+                fh.write(csv_text(rows))
+        outs.commit()
     print(markdown(rows))
     log(f"wrote {out}" + (f" and {args.csv}" if args.csv else ""), args.quiet)
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cio.one_line_errors(PROG, main))

@@ -120,6 +120,21 @@ def main(argv=None):
     p.add_argument("--fps", type=int, default=10, help="animation frames per second")
     p.add_argument("--dpi", type=int, default=120)
     args = p.parse_args(argv)
+    # every argument and output checked before anything is drawn or written
+    if args.dpi < 1:
+        _fail(f"--dpi {args.dpi}: must be >= 1")
+    if args.fps < 1:
+        _fail(f"--fps {args.fps}: must be >= 1")
+    out = args.output or (args.file.rsplit(".", 1)[0] + ".png")
+    try:
+        cio.check_outputs([("output", out), ("--animate", args.animate)], [("file", args.file)])
+    except cio.InputError as exc:
+        _fail(str(exc))
+    if args.animate:
+        try:
+            import PIL  # noqa: F401
+        except ImportError:
+            _fail("--animate needs pillow (pip install pillow)")
 
     import matplotlib
     matplotlib.use("Agg")
@@ -127,24 +142,28 @@ def main(argv=None):
 
     d = load(args.file)
     idx = pick_steps(d, args.steps)
-    out = args.output or (args.file.rsplit(".", 1)[0] + ".png")
+    with cio.OutputSet() as outs:
+        draw(args, d, idx, outs.tmp(out), outs.tmp(args.animate) if args.animate else None, plt)
+        outs.commit()
+    print(f"plot_scene: wrote {out}")
+    if args.animate:
+        print(f"plot_scene: wrote {args.animate}")
+    return 0
+
+
+def draw(args, d, idx, out, gif, plt):
+    """The PNG (and GIF) under the temporary names `out` and `gif`."""
     fig, axes = plt.subplots(1, len(idx), figsize=(4.5 * len(idx), 4.5), squeeze=False)
     for ax, i in zip(axes[0], idx):
         draw_scene(ax, d)
         draw_agents(ax, d, i, show_left=not args.hide_left, contacts=args.contacts)
         ax.set_title(panel_title(d, i), fontsize=9)
     fig.tight_layout()
-    fig.savefig(out, dpi=args.dpi)
+    fig.savefig(out, dpi=args.dpi, format="png")
     plt.close(fig)
-    print(f"plot_scene: wrote {out}")
 
-    if args.animate:
+    if gif:
         from matplotlib.animation import FuncAnimation, PillowWriter
-        try:
-            import PIL  # noqa: F401
-        except ImportError:
-            print("plot_scene: error: --animate needs pillow (pip install pillow)", file=sys.stderr)
-            return 2
         fig, ax = plt.subplots(figsize=(5, 5))
         draw_scene(ax, d)
         state = {"artists": []}
@@ -158,11 +177,9 @@ def main(argv=None):
             return state["artists"]
 
         anim = FuncAnimation(fig, frame, frames=len(d["step"]), blit=False)
-        anim.save(args.animate, writer=PillowWriter(fps=args.fps), dpi=args.dpi // 2 or 60)
+        anim.save(gif, writer=PillowWriter(fps=args.fps), dpi=args.dpi // 2 or 60)
         plt.close(fig)
-        print(f"plot_scene: wrote {args.animate}")
-    return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cio.one_line_errors("plot_scene", main))

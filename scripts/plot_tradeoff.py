@@ -217,8 +217,13 @@ def main(argv=None):
     args = ap.parse_args(argv)
     out = args.output or (os.path.splitext(args.input)[0] + "_tradeoff.png")
     try:
+        if args.dpi < 1:
+            raise InputError(f"--dpi {args.dpi}: must be >= 1")
+        cio.check_outputs([("output", out)], [("input", args.input)] + [("ML output", p) for p in args.ml])
         rows = read_rows(args.input)
-        front = plot_tradeoff(rows, out, read_ml_points(args.ml), args.set, args.title, args.dpi)
+        with cio.OutputSet() as outs:
+            front = plot_tradeoff(rows, outs.tmp(out), read_ml_points(args.ml), args.set, args.title, args.dpi)
+            outs.commit()
     except InputError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
@@ -228,4 +233,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cio.one_line_errors(PROG, main))

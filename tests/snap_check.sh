@@ -101,6 +101,7 @@ kill_resume)
   "$MPIRUN" -np 2 --oversubscribe "$bin" "$input" --summary s.json > log2.txt 2>&1 || { cat log2.txt; fail "resume after SIGKILL"; }
   grep -q "\"samples_resumed\": $n" s.json || { cat s.json; fail "resume did not reuse the $n samples of the $p pieces"; }
   same_db snap_kill.h5 ref/snap_kill.h5
+  [ ! -e snap_kill.h5.pieces ] || { ls -la snap_kill.h5.pieces; fail "pieces (or temporaries) left after the resumed run"; }
   ;;
 mismatch)
   bin=$1; input=$2; other=$3

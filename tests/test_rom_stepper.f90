@@ -2,13 +2,14 @@
 !> reduced problem at every step (reduced positions that already overlap) returns the
 !> least-violation coefficients, is counted and never produces NaN; the reduced Uzawa
 !> iteration cap is counted; a feasible problem gives the exact projection; positions are
-!> rebuilt as q0 + h V sum alpha.
+!> rebuilt as q0 + h V sum alpha; rows that change order from step to step (online contacts)
+!> keep their multipliers by identity, so the dual solver's warm start survives.
 module test_rom_stepper_ops
   use cr_kinds, only: wp
   use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t
   implicit none
   private
-  public :: const_ops_t
+  public :: const_ops_t, perm_ops_t
 
   !> Returns the same (vhat, bhat, dhat) at every step.
   type, extends(reduced_ops_t) :: const_ops_t
@@ -17,7 +18,47 @@ module test_rom_stepper_ops
     procedure :: assemble
   end type const_ops_t
 
+  !> The same rows in a different order (and with one extra far row every other step) at
+  !> every step, with their identities in keys (as online contacts).
+  type, extends(const_ops_t) :: perm_ops_t
+    integer :: calls = 0
+  contains
+    procedure :: assemble => perm_assemble
+  end type perm_ops_t
+
 contains
+
+  subroutine perm_assemble(this, ctx, q, vhat, bt, dhat)
+    class(perm_ops_t), intent(inout) :: this
+    type(eval_ctx_t), intent(in) :: ctx
+    real(wp), intent(in) :: q(:)
+    real(wp), intent(out) :: vhat(:)
+    real(wp), allocatable, intent(inout) :: bt(:,:), dhat(:)
+    integer, allocatable :: order(:)
+    integer :: m, l, shift
+    integer(8) :: far
+    this%calls = this%calls + 1
+    m = size(this%dh)
+    shift = mod(7 * this%calls, m)
+    order = [(1 + mod(l - 1 + shift, m), l = 1, m)]
+    if (mod(this%calls, 2) == 0) order = [order, 0]
+    if (allocated(bt)) deallocate(bt, dhat)
+    allocate(bt(size(this%bh, 2), size(order)), dhat(size(order)))
+    this%keys = [(int(order(l), 8) * 1000_8, l = 1, size(order))]
+    far = 999_8
+    do l = 1, size(order)
+      if (order(l) == 0) then
+        bt(:, l) = 1.0_wp
+        dhat(l) = 1.0e3_wp
+        this%keys(l) = far
+      else
+        bt(:, l) = this%bh(order(l), :)
+        dhat(l) = this%dh(order(l))
+      end if
+    end do
+    vhat = this%vh
+    if (size(q) < 0 .or. ctx%h < 0) vhat = 0
+  end subroutine perm_assemble
 
   subroutine assemble(this, ctx, q, vhat, bt, dhat)
     class(const_ops_t), intent(inout) :: this
@@ -38,7 +79,7 @@ program test_rom_stepper
   use cr_assert, only: check, check_close, test_summary
   use cr_reduced_ops, only: eval_ctx_t
   use cr_rom_stepper, only: rom_solver_cfg_t, rom_traj_t, run_trajectory, reduced_positions
-  use test_rom_stepper_ops, only: const_ops_t
+  use test_rom_stepper_ops, only: const_ops_t, perm_ops_t
   use cr_config, only: scene_cfg_t, obstacles_cfg_t, desired_cfg_t
   use cr_rom_file, only: rom_pair_t
   use cr_sparse_cone, only: sparse_cone_t
@@ -100,9 +141,49 @@ program test_rom_stepper
   call check_close(traj%alpha(1, 2), 0.2_wp, 1.0e-10_wp, "uzawa: same projection")
   call check_gram()
   call check_guard()
+  call check_identities()
   call test_summary()
 
 contains
+
+  !> Rows permuted at every step, matched by identity: after the first step the dual solver's
+  !> warm start is the answer (nothing added), and every step gives the same projection as a
+  !> cold solve of the unpermuted problem.
+  subroutine check_identities()
+    type(perm_ops_t) :: pops
+    type(const_ops_t) :: cops
+    type(rom_solver_cfg_t) :: c1
+    type(rom_traj_t) :: t1, t2
+    type(rng_t) :: rng
+    integer, parameter :: nb = 6, m = 9
+    real(wp) :: qz(2 * nb)
+    integer :: i, j
+    call rng%seed(5, 3)
+    allocate(cops%vh(nb), cops%bh(m, nb), cops%dh(m))
+    do j = 1, nb
+      cops%vh(j) = 3 * rng%normal()
+      do i = 1, m
+        cops%bh(i, j) = rng%normal()
+      end do
+    end do
+    cops%dh = [(abs(rng%normal()) * 0.1_wp, i = 1, m)]
+    cops%nb = nb; cops%r = m; cops%m = 0
+    cops%v = reshape([(merge(1.0_wp, 0.0_wp, mod(i - 1, 2 * nb + 1) == 0), i = 1, 2 * nb * nb)], [2 * nb, nb])
+    cops%agents = [(i, i = 1, nb)]
+    pops%vh = cops%vh; pops%bh = cops%bh; pops%dh = cops%dh
+    pops%nb = nb; pops%r = m; pops%m = 0; pops%v = cops%v; pops%agents = cops%agents
+    pops%fixed_rows = .false.
+    qz = 0
+    call run_trajectory(cops, ctx, qz, 6, c1, t1, error)
+    call check(.not. allocated(error) .and. t1%n_fallback == 0, "identities: fixed rows solved")
+    call check(t1%active_sum > 0, "identities: some rows active")
+    call run_trajectory(pops, ctx, qz, 6, c1, t2, error)
+    call check(.not. allocated(error) .and. t2%n_fallback == 0, "identities: permuted rows solved")
+    call check(t1%dual_adds > 0 .and. t2%dual_adds == t1%dual_adds, &
+      "identities: rows added as often as with fixed rows (the warm start is kept)")
+    call check(maxval(abs(t2%alpha - t1%alpha)) <= 1.0e-12_wp * maxval(abs(t1%alpha)), &
+      "identities: the same projection whatever the order")
+  end subroutine check_identities
 
   !> The cheap Gram of the exact assembly (Z (V V^T) Z^T) equals bhat bhat^T.
   subroutine check_gram()

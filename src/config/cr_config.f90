@@ -9,11 +9,12 @@ module cr_config
   use cr_env, only: env_t
   use cr_namelist_text, only: namelist_text_t
   use cr_projection, only: projection_settings_t
+  use cr_paths, only: io_paths_t
   implicit none
   private
   public :: config_t, scene_cfg_t, obstacles_cfg_t, agents_cfg_t, desired_cfg_t, time_cfg_t, &
     contacts_cfg_t, output_cfg_t, read_config, parse_config, config_echo, MAX_OBST, MAX_POLY_V, MAX_PATH, &
-    FOM_GROUPS, nml_status
+    FOM_GROUPS, nml_status, model_inputs, check_fom_paths
 
   integer, parameter :: MAX_OBST = 64, MAX_POLY_V = 16, MAX_PATH = 512
 
@@ -120,21 +121,59 @@ module cr_config
 contains
 
   !> Read every group of the full-order model from `path` into `cfg` (defaults for absent
-  !> groups). Errors name the file, the group and (from the runtime) the variable.
-  subroutine read_config(path, env, cfg, error, nml)
+  !> optional groups). Errors name the file, the group and (from the runtime) the variable.
+  !> A program passes the groups it cannot run without (`needed`, e.g. scene and agents):
+  !> a file without them (empty, binary, another program's input) is refused, never run
+  !> with the defaults.
+  subroutine read_config(path, env, cfg, error, nml, program, needed)
     character(len=*), intent(in) :: path
     type(env_t), intent(in) :: env
     type(config_t), intent(out) :: cfg
     type(error_t), allocatable, intent(out) :: error
     !> the loaded text, for programs that read further groups
     type(namelist_text_t), intent(out), optional :: nml
+    !> name of the calling program (for the message about missing groups)
+    character(len=*), intent(in), optional :: program
+    !> groups that must be present
+    character(len=*), intent(in), optional :: needed(:)
     type(namelist_text_t) :: t
     call t%load(path, env, error)
     if (allocated(error)) return
+    if (present(needed)) then
+      if (present(program)) then
+        call t%require_groups(program, needed, FOM_GROUPS, error)
+      else
+        call t%require_groups("this program", needed, FOM_GROUPS, error)
+      end if
+      if (allocated(error)) return
+    end if
     call parse_config(t, cfg, error)
     if (allocated(error)) return
     if (present(nml)) nml = t
   end subroutine read_config
+
+  !> Add the files the model reads (positions, speeds, desired velocities) to `paths`.
+  subroutine model_inputs(cfg, paths)
+    type(config_t), intent(in) :: cfg
+    type(io_paths_t), intent(inout) :: paths
+    if (cfg%agents%init == 'file') call paths%input("&agents init_file", cfg%agents%init_file)
+    call paths%input("&agents speed_file", cfg%agents%speed_file)
+    if (cfg%desired%mode == 'file') call paths%input("&desired file", cfg%desired%file)
+  end subroutine model_inputs
+
+  !> crowd_fom's outputs (&output file, the --summary file) checked against its inputs and
+  !> each other, before any work (see cr_paths).
+  subroutine check_fom_paths(input, summary, cfg, error)
+    character(len=*), intent(in) :: input, summary
+    type(config_t), intent(in) :: cfg
+    type(error_t), allocatable, intent(out) :: error
+    type(io_paths_t) :: paths
+    call paths%input("file", input)
+    call model_inputs(cfg, paths)
+    call paths%output("&output file", cfg%output%file)
+    call paths%output("--summary", summary)
+    call paths%check(input, error)
+  end subroutine check_fom_paths
 
   !> Parse the groups of the full-order model from loaded namelist text `t` (a file, or the
   !> effective configuration stored in an output file).

@@ -6,7 +6,7 @@
 module cr_namelist_text
   use cr_error, only: error_t, set_error
   use cr_env, only: env_t
-  use cr_strings, only: to_lower
+  use cr_strings, only: to_lower, str
   implicit none
   private
   public :: namelist_text_t, MAX_LINE
@@ -26,6 +26,7 @@ module cr_namelist_text
     procedure :: set_text
     procedure :: has_group
     procedure :: check_groups
+    procedure :: require_groups
   end type namelist_text_t
 
 contains
@@ -37,10 +38,11 @@ contains
     type(env_t), intent(in) :: env
     type(error_t), allocatable, intent(out) :: error
     character(len=:), allocatable :: status
-    integer :: unit, ios
+    integer :: unit, ios, n_line
     character(len=MAX_LINE) :: line
     character(len=256) :: msg
     this%path = path
+    n_line = 0
     status = ""
     this%text = ""
     if (env%is_root()) then
@@ -51,6 +53,12 @@ contains
         do
           read(unit, '(a)', iostat=ios) line
           if (ios /= 0) exit
+          n_line = n_line + 1
+          if (has_binary(line)) then
+            status = path // ": not a namelist file (binary data on line " // str(n_line) // &
+              "): no namelist group can be read from it"
+            exit
+          end if
           if (len_trim(line) >= MAX_LINE - 1) then
             status = path // ": a line is longer than " // "1000 characters"
             exit
@@ -144,6 +152,81 @@ contains
       end do
     end do
   end subroutine check_groups
+
+  !> Error unless the file holds every group in `needed` (the groups without which `program`
+  !> has nothing to run: defaults are only for variables left out of a group that is present).
+  !> The message names the file, the missing groups, what the program reads and, for a file
+  !> with none of them, what the file holds (nothing: empty or not a namelist; or the groups
+  !> of another program). Groups not in `known` are refused first (check_groups), unless the
+  !> file holds none of the needed groups (then that is the better message).
+  subroutine require_groups(this, program, needed, known, error)
+    class(namelist_text_t), intent(in) :: this
+    !> program name for the message, e.g. 'crowd_fom'
+    character(len=*), intent(in) :: program
+    !> groups the program cannot run without (lower case, no '&')
+    character(len=*), intent(in) :: needed(:)
+    !> every group a crowdrom input may hold
+    character(len=*), intent(in) :: known(:)
+    type(error_t), allocatable, intent(out) :: error
+    character(len=:), allocatable :: groups(:), holds
+    character(len=64) :: missing(size(needed))
+    integer :: k, n_missing
+    call list_groups(this, groups)
+    n_missing = 0
+    do k = 1, size(needed)
+      if (.not. any(groups == to_lower(trim(needed(k))))) then
+        n_missing = n_missing + 1
+        missing(n_missing) = to_lower(trim(needed(k)))
+      end if
+    end do
+    if (n_missing < size(needed)) then
+      call this%check_groups(known, error)
+      if (allocated(error)) return
+    end if
+    if (n_missing == 0) return
+    holds = ""
+    if (size(groups) == 0) then
+      holds = "; the file holds no namelist group: it is empty or not a namelist file"
+    else if (n_missing == size(needed)) then
+      holds = "; the file holds only " // group_list(groups) // ": is it the input of another program?"
+    end if
+    if (n_missing == 1) then
+      call set_error(error, this%path // ": namelist group " // group_list(missing(1:1)) // " is missing (" // &
+        program // " needs " // group_list(needed) // holds // ")", 2)
+    else
+      call set_error(error, this%path // ": namelist groups " // group_list(missing(1:n_missing)) // &
+        " are missing (" // program // " needs " // group_list(needed) // holds // ")", 2)
+    end if
+  end subroutine require_groups
+
+  !> "&a, &b, &c" from a list of group names.
+  pure function group_list(names) result(s)
+    character(len=*), intent(in) :: names(:)
+    character(len=:), allocatable :: s
+    integer :: k
+    s = ""
+    do k = 1, size(names)
+      if (k > 1) s = s // ", "
+      s = s // "&" // trim(names(k))
+    end do
+  end function group_list
+
+  !> True if the line holds control characters other than tab, carriage return and form feed
+  !> (a binary file read as text).
+  pure logical function has_binary(line)
+    character(len=*), intent(in) :: line
+    integer :: i, c
+    has_binary = .false.
+    do i = 1, len(line)
+      c = iachar(line(i:i))
+      if (c < 32 .and. c /= 9 .and. c /= 12 .and. c /= 13) then
+        has_binary = .true.; return
+      end if
+      if (c == 127) then
+        has_binary = .true.; return
+      end if
+    end do
+  end function has_binary
 
   !> Names (lower case) of the groups opened with '&' at the start of a token.
   subroutine list_groups(this, groups)

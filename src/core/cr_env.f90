@@ -6,9 +6,10 @@ module cr_env
   use mpi_f08
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error
+  use cr_strings, only: str
   implicit none
   private
-  public :: env_t
+  public :: env_t, agree_error_on
 
   !> MPI environment: private duplicate communicator, rank, size.
   type :: env_t
@@ -23,6 +24,7 @@ module cr_env
     procedure :: any_true
     procedure :: sum_real, sum_real_array, sum_int, max_real, min_real, max_int
     procedure :: bcast_string
+    procedure :: agree_error
     procedure, nopass :: wtime
   end type env_t
 
@@ -128,6 +130,45 @@ contains
     end if
     if (n > 0) call MPI_Bcast(s, n, MPI_CHARACTER, 0, this%comm, ierr)
   end subroutine bcast_string
+
+  !> Collective error agreement: if any rank of the environment holds an error, every rank
+  !> returns the error of the lowest failing rank (message and code broadcast from it). When
+  !> only some ranks failed, the message starts with "rank R of P: " so that the one line that
+  !> rank 0 prints says where it happened. Collective: every rank must call it.
+  subroutine agree_error(this, error)
+    class(env_t), intent(in) :: this
+    type(error_t), allocatable, intent(inout) :: error
+    call agree_error_on(this%comm, error)
+  end subroutine agree_error
+
+  !> agree_error on a plain communicator (for handles that keep their own, e.g. HDF5 files).
+  subroutine agree_error_on(comm, error)
+    type(MPI_Comm), intent(in) :: comm
+    type(error_t), allocatable, intent(inout) :: error
+    integer :: who, n_failed, rank, nranks, ierr, meta(2)
+    character(len=:), allocatable :: msg
+    if (comm == MPI_COMM_NULL) return
+    call MPI_Comm_size(comm, nranks, ierr)
+    if (nranks == 1) return
+    call MPI_Comm_rank(comm, rank, ierr)
+    who = huge(1)
+    if (allocated(error)) who = rank
+    call MPI_Allreduce(MPI_IN_PLACE, who, 1, MPI_INTEGER, MPI_MIN, comm, ierr)
+    if (who == huge(1)) return
+    n_failed = merge(1, 0, allocated(error))
+    call MPI_Allreduce(MPI_IN_PLACE, n_failed, 1, MPI_INTEGER, MPI_SUM, comm, ierr)
+    meta = 0
+    if (rank == who) then
+      msg = error%message
+      meta = [len(msg), error%code]
+    end if
+    call MPI_Bcast(meta, 2, MPI_INTEGER, who, comm, ierr)
+    if (rank /= who) allocate(character(len=meta(1)) :: msg)
+    if (meta(1) > 0) call MPI_Bcast(msg, meta(1), MPI_CHARACTER, who, comm, ierr)
+    if (n_failed < nranks) msg = "rank " // str(who) // " of " // str(nranks) // ": " // msg
+    if (allocated(error)) deallocate(error)
+    call set_error(error, msg, meta(2))
+  end subroutine agree_error_on
 
   !> Wall-clock time in seconds.
   real(wp) function wtime()

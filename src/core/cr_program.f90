@@ -8,6 +8,7 @@ module cr_program
   use cr_env, only: env_t
   use cr_logger, only: logger_t, LOG_ERROR, LOG_WARN, LOG_INFO, LOG_DEBUG
   use cr_cli, only: cli_t, parse_cli
+  use cr_h5file, only: h5_library_close
   implicit none
   private
   public :: program_start, program_finish, log_level_of
@@ -44,6 +45,8 @@ contains
     end if
     call MPI_Allreduce(MPI_IN_PLACE, code, 1, MPI_INTEGER, MPI_MAX, env%comm, ierr)
     call env%free()
+    ! HDF5 (objects, files, then the library) is shut down before MPI, also after an error
+    call h5_library_close()
     call MPI_Finalize(ierr)
   end function program_finish
 

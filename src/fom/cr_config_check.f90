@@ -2,6 +2,7 @@
 !> about names and shapes): every range and consistency rule in one place.
 !> All problems are collected and reported together in one error.
 module cr_config_check
+  use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
   use cr_kinds, only: wp
   use cr_error, only: error_t, problems_t
   use cr_strings, only: str
@@ -9,7 +10,15 @@ module cr_config_check
   use cr_projection, only: projection_solver_t, make_projection_solver
   implicit none
   private
-  public :: check_config, PACKING_LIMIT
+  public :: check_config, PACKING_LIMIT, need_sane, MAX_LENGTH, MIN_LENGTH, MAX_SPEED, MAX_STEPS
+
+  !> Sane magnitudes of input values (SI units): beyond them a run is meaningless and sizes
+  !> derived from them (grids, cell lists, step counts) overflow.
+  real(wp), parameter :: MAX_LENGTH = 1.0e4_wp, MIN_LENGTH = 1.0e-6_wp, MAX_SPEED = 1.0e6_wp
+  !> the largest number of time steps (records of every step are kept in memory)
+  integer, parameter :: MAX_STEPS = 10000000
+  !> the largest distance-field grid (cells) and hall size in agent radii (cell lists)
+  real(wp), parameter :: MAX_GRID_CELLS = 2.0e8_wp, MAX_RADII = 1.0e6_wp
 
   !> densest packing of equal disks in the plane (hexagonal), pi / sqrt(12)
   real(wp), parameter :: PACKING_LIMIT = 0.9068996821171089_wp
@@ -27,6 +36,67 @@ contains
     type(error_t), allocatable :: e2
     associate (s => cfg%scene, o => cfg%obstacles, a => cfg%agents, d => cfg%desired, &
                t => cfg%time, v => cfg%solver, c => cfg%contacts, out => cfg%output)
+      ! magnitudes first: every real finite and sane (Inf, NaN or 1e308 would overflow in the
+      ! consistency checks below and later in the run); with such values the rest is skipped
+      call need_sane(probs, s%hall_length, "&scene: hall_length", MAX_LENGTH, MIN_LENGTH)
+      call need_sane(probs, s%hall_width, "&scene: hall_width", MAX_LENGTH, MIN_LENGTH)
+      call need_sane(probs, s%l_exit, "&scene: l_exit", MAX_LENGTH, MIN_LENGTH)
+      call need_sane(probs, s%exit_center, "&scene: exit_center", MAX_LENGTH)
+      call need_sane(probs, s%wall_thickness, "&scene: wall_thickness", MAX_LENGTH, MIN_LENGTH)
+      do k = 1, min(max(o%n_disks, 0), MAX_OBST)
+        call need_sane(probs, o%disk_x(k), "&obstacles: disk_x(" // str(k) // ")", MAX_LENGTH)
+        call need_sane(probs, o%disk_y(k), "&obstacles: disk_y(" // str(k) // ")", MAX_LENGTH)
+        call need_sane(probs, o%disk_r(k), "&obstacles: disk_r(" // str(k) // ")", MAX_LENGTH, MIN_LENGTH)
+      end do
+      do k = 1, min(max(o%n_segments, 0), MAX_OBST)
+        call need_sane(probs, o%seg_x1(k), "&obstacles: seg_x1(" // str(k) // ")", MAX_LENGTH)
+        call need_sane(probs, o%seg_y1(k), "&obstacles: seg_y1(" // str(k) // ")", MAX_LENGTH)
+        call need_sane(probs, o%seg_x2(k), "&obstacles: seg_x2(" // str(k) // ")", MAX_LENGTH)
+        call need_sane(probs, o%seg_y2(k), "&obstacles: seg_y2(" // str(k) // ")", MAX_LENGTH)
+        call need_sane(probs, o%seg_half_thickness(k), "&obstacles: seg_half_thickness(" // str(k) // ")", &
+          MAX_LENGTH, MIN_LENGTH)
+      end do
+      do k = 1, min(max(o%n_polygons, 0), MAX_OBST)
+        if (.not. (all(ieee_is_finite(o%poly_x(:, k))) .and. all(ieee_is_finite(o%poly_y(:, k))))) then
+          call probs%need(.false., "&obstacles: poly_x/poly_y of polygon " // str(k) // " must be finite")
+        else
+          call probs%need(all(abs(o%poly_x(:, k)) <= MAX_LENGTH) .and. all(abs(o%poly_y(:, k)) <= MAX_LENGTH), &
+            "&obstacles: vertices of polygon " // str(k) // " must lie within " // str(MAX_LENGTH) // " m")
+        end if
+      end do
+      call need_sane(probs, a%radius, "&agents: radius", MAX_LENGTH, MIN_LENGTH)
+      call need_sane(probs, a%speed, "&agents: speed", MAX_SPEED)
+      do k = 1, 4
+        call need_sane(probs, a%region(k), "&agents: region(" // str(k) // ")", MAX_LENGTH)
+      end do
+      call need_sane(probs, d%grid_dx, "&desired: grid_dx", MAX_LENGTH, MIN_LENGTH)
+      call need_sane(probs, t%dt, "&time: dt", MAX_LENGTH, 1.0e-9_wp)
+      call probs%need(t%n_steps <= MAX_STEPS, "&time: n_steps = " // str(t%n_steps) // " exceeds " // &
+        str(MAX_STEPS) // " steps")
+      call probs%need(t%max_steps <= MAX_STEPS, "&time: max_steps = " // str(t%max_steps) // " exceeds " // &
+        str(MAX_STEPS) // " steps")
+      call need_sane(probs, v%tol, "&solver: tol", 1.0_wp)
+      call need_sane(probs, v%uzawa_rho_factor, "&solver: uzawa_rho_factor", 1.0e12_wp)
+      call need_sane(probs, v%uzawa_eps, "&solver: uzawa_eps", 1.0_wp)
+      call need_sane(probs, c%cutoff_factor, "&contacts: cutoff_factor", 1.0e6_wp)
+      if (probs%n > 0) then
+        call probs%to_error(cfg%source, error); return
+      end if
+      ! sizes derived from ratios of lengths (cell lists, distance-field grid)
+      if (ieee_is_finite(a%radius) .and. a%radius >= MIN_LENGTH .and. ieee_is_finite(s%hall_length) .and. &
+          ieee_is_finite(s%hall_width)) then
+        call probs%need(max(s%hall_length, s%hall_width) / a%radius <= MAX_RADII, "&agents: radius = " // &
+          str(a%radius) // " is below 1e-6 of the hall size (" // str(max(s%hall_length, s%hall_width)) // ")")
+        if (d%field == 'grid' .or. (d%field == 'auto' .and. o%n_disks + o%n_segments + o%n_polygons > 0)) then
+          frac = d%grid_dx
+          if (frac == 0) frac = a%radius / 4
+          if (ieee_is_finite(frac) .and. frac > 0) then
+            area = (s%hall_length + 2 * s%wall_thickness) / frac * ((s%hall_width + 2 * s%wall_thickness) / frac)
+            call probs%need(area <= MAX_GRID_CELLS, "&desired: the distance field grid (spacing " // str(frac) // &
+              ") would have " // str(area) // " cells (at most " // str(MAX_GRID_CELLS) // "): raise grid_dx")
+          end if
+        end if
+      end if
       ! &scene
       call probs%need(s%hall_length > 0, "&scene: hall_length must be > 0 (got " // str(s%hall_length) // ")")
       call probs%need(s%hall_width > 0, "&scene: hall_width must be > 0 (got " // str(s%hall_width) // ")")
@@ -112,4 +182,32 @@ contains
     call probs%to_error(cfg%source, error)
 
   end subroutine check_config
+
+  !> Record a problem unless `x` is finite, |x| <= hi and (when given, for x > 0) x >= lo.
+  subroutine need_sane(probs, x, what, hi, lo)
+    type(problems_t), intent(inout) :: probs
+    real(wp), intent(in) :: x, hi
+    character(len=*), intent(in) :: what
+    real(wp), intent(in), optional :: lo
+    if (.not. ieee_is_finite(x)) then
+      call probs%need(.false., what // " must be a finite number (got " // num(x) // ")")
+    else if (abs(x) > hi) then
+      call probs%need(.false., what // " = " // num(x) // " is beyond the sane magnitude " // num(hi))
+    else if (present(lo)) then
+      if (x > 0 .and. x < lo) call probs%need(.false., what // " = " // num(x) // " is below " // num(lo))
+    end if
+  end subroutine need_sane
+
+  !> A number for a message, with three exponent digits when needed (1.0E+308).
+  function num(x) result(t)
+    real(wp), intent(in) :: x
+    character(len=:), allocatable :: t
+    character(len=32) :: buf
+    if (ieee_is_finite(x) .and. x /= 0 .and. (abs(x) >= 1.0e99_wp .or. abs(x) < 1.0e-99_wp)) then
+      write(buf, '(es12.4e3)') x
+      t = trim(adjustl(buf))
+    else
+      t = str(x)
+    end if
+  end function num
 end module cr_config_check

@@ -113,10 +113,8 @@ contains
       call set_error(error, "eq_gramian: the kernel is " // str(size(kmat, 1)) // " x " // &
         & str(size(kmat, 2)) // " but there are p = " // str(p) // " candidates", 2)
     end if
-    if (env%any_true(allocated(error))) then
-      if (.not. allocated(error)) call set_error(error, "eq_gramian: bad kernel shape on another rank", 2)
-      return
-    end if
+    call env%agree_error(error)
+    if (allocated(error)) return
     allocate(h(p, p))
     call la_syrk('U', 'N', 1.0_wp, s_local, 0.0_wp, h, error)
     if (allocated(error)) then

@@ -28,10 +28,12 @@
 !>  * Failures of writing procedures are made collective: if one rank fails, all return an error.
 module cr_h5file
   use, intrinsic :: iso_c_binding, only: c_ptr, c_null_ptr, c_loc, c_char, c_null_char, &
-    c_associated
+    c_associated, c_int, c_f_pointer, c_int64_t
   use mpi_f08, only: MPI_Comm, MPI_COMM_NULL, MPI_INFO_NULL, MPI_Comm_dup, MPI_Comm_free, &
-    MPI_Allreduce, MPI_Bcast, MPI_Barrier, MPI_LOGICAL, MPI_LOR, MPI_INTEGER, operator(/=), operator(==)
-  use hdf5, only: hid_t, hsize_t, size_t, h5open_f, h5eset_auto_f, h5kind_to_type, &
+    MPI_Allreduce, MPI_Bcast, MPI_Barrier, MPI_LOGICAL, MPI_LOR, MPI_INTEGER, MPI_INTEGER8, MPI_SUM, &
+    MPI_IN_PLACE, operator(/=), operator(==)
+  use hdf5, only: hid_t, hsize_t, size_t, h5open_f, h5close_f, h5fflush_f, H5F_SCOPE_GLOBAL_F, &
+    h5eset_auto_f, h5kind_to_type, &
     H5_REAL_KIND, H5_INTEGER_KIND, H5P_DEFAULT_F, H5P_FILE_ACCESS_F, H5P_LINK_CREATE_F, &
     H5P_DATASET_CREATE_F, H5P_DATASET_XFER_F, H5F_ACC_TRUNC_F, H5F_ACC_RDONLY_F, H5F_ACC_RDWR_F, &
     H5S_SCALAR_F, H5S_UNLIMITED_F, H5S_SELECT_SET_F, H5S_SELECT_OR_F, H5T_FLOAT_F, H5T_INTEGER_F, H5T_STRING_F, &
@@ -47,12 +49,13 @@ module cr_h5file
     h5awrite_f, h5aread_f, h5aget_space_f, h5aget_type_f
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error
-  use cr_env, only: env_t
+  use cr_env, only: env_t, agree_error_on
   use cr_strings, only: str
-  use cr_fsys, only: rename_file, remove_file
+  use cr_fsys, only: rename_file, remove_file, truncate_file, clear_errno, io_fault_text, discard_fd, errno_text, &
+    reserve_space, errno_name, file_size, truncate_to
   implicit none
   private
-  public :: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64
+  public :: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64, h5_library_close
 
   !> element kinds for `create_extendible` / `create_dataset`: real(wp), integer, integer(int64)
   integer, parameter :: cr_h5_real = 1, cr_h5_int = 2, cr_h5_int64 = 3
@@ -75,6 +78,9 @@ module cr_h5file
     logical :: parallel = .false.
     !> duplicate of the env communicator (owned, parallel only)
     type(MPI_Comm) :: comm = MPI_COMM_NULL
+    !> bytes of the file on disk reserved by ensure_space (a writable temporary only);
+    !> -1: the file system cannot reserve, writes go on unreserved
+    integer(i8) :: reserved = 0
     integer :: rank = 0
   contains
     procedure :: create => h5_create
@@ -110,6 +116,27 @@ module cr_h5file
     procedure, private :: ra_string, ra_real, ra_int, ra_real1, ra_int1
     generic :: read_attr => ra_string, ra_real, ra_int, ra_real1, ra_int1
   end type h5file_t
+
+  !> bytes reserved past the allocated address range before the final flush (superblock,
+  !> free-space and cache entries the close may still allocate)
+  integer(i8), parameter :: SPACE_MARGIN = 131072_i8
+  integer, parameter :: ERRNO_ENOSPC = 28, ERRNO_EDQUOT = 122, ERRNO_EFBIG = 27
+
+  interface
+    !> C H5Fget_eoa: the end of the file's allocated address space (bytes).
+    integer(c_int) function h5fget_eoa_c(file_id, eoa) bind(c, name="H5Fget_eoa")
+      import :: c_int, c_int64_t
+      integer(c_int64_t), value :: file_id
+      integer(c_int64_t), intent(out) :: eoa
+    end function h5fget_eoa_c
+    !> C H5Fget_vfd_handle: the low-level handle of an open file (for the sec2 driver, a
+    !> pointer to its file descriptor). No Fortran wrapper exists in HDF5 1.10.
+    integer(c_int) function h5fget_vfd_handle_c(file_id, fapl_id, handle) bind(c, name="H5Fget_vfd_handle")
+      import :: c_int, c_ptr, c_int64_t
+      integer(c_int64_t), value :: file_id, fapl_id
+      type(c_ptr), intent(out) :: handle
+    end function h5fget_vfd_handle_c
+  end interface
 
 contains
 
@@ -158,21 +185,26 @@ contains
     type(error_t), allocatable, intent(inout) :: error
     character(len=*), intent(in) :: op, name, routine
     integer(hsize_t), intent(in), optional :: d(:)
-    if (hdferr >= 0 .or. allocated(error)) return
-    call fail(this, error, op, name, routine // " failed", d)
+    character(len=:), allocatable :: why
+    if (hdferr >= 0 .or. allocated(error)) then
+      call clear_errno(); return
+    end if
+    ! the system's reason (disk full, read-only, ...) when the failure was a storage fault
+    why = io_fault_text()
+    if (len(why) > 0) then
+      call fail(this, error, op, name, routine // " failed: " // why, d)
+    else
+      call fail(this, error, op, name, routine // " failed", d)
+    end if
+    call clear_errno()
   end subroutine check_h5
 
   !> In parallel, make an error collective: if any rank failed, every rank returns an error.
-  subroutine sync_error(this, error, op, name)
+  subroutine sync_error(this, error)
     class(h5file_t), intent(in) :: this
     type(error_t), allocatable, intent(inout) :: error
-    character(len=*), intent(in) :: op, name
-    logical :: mine, anyone
-    integer :: ierr
     if (.not. this%parallel .or. this%comm == MPI_COMM_NULL) return
-    mine = allocated(error)
-    call MPI_Allreduce(mine, anyone, 1, MPI_LOGICAL, MPI_LOR, this%comm, ierr)
-    if (anyone .and. .not. mine) call fail(this, error, op, name, "failed on another rank")
+    call agree_error_on(this%comm, error)
   end subroutine sync_error
 
   subroutine init_hdf5(error)
@@ -186,6 +218,16 @@ contains
     call h5eset_auto_f(0, hdferr)
     h5_ready = .true.
   end subroutine init_hdf5
+
+  !> Close the HDF5 library if this module opened it (every object still open is closed by
+  !> HDF5). Programs call it before MPI_Finalize, also on error paths, so that HDF5 never
+  !> shuts down inside MPI_Finalize with a file whose close failed (full disk).
+  subroutine h5_library_close()
+    integer :: hdferr
+    if (.not. h5_ready) return
+    call h5close_f(hdferr)
+    h5_ready = .false.
+  end subroutine h5_library_close
 
   !> HDF5 memory type of a crowdrom element kind code
   integer(hid_t) function type_of(kind_code)
@@ -302,6 +344,50 @@ contains
     end if
   end subroutine need_open
 
+  !> Before a write of about `nbytes` (summed over the ranks in parallel): reserve disk
+  !> blocks up to the end of the allocated address range plus the write and a margin, so
+  !> that HDF5 itself never meets a full disk. HDF5 1.10 cannot close a file after a failed
+  !> metadata flush, and the file left registered crashes the library shutdown inside
+  !> MPI_Finalize; a reservation that fails instead gives a clean error ("No space left on
+  !> device") and h5_abort can still close and delete the temporary. Collective in parallel.
+  subroutine ensure_space(this, nbytes, op, name, error)
+    class(h5file_t), intent(inout) :: this
+    integer(i8), intent(in) :: nbytes
+    character(len=*), intent(in) :: op, name
+    type(error_t), allocatable, intent(inout) :: error
+    integer(i8) :: total, need, want
+    integer(c_int64_t) :: eoa
+    integer :: status, ierr
+    if (this%fid < 0 .or. .not. this%writable) return
+    if (this%reserved < 0) return
+    total = max(nbytes, 0_i8)
+    if (this%parallel) call MPI_Allreduce(MPI_IN_PLACE, total, 1, MPI_INTEGER8, MPI_SUM, this%comm, ierr)
+    status = 0
+    if (this%rank == 0) then
+      eoa = 0
+      if (h5fget_eoa_c(this%fid, eoa) < 0) eoa = int(max(file_size(this%disk_path), 0_i8), c_int64_t)
+      need = int(eoa, i8) + total + SPACE_MARGIN
+      if (need > this%reserved) then
+        ! grow in steps (1/16 of what is reserved, at least the margin, at most 64 MiB)
+        want = need + min(max(this%reserved / 16, SPACE_MARGIN), 67108864_i8)
+        status = reserve_space(this%disk_path, want)
+        if (status == 0) then
+          this%reserved = want
+        else if (status /= ERRNO_ENOSPC .and. status /= ERRNO_EDQUOT .and. status /= ERRNO_EFBIG) then
+          ! no fallocate on this file system: go on without reservations
+          this%reserved = -1
+          status = 0
+        end if
+      end if
+    end if
+    if (this%parallel) then
+      call MPI_Bcast(status, 1, MPI_INTEGER, 0, this%comm, ierr)
+      call MPI_Bcast(this%reserved, 1, MPI_INTEGER8, 0, this%comm, ierr)
+    end if
+    if (status /= 0 .and. .not. allocated(error)) &
+      call fail(this, error, op, name, errno_name(status) // " (" // str(total) // " more bytes to write)")
+  end subroutine ensure_space
+
   ! ------------------------------------------------------------------ life cycle
 
   !> Take parallel settings from env (MPI-IO when env%size > 1).
@@ -367,6 +453,7 @@ contains
     logical, intent(in), optional :: in_place
     integer(hid_t) :: fapl
     integer :: hdferr, e
+    character(len=:), allocatable :: why
     character(len=*), parameter :: op = "create"
     if (this%fid >= 0) then
       call fail(this, error, op, path, "handle is already open"); return
@@ -384,19 +471,26 @@ contains
       this%disk_path = path
     end if
     this%writable = .true.
+    this%reserved = 0
     call make_fapl(this, fapl, hdferr)
     call check_h5(hdferr, this, error, op, "/", "h5pset_fapl_mpio_f")
     if (.not. allocated(error)) then
+      call clear_errno()
       call h5fcreate_f(this%disk_path, H5F_ACC_TRUNC_F, this%fid, hdferr, access_prp=fapl)
-      if (hdferr < 0) this%fid = -1
-      call check_h5(hdferr, this, error, op, "/", "h5fcreate_f")
+      if (hdferr < 0) then
+        this%fid = -1
+        ! any system reason is the one that matters here (missing directory, permission, ...)
+        why = errno_text()
+        if (len(why) == 0) why = "h5fcreate_f failed"
+        call fail(this, error, op, "/", "cannot create the file: " // why)
+      end if
     end if
     if (fapl /= H5P_DEFAULT_F .and. fapl >= 0) call h5pclose_f(fapl, e)
     if (.not. allocated(error)) then
       call make_lcpl(this, hdferr)
       call check_h5(hdferr, this, error, op, "/", "h5pset_create_inter_group_f")
     end if
-    call sync_error(this, error, op, "/")
+    call sync_error(this, error)
     if (allocated(error)) call h5_abort(this)
   end subroutine h5_create
 
@@ -432,6 +526,7 @@ contains
     this%temporary = .false.
     this%writable = .false.
     if (present(readwrite)) this%writable = readwrite
+    this%reserved = 0
     flag = H5F_ACC_RDONLY_F
     if (this%writable) flag = H5F_ACC_RDWR_F
     call make_fapl(this, fapl, hdferr)
@@ -446,7 +541,7 @@ contains
       call make_lcpl(this, hdferr)
       call check_h5(hdferr, this, error, op, "/", "h5pset_create_inter_group_f")
     end if
-    call sync_error(this, error, op, "/")
+    call sync_error(this, error)
     if (allocated(error)) then
       if (this%lcpl >= 0) call h5pclose_f(this%lcpl, e)
       this%lcpl = -1
@@ -485,11 +580,15 @@ contains
   subroutine h5_close(this, error)
     class(h5file_t), intent(inout) :: this
     type(error_t), allocatable, intent(out) :: error
-    integer :: hdferr
+    integer :: hdferr, status
+    logical :: trim_reserve
     if (this%fid < 0) return
+    trim_reserve = this%writable .and. this%reserved > 0 .and. this%rank == 0
     call close_file(this, hdferr)
     call check_h5(hdferr, this, error, "close", "/", "h5fclose_f")
-    call sync_error(this, error, "close", "/")
+    ! give back the blocks reserved past the end of the file
+    if (trim_reserve .and. hdferr >= 0) status = truncate_to(this%disk_path, file_size(this%disk_path))
+    call sync_error(this, error)
     call release_comm(this)
   end subroutine h5_close
 
@@ -507,15 +606,35 @@ contains
     if (.not. this%temporary) then
       call h5_close(this, error); return
     end if
+    ! A metadata flush that fails (full disk) leaves HDF5 1.10 unable to close the file, and
+    ! the freed file still registered crashes the library shutdown inside MPI_Finalize. So
+    ! the space the last writes need is reserved first (the whole allocated address range
+    ! plus a margin, without changing the size): if it cannot be, the file is abandoned
+    ! before any flush (h5_abort sends the pending writes to memory) and the error says why.
+    call ensure_space(this, 0_i8, op, "/", error)
+    if (allocated(error)) then
+      call h5_abort(this); return
+    end if
+    call clear_errno()
+    call h5fflush_f(this%fid, H5F_SCOPE_GLOBAL_F, hdferr)
+    call check_h5(hdferr, this, error, op, "/", "h5fflush_f")
+    call sync_error(this, error)
+    if (allocated(error)) then
+      call h5_abort(this); return
+    end if
     call close_file(this, hdferr)
     call check_h5(hdferr, this, error, op, "/", "h5fclose_f")
-    call sync_error(this, error, op, "/")
+    call sync_error(this, error)
     if (allocated(error)) then
       call release_comm(this); return
     end if
     if (this%parallel) call MPI_Barrier(this%comm, ierr)
     status = 0
-    if (this%rank == 0) status = rename_file(this%disk_path, this%final_path)
+    if (this%rank == 0) then
+      ! give back the reserved blocks past the end of the file
+      status = truncate_to(this%disk_path, file_size(this%disk_path))
+      status = rename_file(this%disk_path, this%final_path)
+    end if
     if (this%parallel) call MPI_Bcast(status, 1, MPI_INTEGER, 0, this%comm, ierr)
     call release_comm(this)
     if (status /= 0) then
@@ -531,6 +650,28 @@ contains
   subroutine h5_abort(this)
     class(h5file_t), intent(inout) :: this
     integer :: hdferr, ierr, status
+    integer(c_int), pointer :: fd
+    type(c_ptr) :: handle
+    ! An abandoned temporary must close even when its pending writes cannot succeed (full
+    ! disk): a failed h5fclose leaves HDF5 1.10 with a freed file still registered, which
+    ! crashes at library shutdown (inside MPI_Finalize). Serial files: the remaining writes
+    ! go to an in-memory file. Parallel (MPI-IO) files: the temporary is emptied, which frees
+    ! its blocks for the last metadata writes.
+    if (this%temporary .and. this%writable .and. this%fid >= 0 .and. allocated(this%disk_path)) then
+      if (.not. this%parallel) then
+        handle = c_null_ptr
+        if (h5fget_vfd_handle_c(this%fid, H5P_DEFAULT_F, handle) >= 0) then
+          if (c_associated(handle)) then
+            call c_f_pointer(handle, fd)
+            status = discard_fd(fd)
+          end if
+        end if
+      else
+        call MPI_Barrier(this%comm, ierr)
+        if (this%rank == 0) status = truncate_file(this%disk_path)
+        call MPI_Barrier(this%comm, ierr)
+      end if
+    end if
     call close_file(this, hdferr)
     if (this%temporary .and. allocated(this%disk_path)) then
       if (this%parallel) call MPI_Barrier(this%comm, ierr)
@@ -580,12 +721,14 @@ contains
     character(len=*), parameter :: op = "make_group"
     call need_open(this, error, op, name, .true.)
     if (allocated(error)) return
+    call ensure_space(this, 0_i8, op, name, error)
+    if (allocated(error)) return
     if (.not. this%exists(name)) then
       call h5gcreate_f(this%fid, name, gid, hdferr, lcpl_id=this%lcpl)
       call check_h5(hdferr, this, error, op, name, "h5gcreate_f")
       if (hdferr >= 0) call h5gclose_f(gid, e)
     end if
-    call sync_error(this, error, op, name)
+    call sync_error(this, error)
   end subroutine make_group
 
   !> Dataset dims, class and element size (dataset closed again).
@@ -760,6 +903,7 @@ contains
     integer(hid_t) :: dset
     character(len=*), parameter :: op = "create_dataset"
     call need_open(this, error, op, name, .true.)
+    if (.not. allocated(error)) call ensure_space(this, 8_i8 * product(int(global_dims, i8)), op, name, error)
     if (.not. allocated(error)) then
       if (type_of(kind) < 0) then
         call fail(this, error, op, name, "unknown kind code " // str(kind))
@@ -769,7 +913,7 @@ contains
         if (.not. allocated(error)) call close_ids(dset=dset)
       end if
     end if
-    call sync_error(this, error, op, name)
+    call sync_error(this, error)
   end subroutine create_dataset
 
   !> Create (collectively) a chunked dataset [row_shape..., 0] with an unlimited last dimension,
@@ -788,6 +932,7 @@ contains
     integer :: r, nrow
     character(len=*), parameter :: op = "create_extendible"
     call need_open(this, error, op, name, .true.)
+    if (.not. allocated(error)) call ensure_space(this, 0_i8, op, name, error)
     if (.not. allocated(error)) then
       r = size(row_shape) + 1
       nrow = max(1, product(row_shape))
@@ -808,7 +953,7 @@ contains
         if (.not. allocated(error)) call close_ids(dset=dset)
       end if
     end if
-    call sync_error(this, error, op, name)
+    call sync_error(this, error)
   end subroutine create_extendible
 
   ! ------------------------------------------------------------------ whole datasets
@@ -827,6 +972,7 @@ contains
     character(len=*), parameter :: op = "write"
     dset = -1
     call need_open(this, error, op, name, .true.)
+    if (.not. allocated(error)) call ensure_space(this, 8_i8 * product(int(d, i8)), op, name, error)
     if (.not. allocated(error)) then
       call create_raw(this, name, op, mtype, tclass, d, dset, error)
       if (.not. allocated(error) .and. (.not. this%parallel .or. this%rank == 0) &
@@ -836,7 +982,7 @@ contains
       end if
     end if
     call close_ids(dset=dset)
-    call sync_error(this, error, op, name)
+    call sync_error(this, error)
   end subroutine write_raw
 
   !> Read a whole dataset into p (memory type mtype); caller has checked dims.
@@ -1131,6 +1277,8 @@ contains
     ops: block
       call need_open(this, error, op, name, .true.)
       if (allocated(error)) exit ops
+      call ensure_space(this, 8_i8 * product(int(dd, i8)), op, name, error)
+      if (allocated(error)) exit ops
       call query(this, name, op, size(dd), tclass, d, error)
       if (allocated(error)) then
         if (size(d) /= size(dd) + 1) exit ops
@@ -1177,7 +1325,7 @@ contains
       end if
     end block ops
     call close_ids(dset=dset, space=fspace, mspace=mspace)
-    call sync_error(this, error, op, name)
+    call sync_error(this, error)
   end subroutine append_raw
 
   !> Append one real(wp) element to a 1D extendible dataset.
@@ -1329,8 +1477,12 @@ contains
           "leading dims mismatch: data dims " // dims_str(dd), d)
       end if
     end if
-    call sync_error(this, error, op, name)
+    call sync_error(this, error)
     if (allocated(error)) return
+    if (is_write) then
+      call ensure_space(this, 8_i8 * product(int(dd, i8)), op, name, error)
+      if (allocated(error)) return
+    end if
     ops: block
       call h5dopen_f(this%fid, name, dset, hdferr)
       call check_h5(hdferr, this, error, op, name, "h5dopen_f", d)
@@ -1397,7 +1549,7 @@ contains
     end block ops
     if (xfer == H5P_DEFAULT_F) xfer = -1
     call close_ids(dset=dset, space=fspace, mspace=mspace, ptype=xfer)
-    call sync_error(this, error, op, name)
+    call sync_error(this, error)
   end subroutine ranges_raw
 
   !> Collective: write this rank's elements offset+1..offset+size(x) of a 1D dataset.
@@ -1601,6 +1753,8 @@ contains
     ops: block
       call need_open(this, error, op, label, .true.)
       if (allocated(error)) exit ops
+      call ensure_space(this, 8_i8 * product(int(d, i8)), op, label, error)
+      if (allocated(error)) exit ops
       call h5oopen_f(this%fid, obj_path(obj), oid, hdferr)
       call check_h5(hdferr, this, error, op, label, "h5oopen_f (no such object?)")
       if (allocated(error)) exit ops
@@ -1630,7 +1784,7 @@ contains
     if (aid >= 0) call h5aclose_f(aid, e)
     call close_ids(space=space)
     if (oid >= 0) call h5oclose_f(oid, e)
-    call sync_error(this, error, op, label)
+    call sync_error(this, error)
   end subroutine attr_write_raw
 
   !> Read attribute `name` of `obj` into p after checking class and dims (expected_rank -1:
@@ -1785,7 +1939,7 @@ contains
     if (size(value) == 0) then
       call fail(this, error, "write_attr", obj_path(obj) // "@" // name, &
         "empty array attributes are not supported")
-      call sync_error(this, error, "write_attr", name)
+      call sync_error(this, error)
       return
     end if
     call attr_write_raw(this, obj, name, c_loc(value), type_of(cr_h5_real), &
@@ -1801,7 +1955,7 @@ contains
     if (size(value) == 0) then
       call fail(this, error, "write_attr", obj_path(obj) // "@" // name, &
         "empty array attributes are not supported")
-      call sync_error(this, error, "write_attr", name)
+      call sync_error(this, error)
       return
     end if
     call attr_write_raw(this, obj, name, c_loc(value), type_of(cr_h5_int), &

@@ -11,7 +11,7 @@ module cr_json
   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error
-  use cr_fsys, only: rename_file
+  use cr_fsys, only: rename_file, write_whole_file
   implicit none
   private
   public :: json_writer_t, json_escape
@@ -223,25 +223,14 @@ contains
     class(json_writer_t), intent(in) :: this
     character(len=*), intent(in) :: path
     type(error_t), allocatable, intent(out) :: error
-    integer :: unit, ios
-    character(len=256) :: msg
+    character(len=:), allocatable :: msg
     if (this%depth /= 0 .or. this%misuse) then
       call set_error(error, "json: write '" // path // "': unbalanced begin_object/end_object")
       return
     end if
-    open(newunit=unit, file=path // ".partial", status="replace", action="write", &
-      access="stream", form="unformatted", iostat=ios, iomsg=msg)
-    if (ios /= 0) then
-      call set_error(error, "json: write '" // path // "': " // trim(msg)); return
-    end if
-    write(unit, iostat=ios, iomsg=msg) this%to_string()
-    if (ios /= 0) then
-      close(unit, status="delete")
-      call set_error(error, "json: write '" // path // "': " // trim(msg)); return
-    end if
-    close(unit, iostat=ios, iomsg=msg)
-    if (ios /= 0) then
-      call set_error(error, "json: close '" // path // ".partial': " // trim(msg)); return
+    call write_whole_file(path // ".partial", this%to_string(), msg)
+    if (len(msg) > 0) then
+      call set_error(error, "json: " // msg); return
     end if
     if (rename_file(path // ".partial", path) /= 0) then
       call set_error(error, "json: rename '" // path // ".partial' -> '" // path // "' failed")

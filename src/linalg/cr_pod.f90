@@ -215,13 +215,8 @@ contains
     type(env_t), intent(in) :: env
     type(error_t), allocatable, intent(inout) :: error
     character(len=*), intent(in) :: where
-    if (env%any_true(allocated(error))) then
-      if (.not. allocated(error)) then
-        call set_error(error, where // ": failed on another rank")
-      else
-        call prefix_error(error, where // ": ")
-      end if
-    end if
+    if (allocated(error)) call prefix_error(error, where)
+    call env%agree_error(error)
   end subroutine sync_error
 
   !> Exact POD by TSQR of S^T and SVD of the final R factor (no Gram matrix).

@@ -122,10 +122,8 @@ contains
       step = 2 * step
     end do
 
-    if (env%any_true(failed)) then
-      if (.not. allocated(error)) call set_error(error, "tsqr: a local QR failed on another rank")
-      return
-    end if
+    call env%agree_error(error)
+    if (allocated(error)) return
 
     ! size of the final R, known to all
     m = 0
@@ -173,8 +171,7 @@ contains
     else
       q_local = c
     end if
-    if (.not. env%any_true(allocated(error))) return
-    if (.not. allocated(error)) call set_error(error, "tsqr: forming Q failed on another rank")
+    call env%agree_error(error)
   end subroutine tsqr
 
   !> Upper-trapezoidal part of a [m, n].

@@ -8,8 +8,11 @@ module cr_offline_config
   use cr_namelist_text, only: namelist_text_t
   use cr_config, only: nml_status
   use cr_pod, only: POD_METHODS
+  use cr_paths, only: io_paths_t
+  use cr_config_check, only: need_sane
   implicit none
   private
+  public :: check_offline_paths
   public :: offline_cfg_t, read_offline, check_offline, offline_echo, MAX_GRID
 
   integer, parameter :: MAX_GRID = 32, MAX_PATH = 512
@@ -184,12 +187,35 @@ contains
     end subroutine read_hyper
   end subroutine read_offline
 
+  !> crowd_offline's outputs (&offline rom_file, the --summary file) checked against its
+  !> inputs (the namelist, the snapshot database) and each other, before any work.
+  subroutine check_offline_paths(input, summary, c, error)
+    character(len=*), intent(in) :: input, summary
+    type(offline_cfg_t), intent(in) :: c
+    type(error_t), allocatable, intent(out) :: error
+    type(io_paths_t) :: paths
+    call paths%input("file", input)
+    call paths%input("&offline database", c%database)
+    call paths%output("&offline rom_file", c%rom_file)
+    call paths%output("--summary", summary)
+    call paths%check(input, error)
+  end subroutine check_offline_paths
+
   !> Validate the groups of crowd_offline; all problems reported at once.
   subroutine check_offline(path, c, error)
     character(len=*), intent(in) :: path
     type(offline_cfg_t), intent(in) :: c
     type(error_t), allocatable, intent(out) :: error
     type(problems_t) :: probs
+    ! every real finite and of a sane magnitude, first: the range checks below would trap on NaN
+    call need_sane(probs, c%pod_energy, "&pod: energy", 1.0_wp)
+    call need_sane(probs, c%cone_delta, "&cone: delta", 1.0e6_wp)
+    call need_sane(probs, c%pga_delta, "&pga: delta", 1.0e6_wp)
+    call need_sane(probs, c%hyper_m_factor, "&hyper: m_factor", 1.0e6_wp)
+    call need_sane(probs, c%eq_tol, "&hyper: eq_tol", 1.0_wp)
+    if (probs%n > 0) then
+      call probs%to_error(path, error); return
+    end if
     call probs%need(len_trim(c%database) > 0, "&offline: database must be given")
     call probs%need(len_trim(c%rom_file) > 0, "&offline: rom_file must be given")
     call probs%need(any(c%pod_method == POD_METHODS), &

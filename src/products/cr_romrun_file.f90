@@ -106,6 +106,8 @@ module cr_romrun_file
   contains
     procedure :: open => writer_open
     procedure :: write_set => writer_write_set
+    procedure :: write_table => writer_write_table
+    procedure :: commit => writer_commit
     procedure :: close => writer_close
     procedure :: abort => writer_abort
   end type romrun_writer_t
@@ -224,6 +226,23 @@ contains
     type(romrun_header_t), intent(in) :: hdr
     type(romrun_row_t), intent(in) :: rows(:)
     type(error_t), allocatable, intent(out) :: error
+    call this%write_table(hdr, rows, error)
+    if (.not. allocated(error)) call this%commit(error)
+  end subroutine writer_close
+
+  !> Rename the temporary file to its final name (after write_table).
+  subroutine writer_commit(this, error)
+    class(romrun_writer_t), intent(inout) :: this
+    type(error_t), allocatable, intent(out) :: error
+    call this%h5%commit(error)
+  end subroutine writer_commit
+
+  !> Write the sweep table (group /table).
+  subroutine writer_write_table(this, hdr, rows, error)
+    class(romrun_writer_t), intent(inout) :: this
+    type(romrun_header_t), intent(in) :: hdr
+    type(romrun_row_t), intent(in) :: rows(:)
+    type(error_t), allocatable, intent(out) :: error
     integer :: k, j
     associate (h5 => this%h5)
       call h5%make_group("table", error); if (allocated(error)) return
@@ -263,10 +282,8 @@ contains
       if (allocated(error)) return
       call h5%write_attr("table", "columns", "see the CSV header; strings (set, hyper, contacts, solver) in " // &
         "the setting_<k> attributes", error)
-      if (allocated(error)) return
-      call h5%commit(error)
     end associate
-  end subroutine writer_close
+  end subroutine writer_write_table
 
   !> Close and delete the temporary file.
   subroutine writer_abort(this)

@@ -146,6 +146,8 @@ module cr_reduced_ops
     !> reduced images of the unit directions of each s2 point's contact row: x and y parts of
     !> (V^T rows of agent b) - (V^T rows of agent a) [nb, 2, m2] (b = 0: minus agent a's)
     real(wp), allocatable :: dvt(:,:,:)
+    !> columns of bt written at this step [R]
+    logical, allocatable :: written(:)
   contains
     procedure :: assemble => eq_assemble
   end type ops_eq_t
@@ -232,7 +234,7 @@ contains
       call unique_map([ops%idx2, ops%idx3], ops%urows, ops%pos2, ops%pos3, size(ops%idx2))
       call unique_map((ops%idx1 + 1) / 2, ops%uagents, ops%pos1)
       allocate(ops%ugap(size(ops%urows)), ops%ug(2, size(ops%urows)), ops%udes(2, size(ops%uagents)))
-      allocate(ops%xs(size(pair%v, 1)), ops%dvt(pair%nb, 2, m(2)))
+      allocate(ops%xs(size(pair%v, 1)), ops%dvt(pair%nb, 2, m(2)), ops%written(pair%r))
       ops%dvt = 0
       do k = 1, m(2)
         associate (l => ops%idx2(k))
@@ -599,15 +601,22 @@ contains
     end if
   end subroutine add_row
 
-  !> y += c1 x1 + c2 x2.
-  pure subroutine add_pair(y, c1, x1, c2, x2)
+  !> y += c1 x1 + c2 x2 (acc), or y = c1 x1 + c2 x2.
+  pure subroutine add_pair(y, c1, x1, c2, x2, acc)
     real(wp), contiguous, intent(inout) :: y(:)
     real(wp), intent(in) :: c1, c2
     real(wp), contiguous, intent(in) :: x1(:), x2(:)
+    logical, intent(in) :: acc
     integer :: i
-    do i = 1, size(y)
-      y(i) = y(i) + c1 * x1(i) + c2 * x2(i)
-    end do
+    if (acc) then
+      do i = 1, size(y)
+        y(i) = y(i) + c1 * x1(i) + c2 * x2(i)
+      end do
+    else
+      do i = 1, size(y)
+        y(i) = c1 * x1(i) + c2 * x2(i)
+      end do
+    end if
   end subroutine add_pair
 
   subroutine online_assemble(this, ctx, q, vhat, bt, dhat)
@@ -729,7 +738,9 @@ contains
     integer :: j, i, l, k, a, b, p, u
     call ensure(bt, dhat, this%nb, this%r)
     dhat = 0
-    bt = 0
+    ! each column of bt is written by its first point and accumulated by the next ones (a gIS
+    ! cone has one point per column): no clearing pass over bt
+    this%written = .false.
     if (this%has_gram) this%zn = 0
     ! each agent and contact row once
     do u = 1, size(this%uagents)
@@ -761,9 +772,14 @@ contains
       do p = this%wp0(l) + 1, this%wp0(l + 1)
         k = this%wk(p)
         c = this%w2(j) * this%wv(p)
-        call add_pair(bt(:, k), (c * ctx%h) * g(1), this%dvt(:, 1, j), (c * ctx%h) * g(2), this%dvt(:, 2, j))
+        call add_pair(bt(:, k), (c * ctx%h) * g(1), this%dvt(:, 1, j), (c * ctx%h) * g(2), this%dvt(:, 2, j), &
+          this%written(k))
+        this%written(k) = .true.
         if (this%has_gram) call this%z_add(k, c, a, b, g, ctx%h)
       end do
+    end do
+    do k = 1, this%r
+      if (.not. this%written(k)) bt(:, k) = 0
     end do
     do j = 1, this%m(3)
       l = this%idx3(j)

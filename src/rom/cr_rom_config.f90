@@ -14,8 +14,11 @@ module cr_rom_config
   use cr_strings, only: str
   use cr_namelist_text, only: namelist_text_t
   use cr_config, only: nml_status
+  use cr_paths, only: io_paths_t
+  use cr_config_check, only: need_sane, MAX_SPEED
   implicit none
   private
+  public :: check_rom_paths
   public :: rom_cfg_t, read_rom, check_rom, rom_echo, MAX_SETTINGS, MAX_MU
 
   integer, parameter :: MAX_SETTINGS = 64, MAX_PATH = 512, MAX_MU = 1024
@@ -160,6 +163,23 @@ contains
     end subroutine read_timing
   end subroutine read_rom
 
+  !> crowd_rom's outputs (&rom output and table, the --summary file) checked against its
+  !> inputs (the namelist, the ROM file, the snapshot database `database`, which may come
+  !> from the ROM file) and each other, before any work.
+  subroutine check_rom_paths(input, summary, c, database, error)
+    character(len=*), intent(in) :: input, summary, database
+    type(rom_cfg_t), intent(in) :: c
+    type(error_t), allocatable, intent(out) :: error
+    type(io_paths_t) :: paths
+    call paths%input("file", input)
+    call paths%input("&rom rom_file", c%rom_file)
+    call paths%input("snapshot database", database)
+    call paths%output("&rom output", c%output)
+    call paths%output("&rom table", c%table)
+    call paths%output("--summary", summary)
+    call paths%check(input, error)
+  end subroutine check_rom_paths
+
   !> Validate &rom; all problems reported at once.
   subroutine check_rom(path, c, error)
     character(len=*), intent(in) :: path
@@ -167,6 +187,18 @@ contains
     type(error_t), allocatable, intent(out) :: error
     type(problems_t) :: probs
     integer :: k
+    ! every real finite and of a sane magnitude (a parameter of Inf or 1e308 would never end)
+    call need_sane(probs, c%uzawa_rho_factor, "&reduced: uzawa_rho_factor", 1.0e12_wp)
+    call need_sane(probs, c%uzawa_eps, "&reduced: uzawa_eps", 1.0_wp)
+    call need_sane(probs, c%fom_tol, "&fom_timing: tol", 1.0_wp)
+    call need_sane(probs, c%fom_uzawa_eps, "&fom_timing: uzawa_eps", 1.0_wp)
+    do k = 1, MAX_MU
+      if (c%mu(k) == -huge(1.0_wp)) cycle
+      call need_sane(probs, c%mu(k), "&rom: mu(" // str(k) // ")", MAX_SPEED)
+    end do
+    if (probs%n > 0) then
+      call probs%to_error(path, error); return
+    end if
     call probs%need(len_trim(c%rom_file) > 0, "&rom: rom_file must be given")
     call probs%need(len_trim(c%output) > 0, "&rom: output must be given")
     call probs%need(any(c%sets == [character(len=8) :: 'valid', 'train', 'both', 'given']), &

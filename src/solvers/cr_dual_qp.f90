@@ -33,8 +33,9 @@
 !> refinement. For any such point, |u - u*|_2^2 <= tau . (lambda + lambda*) with u* the exact
 !> projection and lambda* its multipliers (see the tests). When the iteration meets a violated
 !> row that depends on the active ones with no multiplier to release (a Farkas-type
-!> certificate that {Bm u <= d} is empty), or hits its cap, or the certificate fails, the
-!> result is not certified and the caller falls back to the Lawson-Hanson LDP (cr_nnls),
+!> certificate that {Bm u <= d} is empty), or hits its cap or the caller's bound on the active
+!> set (max_active: a Gram of nearly as many rows as unknowns cannot be certified), or the
+!> certificate fails, the result is not certified and the caller falls back to the Lawson-Hanson LDP (cr_nnls),
 !> which also computes the least-violation point of infeasible problems.
 !> Finiteness: the slacks of the first sweep are summed (m additions); a NaN or Inf in Bm or d
 !> shows there (stats%nonfinite, not certified) and the caller's fallback names the entry.
@@ -118,6 +119,23 @@ module cr_dual_qp
 
 contains
 
+  !> x . y with eight partial sums (the compiler keeps the order of a plain sum, which makes
+  !> a length-150 dot product latency-bound).
+  pure real(wp) function dot8(x, y) result(t)
+    real(wp), contiguous, intent(in) :: x(:), y(:)
+    real(wp) :: acc(8)
+    integer :: i, n8
+    n8 = size(x) - mod(size(x), 8)
+    acc = 0
+    do i = 1, n8, 8
+      acc = acc + x(i:i + 7) * y(i:i + 7)
+    end do
+    t = sum(acc)
+    do i = n8 + 1, size(x)
+      t = t + x(i) * y(i)
+    end do
+  end function dot8
+
   !> g(i) = |b_i|^2 for the m rows [m] (default: one gram_entries call per row).
   subroutine gram_diag(this, g)
     class(gram_source_t), intent(in) :: this
@@ -162,9 +180,10 @@ contains
     !> constraint rows as columns: Bm^T [n, m]
     real(wp), contiguous, intent(in) :: bt(:,:)
     !> right-hand side [m], point to project [n]
-    real(wp), intent(in) :: d(:), v(:)
+    real(wp), intent(in) :: d(:)
+    real(wp), contiguous, intent(in) :: v(:)
     !> projection [n]
-    real(wp), intent(out) :: u(:)
+    real(wp), contiguous, intent(out) :: u(:)
     !> multipliers [m] (warm-start guess on entry)
     real(wp), intent(inout) :: lambda(:)
     type(dual_qp_stats_t), intent(out) :: stats
@@ -197,7 +216,7 @@ contains
       call gsrc%gram_diag(this%nrm2(1:m))
     else
       do i = 1, m
-        this%nrm2(i) = dot_product(bt(:, i), bt(:, i))
+        this%nrm2(i) = dot8(bt(:, i), bt(:, i))
       end do
     end if
     this%nrm(1:m) = sqrt(this%nrm2(1:m))
@@ -218,7 +237,7 @@ contains
         if (k == 0) exit
         ! G_A lambda_A = Bm_A v - d_A
         do j = 1, k
-          this%y(j) = dot_product(bt(:, this%act(j)), v) - d(this%act(j))
+          this%y(j) = dot8(bt(:, this%act(j)), v) - d(this%act(j))
         end do
         call chol_solve(this%y(1:k), this%lam(1:k))
         if (all(this%lam(1:k) >= 0)) exit
@@ -315,7 +334,7 @@ contains
           do c = 1, nc
             i = this%cand(c)
             if (c == pc .or. this%in_a(i)) cycle
-            this%sc(c) = this%sc(c) + t * dot_product(bt(:, i), this%zdir(1:n))
+            this%sc(c) = this%sc(c) + t * dot8(bt(:, i), this%zdir(1:n))
           end do
         end if
         this%lam(1:k) = this%lam(1:k) - t * this%r(1:k)
@@ -394,7 +413,7 @@ contains
       end do
       this%s(1:m) = d
       call la_gemv('T', -1.0_wp, bt, u, 1.0_wp, this%s(1:m))
-      unorm = norm2(u)
+      unorm = sqrt(dot8(u, u))
       this%tau(1:m) = KKT_FACTOR * eps * (this%nrm(1:m) * unorm + abs(d))
     end subroutine primal
 
@@ -408,7 +427,7 @@ contains
           call gsrc%gram_entries(pp, this%act(1:k), this%gp(1:k))
         else
           do jj = 1, k
-            this%gp(jj) = dot_product(bt(:, pp), bt(:, this%act(jj)))
+            this%gp(jj) = dot8(bt(:, pp), bt(:, this%act(jj)))
           end do
         end if
         call forward_solve(this%gp(1:k), this%y(1:k))

@@ -160,9 +160,10 @@ contains
     type(solve_stats_t), intent(inout) :: stats
     call kkt_residuals(cs, v, u, lambda(1:cs%n), stats%primal, stats%dual, stats%compl, stats%stat)
     stats%kkt = max(stats%primal, stats%dual, stats%compl, stats%stat)
-    ! a NaN residual must not hide behind max()
+    ! a NaN must not hide behind max() (here or inside kkt_residuals)
     if (stats%primal /= stats%primal .or. stats%dual /= stats%dual .or. stats%compl /= stats%compl &
-        .or. stats%stat /= stats%stat) stats%kkt = ieee_value(1.0_wp, ieee_quiet_nan)
+        .or. stats%stat /= stats%stat .or. any(u /= u) .or. any(lambda(1:cs%n) /= lambda(1:cs%n))) &
+      stats%kkt = ieee_value(1.0_wp, ieee_quiet_nan)
     if (.not. allocated(stats%note)) stats%note = ""
     if (stats%converged .and. stats%kkt > tol) then
       call add_note(stats, "stopping test met but KKT residual " // str(stats%kkt, "es9.2") // &

@@ -510,7 +510,7 @@ contains
         this%newact(1:m) = this%act(1:m)
         this%newact(this%viol(1:nv)) = .true.
         this%newact(this%rem(1:nrem)) = .false.
-        if (nv + nrem > max(this%bulk_min, k / this%bulk_div)) then
+        if (nv + nrem > max(this%bulk_min, k / this%bulk_div) .or. nrem > del_cap()) then
           call this%chol%factor(this%newact(1:m), error); if (allocated(error)) return
           call this%chol%pivots(this%piv(1:m), error); if (allocated(error)) return
           ! rows with a dependent pivot stay out (sweeps are heuristic; the monotone loop
@@ -536,6 +536,7 @@ contains
             call this%chol%rowdel(this%rem(q), error); if (allocated(error)) return
             this%act(this%rem(q)) = .false.
           end do
+          bad = .false.
           do q = 1, nv
             t = this%viol(q)
             call this%chol%rowadd(t, this%fi(this%fp(t):this%fp(t + 1) - 1), &
@@ -543,12 +544,30 @@ contains
             if (allocated(error)) return
             this%act(t) = .true.
             if (.not. (pivot > dep_tol)) then
-              ! dependent: the rank-2 update is unreliable; refactorise without it and stop
-              this%act(t) = .false.
+              this%act(t) = .false.; bad = .true.
+              exit
+            end if
+          end do
+          ! an addition also lowers the later pivots (and a bad one spoils the factor)
+          if (.not. bad) bad = .not. (this%chol%min_pivot() > dep_tol)
+          if (bad) then
+            ! refactorise the current set, leaving out the rows with a dependent pivot
+            do q = 1, 4
+              call this%chol%factor(this%act(1:m), error); if (allocated(error)) return
+              call this%chol%pivots(this%piv(1:m), error); if (allocated(error)) return
+              bad = .false.
+              do j = 1, m
+                if (this%act(j) .and. .not. (this%piv(j) > dep_tol)) then
+                  this%act(j) = .false.; this%lam(j) = 0.0_wp; bad = .true.
+                end if
+              end do
+              if (.not. bad) exit
+            end do
+            if (bad) then
               call this%chol%factor(this%act(1:m), error); if (allocated(error)) return
               exit sweeps
             end if
-          end do
+          end if
         end if
       end do sweeps
       ! back to the invariant of the monotone loop: lambda = z > 0 on P
@@ -773,11 +792,19 @@ contains
       end do
     end subroutine step_back
 
+    !> Most row deletions worth doing one by one: cholmod_rowdel without the row's pattern
+    !> scans the factor (O(nnz(L)) each), about 1/100 of a refactorisation; on large problems
+    !> (sweeps in use) more than bulk_min deletions are cheaper as one refactorisation.
+    integer function del_cap() result(cap)
+      cap = huge(1)
+      if (m >= this%pdas_rows) cap = this%bulk_min
+    end function del_cap
+
     !> Take rows viol(1:n) out of P (row deletions, or one refactorisation when many).
     subroutine remove_rows(n)
       integer, intent(in) :: n
       integer :: q
-      if (n > max(this%bulk_min, count(this%act(1:m)) / this%bulk_div)) then
+      if (n > min(max(this%bulk_min, count(this%act(1:m)) / this%bulk_div), del_cap())) then
         this%act(this%viol(1:n)) = .false.
         call this%chol%factor(this%act(1:m), error)
       else

@@ -7,10 +7,12 @@
 !> (streams disjoint from training), checked to be disjoint from the training samples.
 module cr_sampling
   use cr_kinds, only: wp
-  use cr_error, only: error_t, set_error
+  use cr_error, only: error_t, set_error, problems_t, prefix_error
+  use cr_config_check, only: check_config, need_sane, MAX_SPEED
   use cr_strings, only: str
   use cr_random, only: rng_t
   use cr_param_model, only: param_model_t
+  use cr_config, only: config_t
   use cr_study_config, only: study_cfg_t
   implicit none
   private
@@ -22,6 +24,7 @@ module cr_sampling
     real(wp), allocatable :: lo(:), hi(:)
   contains
     procedure :: init => space_init
+    procedure :: check_values
   end type param_space_t
 
   !> One sample set (training or validation).
@@ -48,6 +51,39 @@ contains
       this%hi(this%first(k):this%first(k) + this%width(k) - 1) = s%param_max(k)
     end do
   end subroutine space_init
+
+  !> Parameter values usable on the reference configuration `cfg`: every component finite
+  !> and of a sane magnitude, and the scene they give valid (check_config: an l_exit wider
+  !> than the wall, a speed of 1e308 are refused). Values outside the study's box are allowed
+  !> (the reduced model then extrapolates). `what` starts the message.
+  subroutine check_values(this, mu, cfg, what, error)
+    class(param_space_t), intent(in) :: this
+    !> parameter values [n_expanded]
+    real(wp), intent(in) :: mu(:)
+    type(config_t), intent(in) :: cfg
+    character(len=*), intent(in) :: what
+    type(error_t), allocatable, intent(out) :: error
+    type(problems_t) :: probs
+    type(config_t) :: c
+    real(wp), allocatable :: speeds(:)
+    integer :: k
+    do k = 1, size(mu)
+      call need_sane(probs, mu(k), "component " // str(k), MAX_SPEED)
+    end do
+    call probs%to_error(what, error)
+    if (allocated(error)) return
+    c = cfg
+    allocate(speeds(max(cfg%agents%n_agents, 0)))
+    speeds = cfg%agents%speed
+    call this%apply(mu, c, speeds)
+    do k = 1, size(speeds)
+      call probs%need(speeds(k) >= 0, "agent " // str(k) // ": speed " // str(speeds(k)) // " must be >= 0")
+    end do
+    call probs%to_error(what, error)
+    if (allocated(error)) return
+    call check_config(c, error)
+    if (allocated(error)) call prefix_error(error, what // " gives an invalid scene")
+  end subroutine check_values
 
   !> Training and validation samples of the study (identical on every rank).
   subroutine generate_samples(s, space, train, valid, error)

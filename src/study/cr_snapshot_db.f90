@@ -659,7 +659,7 @@ contains
     integer, allocatable, intent(out) :: dia(:), dib(:), dob(:)
     integer(i8), allocatable :: keys(:), allk(:)
     integer, allocatable :: ids(:,:), allid(:,:), idx(:), counts(:), displs(:), c3(:), d3(:)
-    integer :: n, is, k, j, m, ierr, r
+    integer :: n, is, k, m, ierr, r
     ! local unique
     n = 0
     do is = 1, size(sets)
@@ -668,14 +668,16 @@ contains
       end do
     end do
     allocate(keys(n), ids(3, n))
+    ! each sample's keys made unique first (a contact lasts many steps): the sorts stay small
     n = 0
     do is = 1, size(sets)
       do k = 1, sets(is)%nloc
         associate (s => sets(is)%s(k))
-          do j = 1, size(s%key)
-            n = n + 1
-            keys(n) = s%key(j); ids(:, n) = [s%ia(j), s%ib(j), s%ob(j)]
-          end do
+          m = size(s%key)
+          keys(n + 1:n + m) = s%key
+          ids(1, n + 1:n + m) = s%ia; ids(2, n + 1:n + m) = s%ib; ids(3, n + 1:n + m) = s%ob
+          call unique(keys(n + 1:n + m), ids(:, n + 1:n + m), m)
+          n = n + m
         end associate
       end do
     end do
@@ -734,22 +736,14 @@ contains
     call move_alloc(a%ob, b%ob); call move_alloc(a%value, b%value)
   end subroutine move_sample
 
-  !> Make a per-rank error message collective (the lowest failing rank's message wins).
+  !> Make a per-rank error message (empty: no error) collective: env%agree_error, the lowest
+  !> failing rank's message wins and every rank returns it.
   subroutine collective_error(env, msg, error)
     type(env_t), intent(in) :: env
     character(len=:), allocatable, intent(inout) :: msg
     type(error_t), allocatable, intent(out) :: error
-    integer :: who, ierr, n
-    who = huge(1)
-    if (len(msg) > 0) who = env%rank
-    call MPI_Allreduce(MPI_IN_PLACE, who, 1, MPI_INTEGER, MPI_MIN, env%comm, ierr)
-    if (who == huge(1)) return
-    n = len(msg)
-    call MPI_Bcast(n, 1, MPI_INTEGER, who, env%comm, ierr)
-    if (env%rank /= who) then
-      deallocate(msg); allocate(character(len=n) :: msg)
-    end if
-    call MPI_Bcast(msg, n, MPI_CHARACTER, who, env%comm, ierr)
-    call set_error(error, msg)
+    if (len(msg) > 0) call set_error(error, msg)
+    call env%agree_error(error)
+    if (allocated(error)) msg = error%message
   end subroutine collective_error
 end module cr_snapshot_db

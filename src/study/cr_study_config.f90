@@ -10,19 +10,24 @@
 !> n_agents components). Bounds are absolute. Reading follows cr_config (defaults, iostat,
 !> message naming file and group); check_study collects every problem.
 module cr_study_config
-  use cr_kinds, only: wp
+  use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error, problems_t
   use cr_strings, only: str, to_lower
   use cr_namelist_text, only: namelist_text_t
-  use cr_config, only: config_t, config_echo, MAX_PATH
+  use cr_config, only: config_t, config_echo, MAX_PATH, model_inputs
+  use cr_paths, only: io_paths_t
+  use cr_config_check, only: need_sane, MAX_LENGTH, MAX_SPEED
   use cr_hash, only: hash_text
   use cr_param_model, only: KNOWN_PARAMS, KNOWN_PARAMS_TEXT
   implicit none
   private
+  public :: check_study_paths
   public :: study_cfg_t, read_study, check_study, study_echo, study_hash, MAX_PARAMS, KNOWN_PARAMS
 
   !> most parameters in one study ('speeds' counts as one here)
   integer, parameter :: MAX_PARAMS = 8
+  !> the largest training or validation set (samples)
+  integer, parameter :: MAX_SAMPLES = 1000000
 
   !> &study: parameters, sampling, database.
   type :: study_cfg_t
@@ -76,6 +81,21 @@ contains
     c%n_valid = n_valid; c%seed = seed; c%database = database
   end subroutine read_study
 
+  !> crowd_snapshots' outputs (&study database, the --summary file) checked against its
+  !> inputs and each other, before any work (see cr_paths).
+  subroutine check_study_paths(input, summary, cfg, s, error)
+    character(len=*), intent(in) :: input, summary
+    type(config_t), intent(in) :: cfg
+    type(study_cfg_t), intent(in) :: s
+    type(error_t), allocatable, intent(out) :: error
+    type(io_paths_t) :: paths
+    call paths%input("file", input)
+    call model_inputs(cfg, paths)
+    call paths%output("&study database", s%database)
+    call paths%output("--summary", summary)
+    call paths%check(input, error)
+  end subroutine check_study_paths
+
   !> Check &study against the model configuration; `error` lists every problem.
   subroutine check_study(s, cfg, error)
     type(study_cfg_t), intent(in) :: s
@@ -83,8 +103,22 @@ contains
     type(error_t), allocatable, intent(out) :: error
     type(problems_t) :: probs
     integer :: k, j, np, ngrid
+    integer(i8) :: ngrid8
     character(len=:), allocatable :: nm
     np = min(max(s%n_params, 0), MAX_PARAMS)
+    do k = 1, np
+      if (trim(s%param_name(k)) == 'speed' .or. trim(s%param_name(k)) == 'speeds') then
+        call need_sane(probs, s%param_min(k), "&study: param_min(" // str(k) // ")", MAX_SPEED)
+        call need_sane(probs, s%param_max(k), "&study: param_max(" // str(k) // ")", MAX_SPEED)
+      else
+        call need_sane(probs, s%param_min(k), "&study: param_min(" // str(k) // ")", MAX_LENGTH)
+        call need_sane(probs, s%param_max(k), "&study: param_max(" // str(k) // ")", MAX_LENGTH)
+      end if
+    end do
+    ! non-finite bounds are reported alone (the comparisons below would trap on NaN)
+    if (probs%n > 0) then
+      call probs%to_error("", error); return
+    end if
     call probs%need(s%n_params >= 1 .and. s%n_params <= MAX_PARAMS, "&study: n_params must be in 1.." // &
       str(MAX_PARAMS) // " (got " // str(s%n_params) // ")")
     do k = 1, np
@@ -125,6 +159,16 @@ contains
     end do
     call probs%need(s%n_train >= 1, "&study: n_train must be >= 1 (got " // str(s%n_train) // ": zero samples)")
     call probs%need(s%n_valid >= 0, "&study: n_valid must be >= 0 (got " // str(s%n_valid) // ")")
+    call probs%need(s%n_train <= MAX_SAMPLES, "&study: n_train = " // str(s%n_train) // " exceeds " // &
+      str(MAX_SAMPLES) // " samples")
+    call probs%need(s%n_valid <= MAX_SAMPLES, "&study: n_valid = " // str(s%n_valid) // " exceeds " // &
+      str(MAX_SAMPLES) // " samples")
+    ! the database stores one column per sample and step: the count must fit its indices
+    if (cfg%time%n_steps >= 1 .and. s%n_train >= 0 .and. s%n_valid >= 0) then
+      call probs%need((int(s%n_train, i8) + s%n_valid) * cfg%time%n_steps <= int(huge(1), i8), &
+        "&study: (n_train + n_valid) * n_steps = " // str((int(s%n_train, i8) + s%n_valid) * cfg%time%n_steps) // &
+        " snapshots exceeds " // str(huge(1)))
+    end if
     call probs%need(s%seed >= 0, "&study: seed must be >= 0 (got " // str(s%seed) // ")")
     call probs%need(len_trim(s%database) > 0, "&study: database must name a file")
     select case (trim(s%sampling))
@@ -134,8 +178,9 @@ contains
         "'speeds' (one component per agent); use 'speed' or sampling = 'random'")
       call probs%need(all(s%grid_n(1:np) >= 1), "&study: sampling = 'grid' needs grid_n(1:n_params) >= 1")
       if (all(s%grid_n(1:np) >= 1) .and. np >= 1) then
-        ngrid = product(s%grid_n(1:np))
-        call probs%need(ngrid == s%n_train, "&study: grid_n gives " // str(ngrid) // " training samples but n_train = " &
+        ngrid8 = product(int(s%grid_n(1:np), i8))
+        ngrid = int(min(ngrid8, int(huge(1), i8)))
+        call probs%need(ngrid8 == s%n_train, "&study: grid_n gives " // str(ngrid8) // " training samples but n_train = " &
           // str(s%n_train))
       end if
     case default

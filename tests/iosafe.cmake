@@ -1,0 +1,65 @@
+# Error agreement across ranks, foreign inputs, output paths naming inputs, hostile values,
+# output faults (issues 11 items 5 and 7, 17, 18).
+cr_mpi_test(test_env_error NP 1 2 3)
+# rank 1 alone fails at 2 ranks: its message and rank are printed exactly once
+add_test(NAME env_error_printed_np2
+  COMMAND bash -c "out=$(\"$0\" -np 2 --oversubscribe \"$1\" print 2>&1); rc=$?; echo \"$out\"; \
+[ $rc -eq 3 ] && [ $(grep -c '^error: rank 1 of 2: disk on fire at step 7$' <<<\"$out\") -eq 1 ] && \
+[ $(grep -c '^error:' <<<\"$out\") -eq 1 ]"
+    ${MPIEXEC_EXECUTABLE} $<TARGET_FILE:test_env_error>
+  WORKING_DIRECTORY ${CMAKE_BINARY_DIR}/tests)
+set_tests_properties(env_error_printed_np2 PROPERTIES LABELS mpi ENVIRONMENT "${CR_MPI_ENV}" PROCESSORS 2)
+
+# Issue 17: foreign inputs (empty, blank, binary, HDF5, JSON, CSV, text, another program's
+# input) are refused by each program with one line, exit 2, nothing written.
+set(CR_EX ${CMAKE_SOURCE_DIR}/inputs)
+foreach(p crowd_fom crowd_snapshots crowd_offline crowd_rom)
+  if(p STREQUAL crowd_rom)
+    set(others ${CR_EX}/hall20.nml ${CR_EX}/hall20_study.nml)
+  elseif(p STREQUAL crowd_fom)
+    set(others ${CR_EX}/hall20_rom.nml)
+  else()
+    set(others ${CR_EX}/hall20.nml ${CR_EX}/hall20_rom.nml)
+  endif()
+  add_test(NAME foreign_input_${p}
+    COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/foreign_input.sh $<TARGET_FILE:${p}> ${others})
+  set_tests_properties(foreign_input_${p} PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}")
+endforeach()
+
+# crowd_podbench takes sizes on the command line: bad ones are refused with one line
+# cr_refused(name regex command args...): expect_refusal.sh in an empty scratch directory
+function(cr_refused name regex)
+  add_test(NAME ${name} COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/expect_refusal.sh "${regex}" ${ARGN})
+  set_tests_properties(${name} PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}")
+endfunction()
+cr_refused(podbench_args_word "argument 1 'x' is not a whole number" $<TARGET_FILE:crowd_podbench> x 3)
+cr_refused(podbench_args_odd "arguments are pairs" $<TARGET_FILE:crowd_podbench> 5)
+cr_refused(podbench_args_zero "argument 2 = 0 must be in" $<TARGET_FILE:crowd_podbench> 5 0)
+cr_refused(podbench_args_negative "argument 1 = -3 must be in" $<TARGET_FILE:crowd_podbench> -3 4)
+cr_refused(podbench_args_real "argument 1 '1e99' is not a whole number" $<TARGET_FILE:crowd_podbench> 1e99 5)
+cr_refused(podbench_args_huge "n_dof \\* n_snap exceeds" $<TARGET_FILE:crowd_podbench> 100000 100000)
+
+# Issue 11 item 7 / 18: hostile namelist values (Inf, NaN, 1e308, 1e-308, 2147483647, size
+# products that overflow), a generated family per program
+foreach(p crowd_fom crowd_snapshots crowd_offline crowd_rom)
+  add_test(NAME hostile_values_${p}
+    COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/hostile_values.sh ${p} $<TARGET_FILE:${p}>)
+  set_tests_properties(hostile_values_${p} PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}")
+endforeach()
+
+# Issue 18: an output naming an input (./x, dir/../x, absolute, symbolic link), outputs that
+# coincide, a missing directory, a directory under the output's name: a family per program
+foreach(p crowd_fom crowd_snapshots crowd_offline crowd_rom)
+  add_test(NAME output_paths_${p}
+    COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/output_paths.sh ${p} $<TARGET_FILE:${p}>)
+  set_tests_properties(output_paths_${p} PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}")
+endforeach()
+
+# Full disk (a 64 KiB and larger tmpfs) and a read-only file system (root only, skipped
+# otherwise): one error line saying
+# why, old output kept, no temporary, clean MPI shutdown (no SIGSEGV), every program
+add_test(NAME full_disk
+  COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/full_disk.sh $<TARGET_FILE_DIR:crowd_fom> ${MPIEXEC_EXECUTABLE}
+    ${CMAKE_CURRENT_SOURCE_DIR}/inputs/snap_tiny.nml)
+set_tests_properties(full_disk PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}" SKIP_RETURN_CODE 77
+  PROCESSORS 2)
