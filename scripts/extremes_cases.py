@@ -285,7 +285,7 @@ class Case:
     files: dict = field(default_factory=dict)
     before: list = field(default_factory=list)
     np: int = 1
-    timeout: dict = field(default_factory=lambda: {"small": 60, "full": 1800})
+    timeout: dict = field(default_factory=lambda: {"small": 240, "full": 1800})  # hang guards, not speed checks: a shared machine can be 6x slower
 
 
 class Context:

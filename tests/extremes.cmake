@@ -25,7 +25,7 @@ if(EXISTS ${CR_EXT_PY})
       COMMAND ${CR_EXT_PY} ${CR_EXT_SCRIPT} --check ${name} --bin ${CMAKE_BINARY_DIR}/bin
         --workdir ${CMAKE_BINARY_DIR}/tests/extremes
       WORKING_DIRECTORY ${CMAKE_BINARY_DIR}/tests)
-    set_tests_properties(extremes_${name} PROPERTIES LABELS extremes TIMEOUT 120 PROCESSORS ${np}
+    set_tests_properties(extremes_${name} PROPERTIES LABELS extremes TIMEOUT 300 PROCESSORS ${np}
       ENVIRONMENT "${CR_MPI_ENV}" FAIL_REGULAR_EXPRESSION "0 passed, 1 failed")
   endforeach()
 else()

@@ -63,3 +63,10 @@ add_test(NAME full_disk
     ${CMAKE_CURRENT_SOURCE_DIR}/inputs/snap_tiny.nml)
 set_tests_properties(full_disk PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}" SKIP_RETURN_CODE 77
   PROCESSORS 2)
+
+# Issue 18: crowd_offline refuses a study that contradicts the database it reads (one
+# variable changed per case: scene, obstacles, agents, time, solver, study), accepts its own
+add_test(NAME offline_mismatch
+  COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/offline_mismatch.sh $<TARGET_FILE_DIR:crowd_fom>
+    ${CMAKE_CURRENT_SOURCE_DIR}/inputs/snap_tiny.nml)
+set_tests_properties(offline_mismatch PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}")
