@@ -10,7 +10,7 @@ case_dir prepare
 sed "s#database = 'snap_tiny.h5'#database = 'db.h5'#" "$study" > study.nml
 "$bin/crowd_snapshots" study.nml > snap.log 2>&1 || { echo "FAIL: crowd_snapshots"; tail -5 snap.log; exit 1; }
 db=$PWD/db.h5
-offline="&offline database = '$db', rom_file = 'rom.h5', pod_energy = 0.0, rom_n = 3, rom_r = 3 /"
+offline="&offline database = '$db', rom_file = 'rom.h5' / &pod energy = 0.0 / &pairs n = 3, r = 3 /"
 # change NAME SED-EXPRESSION REGEX: the study file edited by SED-EXPRESSION must be refused
 change() {
   case_dir "$1"
