@@ -1,9 +1,9 @@
 !> Projection of a desired velocity onto the feasible cone of one step:
 !>   u = argmin |u - v|^2  s.t.  B u <= d   (B = -h G, rows of a contact_set_t).
 !>
-!> Variants ('uzawa', 'apgd', 'active_set', 'gpcg') extend the abstract projection_solver_t;
-!> make_projection_solver builds one from its name (the factory lives in the submodule
-!> cr_projection_factory so that this module does not depend on the variants).
+!> Variants ('sparse_active_set', 'active_set', 'gpcg', 'apgd', 'uzawa') extend the abstract
+!> projection_solver_t; make_projection_solver builds one from its name (the factory lives in
+!> the submodule cr_projection_factory so that this module does not depend on the variants).
 module cr_projection
   use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
   use cr_kinds, only: wp

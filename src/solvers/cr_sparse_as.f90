@@ -25,7 +25,9 @@
 !> - Safe path: a CHOLMOD failure, an infeasible or capped solve, or a KKT residual above tol
 !>   after a fresh refactorisation hands the problem to the dense cluster solver of cr_active_set
 !>   (counted in stats%n_fallback and noted, never silent).
-!> - Problems with at most settings%dense_rows rows go to the dense kernel directly (faster there).
+!> - Connected clusters of the contact graph with at most settings%dense_rows rows go to the dense
+!>   kernel of cr_active_set (faster there: no analysis, no library-call overhead); the others
+!>   together to the sparse path.
 !> - After settings%refresh_every row modifications the factor is rebuilt; with check_drift the
 !>   backward error of a solve with the updated factor is measured first (stats%factor_drift).
 module cr_sparse_as

@@ -1,0 +1,237 @@
+!> Local exact correction of a reduced velocity (cr_local_correction): nothing changes without
+!> a conflict, no overlap after any correction, agents outside the correction set untouched,
+!> the full projection when every agent is in the set, a jam against a wall.
+!>
+!> Tolerances: the solver is asked for a scaled KKT residual <= tol; the primal part bounds
+!> every linearised gap after the step below by -tol h s, with s <= 2 max|u_r| here (initial
+!> gaps >= 0; a shifted gap adds at most sqrt(2) max|u_r| h), and the true gap is >= the
+!> linearised one (convex gaps). Position round-off adds a few ulps of the hall size.
+program test_local_correction
+  use cr_kinds, only: wp
+  use cr_assert, only: check, check_close, test_summary
+  use cr_test_scenes, only: seed_random
+  use cr_error, only: error_t
+  use cr_config, only: scene_cfg_t, obstacles_cfg_t
+  use cr_scene, only: scene_t
+  use cr_shapes, only: obstacle_distance
+  use cr_contact_set, only: contact_set_t
+  use cr_neighbours, only: cell_list_t, build_contacts
+  use cr_projection, only: projection_settings_t, projection_solver_t, solve_stats_t, &
+    make_projection_solver
+  use cr_local_correction, only: local_correction_t, local_stats_t
+  implicit none
+
+  real(wp), parameter :: rad = 0.02_wp, h = 0.01_wp, cutoff_factor = 1.5_wp
+  type(scene_t) :: scene
+  type(error_t), allocatable :: error
+  type(projection_settings_t) :: settings
+  type(local_correction_t) :: lc
+  character(len=*), parameter :: solvers(2) = [character(len=20) :: 'sparse_active_set', 'active_set']
+  integer :: k
+
+  call scene%init(scene_cfg_t(), obstacles_cfg_t(), error)
+  call check(.not. allocated(error), "scene init")
+  do k = 1, size(solvers)
+    settings = projection_settings_t()
+    settings%name = solvers(k)
+    call lc%init(settings, cutoff_factor, error)
+    call check(.not. allocated(error), "init " // trim(solvers(k)))
+    call test_no_conflict(trim(solvers(k)))
+    call test_random(trim(solvers(k)))
+    call test_full_cover(trim(solvers(k)))
+    call test_wall_jam(trim(solvers(k)))
+    call lc%free()
+  end do
+  ! bad input is an error, not a stop
+  call lc%init(settings, 0.5_wp, error)
+  call check(allocated(error), "cutoff_factor < 1 refused")
+  call test_summary()
+
+contains
+
+  !> Agents on a jittered lattice in the hall with gaps in [gap0, gap0 + 2 jit].
+  subroutine lattice(nx, ny, gap0, jit, q)
+    integer, intent(in) :: nx, ny
+    real(wp), intent(in) :: gap0, jit
+    real(wp), allocatable, intent(out) :: q(:)
+    real(wp), allocatable :: r(:)
+    real(wp) :: dx
+    integer :: i, j, a
+    dx = 2 * rad + gap0 + 2 * jit
+    allocate(q(2 * nx * ny), r(2 * nx * ny))
+    call random_number(r)
+    do j = 1, ny
+      do i = 1, nx
+        a = i + (j - 1) * nx
+        q(2*a-1) = 0.1_wp + i * dx + jit * (r(2*a-1) - 0.5_wp)
+        q(2*a) = 0.1_wp + j * dx + jit * (r(2*a) - 0.5_wp)
+      end do
+    end do
+  end subroutine lattice
+
+  !> Smallest true gap (agent pairs and agent-obstacle) at positions q, all pairs.
+  real(wp) function min_true_gap(q) result(gmin)
+    real(wp), intent(in) :: q(:)
+    integer :: i, j, k
+    real(wp) :: dist, nrm(2)
+    gmin = huge(1.0_wp)
+    do i = 1, size(q) / 2
+      do j = i + 1, size(q) / 2
+        gmin = min(gmin, norm2(q(2*i-1:2*i) - q(2*j-1:2*j)) - 2 * rad)
+      end do
+      do k = 1, scene%n_obstacles()
+        call obstacle_distance(scene%obstacles(k), q(2*i-1:2*i), dist, nrm)
+        gmin = min(gmin, dist - rad)
+      end do
+    end do
+  end function min_true_gap
+
+  !> Allowed overlap after a correction of u_r (see the header).
+  real(wp) function gap_tol(u_r)
+    real(wp), intent(in) :: u_r(:)
+    gap_tol = settings%tol * h * 2 * maxval(abs(u_r)) + 16 * epsilon(1.0_wp) * scene%length
+  end function gap_tol
+
+  !> (1) no conflict: delta is exactly zero, nothing solved.
+  subroutine test_no_conflict(name)
+    character(len=*), intent(in) :: name
+    real(wp), allocatable :: q(:), u_r(:), u(:)
+    type(local_stats_t) :: st
+    call seed_random(11)
+    ! gaps in [3e-3, 4e-3]; |u_r,i| <= 0.1 sqrt(2): candidate rows within the cutoff
+    ! 1.5 * 2 h max|u_r| = 4.2e-3, but relative displacements <= 2.9e-3 < gaps
+    call lattice(6, 5, 3.0e-3_wp, 5.0e-4_wp, q)
+    allocate(u_r(size(q)), u(size(q)))
+    call random_number(u_r)
+    u_r = 0.2_wp * (u_r - 0.5_wp)
+    call lc%correct(scene, rad, q, u_r, h, u, st, error)
+    call check(.not. allocated(error), name // " no conflict: no error")
+    call check(all(u == u_r), name // " no conflict: delta == 0 exactly")
+    call check(st%n_violated == 0 .and. st%n_corrected == 0 .and. st%iterations == 0, &
+      name // " no conflict: nothing violated, corrected or solved")
+    call check(st%n_rows > 0, name // " no conflict: the cell list found candidate rows")
+  end subroutine test_no_conflict
+
+  !> (2) random scenes, random u_r: no overlap after the step; agents outside untouched.
+  subroutine test_random(name)
+    character(len=*), intent(in) :: name
+    real(wp), allocatable :: q(:), u_r(:), u(:), r(:)
+    type(local_stats_t) :: st
+    integer :: trial, na, i, n_part
+    logical :: ok_gap, ok_out, ok_err, ok_conv
+    ok_gap = .true.; ok_out = .true.; ok_err = .true.; ok_conv = .true.
+    n_part = 0
+    do trial = 1, 20
+      call seed_random(100 + trial)
+      call lattice(16, 12, 0.002_wp, 0.001_wp, q)
+      na = size(q) / 2
+      allocate(u_r(2 * na), u(2 * na), r(na))
+      call random_number(u_r)
+      u_r = 0.1_wp * (u_r - 0.5_wp)
+      ! a few fast agents in random directions make the conflicts
+      call random_number(r)
+      do i = 1, na
+        if (r(i) < 0.05_wp) u_r(2*i-1:2*i) = 40 * u_r(2*i-1:2*i)
+      end do
+      call check(min_true_gap(q) > 0, name // " random: start without overlap")
+      call lc%correct(scene, rad, q, u_r, h, u, st, error)
+      if (allocated(error)) then
+        ok_err = .false.; deallocate(error)
+      else
+        ok_conv = ok_conv .and. st%converged .and. st%kkt <= settings%tol
+        ok_gap = ok_gap .and. min_true_gap(q + h * u) >= -gap_tol(u_r)
+        do i = 1, na
+          if (.not. lc%corrected(i)) ok_out = ok_out .and. all(u(2*i-1:2*i) == u_r(2*i-1:2*i))
+        end do
+        if (st%n_violated > 0 .and. st%n_corrected < na) n_part = n_part + 1
+        if (trial == 1) print '(a, 4(a, i0), a, es9.2, a, es9.2, a)', name, ": corrected ", st%n_corrected, &
+          " of ", na, ", violated ", st%n_violated, ", iterations ", st%iterations, ", kkt ", st%kkt, &
+          ", time ", st%t_total, " s"
+      end if
+      deallocate(u_r, u, r)
+    end do
+    call check(ok_err, name // " random: no error")
+    call check(ok_conv, name // " random: local solves reach the tolerance")
+    call check(ok_gap, name // " random: no gap below -tol after the correction")
+    call check(ok_out, name // " random: agents outside the clusters untouched")
+    call check(n_part >= 10, name // " random: most trials correct a strict subset of the agents")
+  end subroutine test_random
+
+  !> (3) every agent in the set: the result is the full projection of u_r.
+  subroutine test_full_cover(name)
+    character(len=*), intent(in) :: name
+    real(wp), allocatable :: q(:), u_r(:), u(:), u_full(:), lambda(:)
+    type(local_stats_t) :: st
+    type(contact_set_t) :: cs
+    type(cell_list_t) :: cells
+    class(projection_solver_t), allocatable :: full
+    type(solve_stats_t) :: fst
+    integer :: na, i
+    real(wp) :: xc, s
+    ! a row of 6 agents, gaps 1e-3, squeezed towards its centre (every adjacent pair violated)
+    na = 6
+    allocate(q(2 * na), u_r(2 * na), u(2 * na), u_full(2 * na))
+    xc = 0.65_wp
+    do i = 1, na
+      q(2*i-1) = xc + (i - 3.5_wp) * (2 * rad + 1.0e-3_wp)
+      q(2*i) = 0.5_wp + 1.0e-4_wp * i
+      u_r(2*i-1) = -10 * (q(2*i-1) - xc)
+      u_r(2*i) = 0.3_wp * (-1)**i
+    end do
+    call lc%correct(scene, rad, q, u_r, h, u, st, error)
+    call check(.not. allocated(error), name // " full cover: no error")
+    call check(all(lc%corrected), name // " full cover: every agent corrected")
+    call check(st%n_clusters == 1, name // " full cover: one cluster")
+    ! reference: the full model's projection of u_r on every row within a cutoff that holds
+    ! every pair of the row (rows that cannot bind do not move the optimum)
+    call cs%init(na, h)
+    call build_contacts(scene, q, rad, 0.5_wp, cells, cs)
+    call make_projection_solver(settings, full, error)
+    allocate(lambda(cs%n)); lambda = 0
+    call full%solve(cs, u_r, u_full, lambda, fst, error)
+    call check(.not. allocated(error) .and. fst%kkt <= settings%tol, name // " full cover: reference solved")
+    ! both are KKT points of the same strongly convex projection with independent active rows
+    ! (a chain) to the scaled tolerance tol: they agree to O(tol) s
+    s = 2 * maxval(abs(u_r))
+    call check_close(maxval(abs(u - u_full)), 0.0_wp, 100 * settings%tol * s, &
+      name // " full cover: equals the full projection of u_r")
+    call check(maxval(abs(u - u_r)) > 1.0e-3_wp, name // " full cover: the correction is not trivial")
+    call check(min_true_gap(q + h * u) >= -gap_tol(u_r), name // " full cover: no overlap")
+  end subroutine test_full_cover
+
+  !> (4) a column of agents driven into the bottom wall, bystanders far away.
+  subroutine test_wall_jam(name)
+    character(len=*), intent(in) :: name
+    real(wp), allocatable :: q(:), u_r(:), u(:)
+    type(local_stats_t) :: st
+    integer :: na, i
+    real(wp) :: gap0
+    na = 8
+    gap0 = 5.0e-4_wp
+    allocate(q(2 * na), u_r(2 * na), u(2 * na))
+    ! agents 1..5: a vertical column at x = 0.3 resting on gaps gap0 above the wall y = 0, all pushed down
+    do i = 1, 5
+      q(2*i-1) = 0.3_wp
+      q(2*i) = rad + gap0 + (i - 1) * (2 * rad + gap0)
+      u_r(2*i-1) = 0.0_wp
+      u_r(2*i) = -1.0_wp - 0.2_wp * i
+    end do
+    ! agents 6..8: far away, walking freely
+    do i = 6, 8
+      q(2*i-1) = 1.0_wp; q(2*i) = 0.2_wp * (i - 5)
+      u_r(2*i-1) = 0.5_wp; u_r(2*i) = 0.1_wp
+    end do
+    call lc%correct(scene, rad, q, u_r, h, u, st, error)
+    call check(.not. allocated(error), name // " wall jam: no error")
+    call check(all(lc%corrected(1:5)) .and. .not. any(lc%corrected(6:8)), name // " wall jam: the column is corrected")
+    call check(all(u(11:16) == u_r(11:16)), name // " wall jam: bystanders untouched")
+    call check(min_true_gap(q + h * u) >= -gap_tol(u_r), name // " wall jam: no overlap, no wall penetration")
+    ! the bottom agent can only close its gap to the wall: u_y >= -gap0 / h
+    call check(u(2) >= -gap0 / h - settings%tol * 2 * maxval(abs(u_r)), name // " wall jam: stopped by the wall")
+    ! each agent moves down by at most the gaps below it
+    do i = 1, 5
+      call check(u(2*i) >= -i * gap0 / h - i * settings%tol * 2 * maxval(abs(u_r)), &
+        name // " wall jam: agent stopped by the column below")
+    end do
+  end subroutine test_wall_jam
+end program test_local_correction
