@@ -65,7 +65,7 @@ module cr_rom_config
     !> rows of the Uzawa reference: 'all' (the paper's full-order model: every agent pair and
     !> agent-obstacle pair is a constraint row) or 'near' (this project's neighbour list)
     character(len=8) :: fom_uzawa_rows = 'all'
-    character(len=32) :: fom_exact_solver = 'active_set'
+    character(len=32) :: fom_exact_solver = 'sparse_active_set'
     !> repetitions of each reduced run for the timing (the fastest is kept)
     integer :: timing_repeats = 3
   end type rom_cfg_t
@@ -231,8 +231,8 @@ contains
     call probs%need(c%fom_uzawa_steps >= 0, "&fom_timing: uzawa_steps must be >= 0 (0: all steps)")
     call probs%need(c%fom_uzawa_rows == 'all' .or. c%fom_uzawa_rows == 'near', &
       "&fom_timing: uzawa_rows must be 'all' or 'near' (got '" // trim(c%fom_uzawa_rows) // "')")
-    call probs%need(any(c%fom_exact_solver == [character(len=32) :: 'active_set', 'gpcg']), &
-      "&fom_timing: exact_solver must be 'active_set' or 'gpcg'")
+    call probs%need(any(c%fom_exact_solver == [character(len=32) :: 'sparse_active_set', 'active_set', 'gpcg']), &
+      "&fom_timing: exact_solver must be 'sparse_active_set', 'active_set' or 'gpcg'")
     call probs%need(c%timing_repeats >= 1, "&rom: timing_repeats must be >= 1")
     call probs%to_error(path, error)
   end subroutine check_rom
