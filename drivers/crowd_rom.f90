@@ -51,6 +51,8 @@ program crowd_rom
   character(len=:), allocatable :: dbpath, where
   integer, allocatable :: setting_ids(:)
   real(wp) :: t_uz = 0, t_ex = 0, kkt_uz = 0, kkt_ex = 0
+  !> one whole exact full-order query: setup for the parameter plus every step (seconds)
+  real(wp) :: t_qex = 0
   integer :: nc_uz = 0, nc_ex = 0
 
   call program_start("crowd_rom", env, log, cli, error)
@@ -135,18 +137,19 @@ contains
     call log%stage_end()
 
     ! full-order reference timing
-    t_uz = 0; t_ex = 0; kkt_uz = 0; kkt_ex = 0; nc_uz = 0; nc_ex = 0
+    t_uz = 0; t_ex = 0; kkt_uz = 0; kkt_ex = 0; nc_uz = 0; nc_ex = 0; t_qex = 0
     if (rcfg%fom_timing_samples > 0) then
       call log%stage_begin("crowd_rom: full-order timing (paper's uzawa on " // trim(rcfg%fom_uzawa_rows) // &
         " rows, eps " // str(rcfg%fom_uzawa_eps) // &
         "; " // trim(rcfg%fom_exact_solver) // ", KKT tolerance " // str(rcfg%fom_tol) // ")")
       call fom_timing(st, blocks(size(blocks)), 'uzawa', t_uz, kkt_uz, nc_uz, error)
       if (allocated(error)) return
-      call fom_timing(st, blocks(size(blocks)), trim(rcfg%fom_exact_solver), t_ex, kkt_ex, nc_ex, error)
+      call fom_timing(st, blocks(size(blocks)), trim(rcfg%fom_exact_solver), t_ex, kkt_ex, nc_ex, error, &
+        t_query=t_qex)
       if (allocated(error)) return
       call log%info("   uzawa " // str(t_uz, "es10.3") // " s/step (largest KKT " // str(kkt_uz, "es9.2") // ", " // &
         str(nc_uz) // " non-converged steps); " // trim(rcfg%fom_exact_solver) // " " // str(t_ex, "es10.3") // &
-        " s/step (largest KKT " // str(kkt_ex, "es9.2") // ")")
+        " s/step (largest KKT " // str(kkt_ex, "es9.2") // "), " // str(t_qex, "es10.3") // " s per whole query")
       call log%stage_end()
     end if
 
@@ -203,7 +206,7 @@ contains
       rhdr%n_agents = st%n_agents; rhdr%n_steps = st%n_steps; rhdr%dt = st%dt; rhdr%radius = st%radius
       rhdr%param_names = st%param_names; rhdr%param_min = st%space%lo; rhdr%param_max = st%space%hi
       rhdr%n_settings = size(setting_ids)
-      rhdr%t_uz = t_uz; rhdr%t_ex = t_ex; rhdr%exact_solver = trim(rcfg%fom_exact_solver)
+      rhdr%t_uz = t_uz; rhdr%t_ex = t_ex; rhdr%t_query_ex = t_qex; rhdr%exact_solver = trim(rcfg%fom_exact_solver)
       rhdr%tolerance = rcfg%fom_tol; rhdr%uzawa_eps = rcfg%fom_uzawa_eps; rhdr%uzawa_steps = rcfg%fom_uzawa_steps
       rhdr%uzawa_rows = trim(rcfg%fom_uzawa_rows); rhdr%timing_samples = rcfg%fom_timing_samples
       rhdr%kkt_uz = kkt_uz; rhdr%kkt_ex = kkt_ex; rhdr%nc_uz = nc_uz
@@ -226,7 +229,8 @@ contains
       real(wp) :: c_max
       integer :: kbad
       real(wp), allocatable :: alpha(:,:), beta(:,:), pos(:,:), qr(:,:), err_time(:,:)
-      real(wp), allocatable :: e_mu(:), e_proj(:), overlap(:), time(:), mobility(:)
+      real(wp), allocatable :: e_mu(:), e_proj(:), overlap(:), time(:), mobility(:), query(:)
+      real(wp) :: w0, w_setup, w_run
       integer, allocatable :: not_left(:), not_left_fom(:), infeas(:), capped(:), extrap(:)
       type(sample_measures_t), allocatable :: ms(:)
       type(romrun_set_t) :: out_set
@@ -246,12 +250,15 @@ contains
       allocate(alpha(nb, nt * blk%n), beta(merge(pair%r, 0, ops%fixed_rows), nt * blk%n), &
         pos(st%n_dof, (nt + 1) * blk%n), err_time(nt + 1, blk%n), e_mu(blk%n), e_proj(blk%n), &
         overlap(blk%n), time(blk%n), mobility(blk%n), not_left(blk%n), not_left_fom(blk%n), infeas(blk%n), capped(blk%n), &
-        extrap(blk%n), div_step(blk%n), n_done(blk%n), ms(blk%n))
+        extrap(blk%n), div_step(blk%n), n_done(blk%n), ms(blk%n), query(blk%n))
       div_step = 0
       err_time = -1; e_mu = -1; e_proj = -1; not_left_fom = -1; mobility = -1
       n_fallback = 0; active_sum = 0; n_adds = 0; n_drops = 0; t_parts = 0; why = 0
       call log%progress_start()
       do k = 1, blk%n
+        ! the whole query as a user pays it: the per-parameter setup (scene, speeds, desired
+        ! velocity, divergence guard) plus the trajectory (fastest repeat, per-trajectory setup included)
+        w0 = env%wtime()
         call ctx_reset(ctx)
         call st%space%sample_model(blk%mu(:, k), st%cfg, st%speeds, st%radius, ctx%scene, ctx%speeds, &
           ctx%desired, error)
@@ -262,12 +269,17 @@ contains
         if (size(ctx%speeds) == 0) c_max = 0
         if (ctx%desired%from_file) c_max = max(c_max, sqrt(2.0_wp) * maxval(abs(ctx%desired%fixed)))
         call guard%init(ctx%scene, c_max, st%dt * nt, st%n_agents)
+        w_setup = env%wtime() - w0
+        w0 = env%wtime()
         call run_trajectory(ops, ctx, st%q0, nt, scfg, traj, error, guard=guard)
+        w_run = env%wtime() - w0
         if (allocated(error)) then
           call prefix_error(error, "setting " // str(ks) // ", " // trim(blk%name) // " sample " // str(k)); return
         end if
         do rep = 2, rcfg%timing_repeats
+          w0 = env%wtime()
           call run_trajectory(ops, ctx, st%q0, nt, scfg, tr2, error, guard=guard)
+          w_run = min(w_run, env%wtime() - w0)
           if (allocated(error)) return
           if (tr2%time < traj%time) then
             traj%time = tr2%time; traj%time_positions = tr2%time_positions
@@ -295,6 +307,7 @@ contains
         if (size(beta, 1) > 0) beta(:, (k - 1) * nt + 1:k * nt) = traj%beta
         pos(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)) = qr
         time(k) = traj%time
+        query(k) = w_setup + max(w_run, traj%time)
         infeas(k) = traj%n_infeasible
         capped(k) = traj%n_capped
         n_fallback = n_fallback + traj%n_fallback; active_sum = active_sum + traj%active_sum
@@ -323,6 +336,11 @@ contains
       ! every aggregate over the samples that did not diverge (their count is reported)
       call aggregate_measures(ms, st%dt, row%meas)
       ok = div_step == 0
+      if (any(ok)) then
+        row%t_query = sum(query, mask=ok) / count(ok)
+      else
+        row%t_query = sum(query) / blk%n
+      end if
       row%diverged = row%meas%n_diverged
       row%overlap = max(row%meas%overlap_aa, row%meas%overlap_aw)
       row%not_left = row%meas%not_left; row%infeasible = sum(infeas); row%capped = sum(capped)
@@ -335,7 +353,7 @@ contains
         str(row%overlap, "es9.2") // ", agents not out " // str(row%not_left) // " (FOM " // str(row%not_left_fom) // &
         "), mobility " // str(row%mobility, "f6.3") // ", infeasible steps " // str(row%infeasible) // &
         ", capped " // str(row%capped) // ", " // &
-        str(row%t_step, "es9.2") // " s/step")
+        str(row%t_step, "es9.2") // " s/step, " // str(row%t_query, "es9.2") // " s per whole query")
       call log%info("   " // trim(blk%name) // ": displacement error " // str(row%meas%e_disp, "es9.2") // &
         ", overlap agent-agent " // str(row%meas%overlap_aa, "es9.2") // ", agent-wall " // &
         str(row%meas%overlap_aw, "es9.2") // ", evacuation-time error " // evac_text(row%meas, 1) // "; " // &
@@ -404,18 +422,23 @@ contains
     end function evac_text
 
     !> Mean time per full-order step over the first fom_timing_samples samples of blk.
-    subroutine fom_timing(st, blk, solver, t_step, kkt_max, n_nonconv, error)
+    !> t_query: mean wall time of one whole query (parameter applied, model built with its scene
+    !> and desired velocity, every step).
+    subroutine fom_timing(st, blk, solver, t_step, kkt_max, n_nonconv, error, t_query)
       type(rom_study_t), intent(in) :: st
       type(sample_block_t), intent(in) :: blk
       character(len=*), intent(in) :: solver
       real(wp), intent(out) :: t_step, kkt_max
       integer, intent(out) :: n_nonconv
       type(error_t), allocatable, intent(out) :: error
+      real(wp), intent(out), optional :: t_query
+      real(wp) :: w0, t_q
       type(config_t) :: c2
       type(step_record_t) :: rec
       real(wp), allocatable :: speeds(:)
       integer :: k, nu, ns, nsteps
-      t_step = 0; kkt_max = 0; n_nonconv = 0
+      t_step = 0; kkt_max = 0; n_nonconv = 0; t_q = 0
+      if (present(t_query)) t_query = 0
       nsteps = st%n_steps
       if (solver == 'uzawa' .and. rcfg%fom_uzawa_steps > 0) nsteps = min(nsteps, rcfg%fom_uzawa_steps)
       ns = min(rcfg%fom_timing_samples, blk%n)
@@ -432,6 +455,7 @@ contains
           if (rcfg%fom_uzawa_rows == 'all') c2%contacts%cutoff_factor = 1.0e9_wp
         end if
         speeds = st%speeds
+        w0 = env%wtime()
         call st%space%apply(blk%mu(:, k), c2, speeds)
         fresh: block
           type(fom_t) :: fom
@@ -446,10 +470,12 @@ contains
             kkt_max = max(kkt_max, rec%kkt)
             if (.not. rec%converged) n_nonconv = n_nonconv + 1
           end do
+          t_q = t_q + (env%wtime() - w0)
         end block fresh
         call log%progress("full-order " // solver // " sample", k, ns)
       end do
       t_step = t_step / max(1, ns * nsteps)
+      if (present(t_query)) t_query = t_q / max(1, ns)
     end subroutine fom_timing
 
     !> The one sample of sets = 'given'.
@@ -482,7 +508,8 @@ contains
         "," // str(r%capped) // "," // e(r%t_step) // "," // e(t_uz) // "," // e(t_ex) // "," // &
         e(speedup(t_uz, r%t_step)) // "," // e(speedup(t_ex, r%t_step)) // "," // str(r%extrapolating) // "," // &
         e(r%mobility) // "," // str(r%diverged) // "," // e(r%meas%e_disp) // "," // e(r%meas%overlap_aa) // "," // &
-        e(r%meas%overlap_aw) // "," // evac_csv(r%meas, 1) // "," // evac_csv(r%meas, 2)
+        e(r%meas%overlap_aw) // "," // evac_csv(r%meas, 1) // "," // evac_csv(r%meas, 2) // "," // &
+        e(r%t_query) // "," // e(t_qex) // "," // e(speedup(t_qex, r%t_query))
     end function csv_line
 
     function evac_csv(m, j) result(s)
@@ -503,7 +530,8 @@ contains
         "max_overlap,agents_not_left,agents_not_left_fom,infeasible_steps,capped_steps,t_step_rom," // &
         "t_step_fom_uzawa,t_step_fom_exact,speedup_uzawa,speedup_exact,extrapolating,mobility,samples_diverged," // &
         "E_disp,max_overlap_agents,max_overlap_walls,t50_err,t50_n,t50_rom_missed,t50_fom_missed," // &
-        "t90_err,t90_n,t90_rom_missed,t90_fom_missed" // new_line('a')
+        "t90_err,t90_n,t90_rom_missed,t90_fom_missed,t_query_rom,t_query_fom_exact,speedup_query_exact" // &
+        new_line('a')
       do k = 1, size(rows)
         text = text // csv_line(rows(k)) // new_line('a')
       end do
@@ -517,8 +545,9 @@ contains
       call log%info("")
       call log%info("| setting | set | N | R | Nb | hyper | contacts | m_v,m_b,m_d | E_avg | E_max | best approx. |" // &
         " E_disp | t50 err | t90 err | overlap agents / walls | not out (FOM) | mobility | infeas. | diverged |" // &
-        " t_step ROM [s] | speedup vs uzawa | speedup vs " // trim(rcfg%fom_exact_solver) // " |")
-      call log%info("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        " t_step ROM [s] | speedup vs uzawa | speedup vs " // trim(rcfg%fom_exact_solver) // &
+        " | t_query ROM [s] | query speedup vs " // trim(rcfg%fom_exact_solver) // " |")
+      call log%info("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
       do k = 1, size(rows)
         associate (r => rows(k))
           call log%info("| " // str(r%setting) // " | " // trim(r%set) // " | " // str(r%n) // " | " // str(r%r) // &
@@ -529,7 +558,8 @@ contains
             " / " // str(r%meas%overlap_aw, "es9.2") // " | " // str(r%not_left) // &
             " (" // str(r%not_left_fom) // ") | " // str(r%mobility, "f6.3") // " | " // str(r%infeasible) // &
             " | " // str(r%diverged) // " | " // str(r%t_step, "es9.2") // " | " // &
-            str(speedup(t_uz, r%t_step), "f9.1") // " | " // str(speedup(t_ex, r%t_step), "f9.1") // " |")
+            str(speedup(t_uz, r%t_step), "f9.1") // " | " // str(speedup(t_ex, r%t_step), "f9.1") // " | " // &
+            str(r%t_query, "es9.2") // " | " // str(speedup(t_qex, r%t_query), "f9.1") // " |")
         end associate
       end do
       if (any(rows%diverged > 0)) call log%info("* some samples of this row diverged (column diverged): its figures " // &
@@ -537,6 +567,9 @@ contains
       call log%info("t50/t90 err: mean |t_ROM - t_FOM| / t_FOM of the times at which 50% / 90% of the agents are out, " // &
         "over the (n) samples where both reach it; 'ROM never k': k samples where only the full model reaches it " // &
         "within the horizon")
+      call log%info("t_query: one whole query as a user pays it, per sample: the per-parameter setup (scene, " // &
+        "desired velocity) plus the whole trajectory; the " // trim(rcfg%fom_exact_solver) // " full model's " // &
+        "whole query takes " // str(t_qex, "es9.2") // " s")
     end subroutine print_table
 
     !> Evacuation-time cell of the printed table.
@@ -562,6 +595,7 @@ contains
       call js%add("settings", size(setting_ids))
       call js%add("t_step_fom_uzawa", t_uz)
       call js%add("t_step_fom_exact", t_ex)
+      call js%add("t_query_fom_exact", t_qex)
       call js%add("e_avg_last", rows(size(rows))%e_avg)
       call js%add("max_overlap", maxval(rows%overlap))
       call js%add("infeasible_steps", sum(rows%infeasible))
@@ -591,6 +625,9 @@ contains
         call js%add("t" // str(EVAC_PCT(j)) // "_fom_missed", [(rows(k)%meas%t_fom_missed(j), k = 1, size(rows))])
       end do
       call js%add("t_step_rom", rows%t_step)
+      call js%add("t_query_rom", rows%t_query)
+      call js%add("t_query_fom_exact", [(t_qex, k = 1, size(rows))])
+      call js%add("speedup_query_exact", [(speedup(t_qex, rows(k)%t_query), k = 1, size(rows))])
       call js%end_object()
       call js%write_file(cli%summary, error)
     end subroutine write_summary

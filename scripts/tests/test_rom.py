@@ -107,6 +107,16 @@ def test_full_basis_reproduces_fom(study):
     rows = list(csv.DictReader(open(tmp / "full.csv")))
     assert len(rows) == 4 and all(float(r_["E_avg"]) <= 1e-8 for r_ in rows)
     assert all(float(r_["t_step_fom_uzawa"]) > 0 and float(r_["speedup_exact"]) > 0 for r_ in rows)
+    # the cost of one whole query (setup + trajectory) is at least the trajectory's steps
+    with h5py.File(out, "r") as f:
+        n_steps = int(f.attrs["n_steps"])
+        t_query_h5 = f["table/t_query_rom"][...]
+    for j, r_ in enumerate(rows):
+        for col in ("t_query_rom", "t_query_fom_exact", "speedup_query_exact"):
+            assert float(r_[col]) > 0, (col, r_[col])
+        assert float(r_["t_query_rom"]) >= n_steps * float(r_["t_step_rom"])
+        assert float(r_["t_query_fom_exact"]) >= n_steps * float(r_["t_step_fom_exact"])
+        np.testing.assert_allclose(float(r_["t_query_rom"]), t_query_h5[j], rtol=1e-5)
 
 
 def test_small_rom_reports(study):

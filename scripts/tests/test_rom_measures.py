@@ -58,6 +58,16 @@ def test_straight_walk_measures(tmp_path):
     assert p.returncode == 0, p.stdout + p.stderr
     rows = list(csv.DictReader(open(tmp_path / "col_run.csv")))
     js = json.load(open(summary))
+    # the whole-query costs: the same figures in the CSV, the HDF5 table and the JSON rows
+    with h5py.File(out, "r") as f:
+        for col in ("t_query_rom", "t_query_fom_exact", "speedup_query_exact"):
+            h5col = f["table/" + col][...]
+            assert len(h5col) == len(rows) == len(js["rows"][col])
+            for j, r_ in enumerate(rows):
+                assert float(r_[col]) > 0
+                np.testing.assert_allclose([float(r_[col]), js["rows"][col][j]], h5col[j], rtol=1e-5)
+        for j, r_ in enumerate(rows):
+            assert float(r_["t_query_rom"]) >= NT * float(r_["t_step_rom"])
     with h5py.File(out, "r") as f:
         for s in ("train", "valid"):
             g = f["setting_1/%s" % s]

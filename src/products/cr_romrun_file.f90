@@ -32,6 +32,9 @@ module cr_romrun_file
     real(wp), allocatable :: param_min(:), param_max(:)
     !> full-order reference: time per step (paper's Uzawa, fastest exact solver) and its setup
     real(wp) :: t_uz = 0, t_ex = 0, tolerance = 0, uzawa_eps = 0, kkt_uz = 0, kkt_ex = 0
+    !> one whole exact full-order query (parameter setup, scene, desired velocity, every step),
+    !> mean over the timing samples (written, not read back: 0 from older files)
+    real(wp) :: t_query_ex = 0
     character(len=:), allocatable :: exact_solver, uzawa_rows
     integer :: uzawa_steps = 0, timing_samples = 0, nc_uz = 0
   end type romrun_header_t
@@ -62,6 +65,9 @@ module cr_romrun_file
     integer :: not_left = 0, not_left_fom = -1, infeasible = 0, capped = 0, extrapolating = 0
     !> samples whose reduced trajectory diverged (stopped; excluded from every average)
     integer :: diverged = 0
+    !> one whole reduced query (per-parameter setup plus the trajectory), mean over the samples
+    !> that did not diverge (written, not read back: 0 from older files)
+    real(wp) :: t_query = 0
     !> the accuracy measures of the row (cr_rom_metrics)
     type(row_measures_t) :: meas
   end type romrun_row_t
@@ -148,6 +154,7 @@ contains
       call h5%make_group("fom_timing", error); if (allocated(error)) goto 9
       call h5%write_attr("fom_timing", "t_step_uzawa", hdr%t_uz, error); if (allocated(error)) goto 9
       call h5%write_attr("fom_timing", "t_step_exact", hdr%t_ex, error); if (allocated(error)) goto 9
+      call h5%write_attr("fom_timing", "t_query_exact", hdr%t_query_ex, error); if (allocated(error)) goto 9
       call h5%write_attr("fom_timing", "exact_solver", hdr%exact_solver, error); if (allocated(error)) goto 9
       call h5%write_attr("fom_timing", "tolerance", hdr%tolerance, error); if (allocated(error)) goto 9
       call h5%write_attr("fom_timing", "uzawa_eps", hdr%uzawa_eps, error); if (allocated(error)) goto 9
@@ -279,6 +286,12 @@ contains
       call h5%write("table/speedup_uzawa", [(speedup(hdr%t_uz, rows(k)%t_step), k = 1, size(rows))], error)
       if (allocated(error)) return
       call h5%write("table/speedup_exact", [(speedup(hdr%t_ex, rows(k)%t_step), k = 1, size(rows))], error)
+      if (allocated(error)) return
+      call h5%write("table/t_query_rom", rows%t_query, error); if (allocated(error)) return
+      call h5%write("table/t_query_fom_exact", [(hdr%t_query_ex, k = 1, size(rows))], error)
+      if (allocated(error)) return
+      call h5%write("table/speedup_query_exact", [(speedup(hdr%t_query_ex, rows(k)%t_query), k = 1, size(rows))], &
+        error)
       if (allocated(error)) return
       call h5%write_attr("table", "columns", "see the CSV header; strings (set, hyper, contacts, solver) in " // &
         "the setting_<k> attributes", error)
