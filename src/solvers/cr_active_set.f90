@@ -7,6 +7,7 @@
 !> Clusters whose dense data would exceed max_dense_bytes are refused with an error.
 module cr_active_set
   use cr_kinds, only: wp
+  use cr_grow, only: igrow => grow_int, rgrow => grow_real
   use cr_error, only: error_t, prefix_error, set_error
   use cr_strings, only: str
   use cr_contact_set, only: contact_set_t
@@ -260,26 +261,6 @@ contains
     if (allocated(this%parent)) deallocate(this%parent)
     if (allocated(this%bm)) deallocate(this%bm)
   end subroutine active_set_free
-
-  subroutine igrow(a, n)
-    integer, allocatable, intent(inout) :: a(:)
-    integer, intent(in) :: n
-    if (allocated(a)) then
-      if (size(a) >= n) return
-      deallocate(a)
-    end if
-    allocate(a(max(n, 16)))
-  end subroutine igrow
-
-  subroutine rgrow(a, n)
-    real(wp), allocatable, intent(inout) :: a(:)
-    integer, intent(in) :: n
-    if (allocated(a)) then
-      if (size(a) >= n) return
-      deallocate(a)
-    end if
-    allocate(a(max(n, 16)))
-  end subroutine rgrow
 
   subroutine rgrow2(a, m, n)
     real(wp), allocatable, intent(inout) :: a(:,:)

@@ -32,6 +32,7 @@
 !>   backward error of a solve with the updated factor is measured first (stats%factor_drift).
 module cr_sparse_as
   use cr_kinds, only: wp
+  use cr_grow, only: igrow => grow_int, rgrow => grow_real, lgrow => grow_logical
   use cr_error, only: error_t, prefix_error
   use cr_strings, only: str
   use cr_contact_set, only: contact_set_t, velocity_scale
@@ -943,34 +944,4 @@ contains
     if (this%dense_ready) call this%dense%free()
     this%dense_ready = .false.
   end subroutine sparse_as_free
-
-  subroutine igrow(a, n)
-    integer, allocatable, intent(inout) :: a(:)
-    integer, intent(in) :: n
-    if (allocated(a)) then
-      if (size(a) >= n) return
-      deallocate(a)
-    end if
-    allocate(a(max(n, 16)))
-  end subroutine igrow
-
-  subroutine rgrow(a, n)
-    real(wp), allocatable, intent(inout) :: a(:)
-    integer, intent(in) :: n
-    if (allocated(a)) then
-      if (size(a) >= n) return
-      deallocate(a)
-    end if
-    allocate(a(max(n, 16)))
-  end subroutine rgrow
-
-  subroutine lgrow(a, n)
-    logical, allocatable, intent(inout) :: a(:)
-    integer, intent(in) :: n
-    if (allocated(a)) then
-      if (size(a) >= n) return
-      deallocate(a)
-    end if
-    allocate(a(max(n, 16)))
-  end subroutine lgrow
 end module cr_sparse_as
