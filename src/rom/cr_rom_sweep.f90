@@ -1,0 +1,704 @@
+!> The online sweep of crowd_rom (issue 12: the driver keeps argument handling, one call per
+!> stage and the summary): for every setting of &sweep and every sample of the chosen sets,
+!> the reduced model is stepped and measured against the full-order trajectories where they
+!> exist (E_mu, E_avg, displacement and evacuation-time errors, overlaps agent/wall, mobility,
+!> agents that fail to leave); the full-order model is timed on the same samples (the paper's
+!> Uzawa and the exact solver) for the speedups per step and per whole query.
+!>
+!> Stages (each returns error_t, none stops):
+!>   init            read the ROM file and its study, the parameter sets and the settings;
+!>   time_reference  time the full-order model (&fom_timing);
+!>   run             run every setting, write the ROM-run file (&rom output, schema
+!>                   crowdrom-romrun) and the table (&rom table, CSV), both atomically;
+!>   print_table / write_summary  the printed table and the JSON summary (--summary).
+module cr_rom_sweep
+  use cr_kinds, only: wp
+  use cr_error, only: error_t, set_error, prefix_error
+  use cr_strings, only: str, shorten
+  use cr_env, only: env_t
+  use cr_logger, only: logger_t
+  use cr_config, only: config_t
+  use cr_rom_config, only: rom_cfg_t, rom_echo, MAX_SETTINGS, check_rom_paths
+  use cr_rom_file, only: rom_file_t, rom_pair_t, read_rom_file, read_rom_pair, find_pair
+  use cr_rom_study, only: rom_study_t, sample_block_t, open_study, read_block_set
+  use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t, make_reduced_ops, eim_exact_rows
+  use cr_rom_stepper, only: rom_solver_cfg_t, rom_traj_t, run_trajectory, reduced_positions
+  use cr_rom_metrics, only: projection_error, sample_measures_t, row_measures_t, measure_sample, &
+    aggregate_measures, EVAC_PCT
+  use cr_rom_guard, only: rom_guard_t
+  use cr_fom, only: fom_t, step_record_t
+  use cr_romrun_file, only: romrun_header_t, romrun_row_t, romrun_set_t, romrun_writer_t, speedup
+  use cr_fsys, only: rename_file, remove_file, write_whole_file
+  use cr_json, only: json_writer_t
+  implicit none
+  private
+  public :: rom_sweep_t, fom_reference_t
+
+  !> The full-order reference timed in this run (0: not timed).
+  type :: fom_reference_t
+    !> time per step: the paper's Uzawa and the exact solver [s]; largest scaled KKT residuals
+    real(wp) :: t_uz = 0, t_ex = 0, kkt_uz = 0, kkt_ex = 0
+    !> one whole exact full-order query: setup for the parameter plus every step [s]
+    real(wp) :: t_query = 0
+    !> Uzawa / exact steps that did not converge
+    integer :: nc_uz = 0, nc_ex = 0
+  end type fom_reference_t
+
+  !> One sweep: its configuration, the study it runs on and its results.
+  type :: rom_sweep_t
+    type(rom_cfg_t) :: cfg
+    !> the input file (for messages) and "<input>: &rom"
+    character(len=:), allocatable :: input, where
+    !> the snapshot database (from &rom database or the ROM file)
+    character(len=:), allocatable :: dbpath
+    type(rom_file_t) :: hdr
+    type(rom_study_t) :: st
+    !> the parameter sets run (the last one carries the setting's summary attributes)
+    type(sample_block_t), allocatable :: blocks(:)
+    !> indices of the &sweep settings run, and their pair in the ROM file
+    integer, allocatable :: setting_ids(:), pair_of(:)
+    type(fom_reference_t) :: ref
+    !> the table: one row per (setting, set), after run
+    type(romrun_row_t), allocatable :: rows(:)
+  contains
+    procedure :: init
+    procedure :: time_reference
+    procedure :: run
+    procedure :: print_table
+    procedure :: write_summary
+    procedure :: free
+  end type rom_sweep_t
+
+contains
+
+  !> Read the ROM file (&rom rom_file) and the study it was built from, the parameter sets
+  !> (&rom sets) and the settings (&sweep); check the outputs against every input (summary:
+  !> the --summary path, '' when none). cfg must have passed check_rom.
+  subroutine init(this, input, summary, cfg, log, error)
+    class(rom_sweep_t), intent(inout) :: this
+    character(len=*), intent(in) :: input, summary
+    type(rom_cfg_t), intent(in) :: cfg
+    type(logger_t), intent(inout) :: log
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ks
+    call this%free()
+    this%cfg = cfg
+    this%input = input
+    this%where = input // ": &rom"
+    call log%stage_begin("crowd_rom: read ROM file and study")
+    call read_rom_file(trim(this%cfg%rom_file), this%where // ": rom_file", this%hdr, error)
+    if (allocated(error)) return
+    this%dbpath = trim(this%cfg%database)
+    if (len(this%dbpath) == 0) this%dbpath = this%hdr%database
+    call check_rom_paths(input, summary, this%cfg, this%dbpath, error)
+    if (allocated(error)) return
+    call open_study(this%dbpath, this%where // ": database", this%hdr, this%st, error)
+    if (allocated(error)) return
+    call log%info("   " // str(this%st%n_agents) // " agents, " // str(this%st%n_steps) // " steps, parameters " // &
+      shorten(this%st%param_names, 60) // "; ROM pairs (N, R) stored: " // pair_list(this%hdr))
+    ! parameter sets
+    select case (trim(this%cfg%sets))
+    case ('valid', 'train')
+      allocate(this%blocks(1))
+      call read_block_set(this%st, trim(this%cfg%sets), this%cfg%n_samples, this%blocks(1), error)
+    case ('both')
+      allocate(this%blocks(2))
+      call read_block_set(this%st, 'train', this%cfg%n_samples, this%blocks(1), error)
+      if (.not. allocated(error)) call read_block_set(this%st, 'valid', this%cfg%n_samples, this%blocks(2), error)
+    case ('given')
+      allocate(this%blocks(1))
+      call given_block(this, this%blocks(1), error)
+    case default
+      call set_error(error, this%where // ": sets '" // trim(this%cfg%sets) // "' unknown", 2)
+    end select
+    if (allocated(error)) return
+    ! settings
+    this%setting_ids = pack([(ks, ks = 1, MAX_SETTINGS)], this%cfg%n > 0)
+    if (size(this%setting_ids) == 0) then
+      call set_error(error, this%where // ": no setting given (n(1) = N, r(1) = R, ...)", 2); return
+    end if
+    allocate(this%pair_of(size(this%setting_ids)))
+    do ks = 1, size(this%setting_ids)
+      call find_pair(this%hdr, this%cfg%n(this%setting_ids(ks)), this%cfg%r(this%setting_ids(ks)), &
+        this%where // ": setting " // str(this%setting_ids(ks)), this%pair_of(ks), error)
+      if (allocated(error)) return
+    end do
+    call log%stage_end()
+  end subroutine init
+
+  !> Time the full-order model on the first &fom_timing samples of the last set: the paper's
+  !> Uzawa and the exact solver (nothing when samples = 0).
+  subroutine time_reference(this, env, log, error)
+    class(rom_sweep_t), intent(inout) :: this
+    type(env_t), intent(in) :: env
+    type(logger_t), intent(inout) :: log
+    type(error_t), allocatable, intent(out) :: error
+    this%ref = fom_reference_t()
+    if (this%cfg%fom_timing_samples <= 0) return
+    associate (blk => this%blocks(size(this%blocks)), r => this%ref)
+      call log%stage_begin("crowd_rom: full-order timing (paper's uzawa on " // trim(this%cfg%fom_uzawa_rows) // &
+        " rows, eps " // str(this%cfg%fom_uzawa_eps) // &
+        "; " // trim(this%cfg%fom_exact_solver) // ", KKT tolerance " // str(this%cfg%fom_tol) // ")")
+      call fom_timing(this, env, log, blk, 'uzawa', r%t_uz, r%kkt_uz, r%nc_uz, r%t_query, error)
+      if (allocated(error)) return
+      call fom_timing(this, env, log, blk, trim(this%cfg%fom_exact_solver), r%t_ex, r%kkt_ex, r%nc_ex, r%t_query, error)
+      if (allocated(error)) return
+      call log%info("   uzawa " // str(r%t_uz, "es10.3") // " s/step (largest KKT " // str(r%kkt_uz, "es9.2") // &
+        ", " // str(r%nc_uz) // " non-converged steps); " // trim(this%cfg%fom_exact_solver) // " " // &
+        str(r%t_ex, "es10.3") // " s/step (largest KKT " // str(r%kkt_ex, "es9.2") // "), " // &
+        str(r%t_query, "es10.3") // " s per whole query")
+      call log%stage_end()
+    end associate
+  end subroutine time_reference
+
+  !> Run every setting on every set; write the ROM-run file and the table (both or neither).
+  subroutine run(this, env, log, error)
+    class(rom_sweep_t), intent(inout) :: this
+    type(env_t), intent(in) :: env
+    type(logger_t), intent(inout) :: log
+    type(error_t), allocatable, intent(out) :: error
+    type(rom_pair_t), allocatable :: pairs(:)
+    logical, allocatable :: loaded(:)
+    type(romrun_writer_t) :: out
+    type(romrun_header_t) :: rhdr
+    integer :: ks, ib, kp, nrow, k
+    call make_header(this, rhdr)
+    call out%open(trim(this%cfg%output), rhdr, error)
+    if (allocated(error)) then
+      call prefix_error(error, this%where // ": output"); error%code = 2; return
+    end if
+    allocate(pairs(this%hdr%n_pairs), loaded(this%hdr%n_pairs))
+    loaded = .false.
+    if (allocated(this%rows)) deallocate(this%rows)
+    allocate(this%rows(size(this%setting_ids) * size(this%blocks)))
+    nrow = 0
+    do ks = 1, size(this%setting_ids)
+      kp = this%pair_of(ks)
+      if (.not. loaded(kp)) then
+        call read_rom_pair(this%hdr, kp, pairs(kp), error); if (allocated(error)) goto 9
+        loaded(kp) = .true.
+      end if
+      call log%stage_begin("crowd_rom: setting " // str(ks) // " of " // str(size(this%setting_ids)) // &
+        ": (N, R) = (" // str(pairs(kp)%n) // ", " // str(pairs(kp)%r) // "), basis " // str(pairs(kp)%nb) // &
+        ", hyper " // trim(this%cfg%hyper(this%setting_ids(ks))) // ", contacts " // &
+        trim(this%cfg%contacts(this%setting_ids(ks))) // ", solver " // trim(this%cfg%solver))
+      do ib = 1, size(this%blocks)
+        nrow = nrow + 1
+        call run_setting(this, env, log, out, ks, this%setting_ids(ks), pairs(kp), this%blocks(ib), &
+          this%rows(nrow), error)
+        if (allocated(error)) goto 9
+      end do
+      call log%stage_end()
+    end do
+    call out%write_table(rhdr, this%rows(1:nrow), error); if (allocated(error)) goto 9
+    ! the run file and the table are one result: the table is written completely first, then
+    ! both are renamed; if either fails, neither replaces an earlier result
+    call write_csv(this, error); if (allocated(error)) goto 9
+    call out%commit(error)
+    if (allocated(error)) then
+      k = remove_file(trim(this%cfg%table) // ".partial"); return
+    end if
+    if (rename_file(trim(this%cfg%table) // ".partial", trim(this%cfg%table)) /= 0) then
+      call set_error(error, this%where // ": table: cannot rename '" // trim(this%cfg%table) // ".partial' to '" // &
+        trim(this%cfg%table) // "'; the run file is kept as '" // trim(this%cfg%output) // ".partial'")
+      k = rename_file(trim(this%cfg%output), trim(this%cfg%output) // ".partial")
+    end if
+    return
+9   call out%abort()
+  end subroutine run
+
+  !> Free everything (init may be called again).
+  subroutine free(this)
+    class(rom_sweep_t), intent(inout) :: this
+    type(rom_sweep_t) :: fresh
+    select type (this)
+    type is (rom_sweep_t)
+      this = fresh
+    end select
+  end subroutine free
+
+  !> The ROM-run header of this sweep.
+  subroutine make_header(this, rhdr)
+    type(rom_sweep_t), intent(in) :: this
+    type(romrun_header_t), intent(out) :: rhdr
+    rhdr%config = rom_echo(this%cfg)
+    rhdr%rom_file = trim(this%cfg%rom_file); rhdr%database = this%dbpath; rhdr%db_hash = this%st%hash
+    rhdr%n_agents = this%st%n_agents; rhdr%n_steps = this%st%n_steps; rhdr%dt = this%st%dt
+    rhdr%radius = this%st%radius
+    rhdr%param_names = this%st%param_names; rhdr%param_min = this%st%space%lo; rhdr%param_max = this%st%space%hi
+    rhdr%n_settings = size(this%setting_ids)
+    rhdr%t_uz = this%ref%t_uz; rhdr%t_ex = this%ref%t_ex; rhdr%t_query_ex = this%ref%t_query
+    rhdr%exact_solver = trim(this%cfg%fom_exact_solver)
+    rhdr%tolerance = this%cfg%fom_tol; rhdr%uzawa_eps = this%cfg%fom_uzawa_eps
+    rhdr%uzawa_steps = this%cfg%fom_uzawa_steps
+    rhdr%uzawa_rows = trim(this%cfg%fom_uzawa_rows); rhdr%timing_samples = this%cfg%fom_timing_samples
+    rhdr%kkt_uz = this%ref%kkt_uz; rhdr%kkt_ex = this%ref%kkt_ex; rhdr%nc_uz = this%ref%nc_uz
+  end subroutine make_header
+
+  !> Run setting ks (index kset in the &sweep arrays) on one block of samples; write its group.
+  subroutine run_setting(this, env, log, out, ks, kset, pair, blk, row, error)
+    type(rom_sweep_t), intent(in) :: this
+    type(env_t), intent(in) :: env
+    type(logger_t), intent(inout) :: log
+    type(romrun_writer_t), intent(inout) :: out
+    integer, intent(in) :: ks, kset
+    type(rom_pair_t), intent(in) :: pair
+    type(sample_block_t), intent(in) :: blk
+    type(romrun_row_t), intent(out) :: row
+    type(error_t), allocatable, intent(out) :: error
+    class(reduced_ops_t), allocatable :: ops
+    type(rom_solver_cfg_t) :: scfg
+    type(rom_traj_t) :: traj, tr2
+    type(eval_ctx_t) :: ctx
+    type(rom_guard_t) :: guard
+    logical, allocatable :: ok(:)
+    integer, allocatable :: div_step(:), n_done(:)
+    real(wp) :: c_max
+    integer :: kbad
+    real(wp), allocatable :: alpha(:,:), beta(:,:), pos(:,:), qr(:,:), err_time(:,:)
+    real(wp), allocatable :: e_mu(:), e_proj(:), overlap(:), time(:), mobility(:), query(:)
+    real(wp) :: w0, w_setup, w_run
+    integer, allocatable :: not_left(:), not_left_fom(:), infeas(:), capped(:), extrap(:)
+    type(sample_measures_t), allocatable :: ms(:)
+    type(romrun_set_t) :: out_set
+    integer :: k, nt, nb, rep, n_fallback, active_sum, n_adds, n_drops, why(3)
+    real(wp) :: t_parts(3)
+    nt = this%st%n_steps
+    call make_reduced_ops(trim(this%cfg%hyper(kset)), trim(this%cfg%contacts(kset)), pair, &
+      [this%cfg%m_v(kset), this%cfg%m_b(kset), this%cfg%m_d(kset)], this%st%cfg%contacts%cutoff_factor, &
+      this%where // ": setting " // str(kset), ops, error)
+    if (allocated(error)) return
+    scfg%name = this%cfg%solver
+    scfg%nnls_max_iter = this%cfg%nnls_max_iter
+    scfg%uzawa_rho_factor = this%cfg%uzawa_rho_factor
+    scfg%uzawa_eps = this%cfg%uzawa_eps
+    scfg%uzawa_max_iter = this%cfg%uzawa_max_iter
+    nb = pair%nb
+    allocate(alpha(nb, nt * blk%n), beta(merge(pair%r, 0, ops%fixed_rows), nt * blk%n), &
+      pos(this%st%n_dof, (nt + 1) * blk%n), err_time(nt + 1, blk%n), e_mu(blk%n), e_proj(blk%n), &
+      overlap(blk%n), time(blk%n), mobility(blk%n), not_left(blk%n), not_left_fom(blk%n), infeas(blk%n), capped(blk%n), &
+      extrap(blk%n), div_step(blk%n), n_done(blk%n), ms(blk%n), query(blk%n))
+    div_step = 0
+    err_time = -1; e_mu = -1; e_proj = -1; not_left_fom = -1; mobility = -1
+    n_fallback = 0; active_sum = 0; n_adds = 0; n_drops = 0; t_parts = 0; why = 0
+    call log%progress_start()
+    do k = 1, blk%n
+      ! the whole query as a user pays it: the per-parameter setup (scene, speeds, desired
+      ! velocity, divergence guard) plus the trajectory (fastest repeat, per-trajectory setup included)
+      w0 = env%wtime()
+      call ctx_reset(ctx)
+      call this%st%space%sample_model(blk%mu(:, k), this%st%cfg, this%st%speeds, this%st%radius, ctx%scene, ctx%speeds, &
+        ctx%desired, error)
+      if (allocated(error)) return
+      ctx%radius = this%st%radius
+      ctx%h = this%st%dt
+      c_max = maxval(abs(ctx%speeds), mask=[(.true., kbad = 1, size(ctx%speeds))])
+      if (size(ctx%speeds) == 0) c_max = 0
+      if (ctx%desired%from_file) c_max = max(c_max, sqrt(2.0_wp) * maxval(abs(ctx%desired%fixed)))
+      call guard%init(ctx%scene, c_max, this%st%dt * nt, this%st%n_agents)
+      w_setup = env%wtime() - w0
+      w0 = env%wtime()
+      call run_trajectory(ops, ctx, this%st%q0, nt, scfg, traj, error, guard=guard)
+      w_run = env%wtime() - w0
+      if (allocated(error)) then
+        call prefix_error(error, "setting " // str(ks) // ", " // trim(blk%name) // " sample " // str(k)); return
+      end if
+      do rep = 2, this%cfg%timing_repeats
+        w0 = env%wtime()
+        call run_trajectory(ops, ctx, this%st%q0, nt, scfg, tr2, error, guard=guard)
+        w_run = min(w_run, env%wtime() - w0)
+        if (allocated(error)) return
+        if (tr2%time < traj%time) then
+          traj%time = tr2%time; traj%time_positions = tr2%time_positions
+          traj%time_assemble = tr2%time_assemble; traj%time_solve = tr2%time_solve
+        end if
+      end do
+      qr = reduced_positions(this%st%q0, pair%v, traj%alpha, this%st%dt)
+      ! every agent checked (the stepper checks only the agents its assembly reads)
+      kbad = guard%first_outside(qr)
+      if (kbad > 0) then
+        if (traj%diverged_step == 0 .or. kbad - 1 < traj%diverged_step) then
+          traj%diverged_step = kbad - 1
+          traj%alpha(:, kbad - 1:) = 0
+          traj%beta(:, kbad - 1:) = 0
+          qr = reduced_positions(this%st%q0, pair%v, traj%alpha, this%st%dt)
+        end if
+      end if
+      div_step(k) = traj%diverged_step
+      n_done(k) = merge(traj%diverged_step, nt, traj%diverged_step > 0)
+      if (div_step(k) > 0) call log%warn("setting " // str(ks) // ", " // trim(blk%name) // " sample " // str(k) // &
+        ": the reduced trajectory diverged at step " // str(div_step(k)) // " (non-finite values or an agent " // &
+        "outside the hall's box inflated by its diagonal + 2 c_max T): stopped there, positions frozen, " // &
+        "sample excluded from the averages")
+      alpha(:, (k - 1) * nt + 1:k * nt) = traj%alpha
+      if (size(beta, 1) > 0) beta(:, (k - 1) * nt + 1:k * nt) = traj%beta
+      pos(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)) = qr
+      time(k) = traj%time
+      query(k) = w_setup + max(w_run, traj%time)
+      infeas(k) = traj%n_infeasible
+      capped(k) = traj%n_capped
+      n_fallback = n_fallback + traj%n_fallback; active_sum = active_sum + traj%active_sum
+      n_adds = n_adds + traj%dual_adds; n_drops = n_drops + traj%dual_drops; why = why + traj%dual_why
+      t_parts = t_parts + [traj%time_positions, traj%time_assemble, traj%time_solve]
+      extrap(k) = merge(1, 0, any(blk%mu(:, k) < this%st%space%lo - 1.0e-12_wp * abs(this%st%space%lo)) .or. &
+        any(blk%mu(:, k) > this%st%space%hi + 1.0e-12_wp * abs(this%st%space%hi)))
+      if (blk%has_fom) then
+        call measure_sample(ctx%scene, this%st%radius, this%st%dt, qr, ms(k), q=blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), &
+          err=err_time(:, k))
+        e_proj(k) = projection_error(blk%u(:, (k - 1) * nt + 1:k * nt), pair%v)
+      else
+        call measure_sample(ctx%scene, this%st%radius, this%st%dt, qr, ms(k))
+      end if
+      ms(k)%diverged = div_step(k) > 0
+      e_mu(k) = ms(k)%e_mu
+      mobility(k) = ms(k)%mobility
+      overlap(k) = max(ms(k)%overlap_aa, ms(k)%overlap_aw)
+      not_left(k) = ms(k)%not_left
+      not_left_fom(k) = ms(k)%not_left_fom
+      call log%progress(trim(blk%name) // " sample", k, blk%n)
+    end do
+    row%setting = ks; row%n = pair%n; row%r = pair%r; row%nb = nb; row%m = ops%m
+    row%set = blk%name; row%hyper = this%cfg%hyper(kset); row%contacts = this%cfg%contacts(kset); row%solver = this%cfg%solver
+    row%t_step = sum(time) / max(1, sum(n_done))
+    ! every aggregate over the samples that did not diverge (their count is reported)
+    call aggregate_measures(ms, this%st%dt, row%meas)
+    ok = div_step == 0
+    if (any(ok)) then
+      row%t_query = sum(query, mask=ok) / count(ok)
+    else
+      row%t_query = sum(query) / blk%n
+    end if
+    row%diverged = row%meas%n_diverged
+    row%overlap = max(row%meas%overlap_aa, row%meas%overlap_aw)
+    row%not_left = row%meas%not_left; row%infeasible = sum(infeas); row%capped = sum(capped)
+    row%extrapolating = sum(extrap)
+    row%e_avg = row%meas%e_avg; row%e_max = row%meas%e_max; row%mobility = row%meas%mobility
+    row%not_left_fom = row%meas%not_left_fom
+    if (blk%has_fom .and. any(ok)) row%e_proj = sum(e_proj, mask=ok) / count(ok)
+    call log%info("   " // trim(blk%name) // ": E_avg " // str(row%e_avg, "es9.2") // ", E_max " // &
+      str(row%e_max, "es9.2") // ", best approximation " // str(row%e_proj, "es9.2") // ", deepest overlap " // &
+      str(row%overlap, "es9.2") // ", agents not out " // str(row%not_left) // " (FOM " // str(row%not_left_fom) // &
+      "), mobility " // str(row%mobility, "f6.3") // ", infeasible steps " // str(row%infeasible) // &
+      ", capped " // str(row%capped) // ", " // &
+      str(row%t_step, "es9.2") // " s/step, " // str(row%t_query, "es9.2") // " s per whole query")
+    call log%info("   " // trim(blk%name) // ": displacement error " // str(row%meas%e_disp, "es9.2") // &
+      ", overlap agent-agent " // str(row%meas%overlap_aa, "es9.2") // ", agent-wall " // &
+      str(row%meas%overlap_aw, "es9.2") // ", evacuation-time error " // evac_text(row%meas, 1) // "; " // &
+      evac_text(row%meas, 2))
+    if (eim_exact_rows(ops) > 0) call log%info("   EIM: " // str(eim_exact_rows(ops)) // " row evaluations " // &
+      "were exact (interpolated normal shorter than 1/2), over " // str(sum(n_done) * this%cfg%timing_repeats) // &
+      " steps of " // str(pair%r) // " rows")
+    if (row%diverged > 0) call log%warn(str(row%diverged) // " of " // str(blk%n) // " " // trim(blk%name) // &
+      " reduced trajectories diverged: E_avg and every other aggregate of this row are over the other " // &
+      str(blk%n - row%diverged) // " samples (column samples_diverged)")
+    if (this%cfg%solver == 'dual') call log%info("   dual active set: " // str(n_fallback) // " of " // &
+      str(nt * blk%n) // " steps fell back to the NNLS (found infeasible " // str(why(1)) // ", capped or > 3/4 Nb active " // &
+      str(why(2)) // ", not certified " // str(why(3)) // "); per step: active rows " // &
+      str(real(active_sum, wp) / max(1, nt * blk%n), "f6.1") // ", rows added " // &
+      str(real(n_adds, wp) / max(1, nt * blk%n), "f6.2") // ", dropped " // &
+      str(real(n_drops, wp) / max(1, nt * blk%n), "f6.2"))
+    call log%info("   time per step (fastest repeat of each sample): positions " // &
+      str(t_parts(1) / max(1, nt * blk%n), "es9.2") // " s, assembly " // str(t_parts(2) / max(1, nt * blk%n), "es9.2") // &
+      " s, solve " // str(t_parts(3) / max(1, nt * blk%n), "es9.2") // " s")
+    if (row%infeasible > 0) call log%warn(str(row%infeasible) // " reduced steps were infeasible (the reduced " // &
+      "positions already overlap): least-violation coefficients used")
+    if (row%capped > 0) call log%warn(str(row%capped) // " reduced solves stopped at their iteration cap " // &
+      "(nnls_max_iter / uzawa_max_iter): those steps are not converged")
+    if (row%extrapolating > 0) call log%warn(str(row%extrapolating) // " of " // str(blk%n) // " " // &
+      trim(blk%name) // " parameters lie outside the training box: the reduced model extrapolates")
+    ! output group
+    out_set%setting = ks; out_set%n = pair%n; out_set%r = pair%r; out_set%nb = nb; out_set%pair = pair%index
+    out_set%m = ops%m
+    out_set%hyper = this%cfg%hyper(kset); out_set%contacts = this%cfg%contacts(kset); out_set%solver = this%cfg%solver
+    out_set%name = blk%name
+    out_set%summary = trim(blk%name) == trim(this%blocks(size(this%blocks))%name)
+    out_set%e_avg = row%e_avg; out_set%samples_diverged = row%diverged; out_set%t_step = row%t_step
+    out_set%speedup_uzawa = speedup(this%ref%t_uz, row%t_step); out_set%speedup_exact = speedup(this%ref%t_ex, row%t_step)
+    out_set%params = blk%mu
+    call move_alloc(alpha, out_set%alpha); call move_alloc(beta, out_set%beta)
+    call move_alloc(pos, out_set%positions); call move_alloc(err_time, out_set%err_time)
+    call move_alloc(e_mu, out_set%e_mu); call move_alloc(e_proj, out_set%e_proj)
+    call move_alloc(overlap, out_set%max_overlap); call move_alloc(mobility, out_set%mobility)
+    call move_alloc(not_left, out_set%n_not_left); call move_alloc(not_left_fom, out_set%n_not_left_fom)
+    call move_alloc(infeas, out_set%n_infeasible); call move_alloc(capped, out_set%n_capped)
+    call move_alloc(extrap, out_set%extrapolating); call move_alloc(time, out_set%time)
+    call move_alloc(div_step, out_set%diverged_step)
+    out_set%e_disp = ms%e_disp; out_set%overlap_aa = ms%overlap_aa; out_set%overlap_aw = ms%overlap_aw
+    allocate(out_set%evac_rom(nt + 1, blk%n), out_set%t_out_rom(size(EVAC_PCT), blk%n))
+    do k = 1, blk%n
+      out_set%evac_rom(:, k) = ms(k)%evac_rom
+      out_set%t_out_rom(:, k) = ms(k)%t_rom
+    end do
+    if (blk%has_fom) then
+      allocate(out_set%evac_fom(nt + 1, blk%n), out_set%t_out_fom(size(EVAC_PCT), blk%n))
+      do k = 1, blk%n
+        out_set%evac_fom(:, k) = ms(k)%evac_fom
+        out_set%t_out_fom(:, k) = ms(k)%t_fom
+      end do
+    end if
+    call out%write_set(out_set, error)
+  end subroutine run_setting
+
+  !> "t50: error e over n samples (ROM misses a, no FOM reference b)".
+  function evac_text(m, j) result(s)
+    type(row_measures_t), intent(in) :: m
+    integer, intent(in) :: j
+    character(len=:), allocatable :: s
+    s = "t" // str(EVAC_PCT(j)) // " " // str(m%t_err(j), "es9.2") // " over " // str(m%t_n(j)) // &
+      " samples (reduced never reaches it: " // str(m%t_rom_missed(j)) // ", full: " // str(m%t_fom_missed(j)) // ")"
+  end function evac_text
+
+
+  !> Mean time per full-order step over the first fom_timing_samples samples of blk, and
+  !> t_query: the mean wall time of one whole query (parameter applied, model built with its
+  !> scene and desired velocity, every step; the Uzawa call leaves it unchanged).
+  subroutine fom_timing(this, env, log, blk, solver, t_step, kkt_max, n_nonconv, t_query, error)
+    type(rom_sweep_t), intent(in) :: this
+    type(env_t), intent(in) :: env
+    type(logger_t), intent(inout) :: log
+    type(sample_block_t), intent(in) :: blk
+    character(len=*), intent(in) :: solver
+    real(wp), intent(out) :: t_step, kkt_max
+    integer, intent(out) :: n_nonconv
+    real(wp), intent(inout) :: t_query
+    type(error_t), allocatable, intent(out) :: error
+    real(wp) :: w0, t_q
+    type(config_t) :: c2
+    type(step_record_t) :: rec
+    real(wp), allocatable :: speeds(:)
+    integer :: k, nu, ns, nsteps
+    t_step = 0; kkt_max = 0; n_nonconv = 0; t_q = 0
+    nsteps = this%st%n_steps
+    if (solver == 'uzawa' .and. this%cfg%fom_uzawa_steps > 0) nsteps = min(nsteps, this%cfg%fom_uzawa_steps)
+    ns = min(this%cfg%fom_timing_samples, blk%n)
+    call log%progress_start()
+    do k = 1, ns
+      c2 = this%st%cfg
+      c2%solver%name = solver
+      c2%solver%tol = this%cfg%fom_tol
+      if (solver == 'uzawa') then
+        ! the paper's full-order model: cold start, its own stopping test
+        c2%solver%uzawa_eps = this%cfg%fom_uzawa_eps
+        c2%solver%warm_start = .false.
+        ! every pair and agent-obstacle pair a row, as in the paper (cutoff beyond the scene)
+        if (this%cfg%fom_uzawa_rows == 'all') c2%contacts%cutoff_factor = 1.0e9_wp
+      end if
+      speeds = this%st%speeds
+      w0 = env%wtime()
+      call this%st%space%apply(blk%mu(:, k), c2, speeds)
+      fresh: block
+        type(fom_t) :: fom
+        call fom%init(c2, error, q0=this%st%q0, speeds=speeds)
+        if (allocated(error)) return
+        do nu = 1, nsteps
+          call fom%advance(rec, error)
+          if (allocated(error)) then
+            call prefix_error(error, "full-order timing (" // solver // ")"); return
+          end if
+          t_step = t_step + rec%t_step
+          kkt_max = max(kkt_max, rec%kkt)
+          if (.not. rec%converged) n_nonconv = n_nonconv + 1
+        end do
+        t_q = t_q + (env%wtime() - w0)
+      end block fresh
+      call log%progress("full-order " // solver // " sample", k, ns)
+    end do
+    t_step = t_step / max(1, ns * nsteps)
+    if (solver /= 'uzawa') t_query = t_q / max(1, ns)
+  end subroutine fom_timing
+
+  !> The one sample of sets = 'given'.
+  subroutine given_block(this, blk, error)
+    type(rom_sweep_t), intent(in) :: this
+    type(sample_block_t), intent(out) :: blk
+    type(error_t), allocatable, intent(out) :: error
+    integer :: nmu
+    nmu = count(this%cfg%mu > -huge(1.0_wp))
+    if (nmu /= this%st%space%n_expanded) then
+      call set_error(error, this%where // ": mu has " // str(nmu) // " values but the study has " // &
+        str(this%st%space%n_expanded) // " parameter components (" // shorten(this%st%param_names, 60) // ")", 2)
+      return
+    end if
+    call this%st%space%check_values(this%cfg%mu(1:nmu), this%st%cfg, this%where // ": mu", error)
+    if (allocated(error)) return
+    blk%name = 'given'
+    blk%n = 1
+    blk%mu = reshape(this%cfg%mu(1:nmu), [nmu, 1])
+    allocate(blk%q(this%st%n_dof, 0), blk%u(this%st%n_dof, 0))
+    blk%has_fom = .false.
+  end subroutine given_block
+
+  !> One line of the CSV table.
+  function csv_line(this, r) result(s)
+    type(rom_sweep_t), intent(in) :: this
+    type(romrun_row_t), intent(in) :: r
+    character(len=:), allocatable :: s
+    associate (f => this%ref)
+      s = str(r%setting) // "," // trim(r%set) // "," // str(r%n) // "," // str(r%r) // "," // str(r%nb) // "," // &
+        trim(r%hyper) // "," // trim(r%contacts) // "," // trim(r%solver) // "," // str(r%m(1)) // "," // &
+        str(r%m(2)) // "," // str(r%m(3)) // "," // e(r%e_avg) // "," // e(r%e_max) // "," // e(r%e_proj) // &
+        "," // e(r%overlap) // "," // str(r%not_left) // "," // str(r%not_left_fom) // "," // str(r%infeasible) // &
+        "," // str(r%capped) // "," // e(r%t_step) // "," // e(f%t_uz) // "," // e(f%t_ex) // "," // &
+        e(speedup(f%t_uz, r%t_step)) // "," // e(speedup(f%t_ex, r%t_step)) // "," // str(r%extrapolating) // "," // &
+        e(r%mobility) // "," // str(r%diverged) // "," // e(r%meas%e_disp) // "," // e(r%meas%overlap_aa) // "," // &
+        e(r%meas%overlap_aw) // "," // evac_csv(r%meas, 1) // "," // evac_csv(r%meas, 2) // "," // &
+        e(r%t_query) // "," // e(f%t_query) // "," // e(speedup(f%t_query, r%t_query))
+    end associate
+  end function csv_line
+
+  function evac_csv(m, j) result(s)
+    type(row_measures_t), intent(in) :: m
+    integer, intent(in) :: j
+    character(len=:), allocatable :: s
+    s = e(m%t_err(j)) // "," // str(m%t_n(j)) // "," // str(m%t_rom_missed(j)) // "," // str(m%t_fom_missed(j))
+  end function evac_csv
+
+  !> The table, written (and checked on disk) under a temporary name; run renames it together
+  !> with the run file.
+  subroutine write_csv(this, error)
+    type(rom_sweep_t), intent(in) :: this
+    type(error_t), allocatable, intent(out) :: error
+    integer :: k
+    character(len=:), allocatable :: text, msg
+    text = "setting,set,n,r,n_basis,hyper,contacts,solver,m_v,m_b,m_d,E_avg,E_max,E_proj_avg," // &
+      "max_overlap,agents_not_left,agents_not_left_fom,infeasible_steps,capped_steps,t_step_rom," // &
+      "t_step_fom_uzawa,t_step_fom_exact,speedup_uzawa,speedup_exact,extrapolating,mobility,samples_diverged," // &
+      "E_disp,max_overlap_agents,max_overlap_walls,t50_err,t50_n,t50_rom_missed,t50_fom_missed," // &
+      "t90_err,t90_n,t90_rom_missed,t90_fom_missed,t_query_rom,t_query_fom_exact,speedup_query_exact" // &
+      new_line('a')
+    do k = 1, size(this%rows)
+      text = text // csv_line(this, this%rows(k)) // new_line('a')
+    end do
+    call write_whole_file(trim(this%cfg%table) // ".partial", text, msg)
+    if (len(msg) > 0) call set_error(error, this%where // ": table: " // msg)
+  end subroutine write_csv
+
+  !> The sweep table on the log (after run).
+  subroutine print_table(this, log)
+    class(rom_sweep_t), intent(in) :: this
+    type(logger_t), intent(inout) :: log
+    integer :: k
+    if (.not. allocated(this%rows)) return
+    associate (rows => this%rows, f => this%ref)
+      call log%info("")
+      call log%info("| setting | set | N | R | Nb | hyper | contacts | m_v,m_b,m_d | E_avg | E_max | best approx. |" // &
+        " E_disp | t50 err | t90 err | overlap agents / walls | not out (FOM) | mobility | infeas. | diverged |" // &
+        " t_step ROM [s] | speedup vs uzawa | speedup vs " // trim(this%cfg%fom_exact_solver) // &
+        " | t_query ROM [s] | query speedup vs " // trim(this%cfg%fom_exact_solver) // " |")
+      call log%info("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+      do k = 1, size(rows)
+        associate (r => rows(k))
+          call log%info("| " // str(r%setting) // " | " // trim(r%set) // " | " // str(r%n) // " | " // str(r%r) // &
+            " | " // str(r%nb) // " | " // trim(r%hyper) // " | " // trim(r%contacts) // " | " // str(r%m(1)) // "," // &
+            str(r%m(2)) // "," // str(r%m(3)) // " | " // str(r%e_avg, "es9.2") // trim(merge("*", " ", r%diverged > 0)) // &
+            " | " // str(r%e_max, "es9.2") // " | " // str(r%e_proj, "es9.2") // " | " // str(r%meas%e_disp, "es9.2") // &
+            " | " // tcell(r%meas, 1) // " | " // tcell(r%meas, 2) // " | " // str(r%meas%overlap_aa, "es9.2") // &
+            " / " // str(r%meas%overlap_aw, "es9.2") // " | " // str(r%not_left) // &
+            " (" // str(r%not_left_fom) // ") | " // str(r%mobility, "f6.3") // " | " // str(r%infeasible) // &
+            " | " // str(r%diverged) // " | " // str(r%t_step, "es9.2") // " | " // &
+            str(speedup(f%t_uz, r%t_step), "f9.1") // " | " // str(speedup(f%t_ex, r%t_step), "f9.1") // " | " // &
+            str(r%t_query, "es9.2") // " | " // str(speedup(f%t_query, r%t_query), "f9.1") // " |")
+        end associate
+      end do
+      if (any(rows%diverged > 0)) call log%info("* some samples of this row diverged (column diverged): its " // &
+        "figures are over the other samples only")
+      call log%info("t50/t90 err: mean |t_ROM - t_FOM| / t_FOM of the times at which 50% / 90% of the agents are " // &
+        "out, over the (n) samples where both reach it; 'ROM never k': k samples where only the full model " // &
+        "reaches it within the horizon")
+      call log%info("t_query: one whole query as a user pays it, per sample: the per-parameter setup (scene, " // &
+        "desired velocity) plus the whole trajectory; the " // trim(this%cfg%fom_exact_solver) // " full model's " // &
+        "whole query takes " // str(f%t_query, "es9.2") // " s")
+    end associate
+  end subroutine print_table
+
+  !> Evacuation-time cell of the printed table.
+  function tcell(m, j) result(s)
+    type(row_measures_t), intent(in) :: m
+    integer, intent(in) :: j
+    character(len=:), allocatable :: s
+    if (m%t_n(j) > 0) then
+      s = str(m%t_err(j), "es9.2") // " (" // str(m%t_n(j)) // ")"
+    else
+      s = "n/a"
+    end if
+    if (m%t_rom_missed(j) > 0) s = s // ", ROM never " // str(m%t_rom_missed(j))
+  end function tcell
+
+  !> The JSON summary of the sweep (after run) at `path`.
+  subroutine write_summary(this, path, error)
+    class(rom_sweep_t), intent(in) :: this
+    character(len=*), intent(in) :: path
+    type(error_t), allocatable, intent(out) :: error
+    type(json_writer_t) :: js
+    integer :: j, k
+    if (.not. allocated(this%rows)) then
+      call set_error(error, "crowd_rom: summary asked before the sweep ran"); return
+    end if
+    associate (rows => this%rows, f => this%ref)
+      call js%add("program", "crowd_rom")
+      call js%add("output", trim(this%cfg%output))
+      call js%add("settings", size(this%setting_ids))
+      call js%add("t_step_fom_uzawa", f%t_uz)
+      call js%add("t_step_fom_exact", f%t_ex)
+      call js%add("t_query_fom_exact", f%t_query)
+      call js%add("e_avg_last", rows(size(rows))%e_avg)
+      call js%add("max_overlap", maxval(rows%overlap))
+      call js%add("infeasible_steps", sum(rows%infeasible))
+      call js%add("capped_steps", sum(rows%capped))
+      call js%add("t_step_rom_min", minval(rows%t_step))
+      call js%add("e_avg_max", maxval(rows%e_avg))
+      call js%add("mobility_min", minval(rows%mobility))
+      call js%add("mobility_max", maxval(rows%mobility))
+      call js%add("agents_not_left", sum(rows%not_left))
+      call js%add("agents_not_left_fom", sum(rows%not_left_fom))
+      call js%add("extrapolating_samples", sum(rows%extrapolating))
+      call js%add("samples_diverged", sum(rows%diverged))
+      call js%add("rows_with_diverged_samples", count(rows%diverged > 0))
+      ! one array per column, in table order (-1: not available; t*_err over t*_n samples)
+      call js%begin_object("rows")
+      call js%add("setting", rows%setting)
+      call js%add("samples_diverged", rows%diverged)
+      call js%add("E_avg", rows%e_avg)
+      call js%add("E_disp", rows%meas%e_disp)
+      call js%add("mobility", rows%mobility)
+      call js%add("max_overlap_agents", rows%meas%overlap_aa)
+      call js%add("max_overlap_walls", rows%meas%overlap_aw)
+      do j = 1, size(EVAC_PCT)
+        call js%add("t" // str(EVAC_PCT(j)) // "_err", [(rows(k)%meas%t_err(j), k = 1, size(rows))])
+        call js%add("t" // str(EVAC_PCT(j)) // "_n", [(rows(k)%meas%t_n(j), k = 1, size(rows))])
+        call js%add("t" // str(EVAC_PCT(j)) // "_rom_missed", [(rows(k)%meas%t_rom_missed(j), k = 1, size(rows))])
+        call js%add("t" // str(EVAC_PCT(j)) // "_fom_missed", [(rows(k)%meas%t_fom_missed(j), k = 1, size(rows))])
+      end do
+      call js%add("t_step_rom", rows%t_step)
+      call js%add("t_query_rom", rows%t_query)
+      call js%add("t_query_fom_exact", [(f%t_query, k = 1, size(rows))])
+      call js%add("speedup_query_exact", [(speedup(f%t_query, rows(k)%t_query), k = 1, size(rows))])
+      call js%end_object()
+    end associate
+    call js%write_file(path, error)
+  end subroutine write_summary
+
+  !> A fresh evaluation context (scene and desired velocity are rebuilt per sample).
+  subroutine ctx_reset(ctx)
+    type(eval_ctx_t), intent(inout) :: ctx
+    type(eval_ctx_t) :: fresh
+    ctx = fresh
+  end subroutine ctx_reset
+
+  function e(x) result(s)
+    real(wp), intent(in) :: x
+    character(len=:), allocatable :: s
+    s = str(x, "es12.5")
+    s = trim(adjustl(s))
+  end function e
+
+  function pair_list(hdr) result(s)
+    type(rom_file_t), intent(in) :: hdr
+    character(len=:), allocatable :: s
+    integer :: k
+    s = ""
+    do k = 1, hdr%n_pairs
+      s = s // " (" // str(hdr%pair_n(k)) // ", " // str(hdr%pair_r(k)) // ")"
+    end do
+  end function pair_list
+end module cr_rom_sweep
