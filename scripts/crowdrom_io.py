@@ -301,7 +301,7 @@ def rom_pair_indices(f):
 SETTING_ATTRS = {"n": int, "r": int, "n_basis": int, "pair": int, "hyper": str, "E_avg": float,
                  "t_step": float, "speedup_uzawa": float, "speedup_exact": float}
 SETTING_ATTRS_OPTIONAL = {"contacts": str, "solver": str, "m_v": int, "m_b": int, "m_d": int,
-                          "samples_diverged": int}
+                          "samples_diverged": int, "correction": str}
 
 
 def romrun_meta(f):
@@ -315,6 +315,11 @@ def romrun_meta(f):
     m["t_step_uzawa"] = attr(g, "t_step_uzawa", float)
     m["t_step_exact"] = attr(g, "t_step_exact", float)
     m["exact_solver"] = attr(g, "exact_solver", str) if "exact_solver" in g.attrs else ""
+    # the solver asked for ('fastest' or a name) and "name t_step t_query; ..." of every exact
+    # solver timed (absent from files written before the 'fastest' reference)
+    m["exact_solver_asked"] = attr(g, "exact_solver_asked", str) if "exact_solver_asked" in g.attrs \
+        else m["exact_solver"]
+    m["exact_solver_timings"] = attr(g, "exact_solver_timings", str) if "exact_solver_timings" in g.attrs else ""
     return m
 
 
@@ -331,6 +336,8 @@ def romrun_setting(f, k):
         s[key] = attr(g, key, kind)
     for key, kind in SETTING_ATTRS_OPTIONAL.items():
         s[key] = attr(g, key, kind) if key in g.attrs else None
+    if s["correction"] is None:     # files written before the local correction
+        s["correction"] = "none"
     s["sets"] = [x for x in ("train", "valid") if x in g]
     return s
 
@@ -370,6 +377,16 @@ def romrun_set(f, k, s, n_steps, n_dof):
                 raise InputError(f"'{f.filename}': '{name}/{key}' has h5py shape {x.shape}, expected "
                                  f"({n_s}, {width})")
             out[key] = x
+    # local exact correction ('local' settings only): agents corrected per step [n_S, N_T] and
+    # the correction's wall time per sample [n_S]; the positions are then the corrected ones,
+    # carried in full (integrating alpha does not give them back)
+    if "n_corrected" in g:
+        x = np.asarray(g["n_corrected"][()])
+        if x.shape != (n_s, n_steps):
+            raise InputError(f"'{f.filename}': '{name}/n_corrected' has h5py shape {x.shape}, expected "
+                             f"({n_s}, {n_steps})")
+        out["n_corrected"] = x
+        out["t_correct"] = np.asarray(g["t_correct"][()]).ravel()
     return out
 
 

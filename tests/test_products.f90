@@ -642,6 +642,12 @@ contains
     rows(1)%setting = 1; rows(1)%n = 2; rows(1)%r = 1; rows(1)%nb = 3; rows(1)%e_avg = 0.015_wp
     rows(1)%e_max = 0.02_wp; rows(1)%t_step = 1.0e-5_wp; rows(1)%not_left = 1; rows(1)%capped = 1
     rows(1)%diverged = 1; rows(1)%meas%e_disp = 0.05_wp; rows(1)%meas%t_err = [0.1_wp, -1.0_wp]
+    ! the local exact correction and the 'fastest' exact reference
+    hdr%exact_asked = "fastest"; hdr%exact_timings = "sparse_active_set 1.0e-4 2.0e-2; active_set 3.0e-4 5.0e-2"
+    s%correction = 'local'; s%n_corrected = reshape([0, 1, 0, 2], [NT, 2])
+    s%t_correct = [1.0e-3_wp, 2.0e-3_wp]
+    rows(1)%correction = 'local'; rows(1)%corr_frac = 0.25_wp; rows(1)%corr_frac_max = 0.5_wp
+    rows(1)%t_correct = 3.0e-6_wp
   end subroutine make_romrun
 
   subroutine write_romrun(path)
@@ -683,7 +689,15 @@ contains
       call check(all(r%diverged_step == s%diverged_step) .and. r%samples_diverged == 1 .and. &
         all(r%e_disp == s%e_disp) .and. all(r%overlap_aw == s%overlap_aw) .and. all(r%evac_rom == s%evac_rom) .and. &
         all(r%evac_fom == s%evac_fom) .and. all(r%t_out_fom == s%t_out_fom), "romrun: divergence and evacuation")
+      call check(r%correction == 'local' .and. allocated(r%n_corrected) .and. allocated(r%t_correct), &
+        "romrun: local correction present")
+      if (allocated(r%n_corrected) .and. allocated(r%t_correct)) call check(all(r%n_corrected == s%n_corrected) &
+        .and. all(r%t_correct == s%t_correct), "romrun: local correction data")
     end associate
+    call check(run%hdr%exact_asked == "fastest" .and. run%hdr%exact_timings == hdr%exact_timings, &
+      "romrun: exact reference asked and timed")
+    call check(run%rows(1)%corr_frac == 0.25_wp .and. run%rows(1)%corr_frac_max == 0.5_wp .and. &
+      run%rows(1)%t_correct == 3.0e-6_wp, "romrun: correction columns")
     call check(size(run%rows) == 1 .and. run%rows(1)%e_avg == rows(1)%e_avg .and. run%rows(1)%not_left == 1 .and. &
       run%rows(1)%capped == 1 .and. run%rows(1)%diverged == 1 .and. run%rows(1)%meas%e_disp == 0.05_wp, &
       "romrun: table")

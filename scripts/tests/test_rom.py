@@ -4,6 +4,7 @@ assembly, EQ and EIM with all points, online contacts); a small ROM runs and rep
 failure modes; a parameter outside the training box is flagged; bad inputs fail with one
 clear line and write nothing."""
 import csv
+import json
 import os
 import re
 import subprocess
@@ -155,6 +156,82 @@ def test_small_rom_reports(study):
         assert f["setting_2/valid/max_overlap"][...].max() <= 1e-9
 
 
+def test_local_correction_full_basis_reproduces_fom(study):
+    """With full bases the reduced step is the full model's, the local correction finds
+    (up to round-off) nothing to correct, and the carried positions are the full model's."""
+    tmp, db, rom, n, r = study
+    settings = [dict(n=n, r=r, hyper="'none'", correction="'local'"),
+                dict(n=n, r=r, hyper="'eq'", correction="'local'")]
+    out = tmp / "full_local.h5"
+    p = run(0, "crowd_rom", rom_input(tmp, "full_local.nml", rom, out, settings, sets="'train'"), tmp)
+    assert p.returncode == 0, p.stdout + p.stderr
+    with h5py.File(out, "r") as f, h5py.File(db, "r") as d:
+        q_fom = d["train/positions"][...]
+        for k in (1, 2):
+            g = f["setting_%d/train" % k]
+            assert f["setting_%d" % k].attrs["correction"].decode() == "local"
+            assert g["E_mu"][...].max() <= 1e-8
+            np.testing.assert_allclose(g["positions"][...], q_fom, atol=1e-8)
+            assert g["n_corrected"].shape == (6, 12)
+            assert np.all(g["t_correct"][...] >= 0)
+    rows = list(csv.DictReader(open(tmp / "full_local.csv")))
+    assert [r_["correction"] for r_ in rows] == ["local", "local"]
+    for r_ in rows:
+        assert 0 <= float(r_["corrected_fraction"]) <= float(r_["corrected_fraction_max"]) <= 1
+        assert 0 <= float(r_["t_correct_step"]) <= float(r_["t_step_rom"])
+        assert r_["fom_exact_solver"] in ("sparse_active_set", "active_set")
+
+
+def test_local_correction_small_basis_no_overlap(study):
+    """Any basis: after the local exact correction no agent overlaps another or a wall beyond
+    the exact solver's accuracy (scaled KKT tol 1e-10: a linearised gap >= -tol h s with
+    s <= 2 max|u| ~ 4 m/s here, i.e. ~1e-11 m; the true gap is above the linearised one)."""
+    tmp, db, rom, n, r = study
+    settings = [dict(n=4, r=3, hyper="'eq'", correction="'local'"),
+                dict(n=4, r=3, hyper="'none'", correction="'local'"),
+                dict(n=4, r=3, hyper="'eim'", correction="'local'"),
+                dict(n=4, r=3, hyper="'eq'")]
+    out = tmp / "small_local.h5"
+    summary = tmp / "small_local.json"
+    nml = rom_input(tmp, "small_local.nml", rom, out, settings, sets="'both'")
+    p = subprocess.run([os.path.join(BIN, "crowd_rom"), str(nml), "--summary", str(summary)], cwd=tmp,
+                       capture_output=True, text=True, env=ENV)
+    assert p.returncode == 0, p.stdout + p.stderr
+    rows = list(csv.DictReader(open(tmp / "small_local.csv")))
+    assert len(rows) == 8
+    for r_ in rows:
+        if r_["correction"] == "local":
+            assert int(r_["samples_diverged"]) == 0
+            assert float(r_["max_overlap_agents"]) <= 1e-10 and float(r_["max_overlap_walls"]) <= 1e-10, r_
+        else:
+            assert r_["correction"] == "none" and float(r_["corrected_fraction"]) == 0
+    with h5py.File(out, "r") as f:
+        for k in (1, 2, 3):
+            for s in ("train", "valid"):
+                g = f["setting_%d/%s" % (k, s)]
+                assert g["max_overlap"][...].max() <= 1e-10
+                nc = g["n_corrected"][...]
+                assert nc.min() >= 0 and nc.max() <= int(f.attrs["n_agents"])
+        assert "n_corrected" not in f["setting_4/valid"]
+        np.testing.assert_allclose(f["table/corrected_fraction"][...], [float(r_["corrected_fraction"]) for r_ in rows],
+                                   rtol=1e-5)
+    # the Python reader mirrors the new attributes and datasets
+    sys.path.insert(0, os.path.join(ROOT, "scripts"))
+    import crowdrom_io as cio
+    with cio.open_h5(out, cio.ROMRUN_SCHEMA, "ROM run file") as f:
+        meta = cio.romrun_meta(f)
+        assert meta["exact_solver_asked"] == "fastest" and meta["exact_solver"] in meta["exact_solver_timings"]
+        assert [cio.romrun_setting(f, k)["correction"] for k in (1, 4)] == ["local", "none"]
+        rs = cio.romrun_set(f, 1, "valid", meta["n_steps"], 2 * meta["n_agents"])
+        assert rs["n_corrected"].shape == (3, meta["n_steps"]) and rs["t_correct"].shape == (3,)
+        assert "n_corrected" not in cio.romrun_set(f, 4, "valid", meta["n_steps"], 2 * meta["n_agents"])
+    js = json.load(open(summary))
+    assert js["rows"]["correction_local"] == [1, 1, 1, 1, 1, 1, 0, 0]
+    assert js["fom_exact_solver"] in ("sparse_active_set", "active_set") and js["fom_exact_solver_asked"] == "fastest"
+    np.testing.assert_allclose(js["rows"]["corrected_fraction"], [float(r_["corrected_fraction"]) for r_ in rows],
+                               rtol=1e-5)
+
+
 def test_uzawa_reduced_solver(study):
     tmp, db, rom, n, r = study
     out = tmp / "uz.h5"
@@ -187,6 +264,8 @@ def test_given_parameter_extrapolates(study):
     ("not_prepared", r"\(N, R\) = \(5, 2\) is not prepared in ROM file"),
     ("m_too_large", r"m_b = 1000 is larger than the \d+ EQ candidates"),
     ("bad_hyper", r"&sweep: hyper\(1\) must be 'none', 'eim' or 'eq'"),
+    ("bad_correction", r"&sweep: correction\(1\) must be 'none' or 'local' \(got 'global'\)"),
+    ("bad_exact_solver", r"&fom_timing: exact_solver must be 'fastest', .*\(got 'uzawa'\)"),
     ("misspelt", r"namelist group &rom"),
     ("misplaced", r"namelist group &rom: .*solver"),
     ("unread_group", r"unknown namelist group &basis"),
@@ -214,6 +293,10 @@ def test_bad_input(study, case, message):
         setting = [dict(n=4, r=3, hyper="'eq'", m_b=1000)]
     elif case == "bad_hyper":
         setting = [dict(n=4, r=3, hyper="'deim'")]
+    elif case == "bad_correction":
+        setting = [dict(n=4, r=3, hyper="'eq'", correction="'global'")]
+    elif case == "bad_exact_solver":
+        kw["fom_exact_solver"] = "'uzawa'"
     elif case == "parallel":
         np_ = 2
     nml = rom_input(tmp, "bad_%s.nml" % case, rom, out, setting, **kw)

@@ -95,3 +95,28 @@ def test_straight_walk_measures(tmp_path):
         assert tab["t50_n"][...].tolist() == [4, 3] and tab["samples_diverged"][...].tolist() == [0, 0]
     assert js["rows"]["t90_n"] == [4, 3] and js["samples_diverged"] == 0
     assert max(js["rows"]["E_disp"]) <= 1e-8
+
+
+def test_local_correction_without_conflict_changes_nothing(tmp_path):
+    """The straight walk has no contact: the local exact correction finds no conflict, corrects
+    no agent, and the positions it carries in full are the uncorrected reduced ones (to the
+    round-off of summing the steps in another order: 40 steps of O(1) m)."""
+    sfile, db = study(tmp_path)
+    p = run(1, "crowd_snapshots", sfile, tmp_path)
+    assert p.returncode == 0, p.stdout + p.stderr
+    rom = offline(tmp_path, sfile, db, tmp_path / "col_rom.h5")
+    with h5py.File(rom, "r") as f:
+        n, r = int(f["pairs/1"].attrs["n"]), int(f["pairs/1"].attrs["r"])
+    out = tmp_path / "col_local.h5"
+    settings = [dict(n=n, r=r, hyper="'none'"), dict(n=n, r=r, hyper="'none'", correction="'local'")]
+    p = run(0, "crowd_rom", rom_input(tmp_path, "col_local.nml", rom, out, settings, sets="'valid'"), tmp_path)
+    assert p.returncode == 0, p.stdout + p.stderr
+    rows = list(csv.DictReader(open(tmp_path / "col_local.csv")))
+    assert [x["correction"] for x in rows] == ["none", "local"]
+    assert float(rows[1]["corrected_fraction"]) == 0 and float(rows[1]["corrected_fraction_max"]) == 0
+    with h5py.File(out, "r") as f:
+        a, b = f["setting_1/valid"], f["setting_2/valid"]
+        assert np.all(b["n_corrected"][...] == 0)
+        np.testing.assert_allclose(b["positions"][...], a["positions"][...], rtol=0, atol=1e-13)
+        np.testing.assert_allclose(b["alpha"][...], a["alpha"][...], rtol=0, atol=1e-10)
+        np.testing.assert_array_equal(b["evac_rom"][...], a["evac_rom"][...])

@@ -37,6 +37,10 @@ module cr_romrun_file
     real(wp) :: t_query_ex = 0
     character(len=:), allocatable :: exact_solver, uzawa_rows
     integer :: uzawa_steps = 0, timing_samples = 0, nc_uz = 0
+    !> the exact solver asked for ('fastest' or a name; exact_solver is the one used) and the
+    !> timings of every exact solver timed, "name t_step t_query; ..." (read back as '' from
+    !> older files)
+    character(len=:), allocatable :: exact_asked, exact_timings
   end type romrun_header_t
 
   !> Evacuation fractions (per cent of the agents out of the hall) of the evacuation times.
@@ -70,6 +74,11 @@ module cr_romrun_file
     real(wp) :: t_query = 0
     !> the accuracy measures of the row (cr_rom_metrics)
     type(row_measures_t) :: meas
+    !> after each reduced step: 'none' or 'local' (local exact correction); with 'local', the
+    !> mean and largest fraction of the agents corrected per step and the mean wall time of
+    !> the correction per step (included in t_step) [s], over the samples that did not diverge
+    character(len=8) :: correction = 'none'
+    real(wp) :: corr_frac = 0, corr_frac_max = 0, t_correct = 0
   end type romrun_row_t
 
   !> One setting run on one set of samples (n samples, N_T steps, nb basis vectors).
@@ -97,6 +106,11 @@ module cr_romrun_file
     !> (with a full-order reference) full
     integer, allocatable :: evac_rom(:,:), evac_fom(:,:)
     real(wp), allocatable :: t_out_rom(:,:), t_out_fom(:,:)
+    !> 'none' or 'local'; with 'local': agents corrected at each step [N_T, n] and the wall time
+    !> of the corrections of each sample [n] (not allocated for 'none')
+    character(len=8) :: correction = 'none'
+    integer, allocatable :: n_corrected(:,:)
+    real(wp), allocatable :: t_correct(:)
   end type romrun_set_t
 
   !> A ROM-run file as read back.
@@ -164,6 +178,13 @@ contains
       call h5%write_attr("fom_timing", "kkt_max_uzawa", hdr%kkt_uz, error); if (allocated(error)) goto 9
       call h5%write_attr("fom_timing", "kkt_max_exact", hdr%kkt_ex, error); if (allocated(error)) goto 9
       call h5%write_attr("fom_timing", "nonconverged_steps_uzawa", hdr%nc_uz, error); if (allocated(error)) goto 9
+      if (allocated(hdr%exact_asked)) then
+        call h5%write_attr("fom_timing", "exact_solver_asked", hdr%exact_asked, error); if (allocated(error)) goto 9
+      end if
+      if (allocated(hdr%exact_timings)) then
+        call h5%write_attr("fom_timing", "exact_solver_timings", hdr%exact_timings, error)
+        if (allocated(error)) goto 9
+      end if
     end associate
 9   if (allocated(error)) call this%h5%abort()
   end subroutine writer_open
@@ -187,6 +208,7 @@ contains
       call h5%write_attr(g, "m_v", s%m(1), error); if (allocated(error)) return
       call h5%write_attr(g, "m_b", s%m(2), error); if (allocated(error)) return
       call h5%write_attr(g, "m_d", s%m(3), error); if (allocated(error)) return
+      call h5%write_attr(g, "correction", trim(s%correction), error); if (allocated(error)) return
       if (s%summary) then
         call h5%write_attr(g, "E_avg", s%e_avg, error); if (allocated(error)) return
         call h5%write_attr(g, "samples_diverged", s%samples_diverged, error); if (allocated(error)) return
@@ -224,6 +246,10 @@ contains
         call h5%write(g // "/t_out_fom", s%t_out_fom, error); if (allocated(error)) return
       end if
       call h5%write_attr(g // "/evac_rom", "evac_pct", EVAC_PCT, error); if (allocated(error)) return
+      if (allocated(s%n_corrected)) then
+        call h5%write(g // "/n_corrected", s%n_corrected, error); if (allocated(error)) return
+        call h5%write(g // "/t_correct", s%t_correct, error); if (allocated(error)) return
+      end if
     end associate
   end subroutine writer_write_set
 
@@ -293,8 +319,11 @@ contains
       call h5%write("table/speedup_query_exact", [(speedup(hdr%t_query_ex, rows(k)%t_query), k = 1, size(rows))], &
         error)
       if (allocated(error)) return
-      call h5%write_attr("table", "columns", "see the CSV header; strings (set, hyper, contacts, solver) in " // &
-        "the setting_<k> attributes", error)
+      call h5%write("table/corrected_fraction", rows%corr_frac, error); if (allocated(error)) return
+      call h5%write("table/corrected_fraction_max", rows%corr_frac_max, error); if (allocated(error)) return
+      call h5%write("table/t_correct_step", rows%t_correct, error); if (allocated(error)) return
+      call h5%write_attr("table", "columns", "see the CSV header; strings (set, hyper, contacts, solver, " // &
+        "correction) in the setting_<k> attributes, the exact solver in fom_timing", error)
     end associate
   end subroutine writer_write_table
 
@@ -347,6 +376,15 @@ contains
       call h5%read_attr("fom_timing", "kkt_max_uzawa", h%kkt_uz, error); if (allocated(error)) goto 9
       call h5%read_attr("fom_timing", "kkt_max_exact", h%kkt_ex, error); if (allocated(error)) goto 9
       call h5%read_attr("fom_timing", "nonconverged_steps_uzawa", h%nc_uz, error); if (allocated(error)) goto 9
+      ! written since the 'fastest' reference (absent from older files of the same version)
+      call h5%read_attr("fom_timing", "exact_solver_asked", h%exact_asked, e2)
+      if (allocated(e2)) then
+        h%exact_asked = h%exact_solver; deallocate(e2)
+      end if
+      call h5%read_attr("fom_timing", "exact_solver_timings", h%exact_timings, e2)
+      if (allocated(e2)) then
+        h%exact_timings = ''; deallocate(e2)
+      end if
       if (h%n_agents < 1 .or. h%n_steps < 1 .or. h%n_settings < 0 .or. size(h%param_min) /= size(h%param_max)) then
         call product_error(path, "root attributes out of range (n_agents " // str(h%n_agents) // ", n_steps " // &
           str(h%n_steps) // ", n_settings " // str(h%n_settings) // ")", error); goto 9
@@ -380,6 +418,11 @@ contains
           call h5%read_attr(g, "m_v", s%m(1), error); if (allocated(error)) goto 9
           call h5%read_attr(g, "m_b", s%m(2), error); if (allocated(error)) goto 9
           call h5%read_attr(g, "m_d", s%m(3), error); if (allocated(error)) goto 9
+          ! written since the local correction (absent from older files: 'none')
+          call read_string(g, "correction", s%correction)
+          if (allocated(error)) then
+            s%correction = 'none'; deallocate(error)
+          end if
           call h5%read_attr(g, "E_avg", s%e_avg, e2)
           s%summary = .not. allocated(e2)
           if (allocated(e2)) deallocate(e2)
@@ -430,6 +473,12 @@ contains
               error); if (allocated(error)) goto 9
             call h5%read(g // "/evac_fom", s%evac_fom, error); if (allocated(error)) goto 9
             call h5%read(g // "/t_out_fom", s%t_out_fom, error); if (allocated(error)) goto 9
+          end if
+          if (h5%exists(g // "/n_corrected")) then
+            call need_dims(h5, path, g // "/n_corrected", [int(nt, i8), int(n, i8)], "n_steps x n_samples", &
+              error); if (allocated(error)) goto 9
+            call h5%read(g // "/n_corrected", s%n_corrected, error); if (allocated(error)) goto 9
+            call read_vec(g // "/t_correct", s%t_correct); if (allocated(error)) goto 9
           end if
           g = "setting_" // str(ks)
         end associate
@@ -508,6 +557,14 @@ contains
       run%rows%diverged = iv
       call h5%read("table/E_disp", rv, error); if (allocated(error)) return
       run%rows%meas%e_disp = rv
+      if (h5%exists("table/corrected_fraction")) then
+        call h5%read("table/corrected_fraction", rv, error); if (allocated(error)) return
+        run%rows%corr_frac = rv
+        call h5%read("table/corrected_fraction_max", rv, error); if (allocated(error)) return
+        run%rows%corr_frac_max = rv
+        call h5%read("table/t_correct_step", rv, error); if (allocated(error)) return
+        run%rows%t_correct = rv
+      end if
       do k = 1, nr
         if (run%rows(k)%setting < 1 .or. run%rows(k)%setting > run%hdr%n_settings) then
           call product_error(path, "dataset 'table/setting': setting " // str(run%rows(k)%setting) // &

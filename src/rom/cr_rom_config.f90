@@ -7,7 +7,10 @@
 !> ('none': exact projection of the selected terms, 'eim', 'eq'), contacts(k) the enforced
 !> constraints ('cone': the reduced cone; 'online': the contacts near in the reduced
 !> positions at each step), m_v/m_b/m_d(k) the interpolation / quadrature points (0: the
-!> paper's defaults 2 Nb, R, 2 R, capped by what the ROM file stores).
+!> paper's defaults 2 Nb, R, 2 R, capped by what the ROM file stores), correction(k) what
+!> happens after each reduced step ('none': the reduced positions as they are; 'local': the
+!> local exact correction of cr_local_correction with the exact full-order solver of
+!> &fom_timing, the positions then carried in full, see cr_rom_stepper).
 module cr_rom_config
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error, problems_t
@@ -19,9 +22,11 @@ module cr_rom_config
   implicit none
   private
   public :: check_rom_paths
-  public :: rom_cfg_t, read_rom, check_rom, rom_echo, MAX_SETTINGS, MAX_MU
+  public :: rom_cfg_t, read_rom, check_rom, rom_echo, MAX_SETTINGS, MAX_MU, EXACT_SOLVERS
 
   integer, parameter :: MAX_SETTINGS = 64, MAX_PATH = 512, MAX_MU = 1024
+  !> the exact full-order solvers &fom_timing exact_solver = 'fastest' times
+  character(len=*), parameter :: EXACT_SOLVERS(2) = [character(len=17) :: 'sparse_active_set', 'active_set']
 
   !> Online reduced-model run.
   type :: rom_cfg_t
@@ -45,6 +50,8 @@ module cr_rom_config
     integer :: m_v(MAX_SETTINGS) = 0
     integer :: m_b(MAX_SETTINGS) = 0
     integer :: m_d(MAX_SETTINGS) = 0
+    !> after each reduced step: 'none' or 'local' (local exact correction)
+    character(len=8) :: correction(MAX_SETTINGS) = 'none'
     !> reduced solver: 'dual' (warm-started dual active set on the active rows' Gram, with
     !> 'nnls' as certified fallback), 'nnls' (Lawson-Hanson active set, warm started) or
     !> 'uzawa' (the paper's)
@@ -65,7 +72,10 @@ module cr_rom_config
     !> rows of the Uzawa reference: 'all' (the paper's full-order model: every agent pair and
     !> agent-obstacle pair is a constraint row) or 'near' (this project's neighbour list)
     character(len=8) :: fom_uzawa_rows = 'all'
-    character(len=32) :: fom_exact_solver = 'sparse_active_set'
+    !> exact full-order solver of the reference (and of the local correction): 'fastest'
+    !> (time every exact solver of this build, EXACT_SOLVERS, and keep the fastest per step),
+    !> or one of them by name ('gpcg' also accepted)
+    character(len=32) :: fom_exact_solver = 'fastest'
     !> repetitions of each reduced run for the timing (the fastest is kept)
     integer :: timing_repeats = 3
   end type rom_cfg_t
@@ -115,16 +125,18 @@ contains
 
     subroutine read_sweep(error)
       type(error_t), allocatable, intent(out) :: error
-      character(len=8) :: hyper(MAX_SETTINGS), contacts(MAX_SETTINGS)
+      character(len=8) :: hyper(MAX_SETTINGS), contacts(MAX_SETTINGS), correction(MAX_SETTINGS)
       integer :: n(MAX_SETTINGS), r(MAX_SETTINGS), m_v(MAX_SETTINGS), m_b(MAX_SETTINGS), m_d(MAX_SETTINGS)
-      namelist /sweep/ n, r, hyper, contacts, m_v, m_b, m_d
+      namelist /sweep/ n, r, hyper, contacts, m_v, m_b, m_d, correction
       integer :: ios
       character(len=512) :: msg
       n = c%n; r = c%r; hyper = c%hyper; contacts = c%contacts; m_v = c%m_v; m_b = c%m_b; m_d = c%m_d
+      correction = c%correction
       msg = ''
       read(t%lines, nml=sweep, iostat=ios, iomsg=msg)
       call nml_status(t, 'sweep', ios, msg, error); if (allocated(error)) return
       c%n = n; c%r = r; c%hyper = hyper; c%contacts = contacts; c%m_v = m_v; c%m_b = m_b; c%m_d = m_d
+      c%correction = correction
     end subroutine read_sweep
 
     subroutine read_reduced(error)
@@ -218,6 +230,8 @@ contains
         "are assembled exactly)")
       call probs%need(c%m_v(k) >= 0 .and. c%m_b(k) >= 0 .and. c%m_d(k) >= 0, &
         "&sweep: m_v, m_b, m_d(" // str(k) // ") must be >= 0 (0: defaults)")
+      call probs%need(c%correction(k) == 'none' .or. c%correction(k) == 'local', &
+        "&sweep: correction(" // str(k) // ") must be 'none' or 'local' (got '" // trim(c%correction(k)) // "')")
     end do
     call probs%need(c%solver == 'dual' .or. c%solver == 'nnls' .or. c%solver == 'uzawa', &
       "&reduced: solver must be 'dual', 'nnls' or 'uzawa'")
@@ -231,8 +245,9 @@ contains
     call probs%need(c%fom_uzawa_steps >= 0, "&fom_timing: uzawa_steps must be >= 0 (0: all steps)")
     call probs%need(c%fom_uzawa_rows == 'all' .or. c%fom_uzawa_rows == 'near', &
       "&fom_timing: uzawa_rows must be 'all' or 'near' (got '" // trim(c%fom_uzawa_rows) // "')")
-    call probs%need(any(c%fom_exact_solver == [character(len=32) :: 'sparse_active_set', 'active_set', 'gpcg']), &
-      "&fom_timing: exact_solver must be 'sparse_active_set', 'active_set' or 'gpcg'")
+    call probs%need(any(c%fom_exact_solver == [character(len=32) :: 'fastest', 'sparse_active_set', 'active_set', &
+      'gpcg']), "&fom_timing: exact_solver must be 'fastest', 'sparse_active_set', 'active_set' or 'gpcg' (got '" // &
+      trim(c%fom_exact_solver) // "')")
     call probs%need(c%timing_repeats >= 1, "&rom: timing_repeats must be >= 1")
     call probs%to_error(path, error)
   end subroutine check_rom
@@ -259,7 +274,8 @@ contains
       s = s // nl // "  n(" // str(k) // ") = " // str(c%n(k)) // ", r(" // str(k) // ") = " // &
         str(c%r(k)) // ", hyper(" // str(k) // ") = '" // trim(c%hyper(k)) // "', contacts(" // str(k) // &
         ") = '" // trim(c%contacts(k)) // "', m_v(" // str(k) // ") = " // str(c%m_v(k)) // ", m_b(" // &
-        str(k) // ") = " // str(c%m_b(k)) // ", m_d(" // str(k) // ") = " // str(c%m_d(k))
+        str(k) // ") = " // str(c%m_b(k)) // ", m_d(" // str(k) // ") = " // str(c%m_d(k)) // &
+        ", correction(" // str(k) // ") = '" // trim(c%correction(k)) // "'"
     end do
     s = s // " /" // nl // "&reduced solver = '" // trim(c%solver) // "', nnls_max_iter = " // str(c%nnls_max_iter) // &
       ", uzawa_rho_factor = " // str(c%uzawa_rho_factor, "es23.16") // ", uzawa_eps = " // &

@@ -15,6 +15,14 @@
 !> The data of each step are checked for NaN / Inf once: a sum over vhat and dhat here, and
 !> the dual solver sums the slacks of its first sweep (which carry any NaN / Inf of bhat); a
 !> non-finite sum sends the step to ldp_solve, which names the offending entry.
+!>
+!> With a local exact correction (argument `corr`, &sweep correction = 'local'), each step
+!> continues from the corrected positions, carried in full:
+!>   u_r = V alpha^nu,  u = u_r + delta = corr%correct(q^(nu-1), u_r),  q^nu = q^(nu-1) + h u,
+!> the next reduced step is assembled at q^nu, and alpha^nu stays the reduced solve's answer
+!> (the correction delta is not projected back onto the basis: a projection would lose the
+!> part of delta outside span(V), and with it the guarantee of no overlap). The positions of
+!> every step are then returned in traj%q (reduced_positions(alpha) no longer gives them).
 module cr_rom_stepper
   use cr_kinds, only: wp, i8
   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
@@ -26,6 +34,7 @@ module cr_rom_stepper
   use cr_dual_qp, only: dual_qp_t, dual_qp_stats_t
   use cr_sort, only: argsort_i8, bsearch_i8
   use cr_lapack, only: la_gemv
+  use cr_local_correction, only: local_correction_t, local_stats_t
   implicit none
   private
   public :: rom_solver_cfg_t, rom_traj_t, run_trajectory, reduced_positions
@@ -63,13 +72,22 @@ module cr_rom_stepper
     !> first step whose positions the divergence guard refused (0: none); the stepping
     !> stopped there and alpha(:, diverged_step:) = 0 (positions frozen at step - 1)
     integer :: diverged_step = 0
+    !> with a local correction only: the corrected positions [n_dof, n_steps + 1] (column 1:
+    !> q0; frozen after a diverged step), agents corrected at each step [n_steps], steps with
+    !> a conflict, and the wall time of the corrections (included in `time`) [s]
+    real(wp), allocatable :: q(:,:)
+    integer, allocatable :: n_corrected(:)
+    integer :: conflict_steps = 0
+    real(wp) :: time_correct = 0
   end type rom_traj_t
 
 contains
 
   !> Run n_steps reduced steps from q0 [n_dof]. With `guard`, every step is checked (cr_rom_guard)
-  !> and the stepping stops at the first diverged step (traj%diverged_step).
-  subroutine run_trajectory(ops, ctx, q0, n_steps, scfg, traj, error, guard)
+  !> and the stepping stops at the first diverged step (traj%diverged_step). With `corr`
+  !> (initialised), every step is corrected locally and the positions are carried in full
+  !> (module header).
+  subroutine run_trajectory(ops, ctx, q0, n_steps, scfg, traj, error, guard, corr)
     class(reduced_ops_t), intent(inout) :: ops
     type(eval_ctx_t), intent(in) :: ctx
     real(wp), intent(in) :: q0(:)
@@ -78,7 +96,11 @@ contains
     type(rom_traj_t), intent(out) :: traj
     type(error_t), allocatable, intent(out) :: error
     type(rom_guard_t), intent(in), optional :: guard
+    type(local_correction_t), intent(inout), optional :: corr
     real(wp), allocatable :: q(:), acc(:), vhat(:), alpha(:), bt(:,:), bhat(:,:), dhat(:), lam(:), gram(:,:)
+    real(wp), allocatable :: ur(:), uc(:)
+    integer, allocatable :: all_agents(:)
+    type(local_stats_t) :: lst
     real(wp), allocatable :: prev_lam(:), vsub(:,:), qsub(:), q0sub(:), lam0(:)
     integer, allocatable :: dofs(:)
     integer(i8), allocatable :: prev_keys(:)
@@ -87,8 +109,8 @@ contains
     type(dual_qp_t) :: dqp
     type(dual_qp_stats_t) :: dst
     integer :: nu, j, nb, its
-    integer(8) :: c0, c1, rate, t0, t1, t2, t3
-    logical :: capped, finite
+    integer(8) :: c0, c1, rate, t0, t1, t2, t3, t4
+    logical :: capped, finite, carry
     nb = ops%nb
     ! the dofs the assembly reads, and their rows of V (contiguous)
     allocate(dofs(2 * size(ops%agents)))
@@ -103,17 +125,33 @@ contains
     allocate(acc(nb), vhat(nb), alpha(nb), prev_keys(0), prev_lam(0))
     acc = 0
     q = q0
+    carry = present(corr)
+    if (carry) then
+      allocate(traj%q(size(q0), n_steps + 1), traj%n_corrected(n_steps), ur(size(q0)), uc(size(q0)))
+      traj%q(:, 1) = q0
+      traj%n_corrected = 0
+      all_agents = [(j, j = 1, size(q0) / 2)]
+    end if
     call system_clock(c0, rate)
     do nu = 1, n_steps
       call system_clock(t0)
-      ! positions at the start of the step, where needed: q0 + h V acc on those dofs
-      qsub = q0sub
-      call la_gemv('N', ctx%h, vsub, acc, 1.0_wp, qsub)
-      q(dofs) = qsub
+      ! positions at the start of the step, where needed: q0 + h V acc on those dofs (carried
+      ! in full with a correction)
+      if (.not. carry) then
+        qsub = q0sub
+        call la_gemv('N', ctx%h, vsub, acc, 1.0_wp, qsub)
+        q(dofs) = qsub
+      end if
       call system_clock(t1)
       if (present(guard) .and. nu > 1) then
-        ! the positions the previous step produced (those the assembly reads)
-        if (.not. guard%agents_ok(q, ops%agents)) then
+        ! the positions the previous step produced (those the assembly reads; every agent
+        ! when carried)
+        if (carry) then
+          finite = guard%agents_ok(q, all_agents)
+        else
+          finite = guard%agents_ok(q, ops%agents)
+        end if
+        if (.not. finite) then
           traj%diverged_step = nu - 1; exit
         end if
       end if
@@ -200,10 +238,30 @@ contains
           traj%diverged_step = nu; exit
         end if
       end if
+      if (carry) then
+        ! u = V alpha + delta, q <- q + h u (the correction's time counts in the step's)
+        call la_gemv('N', 1.0_wp, ops%v, alpha, 0.0_wp, ur)
+        call corr%correct(ctx%scene, ctx%radius, q, ur, ctx%h, uc, lst, error)
+        if (allocated(error)) then
+          call prefix_error(error, "local correction after reduced step " // str(nu)); return
+        end if
+        q = q + ctx%h * uc
+        traj%q(:, nu + 1) = q
+        traj%n_corrected(nu) = lst%n_corrected
+        if (lst%n_violated > 0) traj%conflict_steps = traj%conflict_steps + 1
+        call system_clock(t4)
+        traj%time_correct = traj%time_correct + real(t4 - t3, wp) / real(rate, wp)
+      end if
     end do
     if (traj%diverged_step > 0) then
       traj%alpha(:, traj%diverged_step:) = 0
       traj%beta(:, traj%diverged_step:) = 0
+      if (carry) then
+        do j = traj%diverged_step + 1, n_steps + 1
+          traj%q(:, j) = traj%q(:, traj%diverged_step)
+        end do
+        traj%n_corrected(traj%diverged_step:) = 0
+      end if
     end if
     call system_clock(c1)
     traj%time = real(c1 - c0, wp) / real(rate, wp)

@@ -7,9 +7,14 @@
 !>
 !> Stages (each returns error_t, none stops):
 !>   init            read the ROM file and its study, the parameter sets and the settings;
-!>   time_reference  time the full-order model (&fom_timing);
+!>   time_reference  time the full-order model (&fom_timing): the paper's Uzawa and the exact
+!>                   solver, by default the fastest exact solver of this build (every solver
+!>                   of EXACT_SOLVERS timed on the same samples, the fastest per step kept);
 !>   run             run every setting, write the ROM-run file (&rom output, schema
 !>                   crowdrom-romrun) and the table (&rom table, CSV), both atomically;
+!>                   settings with &sweep correction = 'local' correct every reduced step
+!>                   with cr_local_correction, using that same exact solver at the
+!>                   &fom_timing tolerance (positions carried in full, see cr_rom_stepper);
 !>   print_table / write_summary  the printed table and the JSON summary (--summary).
 module cr_rom_sweep
   use cr_kinds, only: wp
@@ -18,7 +23,9 @@ module cr_rom_sweep
   use cr_env, only: env_t
   use cr_logger, only: logger_t
   use cr_config, only: config_t
-  use cr_rom_config, only: rom_cfg_t, rom_echo, MAX_SETTINGS, check_rom_paths
+  use cr_rom_config, only: rom_cfg_t, rom_echo, MAX_SETTINGS, check_rom_paths, EXACT_SOLVERS
+  use cr_projection, only: projection_settings_t
+  use cr_local_correction, only: local_correction_t
   use cr_rom_file, only: rom_file_t, rom_pair_t, read_rom_file, read_rom_pair, find_pair
   use cr_rom_study, only: rom_study_t, sample_block_t, open_study, read_block_set
   use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t, make_reduced_ops, eim_exact_rows
@@ -42,6 +49,11 @@ module cr_rom_sweep
     real(wp) :: t_query = 0
     !> Uzawa / exact steps that did not converge
     integer :: nc_uz = 0, nc_ex = 0
+    !> the exact solver of the reference and of the local correction (with exact_solver =
+    !> 'fastest': the fastest per step of EXACT_SOLVERS, sparse_active_set when not timed)
+    character(len=32) :: exact_solver = ''
+    !> every exact solver timed: "name t_step t_query" joined by "; "
+    character(len=:), allocatable :: timings
   end type fom_reference_t
 
   !> One sweep: its configuration, the study it runs on and its results.
@@ -133,20 +145,40 @@ contains
     type(env_t), intent(in) :: env
     type(logger_t), intent(inout) :: log
     type(error_t), allocatable, intent(out) :: error
+    character(len=32), allocatable :: names(:)
+    real(wp) :: t, kkt, tq
+    integer :: nc, k
     this%ref = fom_reference_t()
+    this%ref%timings = ''
+    if (this%cfg%fom_exact_solver == 'fastest') then
+      names = EXACT_SOLVERS
+    else
+      names = [this%cfg%fom_exact_solver]
+    end if
+    this%ref%exact_solver = names(1)
     if (this%cfg%fom_timing_samples <= 0) return
     associate (blk => this%blocks(size(this%blocks)), r => this%ref)
       call log%stage_begin("crowd_rom: full-order timing (paper's uzawa on " // trim(this%cfg%fom_uzawa_rows) // &
-        " rows, eps " // str(this%cfg%fom_uzawa_eps) // &
-        "; " // trim(this%cfg%fom_exact_solver) // ", KKT tolerance " // str(this%cfg%fom_tol) // ")")
-      call fom_timing(this, env, log, blk, 'uzawa', r%t_uz, r%kkt_uz, r%nc_uz, r%t_query, error)
-      if (allocated(error)) return
-      call fom_timing(this, env, log, blk, trim(this%cfg%fom_exact_solver), r%t_ex, r%kkt_ex, r%nc_ex, r%t_query, error)
+        " rows, eps " // str(this%cfg%fom_uzawa_eps) // "; exact solver " // trim(this%cfg%fom_exact_solver) // &
+        ", KKT tolerance " // str(this%cfg%fom_tol) // ")")
+      call fom_timing(this, env, log, blk, 'uzawa', r%t_uz, r%kkt_uz, r%nc_uz, tq, error)
       if (allocated(error)) return
       call log%info("   uzawa " // str(r%t_uz, "es10.3") // " s/step (largest KKT " // str(r%kkt_uz, "es9.2") // &
-        ", " // str(r%nc_uz) // " non-converged steps); " // trim(this%cfg%fom_exact_solver) // " " // &
-        str(r%t_ex, "es10.3") // " s/step (largest KKT " // str(r%kkt_ex, "es9.2") // "), " // &
-        str(r%t_query, "es10.3") // " s per whole query")
+        ", " // str(r%nc_uz) // " non-converged steps)")
+      do k = 1, size(names)
+        call fom_timing(this, env, log, blk, trim(names(k)), t, kkt, nc, tq, error)
+        if (allocated(error)) return
+        call log%info("   " // trim(names(k)) // " " // str(t, "es10.3") // " s/step (largest KKT " // &
+          str(kkt, "es9.2") // ", " // str(nc) // " non-converged steps), " // str(tq, "es10.3") // &
+          " s per whole query")
+        if (k > 1) r%timings = r%timings // "; "
+        r%timings = r%timings // trim(names(k)) // " " // str(t, "es10.3") // " " // str(tq, "es10.3")
+        if (k == 1 .or. t < r%t_ex) then
+          r%t_ex = t; r%kkt_ex = kkt; r%nc_ex = nc; r%t_query = tq; r%exact_solver = names(k)
+        end if
+      end do
+      if (size(names) > 1) call log%info("   reference: " // trim(r%exact_solver) // ", the fastest exact " // &
+        "solver per step of this build")
       call log%stage_end()
     end associate
   end subroutine time_reference
@@ -181,7 +213,8 @@ contains
       call log%stage_begin("crowd_rom: setting " // str(ks) // " of " // str(size(this%setting_ids)) // &
         ": (N, R) = (" // str(pairs(kp)%n) // ", " // str(pairs(kp)%r) // "), basis " // str(pairs(kp)%nb) // &
         ", hyper " // trim(this%cfg%hyper(this%setting_ids(ks))) // ", contacts " // &
-        trim(this%cfg%contacts(this%setting_ids(ks))) // ", solver " // trim(this%cfg%solver))
+        trim(this%cfg%contacts(this%setting_ids(ks))) // ", solver " // trim(this%cfg%solver) // &
+        ", correction " // trim(this%cfg%correction(this%setting_ids(ks))))
       do ib = 1, size(this%blocks)
         nrow = nrow + 1
         call run_setting(this, env, log, out, ks, this%setting_ids(ks), pairs(kp), this%blocks(ib), &
@@ -228,7 +261,9 @@ contains
     rhdr%param_names = this%st%param_names; rhdr%param_min = this%st%space%lo; rhdr%param_max = this%st%space%hi
     rhdr%n_settings = size(this%setting_ids)
     rhdr%t_uz = this%ref%t_uz; rhdr%t_ex = this%ref%t_ex; rhdr%t_query_ex = this%ref%t_query
-    rhdr%exact_solver = trim(this%cfg%fom_exact_solver)
+    rhdr%exact_solver = trim(this%ref%exact_solver)
+    rhdr%exact_asked = trim(this%cfg%fom_exact_solver)
+    rhdr%exact_timings = this%ref%timings
     rhdr%tolerance = this%cfg%fom_tol; rhdr%uzawa_eps = this%cfg%fom_uzawa_eps
     rhdr%uzawa_steps = this%cfg%fom_uzawa_steps
     rhdr%uzawa_rows = trim(this%cfg%fom_uzawa_rows); rhdr%timing_samples = this%cfg%fom_timing_samples
@@ -261,8 +296,12 @@ contains
     integer, allocatable :: not_left(:), not_left_fom(:), infeas(:), capped(:), extrap(:)
     type(sample_measures_t), allocatable :: ms(:)
     type(romrun_set_t) :: out_set
-    integer :: k, nt, nb, rep, n_fallback, active_sum, n_adds, n_drops, why(3)
+    integer :: k, nt, nb, rep, n_fallback, active_sum, n_adds, n_drops, why(3), j, n_conflict
     real(wp) :: t_parts(3)
+    type(local_correction_t), allocatable :: corr
+    type(projection_settings_t) :: psett
+    integer, allocatable :: ncorr(:,:)
+    real(wp), allocatable :: tcorr(:)
     nt = this%st%n_steps
     call make_reduced_ops(trim(this%cfg%hyper(kset)), trim(this%cfg%contacts(kset)), pair, &
       [this%cfg%m_v(kset), this%cfg%m_b(kset), this%cfg%m_d(kset)], this%st%cfg%contacts%cutoff_factor, &
@@ -273,6 +312,20 @@ contains
     scfg%uzawa_rho_factor = this%cfg%uzawa_rho_factor
     scfg%uzawa_eps = this%cfg%uzawa_eps
     scfg%uzawa_max_iter = this%cfg%uzawa_max_iter
+    if (this%cfg%correction(kset) == 'local') then
+      ! the exact full-order solver of the reference, at the reference's tolerance
+      allocate(corr)
+      psett = this%st%cfg%solver
+      psett%name = this%ref%exact_solver
+      psett%tol = this%cfg%fom_tol
+      call corr%init(psett, this%st%cfg%contacts%cutoff_factor, error)
+      if (allocated(error)) then
+        call prefix_error(error, this%where // ": setting " // str(kset)); return
+      end if
+      allocate(ncorr(nt, blk%n), tcorr(blk%n))
+      ncorr = 0; tcorr = 0
+    end if
+    n_conflict = 0
     nb = pair%nb
     allocate(alpha(nb, nt * blk%n), beta(merge(pair%r, 0, ops%fixed_rows), nt * blk%n), &
       pos(this%st%n_dof, (nt + 1) * blk%n), err_time(nt + 1, blk%n), e_mu(blk%n), e_proj(blk%n), &
@@ -298,22 +351,28 @@ contains
       call guard%init(ctx%scene, c_max, this%st%dt * nt, this%st%n_agents)
       w_setup = env%wtime() - w0
       w0 = env%wtime()
-      call run_trajectory(ops, ctx, this%st%q0, nt, scfg, traj, error, guard=guard)
+      call run_trajectory(ops, ctx, this%st%q0, nt, scfg, traj, error, guard=guard, corr=corr)
       w_run = env%wtime() - w0
       if (allocated(error)) then
         call prefix_error(error, "setting " // str(ks) // ", " // trim(blk%name) // " sample " // str(k)); return
       end if
       do rep = 2, this%cfg%timing_repeats
         w0 = env%wtime()
-        call run_trajectory(ops, ctx, this%st%q0, nt, scfg, tr2, error, guard=guard)
+        call run_trajectory(ops, ctx, this%st%q0, nt, scfg, tr2, error, guard=guard, corr=corr)
         w_run = min(w_run, env%wtime() - w0)
         if (allocated(error)) return
         if (tr2%time < traj%time) then
           traj%time = tr2%time; traj%time_positions = tr2%time_positions
           traj%time_assemble = tr2%time_assemble; traj%time_solve = tr2%time_solve
+          traj%time_correct = tr2%time_correct
         end if
       end do
-      qr = reduced_positions(this%st%q0, pair%v, traj%alpha, this%st%dt)
+      if (allocated(traj%q)) then
+        ! corrected positions, carried in full by the stepper
+        qr = traj%q
+      else
+        qr = reduced_positions(this%st%q0, pair%v, traj%alpha, this%st%dt)
+      end if
       ! every agent checked (the stepper checks only the agents its assembly reads)
       kbad = guard%first_outside(qr)
       if (kbad > 0) then
@@ -321,8 +380,20 @@ contains
           traj%diverged_step = kbad - 1
           traj%alpha(:, kbad - 1:) = 0
           traj%beta(:, kbad - 1:) = 0
-          qr = reduced_positions(this%st%q0, pair%v, traj%alpha, this%st%dt)
+          if (allocated(traj%q)) then
+            do j = kbad, nt + 1
+              qr(:, j) = qr(:, kbad - 1)
+            end do
+            traj%n_corrected(kbad - 1:) = 0
+          else
+            qr = reduced_positions(this%st%q0, pair%v, traj%alpha, this%st%dt)
+          end if
         end if
+      end if
+      if (allocated(corr)) then
+        ncorr(:, k) = traj%n_corrected
+        tcorr(k) = traj%time_correct
+        n_conflict = n_conflict + traj%conflict_steps
       end if
       div_step(k) = traj%diverged_step
       n_done(k) = merge(traj%diverged_step, nt, traj%diverged_step > 0)
@@ -359,6 +430,7 @@ contains
     end do
     row%setting = ks; row%n = pair%n; row%r = pair%r; row%nb = nb; row%m = ops%m
     row%set = blk%name; row%hyper = this%cfg%hyper(kset); row%contacts = this%cfg%contacts(kset); row%solver = this%cfg%solver
+    row%correction = this%cfg%correction(kset)
     row%t_step = sum(time) / max(1, sum(n_done))
     ! every aggregate over the samples that did not diverge (their count is reported)
     call aggregate_measures(ms, this%st%dt, row%meas)
@@ -375,6 +447,15 @@ contains
     row%e_avg = row%meas%e_avg; row%e_max = row%meas%e_max; row%mobility = row%meas%mobility
     row%not_left_fom = row%meas%not_left_fom
     if (blk%has_fom .and. any(ok)) row%e_proj = sum(e_proj, mask=ok) / count(ok)
+    if (allocated(corr)) then
+      ! fractions over the samples that did not diverge (as the measures), time as t_step
+      if (any(ok)) then
+        row%corr_frac = real(sum(ncorr(:, pack([(j, j = 1, blk%n)], ok))), wp) / &
+          (real(this%st%n_agents, wp) * max(1, sum(n_done, mask=ok)))
+        row%corr_frac_max = real(maxval(ncorr(:, pack([(j, j = 1, blk%n)], ok))), wp) / this%st%n_agents
+      end if
+      row%t_correct = sum(tcorr) / max(1, sum(n_done))
+    end if
     call log%info("   " // trim(blk%name) // ": E_avg " // str(row%e_avg, "es9.2") // ", E_max " // &
       str(row%e_max, "es9.2") // ", best approximation " // str(row%e_proj, "es9.2") // ", deepest overlap " // &
       str(row%overlap, "es9.2") // ", agents not out " // str(row%not_left) // " (FOM " // str(row%not_left_fom) // &
@@ -397,6 +478,10 @@ contains
       str(real(active_sum, wp) / max(1, nt * blk%n), "f6.1") // ", rows added " // &
       str(real(n_adds, wp) / max(1, nt * blk%n), "f6.2") // ", dropped " // &
       str(real(n_drops, wp) / max(1, nt * blk%n), "f6.2"))
+    if (allocated(corr)) call log%info("   local correction (" // trim(this%ref%exact_solver) // "): " // &
+      str(100 * row%corr_frac, "f7.3") // "% of the agents corrected per step (largest " // &
+      str(100 * row%corr_frac_max, "f7.3") // "%), conflicts on " // str(n_conflict) // " of " // &
+      str(sum(n_done)) // " steps, " // str(row%t_correct, "es9.2") // " s per step")
     call log%info("   time per step (fastest repeat of each sample): positions " // &
       str(t_parts(1) / max(1, nt * blk%n), "es9.2") // " s, assembly " // str(t_parts(2) / max(1, nt * blk%n), "es9.2") // &
       " s, solve " // str(t_parts(3) / max(1, nt * blk%n), "es9.2") // " s")
@@ -410,6 +495,11 @@ contains
     out_set%setting = ks; out_set%n = pair%n; out_set%r = pair%r; out_set%nb = nb; out_set%pair = pair%index
     out_set%m = ops%m
     out_set%hyper = this%cfg%hyper(kset); out_set%contacts = this%cfg%contacts(kset); out_set%solver = this%cfg%solver
+    out_set%correction = this%cfg%correction(kset)
+    if (allocated(corr)) then
+      call move_alloc(ncorr, out_set%n_corrected); call move_alloc(tcorr, out_set%t_correct)
+      call corr%free()
+    end if
     out_set%name = blk%name
     out_set%summary = trim(blk%name) == trim(this%blocks(size(this%blocks))%name)
     out_set%e_avg = row%e_avg; out_set%samples_diverged = row%diverged; out_set%t_step = row%t_step
@@ -451,7 +541,7 @@ contains
 
   !> Mean time per full-order step over the first fom_timing_samples samples of blk, and
   !> t_query: the mean wall time of one whole query (parameter applied, model built with its
-  !> scene and desired velocity, every step; the Uzawa call leaves it unchanged).
+  !> scene and desired velocity, every step timed).
   subroutine fom_timing(this, env, log, blk, solver, t_step, kkt_max, n_nonconv, t_query, error)
     type(rom_sweep_t), intent(in) :: this
     type(env_t), intent(in) :: env
@@ -460,7 +550,7 @@ contains
     character(len=*), intent(in) :: solver
     real(wp), intent(out) :: t_step, kkt_max
     integer, intent(out) :: n_nonconv
-    real(wp), intent(inout) :: t_query
+    real(wp), intent(out) :: t_query
     type(error_t), allocatable, intent(out) :: error
     real(wp) :: w0, t_q
     type(config_t) :: c2
@@ -504,7 +594,7 @@ contains
       call log%progress("full-order " // solver // " sample", k, ns)
     end do
     t_step = t_step / max(1, ns * nsteps)
-    if (solver /= 'uzawa') t_query = t_q / max(1, ns)
+    t_query = t_q / max(1, ns)
   end subroutine fom_timing
 
   !> The one sample of sets = 'given'.
@@ -542,7 +632,9 @@ contains
         e(speedup(f%t_uz, r%t_step)) // "," // e(speedup(f%t_ex, r%t_step)) // "," // str(r%extrapolating) // "," // &
         e(r%mobility) // "," // str(r%diverged) // "," // e(r%meas%e_disp) // "," // e(r%meas%overlap_aa) // "," // &
         e(r%meas%overlap_aw) // "," // evac_csv(r%meas, 1) // "," // evac_csv(r%meas, 2) // "," // &
-        e(r%t_query) // "," // e(f%t_query) // "," // e(speedup(f%t_query, r%t_query))
+        e(r%t_query) // "," // e(f%t_query) // "," // e(speedup(f%t_query, r%t_query)) // "," // &
+        trim(r%correction) // "," // e(r%corr_frac) // "," // e(r%corr_frac_max) // "," // e(r%t_correct) // "," // &
+        trim(f%exact_solver)
     end associate
   end function csv_line
 
@@ -564,7 +656,8 @@ contains
       "max_overlap,agents_not_left,agents_not_left_fom,infeasible_steps,capped_steps,t_step_rom," // &
       "t_step_fom_uzawa,t_step_fom_exact,speedup_uzawa,speedup_exact,extrapolating,mobility,samples_diverged," // &
       "E_disp,max_overlap_agents,max_overlap_walls,t50_err,t50_n,t50_rom_missed,t50_fom_missed," // &
-      "t90_err,t90_n,t90_rom_missed,t90_fom_missed,t_query_rom,t_query_fom_exact,speedup_query_exact" // &
+      "t90_err,t90_n,t90_rom_missed,t90_fom_missed,t_query_rom,t_query_fom_exact,speedup_query_exact," // &
+      "correction,corrected_fraction,corrected_fraction_max,t_correct_step,fom_exact_solver" // &
       new_line('a')
     do k = 1, size(this%rows)
       text = text // csv_line(this, this%rows(k)) // new_line('a')
@@ -583,9 +676,10 @@ contains
       call log%info("")
       call log%info("| setting | set | N | R | Nb | hyper | contacts | m_v,m_b,m_d | E_avg | E_max | best approx. |" // &
         " E_disp | t50 err | t90 err | overlap agents / walls | not out (FOM) | mobility | infeas. | diverged |" // &
-        " t_step ROM [s] | speedup vs uzawa | speedup vs " // trim(this%cfg%fom_exact_solver) // &
-        " | t_query ROM [s] | query speedup vs " // trim(this%cfg%fom_exact_solver) // " |")
-      call log%info("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        " t_step ROM [s] | speedup vs uzawa | speedup vs " // trim(f%exact_solver) // &
+        " | t_query ROM [s] | query speedup vs " // trim(f%exact_solver) // " | correction | corrected/step |")
+      call log%info("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|" // &
+        "---|---|")
       do k = 1, size(rows)
         associate (r => rows(k))
           call log%info("| " // str(r%setting) // " | " // trim(r%set) // " | " // str(r%n) // " | " // str(r%r) // &
@@ -597,7 +691,8 @@ contains
             " (" // str(r%not_left_fom) // ") | " // str(r%mobility, "f6.3") // " | " // str(r%infeasible) // &
             " | " // str(r%diverged) // " | " // str(r%t_step, "es9.2") // " | " // &
             str(speedup(f%t_uz, r%t_step), "f9.1") // " | " // str(speedup(f%t_ex, r%t_step), "f9.1") // " | " // &
-            str(r%t_query, "es9.2") // " | " // str(speedup(f%t_query, r%t_query), "f9.1") // " |")
+            str(r%t_query, "es9.2") // " | " // str(speedup(f%t_query, r%t_query), "f9.1") // " | " // &
+            trim(r%correction) // " | " // corr_cell(r) // " |")
         end associate
       end do
       if (any(rows%diverged > 0)) call log%info("* some samples of this row diverged (column diverged): its " // &
@@ -606,10 +701,25 @@ contains
         "out, over the (n) samples where both reach it; 'ROM never k': k samples where only the full model " // &
         "reaches it within the horizon")
       call log%info("t_query: one whole query as a user pays it, per sample: the per-parameter setup (scene, " // &
-        "desired velocity) plus the whole trajectory; the " // trim(this%cfg%fom_exact_solver) // " full model's " // &
+        "desired velocity) plus the whole trajectory; the " // trim(f%exact_solver) // " full model's " // &
         "whole query takes " // str(f%t_query, "es9.2") // " s")
+      if (this%cfg%fom_exact_solver == 'fastest' .and. len(f%timings) > 0) call log%info("exact full model: " // &
+        trim(f%exact_solver) // ", the fastest per step of (name, s/step, s/query) " // f%timings)
+      if (any(rows%correction == 'local')) call log%info("corrected/step: mean (largest) per cent of the agents " // &
+        "whose velocity the local exact correction solved for, per step")
     end associate
   end subroutine print_table
+
+  !> Correction cell of the printed table.
+  function corr_cell(r) result(s)
+    type(romrun_row_t), intent(in) :: r
+    character(len=:), allocatable :: s
+    if (r%correction == 'local') then
+      s = str(100 * r%corr_frac, "f7.3") // "% (" // str(100 * r%corr_frac_max, "f7.3") // "%)"
+    else
+      s = "-"
+    end if
+  end function corr_cell
 
   !> Evacuation-time cell of the printed table.
   function tcell(m, j) result(s)
@@ -641,6 +751,9 @@ contains
       call js%add("t_step_fom_uzawa", f%t_uz)
       call js%add("t_step_fom_exact", f%t_ex)
       call js%add("t_query_fom_exact", f%t_query)
+      call js%add("fom_exact_solver", trim(f%exact_solver))
+      call js%add("fom_exact_solver_asked", trim(this%cfg%fom_exact_solver))
+      call js%add("fom_exact_timings", f%timings)
       call js%add("e_avg_last", rows(size(rows))%e_avg)
       call js%add("max_overlap", maxval(rows%overlap))
       call js%add("infeasible_steps", sum(rows%infeasible))
@@ -670,9 +783,14 @@ contains
         call js%add("t" // str(EVAC_PCT(j)) // "_fom_missed", [(rows(k)%meas%t_fom_missed(j), k = 1, size(rows))])
       end do
       call js%add("t_step_rom", rows%t_step)
+      call js%add("speedup_exact", [(speedup(f%t_ex, rows(k)%t_step), k = 1, size(rows))])
       call js%add("t_query_rom", rows%t_query)
       call js%add("t_query_fom_exact", [(f%t_query, k = 1, size(rows))])
       call js%add("speedup_query_exact", [(speedup(f%t_query, rows(k)%t_query), k = 1, size(rows))])
+      call js%add("correction_local", [(merge(1, 0, rows(k)%correction == 'local'), k = 1, size(rows))])
+      call js%add("corrected_fraction", rows%corr_frac)
+      call js%add("corrected_fraction_max", rows%corr_frac_max)
+      call js%add("t_correct_step", rows%t_correct)
       call js%end_object()
     end associate
     call js%write_file(path, error)
