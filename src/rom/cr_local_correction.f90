@@ -31,9 +31,13 @@
 !>    solve is repeated (at worst every agent is free: the full projection); if the corrected
 !>    velocity is fast enough to reach rows beyond the cutoff, the cutoff grows and the call
 !>    restarts, as in the full model.
-!> Cost: the cell list O(n_a) plus the solve on the free agents only.
+!> Cost: the cell list O(n_a) plus the solve on the free agents only. The local solve is warm
+!> started, as the full model's, from the multipliers of the previous call's rows with the
+!> same identity (agent pair or agent-obstacle pair; `reset` forgets them, e.g. at the start
+!> of a trajectory).
 module cr_local_correction
-  use cr_kinds, only: wp
+  use cr_kinds, only: wp, i8
+  use cr_sort, only: argsort_i8, bsearch_i8
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
   use cr_scene, only: scene_t
@@ -50,6 +54,8 @@ module cr_local_correction
     !> agents whose velocity was solved for (free agents), violated candidate rows of u_r,
     !> conflict clusters (connected groups of violated rows), candidate rows, local rows
     integer :: n_corrected = 0, n_violated = 0, n_clusters = 0, n_rows = 0, n_local_rows = 0
+    !> agents of the violated rows (the conflict agents, before neighbours are added)
+    integer :: n_seeds = 0
     !> solver iterations (summed over the solves of the call), rings added, cutoff restarts
     integer :: iterations = 0, rings = 0, restarts = 0
     !> scaled KKT residual of the last local solve (0 when nothing was solved)
@@ -68,9 +74,13 @@ module cr_local_correction
     type(contact_set_t) :: cs, cs_loc
     !> agents whose velocity the last call solved for [n_a]
     logical, allocatable :: corrected(:)
+    !> the last local solve's row identities (sorted) and multipliers, for the warm start
+    integer(i8), allocatable :: prev_keys(:)
+    real(wp), allocatable :: prev_lambda(:)
   contains
     procedure :: init
     procedure :: free
+    procedure :: reset
     procedure :: correct
   end type local_correction_t
 
@@ -102,8 +112,16 @@ contains
     call this%cs%free()
     call this%cs_loc%free()
     if (allocated(this%corrected)) deallocate(this%corrected)
+    call this%reset()
     this%cells = cell_list_t()
   end subroutine free
+
+  !> Forget the multipliers kept for the warm start (the next solve starts from zero).
+  subroutine reset(this)
+    class(local_correction_t), intent(inout) :: this
+    if (allocated(this%prev_keys)) deallocate(this%prev_keys)
+    if (allocated(this%prev_lambda)) deallocate(this%prev_lambda)
+  end subroutine reset
 
   !> u = u_r + delta: the reduced velocity u_r [2 n_a] at positions q [2 n_a] corrected so that
   !> no contact row of the step h is violated (see the module header). delta = 0 outside
@@ -164,6 +182,7 @@ contains
         exit
       end if
       stats%n_clusters = count_clusters(this%cs, u_r, na)
+      stats%n_seeds = count(seed)
       ! -- free set: seeds and their neighbours; grow by rings until the local solve succeeds
       this%corrected = seed
       call add_ring(this%cs, u_r, this%cutoff_factor, this%corrected)
@@ -276,10 +295,11 @@ contains
     real(wp), intent(inout) :: u(:)
     type(local_stats_t), intent(inout) :: stats
     type(error_t), allocatable, intent(out) :: error
-    integer, allocatable :: map(:), back(:)
+    integer, allocatable :: map(:), back(:), idx(:)
+    integer(i8), allocatable :: keys(:)
     real(wp), allocatable :: v_loc(:), u_loc(:), lambda(:)
     type(solve_stats_t) :: st
-    integer :: na, m, i, l, a, b, k
+    integer :: na, m, i, l, a, b, k, n0
     real(wp) :: h, g(2), s
     na = size(this%corrected)
     h = this%cs%h
@@ -298,8 +318,10 @@ contains
       end if
     end do
     call this%cs_loc%init(m, h, 4 * m)
+    allocate(keys(this%cs%n))
     do l = 1, this%cs%n
       a = this%cs%ia(l); b = this%cs%ib(l); g = this%cs%g(:, l)
+      n0 = this%cs_loc%n
       if (b == 0) then
         if (map(a) > 0) call this%cs_loc%add(map(a), 0, this%cs%ob(l), g, this%cs%gap(l))
       else if (map(a) > 0 .and. map(b) > 0) then
@@ -312,16 +334,29 @@ contains
         s = this%cs%gap(l) + h * (g(1) * u_r(2*a-1) + g(2) * u_r(2*a))
         call this%cs_loc%add(map(b), 0, 0, -g, s)
       end if
+      ! the local row's identity: that of the full row it comes from
+      if (this%cs_loc%n > n0) keys(this%cs_loc%n) = this%cs%key(l)
     end do
     stats%n_local_rows = this%cs_loc%n
     allocate(lambda(max(this%cs_loc%n, 1)))
     lambda = 0
+    ! warm start: multipliers of the previous solve's rows with the same identity
+    if (allocated(this%prev_keys)) then
+      do k = 1, this%cs_loc%n
+        i = bsearch_i8(this%prev_keys, keys(k))
+        if (i > 0) lambda(k) = this%prev_lambda(i)
+      end do
+    end if
     call this%solver%solve(this%cs_loc, v_loc, u_loc, lambda, st, error)
     if (allocated(error)) then
       call prefix_error(error, "local_correction"); return
     end if
     stats%iterations = stats%iterations + st%iterations
     stats%kkt = st%kkt
+    allocate(idx(this%cs_loc%n))
+    call argsort_i8(keys(1:this%cs_loc%n), idx)
+    this%prev_keys = keys(idx)
+    this%prev_lambda = lambda(idx)
     stats%converged = st%converged .and. st%kkt <= this%solver%settings%tol
     u = u_r
     do k = 1, m

@@ -78,6 +78,8 @@ module cr_rom_stepper
     real(wp), allocatable :: q(:,:)
     integer, allocatable :: n_corrected(:)
     integer :: conflict_steps = 0
+    !> agents of the violated rows (before neighbours), summed over the steps
+    integer :: n_conflict_agents = 0
     real(wp) :: time_correct = 0
   end type rom_traj_t
 
@@ -131,6 +133,8 @@ contains
       traj%q(:, 1) = q0
       traj%n_corrected = 0
       all_agents = [(j, j = 1, size(q0) / 2)]
+      ! each trajectory's correction starts cold (reproducible whatever ran before)
+      call corr%reset()
     end if
     call system_clock(c0, rate)
     do nu = 1, n_steps
@@ -249,6 +253,7 @@ contains
         traj%q(:, nu + 1) = q
         traj%n_corrected(nu) = lst%n_corrected
         if (lst%n_violated > 0) traj%conflict_steps = traj%conflict_steps + 1
+        traj%n_conflict_agents = traj%n_conflict_agents + lst%n_seeds
         call system_clock(t4)
         traj%time_correct = traj%time_correct + real(t4 - t3, wp) / real(rate, wp)
       end if

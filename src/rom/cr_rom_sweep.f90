@@ -296,7 +296,7 @@ contains
     integer, allocatable :: not_left(:), not_left_fom(:), infeas(:), capped(:), extrap(:)
     type(sample_measures_t), allocatable :: ms(:)
     type(romrun_set_t) :: out_set
-    integer :: k, nt, nb, rep, n_fallback, active_sum, n_adds, n_drops, why(3), j, n_conflict
+    integer :: k, nt, nb, rep, n_fallback, active_sum, n_adds, n_drops, why(3), j, n_conflict, n_seed
     real(wp) :: t_parts(3)
     type(local_correction_t), allocatable :: corr
     type(projection_settings_t) :: psett
@@ -325,7 +325,7 @@ contains
       allocate(ncorr(nt, blk%n), tcorr(blk%n))
       ncorr = 0; tcorr = 0
     end if
-    n_conflict = 0
+    n_conflict = 0; n_seed = 0
     nb = pair%nb
     allocate(alpha(nb, nt * blk%n), beta(merge(pair%r, 0, ops%fixed_rows), nt * blk%n), &
       pos(this%st%n_dof, (nt + 1) * blk%n), err_time(nt + 1, blk%n), e_mu(blk%n), e_proj(blk%n), &
@@ -394,6 +394,7 @@ contains
         ncorr(:, k) = traj%n_corrected
         tcorr(k) = traj%time_correct
         n_conflict = n_conflict + traj%conflict_steps
+        n_seed = n_seed + traj%n_conflict_agents
       end if
       div_step(k) = traj%diverged_step
       n_done(k) = merge(traj%diverged_step, nt, traj%diverged_step > 0)
@@ -480,7 +481,9 @@ contains
       str(real(n_drops, wp) / max(1, nt * blk%n), "f6.2"))
     if (allocated(corr)) call log%info("   local correction (" // trim(this%ref%exact_solver) // "): " // &
       str(100 * row%corr_frac, "f7.3") // "% of the agents corrected per step (largest " // &
-      str(100 * row%corr_frac_max, "f7.3") // "%), conflicts on " // str(n_conflict) // " of " // &
+      str(100 * row%corr_frac_max, "f7.3") // "%), of which in a violated row " // &
+      str(100 * real(n_seed, wp) / (real(this%st%n_agents, wp) * max(1, sum(n_done))), "f7.3") // &
+      "% (the rest: their neighbours); conflicts on " // str(n_conflict) // " of " // &
       str(sum(n_done)) // " steps, " // str(row%t_correct, "es9.2") // " s per step")
     call log%info("   time per step (fastest repeat of each sample): positions " // &
       str(t_parts(1) / max(1, nt * blk%n), "es9.2") // " s, assembly " // str(t_parts(2) / max(1, nt * blk%n), "es9.2") // &
