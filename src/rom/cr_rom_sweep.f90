@@ -146,8 +146,10 @@ contains
     type(logger_t), intent(inout) :: log
     type(error_t), allocatable, intent(out) :: error
     character(len=32), allocatable :: names(:)
-    real(wp) :: t, kkt, tq
-    integer :: nc, k
+    real(wp), allocatable :: t(:), kkt(:), tq(:)
+    integer, allocatable :: nc(:)
+    real(wp) :: t1(1), kkt1(1), tq1(1)
+    integer :: nc1(1), k
     this%ref = fom_reference_t()
     this%ref%timings = ''
     if (this%cfg%fom_exact_solver == 'fastest') then
@@ -157,28 +159,30 @@ contains
     end if
     this%ref%exact_solver = names(1)
     if (this%cfg%fom_timing_samples <= 0) return
+    allocate(t(size(names)), kkt(size(names)), tq(size(names)), nc(size(names)))
     associate (blk => this%blocks(size(this%blocks)), r => this%ref)
       call log%stage_begin("crowd_rom: full-order timing (paper's uzawa on " // trim(this%cfg%fom_uzawa_rows) // &
         " rows, eps " // str(this%cfg%fom_uzawa_eps) // "; exact solver " // trim(this%cfg%fom_exact_solver) // &
         ", KKT tolerance " // str(this%cfg%fom_tol) // ")")
-      call fom_timing(this, env, log, blk, 'uzawa', r%t_uz, r%kkt_uz, r%nc_uz, tq, error)
+      call fom_timing(this, env, log, blk, ['uzawa'], t1, kkt1, nc1, tq1, error)
       if (allocated(error)) return
+      r%t_uz = t1(1); r%kkt_uz = kkt1(1); r%nc_uz = nc1(1)
       call log%info("   uzawa " // str(r%t_uz, "es10.3") // " s/step (largest KKT " // str(r%kkt_uz, "es9.2") // &
         ", " // str(r%nc_uz) // " non-converged steps)")
+      call fom_timing(this, env, log, blk, names, t, kkt, nc, tq, error)
+      if (allocated(error)) return
       do k = 1, size(names)
-        call fom_timing(this, env, log, blk, trim(names(k)), t, kkt, nc, tq, error)
-        if (allocated(error)) return
-        call log%info("   " // trim(names(k)) // " " // str(t, "es10.3") // " s/step (largest KKT " // &
-          str(kkt, "es9.2") // ", " // str(nc) // " non-converged steps), " // str(tq, "es10.3") // &
+        call log%info("   " // trim(names(k)) // " " // str(t(k), "es10.3") // " s/step (largest KKT " // &
+          str(kkt(k), "es9.2") // ", " // str(nc(k)) // " non-converged steps), " // str(tq(k), "es10.3") // &
           " s per whole query")
         if (k > 1) r%timings = r%timings // "; "
-        r%timings = r%timings // trim(names(k)) // " " // str(t, "es10.3") // " " // str(tq, "es10.3")
-        if (k == 1 .or. t < r%t_ex) then
-          r%t_ex = t; r%kkt_ex = kkt; r%nc_ex = nc; r%t_query = tq; r%exact_solver = names(k)
+        r%timings = r%timings // trim(names(k)) // " " // str(t(k), "es10.3") // " " // str(tq(k), "es10.3")
+        if (k == 1 .or. t(k) < r%t_ex) then
+          r%t_ex = t(k); r%kkt_ex = kkt(k); r%nc_ex = nc(k); r%t_query = tq(k); r%exact_solver = names(k)
         end if
       end do
       if (size(names) > 1) call log%info("   reference: " // trim(r%exact_solver) // ", the fastest exact " // &
-        "solver per step of this build")
+        "solver per step of this build (timed interleaved on the same samples)")
       call log%stage_end()
     end associate
   end subroutine time_reference
@@ -542,62 +546,69 @@ contains
   end function evac_text
 
 
-  !> Mean time per full-order step over the first fom_timing_samples samples of blk, and
-  !> t_query: the mean wall time of one whole query (parameter applied, model built with its
-  !> scene and desired velocity, every step timed).
-  subroutine fom_timing(this, env, log, blk, solver, t_step, kkt_max, n_nonconv, t_query, error)
+  !> Mean time per full-order step over the first fom_timing_samples samples of blk for each
+  !> solver of `solvers` (t_step, kkt_max, n_nonconv, t_query [size(solvers)]), and t_query:
+  !> the mean wall time of one whole query (parameter applied, model built with its scene and
+  !> desired velocity, every step timed). The solvers are interleaved sample by sample, so
+  !> that a change of the machine's load during the timing biases none of them.
+  subroutine fom_timing(this, env, log, blk, solvers, t_step, kkt_max, n_nonconv, t_query, error)
     type(rom_sweep_t), intent(in) :: this
     type(env_t), intent(in) :: env
     type(logger_t), intent(inout) :: log
     type(sample_block_t), intent(in) :: blk
-    character(len=*), intent(in) :: solver
-    real(wp), intent(out) :: t_step, kkt_max
-    integer, intent(out) :: n_nonconv
-    real(wp), intent(out) :: t_query
+    character(len=*), intent(in) :: solvers(:)
+    real(wp), intent(out) :: t_step(:), kkt_max(:)
+    integer, intent(out) :: n_nonconv(:)
+    real(wp), intent(out) :: t_query(:)
     type(error_t), allocatable, intent(out) :: error
-    real(wp) :: w0, t_q
+    real(wp) :: w0
     type(config_t) :: c2
     type(step_record_t) :: rec
     real(wp), allocatable :: speeds(:)
-    integer :: k, nu, ns, nsteps
-    t_step = 0; kkt_max = 0; n_nonconv = 0; t_q = 0
+    integer :: k, nu, ns, j
+    integer :: nsteps(size(solvers))
+    character(len=:), allocatable :: solver
+    t_step = 0; kkt_max = 0; n_nonconv = 0; t_query = 0
     nsteps = this%st%n_steps
-    if (solver == 'uzawa' .and. this%cfg%fom_uzawa_steps > 0) nsteps = min(nsteps, this%cfg%fom_uzawa_steps)
+    where (solvers == 'uzawa' .and. this%cfg%fom_uzawa_steps > 0) nsteps = min(nsteps, this%cfg%fom_uzawa_steps)
     ns = min(this%cfg%fom_timing_samples, blk%n)
     call log%progress_start()
     do k = 1, ns
-      c2 = this%st%cfg
-      c2%solver%name = solver
-      c2%solver%tol = this%cfg%fom_tol
-      if (solver == 'uzawa') then
-        ! the paper's full-order model: cold start, its own stopping test
-        c2%solver%uzawa_eps = this%cfg%fom_uzawa_eps
-        c2%solver%warm_start = .false.
-        ! every pair and agent-obstacle pair a row, as in the paper (cutoff beyond the scene)
-        if (this%cfg%fom_uzawa_rows == 'all') c2%contacts%cutoff_factor = 1.0e9_wp
-      end if
-      speeds = this%st%speeds
-      w0 = env%wtime()
-      call this%st%space%apply(blk%mu(:, k), c2, speeds)
-      fresh: block
-        type(fom_t) :: fom
-        call fom%init(c2, error, q0=this%st%q0, speeds=speeds)
-        if (allocated(error)) return
-        do nu = 1, nsteps
-          call fom%advance(rec, error)
-          if (allocated(error)) then
-            call prefix_error(error, "full-order timing (" // solver // ")"); return
-          end if
-          t_step = t_step + rec%t_step
-          kkt_max = max(kkt_max, rec%kkt)
-          if (.not. rec%converged) n_nonconv = n_nonconv + 1
-        end do
-        t_q = t_q + (env%wtime() - w0)
-      end block fresh
-      call log%progress("full-order " // solver // " sample", k, ns)
+      do j = 1, size(solvers)
+        solver = trim(solvers(j))
+        c2 = this%st%cfg
+        c2%solver%name = solver
+        c2%solver%tol = this%cfg%fom_tol
+        if (solver == 'uzawa') then
+          ! the paper's full-order model: cold start, its own stopping test
+          c2%solver%uzawa_eps = this%cfg%fom_uzawa_eps
+          c2%solver%warm_start = .false.
+          ! every pair and agent-obstacle pair a row, as in the paper (cutoff beyond the scene)
+          if (this%cfg%fom_uzawa_rows == 'all') c2%contacts%cutoff_factor = 1.0e9_wp
+        end if
+        speeds = this%st%speeds
+        w0 = env%wtime()
+        call this%st%space%apply(blk%mu(:, k), c2, speeds)
+        fresh: block
+          type(fom_t) :: fom
+          call fom%init(c2, error, q0=this%st%q0, speeds=speeds)
+          if (allocated(error)) return
+          do nu = 1, nsteps(j)
+            call fom%advance(rec, error)
+            if (allocated(error)) then
+              call prefix_error(error, "full-order timing (" // solver // ")"); return
+            end if
+            t_step(j) = t_step(j) + rec%t_step
+            kkt_max(j) = max(kkt_max(j), rec%kkt)
+            if (.not. rec%converged) n_nonconv(j) = n_nonconv(j) + 1
+          end do
+          t_query(j) = t_query(j) + (env%wtime() - w0)
+        end block fresh
+      end do
+      call log%progress("full-order sample", k, ns)
     end do
     t_step = t_step / max(1, ns * nsteps)
-    t_query = t_q / max(1, ns)
+    t_query = t_query / max(1, ns)
   end subroutine fom_timing
 
   !> The one sample of sets = 'given'.
