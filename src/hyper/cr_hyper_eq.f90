@@ -11,16 +11,19 @@
 !> term needs every dof (README "Why the EQ of the desired-velocity term needs every dof"):
 !> Pi1 = V^T v = sum_j v_j V(j,:) is exact for a quadrature only if it integrates every
 !> function j -> v_j V(j, i), and these span R^n_dof as soon as Nb >= 2 and the snapshots
-!> v vary, so the only exact positive-weight rule is all dofs with weight 1. 'eq_deim'
-!> replaces that term by the DEIM of v: vhat = V^T U (U_I)^{-1} v_I, which reads the desired
-!> velocity (hence the positions) of the m_v DEIM agents only.
+!> v vary, so the only exact rule is all dofs with weight 1. 'eq_deim' replaces that term by
+!> the DEIM of v with its m_v leading modes U: the agents A of the first m_v DEIM dofs give
+!> both components each (one evaluation per agent), P = their 2 |A| >= m_v dofs, and
+!> vhat = V^T U (U_P)^+ v_P (least squares, "gappy POD" / oversampled DEIM; = the DEIM
+!> interpolant when P = I), which reads the desired velocity (hence the positions) of the
+!> agents A only. Error bound: |v - U (U_P)^+ v_P| <= |(U_P)^+|_2 |(I - U U^T) v|.
 module cr_hyper_eq
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
   use cr_env, only: env_t
   use cr_h5file, only: h5file_t
-  use cr_eim, only: eim_t, eim_build, eim_interp_matrix
+  use cr_eim, only: eim_t, eim_build
   use cr_eq, only: eq_t, eq_gramian, eq_build
   use cr_hyper_terms, only: hyper_terms_t
   use cr_hyper_method, only: hyper_method_t, hyper_train_t, choose_points, TERM_NAMES
@@ -28,7 +31,7 @@ module cr_hyper_eq
   use cr_reduced_base, only: reduced_ops_t, eval_ctx_t, cone_rows, gram_setup, add_row, add_pair, ensure, &
     agent_desired, mark_agents, unique_map
   use cr_contact_eval, only: eval_contact
-  use cr_lapack, only: la_gemv
+  use cr_lapack, only: la_gemv, la_gesvd
   use cr_product_check, only: need_finite, need_range, need_size, product_error
   implicit none
   private
@@ -66,8 +69,8 @@ module cr_hyper_eq
     real(wp), allocatable :: dvt(:,:,:)
     !> columns of bt written at this step [R]
     logical, allocatable :: written(:)
-    !> 'eq_deim': vhat = a1m s1 with s1 the desired velocity at the DEIM dofs idx1 and
-    !> a1m = V^T U (U_I)^{-1} [nb, m1]
+    !> 'eq_deim': vhat = a1m s1 with s1 the desired velocity at the dofs idx1 (both dofs of
+    !> each agent of the m_v DEIM dofs) and a1m = V^T U (U_P)^+ [nb, size(idx1)]
     logical :: deim_v = .false.
     real(wp), allocatable :: a1m(:,:), s1v(:)
   contains
@@ -247,8 +250,8 @@ contains
     integer :: m(3), k, nb, n_agents
     logical :: deim_v
     logical, allocatable :: need(:)
-    type(eim_t) :: e
-    real(wp), allocatable :: minv(:,:)
+    integer, allocatable :: agents(:), pos(:)
+    real(wp), allocatable :: pinv(:,:)
     nb = size(v, 2)
     n_agents = size(v, 1) / 2
     deim_v = name == 'eq_deim'
@@ -277,16 +280,17 @@ contains
       ops%w = terms%w
       ops%deim_v = deim_v
       if (deim_v) then
-        ops%idx1 = this%vdeim%idx(1:m(1))
-        allocate(ops%w1(0), ops%s1v(m(1)))
+        ! the agents of the first m_v DEIM dofs, both components of each (an agent's desired
+        ! velocity is one evaluation): least squares on these 2 |A| >= m_v rows
+        call unique_map((this%vdeim%idx(1:m(1)) + 1) / 2, agents, pos)
+        ops%idx1 = [(2 * agents(k) - 1, 2 * agents(k), k = 1, size(agents))]
+        allocate(ops%w1(0), ops%s1v(size(ops%idx1)))
         if (m(1) > 0) then
-          e%p = this%vdeim%p; e%m = m(1)
-          e%basis = this%vdeim%basis(:, 1:m(1)); e%idx = ops%idx1
-          call eim_interp_matrix(e, m(1), minv, error)
+          call pinv_rows(this%vdeim%basis(ops%idx1, 1:m(1)), pinv, error)
           if (allocated(error)) then
             call prefix_error(error, where // ": DEIM of the desired velocity"); return
           end if
-          ops%a1m = matmul(matmul(ops%vt, e%basis), minv)
+          ops%a1m = matmul(matmul(ops%vt, this%vdeim%basis(:, 1:m(1))), pinv)
         else
           allocate(ops%a1m(nb, 0))
         end if
@@ -326,6 +330,29 @@ contains
     end function weights
   end subroutine eq_make_ops
 
+  !> Pseudo-inverse of u [k, m] with k >= m by its SVD: pinv [m, k]; refuses (code 2) a u whose
+  !> condition number exceeds 1e12 (the interpolation would amplify rounding beyond use).
+  subroutine pinv_rows(u, pinv, error)
+    real(wp), intent(in) :: u(:,:)
+    real(wp), allocatable, intent(out) :: pinv(:,:)
+    type(error_t), allocatable, intent(out) :: error
+    real(wp), allocatable :: a(:,:), s(:), uu(:,:), vt(:,:)
+    integer :: j, m
+    m = size(u, 2)
+    a = u
+    allocate(s(m), uu(size(u, 1), m), vt(m, m))
+    call la_gesvd(a, s, error, uu, vt)
+    if (allocated(error)) return
+    if (.not. s(m) > 1.0e-12_wp * s(1)) then
+      call set_error(error, "the interpolation rows are singular (condition number " // str(s(1) / s(m)) // ")", 2)
+      return
+    end if
+    do j = 1, m
+      uu(:, j) = uu(:, j) / s(j)
+    end do
+    pinv = matmul(transpose(vt), transpose(uu))
+  end subroutine pinv_rows
+
   subroutine eq_assemble(this, ctx, q, vhat, bt, dhat)
     class(ops_eq_t), intent(inout) :: this
     type(eval_ctx_t), intent(in) :: ctx
@@ -352,7 +379,7 @@ contains
     ! V^T x with x the weighted desired velocity at the points: one product with V^T when the
     ! points cover a good part of the dofs, else one column per point
     if (this%deim_v) then
-      do j = 1, this%m(1)
+      do j = 1, size(this%idx1)
         i = this%idx1(j)
         this%s1v(j) = this%udes(2 - mod(i, 2), this%pos1(j))
       end do
