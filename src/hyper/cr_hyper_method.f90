@@ -37,10 +37,11 @@ module cr_hyper_method
     !> candidate snapshots at this rank's training configurations: s1 [p1, n_loc], s2 [p2, n_loc],
     !> s3 [p3, n_loc]
     real(wp), allocatable :: s1(:,:), s2(:,:), s3(:,:)
-    !> this rank's training configurations q [n_dof, n_loc], their scenes (scene_of [n_loc])
-    real(wp), allocatable :: q(:,:)
-    type(scene_t), allocatable :: scenes(:)
-    integer, allocatable :: scene_of(:)
+    !> this rank's training configurations q [n_dof, n_loc], their scenes (scene_of [n_loc]):
+    !> the offline data's own arrays, not copies (valid during the build only)
+    real(wp), pointer, contiguous :: q(:,:) => null()
+    type(scene_t), pointer :: scenes(:) => null()
+    integer, pointer, contiguous :: scene_of(:) => null()
     real(wp) :: radius = 0, dt = 0
     !> at most m_factor times the paper's default points (2 nb, R, 2 R); EQ tolerance
     real(wp) :: m_factor = 1, eq_tol = 0

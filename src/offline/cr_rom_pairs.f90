@@ -91,7 +91,7 @@ contains
   !> method's own build.
   subroutine build_hyper(env, data, m_factor, eq_tol, pair, error)
     type(env_t), intent(in) :: env
-    type(offline_data_t), intent(in) :: data
+    type(offline_data_t), intent(in), target :: data
     real(wp), intent(in) :: m_factor, eq_tol
     type(rom_pair_t), intent(inout) :: pair
     type(error_t), allocatable, intent(out) :: error
@@ -103,9 +103,9 @@ contains
     train%v = pair%v
     train%terms = pair%terms
     train%r = pair%r
-    train%q = data%q
-    train%scenes = data%scenes
-    train%scene_of = data%scene_of
+    train%q => data%q
+    train%scenes => data%scenes
+    train%scene_of => data%scene_of
     train%radius = data%radius
     train%dt = data%dt
     train%m_factor = m_factor
