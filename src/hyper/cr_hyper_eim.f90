@@ -16,7 +16,7 @@ module cr_hyper_eim
   use cr_eim, only: eim_t, eim_build, eim_interp_matrix
   use cr_hyper_terms, only: hyper_terms_t
   use cr_hyper_method, only: hyper_method_t, hyper_train_t, choose_points, TERM_NAMES
-  use cr_reduced_base, only: reduced_ops_t, eval_ctx_t, cone_rows, add_row, ensure, agent_desired, mark_agents
+  use cr_reduced_base, only: reduced_ops_t, eval_ctx_t, add_row, ensure, agent_desired, mark_agents
   use cr_contact_eval, only: eval_contact
   use cr_product_check, only: need_finite, need_range, need_size, product_error
   implicit none
@@ -195,10 +195,7 @@ contains
     allocate(ops_eim_t :: ops)
     select type (ops)
     type is (ops_eim_t)
-      ops%nb = nb; ops%r = r
-      ops%v = v
-      ops%vt = transpose(v)
-      call cone_rows(terms%w, ops%wp0, ops%wk, ops%wv)
+      call ops%init_base(v, terms%w)
       ops%m = m
       ops%ia = terms%ia; ops%ib = terms%ib; ops%ob = terms%ob
       ops%s2_row = terms%s2_row; ops%s2_dof = terms%s2_dof; ops%s2_sgn = terms%s2_sgn

@@ -28,7 +28,7 @@ module cr_hyper_eq
   use cr_hyper_terms, only: hyper_terms_t
   use cr_hyper_method, only: hyper_method_t, hyper_train_t, choose_points, TERM_NAMES
   use cr_hyper_eim, only: write_eim_group, read_eim_group
-  use cr_reduced_base, only: reduced_ops_t, eval_ctx_t, cone_rows, gram_setup, add_row, add_pair, ensure, &
+  use cr_reduced_base, only: reduced_ops_t, eval_ctx_t, gram_setup, add_row, add_pair, ensure, &
     agent_desired, mark_agents, unique_map
   use cr_contact_eval, only: eval_contact
   use cr_lapack, only: la_gemv, la_gesvd
@@ -271,10 +271,7 @@ contains
     allocate(ops_eq_t :: ops)
     select type (ops)
     type is (ops_eq_t)
-      ops%nb = nb; ops%r = r
-      ops%v = v
-      ops%vt = transpose(v)
-      call cone_rows(terms%w, ops%wp0, ops%wk, ops%wv)
+      call ops%init_base(v, terms%w)
       ops%m = m
       ops%ia = terms%ia; ops%ib = terms%ib; ops%ob = terms%ob
       ops%w = terms%w

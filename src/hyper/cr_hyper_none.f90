@@ -5,7 +5,7 @@ module cr_hyper_none
   use cr_error, only: error_t
   use cr_hyper_terms, only: hyper_terms_t
   use cr_hyper_method, only: hyper_method_t
-  use cr_reduced_base, only: reduced_ops_t, eval_ctx_t, cone_rows, gram_setup, add_row, ensure
+  use cr_reduced_base, only: reduced_ops_t, eval_ctx_t, gram_setup, add_row, ensure
   use cr_contact_eval, only: eval_contact
   use cr_lapack, only: la_gemv
   implicit none
@@ -47,10 +47,7 @@ contains
     allocate(ops_exact_t :: ops)
     select type (ops)
     type is (ops_exact_t)
-      ops%nb = size(v, 2); ops%r = r
-      ops%v = v
-      ops%vt = transpose(v)
-      call cone_rows(terms%w, ops%wp0, ops%wk, ops%wv)
+      call ops%init_base(v, terms%w)
       ops%ia = terms%ia; ops%ib = terms%ib; ops%ob = terms%ob
       ops%w = terms%w
       allocate(ops%vfull(size(v, 1)))

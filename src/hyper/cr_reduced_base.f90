@@ -58,6 +58,7 @@ module cr_reduced_base
     procedure :: gram_entries => ops_gram_entries
     procedure :: gram_diag => ops_gram_diag
     procedure :: z_add
+    procedure :: init_base
   end type reduced_ops_t
 
   abstract interface
@@ -105,7 +106,18 @@ contains
     end if
   end subroutine unique_map
 
-  !> Prepare the cheap Gram matrix of the rows (see reduced_ops_t) when it pays.
+  !> The part every assembly shares: basis v [n_dof, nb] and its transpose, R, and the cone w
+  !> [p3, R] on its support rows by rows.
+  subroutine init_base(this, v, w)
+    class(reduced_ops_t), intent(inout) :: this
+    real(wp), intent(in) :: v(:,:), w(:,:)
+    this%nb = size(v, 2)
+    this%r = size(w, 2)
+    this%v = v
+    this%vt = transpose(v)
+    call cone_rows(w, this%wp0, this%wk, this%wv)
+  end subroutine init_base
+
   !> Prepare the cheap Gram matrix of the rows (see reduced_ops_t) when it pays: v [n_dof, nb]
   !> the basis, w [p3, R] the cone on its support rows.
   subroutine gram_setup(ops, v, w)

@@ -16,7 +16,7 @@ module cr_reduced_ops
   use cr_neighbours, only: cell_list_t, build_contacts
   use cr_rom_file, only: rom_pair_t
   use cr_lapack, only: la_gemv
-  use cr_reduced_base, only: eval_ctx_t, reduced_ops_t, add_row, cone_rows
+  use cr_reduced_base, only: eval_ctx_t, reduced_ops_t, add_row
   use cr_hyper_method, only: hyper_method_t
   use cr_hyper_factory, only: HYPER_NAMES, new_hyper
   use cr_hyper_eim, only: ops_eim_t
@@ -52,11 +52,7 @@ contains
     if (contacts == 'online') then
       n_agents = size(pair%v, 1) / 2
       allocate(ops_online_t :: ops)
-      ops%nb = pair%nb
-      ops%r = pair%r
-      ops%v = pair%v
-      ops%vt = transpose(pair%v)
-      call cone_rows(pair%terms%w, ops%wp0, ops%wk, ops%wv)
+      call ops%init_base(pair%v, pair%terms%w)
       select type (ops)
       type is (ops_online_t)
         ops%cutoff_factor = cutoff_factor
