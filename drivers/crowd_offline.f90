@@ -26,7 +26,7 @@ program crowd_offline
   use cr_supremizer, only: pga_result_t, pga_enrich
   use cr_infsup_table, only: infsup_table
   use cr_rom_file, only: rom_file_t, rom_tables_t, write_rom_file
-  use cr_rom_pairs, only: rom_pair_t, build_pair, TERM_NAMES
+  use cr_rom_pairs, only: rom_pair_t, build_pair, hyper_summary
   use cr_json, only: json_writer_t
   implicit none
   type(env_t) :: env
@@ -304,7 +304,7 @@ contains
     type(rom_pair_t), allocatable, intent(out) :: pairs(:)
     type(error_t), allocatable, intent(out) :: error
     integer, allocatable :: nn(:), rr(:)
-    integer :: k, j
+    integer :: k
     character(len=:), allocatable :: line
     call log%progress_start()
     nn = pack(ocfg%rom_n, ocfg%rom_n > 0)
@@ -337,14 +337,7 @@ contains
       end if
       line = "   pair " // str(k) // ": N = " // str(nn(k)) // ", R = " // str(rr(k)) // ", supremizers " // &
         str(pairs(k)%n_pga) // " (basis " // str(size(pairs(k)%v, 2)) // ")"
-      if (pairs(k)%hyper) then
-        do j = 1, 3
-          line = line // "; " // TERM_NAMES(j) // ": p = " // str(pairs(k)%terms%p(j)) // ", EIM m = " // &
-            str(pairs(k)%eim(j)%m) // ", EQ m = " // str(pairs(k)%eq(j)%m)
-          if (pairs(k)%eq(j)%m > 0) line = line // " (err " // str(pairs(k)%eq(j)%err(pairs(k)%eq(j)%m)) // ")"
-        end do
-      end if
-      call log%info(line)
+      call log%info(line // hyper_summary(pairs(k)))
     end do
   end subroutine prepare_pairs
 

@@ -289,6 +289,37 @@ def read_rom_pair(f, k):
     return p
 
 
+def read_rom_pair_vdeim(f, k):
+    """The DEIM of the desired velocity stored with pair k's 'eq' method (group
+    pairs/<k>/eq/v_deim, hyper = 'eq_deim'): {"U": basis [n_dof, m], "indices": 1-based [m],
+    "err": [m]}, or None when the file has none (written before it existed, or no hyper)."""
+    name = f"pairs/{k}/eq/v_deim"
+    if name not in f:
+        return None
+    g = group(f, name)
+    m = attr(g, "m", int)
+    if m == 0:
+        return None
+    u = dataset(g, "basis")
+    idx = dataset(g, "indices")
+    if u.ndim != 2 or u.shape[0] != m or idx.shape != (m,):
+        raise InputError(f"'{f.filename}': '{name}': basis {u.shape} / indices {idx.shape} do not match m = {m}")
+    need_finite(f.filename, f"{name}/basis", u)
+    if idx.min() < 1 or idx.max() > u.shape[1]:
+        raise InputError(f"'{f.filename}': '{name}/indices': index outside 1..{u.shape[1]}")
+    return {"U": np.ascontiguousarray(u.T), "indices": idx.astype(int), "err": dataset(g, "err")}
+
+
+def read_database_desired(f, s):
+    """Desired velocities of set S of an open database at its configurations q^0..q^(N_T-1):
+    [n_S, N_T, n_dof]."""
+    meta = read_database_meta(f)
+    n_s = dataset(f, f"{s}/params").shape[0]
+    return need_finite(f.filename, f"{s}/desired",
+                       _blocks(dataset(f, f"{s}/desired"), n_s, meta["n_steps"], 2 * meta["n_agents"],
+                               f.filename, f"{s}/desired"))
+
+
 def rom_pair_indices(f):
     """Sorted 1-based pair indices present in a ROM file."""
     if "pairs" not in f:

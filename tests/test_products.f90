@@ -25,6 +25,10 @@ program test_products
     read_snap_block
   use cr_digest, only: digest_of, put_digest
   use cr_rom_file, only: rom_file_t, rom_pair_t, write_rom_file, read_rom_file, read_rom_pair
+  use cr_hyper_factory, only: stored_hypers
+  use cr_hyper_eim, only: hyper_eim_t
+  use cr_hyper_eq, only: hyper_eq_t
+  use cr_eim, only: eim_t
   use cr_romrun_file, only: romrun_header_t, romrun_row_t, romrun_set_t, romrun_t, romrun_writer_t, read_romrun
   implicit none
   integer, parameter :: NA = 3, NT = 2, NE = 2, NDICT = 4
@@ -383,7 +387,7 @@ contains
     type(rom_file_t), intent(out) :: rom
     type(rom_pair_t), intent(out) :: pair
     type(sparse_cone_t) :: cone
-    integer :: i, j, k, p, m
+    integer :: i, j, k, l, p, m
     rom%config = "&offline /"; rom%database = "db.h5"; rom%db_hash = "0123456789abcdef"
     rom%n_agents = NA; rom%n_steps = NT; rom%radius = 0.04_wp; rom%dt = 0.02_wp
     rom%pod_method = "tsqr"; rom%pod_rank = 2; rom%pod_total_energy = 1.5_wp; rom%pod_sigma = [2.0_wp, 1.0_wp]
@@ -406,23 +410,31 @@ contains
     call pair%terms%init(cone, 2, DICT_IA, DICT_IB, DICT_OB, 2 * NA, error)
     call check(.not. allocated(error), "rom: candidate terms")
     pair%hyper = .true.
-    do k = 1, 3
-      p = pair%terms%p(k); m = min(2, p)
-      pair%eim(k)%p = p; pair%eim(k)%m = m
-      allocate(pair%eim(k)%basis(p, m))
-      do j = 1, m
-        do i = 1, p
-          pair%eim(k)%basis(i, j) = k + 0.1_wp * i + 0.01_wp * j
+    ! every stored method of the factory, with made-up data
+    call stored_hypers(pair%methods)
+    call check(size(pair%methods) == 2, "rom: the factory stores two methods (eim, eq)")
+    do l = 1, size(pair%methods)
+      pair%methods(l)%m%time = 0.5_wp * l
+      select type (hm => pair%methods(l)%m)
+      type is (hyper_eim_t)
+        do k = 1, 3
+          call fake_eim(pair%terms%p(k), k, hm%eim(k))
         end do
-      end do
-      pair%eim(k)%idx = [(j, j = 1, m)]; pair%eim(k)%err = [(0.5_wp ** j, j = 1, m)]
-      p = pair%terms%p(merge(1, 3, k == 1))
-      pair%eq(k)%p = p; pair%eq(k)%m = m
-      pair%eq(k)%idx = [(p + 1 - j, j = 1, m)]
-      allocate(pair%eq(k)%w(m, m))
-      pair%eq(k)%w = 0.5_wp * k
-      pair%eq(k)%err = [(0.1_wp ** j, j = 1, m)]
+      type is (hyper_eq_t)
+        do k = 1, 3
+          p = pair%terms%p(merge(1, 3, k == 1)); m = min(2, p)
+          hm%eq(k)%p = p; hm%eq(k)%m = m
+          hm%eq(k)%idx = [(p + 1 - j, j = 1, m)]
+          allocate(hm%eq(k)%w(m, m))
+          hm%eq(k)%w = 0.5_wp * k
+          hm%eq(k)%err = [(0.1_wp ** j, j = 1, m)]
+        end do
+        call fake_eim(pair%terms%p(1), 4, hm%vdeim)
+      class default
+        call check(.false., "rom: unexpected stored method " // pair%methods(l)%m%storage())
+      end select
     end do
+
   end subroutine make_rom
 
   subroutine write_rom(path)
@@ -447,7 +459,7 @@ contains
     character(len=*), parameter :: path = "products_rom.h5"
     type(rom_file_t) :: ref, rom
     type(rom_pair_t) :: rp, pair
-    integer :: k
+    integer :: k, l
     logical :: ok
     call make_rom(ref, rp)
     call write_rom_file(path, ref, [rp], error)
@@ -474,16 +486,62 @@ contains
       all(pair%v == rp%v) .and. all(pair%pga_err == rp%pga_err), "rom: pair basis")
     call check(all(pair%terms%rows == rp%terms%rows) .and. all(pair%terms%w == rp%terms%w) .and. &
       all(pair%terms%s2_dof == rp%terms%s2_dof), "rom: pair candidates")
-    ok = .true.
-    do k = 1, 3
-      ok = ok .and. pair%eim(k)%m == rp%eim(k)%m .and. pair%eim(k)%p == rp%eim(k)%p .and. &
-        all(pair%eim(k)%basis == rp%eim(k)%basis) .and. all(pair%eim(k)%idx == rp%eim(k)%idx) .and. &
-        pair%eq(k)%m == rp%eq(k)%m .and. pair%eq(k)%p == rp%eq(k)%p .and. all(pair%eq(k)%idx == rp%eq(k)%idx) .and. &
-        all(pair%eq(k)%w == rp%eq(k)%w) .and. all(pair%eq(k)%err == rp%eq(k)%err)
-    end do
-    call check(ok, "rom: pair EIM and EQ")
+    ok = size(pair%methods) == size(rp%methods)
+    if (ok) then
+      do l = 1, size(pair%methods)
+        ok = ok .and. pair%methods(l)%m%time == rp%methods(l)%m%time
+        select type (a => pair%methods(l)%m)
+        type is (hyper_eim_t)
+          select type (b => rp%methods(l)%m)
+          type is (hyper_eim_t)
+            do k = 1, 3
+              ok = ok .and. same_eim(a%eim(k), b%eim(k))
+            end do
+          class default
+            ok = .false.
+          end select
+        type is (hyper_eq_t)
+          select type (b => rp%methods(l)%m)
+          type is (hyper_eq_t)
+            do k = 1, 3
+              ok = ok .and. a%eq(k)%m == b%eq(k)%m .and. a%eq(k)%p == b%eq(k)%p .and. all(a%eq(k)%idx == b%eq(k)%idx) &
+                .and. all(a%eq(k)%w == b%eq(k)%w) .and. all(a%eq(k)%err == b%eq(k)%err)
+            end do
+            ok = ok .and. same_eim(a%vdeim, b%vdeim)
+          class default
+            ok = .false.
+          end select
+        class default
+          ok = .false.
+        end select
+      end do
+    end if
+    call check(ok, "rom: pair EIM, EQ and the DEIM of v (stored methods)")
     k = remove_file(path)
   end subroutine rom_roundtrip
+
+  !> Made-up EIM data of p candidates (seed k).
+  subroutine fake_eim(p, k, e)
+    integer, intent(in) :: p, k
+    type(eim_t), intent(out) :: e
+    integer :: i, j
+    e%p = p; e%m = min(2, p)
+    allocate(e%basis(p, e%m))
+    do j = 1, e%m
+      do i = 1, p
+        e%basis(i, j) = k + 0.1_wp * i + 0.01_wp * j
+      end do
+    end do
+    e%idx = [(j, j = 1, e%m)]; e%err = [(0.5_wp ** j, j = 1, e%m)]
+    e%sigma = [3.0_wp, 2.0_wp, 1.0_wp]
+  end subroutine fake_eim
+
+  logical function same_eim(a, b)
+    type(eim_t), intent(in) :: a, b
+    same_eim = a%m == b%m .and. a%p == b%p .and. all(a%basis == b%basis) .and. all(a%idx == b%idx) .and. &
+      all(a%err == b%err) .and. allocated(b%sigma)
+    if (same_eim) same_eim = all(a%sigma == b%sigma)
+  end function same_eim
 
   subroutine rom_corrupt()
     character(len=*), parameter :: path = "products_rom_bad.h5"

@@ -84,6 +84,7 @@ program test_rom_stepper
   use cr_rom_file, only: rom_pair_t
   use cr_sparse_cone, only: sparse_cone_t
   use cr_reduced_ops, only: reduced_ops_t, make_reduced_ops, eim_exact_rows
+  use cr_hyper_eim, only: hyper_eim_t
   use cr_random, only: rng_t
   use cr_lapack, only: la_geqrf, la_orgqr
   use cr_rom_guard, only: rom_guard_t
@@ -252,6 +253,7 @@ contains
     type(eval_ctx_t), intent(in) :: c2
     real(wp), intent(in) :: q(:), bh_exact(:,:)
     type(rom_pair_t) :: pe
+    type(hyper_eim_t) :: he
     class(reduced_ops_t), allocatable :: rops
     real(wp), allocatable :: vh(:), bh(:,:), dh(:)
     integer :: p2, p3, i, j
@@ -259,26 +261,31 @@ contains
     do j = 1, 2
       pe = pair0
       pe%hyper = .true.
-      pe%eim(1)%p = pair0%terms%p(1); pe%eim(3)%p = p3
-      allocate(pe%eim(1)%basis(pe%eim(1)%p, 0), pe%eim(1)%idx(0))
-      allocate(pe%eim(3)%basis(p3, 0), pe%eim(3)%idx(0))
-      pe%eim(2)%p = p2
+      call he%eim(1)%free(); call he%eim(2)%free(); call he%eim(3)%free()
+      he%eim(1)%p = pair0%terms%p(1); he%eim(3)%p = p3
+      allocate(he%eim(1)%basis(he%eim(1)%p, 0), he%eim(1)%idx(0))
+      allocate(he%eim(3)%basis(p3, 0), he%eim(3)%idx(0))
+      he%eim(2)%p = p2
       if (j == 1) then
-        pe%eim(2)%m = p2
-        allocate(pe%eim(2)%basis(p2, p2))
-        pe%eim(2)%basis = 0
+        he%eim(2)%m = p2
+        allocate(he%eim(2)%basis(p2, p2))
+        he%eim(2)%basis = 0
         do i = 1, p2
-          pe%eim(2)%basis(i, i) = 1
+          he%eim(2)%basis(i, i) = 1
         end do
-        pe%eim(2)%idx = [(i, i = 1, p2)]
+        he%eim(2)%idx = [(i, i = 1, p2)]
       else
-        pe%eim(2)%m = 1
-        allocate(pe%eim(2)%basis(p2, 1))
-        pe%eim(2)%basis = 0
-        pe%eim(2)%basis(1, 1) = 1
-        pe%eim(2)%idx = [1]
+        he%eim(2)%m = 1
+        allocate(he%eim(2)%basis(p2, 1))
+        he%eim(2)%basis = 0
+        he%eim(2)%basis(1, 1) = 1
+        he%eim(2)%idx = [1]
       end if
-      call make_reduced_ops('eim', 'cone', pe, [0, pe%eim(2)%m, 0], 1.5_wp, "test", rops, error)
+      ! the pair stores this EIM as its only method
+      if (allocated(pe%methods)) deallocate(pe%methods)
+      allocate(pe%methods(1))
+      allocate(pe%methods(1)%m, source=he)
+      call make_reduced_ops('eim', 'cone', pe, [0, he%eim(2)%m, 0], 1.5_wp, "test", rops, error)
       call check(.not. allocated(error), "eim rows: ops")
       if (allocated(error)) return
       allocate(vh(pe%nb))

@@ -263,7 +263,7 @@ def test_given_parameter_extrapolates(study):
     ("other_study", r"was built from another study"),
     ("not_prepared", r"\(N, R\) = \(5, 2\) is not prepared in ROM file"),
     ("m_too_large", r"m_b = 1000 is larger than the \d+ EQ candidates"),
-    ("bad_hyper", r"&sweep: hyper\(1\) must be 'none', 'eim' or 'eq'"),
+    ("bad_hyper", r"&sweep: hyper\(1\) must be one of none, eim, eq, eq_deim"),
     ("bad_correction", r"&sweep: correction\(1\) must be 'none' or 'local' \(got 'global'\)"),
     ("bad_exact_solver", r"&fom_timing: exact_solver must be 'fastest', .*\(got 'uzawa'\)"),
     ("misspelt", r"namelist group &rom"),

@@ -1,7 +1,7 @@
 !> The reduced models prepared for crowd_rom: for each pair (N, R) the velocity basis (first N
 !> POD modes enriched by PGA supremizers of the first R cone vectors) and the hyper-reduction
-!> of s1 = v(q), s2 = B(q), s3 = d(q) for that pair: EIM (POD + DEIM of the candidate
-!> snapshots) and Empirical Quadrature (NNOMP on the Gramians summed over all ranks).
+!> of s1 = v(q), s2 = B(q), s3 = d(q) for that pair: every stored method of the factory
+!> (cr_hyper_factory; each builds itself from the candidate snapshots, src/hyper).
 !> The pair type is the ROM file's (cr_rom_file).
 !> Training snapshots of the terms are evaluated at the training configurations q^{nu-1}
 !> each rank holds; nothing is gathered except p x p Gramians and the POD's small factors.
@@ -13,12 +13,12 @@ module cr_rom_pairs
   use cr_offline_data, only: offline_data_t
   use cr_sparse_cone, only: sparse_cone_t
   use cr_supremizer, only: pga_result_t, pga_enrich
-  use cr_eim, only: eim_build
-  use cr_eq, only: eq_gramian, eq_build
-  use cr_rom_file, only: rom_pair_t, TERM_NAMES
+  use cr_hyper_method, only: hyper_train_t
+  use cr_hyper_factory, only: stored_hypers
+  use cr_rom_file, only: rom_pair_t
   implicit none
   private
-  public :: rom_pair_t, build_pair, cone_prefix, TERM_NAMES
+  public :: rom_pair_t, build_pair, cone_prefix, hyper_summary
 
 contains
 
@@ -86,85 +86,56 @@ contains
     if (hyper) call build_hyper(env, data, m_factor, eq_tol, pair, error)
   end subroutine build_pair
 
-  !> EIM and EQ of the three terms of `pair` (collective).
+  !> Every stored hyper-reduction method of the factory for `pair` (collective): the
+  !> candidate snapshots of s1, s2, s3 at this rank's training configurations, then each
+  !> method's own build.
   subroutine build_hyper(env, data, m_factor, eq_tol, pair, error)
     type(env_t), intent(in) :: env
-    type(offline_data_t), intent(in) :: data
+    type(offline_data_t), intent(in), target :: data
     real(wp), intent(in) :: m_factor, eq_tol
     type(rom_pair_t), intent(inout) :: pair
     type(error_t), allocatable, intent(out) :: error
-    real(wp), allocatable :: s1(:,:), s2(:,:), s3(:,:), kmat(:,:), h(:,:)
-    integer :: c, k, nloc, nb, mdef(3), m_max
+    type(hyper_train_t) :: train
+    integer :: c, k, nloc
     real(wp) :: t0
     t0 = env%wtime()
     nloc = size(data%q, 2)
-    allocate(s1(pair%terms%p(1), nloc), s2(pair%terms%p(2), nloc), s3(pair%terms%p(3), nloc))
+    train%v = pair%v
+    train%terms = pair%terms
+    train%r = pair%r
+    train%q => data%q
+    train%scenes => data%scenes
+    train%scene_of => data%scene_of
+    train%radius = data%radius
+    train%dt = data%dt
+    train%m_factor = m_factor
+    train%eq_tol = eq_tol
+    allocate(train%s1(pair%terms%p(1), nloc), train%s2(pair%terms%p(2), nloc), train%s3(pair%terms%p(3), nloc))
     do c = 1, nloc
       call pair%terms%snapshot(data%scenes(data%scene_of(c)), data%q(:, c), data%v(:, c), data%radius, &
-        data%dt, s1(:, c), s2(:, c), s3(:, c))
+        data%dt, train%s1(:, c), train%s2(:, c), train%s3(:, c))
     end do
     pair%t_snap = env%wtime() - t0
-    nb = size(pair%v, 2)
-    mdef = [2 * nb, pair%r, 2 * pair%r]
-    do k = 1, 3
-      if (pair%terms%p(k) == 0) cycle
-      ! EIM of the entries
-      m_max = min(pair%terms%p(k), max(1, ceiling(m_factor * mdef(k))))
-      t0 = env%wtime()
-      select case (k)
-      case (1)
-        call eim_build(env, s1, m_max, pair%eim(k), error)
-      case (2)
-        call eim_build(env, s2, m_max, pair%eim(k), error)
-      case (3)
-        call eim_build(env, s3, m_max, pair%eim(k), error)
-      end select
-      if (allocated(error)) then
-        call prefix_error(error, "EIM of " // TERM_NAMES(k)); return
-      end if
-      pair%t_eim = pair%t_eim + env%wtime() - t0
-      ! EQ of the projected term (s2: candidates are the support rows)
-      t0 = env%wtime()
-      call pair%terms%kernel(k, pair%v, kmat)
-      select case (k)
-      case (1)
-        call eq_gramian(env, s1, kmat, h, error)
-      case (2)
-        call row_gramian(h, error)
-      case (3)
-        call eq_gramian(env, s3, kmat, h, error)
-      end select
-      if (allocated(error)) then
-        call prefix_error(error, "EQ Gramian of " // TERM_NAMES(k)); return
-      end if
-      m_max = min(size(h, 1), max(1, ceiling(m_factor * mdef(k))))
-      call eq_build(h, k /= 2, m_max, eq_tol, pair%eq(k), error)
-      if (allocated(error)) then
-        call prefix_error(error, "EQ of " // TERM_NAMES(k)); return
-      end if
-      pair%t_eq = pair%t_eq + env%wtime() - t0
+    call stored_hypers(pair%methods)
+    do k = 1, size(pair%methods)
+      call pair%methods(k)%m%build(env, train, error)
+      if (allocated(error)) return
     end do
-
-  contains
-
-    !> H2 = (sum over all ranks' configurations of Y Y^T) o (W W^T), Y = row images [p3, Nb].
-    subroutine row_gramian(h, error)
-      real(wp), allocatable, intent(out) :: h(:,:)
-      type(error_t), allocatable, intent(out) :: error
-      real(wp), allocatable :: y(:,:), yy(:)
-      integer :: p3
-      p3 = pair%terms%p(3)
-      allocate(y(p3, nb), yy(p3 * p3))
-      yy = 0
-      h = reshape(yy, [p3, p3])
-      do c = 1, nloc
-        call pair%terms%row_images(data%scenes(data%scene_of(c)), data%q(:, c), data%radius, data%dt, pair%v, y)
-        h = h + matmul(y, transpose(y))
-      end do
-      yy = reshape(h, [p3 * p3])
-      call env%sum_real_array(yy)
-      h = reshape(yy, [p3, p3]) * kmat
-      if (any(.not. abs(h) <= huge(1.0_wp))) call set_error(error, "the row Gramian is not finite")
-    end subroutine row_gramian
   end subroutine build_hyper
+
+  !> "; <method summary>" for each stored method of `pair` (the log line of crowd_offline).
+  function hyper_summary(pair) result(line)
+    type(rom_pair_t), intent(in) :: pair
+    character(len=:), allocatable :: line
+    integer :: j
+    line = ""
+    if (.not. pair%hyper) return
+    line = "; candidates p ="
+    do j = 1, 3
+      line = line // " " // str(pair%terms%p(j))
+    end do
+    do j = 1, size(pair%methods)
+      line = line // "; " // pair%methods(j)%m%summary()
+    end do
+  end function hyper_summary
 end module cr_rom_pairs

@@ -2,7 +2,9 @@
 !> crowd_offline, read by crowd_rom and the Python scripts. It holds the offline results (POD
 !> spectrum, velocity basis, multiplier cones, PGA history, contact dictionary, inf-sup table,
 !> timings) and the prepared reduced models: one `rom_pair_t` per pair (N, R) with its basis,
-!> cone candidates and stored hyper-reduction (EIM bases and indices, EQ indices and weights).
+!> cone candidates and stored hyper-reduction: one group per stored method
+!> (`pairs/<k>/<group>`, written and read by the method itself through `hyper_method_t`,
+!> cr_hyper_method; the methods are those of the factory, cr_hyper_factory).
 !>
 !> The offline side builds `rom_pair_t` (cr_rom_pairs), the online side reads the same type:
 !> `read_rom_file` (header, offline results, pair list) then `read_rom_pair` per pair. Readers
@@ -15,8 +17,8 @@ module cr_rom_file
   use cr_h5file, only: h5file_t
   use cr_sparse_cone, only: sparse_cone_t
   use cr_hyper_terms, only: hyper_terms_t
-  use cr_eim, only: eim_t
-  use cr_eq, only: eq_t
+  use cr_hyper_method, only: hyper_slot_t, TERM_NAMES
+  use cr_hyper_factory, only: stored_hypers
   use cr_product_check, only: check_schema, need_finite, need_range, need_size, product_error
   implicit none
   private
@@ -28,8 +30,6 @@ module cr_rom_file
   integer, parameter :: ROM_SCHEMA_VERSION = 2
   !> versions the reader accepts
   integer, parameter :: ROM_VERSIONS_READ(1) = [2]
-  !> the three hyper-reduced terms s1 = v(q), s2 = B(q), s3 = d(q)
-  character(len=2), parameter :: TERM_NAMES(3) = ['s1', 's2', 's3']
 
   !> A multiplier cone as built offline (gIS or mCPG) and stored.
   type :: rom_cone_t
@@ -80,10 +80,9 @@ module cr_rom_file
     type(hyper_terms_t) :: terms
     !> hyper-reduction stored
     logical :: hyper = .false.
-    !> EIM and EQ of the terms s1, s2, s3
-    type(eim_t) :: eim(3)
-    type(eq_t) :: eq(3)
-    real(wp) :: t_pga = 0, t_snap = 0, t_eim = 0, t_eq = 0
+    !> the stored hyper-reduction methods (when hyper), each with its data and build time
+    type(hyper_slot_t), allocatable :: methods(:)
+    real(wp) :: t_pga = 0, t_snap = 0
   end type rom_pair_t
 
   !> Everything in a ROM file except the pairs' contents.
@@ -253,7 +252,6 @@ contains
     type(rom_pair_t), intent(in) :: pair
     type(error_t), allocatable, intent(out) :: error
     integer :: k
-    character(len=:), allocatable :: t
     call h5%make_group(g, error); if (allocated(error)) return
     call h5%write_attr(g, "n", pair%n, error); if (allocated(error)) return
     call h5%write_attr(g, "r", pair%r, error); if (allocated(error)) return
@@ -262,8 +260,6 @@ contains
     call h5%write_attr(g, "hyper", merge(1, 0, pair%hyper), error); if (allocated(error)) return
     call h5%write_attr(g, "time_pga", pair%t_pga, error); if (allocated(error)) return
     call h5%write_attr(g, "time_snapshots", pair%t_snap, error); if (allocated(error)) return
-    call h5%write_attr(g, "time_eim", pair%t_eim, error); if (allocated(error)) return
-    call h5%write_attr(g, "time_eq", pair%t_eq, error); if (allocated(error)) return
     call h5%write(g // "/v", pair%v, error); if (allocated(error)) return
     call h5%write(g // "/pga_err", pair%pga_err, error); if (allocated(error)) return
     call h5%make_group(g // "/cand", error); if (allocated(error)) return
@@ -272,37 +268,11 @@ contains
     call h5%write(g // "/cand/s2_row", pair%terms%s2_row, error); if (allocated(error)) return
     call h5%write(g // "/cand/s2_dof", pair%terms%s2_dof, error); if (allocated(error)) return
     if (.not. pair%hyper) return
-    call h5%make_group(g // "/eim", error); if (allocated(error)) return
-    call h5%make_group(g // "/eq", error); if (allocated(error)) return
-    do k = 1, 3
-      t = g // "/eim/" // TERM_NAMES(k)
-      call h5%make_group(t, error); if (allocated(error)) return
-      call h5%write_attr(t, "p", pair%terms%p(k), error); if (allocated(error)) return
-      call h5%write_attr(t, "m", pair%eim(k)%m, error); if (allocated(error)) return
-      if (allocated(pair%eim(k)%note)) then
-        call h5%write_attr(t, "note", pair%eim(k)%note, error); if (allocated(error)) return
-      end if
-      if (pair%eim(k)%m > 0) then
-        call h5%write(t // "/basis", pair%eim(k)%basis(:, 1:pair%eim(k)%m), error); if (allocated(error)) return
-        call h5%write(t // "/indices", pair%eim(k)%idx(1:pair%eim(k)%m), error); if (allocated(error)) return
-        call h5%write(t // "/err", pair%eim(k)%err(1:pair%eim(k)%m), error); if (allocated(error)) return
-      end if
-      if (allocated(pair%eim(k)%sigma)) then
-        call h5%write(t // "/sigma", pair%eim(k)%sigma, error); if (allocated(error)) return
-      end if
-      t = g // "/eq/" // TERM_NAMES(k)
-      call h5%make_group(t, error); if (allocated(error)) return
-      call h5%write_attr(t, "p", pair%eq(k)%p, error); if (allocated(error)) return
-      call h5%write_attr(t, "m", pair%eq(k)%m, error); if (allocated(error)) return
-      if (allocated(pair%eq(k)%note)) then
-        call h5%write_attr(t, "note", pair%eq(k)%note, error); if (allocated(error)) return
-      end if
-      if (pair%eq(k)%m > 0) then
-        call h5%write(t // "/indices", pair%eq(k)%idx(1:pair%eq(k)%m), error); if (allocated(error)) return
-        call h5%write(t // "/weights", pair%eq(k)%w(1:pair%eq(k)%m, 1:pair%eq(k)%m), error)
-        if (allocated(error)) return
-        call h5%write(t // "/err", pair%eq(k)%err(1:pair%eq(k)%m), error); if (allocated(error)) return
-      end if
+    do k = 1, size(pair%methods)
+      associate (m => pair%methods(k)%m)
+        call h5%write_attr(g, "time_" // m%storage(), m%time, error); if (allocated(error)) return
+        call m%write(h5, g, error); if (allocated(error)) return
+      end associate
     end do
   end subroutine write_pair
 
@@ -501,10 +471,10 @@ contains
     type(h5file_t) :: h5
     type(error_t), allocatable :: e2
     type(sparse_cone_t) :: cone
-    character(len=:), allocatable :: g, t, path
+    character(len=:), allocatable :: g, path
     integer, allocatable :: rows(:), s2_row(:), s2_dof(:)
     real(wp), allocatable :: w(:,:)
-    integer :: j, l, nz, p_eq
+    integer :: j, l, nz
     path = rom%path
     call h5%open(path, error)
     if (allocated(error)) return
@@ -515,8 +485,6 @@ contains
     call h5%read_attr(g, "n_pga", pair%n_pga, error); if (allocated(error)) goto 9
     call h5%read_attr(g, "time_pga", pair%t_pga, error); if (allocated(error)) goto 9
     call h5%read_attr(g, "time_snapshots", pair%t_snap, error); if (allocated(error)) goto 9
-    call h5%read_attr(g, "time_eim", pair%t_eim, error); if (allocated(error)) goto 9
-    call h5%read_attr(g, "time_eq", pair%t_eq, error); if (allocated(error)) goto 9
     call h5%read(g // "/v", pair%v, error); if (allocated(error)) goto 9
     call h5%read(g // "/pga_err", pair%pga_err, error); if (allocated(error)) goto 9
     call h5%read(g // "/cand/rows", rows, error); if (allocated(error)) goto 9
@@ -560,58 +528,11 @@ contains
       call product_error(path, "group '" // g // "/cand': candidate lists do not match its cone", error); goto 9
     end if
     if (pair%hyper) then
-      do j = 1, 3
-        t = g // "/eim/" // TERM_NAMES(j)
-        pair%eim(j)%p = pair%terms%p(j)
-        call h5%read_attr(t, "m", pair%eim(j)%m, error); if (allocated(error)) goto 9
-        call read_note(t, pair%eim(j)%note)
-        associate (e => pair%eim(j))
-          if (e%m < 0 .or. e%m > e%p) then
-            call product_error(path, "group '" // t // "': attribute m = " // str(e%m) // " outside 0.." // &
-              str(e%p), error); goto 9
-          end if
-          if (e%m > 0) then
-            call h5%read(t // "/basis", e%basis, error); if (allocated(error)) goto 9
-            call h5%read(t // "/indices", e%idx, error); if (allocated(error)) goto 9
-            call h5%read(t // "/err", e%err, error); if (allocated(error)) goto 9
-            if (size(e%basis, 1) /= e%p .or. size(e%basis, 2) /= e%m) then
-              call product_error(path, "dataset '" // t // "/basis' has " // str(size(e%basis, 1)) // " x " // &
-                str(size(e%basis, 2)) // " entries, but p and m say " // str(e%p) // " x " // str(e%m), error); goto 9
-            end if
-            call need_size(path, t // "/indices", size(e%idx), e%m, "attribute m", error); if (allocated(error)) goto 9
-            call need_range(path, t // "/indices", e%idx, 1, e%p, error); if (allocated(error)) goto 9
-            call need_finite(path, t // "/basis", e%basis, error); if (allocated(error)) goto 9
-          end if
-          if (h5%exists(t // "/sigma")) then
-            call h5%read(t // "/sigma", e%sigma, error); if (allocated(error)) goto 9
-          end if
-        end associate
-        t = g // "/eq/" // TERM_NAMES(j)
-        p_eq = pair%terms%p(merge(1, 3, j == 1))
-        call h5%read_attr(t, "p", pair%eq(j)%p, error); if (allocated(error)) goto 9
-        call h5%read_attr(t, "m", pair%eq(j)%m, error); if (allocated(error)) goto 9
-        call read_note(t, pair%eq(j)%note)
-        associate (e => pair%eq(j))
-          if (e%p /= p_eq) then
-            call product_error(path, "group '" // t // "': attribute p = " // str(e%p) // &
-              ", but the cone has " // str(p_eq) // " candidates", error); goto 9
-          end if
-          if (e%m < 0 .or. e%m > e%p) then
-            call product_error(path, "group '" // t // "': attribute m = " // str(e%m) // " outside 0.." // &
-              str(e%p), error); goto 9
-          end if
-          if (e%m > 0) then
-            call h5%read(t // "/indices", e%idx, error); if (allocated(error)) goto 9
-            call h5%read(t // "/weights", e%w, error); if (allocated(error)) goto 9
-            call h5%read(t // "/err", e%err, error); if (allocated(error)) goto 9
-            call need_size(path, t // "/indices", size(e%idx), e%m, "attribute m", error); if (allocated(error)) goto 9
-            call need_range(path, t // "/indices", e%idx, 1, e%p, error); if (allocated(error)) goto 9
-            if (size(e%w, 1) /= e%m .or. size(e%w, 2) /= e%m) then
-              call product_error(path, "dataset '" // t // "/weights' has " // str(size(e%w, 1)) // " x " // &
-                str(size(e%w, 2)) // " entries, but m says " // str(e%m) // " x " // str(e%m), error); goto 9
-            end if
-            call need_finite(path, t // "/weights", e%w, error); if (allocated(error)) goto 9
-          end if
+      call stored_hypers(pair%methods)
+      do j = 1, size(pair%methods)
+        associate (m => pair%methods(j)%m)
+          call h5%read_attr(g, "time_" // m%storage(), m%time, error); if (allocated(error)) goto 9
+          call m%read(h5, path, g, pair%terms, error); if (allocated(error)) goto 9
         end associate
       end do
     end if
@@ -622,15 +543,5 @@ contains
     end if
     if (allocated(e2)) call move_alloc(e2, error)
 
-  contains
-
-    subroutine read_note(obj, note)
-      character(len=*), intent(in) :: obj
-      character(len=:), allocatable, intent(out) :: note
-      type(error_t), allocatable :: en
-      character(len=:), allocatable :: s
-      call h5%read_attr(obj, "note", s, en)
-      if (.not. allocated(en)) note = s
-    end subroutine read_note
   end subroutine read_rom_pair
 end module cr_rom_file

@@ -19,6 +19,7 @@ module cr_rom_config
   use cr_config, only: nml_status
   use cr_paths, only: io_paths_t
   use cr_config_check, only: need_sane, MAX_SPEED
+  use cr_hyper_factory, only: hyper_known, hyper_name_list
   implicit none
   private
   public :: check_rom_paths
@@ -221,8 +222,8 @@ contains
     call probs%need(all(c%r >= 0), "&sweep: r(:) must be >= 0")
     do k = 1, MAX_SETTINGS
       if (c%n(k) == 0) cycle
-      call probs%need(any(c%hyper(k) == [character(len=8) :: 'none', 'eim', 'eq']), &
-        "&sweep: hyper(" // str(k) // ") must be 'none', 'eim' or 'eq' (got '" // trim(c%hyper(k)) // "')")
+      call probs%need(hyper_known(c%hyper(k)), &
+        "&sweep: hyper(" // str(k) // ") must be one of " // hyper_name_list() // " (got '" // trim(c%hyper(k)) // "')")
       call probs%need(c%contacts(k) == 'cone' .or. c%contacts(k) == 'online', &
         "&sweep: contacts(" // str(k) // ") must be 'cone' or 'online' (got '" // trim(c%contacts(k)) // "')")
       call probs%need(c%contacts(k) /= 'online' .or. c%hyper(k) == 'none', &

@@ -1,4 +1,5 @@
-!> What every reader of an inter-stage product checks (src/products): the schema name and version
+!> What every reader of an inter-stage product checks (the readers in src/products and the
+!> hyper-reduction methods' stored data in src/hyper): the schema name and version
 !> at the root, and the contents it reads (shapes against the attributes, indices in range,
 !> finite values). Each check returns an input error (code 2) whose message names the file, the
 !> dataset and the problem, e.g. "'db.h5': dataset 'contacts/ia': index 0 at position 3 outside

@@ -1,0 +1,151 @@
+!> A hyper-reduction method: one type that holds its offline build, its stored data and its
+!> online assembly, so that a new method is one module (src/hyper/cr_hyper_<name>.f90) plus
+!> one line in the factory (cr_hyper_factory).
+!>
+!> - Offline (`build`, collective): from the training set of one prepared pair (`hyper_train_t`:
+!>   the pair's basis and cone candidates, the candidate snapshots of s1 = v(q), s2 = B(q),
+!>   s3 = d(q) at the training configurations this rank holds, and those configurations).
+!> - Stored data (`write`, `read`): the method owns one group in each pair of the ROM file,
+!>   `pairs/<k>/<storage()>`, with named datasets; the ROM file (cr_rom_file) calls these
+!>   generically and writes the build time as the pair attribute `time_<storage()>`. A method
+!>   whose `storage()` is '' stores nothing (the exact projection 'none').
+!> - Online (`make_ops`): the assembly of the reduced problem of one time step, a
+!>   `reduced_ops_t` (cr_reduced_base), from the stored data.
+module cr_hyper_method
+  use cr_kinds, only: wp
+  use cr_error, only: error_t, set_error
+  use cr_strings, only: str
+  use cr_env, only: env_t
+  use cr_h5file, only: h5file_t
+  use cr_scene, only: scene_t
+  use cr_hyper_terms, only: hyper_terms_t
+  use cr_reduced_base, only: reduced_ops_t
+  implicit none
+  private
+  public :: hyper_train_t, hyper_method_t, hyper_slot_t, choose_points, TERM_NAMES
+
+  !> the three hyper-reduced terms s1 = v(q), s2 = B(q), s3 = d(q)
+  character(len=2), parameter :: TERM_NAMES(3) = ['s1', 's2', 's3']
+
+  !> What the offline build of one pair (N, R) sees.
+  type :: hyper_train_t
+    !> the pair's velocity basis [n_dof, nb] and cone candidates
+    real(wp), allocatable :: v(:,:)
+    type(hyper_terms_t) :: terms
+    !> number of cone vectors R
+    integer :: r = 0
+    !> candidate snapshots at this rank's training configurations: s1 [p1, n_loc], s2 [p2, n_loc],
+    !> s3 [p3, n_loc]
+    real(wp), allocatable :: s1(:,:), s2(:,:), s3(:,:)
+    !> this rank's training configurations q [n_dof, n_loc], their scenes (scene_of [n_loc]):
+    !> the offline data's own arrays, not copies (valid during the build only)
+    real(wp), pointer, contiguous :: q(:,:) => null()
+    type(scene_t), pointer :: scenes(:) => null()
+    integer, pointer, contiguous :: scene_of(:) => null()
+    real(wp) :: radius = 0, dt = 0
+    !> at most m_factor times the paper's default points (2 nb, R, 2 R); EQ tolerance
+    real(wp) :: m_factor = 1, eq_tol = 0
+  end type hyper_train_t
+
+  !> A hyper-reduction method (see the module header). The defaults of build, write, read and
+  !> summary do nothing: a method that stores nothing implements storage and make_ops only.
+  type, abstract :: hyper_method_t
+    !> offline build time (s)
+    real(wp) :: time = 0
+  contains
+    procedure(storage_i), deferred, nopass :: storage
+    procedure(make_ops_i), deferred :: make_ops
+    procedure :: build => no_build
+    procedure :: write => no_write
+    procedure :: read => no_read
+    procedure :: summary => no_summary
+  end type hyper_method_t
+
+  !> One method (an array of different methods).
+  type :: hyper_slot_t
+    class(hyper_method_t), allocatable :: m
+  end type hyper_slot_t
+
+  abstract interface
+    !> Name of the method's group in a pair of the ROM file ('' = nothing stored).
+    function storage_i() result(g)
+      character(len=:), allocatable :: g
+    end function storage_i
+
+    !> The online assembly `name` (a factory name served by this method's stored data) for the
+    !> pair (n, r) with basis v [n_dof, nb] and candidates terms; m_req = requested points of
+    !> s1, s2, s3 (0 = default); `where` prefixes error messages (code 2).
+    subroutine make_ops_i(this, name, v, terms, n, r, m_req, where, ops, error)
+      import :: hyper_method_t, hyper_terms_t, reduced_ops_t, error_t, wp
+      class(hyper_method_t), intent(in) :: this
+      character(len=*), intent(in) :: name, where
+      real(wp), intent(in) :: v(:,:)
+      type(hyper_terms_t), intent(in) :: terms
+      integer, intent(in) :: n, r, m_req(3)
+      class(reduced_ops_t), allocatable, intent(out) :: ops
+      type(error_t), allocatable, intent(out) :: error
+    end subroutine make_ops_i
+  end interface
+
+contains
+
+  subroutine no_build(this, env, train, error)
+    class(hyper_method_t), intent(inout) :: this
+    type(env_t), intent(in) :: env
+    type(hyper_train_t), intent(in) :: train
+    type(error_t), allocatable, intent(out) :: error
+  end subroutine no_build
+
+  !> Write the stored data into `g // '/' // storage()` of an open ROM file (g: the pair's group).
+  subroutine no_write(this, h5, g, error)
+    class(hyper_method_t), intent(in) :: this
+    type(h5file_t), intent(inout) :: h5
+    character(len=*), intent(in) :: g
+    type(error_t), allocatable, intent(out) :: error
+  end subroutine no_write
+
+  !> Read and validate the stored data from `g // '/' // storage()` of the ROM file `path`
+  !> (terms: the pair's candidates, for the sizes); input errors (code 2) name file and dataset.
+  subroutine no_read(this, h5, path, g, terms, error)
+    class(hyper_method_t), intent(inout) :: this
+    type(h5file_t), intent(in) :: h5
+    character(len=*), intent(in) :: path, g
+    type(hyper_terms_t), intent(in) :: terms
+    type(error_t), allocatable, intent(out) :: error
+  end subroutine no_read
+
+  !> One-line summary of the stored data for the log.
+  function no_summary(this) result(line)
+    class(hyper_method_t), intent(in) :: this
+    character(len=:), allocatable :: line
+    line = ""
+  end function no_summary
+
+  !> Points per term: requested (m_req > 0), or the paper's default dflt capped by what is
+  !> stored; refuses requests beyond the candidates cand or the stored points (code 2).
+  subroutine choose_points(what, where, n, r, m_req, dflt, stored, cand, m, error)
+    character(len=*), intent(in) :: what, where
+    integer, intent(in) :: n, r, m_req(3), dflt(3), stored(3), cand(3)
+    integer, intent(out) :: m(3)
+    type(error_t), allocatable, intent(out) :: error
+    character(len=3), parameter :: names(3) = ['m_v', 'm_b', 'm_d']
+    integer :: j
+    do j = 1, 3
+      if (m_req(j) > cand(j)) then
+        call set_error(error, where // ": " // names(j) // " = " // str(m_req(j)) // " is larger than the " // &
+          str(cand(j)) // " " // what // " candidates of term s" // str(j) // " for (N, R) = (" // str(n) // &
+          ", " // str(r) // ")", 2); return
+      end if
+      if (m_req(j) > stored(j)) then
+        call set_error(error, where // ": " // names(j) // " = " // str(m_req(j)) // " but the ROM file stores " // &
+          str(stored(j)) // " " // what // " points for term s" // str(j) // " of (N, R) = (" // str(n) // &
+          ", " // str(r) // ") (raise &hyper m_factor)", 2); return
+      end if
+      if (m_req(j) > 0) then
+        m(j) = m_req(j)
+      else
+        m(j) = min(dflt(j), stored(j))
+      end if
+    end do
+  end subroutine choose_points
+end module cr_hyper_method
