@@ -1,10 +1,14 @@
 !> The snapshot database of a parameter study (schema "crowdrom-snapshots", version 1; layout in
-!> the README, "Snapshot database"): written by crowd_snapshots (cr_snapshot_db assembles the
-!> pieces), read by crowd_offline (a block of training samples per rank), crowd_rom (the study
-!> and its full-order trajectories) and the Python scripts.
+!> the README, "Snapshot database"): written by crowd_snapshots, read by crowd_offline (a block
+!> of training samples per rank), crowd_rom (the study and its full-order trajectories) and the
+!> Python scripts.
 !>
-!> This module owns the schema's name, version, units and metadata type (the writer,
-!> cr_snapshot_db, assembles the pieces with them) and the readers `read_snap_header` and
+!> This module owns the schema's name, version, units, the sample and metadata types, the
+!> writer `write_snap_database` (collective: every rank gives the samples it holds, any subset;
+!> rank 0 lays the file out serially with every dataset's storage placed, then each rank writes
+!> its samples' blocks at their byte offsets with MPI-IO: a fixed, small number of collectives
+!> whatever the number of samples and datasets), `probe_snap_database` (is a file under the
+!> name a complete database of this configuration?) and the readers `read_snap_header` and
 !> `read_snap_block`. Readers accept the versions in SNAP_VERSIONS_READ and validate what they
 !> read: dataset shapes against the root attributes, dictionary identities and multiplier indices
 !> in range, CSR offsets monotone, positions, velocities, desired velocities, parameters and
@@ -14,14 +18,20 @@ module cr_snapshot_file
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
-  use cr_env, only: env_t
-  use cr_h5file, only: h5file_t
-  use cr_digest, only: digest_t, digest_of, digest_add, check_digest, check_digest_parts
+  use cr_env, only: env_t, par_file_t
+  use cr_h5file, only: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64
+  use cr_digest, only: digest_t, digest_of, digest_add, check_digest, check_digest_parts, digest_allreduce, &
+    put_digest, DIGEST_ALGORITHM
   use cr_product_check, only: check_schema, need_finite, need_range, need_dims, product_error
+  use cr_sort, only: argsort_i8, bsearch_i8
+  use cr_scene, only: scene_t
+  use cr_fom_file, only: write_scene
+  use cr_fsys, only: rename_file, remove_file
   implicit none
   private
   public :: SNAP_SCHEMA, SNAP_SCHEMA_VERSION, SNAP_VERSIONS_READ, SNAP_UNITS, db_meta_t, snap_header_t, &
-    snap_block_t, read_snap_header, read_snap_block
+    snap_block_t, read_snap_header, read_snap_block, snap_sample_t, snap_write_stats_t, write_snap_database, &
+    probe_snap_database, scene_vertex_list, SNAP_SET_NAMES
 
   character(len=*), parameter :: SNAP_SCHEMA = "crowdrom-snapshots"
   integer, parameter :: SNAP_SCHEMA_VERSION = 1
@@ -29,6 +39,50 @@ module cr_snapshot_file
   integer, parameter :: SNAP_VERSIONS_READ(1) = [1]
   character(len=*), parameter :: SNAP_UNITS = "length: m, time: s, velocity: m/s, l_exit: m, " // &
     "speed: m/s, multiplier: m/s^2 (lambda scales B = -h G: u = v - B^T lambda)"
+
+  !> the sets of a study, in database order
+  character(len=8), parameter :: SNAP_SET_NAMES(2) = [character(len=8) :: 'train', 'valid']
+
+  !> One sample of a study as the database stores it: its trajectory, statistics, multipliers
+  !> and mapped scene (the study computes it; the writer places it by set and index).
+  type :: snap_sample_t
+    !> 'train' or 'valid', and the sample's index in its set
+    character(len=8) :: set = ''
+    integer :: index = 0
+    !> parameter values [n_expanded]
+    real(wp), allocatable :: mu(:)
+    !> positions q^0..q^{n_steps} [2*n_agents, n_steps+1]
+    real(wp), allocatable :: q(:,:)
+    !> velocities u^nu and desired velocities v(q^{nu-1}), nu = 1..n_steps [2*n_agents, n_steps]
+    real(wp), allocatable :: u(:,:), v(:,:)
+    !> per-step KKT residual and smallest gap [n_steps]
+    real(wp), allocatable :: kkt(:), min_gap(:)
+    !> per-step solver iterations, converged flag (1/0), active contacts [n_steps]
+    integer, allocatable :: iterations(:), converged(:), n_active(:)
+    !> sparse multipliers, CSR over the steps: step nu holds entries offset(nu)+1..offset(nu+1)
+    integer(i8), allocatable :: offset(:)
+    integer(i8), allocatable :: key(:)
+    integer, allocatable :: ia(:), ib(:), ob(:)
+    real(wp), allocatable :: value(:)
+    !> wall time of the sample (s), its start (s since the start of the run) and the rank that
+    !> computed it
+    real(wp) :: time = 0, start = 0
+    integer :: rank = -1
+    !> the sample's scene as the parameter mapping builds it (set before writing the database):
+    !> obstacle vertices in the layout of /scene [2 n_v] and exit segment (x_lo, y, x_hi, y)
+    real(wp), allocatable :: scene_v(:)
+    real(wp) :: scene_exit(4) = 0
+  end type snap_sample_t
+
+  !> What write_snap_database measured (rank 0's clock, s) and wrote.
+  type :: snap_write_stats_t
+    !> global counts and contact dictionary; serial layout, header and checksums by rank 0; the
+    !> ranks' block writes; completion (complete = 1, rename)
+    real(wp) :: t_dict = 0, t_layout = 0, t_write = 0, t_seal = 0
+    !> contacts in the dictionary, stored multipliers, data bytes written by all ranks
+    integer :: n_dict = 0
+    integer(i8) :: nnz = 0, bytes = 0
+  end type snap_write_stats_t
 
   !> Root metadata of a database (what the writer is given).
   type :: db_meta_t
@@ -40,6 +94,8 @@ module cr_snapshot_file
     !> program, HDF5, MPI and compiler versions
     character(len=:), allocatable :: version, hdf5_version, mpi_version, compiler
     integer :: n_agents = 0, n_steps = 0, n_expanded = 0
+    !> samples of the two sets
+    integer :: n_train = 0, n_valid = 0
     real(wp) :: radius = 0, dt = 0
   end type db_meta_t
 
@@ -80,6 +136,523 @@ module cr_snapshot_file
   end type snap_block_t
 
 contains
+
+  ! ------------------------------------------------------------------ write
+
+  !> Vertices of every obstacle of a scene, in order [2 * total vertices] (the layout of
+  !> /scene/obstacle_vertices and of <set>/scene_vertices).
+  function scene_vertex_list(sc) result(v)
+    type(scene_t), intent(in) :: sc
+    real(wp), allocatable :: v(:)
+    integer :: k, n, m
+    n = 0
+    do k = 1, sc%n_obstacles()
+      n = n + size(sc%obstacles(k)%vertices)
+    end do
+    allocate(v(n))
+    n = 0
+    do k = 1, sc%n_obstacles()
+      m = size(sc%obstacles(k)%vertices)
+      v(n + 1:n + m) = reshape(sc%obstacles(k)%vertices, [m])
+      n = n + m
+    end do
+  end function scene_vertex_list
+
+  !> Serial check of an existing file under the database's name: status 0 = no file, 1 =
+  !> complete database of this configuration (config_hash), 2 = anything else (message says why;
+  !> it must not be overwritten).
+  subroutine probe_snap_database(path, hash, status, message)
+    character(len=*), intent(in) :: path, hash
+    integer, intent(out) :: status
+    character(len=:), allocatable, intent(out) :: message
+    type(h5file_t) :: h5
+    type(error_t), allocatable :: error, e2
+    character(len=:), allocatable :: schema, h
+    integer :: complete
+    logical :: ex
+    message = ""
+    inquire(file=path, exist=ex)
+    if (.not. ex) then
+      status = 0; return
+    end if
+    status = 2
+    call h5%open(path, error)
+    if (allocated(error)) then
+      message = "database '" // path // "' exists and is not a crowdrom snapshot database (" // &
+        error%message // "): refusing to overwrite it; remove it or change &study database"
+      return
+    end if
+    call h5%read_attr("/", "schema", schema, error)
+    if (.not. allocated(error)) call h5%read_attr("/", "config_hash", h, error)
+    if (.not. allocated(error)) call h5%read_attr("/", "complete", complete, error)
+    call h5%close(e2)
+    if (allocated(error)) then
+      message = "database '" // path // "' exists and is not a crowdrom snapshot database: " // &
+        "refusing to overwrite it; remove it or change &study database"
+    else if (schema /= SNAP_SCHEMA) then
+      message = "database '" // path // "' has schema '" // schema // "', not " // SNAP_SCHEMA // &
+        ": refusing to overwrite it"
+    else if (h /= hash) then
+      message = "database '" // path // "' was written for a different configuration (config_hash " // &
+        h // ", this input " // trim(hash) // "): refusing to overwrite or mix it; remove it or " // &
+        "change &study database"
+    else if (complete /= 1) then
+      message = "database '" // path // "' is marked incomplete: refusing to overwrite it"
+    else
+      status = 1
+    end if
+  end subroutine probe_snap_database
+
+  !> Collective: write the database `path` from the samples every rank holds (each sample of the
+  !> study on exactly one rank; a rank may hold any subset, in any order).
+  !>
+  !> 1. one MPI_Allreduce of per-sample counts (held, multipliers: places each sample's entries
+  !>    in the CSR arrays) and the contact dictionary (sorted union of the ranks' keys, two
+  !>    MPI_Allgatherv); each rank digests its blocks and one MPI_Allreduce adds the parts;
+  !> 2. rank 0 creates `<path>.partial` serially: root attributes, initial positions, scene,
+  !>    dictionary, every dataset with its storage placed (create_placed) and its checksum;
+  !>    the byte offsets are broadcast;
+  !> 3. every rank writes its samples' blocks at their offsets (MPI-IO, independent writes);
+  !> 4. rank 0 sets complete = 1 and renames the file. On failure the temporary is removed.
+  subroutine write_snap_database(env, path, meta, q0, scene, samples, stats, error)
+    type(env_t), intent(in) :: env
+    character(len=*), intent(in) :: path
+    type(db_meta_t), intent(in) :: meta
+    !> common initial positions [2*n_agents]
+    real(wp), intent(in), contiguous :: q0(:)
+    !> the reference scene (group /scene)
+    type(scene_t), intent(in) :: scene
+    !> this rank's samples [any number]
+    type(snap_sample_t), intent(in) :: samples(:)
+    type(snap_write_stats_t), intent(out) :: stats
+    type(error_t), allocatable, intent(out) :: error
+    !> datasets of one set, in this order (stats/... in the stats group)
+    character(len=*), parameter :: DS(17) = [character(len=16) :: 'params', 'positions', 'velocities', &
+      'desired', 'lambda_offset', 'lambda_index', 'lambda_value', 'stats/kkt', 'stats/min_gap', &
+      'stats/iterations', 'stats/converged', 'stats/n_active', 'stats/time', 'stats/rank', 'stats/start', &
+      'scene_vertices', 'scene_exit']
+    !> element size of each dataset (bytes)
+    integer, parameter :: ESZ(17) = [8, 8, 8, 8, 8, 4, 8, 8, 8, 4, 4, 4, 8, 4, 8, 8, 8]
+    integer :: nset(2), nd, ns, ne, nv, ntot, j, is, k, g, nl, q
+    integer(i8), allocatable :: cnt(:), base(:), dkey(:), off8(:), idx8(:)
+    integer, allocatable :: dia(:), dib(:), dob(:), li(:)
+    type(digest_t) :: dg(17, 2)
+    integer(i8) :: place(17, 2), total(2), e0
+    real(wp) :: t0
+    character(len=:), allocatable :: msg
+    type(par_file_t) :: pf
+    type(error_t), allocatable :: e2
+    t0 = env%wtime()
+    nset = [meta%n_train, meta%n_valid]
+    ntot = sum(nset)
+    nd = 2 * meta%n_agents; ns = meta%n_steps; ne = meta%n_expanded
+    nv = size(scene_vertex_list(scene))
+    nl = size(samples)
+    ! 1. local checks, then the counts of every sample
+    msg = ""
+    do j = 1, nl
+      call check_shapes(samples(j), msg)
+      if (len(msg) > 0) exit
+    end do
+    if (len(msg) > 0) call set_error(error, msg)
+    call env%agree_error(error)
+    if (allocated(error)) return
+    allocate(cnt(2 * ntot))
+    cnt = 0
+    do j = 1, nl
+      g = gnum(samples(j))
+      cnt(2 * g - 1) = 1
+      cnt(2 * g) = size(samples(j)%value)
+    end do
+    call env%allreduce(cnt, 'sum', error)
+    if (allocated(error)) return
+    do g = 1, ntot
+      if (cnt(2 * g - 1) /= 1) then
+        call set_error(error, "sample " // str(g) // " of the study is held by " // str(cnt(2 * g - 1)) // &
+          " ranks (expected exactly one)"); return
+      end if
+    end do
+    ! 0-based position of each sample's multipliers in its set's CSR arrays
+    allocate(base(ntot))
+    total = 0
+    do g = 1, ntot
+      is = merge(1, 2, g <= nset(1))
+      base(g) = total(is)
+      total(is) = total(is) + cnt(2 * g)
+    end do
+    if (any(total > huge(1))) then
+      call set_error(error, str(maxval(total)) // " multipliers in one set exceed the 32-bit dataset sizes"); return
+    end if
+    stats%nnz = sum(total)
+    call build_dictionary(env, samples, dkey, dia, dib, dob, error)
+    if (allocated(error)) return
+    stats%n_dict = size(dkey)
+    stats%t_dict = env%wtime() - t0
+    ! digests of this rank's parts, summed over the ranks
+    do j = 1, nl
+      call digest_sample(samples(j))
+    end do
+    if (env%is_root()) then
+      do is = 1, 2
+        dg(5, is) = digest_add(dg(5, is), digest_of([0_i8], 0_i8))
+      end do
+    end if
+    call digest_allreduce(env, dg(:, 1))
+    call digest_allreduce(env, dg(:, 2))
+    ! 2. the layout, by rank 0
+    msg = ""
+    place = -1
+    if (env%is_root()) call lay_out(msg)
+    call env%bcast_string(msg)
+    if (len(msg) > 0) then
+      call set_error(error, msg); return
+    end if
+    do is = 1, 2
+      call env%bcast(place(:, is), error)
+      if (allocated(error)) return
+    end do
+    stats%t_layout = env%wtime() - t0 - stats%t_dict
+    ! 3. every rank writes its blocks
+    call pf%open(env, path // ".partial", error)
+    if (.not. allocated(error)) then
+      if (env%is_root()) then
+        do is = 1, 2
+          if (.not. allocated(error) .and. place(5, is) >= 0) call pf%write_at(place(5, is), [0_i8], 8_i8, error)
+        end do
+      end if
+      do j = 1, nl
+        if (allocated(error)) exit
+        call write_sample(samples(j), error)
+      end do
+      call pf%close(e2)
+      if (allocated(e2) .and. .not. allocated(error)) call move_alloc(e2, error)
+    end if
+    call env%agree_error(error)
+    stats%bytes = 0
+    do j = 1, nl
+      stats%bytes = stats%bytes + sample_bytes(samples(j))
+    end do
+    if (.not. allocated(error)) then
+      stats%bytes = env%sum_int(stats%bytes)
+      stats%t_write = env%wtime() - t0 - stats%t_dict - stats%t_layout
+      ! 4. complete = 1 last, then the final name
+      msg = ""
+      if (env%is_root()) call seal(msg)
+      call env%bcast_string(msg)
+      if (len(msg) > 0) call set_error(error, msg)
+      stats%t_seal = env%wtime() - t0 - stats%t_dict - stats%t_layout - stats%t_write
+    end if
+    if (allocated(error)) then
+      call env%barrier()
+      if (env%is_root()) q = remove_file(path // ".partial")
+      if (index(error%message, "database '") /= 1) error%message = "database '" // path // "': " // error%message
+    end if
+
+  contains
+
+    !> Global number of a sample (train 1..n_train, then valid).
+    integer function gnum(s)
+      type(snap_sample_t), intent(in) :: s
+      gnum = s%index
+      if (s%set == SNAP_SET_NAMES(2)) gnum = nset(1) + s%index
+    end function gnum
+
+    !> Shapes of a sample against the metadata ('' if right).
+    subroutine check_shapes(s, m)
+      type(snap_sample_t), intent(in) :: s
+      character(len=:), allocatable, intent(inout) :: m
+      integer :: iss, nnz
+      iss = findloc(SNAP_SET_NAMES, s%set, dim=1)
+      if (iss == 0) then
+        m = "sample of unknown set '" // trim(s%set) // "'"; return
+      end if
+      if (s%index < 1 .or. s%index > nset(iss)) then
+        m = trim(s%set) // " sample " // str(s%index) // " is outside 1.." // str(nset(iss)); return
+      end if
+      nnz = size(s%value)
+      if (size(s%mu) /= ne .or. any(shape(s%q) /= [nd, ns + 1]) .or. any(shape(s%u) /= [nd, ns]) .or. &
+          any(shape(s%v) /= [nd, ns]) .or. size(s%kkt) /= ns .or. size(s%min_gap) /= ns .or. &
+          size(s%iterations) /= ns .or. size(s%converged) /= ns .or. size(s%n_active) /= ns .or. &
+          size(s%offset) /= ns + 1 .or. size(s%key) /= nnz .or. size(s%ia) /= nnz .or. size(s%ib) /= nnz .or. &
+          size(s%ob) /= nnz .or. size(s%scene_v) /= nv) then
+        m = trim(s%set) // " sample " // str(s%index) // ": array shapes disagree with the study (" // &
+          str(nd) // " dofs, " // str(ns) // " steps, " // str(ne) // " parameters, " // str(nv) // &
+          " scene vertex coordinates)"; return
+      end if
+      if (s%offset(1) /= 0 .or. s%offset(ns + 1) /= nnz) m = trim(s%set) // " sample " // str(s%index) // &
+        ": multiplier offsets do not span its " // str(nnz) // " entries"
+    end subroutine check_shapes
+
+    !> Element offset (0-based) of sample s in each dataset of its set [17].
+    function elem_offsets(s) result(o)
+      type(snap_sample_t), intent(in) :: s
+      integer(i8) :: o(17)
+      integer(i8) :: k1
+      k1 = s%index - 1
+      o = [k1 * ne, k1 * (ns + 1) * nd, k1 * ns * nd, k1 * ns * nd, k1 * ns + 1, base(gnum(s)), base(gnum(s)), &
+        k1 * ns, k1 * ns, k1 * ns, k1 * ns, k1 * ns, k1, k1, k1, k1 * nv, k1 * 4]
+    end function elem_offsets
+
+    !> The sample's global CSR offsets [ns] and dictionary indices [nnz].
+    subroutine global_csr(s, o, ix)
+      type(snap_sample_t), intent(in) :: s
+      integer(i8), allocatable, intent(out) :: o(:)
+      integer, allocatable, intent(out) :: ix(:)
+      integer :: c
+      o = base(gnum(s)) + s%offset(2:ns + 1)
+      allocate(ix(size(s%key)))
+      do c = 1, size(s%key)
+        ix(c) = bsearch_i8(dkey, s%key(c))
+      end do
+    end subroutine global_csr
+
+    subroutine digest_sample(s)
+      type(snap_sample_t), intent(in) :: s
+      integer(i8) :: o(17)
+      integer :: iss
+      iss = findloc(SNAP_SET_NAMES, s%set, dim=1)
+      o = elem_offsets(s)
+      call global_csr(s, off8, li)
+      associate (d => dg(:, iss))
+        d(1) = digest_add(d(1), digest_of(s%mu, o(1)))
+        d(2) = digest_add(d(2), digest_of(s%q, o(2)))
+        d(3) = digest_add(d(3), digest_of(s%u, o(3)))
+        d(4) = digest_add(d(4), digest_of(s%v, o(4)))
+        d(5) = digest_add(d(5), digest_of(off8, o(5)))
+        d(6) = digest_add(d(6), digest_of(li, o(6)))
+        d(7) = digest_add(d(7), digest_of(s%value, o(7)))
+        d(8) = digest_add(d(8), digest_of(s%kkt, o(8)))
+        d(9) = digest_add(d(9), digest_of(s%min_gap, o(9)))
+        d(10) = digest_add(d(10), digest_of(s%iterations, o(10)))
+        d(11) = digest_add(d(11), digest_of(s%converged, o(11)))
+        d(12) = digest_add(d(12), digest_of(s%n_active, o(12)))
+        d(13) = digest_add(d(13), digest_of([s%time], o(13)))
+        d(14) = digest_add(d(14), digest_of([s%rank], o(14)))
+        d(15) = digest_add(d(15), digest_of([s%start], o(15)))
+        d(16) = digest_add(d(16), digest_of(s%scene_v, o(16)))
+        d(17) = digest_add(d(17), digest_of(s%scene_exit, o(17)))
+      end associate
+    end subroutine digest_sample
+
+    !> Write sample s's blocks at their places.
+    subroutine write_sample(s, error)
+      type(snap_sample_t), intent(in) :: s
+      type(error_t), allocatable, intent(out) :: error
+      integer(i8) :: o(17), at(17)
+      integer :: iss, nnz
+      iss = findloc(SNAP_SET_NAMES, s%set, dim=1)
+      o = elem_offsets(s)
+      at = place(:, iss) + o * ESZ
+      nnz = size(s%value)
+      call global_csr(s, off8, li)
+      call pf%write_at(at(1), s%mu, 8_i8 * ne, error); if (allocated(error)) return
+      call pf%write_at(at(2), s%q, 8_i8 * nd * (ns + 1), error); if (allocated(error)) return
+      call pf%write_at(at(3), s%u, 8_i8 * nd * ns, error); if (allocated(error)) return
+      call pf%write_at(at(4), s%v, 8_i8 * nd * ns, error); if (allocated(error)) return
+      call pf%write_at(at(5), off8, 8_i8 * ns, error); if (allocated(error)) return
+      if (nnz > 0) then
+        call pf%write_at(at(6), li, 4_i8 * nnz, error); if (allocated(error)) return
+        call pf%write_at(at(7), s%value, 8_i8 * nnz, error); if (allocated(error)) return
+      end if
+      call pf%write_at(at(8), s%kkt, 8_i8 * ns, error); if (allocated(error)) return
+      call pf%write_at(at(9), s%min_gap, 8_i8 * ns, error); if (allocated(error)) return
+      call pf%write_at(at(10), s%iterations, 4_i8 * ns, error); if (allocated(error)) return
+      call pf%write_at(at(11), s%converged, 4_i8 * ns, error); if (allocated(error)) return
+      call pf%write_at(at(12), s%n_active, 4_i8 * ns, error); if (allocated(error)) return
+      call pf%write_at(at(13), [s%time], 8_i8, error); if (allocated(error)) return
+      call pf%write_at(at(14), [s%rank], 4_i8, error); if (allocated(error)) return
+      call pf%write_at(at(15), [s%start], 8_i8, error); if (allocated(error)) return
+      if (nv > 0) then
+        call pf%write_at(at(16), s%scene_v, 8_i8 * nv, error); if (allocated(error)) return
+      end if
+      call pf%write_at(at(17), s%scene_exit, 32_i8, error)
+    end subroutine write_sample
+
+    integer(i8) function sample_bytes(s)
+      type(snap_sample_t), intent(in) :: s
+      sample_bytes = 8_i8 * (ne + nd * (2 * ns + ns + 1) + 3 * ns + 2 + nv + 4 + size(s%value)) + &
+        4_i8 * (3 * ns + 1 + size(s%value))
+    end function sample_bytes
+
+    !> Rank 0: the serial file, every dataset placed (place), checksums; '' or a message.
+    subroutine lay_out(m)
+      character(len=:), allocatable, intent(inout) :: m
+      type(h5file_t) :: h5
+      type(error_t), allocatable :: e, e3
+      integer :: iss, q2, n
+      integer :: dims(2, 17), rk(17)
+      character(len=:), allocatable :: g
+      call h5%create(path, e)
+      if (allocated(e)) then
+        m = e%message; return
+      end if
+      ops: block
+        call write_header(h5, e); if (allocated(e)) exit ops
+        do iss = 1, 2
+            n = nset(iss)
+            g = trim(SNAP_SET_NAMES(iss))
+            call h5%make_group(g, e); if (allocated(e)) exit ops
+            call h5%make_group(g // "/stats", e); if (allocated(e)) exit ops
+            call h5%write_attr(g, "n_samples", n, e); if (allocated(e)) exit ops
+            dims(:, 1) = [ne, n]; dims(:, 2) = [nd, (ns + 1) * n]; dims(:, 3) = [nd, ns * n]
+            dims(:, 4) = [nd, ns * n]; dims(:, 5) = [ns * n + 1, 0]; dims(:, 6) = [int(total(iss)), 0]
+            dims(:, 7) = [int(total(iss)), 0]
+            do q2 = 8, 12
+              dims(:, q2) = [ns, n]
+            end do
+            dims(:, 13) = [n, 0]; dims(:, 14) = [n, 0]; dims(:, 15) = [n, 0]
+            dims(:, 16) = [nv, n]; dims(:, 17) = [4, n]
+            rk = [2, 2, 2, 2, 1, 1, 1, 2, 2, 2, 2, 2, 1, 1, 1, 2, 2]
+            do q2 = 1, 17
+              call h5%create_placed(g // "/" // trim(DS(q2)), dims(1:rk(q2), q2), kind_of(q2), place(q2, iss), e)
+              if (allocated(e)) exit ops
+              call put_digest(h5, g // "/" // trim(DS(q2)), dg(q2, iss), e); if (allocated(e)) exit ops
+            end do
+        end do
+      end block ops
+      if (allocated(e)) then
+        m = e%message
+        call h5%abort()
+        return
+      end if
+      call h5%close(e3)
+      if (allocated(e3)) m = e3%message
+    end subroutine lay_out
+
+    integer function kind_of(q2)
+      integer, intent(in) :: q2
+      select case (q2)
+      case (5); kind_of = cr_h5_int64
+      case (6, 10, 11, 12, 14); kind_of = cr_h5_int
+      case default; kind_of = cr_h5_real
+      end select
+    end function kind_of
+
+    !> Root attributes, initial positions, scene and contact dictionary, with their checksums.
+    subroutine write_header(hh, e)
+      type(h5file_t), intent(inout) :: hh
+      type(error_t), allocatable, intent(out) :: e
+      call hh%write_attr("/", "schema", SNAP_SCHEMA, e); if (allocated(e)) return
+      call hh%write_attr("/", "schema_version", SNAP_SCHEMA_VERSION, e); if (allocated(e)) return
+      call hh%write_attr("/", "program", "crowd_snapshots", e); if (allocated(e)) return
+      call hh%write_attr("/", "version", meta%version, e); if (allocated(e)) return
+      call hh%write_attr("/", "hdf5_version", meta%hdf5_version, e); if (allocated(e)) return
+      call hh%write_attr("/", "mpi_version", meta%mpi_version, e); if (allocated(e)) return
+      call hh%write_attr("/", "compiler", meta%compiler, e); if (allocated(e)) return
+      call hh%write_attr("/", "config", meta%config_text, e); if (allocated(e)) return
+      call hh%write_attr("/", "input_text", meta%input_text, e); if (allocated(e)) return
+      call hh%write_attr("/", "config_hash", trim(meta%hash), e); if (allocated(e)) return
+      call hh%write_attr("/", "units", SNAP_UNITS, e); if (allocated(e)) return
+      call hh%write_attr("/", "n_agents", meta%n_agents, e); if (allocated(e)) return
+      call hh%write_attr("/", "agent_radius", meta%radius, e); if (allocated(e)) return
+      call hh%write_attr("/", "dt", meta%dt, e); if (allocated(e)) return
+      call hh%write_attr("/", "n_steps", meta%n_steps, e); if (allocated(e)) return
+      call hh%write_attr("/", "n_train", meta%n_train, e); if (allocated(e)) return
+      call hh%write_attr("/", "n_valid", meta%n_valid, e); if (allocated(e)) return
+      call hh%write_attr("/", "n_params", meta%n_expanded, e); if (allocated(e)) return
+      call hh%write_attr("/", "param_names", meta%param_names, e); if (allocated(e)) return
+      call hh%write_attr("/", "checksum_algorithm", DIGEST_ALGORITHM, e); if (allocated(e)) return
+      call hh%write("initial_positions", q0, e); if (allocated(e)) return
+      call put_digest(hh, "initial_positions", digest_of(q0, 0_i8), e); if (allocated(e)) return
+      call write_scene(hh, scene, e); if (allocated(e)) return
+      call hh%make_group("contacts", e); if (allocated(e)) return
+      call hh%write("contacts/key", dkey, e); if (allocated(e)) return
+      call put_digest(hh, "contacts/key", digest_of(dkey, 0_i8), e); if (allocated(e)) return
+      call hh%write("contacts/ia", dia, e); if (allocated(e)) return
+      call put_digest(hh, "contacts/ia", digest_of(dia, 0_i8), e); if (allocated(e)) return
+      call hh%write("contacts/ib", dib, e); if (allocated(e)) return
+      call put_digest(hh, "contacts/ib", digest_of(dib, 0_i8), e); if (allocated(e)) return
+      call hh%write("contacts/ob", dob, e); if (allocated(e)) return
+      call put_digest(hh, "contacts/ob", digest_of(dob, 0_i8), e); if (allocated(e)) return
+      call hh%write_attr("contacts", "description", "global contact dictionary: every contact " // &
+        "with lambda > 0 in some sample and step, sorted by key; ib = 0 for agent-obstacle " // &
+        "contacts (ob = obstacle index), ob = 0 for agent pairs", e)
+    end subroutine write_header
+
+    !> Rank 0: complete = 1 in the closed temporary, then the rename; '' or a message.
+    subroutine seal(m)
+      character(len=:), allocatable, intent(inout) :: m
+      type(h5file_t) :: hs
+      type(error_t), allocatable :: e, e3
+      call hs%open(path // ".partial", e, readwrite=.true.)
+      if (allocated(e)) then
+        m = e%message; return
+      end if
+      call hs%write_attr("/", "complete", 1, e)
+      call hs%close(e3)
+      if (allocated(e)) then
+        m = e%message
+      else if (allocated(e3)) then
+        m = e3%message
+      else if (rename_file(path // ".partial", path) /= 0) then
+        m = "rename '" // path // ".partial' -> '" // path // "' failed"
+      end if
+    end subroutine seal
+  end subroutine write_snap_database
+
+  !> Collective: sorted union over all ranks of the contact keys of the samples (with the
+  !> identities of each contact).
+  subroutine build_dictionary(env, samples, dkey, dia, dib, dob, error)
+    type(env_t), intent(in) :: env
+    type(snap_sample_t), intent(in) :: samples(:)
+    integer(i8), allocatable, intent(out) :: dkey(:)
+    integer, allocatable, intent(out) :: dia(:), dib(:), dob(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer(i8), allocatable :: keys(:), allk(:)
+    integer, allocatable :: ids(:,:), allid(:), idx(:)
+    integer :: n, j, m
+    n = 0
+    do j = 1, size(samples)
+      n = n + size(samples(j)%key)
+    end do
+    allocate(keys(n), ids(3, n))
+    ! each sample's keys made unique first (a contact lasts many steps): the sorts stay small
+    n = 0
+    do j = 1, size(samples)
+      associate (s => samples(j))
+        m = size(s%key)
+        keys(n + 1:n + m) = s%key
+        ids(1, n + 1:n + m) = s%ia; ids(2, n + 1:n + m) = s%ib; ids(3, n + 1:n + m) = s%ob
+        call unique(keys(n + 1:n + m), ids(:, n + 1:n + m), m)
+        n = n + m
+      end associate
+    end do
+    call unique(keys, ids, n)
+    call env%allgatherv(keys(1:n), allk, error)
+    if (allocated(error)) return
+    call env%allgatherv(reshape(ids(:, 1:n), [3 * n]), allid, error)
+    if (allocated(error)) return
+    m = size(allk)
+    deallocate(ids)
+    ids = reshape(allid, [3, m])
+    call unique(allk, ids, m)
+    dkey = allk(1:m)
+    dia = ids(1, 1:m); dib = ids(2, 1:m); dob = ids(3, 1:m)
+
+  contains
+
+    !> Sort keys(1:n) ascending, drop duplicates; n becomes the number of unique keys.
+    subroutine unique(keys, ids, n)
+      integer(i8), intent(inout) :: keys(:)
+      integer, intent(inout) :: ids(:,:)
+      integer, intent(inout) :: n
+      integer :: a, u
+      if (allocated(idx)) deallocate(idx)
+      allocate(idx(n))
+      call argsort_i8(keys(1:n), idx)
+      keys(1:n) = keys(idx)
+      ids(:, 1:n) = ids(:, idx)
+      u = 0
+      do a = 1, n
+        if (u > 0) then
+          if (keys(a) == keys(u)) cycle
+        end if
+        u = u + 1
+        keys(u) = keys(a); ids(:, u) = ids(:, a)
+      end do
+      n = u
+    end subroutine unique
+  end subroutine build_dictionary
 
   ! ------------------------------------------------------------------ read
 
