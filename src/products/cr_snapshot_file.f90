@@ -4,13 +4,13 @@
 !> Python scripts.
 !>
 !> This module owns the schema's name, version, units, the sample and metadata types, the
-!> writer `write_snap_database` (collective: every rank gives the samples it holds, any subset;
-!> rank 0 lays the file out serially with every dataset's storage placed, then each rank writes
-!> its samples' blocks at their byte offsets with MPI-IO: a fixed, small number of collectives
-!> whatever the number of samples and datasets), `probe_snap_database` (is a file under the
-!> name a complete database of this configuration?) and the readers `read_snap_header` and
-!> `read_snap_block`. Readers accept the versions in SNAP_VERSIONS_READ and validate what they
-!> read: dataset shapes against the root attributes, dictionary identities and multiplier indices
+!> writer `snap_writer_t` (begin: rank 0 lays the file out serially, every fixed-size dataset's
+!> storage placed; put: a rank writes one of its samples' blocks at their byte offsets with
+!> MPI-IO as soon as it has the sample; finish: the contact dictionary, the multipliers, the
+!> checksums and complete = 1; a fixed, small number of collectives whatever the number of
+!> samples and datasets), `probe_snap_database` (is a file under the name a complete database
+!> of this configuration?) and the readers `read_snap_header` and `read_snap_block`. Readers
+!> accept the versions in SNAP_VERSIONS_READ and validate what they read: dataset shapes against the root attributes, dictionary identities and multiplier indices
 !> in range, CSR offsets monotone, positions, velocities, desired velocities, parameters and
 !> multipliers finite, and the checksums of what they read (cr_digest; the ranks' blocks of a
 !> parallel read add up to the whole datasets).
@@ -30,7 +30,7 @@ module cr_snapshot_file
   implicit none
   private
   public :: SNAP_SCHEMA, SNAP_SCHEMA_VERSION, SNAP_VERSIONS_READ, SNAP_UNITS, db_meta_t, snap_header_t, &
-    snap_block_t, read_snap_header, read_snap_block, snap_sample_t, snap_write_stats_t, write_snap_database, &
+    snap_block_t, read_snap_header, read_snap_block, snap_sample_t, snap_write_stats_t, snap_writer_t, &
     probe_snap_database, scene_vertex_list, SNAP_SET_NAMES
 
   character(len=*), parameter :: SNAP_SCHEMA = "crowdrom-snapshots"
@@ -74,15 +74,29 @@ module cr_snapshot_file
     real(wp) :: scene_exit(4) = 0
   end type snap_sample_t
 
-  !> What write_snap_database measured (rank 0's clock, s) and wrote.
+  !> What the writer measured (s; rank 0's clock unless said) and wrote.
   type :: snap_write_stats_t
-    !> global counts and contact dictionary; serial layout, header and checksums by rank 0; the
-    !> ranks' block writes; completion (complete = 1, rename)
-    real(wp) :: t_dict = 0, t_layout = 0, t_write = 0, t_seal = 0
+    !> this rank's time in put (checksum parts and block writes of its samples); in finish: global
+    !> counts, contact dictionary and checksum sums; serial layout by rank 0 (begin and finish);
+    !> the ranks' multiplier block writes; completion (complete = 1, rename)
+    real(wp) :: t_put = 0, t_dict = 0, t_layout = 0, t_write = 0, t_seal = 0
     !> contacts in the dictionary, stored multipliers, data bytes written by all ranks
     integer :: n_dict = 0
     integer(i8) :: nnz = 0, bytes = 0
   end type snap_write_stats_t
+
+  !> datasets of one set, in this order (stats/... in the stats group), their element sizes
+  !> (bytes), kinds and ranks; the multiplier datasets are placed only when finish knows their sizes
+  character(len=*), parameter :: DS(17) = [character(len=16) :: 'params', 'positions', 'velocities', &
+    'desired', 'lambda_offset', 'lambda_index', 'lambda_value', 'stats/kkt', 'stats/min_gap', &
+    'stats/iterations', 'stats/converged', 'stats/n_active', 'stats/time', 'stats/rank', 'stats/start', &
+    'scene_vertices', 'scene_exit']
+  integer, parameter :: ESZ(17) = [8, 8, 8, 8, 8, 4, 8, 8, 8, 4, 4, 4, 8, 4, 8, 8, 8]
+  integer, parameter :: KIND_OF(17) = [cr_h5_real, cr_h5_real, cr_h5_real, cr_h5_real, cr_h5_int64, cr_h5_int, &
+    cr_h5_real, cr_h5_real, cr_h5_real, cr_h5_int, cr_h5_int, cr_h5_int, cr_h5_real, cr_h5_int, cr_h5_real, &
+    cr_h5_real, cr_h5_real]
+  integer, parameter :: DRANK(17) = [2, 2, 2, 2, 1, 1, 1, 2, 2, 2, 2, 2, 1, 1, 1, 2, 2]
+  integer, parameter :: LAMBDA_DS(3) = [5, 6, 7]
 
   !> Root metadata of a database (what the writer is given).
   type :: db_meta_t
@@ -98,6 +112,34 @@ module cr_snapshot_file
     integer :: n_train = 0, n_valid = 0
     real(wp) :: radius = 0, dt = 0
   end type db_meta_t
+
+  !> Writer of a database (collective begin and finish; put by each rank for the samples it
+  !> holds, as soon as it has them): see writer_begin, writer_put, writer_finish.
+  type :: snap_writer_t
+    type(snap_write_stats_t) :: stats
+    type(env_t), private :: env
+    character(len=:), allocatable, private :: path
+    type(db_meta_t), private :: meta
+    integer, private :: nset(2) = 0, nd = 0, ns = 0, ne = 0, nv = 0
+    !> byte offset of each dataset of each set in the file (-1: empty or not placed yet) [17, 2]
+    integer(i8), private :: place(17, 2) = -1
+    !> this rank's checksum parts [17, 2]
+    type(digest_t), private :: dg(17, 2)
+    type(par_file_t), private :: pf
+    logical, private :: active = .false.
+    !> the multipliers of the samples put by this rank and their global numbers [nl]
+    integer, private :: nl = 0
+    type(snap_sample_t), allocatable, private :: lam(:)
+    integer, allocatable, private :: gl(:)
+    !> multipliers per set and each sample's position in its set's CSR arrays (finish)
+    integer(i8), private :: total(2) = 0
+    integer(i8), allocatable, private :: base(:)
+  contains
+    procedure :: begin => writer_begin
+    procedure :: put => writer_put
+    procedure :: finish => writer_finish
+    procedure :: discard => writer_discard
+  end type snap_writer_t
 
   !> What a reader learns from the root of a complete database.
   type :: snap_header_t
@@ -203,311 +245,83 @@ contains
     end if
   end subroutine probe_snap_database
 
-  !> Collective: write the database `path` from the samples every rank holds (each sample of the
-  !> study on exactly one rank; a rank may hold any subset, in any order).
-  !>
-  !> 1. one MPI_Allreduce of per-sample counts (held, multipliers: places each sample's entries
-  !>    in the CSR arrays) and the contact dictionary (sorted union of the ranks' keys, two
-  !>    MPI_Allgatherv); each rank digests its blocks and one MPI_Allreduce adds the parts;
-  !> 2. rank 0 creates `<path>.partial` serially: root attributes, initial positions, scene,
-  !>    dictionary, every dataset with its storage placed (create_placed) and its checksum;
-  !>    the byte offsets are broadcast;
-  !> 3. every rank writes its samples' blocks at their offsets (MPI-IO, independent writes);
-  !> 4. rank 0 sets complete = 1 and renames the file. On failure the temporary is removed.
-  subroutine write_snap_database(env, path, meta, q0, scene, samples, stats, error)
+  ! ---- the writer: begin (collective), put (each rank, any number of samples), finish (collective)
+
+  !> Collective: create `<path>.partial`. Rank 0 lays it out serially: root attributes, initial
+  !> positions, scene, and every dataset whose size the study fixes (all but the contact
+  !> dictionary and the multipliers) with its storage placed; the byte offsets are broadcast and
+  !> every rank opens the file for its block writes (MPI-IO).
+  subroutine writer_begin(this, env, path, meta, q0, scene, error)
+    class(snap_writer_t), intent(inout) :: this
     type(env_t), intent(in) :: env
     character(len=*), intent(in) :: path
     type(db_meta_t), intent(in) :: meta
     !> common initial positions [2*n_agents]
     real(wp), intent(in), contiguous :: q0(:)
-    !> the reference scene (group /scene)
+    !> the reference scene (group /scene; its vertex layout is that of every sample's scene)
     type(scene_t), intent(in) :: scene
-    !> this rank's samples [any number]
-    type(snap_sample_t), intent(in) :: samples(:)
-    type(snap_write_stats_t), intent(out) :: stats
     type(error_t), allocatable, intent(out) :: error
-    !> datasets of one set, in this order (stats/... in the stats group)
-    character(len=*), parameter :: DS(17) = [character(len=16) :: 'params', 'positions', 'velocities', &
-      'desired', 'lambda_offset', 'lambda_index', 'lambda_value', 'stats/kkt', 'stats/min_gap', &
-      'stats/iterations', 'stats/converged', 'stats/n_active', 'stats/time', 'stats/rank', 'stats/start', &
-      'scene_vertices', 'scene_exit']
-    !> element size of each dataset (bytes)
-    integer, parameter :: ESZ(17) = [8, 8, 8, 8, 8, 4, 8, 8, 8, 4, 4, 4, 8, 4, 8, 8, 8]
-    integer :: nset(2), nd, ns, ne, nv, ntot, j, is, k, g, nl, q
-    integer(i8), allocatable :: cnt(:), base(:), dkey(:), off8(:), idx8(:)
-    integer, allocatable :: dia(:), dib(:), dob(:), li(:)
-    type(digest_t) :: dg(17, 2)
-    integer(i8) :: place(17, 2), total(2), e0
+    character(len=:), allocatable :: m
+    integer :: is
     real(wp) :: t0
-    character(len=:), allocatable :: msg
-    type(par_file_t) :: pf
-    type(error_t), allocatable :: e2
     t0 = env%wtime()
-    nset = [meta%n_train, meta%n_valid]
-    ntot = sum(nset)
-    nd = 2 * meta%n_agents; ns = meta%n_steps; ne = meta%n_expanded
-    nv = size(scene_vertex_list(scene))
-    nl = size(samples)
-    ! 1. local checks, then the counts of every sample
-    msg = ""
-    do j = 1, nl
-      call check_shapes(samples(j), msg)
-      if (len(msg) > 0) exit
-    end do
-    if (len(msg) > 0) call set_error(error, msg)
-    call env%agree_error(error)
-    if (allocated(error)) return
-    allocate(cnt(2 * ntot))
-    cnt = 0
-    do j = 1, nl
-      g = gnum(samples(j))
-      cnt(2 * g - 1) = 1
-      cnt(2 * g) = size(samples(j)%value)
-    end do
-    call env%allreduce(cnt, 'sum', error)
-    if (allocated(error)) return
-    do g = 1, ntot
-      if (cnt(2 * g - 1) /= 1) then
-        call set_error(error, "sample " // str(g) // " of the study is held by " // str(cnt(2 * g - 1)) // &
-          " ranks (expected exactly one)"); return
-      end if
-    end do
-    ! 0-based position of each sample's multipliers in its set's CSR arrays
-    allocate(base(ntot))
-    total = 0
-    do g = 1, ntot
-      is = merge(1, 2, g <= nset(1))
-      base(g) = total(is)
-      total(is) = total(is) + cnt(2 * g)
-    end do
-    if (any(total > huge(1))) then
-      call set_error(error, str(maxval(total)) // " multipliers in one set exceed the 32-bit dataset sizes"); return
-    end if
-    stats%nnz = sum(total)
-    call build_dictionary(env, samples, dkey, dia, dib, dob, error)
-    if (allocated(error)) return
-    stats%n_dict = size(dkey)
-    stats%t_dict = env%wtime() - t0
-    ! digests of this rank's parts, summed over the ranks
-    do j = 1, nl
-      call digest_sample(samples(j))
-    end do
-    if (env%is_root()) then
-      do is = 1, 2
-        dg(5, is) = digest_add(dg(5, is), digest_of([0_i8], 0_i8))
-      end do
-    end if
-    call digest_allreduce(env, dg(:, 1))
-    call digest_allreduce(env, dg(:, 2))
-    ! 2. the layout, by rank 0
-    msg = ""
-    place = -1
-    if (env%is_root()) call lay_out(msg)
-    call env%bcast_string(msg)
-    if (len(msg) > 0) then
-      call set_error(error, msg); return
+    this%env = env
+    this%path = path
+    this%meta = meta
+    this%nset = [meta%n_train, meta%n_valid]
+    this%nd = 2 * meta%n_agents; this%ns = meta%n_steps; this%ne = meta%n_expanded
+    this%nv = size(scene_vertex_list(scene))
+    this%place = -1
+    this%nl = 0
+    allocate(this%lam(16), this%gl(16))
+    m = ""
+    if (env%is_root()) call lay_out(m)
+    call env%bcast_string(m)
+    if (len(m) > 0) then
+      call set_error(error, "database '" // path // "': " // m); return
     end if
     do is = 1, 2
-      call env%bcast(place(:, is), error)
+      call env%bcast(this%place(:, is), error)
       if (allocated(error)) return
     end do
-    stats%t_layout = env%wtime() - t0 - stats%t_dict
-    ! 3. every rank writes its blocks
-    call pf%open(env, path // ".partial", error)
-    if (.not. allocated(error)) then
-      if (env%is_root()) then
-        do is = 1, 2
-          if (.not. allocated(error) .and. place(5, is) >= 0) call pf%write_at(place(5, is), [0_i8], 8_i8, error)
-        end do
-      end if
-      do j = 1, nl
-        if (allocated(error)) exit
-        call write_sample(samples(j), error)
-      end do
-      call pf%close(e2)
-      if (allocated(e2) .and. .not. allocated(error)) call move_alloc(e2, error)
-    end if
+    call this%pf%open(env, path // ".partial", error)
     call env%agree_error(error)
-    stats%bytes = 0
-    do j = 1, nl
-      stats%bytes = stats%bytes + sample_bytes(samples(j))
-    end do
-    if (.not. allocated(error)) then
-      stats%bytes = env%sum_int(stats%bytes)
-      stats%t_write = env%wtime() - t0 - stats%t_dict - stats%t_layout
-      ! 4. complete = 1 last, then the final name
-      msg = ""
-      if (env%is_root()) call seal(msg)
-      call env%bcast_string(msg)
-      if (len(msg) > 0) call set_error(error, msg)
-      stats%t_seal = env%wtime() - t0 - stats%t_dict - stats%t_layout - stats%t_write
-    end if
     if (allocated(error)) then
-      call env%barrier()
-      if (env%is_root()) q = remove_file(path // ".partial")
-      if (index(error%message, "database '") /= 1) error%message = "database '" // path // "': " // error%message
+      call this%discard(); return
     end if
+    this%active = .true.
+    this%stats%t_layout = env%wtime() - t0
 
   contains
 
-    !> Global number of a sample (train 1..n_train, then valid).
-    integer function gnum(s)
-      type(snap_sample_t), intent(in) :: s
-      gnum = s%index
-      if (s%set == SNAP_SET_NAMES(2)) gnum = nset(1) + s%index
-    end function gnum
-
-    !> Shapes of a sample against the metadata ('' if right).
-    subroutine check_shapes(s, m)
-      type(snap_sample_t), intent(in) :: s
-      character(len=:), allocatable, intent(inout) :: m
-      integer :: iss, nnz
-      iss = findloc(SNAP_SET_NAMES, s%set, dim=1)
-      if (iss == 0) then
-        m = "sample of unknown set '" // trim(s%set) // "'"; return
-      end if
-      if (s%index < 1 .or. s%index > nset(iss)) then
-        m = trim(s%set) // " sample " // str(s%index) // " is outside 1.." // str(nset(iss)); return
-      end if
-      nnz = size(s%value)
-      if (size(s%mu) /= ne .or. any(shape(s%q) /= [nd, ns + 1]) .or. any(shape(s%u) /= [nd, ns]) .or. &
-          any(shape(s%v) /= [nd, ns]) .or. size(s%kkt) /= ns .or. size(s%min_gap) /= ns .or. &
-          size(s%iterations) /= ns .or. size(s%converged) /= ns .or. size(s%n_active) /= ns .or. &
-          size(s%offset) /= ns + 1 .or. size(s%key) /= nnz .or. size(s%ia) /= nnz .or. size(s%ib) /= nnz .or. &
-          size(s%ob) /= nnz .or. size(s%scene_v) /= nv) then
-        m = trim(s%set) // " sample " // str(s%index) // ": array shapes disagree with the study (" // &
-          str(nd) // " dofs, " // str(ns) // " steps, " // str(ne) // " parameters, " // str(nv) // &
-          " scene vertex coordinates)"; return
-      end if
-      if (s%offset(1) /= 0 .or. s%offset(ns + 1) /= nnz) m = trim(s%set) // " sample " // str(s%index) // &
-        ": multiplier offsets do not span its " // str(nnz) // " entries"
-    end subroutine check_shapes
-
-    !> Element offset (0-based) of sample s in each dataset of its set [17].
-    function elem_offsets(s) result(o)
-      type(snap_sample_t), intent(in) :: s
-      integer(i8) :: o(17)
-      integer(i8) :: k1
-      k1 = s%index - 1
-      o = [k1 * ne, k1 * (ns + 1) * nd, k1 * ns * nd, k1 * ns * nd, k1 * ns + 1, base(gnum(s)), base(gnum(s)), &
-        k1 * ns, k1 * ns, k1 * ns, k1 * ns, k1 * ns, k1, k1, k1, k1 * nv, k1 * 4]
-    end function elem_offsets
-
-    !> The sample's global CSR offsets [ns] and dictionary indices [nnz].
-    subroutine global_csr(s, o, ix)
-      type(snap_sample_t), intent(in) :: s
-      integer(i8), allocatable, intent(out) :: o(:)
-      integer, allocatable, intent(out) :: ix(:)
-      integer :: c
-      o = base(gnum(s)) + s%offset(2:ns + 1)
-      allocate(ix(size(s%key)))
-      do c = 1, size(s%key)
-        ix(c) = bsearch_i8(dkey, s%key(c))
-      end do
-    end subroutine global_csr
-
-    subroutine digest_sample(s)
-      type(snap_sample_t), intent(in) :: s
-      integer(i8) :: o(17)
-      integer :: iss
-      iss = findloc(SNAP_SET_NAMES, s%set, dim=1)
-      o = elem_offsets(s)
-      call global_csr(s, off8, li)
-      associate (d => dg(:, iss))
-        d(1) = digest_add(d(1), digest_of(s%mu, o(1)))
-        d(2) = digest_add(d(2), digest_of(s%q, o(2)))
-        d(3) = digest_add(d(3), digest_of(s%u, o(3)))
-        d(4) = digest_add(d(4), digest_of(s%v, o(4)))
-        d(5) = digest_add(d(5), digest_of(off8, o(5)))
-        d(6) = digest_add(d(6), digest_of(li, o(6)))
-        d(7) = digest_add(d(7), digest_of(s%value, o(7)))
-        d(8) = digest_add(d(8), digest_of(s%kkt, o(8)))
-        d(9) = digest_add(d(9), digest_of(s%min_gap, o(9)))
-        d(10) = digest_add(d(10), digest_of(s%iterations, o(10)))
-        d(11) = digest_add(d(11), digest_of(s%converged, o(11)))
-        d(12) = digest_add(d(12), digest_of(s%n_active, o(12)))
-        d(13) = digest_add(d(13), digest_of([s%time], o(13)))
-        d(14) = digest_add(d(14), digest_of([s%rank], o(14)))
-        d(15) = digest_add(d(15), digest_of([s%start], o(15)))
-        d(16) = digest_add(d(16), digest_of(s%scene_v, o(16)))
-        d(17) = digest_add(d(17), digest_of(s%scene_exit, o(17)))
-      end associate
-    end subroutine digest_sample
-
-    !> Write sample s's blocks at their places.
-    subroutine write_sample(s, error)
-      type(snap_sample_t), intent(in) :: s
-      type(error_t), allocatable, intent(out) :: error
-      integer(i8) :: o(17), at(17)
-      integer :: iss, nnz
-      iss = findloc(SNAP_SET_NAMES, s%set, dim=1)
-      o = elem_offsets(s)
-      at = place(:, iss) + o * ESZ
-      nnz = size(s%value)
-      call global_csr(s, off8, li)
-      call pf%write_at(at(1), s%mu, 8_i8 * ne, error); if (allocated(error)) return
-      call pf%write_at(at(2), s%q, 8_i8 * nd * (ns + 1), error); if (allocated(error)) return
-      call pf%write_at(at(3), s%u, 8_i8 * nd * ns, error); if (allocated(error)) return
-      call pf%write_at(at(4), s%v, 8_i8 * nd * ns, error); if (allocated(error)) return
-      call pf%write_at(at(5), off8, 8_i8 * ns, error); if (allocated(error)) return
-      if (nnz > 0) then
-        call pf%write_at(at(6), li, 4_i8 * nnz, error); if (allocated(error)) return
-        call pf%write_at(at(7), s%value, 8_i8 * nnz, error); if (allocated(error)) return
-      end if
-      call pf%write_at(at(8), s%kkt, 8_i8 * ns, error); if (allocated(error)) return
-      call pf%write_at(at(9), s%min_gap, 8_i8 * ns, error); if (allocated(error)) return
-      call pf%write_at(at(10), s%iterations, 4_i8 * ns, error); if (allocated(error)) return
-      call pf%write_at(at(11), s%converged, 4_i8 * ns, error); if (allocated(error)) return
-      call pf%write_at(at(12), s%n_active, 4_i8 * ns, error); if (allocated(error)) return
-      call pf%write_at(at(13), [s%time], 8_i8, error); if (allocated(error)) return
-      call pf%write_at(at(14), [s%rank], 4_i8, error); if (allocated(error)) return
-      call pf%write_at(at(15), [s%start], 8_i8, error); if (allocated(error)) return
-      if (nv > 0) then
-        call pf%write_at(at(16), s%scene_v, 8_i8 * nv, error); if (allocated(error)) return
-      end if
-      call pf%write_at(at(17), s%scene_exit, 32_i8, error)
-    end subroutine write_sample
-
-    integer(i8) function sample_bytes(s)
-      type(snap_sample_t), intent(in) :: s
-      sample_bytes = 8_i8 * (ne + nd * (2 * ns + ns + 1) + 3 * ns + 2 + nv + 4 + size(s%value)) + &
-        4_i8 * (3 * ns + 1 + size(s%value))
-    end function sample_bytes
-
-    !> Rank 0: the serial file, every dataset placed (place), checksums; '' or a message.
     subroutine lay_out(m)
       character(len=:), allocatable, intent(inout) :: m
       type(h5file_t) :: h5
       type(error_t), allocatable :: e, e3
       integer :: iss, q2, n
-      integer :: dims(2, 17), rk(17)
+      integer :: dims(2, 17)
       character(len=:), allocatable :: g
       call h5%create(path, e)
       if (allocated(e)) then
         m = e%message; return
       end if
       ops: block
-        call write_header(h5, e); if (allocated(e)) exit ops
+        call write_root(h5, e); if (allocated(e)) exit ops
+        call h5%write("initial_positions", q0, e); if (allocated(e)) exit ops
+        call put_digest(h5, "initial_positions", digest_of(q0, 0_i8), e); if (allocated(e)) exit ops
+        call write_scene(h5, scene, e); if (allocated(e)) exit ops
         do iss = 1, 2
-            n = nset(iss)
-            g = trim(SNAP_SET_NAMES(iss))
-            call h5%make_group(g, e); if (allocated(e)) exit ops
-            call h5%make_group(g // "/stats", e); if (allocated(e)) exit ops
-            call h5%write_attr(g, "n_samples", n, e); if (allocated(e)) exit ops
-            dims(:, 1) = [ne, n]; dims(:, 2) = [nd, (ns + 1) * n]; dims(:, 3) = [nd, ns * n]
-            dims(:, 4) = [nd, ns * n]; dims(:, 5) = [ns * n + 1, 0]; dims(:, 6) = [int(total(iss)), 0]
-            dims(:, 7) = [int(total(iss)), 0]
-            do q2 = 8, 12
-              dims(:, q2) = [ns, n]
-            end do
-            dims(:, 13) = [n, 0]; dims(:, 14) = [n, 0]; dims(:, 15) = [n, 0]
-            dims(:, 16) = [nv, n]; dims(:, 17) = [4, n]
-            rk = [2, 2, 2, 2, 1, 1, 1, 2, 2, 2, 2, 2, 1, 1, 1, 2, 2]
-            do q2 = 1, 17
-              call h5%create_placed(g // "/" // trim(DS(q2)), dims(1:rk(q2), q2), kind_of(q2), place(q2, iss), e)
-              if (allocated(e)) exit ops
-              call put_digest(h5, g // "/" // trim(DS(q2)), dg(q2, iss), e); if (allocated(e)) exit ops
-            end do
+          n = this%nset(iss)
+          g = trim(SNAP_SET_NAMES(iss))
+          call h5%make_group(g, e); if (allocated(e)) exit ops
+          call h5%make_group(g // "/stats", e); if (allocated(e)) exit ops
+          call h5%write_attr(g, "n_samples", n, e); if (allocated(e)) exit ops
+          call set_dims(this, iss, dims)
+          do q2 = 1, 17
+            if (any(q2 == LAMBDA_DS)) cycle
+            call h5%create_placed(g // "/" // trim(DS(q2)), dims(1:DRANK(q2), q2), KIND_OF(q2), this%place(q2, iss), e)
+            if (allocated(e)) exit ops
+          end do
         end do
       end block ops
       if (allocated(e)) then
@@ -519,17 +333,8 @@ contains
       if (allocated(e3)) m = e3%message
     end subroutine lay_out
 
-    integer function kind_of(q2)
-      integer, intent(in) :: q2
-      select case (q2)
-      case (5); kind_of = cr_h5_int64
-      case (6, 10, 11, 12, 14); kind_of = cr_h5_int
-      case default; kind_of = cr_h5_real
-      end select
-    end function kind_of
-
-    !> Root attributes, initial positions, scene and contact dictionary, with their checksums.
-    subroutine write_header(hh, e)
+    !> Root attributes (complete = 1 comes last, in finish).
+    subroutine write_root(hh, e)
       type(h5file_t), intent(inout) :: hh
       type(error_t), allocatable, intent(out) :: e
       call hh%write_attr("/", "schema", SNAP_SCHEMA, e); if (allocated(e)) return
@@ -551,30 +356,287 @@ contains
       call hh%write_attr("/", "n_valid", meta%n_valid, e); if (allocated(e)) return
       call hh%write_attr("/", "n_params", meta%n_expanded, e); if (allocated(e)) return
       call hh%write_attr("/", "param_names", meta%param_names, e); if (allocated(e)) return
-      call hh%write_attr("/", "checksum_algorithm", DIGEST_ALGORITHM, e); if (allocated(e)) return
-      call hh%write("initial_positions", q0, e); if (allocated(e)) return
-      call put_digest(hh, "initial_positions", digest_of(q0, 0_i8), e); if (allocated(e)) return
-      call write_scene(hh, scene, e); if (allocated(e)) return
-      call hh%make_group("contacts", e); if (allocated(e)) return
-      call hh%write("contacts/key", dkey, e); if (allocated(e)) return
-      call put_digest(hh, "contacts/key", digest_of(dkey, 0_i8), e); if (allocated(e)) return
-      call hh%write("contacts/ia", dia, e); if (allocated(e)) return
-      call put_digest(hh, "contacts/ia", digest_of(dia, 0_i8), e); if (allocated(e)) return
-      call hh%write("contacts/ib", dib, e); if (allocated(e)) return
-      call put_digest(hh, "contacts/ib", digest_of(dib, 0_i8), e); if (allocated(e)) return
-      call hh%write("contacts/ob", dob, e); if (allocated(e)) return
-      call put_digest(hh, "contacts/ob", digest_of(dob, 0_i8), e); if (allocated(e)) return
-      call hh%write_attr("contacts", "description", "global contact dictionary: every contact " // &
-        "with lambda > 0 in some sample and step, sorted by key; ib = 0 for agent-obstacle " // &
-        "contacts (ob = obstacle index), ob = 0 for agent pairs", e)
-    end subroutine write_header
+      call hh%write_attr("/", "checksum_algorithm", DIGEST_ALGORITHM, e)
+    end subroutine write_root
+  end subroutine writer_begin
+
+  !> Global dims of the datasets of set is [2, 17] (second entry unused for 1D datasets).
+  subroutine set_dims(this, is, dims)
+    type(snap_writer_t), intent(in) :: this
+    integer, intent(in) :: is
+    integer, intent(out) :: dims(2, 17)
+    integer :: n, q
+    n = this%nset(is)
+    dims(:, 1) = [this%ne, n]; dims(:, 2) = [this%nd, (this%ns + 1) * n]; dims(:, 3) = [this%nd, this%ns * n]
+    dims(:, 4) = [this%nd, this%ns * n]; dims(:, 5) = [this%ns * n + 1, 0]
+    dims(:, 6) = [int(this%total(is)), 0]; dims(:, 7) = [int(this%total(is)), 0]
+    do q = 8, 12
+      dims(:, q) = [this%ns, n]
+    end do
+    dims(:, 13) = [n, 0]; dims(:, 14) = [n, 0]; dims(:, 15) = [n, 0]
+    dims(:, 16) = [this%nv, n]; dims(:, 17) = [4, n]
+  end subroutine set_dims
+
+  !> Write one sample (this rank's; not collective): its blocks of every dataset but the
+  !> multipliers go to their places now, their checksum parts are added; the multipliers are
+  !> kept (compact) until finish places them. The sample's scene_v / scene_exit must be set.
+  subroutine writer_put(this, s, error)
+    class(snap_writer_t), intent(inout) :: this
+    type(snap_sample_t), intent(in) :: s
+    type(error_t), allocatable, intent(out) :: error
+    type(snap_sample_t), allocatable :: l2(:)
+    integer, allocatable :: g2(:)
+    integer(i8) :: o(17), at(17)
+    integer :: is, q, nd, ns, ne, nv
+    character(len=:), allocatable :: m
+    real(wp) :: t0
+    t0 = this%env%wtime()
+    if (.not. this%active) then
+      call set_error(error, "database '" // this%path // "': put before begin or after finish"); return
+    end if
+    m = ""
+    call check_shapes(this, s, m)
+    if (len(m) > 0) then
+      call set_error(error, "database '" // this%path // "': " // m); return
+    end if
+    nd = this%nd; ns = this%ns; ne = this%ne; nv = this%nv
+    is = findloc(SNAP_SET_NAMES, s%set, dim=1)
+    o = elem_offsets(this, s, 0_i8)
+    at = this%place(:, is) + o * ESZ
+    associate (d => this%dg(:, is))
+      d(1) = digest_add(d(1), digest_of(s%mu, o(1)))
+      d(2) = digest_add(d(2), digest_of(s%q, o(2)))
+      d(3) = digest_add(d(3), digest_of(s%u, o(3)))
+      d(4) = digest_add(d(4), digest_of(s%v, o(4)))
+      d(8) = digest_add(d(8), digest_of(s%kkt, o(8)))
+      d(9) = digest_add(d(9), digest_of(s%min_gap, o(9)))
+      d(10) = digest_add(d(10), digest_of(s%iterations, o(10)))
+      d(11) = digest_add(d(11), digest_of(s%converged, o(11)))
+      d(12) = digest_add(d(12), digest_of(s%n_active, o(12)))
+      d(13) = digest_add(d(13), digest_of([s%time], o(13)))
+      d(14) = digest_add(d(14), digest_of([s%rank], o(14)))
+      d(15) = digest_add(d(15), digest_of([s%start], o(15)))
+      d(16) = digest_add(d(16), digest_of(s%scene_v, o(16)))
+      d(17) = digest_add(d(17), digest_of(s%scene_exit, o(17)))
+    end associate
+    w: block
+      call this%pf%write_at(at(1), s%mu, 8_i8 * ne, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(2), s%q, 8_i8 * nd * (ns + 1), error); if (allocated(error)) exit w
+      call this%pf%write_at(at(3), s%u, 8_i8 * nd * ns, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(4), s%v, 8_i8 * nd * ns, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(8), s%kkt, 8_i8 * ns, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(9), s%min_gap, 8_i8 * ns, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(10), s%iterations, 4_i8 * ns, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(11), s%converged, 4_i8 * ns, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(12), s%n_active, 4_i8 * ns, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(13), [s%time], 8_i8, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(14), [s%rank], 4_i8, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(15), [s%start], 8_i8, error); if (allocated(error)) exit w
+      if (nv > 0) then
+        call this%pf%write_at(at(16), s%scene_v, 8_i8 * nv, error); if (allocated(error)) exit w
+      end if
+      call this%pf%write_at(at(17), s%scene_exit, 32_i8, error)
+    end block w
+    if (allocated(error)) return
+    ! the multipliers, kept for finish
+    if (this%nl == size(this%lam)) then
+      allocate(l2(2 * this%nl), g2(2 * this%nl))
+      g2(1:this%nl) = this%gl(1:this%nl)
+      do q = 1, this%nl
+        call move_alloc(this%lam(q)%offset, l2(q)%offset); call move_alloc(this%lam(q)%key, l2(q)%key)
+        call move_alloc(this%lam(q)%ia, l2(q)%ia); call move_alloc(this%lam(q)%ib, l2(q)%ib)
+        call move_alloc(this%lam(q)%ob, l2(q)%ob); call move_alloc(this%lam(q)%value, l2(q)%value)
+        l2(q)%set = this%lam(q)%set; l2(q)%index = this%lam(q)%index
+      end do
+      call move_alloc(l2, this%lam); call move_alloc(g2, this%gl)
+    end if
+    this%nl = this%nl + 1
+    associate (l => this%lam(this%nl))
+      l%set = s%set; l%index = s%index
+      l%offset = s%offset; l%key = s%key; l%ia = s%ia; l%ib = s%ib; l%ob = s%ob; l%value = s%value
+    end associate
+    this%gl(this%nl) = gnum(this, s)
+    this%stats%bytes = this%stats%bytes + sample_bytes(this, s)
+    this%stats%t_put = this%stats%t_put + (this%env%wtime() - t0)
+  end subroutine writer_put
+
+  !> Collective: every sample of the study must have been put by exactly one rank. Places the
+  !> multipliers (one MPI_Allreduce of the per-sample counts; the contact dictionary, the sorted
+  !> union of the ranks' keys, by MPI_Allgatherv), adds the checksum parts (one MPI_Allreduce),
+  !> has rank 0 add the dictionary, the multiplier datasets and every checksum serially, the
+  !> ranks write their multiplier blocks, and rank 0 sets complete = 1 and renames the file.
+  !> On failure the temporary is removed.
+  subroutine writer_finish(this, error)
+    class(snap_writer_t), intent(inout) :: this
+    type(error_t), allocatable, intent(out) :: error
+    integer(i8), allocatable :: cnt(:), dkey(:), off8(:)
+    integer, allocatable :: dia(:), dib(:), dob(:), li(:)
+    integer :: ntot, g, is, j, ns
+    integer(i8) :: o(17), at(17)
+    character(len=:), allocatable :: m
+    real(wp) :: t0, t1
+    type(error_t), allocatable :: e2
+    t0 = this%env%wtime()
+    associate (env => this%env)
+    ns = this%ns
+    ntot = sum(this%nset)
+    call this%pf%close(error)
+    call env%agree_error(error)
+    if (allocated(error)) goto 9
+    ! counts: held (exactly once) and multipliers of every sample
+    allocate(cnt(2 * ntot))
+    cnt = 0
+    do j = 1, this%nl
+      cnt(2 * this%gl(j) - 1) = 1
+      cnt(2 * this%gl(j)) = size(this%lam(j)%value)
+    end do
+    call env%allreduce(cnt, 'sum', error)
+    if (allocated(error)) goto 9
+    do g = 1, ntot
+      if (cnt(2 * g - 1) /= 1) then
+        call set_error(error, "sample " // str(g) // " of the study was written by " // str(cnt(2 * g - 1)) // &
+          " ranks (expected exactly one)"); goto 9
+      end if
+    end do
+    allocate(this%base(ntot))
+    this%total = 0
+    do g = 1, ntot
+      is = merge(1, 2, g <= this%nset(1))
+      this%base(g) = this%total(is)
+      this%total(is) = this%total(is) + cnt(2 * g)
+    end do
+    if (any(this%total > huge(1))) then
+      call set_error(error, str(maxval(this%total)) // " multipliers in one set exceed the 32-bit dataset sizes")
+      goto 9
+    end if
+    this%stats%nnz = sum(this%total)
+    call build_dictionary(env, this%lam(1:this%nl), dkey, dia, dib, dob, error)
+    if (allocated(error)) goto 9
+    this%stats%n_dict = size(dkey)
+    ! checksum parts of the multipliers, then of everything, summed over the ranks
+    do j = 1, this%nl
+      call global_csr(this%lam(j), this%gl(j), off8, li)
+      is = findloc(SNAP_SET_NAMES, this%lam(j)%set, dim=1)
+      o = elem_offsets(this, this%lam(j), this%base(this%gl(j)))
+      this%dg(5, is) = digest_add(this%dg(5, is), digest_of(off8, o(5)))
+      this%dg(6, is) = digest_add(this%dg(6, is), digest_of(li, o(6)))
+      this%dg(7, is) = digest_add(this%dg(7, is), digest_of(this%lam(j)%value, o(7)))
+    end do
+    if (env%is_root()) then
+      do is = 1, 2
+        this%dg(5, is) = digest_add(this%dg(5, is), digest_of([0_i8], 0_i8))
+      end do
+    end if
+    call digest_allreduce(env, this%dg(:, 1))
+    call digest_allreduce(env, this%dg(:, 2))
+    this%stats%t_dict = env%wtime() - t0
+    ! rank 0: dictionary, multiplier datasets, checksums
+    t1 = env%wtime()
+    m = ""
+    if (env%is_root()) call add_rest(m)
+    call env%bcast_string(m)
+    if (len(m) > 0) then
+      call set_error(error, m); goto 9
+    end if
+    do is = 1, 2
+      call env%bcast(this%place(:, is), error)
+      if (allocated(error)) goto 9
+    end do
+    this%stats%t_layout = this%stats%t_layout + (env%wtime() - t1)
+    ! the ranks' multiplier blocks
+    t1 = env%wtime()
+    call this%pf%open(env, this%path // ".partial", error)
+    if (.not. allocated(error)) then
+      if (env%is_root()) then
+        do is = 1, 2
+          if (.not. allocated(error)) call this%pf%write_at(this%place(5, is), [0_i8], 8_i8, error)
+        end do
+      end if
+      do j = 1, this%nl
+        if (allocated(error)) exit
+        call global_csr(this%lam(j), this%gl(j), off8, li)
+        is = findloc(SNAP_SET_NAMES, this%lam(j)%set, dim=1)
+        o = elem_offsets(this, this%lam(j), this%base(this%gl(j)))
+        at = this%place(:, is) + o * ESZ
+        call this%pf%write_at(at(5), off8, 8_i8 * ns, error)
+        if (.not. allocated(error) .and. size(li) > 0) call this%pf%write_at(at(6), li, 4_i8 * size(li), error)
+        if (.not. allocated(error) .and. size(li) > 0) &
+          call this%pf%write_at(at(7), this%lam(j)%value, 8_i8 * size(li), error)
+      end do
+      call this%pf%close(e2)
+      if (allocated(e2) .and. .not. allocated(error)) call move_alloc(e2, error)
+    end if
+    call env%agree_error(error)
+    if (allocated(error)) goto 9
+    this%stats%bytes = env%sum_int(this%stats%bytes)
+    this%stats%t_write = env%wtime() - t1
+    ! complete = 1 last, then the final name
+    t1 = env%wtime()
+    m = ""
+    if (env%is_root()) call seal(m)
+    call env%bcast_string(m)
+    if (len(m) > 0) call set_error(error, m)
+    this%stats%t_seal = env%wtime() - t1
+    end associate
+9   this%active = .false.
+    if (allocated(error)) then
+      call this%discard()
+      if (index(error%message, "database '") /= 1) error%message = "database '" // this%path // "': " // &
+        error%message
+    end if
+
+  contains
+
+    !> Rank 0: contact dictionary, multiplier datasets and every checksum, serially.
+    subroutine add_rest(m)
+      character(len=:), allocatable, intent(inout) :: m
+      type(h5file_t) :: h5
+      type(error_t), allocatable :: e, e3
+      integer :: iss, q2, dims(2, 17)
+      character(len=:), allocatable :: g
+      call h5%open(this%path // ".partial", e, readwrite=.true.)
+      if (allocated(e)) then
+        m = e%message; return
+      end if
+      ops: block
+        call h5%make_group("contacts", e); if (allocated(e)) exit ops
+        call h5%write("contacts/key", dkey, e); if (allocated(e)) exit ops
+        call put_digest(h5, "contacts/key", digest_of(dkey, 0_i8), e); if (allocated(e)) exit ops
+        call h5%write("contacts/ia", dia, e); if (allocated(e)) exit ops
+        call put_digest(h5, "contacts/ia", digest_of(dia, 0_i8), e); if (allocated(e)) exit ops
+        call h5%write("contacts/ib", dib, e); if (allocated(e)) exit ops
+        call put_digest(h5, "contacts/ib", digest_of(dib, 0_i8), e); if (allocated(e)) exit ops
+        call h5%write("contacts/ob", dob, e); if (allocated(e)) exit ops
+        call put_digest(h5, "contacts/ob", digest_of(dob, 0_i8), e); if (allocated(e)) exit ops
+        call h5%write_attr("contacts", "description", "global contact dictionary: every contact " // &
+          "with lambda > 0 in some sample and step, sorted by key; ib = 0 for agent-obstacle " // &
+          "contacts (ob = obstacle index), ob = 0 for agent pairs", e); if (allocated(e)) exit ops
+        do iss = 1, 2
+          g = trim(SNAP_SET_NAMES(iss))
+          call set_dims(this, iss, dims)
+          do q2 = 1, 17
+            if (any(q2 == LAMBDA_DS)) then
+              call h5%create_placed(g // "/" // trim(DS(q2)), dims(1:1, q2), KIND_OF(q2), this%place(q2, iss), e)
+              if (allocated(e)) exit ops
+            end if
+            call put_digest(h5, g // "/" // trim(DS(q2)), this%dg(q2, iss), e); if (allocated(e)) exit ops
+          end do
+        end do
+      end block ops
+      call h5%close(e3)
+      if (allocated(e)) then
+        m = e%message
+      else if (allocated(e3)) then
+        m = e3%message
+      end if
+    end subroutine add_rest
 
     !> Rank 0: complete = 1 in the closed temporary, then the rename; '' or a message.
     subroutine seal(m)
       character(len=:), allocatable, intent(inout) :: m
       type(h5file_t) :: hs
       type(error_t), allocatable :: e, e3
-      call hs%open(path // ".partial", e, readwrite=.true.)
+      call hs%open(this%path // ".partial", e, readwrite=.true.)
       if (allocated(e)) then
         m = e%message; return
       end if
@@ -584,11 +646,104 @@ contains
         m = e%message
       else if (allocated(e3)) then
         m = e3%message
-      else if (rename_file(path // ".partial", path) /= 0) then
-        m = "rename '" // path // ".partial' -> '" // path // "' failed"
+      else if (rename_file(this%path // ".partial", this%path) /= 0) then
+        m = "rename '" // this%path // ".partial' -> '" // this%path // "' failed"
       end if
     end subroutine seal
-  end subroutine write_snap_database
+
+    !> The sample's global CSR offsets [ns] and dictionary indices [nnz].
+    subroutine global_csr(l, g, o8, ix)
+      type(snap_sample_t), intent(in) :: l
+      integer, intent(in) :: g
+      integer(i8), allocatable, intent(out) :: o8(:)
+      integer, allocatable, intent(out) :: ix(:)
+      integer :: c
+      o8 = this%base(g) + l%offset(2:ns + 1)
+      allocate(ix(size(l%key)))
+      do c = 1, size(l%key)
+        ix(c) = bsearch_i8(dkey, l%key(c))
+      end do
+    end subroutine global_csr
+  end subroutine writer_finish
+
+  !> Collective: give up a database being written (after begin): the MPI-IO handle is closed and
+  !> rank 0 removes the temporary. Nothing under the final name is touched.
+  subroutine writer_discard(this)
+    class(snap_writer_t), intent(inout) :: this
+    type(error_t), allocatable :: e
+    integer :: st
+    if (.not. allocated(this%path)) return
+    call this%pf%close(e)
+    this%active = .false.
+    call this%env%barrier()
+    if (this%env%is_root()) st = remove_file(this%path // ".partial")
+  end subroutine writer_discard
+
+  !> Global number of a sample (train 1..n_train, then valid).
+  integer function gnum(this, s)
+    type(snap_writer_t), intent(in) :: this
+    type(snap_sample_t), intent(in) :: s
+    gnum = s%index
+    if (s%set == SNAP_SET_NAMES(2)) gnum = this%nset(1) + s%index
+  end function gnum
+
+  !> Shapes of a sample against the metadata (m = '' if right).
+  subroutine check_shapes(this, s, m)
+    type(snap_writer_t), intent(in) :: this
+    type(snap_sample_t), intent(in) :: s
+    character(len=:), allocatable, intent(inout) :: m
+    integer :: iss, nnz, nd, ns
+    nd = this%nd; ns = this%ns
+    iss = findloc(SNAP_SET_NAMES, s%set, dim=1)
+    if (iss == 0) then
+      m = "sample of unknown set '" // trim(s%set) // "'"; return
+    end if
+    if (s%index < 1 .or. s%index > this%nset(iss)) then
+      m = trim(s%set) // " sample " // str(s%index) // " is outside 1.." // str(this%nset(iss)); return
+    end if
+    if (.not. (allocated(s%mu) .and. allocated(s%q) .and. allocated(s%u) .and. allocated(s%v) .and. &
+        allocated(s%kkt) .and. allocated(s%min_gap) .and. allocated(s%iterations) .and. allocated(s%converged) &
+        .and. allocated(s%n_active) .and. allocated(s%offset) .and. allocated(s%key) .and. allocated(s%ia) .and. &
+        allocated(s%ib) .and. allocated(s%ob) .and. allocated(s%value) .and. allocated(s%scene_v))) then
+      m = trim(s%set) // " sample " // str(s%index) // ": incomplete sample (unallocated data)"; return
+    end if
+    nnz = size(s%value)
+    if (size(s%mu) /= this%ne .or. any(shape(s%q) /= [nd, ns + 1]) .or. any(shape(s%u) /= [nd, ns]) .or. &
+        any(shape(s%v) /= [nd, ns]) .or. size(s%kkt) /= ns .or. size(s%min_gap) /= ns .or. &
+        size(s%iterations) /= ns .or. size(s%converged) /= ns .or. size(s%n_active) /= ns .or. &
+        size(s%offset) /= ns + 1 .or. size(s%key) /= nnz .or. size(s%ia) /= nnz .or. size(s%ib) /= nnz .or. &
+        size(s%ob) /= nnz .or. size(s%scene_v) /= this%nv) then
+      m = trim(s%set) // " sample " // str(s%index) // ": array shapes disagree with the study (" // &
+        str(nd) // " dofs, " // str(ns) // " steps, " // str(this%ne) // " parameters, " // str(this%nv) // &
+        " scene vertex coordinates)"; return
+    end if
+    if (s%offset(1) /= 0 .or. s%offset(ns + 1) /= nnz) m = trim(s%set) // " sample " // str(s%index) // &
+      ": multiplier offsets do not span its " // str(nnz) // " entries"
+  end subroutine check_shapes
+
+  !> Element offset (0-based) of sample s in each dataset of its set [17]; `lbase`: position of
+  !> its multipliers in the set's CSR arrays (only known in finish).
+  function elem_offsets(this, s, lbase) result(o)
+    type(snap_writer_t), intent(in) :: this
+    type(snap_sample_t), intent(in) :: s
+    integer(i8), intent(in) :: lbase
+    integer(i8) :: o(17)
+    integer(i8) :: k1, ne, nd, ns, nv
+    k1 = s%index - 1
+    ne = this%ne; nd = this%nd; ns = this%ns; nv = this%nv
+    o = [k1 * ne, k1 * (ns + 1) * nd, k1 * ns * nd, k1 * ns * nd, k1 * ns + 1, lbase, lbase, &
+      k1 * ns, k1 * ns, k1 * ns, k1 * ns, k1 * ns, k1, k1, k1, k1 * nv, k1 * 4]
+  end function elem_offsets
+
+  !> Data bytes of one sample in the database.
+  integer(i8) function sample_bytes(this, s)
+    type(snap_writer_t), intent(in) :: this
+    type(snap_sample_t), intent(in) :: s
+    integer(i8) :: ne, nd, ns, nv
+    ne = this%ne; nd = this%nd; ns = this%ns; nv = this%nv
+    sample_bytes = 8_i8 * (ne + nd * (3 * ns + 1) + 3 * ns + 2 + nv + 4 + size(s%value)) + &
+      4_i8 * (3 * ns + 1 + size(s%value))
+  end function sample_bytes
 
   !> Collective: sorted union over all ranks of the contact keys of the samples (with the
   !> identities of each contact).

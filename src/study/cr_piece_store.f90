@@ -9,9 +9,8 @@
 !> (unreadable, corrupted, renamed, claiming a sample another piece holds) is reported by name;
 !> with `quarantine` it is moved to `<pieces>/quarantine/` and its samples are recomputed,
 !> otherwise the run stops (status 2) naming every bad piece. Nothing is ever deleted here.
-!> The samples of the good pieces stay with the rank that verified them (`held`), and the
-!> samples a rank computes stay with it after their piece is written (piece_batch_t%kept): the
-!> database is written from memory, no piece is read twice.
+!> The samples of the good pieces are handed to the rank that verified them (`held`): they go
+!> into the database from there, no piece is read twice.
 module cr_piece_store
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error
@@ -58,9 +57,6 @@ module cr_piece_store
     integer, allocatable :: g(:)
     !> pieces written so far: [n_1, g_1 .. g_n1, n_2, ...] (for piece_index_t%add_written)
     integer, allocatable :: written(:)
-    !> the samples of the pieces written, kept for the database [n_kept]
-    integer :: n_kept = 0
-    type(sample_result_t), allocatable :: kept(:)
     !> pieces written, their data bytes and the wall time spent writing them (s)
     integer :: n_pieces = 0
     integer(i8) :: bytes_written = 0
@@ -445,9 +441,6 @@ contains
     allocate(this%res(8), this%g(8))
     if (allocated(this%written)) deallocate(this%written)
     allocate(this%written(0))
-    if (allocated(this%kept)) deallocate(this%kept)
-    allocate(this%kept(8))
-    this%n_kept = 0
   end subroutine batch_init
 
   !> Add a computed sample (global number g; res%start set); writes the batch when it is due
@@ -481,8 +474,7 @@ contains
     class(piece_batch_t), intent(inout) :: this
     type(sample_set_t), intent(in) :: sets(2)
     type(error_t), allocatable, intent(out) :: error
-    type(sample_result_t), allocatable :: k2(:)
-    integer :: is, k, q
+    integer :: is, k
     real(wp) :: t0
     if (this%n == 0) return
     call set_of_sample(sets, this%g(1), is, k)
@@ -490,18 +482,6 @@ contains
     call write_piece(piece_path(this%dir, sets(is)%name, k), this%hash, this%res(1:this%n), error)
     if (allocated(error)) return
     this%t_write = this%t_write + (this%env%wtime() - t0)
-    ! the samples stay with this rank for the database
-    if (this%n_kept + this%n > size(this%kept)) then
-      allocate(k2(max(2 * size(this%kept), this%n_kept + this%n)))
-      do q = 1, this%n_kept
-        call move_sample(this%kept(q), k2(q))
-      end do
-      call move_alloc(k2, this%kept)
-    end if
-    do q = 1, this%n
-      call move_sample(this%res(q), this%kept(this%n_kept + q))
-    end do
-    this%n_kept = this%n_kept + this%n
     this%n_pieces = this%n_pieces + 1
     this%bytes_written = this%bytes_written + this%bytes
     this%written = [this%written, this%n, this%g(1:this%n)]

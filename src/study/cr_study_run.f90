@@ -1,7 +1,9 @@
 !> One run of the snapshot stage of a parameter study (what `crowd_snapshots` does): the
 !> samples, the resume from the pieces of earlier runs (verified; bad ones stop the run or are
-!> moved to quarantine), the dynamic schedule with batched pieces, and the database written
-!> from the samples each rank holds (cr_snapshot_file's writer). Collective over env.
+!> moved to quarantine), the dynamic schedule with batched pieces, and the database: each
+!> sample goes into it (cr_snapshot_file's writer, `put`) from the rank that computed or
+!> verified it, as soon as that rank has it; the writer's `finish` adds the multipliers, the
+!> checksums and `complete = 1`. Collective over env.
 !>
 !> `execute` leaves the figures of the run in the type (every rank); `summary_text` and
 !> `write_summary` report them (rank 0).
@@ -23,7 +25,7 @@ module cr_study_run
   use cr_scheduler, only: scheduler_t
   use cr_snapshot_piece, only: sample_result_t, compute_sample, piece_path
   use cr_piece_store, only: piece_index_t, piece_batch_t, scan_pieces, set_of_sample, move_sample
-  use cr_snapshot_file, only: SNAP_SCHEMA_VERSION, db_meta_t, snap_write_stats_t, write_snap_database, &
+  use cr_snapshot_file, only: SNAP_SCHEMA_VERSION, db_meta_t, snap_write_stats_t, snap_writer_t, &
     probe_snap_database, scene_vertex_list
   implicit none
   private
@@ -55,9 +57,12 @@ module cr_study_run
     real(wp), allocatable :: busy(:)
     !> sum of the busy times; wall times: total, setup, sample loop, assembly; assembly start
     real(wp) :: sum_time = 0, t_total = 0, t_setup = 0, t_compute = 0, t_asm = 0, t_asm_start = 0
-    !> assembly phases on rank 0 (s): preparing the held samples (scenes, totals), then the writer's
-    real(wp) :: t_prepare = 0
+    !> rank 0's time putting the samples of earlier runs' pieces into the database (setup, s)
+    real(wp) :: t_put_resumed = 0
+    !> the database writer's figures (its put time is this rank's; part of the busy time)
     type(snap_write_stats_t) :: wstats
+    !> sum over ranks of the time spent putting computed samples into the database (s)
+    real(wp) :: t_put_all = 0
     !> inputs of the scaling model: counter operations and their time (summed over ranks),
     !> pieces written, their bytes and write time (summed), collective latency (s)
     real(wp) :: counter(2) = 0, pieces_out(3) = 0, t_coll = 0
@@ -90,9 +95,12 @@ contains
     type(sample_result_t) :: res
     type(piece_index_t) :: pieces
     type(piece_batch_t) :: batch
-    type(sample_result_t), allocatable :: held(:), mine(:)
+    type(sample_result_t), allocatable :: held(:)
     type(db_meta_t) :: meta
+    type(snap_writer_t) :: writer
     real(wp), allocatable :: q0(:), redu(:)
+    integer :: ci(2), nv
+    real(wp) :: cr(2)
     integer, allocatable :: done(:), todo(:)
     character(len=:), allocatable :: dir, msg
     integer :: status, g, k, is, t, n_mine, ndone, j, maj, mnr, rel, ierr
@@ -152,12 +160,35 @@ contains
     if (opts%stop_after >= 0) this%n_run = min(this%n_run, opts%stop_after)
     if (this%n_prev > 0) call log%info("   resuming: " // str(this%n_prev) // " of " // str(this%n_tot) // &
       " samples already complete in '" // dir // "'")
+    ! the database (temporary name until finished), with the samples of the earlier pieces
+    call fill_meta()
+    nv = size(scene_vertex_list(fom_ref%scene))
+    ci = 0; cr = 0
+    call writer%begin(env, this%db, meta, q0, fom_ref%scene, error)
+    if (allocated(error)) return
+    msg = ""
+    do j = 1, size(held)
+      call put(held(j), error)
+      if (allocated(error)) exit
+    end do
+    deallocate(held)
+    if (allocated(error)) then
+      msg = error%message; deallocate(error)
+    end if
+    this%t_put_resumed = writer%stats%t_put
+    if (len(msg) > 0) call set_error(error, msg)
+    call env%agree_error(error)
+    if (allocated(error)) then
+      call writer%discard(); return
+    end if
     call log%stage_end()
 
     ! the samples, dynamically assigned
     call log%stage_begin("crowd_snapshots: " // str(this%n_run) // " full-order runs on " // str(env%size) // " ranks")
     call sched%init(env, this%n_run, error)
-    if (allocated(error)) return
+    if (allocated(error)) then
+      call writer%discard(); return
+    end if
     call log%progress_start()
     t_loop = env%wtime()
     call batch%init(env, dir, this%hash, opts%batch_seconds)
@@ -181,6 +212,7 @@ contains
         res%time = env%wtime() - t0
         call batch%add(res, g, sets, env%wtime() - t_start, error)
       end if
+      if (.not. allocated(error)) call put(res, error)
       if (allocated(error)) then
         msg = trim(sets(is)%name) // " sample " // str(k) // " (mu = " // shorten(mu_text(sets(is)%mu(:, k)), 60) // &
           ") on rank " // str(env%rank) // ": " // error%message
@@ -209,47 +241,54 @@ contains
     this%counter = [real(sched%n_calls(), wp), sched%t_calls()]
     this%pieces_out = [real(batch%n_pieces, wp), real(batch%bytes_written, wp), batch%t_write]
     call sched%free()
-    if (allocated(error)) return
+    if (allocated(error)) then
+      call writer%discard(); return
+    end if
     call env%barrier()
     this%t_compute = env%wtime() - t_loop
     call env%allgather(busy_mine, this%busy, error)
     if (.not. allocated(error)) call env%allgather(n_mine, this%nsamp, error)
-    if (allocated(error)) return
+    if (allocated(error)) then
+      call writer%discard(); return
+    end if
     this%sum_time = sum(this%busy)
-    redu = [this%counter, this%pieces_out]
+    redu = [this%counter, this%pieces_out, writer%stats%t_put - this%t_put_resumed]
     call env%allreduce(redu, 'sum', error)
-    if (allocated(error)) return
-    this%counter = redu(1:2); this%pieces_out = redu(3:5)
-    this%t_coll = env%collective_latency(20, error)
-    if (allocated(error)) return
+    if (.not. allocated(error)) then
+      this%counter = redu(1:2); this%pieces_out = redu(3:5); this%t_put_all = redu(6)
+      this%t_coll = env%collective_latency(20, error)
+    end if
+    if (allocated(error)) then
+      call writer%discard(); return
+    end if
     this%t_setup = t_loop - t_start
     call log%info("   samples " // str(this%n_prev + this%n_run) // " of " // str(this%n_tot) // " complete")
     call log%stage_end()
     if (this%n_run < size(todo)) then
+      call writer%discard()
       call set_error(error, "stopped after " // str(this%n_run) // " samples as requested by --stop-after (" // &
         str(this%n_prev + this%n_run) // " of " // str(this%n_tot) // " complete, database not assembled): " // &
         "run again without --stop-after to finish", EXIT_STOPPED)
       return
     end if
 
-    ! the database, from the samples each rank holds (verified earlier pieces, computed now)
-    call log%stage_begin("crowd_snapshots: assembling '" // this%db // "'")
+    ! the database: multipliers, checksums, complete = 1
+    call log%stage_begin("crowd_snapshots: finishing '" // this%db // "'")
     t0 = env%wtime()
     this%t_asm_start = t0 - t_start
-    allocate(mine(size(held) + batch%n_kept))
-    do j = 1, size(held)
-      call move_sample(held(j), mine(j))
-    end do
-    do j = 1, batch%n_kept
-      call move_sample(batch%kept(j), mine(size(held) + j))
-    end do
-    call prepare(mine, error)
-    if (allocated(error)) return
-    this%t_prepare = env%wtime() - t0
-    call fill_meta()
+    call env%allreduce(ci, 'sum', error)
+    if (.not. allocated(error)) call env%allreduce(cr, 'max', error)
+    if (allocated(error)) then
+      call writer%discard(); return
+    end if
+    this%nonconverged_steps = ci(1); this%nonconverged_samples = ci(2)
+    this%kkt_max = cr(1); this%time_max = cr(2)
     call pieces%add_written(env, dir, sets, batch%written, error)
-    if (allocated(error)) return
-    call write_snap_database(env, this%db, meta, q0, fom_ref%scene, mine, this%wstats, error)
+    if (allocated(error)) then
+      call writer%discard(); return
+    end if
+    call writer%finish(error)
+    this%wstats = writer%stats
     if (allocated(error)) return
     ! the database is committed: the pieces can go
     if (env%is_root()) then
@@ -274,41 +313,28 @@ contains
 
   contains
 
-    !> Each held sample's mapped scene, and the totals over the database.
-    subroutine prepare(s, error)
-      type(sample_result_t), intent(inout) :: s(:)
+    !> Map sample r's scene, count it in the totals, and put it into the database.
+    subroutine put(r, error)
+      type(sample_result_t), intent(inout) :: r
       type(error_t), allocatable, intent(out) :: error
       type(scene_t) :: sc
-      integer :: q, nv
-      integer :: ci(2)
-      real(wp) :: cr(2)
-      nv = size(scene_vertex_list(fom_ref%scene))
-      ci = 0; cr = 0
-      do q = 1, size(s)
-        call space%scene_of(s(q)%mu, cfg, sc, error)
-        if (allocated(error)) then
-          error%message = "scene of " // trim(s(q)%set) // " sample " // str(s(q)%index) // ": " // error%message
-          exit
-        end if
-        s(q)%scene_v = scene_vertex_list(sc)
-        if (size(s(q)%scene_v) /= nv) then
-          call set_error(error, "scene of " // trim(s(q)%set) // " sample " // str(s(q)%index) // &
-            " has another vertex layout"); exit
-        end if
-        s(q)%scene_exit = [sc%x_lo, sc%width, sc%x_hi, sc%width]
-        ci(1) = ci(1) + count(s(q)%converged == 0)
-        if (any(s(q)%converged == 0)) ci(2) = ci(2) + 1
-        if (size(s(q)%kkt) > 0) cr(1) = max(cr(1), maxval(s(q)%kkt))
-        cr(2) = max(cr(2), s(q)%time)
-      end do
-      call env%agree_error(error)
-      if (allocated(error)) return
-      call env%allreduce(ci, 'sum', error)
-      if (.not. allocated(error)) call env%allreduce(cr, 'max', error)
-      if (allocated(error)) return
-      this%nonconverged_steps = ci(1); this%nonconverged_samples = ci(2)
-      this%kkt_max = cr(1); this%time_max = cr(2)
-    end subroutine prepare
+      call space%scene_of(r%mu, cfg, sc, error)
+      if (allocated(error)) then
+        error%message = "scene of " // trim(r%set) // " sample " // str(r%index) // ": " // error%message
+        return
+      end if
+      r%scene_v = scene_vertex_list(sc)
+      if (size(r%scene_v) /= nv) then
+        call set_error(error, "scene of " // trim(r%set) // " sample " // str(r%index) // &
+          " has another vertex layout"); return
+      end if
+      r%scene_exit = [sc%x_lo, sc%width, sc%x_hi, sc%width]
+      ci(1) = ci(1) + count(r%converged == 0)
+      if (any(r%converged == 0)) ci(2) = ci(2) + 1
+      if (size(r%kkt) > 0) cr(1) = max(cr(1), maxval(r%kkt))
+      cr(2) = max(cr(2), r%time)
+      call writer%put(r, error)
+    end subroutine put
 
     subroutine fill_meta()
       meta%config_text = config_echo(cfg) // study_echo(study)
@@ -370,8 +396,8 @@ contains
       str(this%pieces_out(2) / 1.0e6_wp, 'f0.2') // " MB, " // str(this%pieces_out(3), 'f0.3') // " s), collective " // &
       str(1.0e6_wp * this%t_coll, 'f0.1') // " us" // new_line('a') // &
       "  wall time           " // str(this%t_total, 'f0.2') // " s (samples " // str(this%t_compute, 'f0.2') // &
-      " s, assembly " // str(this%t_asm, 'f0.3') // " s: prepare " // str(this%t_prepare, 'f0.3') // &
-      ", dictionary " // str(this%wstats%t_dict, 'f0.3') // ", layout " // str(this%wstats%t_layout, 'f0.3') // &
+      " s, end of the database " // str(this%t_asm, 'f0.3') // " s:" // &
+      " dictionary " // str(this%wstats%t_dict, 'f0.3') // ", layout " // str(this%wstats%t_layout, 'f0.3') // &
       ", write " // str(this%wstats%t_write, 'f0.3') // ", seal " // str(this%wstats%t_seal, 'f0.3') // ")" // &
       new_line('a') // &
       "  non-converged steps " // str(this%nonconverged_steps) // " in " // str(this%nonconverged_samples) // &
@@ -421,7 +447,8 @@ contains
     call js%add("pieces_written", nint(this%pieces_out(1)))
     call js%add("piece_bytes_written", this%pieces_out(2))
     call js%add("piece_write_time", this%pieces_out(3))
-    call js%add("assembly_prepare_time", this%t_prepare)
+    call js%add("database_put_time", this%t_put_all)
+    call js%add("database_put_time_resumed", this%t_put_resumed)
     call js%add("assembly_dictionary_time", this%wstats%t_dict)
     call js%add("assembly_layout_time", this%wstats%t_layout)
     call js%add("assembly_write_time", this%wstats%t_write)
