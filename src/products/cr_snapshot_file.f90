@@ -276,14 +276,8 @@ contains
     allocate(this%lam(16), this%gl(16))
     m = ""
     if (env%is_root()) call lay_out(m)
-    call env%bcast_string(m)
-    if (len(m) > 0) then
-      call set_error(error, "database '" // path // "': " // m); return
-    end if
-    do is = 1, 2
-      call env%bcast(this%place(:, is), error)
-      if (allocated(error)) return
-    end do
+    call share_places(this, m, error)
+    if (allocated(error)) return
     call this%pf%open(env, path // ".partial", error)
     call env%agree_error(error)
     if (allocated(error)) then
@@ -359,6 +353,24 @@ contains
       call hh%write_attr("/", "checksum_algorithm", DIGEST_ALGORITHM, e)
     end subroutine write_root
   end subroutine writer_begin
+
+  !> Collective: rank 0's status (m: '' or its message) and the places of the datasets, in one
+  !> broadcast (the message follows only on failure).
+  subroutine share_places(this, m, error)
+    type(snap_writer_t), intent(inout) :: this
+    character(len=:), allocatable, intent(inout) :: m
+    type(error_t), allocatable, intent(out) :: error
+    integer(i8) :: buf(35)
+    buf(1) = len(m)
+    buf(2:) = reshape(this%place, [34])
+    call this%env%bcast(buf, error)
+    if (allocated(error)) return
+    this%place = reshape(buf(2:), [17, 2])
+    if (buf(1) == 0) return
+    call this%env%bcast_string(m)
+    if (index(m, "database '") /= 1) m = "database '" // this%path // "': " // m
+    call set_error(error, m)
+  end subroutine share_places
 
   !> Global dims of the datasets of set is [2, 17] (second entry unused for 1D datasets).
   subroutine set_dims(this, is, dims)
@@ -476,22 +488,32 @@ contains
     character(len=:), allocatable :: m
     real(wp) :: t0, t1
     type(error_t), allocatable :: e2
+    type(digest_t) :: dg1(34)
     t0 = this%env%wtime()
     associate (env => this%env)
     ns = this%ns
     ntot = sum(this%nset)
-    call this%pf%close(error)
-    call env%agree_error(error)
-    if (allocated(error)) goto 9
-    ! counts: held (exactly once) and multipliers of every sample
-    allocate(cnt(2 * ntot))
+    call this%pf%close(e2)
+    ! counts: held (exactly once) and multipliers of every sample, data bytes and failed ranks
+    allocate(cnt(2 * ntot + 2))
     cnt = 0
     do j = 1, this%nl
       cnt(2 * this%gl(j) - 1) = 1
       cnt(2 * this%gl(j)) = size(this%lam(j)%value)
     end do
+    cnt(2 * ntot + 1) = this%stats%bytes
+    if (allocated(e2)) cnt(2 * ntot + 2) = 1
     call env%allreduce(cnt, 'sum', error)
     if (allocated(error)) goto 9
+    if (cnt(2 * ntot + 2) > 0) then
+      if (allocated(e2)) then
+        call move_alloc(e2, error)
+      else
+        call set_error(error, "closing the file failed on another rank")
+      end if
+      goto 9
+    end if
+    this%stats%bytes = cnt(2 * ntot + 1)
     do g = 1, ntot
       if (cnt(2 * g - 1) /= 1) then
         call set_error(error, "sample " // str(g) // " of the study was written by " // str(cnt(2 * g - 1)) // &
@@ -527,21 +549,16 @@ contains
         this%dg(5, is) = digest_add(this%dg(5, is), digest_of([0_i8], 0_i8))
       end do
     end if
-    call digest_allreduce(env, this%dg(:, 1))
-    call digest_allreduce(env, this%dg(:, 2))
+    dg1 = reshape(this%dg, [34])
+    call digest_allreduce(env, dg1)
+    this%dg = reshape(dg1, [17, 2])
     this%stats%t_dict = env%wtime() - t0
     ! rank 0: dictionary, multiplier datasets, checksums
     t1 = env%wtime()
     m = ""
     if (env%is_root()) call add_rest(m)
-    call env%bcast_string(m)
-    if (len(m) > 0) then
-      call set_error(error, m); goto 9
-    end if
-    do is = 1, 2
-      call env%bcast(this%place(:, is), error)
-      if (allocated(error)) goto 9
-    end do
+    call share_places(this, m, error)
+    if (allocated(error)) goto 9
     this%stats%t_layout = this%stats%t_layout + (env%wtime() - t1)
     ! the ranks' multiplier blocks
     t1 = env%wtime()
@@ -568,14 +585,12 @@ contains
     end if
     call env%agree_error(error)
     if (allocated(error)) goto 9
-    this%stats%bytes = env%sum_int(this%stats%bytes)
     this%stats%t_write = env%wtime() - t1
     ! complete = 1 last, then the final name
     t1 = env%wtime()
     m = ""
     if (env%is_root()) call seal(m)
-    call env%bcast_string(m)
-    if (len(m) > 0) call set_error(error, m)
+    call share_places(this, m, error)
     this%stats%t_seal = env%wtime() - t1
     end associate
 9   this%active = .false.
@@ -753,8 +768,8 @@ contains
     integer(i8), allocatable, intent(out) :: dkey(:)
     integer, allocatable, intent(out) :: dia(:), dib(:), dob(:)
     type(error_t), allocatable, intent(out) :: error
-    integer(i8), allocatable :: keys(:), allk(:)
-    integer, allocatable :: ids(:,:), allid(:), idx(:)
+    integer(i8), allocatable :: keys(:), allk(:), pack4(:,:)
+    integer, allocatable :: ids(:,:), idx(:)
     integer :: n, j, m
     n = 0
     do j = 1, size(samples)
@@ -773,13 +788,17 @@ contains
       end associate
     end do
     call unique(keys, ids, n)
-    call env%allgatherv(keys(1:n), allk, error)
+    ! keys and identities in one exchange: [key, ia, ib, ob] per contact
+    allocate(pack4(4, n))
+    pack4(1, :) = keys(1:n)
+    pack4(2:4, :) = int(ids(:, 1:n), i8)
+    call env%allgatherv(reshape(pack4, [4 * n]), allk, error)
     if (allocated(error)) return
-    call env%allgatherv(reshape(ids(:, 1:n), [3 * n]), allid, error)
-    if (allocated(error)) return
-    m = size(allk)
-    deallocate(ids)
-    ids = reshape(allid, [3, m])
+    m = size(allk) / 4
+    deallocate(ids, pack4)
+    pack4 = reshape(allk, [4, m])
+    allk = pack4(1, :)
+    ids = int(pack4(2:4, :))
     call unique(allk, ids, m)
     dkey = allk(1:m)
     dia = ids(1, 1:m); dib = ids(2, 1:m); dob = ids(3, 1:m)

@@ -40,7 +40,6 @@ module cr_piece_store
     integer :: n_quarantined = 0
   contains
     procedure :: path_of
-    procedure :: add_written
   end type piece_index_t
 
   !> The samples a rank computed in the current time slice, written together as one piece.
@@ -55,7 +54,7 @@ module cr_piece_store
     integer(i8) :: bytes = 0
     type(sample_result_t), allocatable :: res(:)
     integer, allocatable :: g(:)
-    !> pieces written so far: [n_1, g_1 .. g_n1, n_2, ...] (for piece_index_t%add_written)
+    !> pieces written so far: [n_1, g_1 .. g_n1, n_2, ...] (their files are removed once the database is complete)
     integer, allocatable :: written(:)
     !> pieces written, their data bytes and the wall time spent writing them (s)
     integer :: n_pieces = 0
@@ -76,58 +75,6 @@ contains
     character(len=:), allocatable :: s
     s = this%path(p)%s
   end function path_of
-
-  !> Collective: record the pieces every rank wrote in this run. `written` is this rank's list
-  !> [n_1, g_1 .. g_n1, n_2, ...] (samples of each piece, global numbers, in piece order); a
-  !> piece is named after its first sample and read at assembly by the rank that wrote it.
-  subroutine add_written(this, env, dir, sets, written, error)
-    class(piece_index_t), intent(inout) :: this
-    type(env_t), intent(in) :: env
-    character(len=*), intent(in) :: dir
-    type(sample_set_t), intent(in) :: sets(2)
-    integer, intent(in) :: written(:)
-    type(error_t), allocatable, intent(out) :: error
-    integer, allocatable :: counts(:), displs(:), all(:)
-    type(path_t), allocatable :: tmp(:)
-    integer :: r, q, c, n, j, is, k, np_new
-    call env%allgatherv(written, all, error, counts)
-    if (allocated(error)) return
-    allocate(displs(env%size))
-    displs(1) = 0
-    do r = 2, env%size
-      displs(r) = displs(r - 1) + counts(r - 1)
-    end do
-    ! count the new pieces
-    np_new = 0
-    do r = 1, env%size
-      c = displs(r)
-      do while (c < displs(r) + counts(r))
-        np_new = np_new + 1
-        c = c + all(c + 1) + 1
-      end do
-    end do
-    allocate(tmp(this%n_pieces + np_new))
-    do q = 1, this%n_pieces
-      call move_alloc(this%path(q)%s, tmp(q)%s)
-    end do
-    q = this%n_pieces
-    do r = 1, env%size
-      c = displs(r)
-      do while (c < displs(r) + counts(r))
-        n = all(c + 1)
-        q = q + 1
-        call set_of_sample(sets, all(c + 2), is, k)
-        tmp(q)%s = piece_path(dir, sets(is)%name, k)
-        do j = 1, n
-          this%piece_of(all(c + 1 + j)) = q
-          this%slot_of(all(c + 1 + j)) = j
-        end do
-        c = c + n + 1
-      end do
-    end do
-    call move_alloc(tmp, this%path)
-    this%n_pieces = q
-  end subroutine add_written
 
   !> Global sample number (train 1..n_train, then valid) of sample k of set `name`; 0 if none.
   pure integer function global_sample(sets, name, k) result(g)

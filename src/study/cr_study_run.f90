@@ -134,7 +134,7 @@ contains
     if (env%is_root()) call probe_snap_database(this%db, this%hash, status, msg)
     call env%bcast(status, error)
     if (allocated(error)) return
-    call env%bcast_string(msg)
+    if (status == 2) call env%bcast_string(msg)
     if (status == 2) then
       call set_error(error, msg, 2); return
     end if
@@ -238,29 +238,34 @@ contains
     end if
     if (len(msg) > 0) call set_error(error, msg)
     call env%agree_error(error)
+    ! (the agreement is the end of the loop on every rank)
+    this%t_compute = env%wtime() - t_loop
     this%counter = [real(sched%n_calls(), wp), sched%t_calls()]
     this%pieces_out = [real(batch%n_pieces, wp), real(batch%bytes_written, wp), batch%t_write]
     call sched%free()
     if (allocated(error)) then
       call writer%discard(); return
     end if
-    call env%barrier()
-    this%t_compute = env%wtime() - t_loop
-    call env%allgather(busy_mine, this%busy, error)
-    if (.not. allocated(error)) call env%allgather(n_mine, this%nsamp, error)
-    if (allocated(error)) then
-      call writer%discard(); return
-    end if
-    this%sum_time = sum(this%busy)
-    redu = [this%counter, this%pieces_out, writer%stats%t_put - this%t_put_resumed]
+    ! every rank's figures in two reductions: per-rank slots and sums, then maxima
+    allocate(redu(2 * env%size + 8))
+    redu = 0
+    redu(env%rank + 1) = busy_mine
+    redu(env%size + env%rank + 1) = n_mine
+    redu(2 * env%size + 1:) = [this%counter, this%pieces_out, writer%stats%t_put - this%t_put_resumed, &
+      real(ci, wp)]
     call env%allreduce(redu, 'sum', error)
-    if (.not. allocated(error)) then
-      this%counter = redu(1:2); this%pieces_out = redu(3:5); this%t_put_all = redu(6)
-      this%t_coll = env%collective_latency(20, error)
-    end if
+    if (.not. allocated(error)) call env%allreduce(cr, 'max', error)
     if (allocated(error)) then
       call writer%discard(); return
     end if
+    this%busy = redu(1:env%size)
+    this%nsamp = nint(redu(env%size + 1:2 * env%size))
+    this%sum_time = sum(this%busy)
+    associate (r => redu(2 * env%size + 1:))
+      this%counter = r(1:2); this%pieces_out = r(3:5); this%t_put_all = r(6)
+      this%nonconverged_steps = nint(r(7)); this%nonconverged_samples = nint(r(8))
+    end associate
+    this%kkt_max = cr(1); this%time_max = cr(2)
     this%t_setup = t_loop - t_start
     call log%info("   samples " // str(this%n_prev + this%n_run) // " of " // str(this%n_tot) // " complete")
     call log%stage_end()
@@ -276,30 +281,28 @@ contains
     call log%stage_begin("crowd_snapshots: finishing '" // this%db // "'")
     t0 = env%wtime()
     this%t_asm_start = t0 - t_start
-    call env%allreduce(ci, 'sum', error)
-    if (.not. allocated(error)) call env%allreduce(cr, 'max', error)
-    if (allocated(error)) then
-      call writer%discard(); return
-    end if
-    this%nonconverged_steps = ci(1); this%nonconverged_samples = ci(2)
-    this%kkt_max = cr(1); this%time_max = cr(2)
-    call pieces%add_written(env, dir, sets, batch%written, error)
-    if (allocated(error)) then
-      call writer%discard(); return
-    end if
     call writer%finish(error)
     this%wstats = writer%stats
     if (allocated(error)) return
-    ! the database is committed: the pieces can go
+    ! the database is committed: the pieces can go (each rank its own, rank 0 those of earlier
+    ! runs and the temporaries of pieces a killed run did not finish)
+    j = 1
+    do while (j < size(batch%written))
+      call set_of_sample(sets, batch%written(j + 1), is, k)
+      ierr = remove_file(piece_path(dir, sets(is)%name, k))
+      j = j + batch%written(j) + 1
+    end do
     if (env%is_root()) then
       do g = 1, pieces%n_pieces
         ierr = remove_file(pieces%path_of(g))
       end do
-      ! temporaries of pieces a killed run did not finish (named after any sample)
       do g = 1, this%n_tot
         call set_of_sample(sets, g, is, k)
         ierr = remove_file(piece_path(dir, sets(is)%name, k) // ".partial")
       end do
+    end if
+    call env%barrier()
+    if (env%is_root()) then
       if (file_exists(dir // "/quarantine/.")) then
         call log%info("   bad pieces kept in '" // dir // "/quarantine' (inspect, then remove them)")
       else if (remove_dir(dir) /= 0) then
@@ -310,6 +313,8 @@ contains
     call log%stage_end()
     this%t_total = env%wtime() - t_start
     if (env%is_root()) this%bytes = file_size(this%db)
+    ! a diagnostic for the scaling model, after the run's clock has stopped
+    this%t_coll = env%collective_latency(20, error)
 
   contains
 
