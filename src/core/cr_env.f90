@@ -484,10 +484,8 @@ contains
       call MPI_Win_unlock(0, this%win, ierr)
       call mpi_check(ierr, "MPI_Win_unlock (counter init)", error)
     end if
+    ! the agreement is also the barrier: no rank takes a ticket before rank 0 has zeroed them
     call env%agree_error(error)
-    if (allocated(error)) return
-    call MPI_Barrier(env%comm, ierr)
-    call mpi_check(ierr, "MPI_Barrier (counter init)", error)
   end subroutine counter_init
 
   !> Atomically add inc to counter `slot` (1-based) and return its old value (not collective).

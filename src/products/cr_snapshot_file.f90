@@ -481,8 +481,14 @@ contains
   subroutine writer_finish(this, error)
     class(snap_writer_t), intent(inout) :: this
     type(error_t), allocatable, intent(out) :: error
-    integer(i8), allocatable :: cnt(:), dkey(:), off8(:)
-    integer, allocatable :: dia(:), dib(:), dob(:), li(:)
+    !> one sample's multipliers in the set's CSR arrays: offsets [ns], dictionary indices [nnz]
+    type :: csr_t
+      integer(i8), allocatable :: off8(:)
+      integer, allocatable :: li(:)
+    end type csr_t
+    type(csr_t), allocatable :: csr(:)
+    integer(i8), allocatable :: cnt(:), dkey(:)
+    integer, allocatable :: dia(:), dib(:), dob(:)
     integer :: ntot, g, is, j, ns
     integer(i8) :: o(17), at(17)
     character(len=:), allocatable :: m
@@ -536,12 +542,14 @@ contains
     if (allocated(error)) goto 9
     this%stats%n_dict = size(dkey)
     ! checksum parts of the multipliers, then of everything, summed over the ranks
+    ! each sample's global CSR offsets and dictionary indices (computed once, written below)
+    allocate(csr(this%nl))
     do j = 1, this%nl
-      call global_csr(this%lam(j), this%gl(j), off8, li)
+      call global_csr(this%lam(j), this%gl(j), csr(j)%off8, csr(j)%li)
       is = findloc(SNAP_SET_NAMES, this%lam(j)%set, dim=1)
       o = elem_offsets(this, this%lam(j), this%base(this%gl(j)))
-      this%dg(5, is) = digest_add(this%dg(5, is), digest_of(off8, o(5)))
-      this%dg(6, is) = digest_add(this%dg(6, is), digest_of(li, o(6)))
+      this%dg(5, is) = digest_add(this%dg(5, is), digest_of(csr(j)%off8, o(5)))
+      this%dg(6, is) = digest_add(this%dg(6, is), digest_of(csr(j)%li, o(6)))
       this%dg(7, is) = digest_add(this%dg(7, is), digest_of(this%lam(j)%value, o(7)))
     end do
     if (env%is_root()) then
@@ -571,14 +579,14 @@ contains
       end if
       do j = 1, this%nl
         if (allocated(error)) exit
-        call global_csr(this%lam(j), this%gl(j), off8, li)
         is = findloc(SNAP_SET_NAMES, this%lam(j)%set, dim=1)
         o = elem_offsets(this, this%lam(j), this%base(this%gl(j)))
         at = this%place(:, is) + o * ESZ
-        call this%pf%write_at(at(5), off8, 8_i8 * ns, error)
-        if (.not. allocated(error) .and. size(li) > 0) call this%pf%write_at(at(6), li, 4_i8 * size(li), error)
-        if (.not. allocated(error) .and. size(li) > 0) &
-          call this%pf%write_at(at(7), this%lam(j)%value, 8_i8 * size(li), error)
+        call this%pf%write_at(at(5), csr(j)%off8, 8_i8 * ns, error)
+        if (.not. allocated(error) .and. size(csr(j)%li) > 0) &
+          call this%pf%write_at(at(6), csr(j)%li, 4_i8 * size(csr(j)%li), error)
+        if (.not. allocated(error) .and. size(csr(j)%li) > 0) &
+          call this%pf%write_at(at(7), this%lam(j)%value, 8_i8 * size(csr(j)%li), error)
       end do
       call this%pf%close(e2)
       if (allocated(e2) .and. .not. allocated(error)) call move_alloc(e2, error)

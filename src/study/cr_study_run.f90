@@ -177,7 +177,8 @@ contains
     end if
     this%t_put_resumed = writer%stats%t_put
     if (len(msg) > 0) call set_error(error, msg)
-    call env%agree_error(error)
+    ! (every rank knows whether there were earlier pieces)
+    if (pieces%n_pieces > 0) call env%agree_error(error)
     if (allocated(error)) then
       call writer%discard(); return
     end if
