@@ -1,7 +1,7 @@
 !> Micro-benchmark of the snapshot stage's machine inputs (for scripts/snapshot_model.py; not a
 !> test): at the ranks it is started on, measures
-!>  * the shared counter: mean wall time of one fetch-and-add when every rank takes tickets
-!>    (env's shared_counter_t, as the scheduler does);
+!>  * the shared counter: mean wall time of one fetch-and-add when every rank takes a ticket
+!>    after each 0.5..1.5 x `work` s of computation (env's shared_counter_t, as the scheduler);
 !>  * the cost of one collective for ranks arriving from computation: each of `reps` rounds,
 !>    every rank computes for a drawn 0.5..1.5 x `work` seconds, then all meet in an
 !>    MPI_Allreduce; cost = (wall - computing time) / reps, mean over ranks (on shared cores
@@ -43,11 +43,18 @@ program crowd_snapbench
   if (command_argument_count() >= 3) then
     call get_command_argument(3, arg); read(arg, *) block
   end if
-  ! shared counter: 200 tickets per rank
+  ! shared counter: 50 tickets per rank, each after 0.5..1.5 x `work` s of computation (as in
+  ! the sample loop: rank 0, which holds the counters, is computing too)
+  reps = 30; work = 2.0e-3_wp; spent = 0
+  call rng%seed(1234, stream=env%rank)
   if (.not. allocated(error)) call counter%init(env, 2, error)
   if (.not. allocated(error)) then
     call env%barrier()
-    do k = 1, 200
+    do k = 1, 50
+      x = env%wtime()
+      y = work * (0.5_wp + rng%uniform())
+      do while (env%wtime() - x < y)
+      end do
       t = counter%fetch_add(1, 1_i8, error)
       if (allocated(error)) exit
     end do
@@ -55,8 +62,6 @@ program crowd_snapbench
     call counter%free()
   end if
   ! collectives after computation
-  reps = 30; work = 2.0e-3_wp; spent = 0
-  call rng%seed(1234, stream=env%rank)
   if (.not. allocated(error)) then
     call env%barrier()
     t0 = env%wtime()
