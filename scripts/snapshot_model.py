@@ -9,9 +9,10 @@ Model of the wall time at P ranks:
 * T_loop: the dynamic schedule simulated sample by sample, events in time order. Each rank takes
   a ticket from the shared counter (one-sided fetch-and-add on rank 0: the rank waits L, the
   counter is busy for its service time o and serves one operation at a time), computes the
-  sample (its time from the per-sample time distribution of a database), puts it into the
-  database (its bytes at the per-rank block-write bandwidth W) and records it (a second counter
-  operation). A rank writes a piece when its time slice S is over, and at the end (c_w per byte
+  sample (its time from the per-sample time distribution of a database), hands it on (copy into
+  the batch, scene mapping, checksum parts: the 1-rank run's busy time minus its model runs and
+  piece writes, per sample), puts it into the database (its bytes at the per-rank block-write
+  bandwidth W) and records it (a second counter operation). A rank writes a piece when its time slice S is over, and at the end (c_w per byte
   of sample data). The loop ends when the last rank has written its last piece.
 * T_setup and T_end: the serial work of the 1-rank run (setup; the end of the database:
   dictionary, multiplier datasets, checksums, complete = 1), which does not shrink with P, plus
@@ -19,7 +20,8 @@ Model of the wall time at P ranks:
 
 Inputs, none fitted on the run a row predicts: the run's database (per-sample times
 `stats/time`, the work and how fast this machine did it in that run), the 1-rank run's summary
-(setup and end-of-database times, piece bytes and write time, bytes per sample) and the
+(setup and end-of-database times, per-sample handling, piece bytes and write time, bytes per
+sample) and the
 micro-benchmark `crowd_snapbench` at P ranks (counter latency L, cost c of a collective for ranks
 arriving from computation, per-rank block-write bandwidth W). `validate` rebuilds T(P) of
 measured runs; `predict` extrapolates to an assumed cluster.
@@ -62,8 +64,13 @@ def inputs_from_run(summary, db=None):
     s = json.load(open(summary))
     n = s["samples_total"]
     t = sample_times(db) if db else None
+    # per-sample handling outside the model run (copy into the batch, scene mapping, checksum
+    # parts, database blocks): busy time minus model runs and piece writes, per sample
+    handling = None
+    if t is not None and s["samples_computed"] == len(t):
+        handling = max(sum(s["busy_time_per_rank"]) - float(np.sum(t)) - s["piece_write_time"], 0.0) / max(len(t), 1)
     return dict(
-        ranks=s["ranks"], n=n, times=t, setup=s["wall_time_setup"],
+        handling=handling, ranks=s["ranks"], n=n, times=t, setup=s["wall_time_setup"],
         latency=s["counter_latency_mean"], slice=s.get("batch_seconds", 2.0),
         bytes_per_sample=s["piece_bytes_written"] / max(s["samples_computed"], 1),
         db_bytes_per_sample=s["assembly_bytes_written"] / max(n, 1),
@@ -119,7 +126,9 @@ def model_wall(p, inp, one, bench):
     """Wall time at p ranks: inp = the run's figures (per-sample times), one = the 1-rank run's,
     bench = crowd_snapbench at p ranks and at 1 rank ({p: figures})."""
     b, b1 = bench[p], bench[1]
-    put = one["db_bytes_per_sample"] / b["bandwidth"]
+    # the 1-rank run's per-sample handling, its database blocks at the bandwidth of p ranks
+    put = (max((one.get("handling") or 0.0) - one["db_bytes_per_sample"] / b1["bandwidth"], 0.0)
+           + one["db_bytes_per_sample"] / b["bandwidth"])
     loop = simulate_loop(inp["times"], p, b["latency"], one["slice"], one["bytes_per_sample"], one["write_per_byte"],
                          put=put)
     setup = one["setup"] + N_SETUP * (b["collective"] - b1["collective"])
