@@ -349,7 +349,8 @@ contains
       meta%param_names = space%component_names()
       meta%version = CROWDROM_VERSION
       call h5get_libversion_f(maj, mnr, rel, ierr)
-      meta%hdf5_version = str(maj) // "." // str(mnr) // "." // str(rel)
+      meta%hdf5_version = "unknown"
+      if (ierr == 0) meta%hdf5_version = str(maj) // "." // str(mnr) // "." // str(rel)
       meta%mpi_version = env%library_version()
       meta%compiler = compiler_version()
       meta%n_agents = fom_ref%n_agents
