@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """Benchmark of crowd_snapshots (not a test): the hall20 and congested150 studies at 1, 2 and 4
 ranks (4 oversubscribed on this 2-core machine) with the Release build; prints Markdown tables
-(efficiencies, load balance, overheads), validates the scaling model (scripts/snapshot_model.py)
-against the measured wall times, predicts the 1 000-agent study on 16, 128 and 1 024 ranks and
+(efficiencies, load balance, overheads), measures the machine's inputs of the scaling model with
+the micro-benchmark crowd_snapbench at each rank count, validates the model
+(scripts/snapshot_model.py) against the measured wall times (no constant fitted on them), predicts the 1 000-agent study on 16, 128 and 1 024 ranks and
 draws the timeline of each 2-rank run.
 
 Usage: .venv/bin/python scripts/bench_snapshots.py [--ranks 1 2 4] [--studies hall20 congested150]
@@ -55,6 +56,19 @@ def run(study, np_, workdir, tag=""):
     return s, js, db
 
 
+def snapbench(np_, workdir):
+    """crowd_snapbench at np_ ranks: its JSON file."""
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1")
+    p = subprocess.run(["mpiexec", "-np", str(np_), os.path.join(ROOT, "build", "bin", "crowd_snapbench"),
+                        os.path.join(workdir, "snapbench.tmp"), "20", "65536"], capture_output=True, text=True, env=env)
+    if p.returncode != 0:
+        raise SystemExit("crowd_snapbench failed:\n" + p.stdout + p.stderr)
+    out = os.path.join(workdir, "snapbench_np%d.json" % np_)
+    open(out, "w").write(p.stdout)
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--ranks", type=int, nargs="+", default=[1, 2, 4])
@@ -63,7 +77,7 @@ def main():
     ap.add_argument("--keep", default=None, help="keep databases, summaries and figures in DIR")
     a = ap.parse_args()
     out = []
-    head = ("| study | ranks | wall (s) | loop (s) | assembly (s) | busy-time eff. (loop) | busy-time eff. (run) "
+    head = ("| study | ranks | wall (s) | loop (s) | end of database (s) | busy-time eff. (loop) | busy-time eff. (run) "
             "| speed-up eff. | load balance | time/sample (s) | counter (us/op) | pieces | piece write (s) |")
     rows = [head, "|" + "---|" * (head.count("|") - 1)]
     wd_obj = None
@@ -89,26 +103,23 @@ def main():
                 s["time_per_sample_mean"], 1e6 * s["counter_latency_mean"], s["pieces_written"],
                 s["piece_write_time"]))
             print(rows[-1], flush=True)
-        # model validation: inputs measured in each run; rates of the 1-rank run
+        # model validation: the machine's inputs from crowd_snapbench, measured after the runs
         if 1 in runs:
             rr = [(runs[p][1], runs[p][2]) for p in a.ranks]
-            for label, cal in (("no fitted constant (collective cost = measured MPI_Allreduce latency)", None),
-                               ("collective cost calibrated on the 2-rank run", (runs[2][1], runs[2][2]) if 2 in runs
-                                else None)):
-                if label.startswith("collective cost calibrated") and cal is None:
-                    continue
-                res, c = snapshot_model.validate(rr, cal)
-                model_txt.append("\n%s, model %s:\n" % (study, label))
-                model_txt.append("| ranks | measured wall (s) | model (s) | error | loop measured / model (s) "
-                                 "| assembly measured / model (s) |")
-                model_txt.append("|---|---|---|---|---|---|")
-                for r in res:
-                    model_txt.append("| %d | %.3f | %.3f | %+.1f%% | %.3f / %.3f | %.3f / %.3f |" % (
-                        r["ranks"], r["measured"], r["model"], 100 * r["error"], r["loop_measured"],
-                        r["loop_model"], r["asm_measured"], r["asm_model"]))
-                if c is not None:
-                    model_txt.append("\ncost per collective operation of the parallel data phase: %.2f ms "
-                                     "(%d operations)" % (1e3 * c, snapshot_model.N_COLL))
+            bench = [snapbench(p, wd) for p in a.ranks]
+            res = snapshot_model.validate(rr, bench)
+            model_txt.append("\n%s, model (inputs: each run's per-sample times, the 1-rank run's serial "
+                             "parts, crowd_snapbench at P ranks):\n" % study)
+            for f in bench:
+                model_txt.append("    " + open(f).read().strip())
+            model_txt.append("")
+            model_txt.append("| ranks | measured wall (s) | model (s) | error | loop measured / model (s) "
+                             "| end measured / model (s) |")
+            model_txt.append("|---|---|---|---|---|---|")
+            for r in res:
+                model_txt.append("| %d | %.3f | %.3f | %+.1f%% | %.3f / %.3f | %.3f / %.3f |" % (
+                    r["ranks"], r["measured"], r["model"], 100 * r["error"], r["loop_measured"],
+                    r["loop_model"], r["asm_measured"], r["asm_model"]))
         if 2 in runs and a.keep:
             fig = os.path.join(wd, "%s_np2_timeline.png" % study)
             subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "plot_timeline.py"), runs[2][2], runs[2][1],

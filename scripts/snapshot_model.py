@@ -4,25 +4,30 @@ used to predict the 1 000-agent study on many ranks.
 
 Model of the wall time at P ranks:
 
-    T(P) = T_setup + T_loop(P) + T_asm(P)
+    T(P) = T_setup(P) + T_loop(P) + T_end(P)
 
 * T_loop: the dynamic schedule simulated sample by sample, events in time order. Each rank takes
   a ticket from the shared counter (one-sided fetch-and-add on rank 0: the rank waits L, the
-  counter is busy for its service time o and serves one operation at a time), computes the sample (a time drawn from the per-sample time distribution of a
-  database), and records it (a second counter operation). A rank writes a piece when its time
-  slice S is over, and at the end: c_w per byte of sample data. The loop ends when the last rank
-  has written its last piece.
-* T_asm: reading the pieces (every rank its own, at r_read bytes/s each, at most B_fs in
-  total), the contact dictionary (measured, kept), the parallel data phase (the database bytes at
-  r_write per rank, at most B_fs in total, plus n_coll collective HDF5/MPI operations of c(P)
-  each) and the serial header / checksum phase on rank 0 (measured, kept).
+  counter is busy for its service time o and serves one operation at a time), computes the
+  sample (its time from the per-sample time distribution of a database), hands it on (copy into
+  the batch, scene mapping, checksum parts: the 1-rank run's busy time minus its model runs and
+  piece writes, per sample), puts it into the database (its bytes at the per-rank block-write
+  bandwidth W) and records it (a second counter operation). A rank writes a piece when its time slice S is over, and at the end (c_w per byte
+  of sample data). The loop ends when the last rank has written its last piece.
+* T_setup and T_end: the serial work of the 1-rank run (setup; the end of the database:
+  dictionary, multiplier datasets, checksums, complete = 1), which does not shrink with P, plus
+  N_SETUP and N_END collective operations of cost c(P) each.
 
-Inputs come from the run's database (per-sample times `stats/time`) and its `--summary` JSON
-(setup time, counter latency, piece bytes and write time, assembly phase times and bytes,
-collective latency). `validate` rebuilds T(P) of measured runs; `predict` extrapolates.
+Inputs, none fitted on the run a row predicts: the run's database (per-sample times
+`stats/time`, the work and how fast this machine did it in that run), the 1-rank run's summary
+(setup and end-of-database times, per-sample handling, piece bytes and write time, bytes per
+sample) and the
+micro-benchmark `crowd_snapbench` at P ranks (counter latency L, cost c of a collective for ranks
+arriving from computation, per-rank block-write bandwidth W). `validate` rebuilds T(P) of
+measured runs; `predict` extrapolates to an assumed cluster.
 
 Usage:
-    snapshot_model.py validate --runs RUN.json[:DB.h5] ... [--calibrate-collectives RUN.json]
+    snapshot_model.py validate --runs RUN.json:DB.h5 ... --bench BENCH_P1.json BENCH_P2.json ...
     snapshot_model.py predict  --db congested150.h5 --summary congested150_np1.json
                                [--agents 1000] [--ranks 16 128 1024]
 """
@@ -37,10 +42,14 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import crowdrom_io as cio  # noqa: E402
 
-# collective operations of the assembly's parallel data phase: per set 16 datasets, each
-# created (1 metadata collective + 1 error agreement) and written (2 error agreements + the
-# MPI-IO transfer), plus file create, close, the digest reduction and the multiplier counts
-N_COLL = 2 * 16 * 5 + 6
+# collective operations outside the sample loop (src/study/cr_study_run.f90, a fresh run):
+# setup: initial positions, database probe, piece scan (4), writer begin (places, MPI-IO open,
+# agreement), agreement after the resumed samples, counter window (create, agreement, barrier);
+# end: loop-end agreement, window free, two packed reductions, writer finish (MPI-IO close,
+# counts, dictionary (2), checksum sum, places, MPI-IO open and close, agreement, seal), and
+# the barrier before the pieces directory is removed
+N_SETUP = 13
+N_END = 15
 
 
 def sample_times(db):
@@ -51,28 +60,37 @@ def sample_times(db):
 
 
 def inputs_from_run(summary, db=None):
-    """Model inputs measured in one run (its summary JSON and, if given, its database)."""
+    """Figures measured in one run (its summary JSON and, if given, its database)."""
     s = json.load(open(summary))
     n = s["samples_total"]
-    p = s["ranks"]
     t = sample_times(db) if db else None
-    bytes_per_sample = s["piece_bytes_written"] / max(s["samples_computed"], 1)
+    # per-sample handling outside the model run (copy into the batch, scene mapping, checksum
+    # parts, database blocks): busy time minus model runs and piece writes, per sample
+    handling = None
+    if t is not None and s["samples_computed"] == len(t):
+        handling = max(sum(s["busy_time_per_rank"]) - float(np.sum(t)) - s["piece_write_time"], 0.0) / max(len(t), 1)
     return dict(
-        ranks=p, n=n, times=t, setup=s["wall_time_setup"],
+        handling=handling, ranks=s["ranks"], n=n, times=t, setup=s["wall_time_setup"],
         latency=s["counter_latency_mean"], slice=s.get("batch_seconds", 2.0),
-        bytes_per_sample=bytes_per_sample,
+        bytes_per_sample=s["piece_bytes_written"] / max(s["samples_computed"], 1),
+        db_bytes_per_sample=s["assembly_bytes_written"] / max(n, 1),
         write_per_byte=s["piece_write_time"] / max(s["piece_bytes_written"], 1.0),
-        read_rate=s["assembly_read_bytes"] / max(s["assembly_read_time"], 1e-9) / p,
-        read_bytes=s["assembly_read_bytes"], t_dict=s["assembly_dictionary_time"],
-        db_bytes=s["database_bytes"], t_write=s["assembly_write_time"], t_header=s["assembly_header_time"],
-        collective=s["collective_latency"], wall=s["wall_time"], loop=s["wall_time_samples"],
-        assembly=s["wall_time_assembly"], busy=s["busy_time_per_rank"])
+        end=s["wall_time_assembly"], wall=s["wall_time"], loop=s["wall_time_samples"],
+        busy=s["busy_time_per_rank"])
 
 
-def simulate_loop(times, p, latency, slice_s, bytes_per_sample, write_per_byte, occupancy=None):
+def bench_inputs(path):
+    """Machine figures of crowd_snapbench at one rank count (JSON line)."""
+    b = json.loads(open(path).read().strip().splitlines()[-1])
+    return dict(ranks=b["ranks"], latency=b["counter_latency"], collective=b["collective_cost"],
+                bandwidth=b["write_bandwidth_per_rank"])
+
+
+def simulate_loop(times, p, latency, slice_s, bytes_per_sample, write_per_byte, occupancy=None, put=0.0):
     """Wall time of the sample loop: dynamic schedule, events in time order. A ticket costs the
     rank `latency` and occupies the counter for `occupancy` (default: min(latency, 2 us); the
-    counter serves one operation at a time); marking a sample done costs `latency`."""
+    counter serves one operation at a time); putting a sample into the database costs `put`;
+    marking a sample done costs `latency`."""
     occ = min(latency, 2e-6) if occupancy is None else occupancy
     clock = [0.0] * p          # each rank's time
     batch_start = [None] * p   # start of the rank's open piece
@@ -93,7 +111,7 @@ def simulate_loop(times, p, latency, slice_s, bytes_per_sample, write_per_byte, 
             continue
         if batch_start[r] is None:
             batch_start[r] = clock[r]
-        clock[r] += times[k]
+        clock[r] += times[k] + put
         k += 1
         batch_bytes[r] += bytes_per_sample
         if clock[r] - batch_start[r] >= slice_s:
@@ -104,71 +122,69 @@ def simulate_loop(times, p, latency, slice_s, bytes_per_sample, write_per_byte, 
     return max(clock)
 
 
-def assembly_time(p, inp, collective, fs_bandwidth=math.inf):
-    """Assembly wall time at p ranks from rates measured at one rank."""
-    read = inp["read_bytes"] / min(p * inp["read_rate"], fs_bandwidth)
-    write_rate = inp["db_bytes"] / max(inp["t_write1"], 1e-9)
-    write = inp["db_bytes"] / min(p * write_rate, fs_bandwidth)
-    coll = 0.0 if p == 1 else N_COLL * collective(p)
-    return read + inp["t_dict"] + write + coll + inp["t_header"]
+def model_wall(p, inp, one, bench):
+    """Wall time at p ranks: inp = the run's figures (per-sample times), one = the 1-rank run's,
+    bench = crowd_snapbench at p ranks and at 1 rank ({p: figures})."""
+    b, b1 = bench[p], bench[1]
+    # the 1-rank run's per-sample handling, its database blocks at the bandwidth of p ranks
+    put = (max((one.get("handling") or 0.0) - one["db_bytes_per_sample"] / b1["bandwidth"], 0.0)
+           + one["db_bytes_per_sample"] / b["bandwidth"])
+    loop = simulate_loop(inp["times"], p, b["latency"], one["slice"], one["bytes_per_sample"], one["write_per_byte"],
+                         put=put)
+    setup = one["setup"] + N_SETUP * (b["collective"] - b1["collective"])
+    end = one["end"] + N_END * (b["collective"] - b1["collective"])
+    return setup + loop + end, loop, end
 
 
-def model_wall(p, inp, collective, fs_bandwidth=math.inf):
-    loop = simulate_loop(inp["times"], p, inp["latency"], inp["slice"], inp["bytes_per_sample"],
-                         inp["write_per_byte"])
-    asm = assembly_time(p, inp, collective, fs_bandwidth)
-    return inp["setup"] + loop + asm, loop, asm
-
-
-def validate(runs, calibrate=None):
-    """Model vs measured wall time of each run. Rates are those of the 1-rank run; the
-    per-collective cost of the parallel data phase is taken from `calibrate` (a 2-rank run of the
-    same study) when given, else from each run's measured MPI_Allreduce latency."""
+def validate(runs, bench_files):
+    """Model vs measured wall time of each run (runs: (summary, database) pairs, one at 1 rank;
+    bench_files: crowd_snapbench JSON at each rank count of the runs)."""
     ins = [inputs_from_run(s, d) for s, d in runs]
     one = next((i for i in ins if i["ranks"] == 1), None)
     if one is None:
         raise SystemExit("snapshot_model: validate needs a 1-rank run")
-    c_eff = None
-    if calibrate is not None:
-        cal = inputs_from_run(*calibrate)
-        rate = one["db_bytes"] / max(one["t_write"], 1e-9)
-        c_eff = max(cal["t_write"] - cal["db_bytes"] / (cal["ranks"] * rate), 0.0) / N_COLL
+    bench = {}
+    for f in bench_files:
+        b = bench_inputs(f)
+        bench[b["ranks"]] = b
     rows = []
     for inp in ins:
-        inp["read_rate"] = one["read_rate"]
-        inp["t_write1"] = one["t_write"]
-        coll = (lambda p: c_eff) if c_eff is not None else (lambda p, c=inp["collective"]: c)
-        wall, loop, asm = model_wall(inp["ranks"], inp, coll)
+        if inp["ranks"] not in bench or 1 not in bench:
+            raise SystemExit("snapshot_model: no crowd_snapbench figures at %d (and 1) ranks" % inp["ranks"])
+        wall, loop, end = model_wall(inp["ranks"], inp, one, bench)
         rows.append(dict(ranks=inp["ranks"], measured=inp["wall"], model=wall, loop_measured=inp["loop"],
-                         loop_model=loop, asm_measured=inp["assembly"], asm_model=asm,
+                         loop_model=loop, asm_measured=inp["end"], asm_model=end,
                          error=(wall - inp["wall"]) / inp["wall"]))
-    return rows, c_eff
+    return rows
 
 
 def predict(db, summary, agents=1000, agents_ref=150, step_ratio=194.385 / 3.036, ranks=(16, 128, 1024),
-            n_samples=None, latency=5e-6, fs_bandwidth=10e9, write_rate=1e9, read_rate=2e9, alpha=5e-6):
+            n_samples=None, latency=5e-6, write_rate=1e9, alpha=5e-6, fs_bandwidth=10e9):
     """Efficiency of a study like `db`'s with `agents` agents on many ranks.
 
     Per-sample times: the database's distribution times `step_ratio` (full-order time per step at
     `agents` over `agents_ref` agents, README "Full-order model: scaling"); data per sample x
     agents / agents_ref. Machine (assumed, not measured here): counter latency `latency` (s, one
-    RDMA atomic), per-rank write / read rates, aggregate file-system bandwidth, collective cost
-    alpha log2(P). Returns one row per rank count."""
+    RDMA atomic), per-rank write rate (the aggregate capped by the file system's bandwidth),
+    collective cost alpha log2(P). The serial end of the database (dictionary, multiplier
+    layout, checksums) is the 1-rank run's, scaled with the data. Returns one row per rank
+    count."""
     inp = inputs_from_run(summary, db)
     times = inp["times"] * step_ratio
     if n_samples is not None:
         rng = np.random.default_rng(1)
         times = rng.choice(times, n_samples)
     scale = agents / agents_ref
-    inp.update(times=times, latency=latency, bytes_per_sample=inp["bytes_per_sample"] * scale,
-               write_per_byte=1.0 / write_rate, read_rate=read_rate, read_bytes=inp["read_bytes"] * scale,
-               db_bytes=inp["db_bytes"] * scale, t_write1=inp["db_bytes"] * scale / write_rate,
-               setup=1.0, t_dict=0.05, t_header=0.05 * scale)
+    one = dict(inp, setup=1.0, end=inp["end"] * scale, bytes_per_sample=inp["bytes_per_sample"] * scale,
+               db_bytes_per_sample=inp["db_bytes_per_sample"] * scale, write_per_byte=1.0 / write_rate)
     work = float(np.sum(times))
     rows = []
     for p in ranks:
-        wall, loop, asm = model_wall(p, inp, lambda q: alpha * math.log2(max(q, 2)), fs_bandwidth)
-        rows.append(dict(ranks=p, samples=len(times), wall=wall, loop=loop, assembly=asm,
+        w = min(write_rate, fs_bandwidth / p)
+        bench = {1: dict(latency=latency, collective=0.0, bandwidth=write_rate),
+                 p: dict(latency=latency, collective=alpha * math.log2(max(p, 2)), bandwidth=w)}
+        wall, loop, end = model_wall(p, dict(inp, times=times), one, bench)
+        rows.append(dict(ranks=p, samples=len(times), wall=wall, loop=loop, assembly=end,
                          efficiency=work / (p * wall), loop_efficiency=work / (p * loop),
                          counter_busy=2 * len(times) * latency / loop, work=work))
     return rows
@@ -179,7 +195,7 @@ def main():
     sub = ap.add_subparsers(dest="cmd", required=True)
     v = sub.add_parser("validate")
     v.add_argument("--runs", nargs="+", required=True, help="SUMMARY.json:DATABASE.h5 of each run")
-    v.add_argument("--calibrate-collectives", default=None, help="SUMMARY.json:DATABASE.h5 of a 2-rank run")
+    v.add_argument("--bench", nargs="+", required=True, help="crowd_snapbench JSON at each rank count")
     pr = sub.add_parser("predict")
     pr.add_argument("--db", required=True)
     pr.add_argument("--summary", required=True)
@@ -190,16 +206,13 @@ def main():
     try:
         if a.cmd == "validate":
             runs = [tuple(r.split(":", 1)) for r in a.runs]
-            cal = tuple(a.calibrate_collectives.split(":", 1)) if a.calibrate_collectives else None
-            rows, c = validate(runs, cal)
-            print("| ranks | measured wall (s) | model (s) | error | loop measured / model (s) | assembly measured / model (s) |")
+            rows = validate(runs, a.bench)
+            print("| ranks | measured wall (s) | model (s) | error | loop measured / model (s) | end measured / model (s) |")
             print("|---|---|---|---|---|---|")
             for r in rows:
                 print("| %d | %.3f | %.3f | %+.1f%% | %.3f / %.3f | %.3f / %.3f |" % (
                     r["ranks"], r["measured"], r["model"], 100 * r["error"], r["loop_measured"], r["loop_model"],
                     r["asm_measured"], r["asm_model"]))
-            if c is not None:
-                print("\ncost per collective of the parallel data phase (calibrated): %.2f ms" % (1e3 * c))
         else:
             rows = predict(a.db, a.summary, agents=a.agents, ranks=a.ranks, n_samples=a.samples)
             print("| ranks | samples | wall (s) | loop (s) | assembly (s) | efficiency | loop efficiency | counter busy |")

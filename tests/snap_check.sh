@@ -54,6 +54,7 @@ stop_resume)
   "$MPIRUN" -np 2 --oversubscribe "$bin" "$input" --stop-after 4 --batch-seconds 0 > log1.txt 2>&1; rc=$?
   [ $rc -eq 3 ] || { cat log1.txt; fail "--stop-after 4: exit status $rc, expected 3"; }
   [ ! -e snap_tiny.h5 ] || fail "an interrupted run left a database under the final name"
+  [ ! -e snap_tiny.h5.partial ] || fail "a stopped run left its partial database behind"
   n=$(ls snap_tiny.h5.pieces/*.h5 2>/dev/null | wc -l)
   [ "$n" -eq 4 ] || fail "expected 4 complete pieces, found $n"
   "$MPIRUN" -np 3 --oversubscribe "$bin" "$input" --summary s.json > log2.txt 2>&1 || { cat log2.txt; fail "resume"; }
@@ -95,6 +96,9 @@ kill_resume)
   done
   [ -z "$left" ] || fail "processes of the killed run survive: $left"
   [ ! -e snap_kill.h5 ] || fail "the killed run left a database under the final name (or finished before the kill)"
+  # the database is written as the samples come: the killed run leaves a partial one, which the
+  # resumed run must replace, not trust
+  [ -e snap_kill.h5.partial ] || echo "note: no partial database left by the killed run"
   p=$(ls snap_kill.h5.pieces/*.h5 2>/dev/null | wc -l)
   n=$(samples_in_pieces snap_kill.h5.pieces)
   echo "killed with $p complete pieces holding $n samples"
@@ -102,6 +106,7 @@ kill_resume)
   grep -q "\"samples_resumed\": $n" s.json || { cat s.json; fail "resume did not reuse the $n samples of the $p pieces"; }
   same_db snap_kill.h5 ref/snap_kill.h5
   [ ! -e snap_kill.h5.pieces ] || { ls -la snap_kill.h5.pieces; fail "pieces (or temporaries) left after the resumed run"; }
+  [ ! -e snap_kill.h5.partial ] || fail "the partial database of the killed run survives the resumed run"
   ;;
 mismatch)
   bin=$1; input=$2; other=$3
@@ -142,6 +147,7 @@ sys.exit(1)") || fail "no piece with multipliers to corrupt"
     grep -qE "$2" <<<"$out" || { echo "$out"; fail "$1: message"; }
     grep -q "quarantine-bad-pieces" <<<"$out" || { echo "$out"; fail "$1: no hint at --quarantine-bad-pieces"; }
     [ ! -e snap_tiny.h5 ] || fail "$1: a database was written"
+    [ ! -e snap_tiny.h5.partial ] || fail "$1: a partial database was left behind"
     rm -rf $P; cp -r pristine $P
   }
   "$py" "$here/snap_corrupt.py" bytes $P/train_000002.h5 velocities || fail "corrupt (bytes)"

@@ -48,18 +48,28 @@ def tiny_run(tmp_path_factory):
                             "--summary", str(js)], cwd=tmp, capture_output=True, text=True, env=ENV)
         assert p.returncode == 0, p.stdout + p.stderr
         runs.append((str(js), str(db)))
-    return tmp, runs
+    bench = []
+    for np_ in (1, 2):
+        out = tmp / ("bench_np%d.json" % np_)
+        p = subprocess.run(["mpiexec", "-n", str(np_), os.path.join(BIN, "crowd_snapbench"), str(tmp / "sb.tmp"),
+                            "1", "65536"], cwd=tmp, capture_output=True, text=True, env=ENV)
+        assert p.returncode == 0, p.stdout + p.stderr
+        out.write_text(p.stdout)
+        b = json.loads(p.stdout.strip().splitlines()[-1])
+        assert b["ranks"] == np_ and b["write_bandwidth_per_rank"] > 0 and b["counter_latency"] > 0
+        assert not (tmp / "sb.tmp").exists()
+        bench.append(str(out))
+    return tmp, runs, bench
 
 
 def test_validate_and_predict(tiny_run):
-    tmp, runs = tiny_run
-    rows, c = sm.validate(runs, runs[1])
+    tmp, runs, bench = tiny_run
+    rows = sm.validate(runs, bench)
     assert [r["ranks"] for r in rows] == [1, 2]
     for r in rows:
         assert np.isfinite(r["model"]) and r["model"] > 0
         # the model's loop cannot be shorter than the work of the busiest rank allows
         assert r["loop_model"] >= 0
-    assert c is not None and c >= 0
     pred = sm.predict(runs[0][1], runs[0][0], ranks=(1, 4, 64))
     eff = [r["efficiency"] for r in pred]
     assert all(0 < e <= 1 for e in eff)
@@ -68,7 +78,7 @@ def test_validate_and_predict(tiny_run):
 
 
 def test_timeline(tiny_run):
-    tmp, runs = tiny_run
+    tmp, runs, _ = tiny_run
     js, db = runs[1]
     out = tmp / "timeline.png"
     p = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "plot_timeline.py"), db, js, "--out", str(out)],

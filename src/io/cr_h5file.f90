@@ -46,7 +46,8 @@ module cr_h5file
     h5sselect_none_f, h5sget_simple_extent_ndims_f, h5sget_simple_extent_dims_f, &
     h5tcopy_f, h5tclose_f, h5tset_size_f, h5tset_strpad_f, h5tget_class_f, h5tget_size_f, &
     h5tis_variable_str_f, h5aexists_f, h5adelete_f, h5acreate_f, h5aopen_f, h5aclose_f, &
-    h5awrite_f, h5aread_f, h5aget_space_f, h5aget_type_f
+    h5awrite_f, h5aread_f, h5aget_space_f, h5aget_type_f, &
+    h5pset_alloc_time_f, h5pset_fill_time_f, h5dget_offset_f, H5D_ALLOC_TIME_EARLY_F, H5D_FILL_TIME_NEVER_F
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error
   use cr_env, only: env_t, agree_error_on
@@ -95,6 +96,7 @@ module cr_h5file
     procedure :: get_dims
     procedure :: create_extendible
     procedure :: create_dataset
+    procedure :: create_placed
     procedure, private :: w_real0, w_real1, w_real2, w_real3, w_int0, w_int1, w_int2, &
       w_int64_1, w_string
     generic :: write => w_real0, w_real1, w_real2, w_real3, w_int0, w_int1, w_int2, &
@@ -915,6 +917,63 @@ contains
     end if
     call sync_error(this, error)
   end subroutine create_dataset
+
+  !> Serial handle only: create a contiguous dataset whose storage is allocated now (no fill
+  !> values written) and return the byte offset of its first element in the file, so that the
+  !> ranks of a parallel writer can fill their blocks with plain MPI-IO writes (env's
+  !> par_file_t) after this handle is closed: elements in Fortran order, native byte order.
+  subroutine create_placed(this, name, global_dims, kind, offset, error)
+    class(h5file_t), intent(inout) :: this
+    character(len=*), intent(in) :: name
+    !> global dims, Fortran order
+    integer, intent(in) :: global_dims(:)
+    !> cr_h5_real, cr_h5_int or cr_h5_int64
+    integer, intent(in) :: kind
+    !> byte offset of the data in the file (-1 for an empty dataset: nothing to write)
+    integer(i8), intent(out) :: offset
+    type(error_t), allocatable, intent(out) :: error
+    integer(hid_t) :: dset, space, dcpl
+    integer(hsize_t) :: d(size(global_dims)), off
+    integer :: hdferr
+    character(len=*), parameter :: op = "create_placed"
+    offset = -1
+    dset = -1; space = -1; dcpl = -1
+    call need_open(this, error, op, name, .true.)
+    if (allocated(error)) return
+    if (this%parallel) then
+      call fail(this, error, op, name, "needs a serial handle"); return
+    end if
+    if (type_of(kind) < 0) then
+      call fail(this, error, op, name, "unknown kind code " // str(kind)); return
+    end if
+    d = int(global_dims, hsize_t)
+    call ensure_space(this, 8_i8 * product(int(global_dims, i8)), op, name, error)
+    if (allocated(error)) return
+    ops: block
+      call h5screate_simple_f(size(d), d, space, hdferr)
+      call check_h5(hdferr, this, error, op, name, "h5screate_simple_f", d)
+      if (allocated(error)) exit ops
+      call h5pcreate_f(H5P_DATASET_CREATE_F, dcpl, hdferr)
+      call check_h5(hdferr, this, error, op, name, "h5pcreate_f", d)
+      if (allocated(error)) exit ops
+      call h5pset_alloc_time_f(dcpl, H5D_ALLOC_TIME_EARLY_F, hdferr)
+      call check_h5(hdferr, this, error, op, name, "h5pset_alloc_time_f", d)
+      if (allocated(error)) exit ops
+      call h5pset_fill_time_f(dcpl, H5D_FILL_TIME_NEVER_F, hdferr)
+      call check_h5(hdferr, this, error, op, name, "h5pset_fill_time_f", d)
+      if (allocated(error)) exit ops
+      call h5dcreate_f(this%fid, name, type_of(kind), space, dset, hdferr, dcpl_id=dcpl, lcpl_id=this%lcpl)
+      call check_h5(hdferr, this, error, op, name, "h5dcreate_f", d)
+      if (allocated(error)) exit ops
+      if (product(d) > 0) then
+        call h5dget_offset_f(dset, off, hdferr)
+        call check_h5(hdferr, this, error, op, name, "h5dget_offset_f", d)
+        if (allocated(error)) exit ops
+        offset = int(off, i8)
+      end if
+    end block ops
+    call close_ids(dset=dset, space=space, ptype=dcpl)
+  end subroutine create_placed
 
   !> Create (collectively) a chunked dataset [row_shape..., 0] with an unlimited last dimension,
   !> grown by `append`. row_shape may be empty (1D stream, e.g. contact lists).

@@ -1,12 +1,16 @@
 !> The snapshot database of a parameter study (schema "crowdrom-snapshots", version 1; layout in
-!> the README, "Snapshot database"): written by crowd_snapshots (cr_snapshot_db assembles the
-!> pieces), read by crowd_offline (a block of training samples per rank), crowd_rom (the study
-!> and its full-order trajectories) and the Python scripts.
+!> the README, "Snapshot database"): written by crowd_snapshots, read by crowd_offline (a block
+!> of training samples per rank), crowd_rom (the study and its full-order trajectories) and the
+!> Python scripts.
 !>
-!> This module owns the schema's name, version, units and metadata type (the writer,
-!> cr_snapshot_db, assembles the pieces with them) and the readers `read_snap_header` and
-!> `read_snap_block`. Readers accept the versions in SNAP_VERSIONS_READ and validate what they
-!> read: dataset shapes against the root attributes, dictionary identities and multiplier indices
+!> This module owns the schema's name, version, units, the sample and metadata types, the
+!> writer `snap_writer_t` (begin: rank 0 lays the file out serially, every fixed-size dataset's
+!> storage placed; put: a rank writes one of its samples' blocks at their byte offsets with
+!> MPI-IO as soon as it has the sample; finish: the contact dictionary, the multipliers, the
+!> checksums and complete = 1; a fixed, small number of collectives whatever the number of
+!> samples and datasets), `probe_snap_database` (is a file under the name a complete database
+!> of this configuration?) and the readers `read_snap_header` and `read_snap_block`. Readers
+!> accept the versions in SNAP_VERSIONS_READ and validate what they read: dataset shapes against the root attributes, dictionary identities and multiplier indices
 !> in range, CSR offsets monotone, positions, velocities, desired velocities, parameters and
 !> multipliers finite, and the checksums of what they read (cr_digest; the ranks' blocks of a
 !> parallel read add up to the whole datasets).
@@ -14,14 +18,20 @@ module cr_snapshot_file
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
-  use cr_env, only: env_t
-  use cr_h5file, only: h5file_t
-  use cr_digest, only: digest_t, digest_of, digest_add, check_digest, check_digest_parts
+  use cr_env, only: env_t, par_file_t
+  use cr_h5file, only: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64
+  use cr_digest, only: digest_t, digest_of, digest_add, check_digest, check_digest_parts, digest_allreduce, &
+    put_digest, DIGEST_ALGORITHM
   use cr_product_check, only: check_schema, need_finite, need_range, need_dims, product_error
+  use cr_sort, only: argsort_i8, bsearch_i8
+  use cr_scene, only: scene_t
+  use cr_fom_file, only: write_scene
+  use cr_fsys, only: rename_file, remove_file
   implicit none
   private
   public :: SNAP_SCHEMA, SNAP_SCHEMA_VERSION, SNAP_VERSIONS_READ, SNAP_UNITS, db_meta_t, snap_header_t, &
-    snap_block_t, read_snap_header, read_snap_block
+    snap_block_t, read_snap_header, read_snap_block, snap_sample_t, snap_write_stats_t, snap_writer_t, &
+    probe_snap_database, scene_vertex_list, SNAP_SET_NAMES
 
   character(len=*), parameter :: SNAP_SCHEMA = "crowdrom-snapshots"
   integer, parameter :: SNAP_SCHEMA_VERSION = 1
@@ -29,6 +39,64 @@ module cr_snapshot_file
   integer, parameter :: SNAP_VERSIONS_READ(1) = [1]
   character(len=*), parameter :: SNAP_UNITS = "length: m, time: s, velocity: m/s, l_exit: m, " // &
     "speed: m/s, multiplier: m/s^2 (lambda scales B = -h G: u = v - B^T lambda)"
+
+  !> the sets of a study, in database order
+  character(len=8), parameter :: SNAP_SET_NAMES(2) = [character(len=8) :: 'train', 'valid']
+
+  !> One sample of a study as the database stores it: its trajectory, statistics, multipliers
+  !> and mapped scene (the study computes it; the writer places it by set and index).
+  type :: snap_sample_t
+    !> 'train' or 'valid', and the sample's index in its set
+    character(len=8) :: set = ''
+    integer :: index = 0
+    !> parameter values [n_expanded]
+    real(wp), allocatable :: mu(:)
+    !> positions q^0..q^{n_steps} [2*n_agents, n_steps+1]
+    real(wp), allocatable :: q(:,:)
+    !> velocities u^nu and desired velocities v(q^{nu-1}), nu = 1..n_steps [2*n_agents, n_steps]
+    real(wp), allocatable :: u(:,:), v(:,:)
+    !> per-step KKT residual and smallest gap [n_steps]
+    real(wp), allocatable :: kkt(:), min_gap(:)
+    !> per-step solver iterations, converged flag (1/0), active contacts [n_steps]
+    integer, allocatable :: iterations(:), converged(:), n_active(:)
+    !> sparse multipliers, CSR over the steps: step nu holds entries offset(nu)+1..offset(nu+1)
+    integer(i8), allocatable :: offset(:)
+    integer(i8), allocatable :: key(:)
+    integer, allocatable :: ia(:), ib(:), ob(:)
+    real(wp), allocatable :: value(:)
+    !> wall time of the sample (s), its start (s since the start of the run) and the rank that
+    !> computed it
+    real(wp) :: time = 0, start = 0
+    integer :: rank = -1
+    !> the sample's scene as the parameter mapping builds it (set before writing the database):
+    !> obstacle vertices in the layout of /scene [2 n_v] and exit segment (x_lo, y, x_hi, y)
+    real(wp), allocatable :: scene_v(:)
+    real(wp) :: scene_exit(4) = 0
+  end type snap_sample_t
+
+  !> What the writer measured (s; rank 0's clock unless said) and wrote.
+  type :: snap_write_stats_t
+    !> this rank's time in put (checksum parts and block writes of its samples); in finish: global
+    !> counts, contact dictionary and checksum sums; serial layout by rank 0 (begin and finish);
+    !> the ranks' multiplier block writes; completion (complete = 1, rename)
+    real(wp) :: t_put = 0, t_dict = 0, t_layout = 0, t_write = 0, t_seal = 0
+    !> contacts in the dictionary, stored multipliers, data bytes written by all ranks
+    integer :: n_dict = 0
+    integer(i8) :: nnz = 0, bytes = 0
+  end type snap_write_stats_t
+
+  !> datasets of one set, in this order (stats/... in the stats group), their element sizes
+  !> (bytes), kinds and ranks; the multiplier datasets are placed only when finish knows their sizes
+  character(len=*), parameter :: DS(17) = [character(len=16) :: 'params', 'positions', 'velocities', &
+    'desired', 'lambda_offset', 'lambda_index', 'lambda_value', 'stats/kkt', 'stats/min_gap', &
+    'stats/iterations', 'stats/converged', 'stats/n_active', 'stats/time', 'stats/rank', 'stats/start', &
+    'scene_vertices', 'scene_exit']
+  integer, parameter :: ESZ(17) = [8, 8, 8, 8, 8, 4, 8, 8, 8, 4, 4, 4, 8, 4, 8, 8, 8]
+  integer, parameter :: KIND_OF(17) = [cr_h5_real, cr_h5_real, cr_h5_real, cr_h5_real, cr_h5_int64, cr_h5_int, &
+    cr_h5_real, cr_h5_real, cr_h5_real, cr_h5_int, cr_h5_int, cr_h5_int, cr_h5_real, cr_h5_int, cr_h5_real, &
+    cr_h5_real, cr_h5_real]
+  integer, parameter :: DRANK(17) = [2, 2, 2, 2, 1, 1, 1, 2, 2, 2, 2, 2, 1, 1, 1, 2, 2]
+  integer, parameter :: LAMBDA_DS(3) = [5, 6, 7]
 
   !> Root metadata of a database (what the writer is given).
   type :: db_meta_t
@@ -40,8 +108,38 @@ module cr_snapshot_file
     !> program, HDF5, MPI and compiler versions
     character(len=:), allocatable :: version, hdf5_version, mpi_version, compiler
     integer :: n_agents = 0, n_steps = 0, n_expanded = 0
+    !> samples of the two sets
+    integer :: n_train = 0, n_valid = 0
     real(wp) :: radius = 0, dt = 0
   end type db_meta_t
+
+  !> Writer of a database (collective begin and finish; put by each rank for the samples it
+  !> holds, as soon as it has them): see writer_begin, writer_put, writer_finish.
+  type :: snap_writer_t
+    type(snap_write_stats_t) :: stats
+    type(env_t), private :: env
+    character(len=:), allocatable, private :: path
+    type(db_meta_t), private :: meta
+    integer, private :: nset(2) = 0, nd = 0, ns = 0, ne = 0, nv = 0
+    !> byte offset of each dataset of each set in the file (-1: empty or not placed yet) [17, 2]
+    integer(i8), private :: place(17, 2) = -1
+    !> this rank's checksum parts [17, 2]
+    type(digest_t), private :: dg(17, 2)
+    type(par_file_t), private :: pf
+    logical, private :: active = .false.
+    !> the multipliers of the samples put by this rank and their global numbers [nl]
+    integer, private :: nl = 0
+    type(snap_sample_t), allocatable, private :: lam(:)
+    integer, allocatable, private :: gl(:)
+    !> multipliers per set and each sample's position in its set's CSR arrays (finish)
+    integer(i8), private :: total(2) = 0
+    integer(i8), allocatable, private :: base(:)
+  contains
+    procedure :: begin => writer_begin
+    procedure :: put => writer_put
+    procedure :: finish => writer_finish
+    procedure :: discard => writer_discard
+  end type snap_writer_t
 
   !> What a reader learns from the root of a complete database.
   type :: snap_header_t
@@ -80,6 +178,663 @@ module cr_snapshot_file
   end type snap_block_t
 
 contains
+
+  ! ------------------------------------------------------------------ write
+
+  !> Vertices of every obstacle of a scene, in order [2 * total vertices] (the layout of
+  !> /scene/obstacle_vertices and of <set>/scene_vertices).
+  function scene_vertex_list(sc) result(v)
+    type(scene_t), intent(in) :: sc
+    real(wp), allocatable :: v(:)
+    integer :: k, n, m
+    n = 0
+    do k = 1, sc%n_obstacles()
+      n = n + size(sc%obstacles(k)%vertices)
+    end do
+    allocate(v(n))
+    n = 0
+    do k = 1, sc%n_obstacles()
+      m = size(sc%obstacles(k)%vertices)
+      v(n + 1:n + m) = reshape(sc%obstacles(k)%vertices, [m])
+      n = n + m
+    end do
+  end function scene_vertex_list
+
+  !> Serial check of an existing file under the database's name: status 0 = no file, 1 =
+  !> complete database of this configuration (config_hash), 2 = anything else (message says why;
+  !> it must not be overwritten).
+  subroutine probe_snap_database(path, hash, status, message)
+    character(len=*), intent(in) :: path, hash
+    integer, intent(out) :: status
+    character(len=:), allocatable, intent(out) :: message
+    type(h5file_t) :: h5
+    type(error_t), allocatable :: error, e2
+    character(len=:), allocatable :: schema, h
+    integer :: complete
+    logical :: ex
+    message = ""
+    inquire(file=path, exist=ex)
+    if (.not. ex) then
+      status = 0; return
+    end if
+    status = 2
+    call h5%open(path, error)
+    if (allocated(error)) then
+      message = "database '" // path // "' exists and is not a crowdrom snapshot database (" // &
+        error%message // "): refusing to overwrite it; remove it or change &study database"
+      return
+    end if
+    call h5%read_attr("/", "schema", schema, error)
+    if (.not. allocated(error)) call h5%read_attr("/", "config_hash", h, error)
+    if (.not. allocated(error)) call h5%read_attr("/", "complete", complete, error)
+    call h5%close(e2)
+    if (allocated(error)) then
+      message = "database '" // path // "' exists and is not a crowdrom snapshot database: " // &
+        "refusing to overwrite it; remove it or change &study database"
+    else if (schema /= SNAP_SCHEMA) then
+      message = "database '" // path // "' has schema '" // schema // "', not " // SNAP_SCHEMA // &
+        ": refusing to overwrite it"
+    else if (h /= hash) then
+      message = "database '" // path // "' was written for a different configuration (config_hash " // &
+        h // ", this input " // trim(hash) // "): refusing to overwrite or mix it; remove it or " // &
+        "change &study database"
+    else if (complete /= 1) then
+      message = "database '" // path // "' is marked incomplete: refusing to overwrite it"
+    else
+      status = 1
+    end if
+  end subroutine probe_snap_database
+
+  ! ---- the writer: begin (collective), put (each rank, any number of samples), finish (collective)
+
+  !> Collective: create `<path>.partial`. Rank 0 lays it out serially: root attributes, initial
+  !> positions, scene, and every dataset whose size the study fixes (all but the contact
+  !> dictionary and the multipliers) with its storage placed; the byte offsets are broadcast and
+  !> every rank opens the file for its block writes (MPI-IO).
+  subroutine writer_begin(this, env, path, meta, q0, scene, error)
+    class(snap_writer_t), intent(inout) :: this
+    type(env_t), intent(in) :: env
+    character(len=*), intent(in) :: path
+    type(db_meta_t), intent(in) :: meta
+    !> common initial positions [2*n_agents]
+    real(wp), intent(in), contiguous :: q0(:)
+    !> the reference scene (group /scene; its vertex layout is that of every sample's scene)
+    type(scene_t), intent(in) :: scene
+    type(error_t), allocatable, intent(out) :: error
+    character(len=:), allocatable :: m
+    integer :: is
+    real(wp) :: t0
+    t0 = env%wtime()
+    this%env = env
+    this%path = path
+    this%meta = meta
+    this%nset = [meta%n_train, meta%n_valid]
+    this%nd = 2 * meta%n_agents; this%ns = meta%n_steps; this%ne = meta%n_expanded
+    this%nv = size(scene_vertex_list(scene))
+    this%place = -1
+    this%nl = 0
+    allocate(this%lam(16), this%gl(16))
+    m = ""
+    if (env%is_root()) call lay_out(m)
+    call share_places(this, m, error)
+    if (allocated(error)) return
+    call this%pf%open(env, path // ".partial", error)
+    call env%agree_error(error)
+    if (allocated(error)) then
+      call this%discard(); return
+    end if
+    this%active = .true.
+    this%stats%t_layout = env%wtime() - t0
+
+  contains
+
+    subroutine lay_out(m)
+      character(len=:), allocatable, intent(inout) :: m
+      type(h5file_t) :: h5
+      type(error_t), allocatable :: e, e3
+      integer :: iss, q2, n
+      integer :: dims(2, 17)
+      character(len=:), allocatable :: g
+      call h5%create(path, e)
+      if (allocated(e)) then
+        m = e%message; return
+      end if
+      ops: block
+        call write_root(h5, e); if (allocated(e)) exit ops
+        call h5%write("initial_positions", q0, e); if (allocated(e)) exit ops
+        call put_digest(h5, "initial_positions", digest_of(q0, 0_i8), e); if (allocated(e)) exit ops
+        call write_scene(h5, scene, e); if (allocated(e)) exit ops
+        do iss = 1, 2
+          n = this%nset(iss)
+          g = trim(SNAP_SET_NAMES(iss))
+          call h5%make_group(g, e); if (allocated(e)) exit ops
+          call h5%make_group(g // "/stats", e); if (allocated(e)) exit ops
+          call h5%write_attr(g, "n_samples", n, e); if (allocated(e)) exit ops
+          call set_dims(this, iss, dims)
+          do q2 = 1, 17
+            if (any(q2 == LAMBDA_DS)) cycle
+            call h5%create_placed(g // "/" // trim(DS(q2)), dims(1:DRANK(q2), q2), KIND_OF(q2), this%place(q2, iss), e)
+            if (allocated(e)) exit ops
+          end do
+        end do
+      end block ops
+      if (allocated(e)) then
+        m = e%message
+        call h5%abort()
+        return
+      end if
+      call h5%close(e3)
+      if (allocated(e3)) m = e3%message
+    end subroutine lay_out
+
+    !> Root attributes (complete = 1 comes last, in finish).
+    subroutine write_root(hh, e)
+      type(h5file_t), intent(inout) :: hh
+      type(error_t), allocatable, intent(out) :: e
+      call hh%write_attr("/", "schema", SNAP_SCHEMA, e); if (allocated(e)) return
+      call hh%write_attr("/", "schema_version", SNAP_SCHEMA_VERSION, e); if (allocated(e)) return
+      call hh%write_attr("/", "program", "crowd_snapshots", e); if (allocated(e)) return
+      call hh%write_attr("/", "version", meta%version, e); if (allocated(e)) return
+      call hh%write_attr("/", "hdf5_version", meta%hdf5_version, e); if (allocated(e)) return
+      call hh%write_attr("/", "mpi_version", meta%mpi_version, e); if (allocated(e)) return
+      call hh%write_attr("/", "compiler", meta%compiler, e); if (allocated(e)) return
+      call hh%write_attr("/", "config", meta%config_text, e); if (allocated(e)) return
+      call hh%write_attr("/", "input_text", meta%input_text, e); if (allocated(e)) return
+      call hh%write_attr("/", "config_hash", trim(meta%hash), e); if (allocated(e)) return
+      call hh%write_attr("/", "units", SNAP_UNITS, e); if (allocated(e)) return
+      call hh%write_attr("/", "n_agents", meta%n_agents, e); if (allocated(e)) return
+      call hh%write_attr("/", "agent_radius", meta%radius, e); if (allocated(e)) return
+      call hh%write_attr("/", "dt", meta%dt, e); if (allocated(e)) return
+      call hh%write_attr("/", "n_steps", meta%n_steps, e); if (allocated(e)) return
+      call hh%write_attr("/", "n_train", meta%n_train, e); if (allocated(e)) return
+      call hh%write_attr("/", "n_valid", meta%n_valid, e); if (allocated(e)) return
+      call hh%write_attr("/", "n_params", meta%n_expanded, e); if (allocated(e)) return
+      call hh%write_attr("/", "param_names", meta%param_names, e); if (allocated(e)) return
+      call hh%write_attr("/", "checksum_algorithm", DIGEST_ALGORITHM, e)
+    end subroutine write_root
+  end subroutine writer_begin
+
+  !> Collective: rank 0's status (m: '' or its message) and the places of the datasets, in one
+  !> broadcast (the message follows only on failure).
+  subroutine share_places(this, m, error)
+    type(snap_writer_t), intent(inout) :: this
+    character(len=:), allocatable, intent(inout) :: m
+    type(error_t), allocatable, intent(out) :: error
+    integer(i8) :: buf(35)
+    buf(1) = len(m)
+    buf(2:) = reshape(this%place, [34])
+    call this%env%bcast(buf, error)
+    if (allocated(error)) return
+    this%place = reshape(buf(2:), [17, 2])
+    if (buf(1) == 0) return
+    call this%env%bcast_string(m)
+    if (index(m, "database '") /= 1) m = "database '" // this%path // "': " // m
+    call set_error(error, m)
+  end subroutine share_places
+
+  !> Global dims of the datasets of set is [2, 17] (second entry unused for 1D datasets).
+  subroutine set_dims(this, is, dims)
+    type(snap_writer_t), intent(in) :: this
+    integer, intent(in) :: is
+    integer, intent(out) :: dims(2, 17)
+    integer :: n, q
+    n = this%nset(is)
+    dims(:, 1) = [this%ne, n]; dims(:, 2) = [this%nd, (this%ns + 1) * n]; dims(:, 3) = [this%nd, this%ns * n]
+    dims(:, 4) = [this%nd, this%ns * n]; dims(:, 5) = [this%ns * n + 1, 0]
+    dims(:, 6) = [int(this%total(is)), 0]; dims(:, 7) = [int(this%total(is)), 0]
+    do q = 8, 12
+      dims(:, q) = [this%ns, n]
+    end do
+    dims(:, 13) = [n, 0]; dims(:, 14) = [n, 0]; dims(:, 15) = [n, 0]
+    dims(:, 16) = [this%nv, n]; dims(:, 17) = [4, n]
+  end subroutine set_dims
+
+  !> Write one sample (this rank's; not collective): its blocks of every dataset but the
+  !> multipliers go to their places now, their checksum parts are added; the multipliers are
+  !> kept (compact) until finish places them. The sample's scene_v / scene_exit must be set.
+  subroutine writer_put(this, s, error)
+    class(snap_writer_t), intent(inout) :: this
+    type(snap_sample_t), intent(in) :: s
+    type(error_t), allocatable, intent(out) :: error
+    type(snap_sample_t), allocatable :: l2(:)
+    integer, allocatable :: g2(:)
+    integer(i8) :: o(17), at(17)
+    integer :: is, q, nd, ns, ne, nv
+    character(len=:), allocatable :: m
+    real(wp) :: t0
+    t0 = this%env%wtime()
+    if (.not. this%active) then
+      call set_error(error, "database '" // this%path // "': put before begin or after finish"); return
+    end if
+    m = ""
+    call check_shapes(this, s, m)
+    if (len(m) > 0) then
+      call set_error(error, "database '" // this%path // "': " // m); return
+    end if
+    nd = this%nd; ns = this%ns; ne = this%ne; nv = this%nv
+    is = findloc(SNAP_SET_NAMES, s%set, dim=1)
+    o = elem_offsets(this, s, 0_i8)
+    at = this%place(:, is) + o * ESZ
+    associate (d => this%dg(:, is))
+      d(1) = digest_add(d(1), digest_of(s%mu, o(1)))
+      d(2) = digest_add(d(2), digest_of(s%q, o(2)))
+      d(3) = digest_add(d(3), digest_of(s%u, o(3)))
+      d(4) = digest_add(d(4), digest_of(s%v, o(4)))
+      d(8) = digest_add(d(8), digest_of(s%kkt, o(8)))
+      d(9) = digest_add(d(9), digest_of(s%min_gap, o(9)))
+      d(10) = digest_add(d(10), digest_of(s%iterations, o(10)))
+      d(11) = digest_add(d(11), digest_of(s%converged, o(11)))
+      d(12) = digest_add(d(12), digest_of(s%n_active, o(12)))
+      d(13) = digest_add(d(13), digest_of([s%time], o(13)))
+      d(14) = digest_add(d(14), digest_of([s%rank], o(14)))
+      d(15) = digest_add(d(15), digest_of([s%start], o(15)))
+      d(16) = digest_add(d(16), digest_of(s%scene_v, o(16)))
+      d(17) = digest_add(d(17), digest_of(s%scene_exit, o(17)))
+    end associate
+    w: block
+      call this%pf%write_at(at(1), s%mu, 8_i8 * ne, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(2), s%q, 8_i8 * nd * (ns + 1), error); if (allocated(error)) exit w
+      call this%pf%write_at(at(3), s%u, 8_i8 * nd * ns, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(4), s%v, 8_i8 * nd * ns, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(8), s%kkt, 8_i8 * ns, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(9), s%min_gap, 8_i8 * ns, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(10), s%iterations, 4_i8 * ns, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(11), s%converged, 4_i8 * ns, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(12), s%n_active, 4_i8 * ns, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(13), [s%time], 8_i8, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(14), [s%rank], 4_i8, error); if (allocated(error)) exit w
+      call this%pf%write_at(at(15), [s%start], 8_i8, error); if (allocated(error)) exit w
+      if (nv > 0) then
+        call this%pf%write_at(at(16), s%scene_v, 8_i8 * nv, error); if (allocated(error)) exit w
+      end if
+      call this%pf%write_at(at(17), s%scene_exit, 32_i8, error)
+    end block w
+    if (allocated(error)) return
+    ! the multipliers, kept for finish
+    if (this%nl == size(this%lam)) then
+      allocate(l2(2 * this%nl), g2(2 * this%nl))
+      g2(1:this%nl) = this%gl(1:this%nl)
+      do q = 1, this%nl
+        call move_alloc(this%lam(q)%offset, l2(q)%offset); call move_alloc(this%lam(q)%key, l2(q)%key)
+        call move_alloc(this%lam(q)%ia, l2(q)%ia); call move_alloc(this%lam(q)%ib, l2(q)%ib)
+        call move_alloc(this%lam(q)%ob, l2(q)%ob); call move_alloc(this%lam(q)%value, l2(q)%value)
+        l2(q)%set = this%lam(q)%set; l2(q)%index = this%lam(q)%index
+      end do
+      call move_alloc(l2, this%lam); call move_alloc(g2, this%gl)
+    end if
+    this%nl = this%nl + 1
+    associate (l => this%lam(this%nl))
+      l%set = s%set; l%index = s%index
+      l%offset = s%offset; l%key = s%key; l%ia = s%ia; l%ib = s%ib; l%ob = s%ob; l%value = s%value
+    end associate
+    this%gl(this%nl) = gnum(this, s)
+    this%stats%bytes = this%stats%bytes + sample_bytes(this, s)
+    this%stats%t_put = this%stats%t_put + (this%env%wtime() - t0)
+  end subroutine writer_put
+
+  !> Collective: every sample of the study must have been put by exactly one rank. Places the
+  !> multipliers (one MPI_Allreduce of the per-sample counts; the contact dictionary, the sorted
+  !> union of the ranks' keys, by MPI_Allgatherv), adds the checksum parts (one MPI_Allreduce),
+  !> has rank 0 add the dictionary, the multiplier datasets and every checksum serially, the
+  !> ranks write their multiplier blocks, and rank 0 sets complete = 1 and renames the file.
+  !> On failure the temporary is removed.
+  subroutine writer_finish(this, error)
+    class(snap_writer_t), intent(inout) :: this
+    type(error_t), allocatable, intent(out) :: error
+    !> one sample's multipliers in the set's CSR arrays: offsets [ns], dictionary indices [nnz]
+    type :: csr_t
+      integer(i8), allocatable :: off8(:)
+      integer, allocatable :: li(:)
+    end type csr_t
+    type(csr_t), allocatable :: csr(:)
+    integer(i8), allocatable :: cnt(:), dkey(:)
+    integer, allocatable :: dia(:), dib(:), dob(:)
+    integer :: ntot, g, is, j, ns
+    integer(i8) :: o(17), at(17)
+    character(len=:), allocatable :: m
+    real(wp) :: t0, t1
+    type(error_t), allocatable :: e2
+    type(digest_t) :: dg1(34)
+    t0 = this%env%wtime()
+    associate (env => this%env)
+    ns = this%ns
+    ntot = sum(this%nset)
+    call this%pf%close(e2)
+    ! counts: held (exactly once) and multipliers of every sample, data bytes and failed ranks
+    allocate(cnt(2 * ntot + 2))
+    cnt = 0
+    do j = 1, this%nl
+      cnt(2 * this%gl(j) - 1) = 1
+      cnt(2 * this%gl(j)) = size(this%lam(j)%value)
+    end do
+    cnt(2 * ntot + 1) = this%stats%bytes
+    if (allocated(e2)) cnt(2 * ntot + 2) = 1
+    call env%allreduce(cnt, 'sum', error)
+    if (allocated(error)) goto 9
+    if (cnt(2 * ntot + 2) > 0) then
+      if (allocated(e2)) then
+        call move_alloc(e2, error)
+      else
+        call set_error(error, "closing the file failed on another rank")
+      end if
+      goto 9
+    end if
+    this%stats%bytes = cnt(2 * ntot + 1)
+    do g = 1, ntot
+      if (cnt(2 * g - 1) /= 1) then
+        call set_error(error, "sample " // str(g) // " of the study was written by " // str(cnt(2 * g - 1)) // &
+          " ranks (expected exactly one)"); goto 9
+      end if
+    end do
+    allocate(this%base(ntot))
+    this%total = 0
+    do g = 1, ntot
+      is = merge(1, 2, g <= this%nset(1))
+      this%base(g) = this%total(is)
+      this%total(is) = this%total(is) + cnt(2 * g)
+    end do
+    if (any(this%total > huge(1))) then
+      call set_error(error, str(maxval(this%total)) // " multipliers in one set exceed the 32-bit dataset sizes")
+      goto 9
+    end if
+    this%stats%nnz = sum(this%total)
+    call build_dictionary(env, this%lam(1:this%nl), dkey, dia, dib, dob, error)
+    if (allocated(error)) goto 9
+    this%stats%n_dict = size(dkey)
+    ! checksum parts of the multipliers, then of everything, summed over the ranks
+    ! each sample's global CSR offsets and dictionary indices (computed once, written below)
+    allocate(csr(this%nl))
+    do j = 1, this%nl
+      call global_csr(this%lam(j), this%gl(j), csr(j)%off8, csr(j)%li)
+      is = findloc(SNAP_SET_NAMES, this%lam(j)%set, dim=1)
+      o = elem_offsets(this, this%lam(j), this%base(this%gl(j)))
+      this%dg(5, is) = digest_add(this%dg(5, is), digest_of(csr(j)%off8, o(5)))
+      this%dg(6, is) = digest_add(this%dg(6, is), digest_of(csr(j)%li, o(6)))
+      this%dg(7, is) = digest_add(this%dg(7, is), digest_of(this%lam(j)%value, o(7)))
+    end do
+    if (env%is_root()) then
+      do is = 1, 2
+        this%dg(5, is) = digest_add(this%dg(5, is), digest_of([0_i8], 0_i8))
+      end do
+    end if
+    dg1 = reshape(this%dg, [34])
+    call digest_allreduce(env, dg1)
+    this%dg = reshape(dg1, [17, 2])
+    this%stats%t_dict = env%wtime() - t0
+    ! rank 0: dictionary, multiplier datasets, checksums
+    t1 = env%wtime()
+    m = ""
+    if (env%is_root()) call add_rest(m)
+    call share_places(this, m, error)
+    if (allocated(error)) goto 9
+    this%stats%t_layout = this%stats%t_layout + (env%wtime() - t1)
+    ! the ranks' multiplier blocks
+    t1 = env%wtime()
+    call this%pf%open(env, this%path // ".partial", error)
+    if (.not. allocated(error)) then
+      if (env%is_root()) then
+        do is = 1, 2
+          if (.not. allocated(error)) call this%pf%write_at(this%place(5, is), [0_i8], 8_i8, error)
+        end do
+      end if
+      do j = 1, this%nl
+        if (allocated(error)) exit
+        is = findloc(SNAP_SET_NAMES, this%lam(j)%set, dim=1)
+        o = elem_offsets(this, this%lam(j), this%base(this%gl(j)))
+        at = this%place(:, is) + o * ESZ
+        call this%pf%write_at(at(5), csr(j)%off8, 8_i8 * ns, error)
+        if (.not. allocated(error) .and. size(csr(j)%li) > 0) &
+          call this%pf%write_at(at(6), csr(j)%li, 4_i8 * size(csr(j)%li), error)
+        if (.not. allocated(error) .and. size(csr(j)%li) > 0) &
+          call this%pf%write_at(at(7), this%lam(j)%value, 8_i8 * size(csr(j)%li), error)
+      end do
+      call this%pf%close(e2)
+      if (allocated(e2) .and. .not. allocated(error)) call move_alloc(e2, error)
+    end if
+    call env%agree_error(error)
+    if (allocated(error)) goto 9
+    this%stats%t_write = env%wtime() - t1
+    ! complete = 1 last, then the final name
+    t1 = env%wtime()
+    m = ""
+    if (env%is_root()) call seal(m)
+    call share_places(this, m, error)
+    this%stats%t_seal = env%wtime() - t1
+    end associate
+9   this%active = .false.
+    if (allocated(error)) then
+      call this%discard()
+      if (index(error%message, "database '") /= 1) error%message = "database '" // this%path // "': " // &
+        error%message
+    end if
+
+  contains
+
+    !> Rank 0: contact dictionary, multiplier datasets and every checksum, serially.
+    subroutine add_rest(m)
+      character(len=:), allocatable, intent(inout) :: m
+      type(h5file_t) :: h5
+      type(error_t), allocatable :: e, e3
+      integer :: iss, q2, dims(2, 17)
+      character(len=:), allocatable :: g
+      call h5%open(this%path // ".partial", e, readwrite=.true.)
+      if (allocated(e)) then
+        m = e%message; return
+      end if
+      ops: block
+        call h5%make_group("contacts", e); if (allocated(e)) exit ops
+        call h5%write("contacts/key", dkey, e); if (allocated(e)) exit ops
+        call put_digest(h5, "contacts/key", digest_of(dkey, 0_i8), e); if (allocated(e)) exit ops
+        call h5%write("contacts/ia", dia, e); if (allocated(e)) exit ops
+        call put_digest(h5, "contacts/ia", digest_of(dia, 0_i8), e); if (allocated(e)) exit ops
+        call h5%write("contacts/ib", dib, e); if (allocated(e)) exit ops
+        call put_digest(h5, "contacts/ib", digest_of(dib, 0_i8), e); if (allocated(e)) exit ops
+        call h5%write("contacts/ob", dob, e); if (allocated(e)) exit ops
+        call put_digest(h5, "contacts/ob", digest_of(dob, 0_i8), e); if (allocated(e)) exit ops
+        call h5%write_attr("contacts", "description", "global contact dictionary: every contact " // &
+          "with lambda > 0 in some sample and step, sorted by key; ib = 0 for agent-obstacle " // &
+          "contacts (ob = obstacle index), ob = 0 for agent pairs", e); if (allocated(e)) exit ops
+        do iss = 1, 2
+          g = trim(SNAP_SET_NAMES(iss))
+          call set_dims(this, iss, dims)
+          do q2 = 1, 17
+            if (any(q2 == LAMBDA_DS)) then
+              call h5%create_placed(g // "/" // trim(DS(q2)), dims(1:1, q2), KIND_OF(q2), this%place(q2, iss), e)
+              if (allocated(e)) exit ops
+            end if
+            call put_digest(h5, g // "/" // trim(DS(q2)), this%dg(q2, iss), e); if (allocated(e)) exit ops
+          end do
+        end do
+      end block ops
+      call h5%close(e3)
+      if (allocated(e)) then
+        m = e%message
+      else if (allocated(e3)) then
+        m = e3%message
+      end if
+    end subroutine add_rest
+
+    !> Rank 0: complete = 1 in the closed temporary, then the rename; '' or a message.
+    subroutine seal(m)
+      character(len=:), allocatable, intent(inout) :: m
+      type(h5file_t) :: hs
+      type(error_t), allocatable :: e, e3
+      call hs%open(this%path // ".partial", e, readwrite=.true.)
+      if (allocated(e)) then
+        m = e%message; return
+      end if
+      call hs%write_attr("/", "complete", 1, e)
+      call hs%close(e3)
+      if (allocated(e)) then
+        m = e%message
+      else if (allocated(e3)) then
+        m = e3%message
+      else if (rename_file(this%path // ".partial", this%path) /= 0) then
+        m = "rename '" // this%path // ".partial' -> '" // this%path // "' failed"
+      end if
+    end subroutine seal
+
+    !> The sample's global CSR offsets [ns] and dictionary indices [nnz].
+    subroutine global_csr(l, g, o8, ix)
+      type(snap_sample_t), intent(in) :: l
+      integer, intent(in) :: g
+      integer(i8), allocatable, intent(out) :: o8(:)
+      integer, allocatable, intent(out) :: ix(:)
+      integer :: c
+      o8 = this%base(g) + l%offset(2:ns + 1)
+      allocate(ix(size(l%key)))
+      do c = 1, size(l%key)
+        ix(c) = bsearch_i8(dkey, l%key(c))
+      end do
+    end subroutine global_csr
+  end subroutine writer_finish
+
+  !> Collective: give up a database being written (after begin): the MPI-IO handle is closed and
+  !> rank 0 removes the temporary. Nothing under the final name is touched.
+  subroutine writer_discard(this)
+    class(snap_writer_t), intent(inout) :: this
+    type(error_t), allocatable :: e
+    integer :: st
+    if (.not. allocated(this%path)) return
+    call this%pf%close(e)
+    this%active = .false.
+    call this%env%barrier()
+    if (this%env%is_root()) st = remove_file(this%path // ".partial")
+  end subroutine writer_discard
+
+  !> Global number of a sample (train 1..n_train, then valid).
+  integer function gnum(this, s)
+    type(snap_writer_t), intent(in) :: this
+    type(snap_sample_t), intent(in) :: s
+    gnum = s%index
+    if (s%set == SNAP_SET_NAMES(2)) gnum = this%nset(1) + s%index
+  end function gnum
+
+  !> Shapes of a sample against the metadata (m = '' if right).
+  subroutine check_shapes(this, s, m)
+    type(snap_writer_t), intent(in) :: this
+    type(snap_sample_t), intent(in) :: s
+    character(len=:), allocatable, intent(inout) :: m
+    integer :: iss, nnz, nd, ns
+    nd = this%nd; ns = this%ns
+    iss = findloc(SNAP_SET_NAMES, s%set, dim=1)
+    if (iss == 0) then
+      m = "sample of unknown set '" // trim(s%set) // "'"; return
+    end if
+    if (s%index < 1 .or. s%index > this%nset(iss)) then
+      m = trim(s%set) // " sample " // str(s%index) // " is outside 1.." // str(this%nset(iss)); return
+    end if
+    if (.not. (allocated(s%mu) .and. allocated(s%q) .and. allocated(s%u) .and. allocated(s%v) .and. &
+        allocated(s%kkt) .and. allocated(s%min_gap) .and. allocated(s%iterations) .and. allocated(s%converged) &
+        .and. allocated(s%n_active) .and. allocated(s%offset) .and. allocated(s%key) .and. allocated(s%ia) .and. &
+        allocated(s%ib) .and. allocated(s%ob) .and. allocated(s%value) .and. allocated(s%scene_v))) then
+      m = trim(s%set) // " sample " // str(s%index) // ": incomplete sample (unallocated data)"; return
+    end if
+    nnz = size(s%value)
+    if (size(s%mu) /= this%ne .or. any(shape(s%q) /= [nd, ns + 1]) .or. any(shape(s%u) /= [nd, ns]) .or. &
+        any(shape(s%v) /= [nd, ns]) .or. size(s%kkt) /= ns .or. size(s%min_gap) /= ns .or. &
+        size(s%iterations) /= ns .or. size(s%converged) /= ns .or. size(s%n_active) /= ns .or. &
+        size(s%offset) /= ns + 1 .or. size(s%key) /= nnz .or. size(s%ia) /= nnz .or. size(s%ib) /= nnz .or. &
+        size(s%ob) /= nnz .or. size(s%scene_v) /= this%nv) then
+      m = trim(s%set) // " sample " // str(s%index) // ": array shapes disagree with the study (" // &
+        str(nd) // " dofs, " // str(ns) // " steps, " // str(this%ne) // " parameters, " // str(this%nv) // &
+        " scene vertex coordinates)"; return
+    end if
+    if (s%offset(1) /= 0 .or. s%offset(ns + 1) /= nnz) m = trim(s%set) // " sample " // str(s%index) // &
+      ": multiplier offsets do not span its " // str(nnz) // " entries"
+  end subroutine check_shapes
+
+  !> Element offset (0-based) of sample s in each dataset of its set [17]; `lbase`: position of
+  !> its multipliers in the set's CSR arrays (only known in finish).
+  function elem_offsets(this, s, lbase) result(o)
+    type(snap_writer_t), intent(in) :: this
+    type(snap_sample_t), intent(in) :: s
+    integer(i8), intent(in) :: lbase
+    integer(i8) :: o(17)
+    integer(i8) :: k1, ne, nd, ns, nv
+    k1 = s%index - 1
+    ne = this%ne; nd = this%nd; ns = this%ns; nv = this%nv
+    o = [k1 * ne, k1 * (ns + 1) * nd, k1 * ns * nd, k1 * ns * nd, k1 * ns + 1, lbase, lbase, &
+      k1 * ns, k1 * ns, k1 * ns, k1 * ns, k1 * ns, k1, k1, k1, k1 * nv, k1 * 4]
+  end function elem_offsets
+
+  !> Data bytes of one sample in the database.
+  integer(i8) function sample_bytes(this, s)
+    type(snap_writer_t), intent(in) :: this
+    type(snap_sample_t), intent(in) :: s
+    integer(i8) :: ne, nd, ns, nv
+    ne = this%ne; nd = this%nd; ns = this%ns; nv = this%nv
+    sample_bytes = 8_i8 * (ne + nd * (3 * ns + 1) + 3 * ns + 2 + nv + 4 + size(s%value)) + &
+      4_i8 * (3 * ns + 1 + size(s%value))
+  end function sample_bytes
+
+  !> Collective: sorted union over all ranks of the contact keys of the samples (with the
+  !> identities of each contact).
+  subroutine build_dictionary(env, samples, dkey, dia, dib, dob, error)
+    type(env_t), intent(in) :: env
+    type(snap_sample_t), intent(in) :: samples(:)
+    integer(i8), allocatable, intent(out) :: dkey(:)
+    integer, allocatable, intent(out) :: dia(:), dib(:), dob(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer(i8), allocatable :: keys(:), allk(:), pack4(:,:)
+    integer, allocatable :: ids(:,:), idx(:)
+    integer :: n, j, m
+    n = 0
+    do j = 1, size(samples)
+      n = n + size(samples(j)%key)
+    end do
+    allocate(keys(n), ids(3, n))
+    ! each sample's keys made unique first (a contact lasts many steps): the sorts stay small
+    n = 0
+    do j = 1, size(samples)
+      associate (s => samples(j))
+        m = size(s%key)
+        keys(n + 1:n + m) = s%key
+        ids(1, n + 1:n + m) = s%ia; ids(2, n + 1:n + m) = s%ib; ids(3, n + 1:n + m) = s%ob
+        call unique(keys(n + 1:n + m), ids(:, n + 1:n + m), m)
+        n = n + m
+      end associate
+    end do
+    call unique(keys, ids, n)
+    ! keys and identities in one exchange: [key, ia, ib, ob] per contact
+    allocate(pack4(4, n))
+    pack4(1, :) = keys(1:n)
+    pack4(2:4, :) = int(ids(:, 1:n), i8)
+    call env%allgatherv(reshape(pack4, [4 * n]), allk, error)
+    if (allocated(error)) return
+    m = size(allk) / 4
+    deallocate(ids, pack4)
+    pack4 = reshape(allk, [4, m])
+    allk = pack4(1, :)
+    ids = int(pack4(2:4, :))
+    call unique(allk, ids, m)
+    dkey = allk(1:m)
+    dia = ids(1, 1:m); dib = ids(2, 1:m); dob = ids(3, 1:m)
+
+  contains
+
+    !> Sort keys(1:n) ascending, drop duplicates; n becomes the number of unique keys.
+    subroutine unique(keys, ids, n)
+      integer(i8), intent(inout) :: keys(:)
+      integer, intent(inout) :: ids(:,:)
+      integer, intent(inout) :: n
+      integer :: a, u
+      if (allocated(idx)) deallocate(idx)
+      allocate(idx(n))
+      call argsort_i8(keys(1:n), idx)
+      keys(1:n) = keys(idx)
+      ids(:, 1:n) = ids(:, idx)
+      u = 0
+      do a = 1, n
+        if (u > 0) then
+          if (keys(a) == keys(u)) cycle
+        end if
+        u = u + 1
+        keys(u) = keys(a); ids(:, u) = ids(:, a)
+      end do
+      n = u
+    end subroutine unique
+  end subroutine build_dictionary
 
   ! ------------------------------------------------------------------ read
 

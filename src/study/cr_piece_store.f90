@@ -9,8 +9,9 @@
 !> (unreadable, corrupted, renamed, claiming a sample another piece holds) is reported by name;
 !> with `quarantine` it is moved to `<pieces>/quarantine/` and its samples are recomputed,
 !> otherwise the run stops (status 2) naming every bad piece. Nothing is ever deleted here.
+!> The samples of the good pieces are handed to the rank that verified them (`held`): they go
+!> into the database from there, no piece is read twice.
 module cr_piece_store
-  use mpi_f08
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
@@ -20,7 +21,7 @@ module cr_piece_store
   use cr_snapshot_piece, only: sample_result_t, piece_header, read_piece, check_sample, piece_path, write_piece
   implicit none
   private
-  public :: piece_index_t, piece_batch_t, scan_pieces, global_sample, set_of_sample, quarantine_piece
+  public :: piece_index_t, piece_batch_t, scan_pieces, global_sample, set_of_sample, quarantine_piece, move_sample
 
   !> A variable-length path.
   type :: path_t
@@ -35,18 +36,15 @@ module cr_piece_store
     integer, allocatable :: piece_of(:), slot_of(:)
     !> path of each piece [n_pieces]
     type(path_t), allocatable :: path(:)
-    !> rank that reads piece p at assembly (its writer, or its verifier for earlier runs' pieces)
-    !> [n_pieces]
-    integer, allocatable :: owner(:)
     !> pieces moved to quarantine by this scan
     integer :: n_quarantined = 0
   contains
     procedure :: path_of
-    procedure :: add_written
   end type piece_index_t
 
   !> The samples a rank computed in the current time slice, written together as one piece.
   type :: piece_batch_t
+    type(env_t) :: env
     character(len=:), allocatable :: dir, hash
     !> time slice (s) and memory bound of one piece
     real(wp) :: slice = 2
@@ -56,7 +54,7 @@ module cr_piece_store
     integer(i8) :: bytes = 0
     type(sample_result_t), allocatable :: res(:)
     integer, allocatable :: g(:)
-    !> pieces written so far: [n_1, g_1 .. g_n1, n_2, ...] (for piece_index_t%add_written)
+    !> pieces written so far: [n_1, g_1 .. g_n1, n_2, ...] (their files are removed once the database is complete)
     integer, allocatable :: written(:)
     !> pieces written, their data bytes and the wall time spent writing them (s)
     integer :: n_pieces = 0
@@ -77,62 +75,6 @@ contains
     character(len=:), allocatable :: s
     s = this%path(p)%s
   end function path_of
-
-  !> Collective: record the pieces every rank wrote in this run. `written` is this rank's list
-  !> [n_1, g_1 .. g_n1, n_2, ...] (samples of each piece, global numbers, in piece order); a
-  !> piece is named after its first sample and read at assembly by the rank that wrote it.
-  subroutine add_written(this, env, dir, sets, written)
-    class(piece_index_t), intent(inout) :: this
-    type(env_t), intent(in) :: env
-    character(len=*), intent(in) :: dir
-    type(sample_set_t), intent(in) :: sets(2)
-    integer, intent(in) :: written(:)
-    integer, allocatable :: counts(:), displs(:), all(:), own2(:)
-    type(path_t), allocatable :: tmp(:)
-    integer :: ierr, r, m, q, c, n, j, is, k, np_new
-    allocate(counts(env%size), displs(env%size))
-    call MPI_Allgather(size(written), 1, MPI_INTEGER, counts, 1, MPI_INTEGER, env%comm, ierr)
-    displs(1) = 0
-    do r = 2, env%size
-      displs(r) = displs(r - 1) + counts(r - 1)
-    end do
-    m = sum(counts)
-    allocate(all(max(m, 1)))
-    call MPI_Allgatherv(written, size(written), MPI_INTEGER, all, counts, displs, MPI_INTEGER, env%comm, ierr)
-    ! count the new pieces
-    np_new = 0
-    do r = 1, env%size
-      c = displs(r)
-      do while (c < displs(r) + counts(r))
-        np_new = np_new + 1
-        c = c + all(c + 1) + 1
-      end do
-    end do
-    allocate(tmp(this%n_pieces + np_new), own2(this%n_pieces + np_new))
-    do q = 1, this%n_pieces
-      call move_alloc(this%path(q)%s, tmp(q)%s)
-      own2(q) = this%owner(q)
-    end do
-    q = this%n_pieces
-    do r = 1, env%size
-      c = displs(r)
-      do while (c < displs(r) + counts(r))
-        n = all(c + 1)
-        q = q + 1
-        call set_of_sample(sets, all(c + 2), is, k)
-        tmp(q)%s = piece_path(dir, sets(is)%name, k)
-        own2(q) = r - 1
-        do j = 1, n
-          this%piece_of(all(c + 1 + j)) = q
-          this%slot_of(all(c + 1 + j)) = j
-        end do
-        c = c + n + 1
-      end do
-    end do
-    call move_alloc(tmp, this%path)
-    call move_alloc(own2, this%owner)
-    this%n_pieces = q
-  end subroutine add_written
 
   !> Global sample number (train 1..n_train, then valid) of sample k of set `name`; 0 if none.
   pure integer function global_sample(sets, name, k) result(g)
@@ -181,7 +123,7 @@ contains
   end function quarantine_piece
 
   !> Collective: find and verify the pieces in `dir` (see the module header).
-  subroutine scan_pieces(env, dir, hash, sets, n_dof, n_steps, quarantine, idx, warnings, error)
+  subroutine scan_pieces(env, dir, hash, sets, n_dof, n_steps, quarantine, idx, held, warnings, error)
     type(env_t), intent(in) :: env
     character(len=*), intent(in) :: dir, hash
     !> the study's samples (train, valid)
@@ -190,6 +132,8 @@ contains
     !> move bad pieces aside (and recompute their samples) instead of stopping
     logical, intent(in) :: quarantine
     type(piece_index_t), intent(out) :: idx
+    !> the samples of the good pieces this rank verified (for the database)
+    type(sample_result_t), allocatable, intent(out) :: held(:)
     !> one line per quarantined piece (rank 0; '' if none)
     character(len=:), allocatable, intent(out) :: warnings
     type(error_t), allocatable, intent(out) :: error
@@ -199,10 +143,12 @@ contains
     type(sample_result_t), allocatable :: res(:)
     type(error_t), allocatable :: e
     type(path_t), allocatable :: tmp(:)
-    integer :: g, is, k, j, p, ierr, n, gj, r, nbad
+    integer :: g, is, k, j, p, n, gj, nbad, nh
     warnings = ""
+    nh = 0
+    allocate(held(0))
     idx%n_tot = sets(1)%n + sets(2)%n
-    allocate(idx%piece_of(idx%n_tot), idx%slot_of(idx%n_tot), idx%path(0), idx%owner(0))
+    allocate(idx%piece_of(idx%n_tot), idx%slot_of(idx%n_tot), idx%path(0))
     idx%piece_of = 0; idx%slot_of = 0
     fatal = ""
     ! 1. headers, on rank 0
@@ -264,7 +210,8 @@ contains
     end if
     ! share the index
     n = idx%n_pieces
-    call MPI_Bcast(n, 1, MPI_INTEGER, 0, env%comm, ierr)
+    call env%bcast(n, error)
+    if (allocated(error)) return
     if (.not. env%is_root()) then
       deallocate(idx%path); allocate(idx%path(n))
       idx%n_pieces = n
@@ -273,12 +220,14 @@ contains
       if (.not. env%is_root()) idx%path(p)%s = ""
       call env%bcast_string(idx%path(p)%s)
     end do
-    call MPI_Bcast(idx%piece_of, idx%n_tot, MPI_INTEGER, 0, env%comm, ierr)
-    call MPI_Bcast(idx%slot_of, idx%n_tot, MPI_INTEGER, 0, env%comm, ierr)
+    call env%bcast(idx%piece_of, error)
+    if (.not. allocated(error)) call env%bcast(idx%slot_of, error)
+    if (allocated(error)) return
     if (.not. allocated(bad_msg)) bad_msg = ""
     call resize_bad(n)
     ! 2. full verification of the pieces with good headers, round-robin over the ranks
-    call MPI_Bcast(bad, n, MPI_INTEGER, 0, env%comm, ierr)
+    call env%bcast(bad, error)
+    if (allocated(error)) return
     do p = 1, n
       if (bad(p) /= 0 .or. mod(p - 1, env%size) /= env%rank) cycle
       call read_piece(idx%path(p)%s, res, e)
@@ -300,23 +249,18 @@ contains
       end if
       if (allocated(e)) then
         call mark_bad(p, e%message); deallocate(e)
+      else
+        call keep(res)
       end if
     end do
-    call MPI_Allreduce(MPI_IN_PLACE, bad, n, MPI_INTEGER, MPI_MAX, env%comm, ierr)
-    deallocate(idx%owner)
-    allocate(idx%owner(n))
-    do p = 1, n
-      idx%owner(p) = mod(p - 1, env%size)
-    end do
+    call env%allreduce(bad, 'max', error)
+    if (allocated(error)) return
+    held = held(1:nh)
     nbad = count(bad /= 0)
     if (nbad == 0) return
     ! every rank's messages, in rank order
-    all_msg = ""
-    do r = 0, env%size - 1
-      m = bad_msg
-      call bcast_from(m, r)
-      all_msg = all_msg // m
-    end do
+    call env%gather_text(bad_msg, all_msg, error)
+    if (allocated(error)) return
     do g = 1, idx%n_tot
       if (idx%piece_of(g) > 0) then
         if (bad(idx%piece_of(g)) /= 0) then
@@ -354,10 +298,10 @@ contains
 
     !> Remove the bad pieces from the index (renumbering the good ones).
     subroutine drop_bad()
-      integer, allocatable :: newnum(:), own2(:)
+      integer, allocatable :: newnum(:)
       type(path_t), allocatable :: t2(:)
       integer :: q, m2
-      allocate(newnum(n), t2(n - nbad), own2(n - nbad))
+      allocate(newnum(n), t2(n - nbad))
       m2 = 0
       do q = 1, n
         newnum(q) = 0
@@ -366,14 +310,10 @@ contains
         newnum(q) = m2
         call move_alloc(idx%path(q)%s, t2(m2)%s)
       end do
-      do q = 1, m2
-        own2(q) = mod(q - 1, env%size)
-      end do
       do q = 1, idx%n_tot
         if (idx%piece_of(q) > 0) idx%piece_of(q) = newnum(idx%piece_of(q))
       end do
       call move_alloc(t2, idx%path)
-      call move_alloc(own2, idx%owner)
       idx%n_pieces = m2
     end subroutine drop_bad
 
@@ -410,26 +350,34 @@ contains
       bad_msg = bad_msg // "  " // msg // new_line('a')
     end subroutine mark_bad
 
-    subroutine bcast_from(s, root)
-      character(len=:), allocatable, intent(inout) :: s
-      integer, intent(in) :: root
-      integer :: ls, ie
-      ls = len(s)
-      call MPI_Bcast(ls, 1, MPI_INTEGER, root, env%comm, ie)
-      if (env%rank /= root) then
-        deallocate(s); allocate(character(len=ls) :: s)
+    !> Keep the verified samples r (moved) among held.
+    subroutine keep(r)
+      type(sample_result_t), intent(inout) :: r(:)
+      type(sample_result_t), allocatable :: h2(:)
+      integer :: q
+      if (nh + size(r) > size(held)) then
+        allocate(h2(max(2 * size(held), nh + size(r), 8)))
+        do q = 1, nh
+          call move_sample(held(q), h2(q))
+        end do
+        call move_alloc(h2, held)
       end if
-      if (ls > 0) call MPI_Bcast(s, ls, MPI_CHARACTER, root, env%comm, ie)
-    end subroutine bcast_from
+      do q = 1, size(r)
+        call move_sample(r(q), held(nh + q))
+      end do
+      nh = nh + size(r)
+    end subroutine keep
   end subroutine scan_pieces
 
   !> Start a batch: samples are kept until `slice` seconds have passed since the batch's first
   !> sample started (or the batch holds max_bytes of data), then written as one piece.
-  subroutine batch_init(this, dir, hash, slice)
+  subroutine batch_init(this, env, dir, hash, slice)
     class(piece_batch_t), intent(inout) :: this
+    type(env_t), intent(in) :: env
     character(len=*), intent(in) :: dir, hash
     !> time slice of one piece (s); 0: one sample per piece
     real(wp), intent(in) :: slice
+    this%env = env
     this%dir = dir
     this%hash = hash
     this%slice = slice
@@ -477,14 +425,28 @@ contains
     real(wp) :: t0
     if (this%n == 0) return
     call set_of_sample(sets, this%g(1), is, k)
-    t0 = MPI_Wtime()
+    t0 = this%env%wtime()
     call write_piece(piece_path(this%dir, sets(is)%name, k), this%hash, this%res(1:this%n), error)
     if (allocated(error)) return
-    this%t_write = this%t_write + (MPI_Wtime() - t0)
+    this%t_write = this%t_write + (this%env%wtime() - t0)
     this%n_pieces = this%n_pieces + 1
     this%bytes_written = this%bytes_written + this%bytes
     this%written = [this%written, this%n, this%g(1:this%n)]
     this%n = 0
     this%bytes = 0
   end subroutine batch_flush
+
+  !> Move sample a into b (allocations moved, no copies).
+  subroutine move_sample(a, b)
+    type(sample_result_t), intent(inout) :: a
+    type(sample_result_t), intent(inout) :: b
+    b%set = a%set; b%index = a%index; b%time = a%time; b%start = a%start; b%rank = a%rank
+    b%scene_exit = a%scene_exit
+    call move_alloc(a%mu, b%mu); call move_alloc(a%q, b%q); call move_alloc(a%u, b%u)
+    call move_alloc(a%v, b%v); call move_alloc(a%kkt, b%kkt); call move_alloc(a%min_gap, b%min_gap)
+    call move_alloc(a%iterations, b%iterations); call move_alloc(a%converged, b%converged)
+    call move_alloc(a%n_active, b%n_active); call move_alloc(a%offset, b%offset)
+    call move_alloc(a%key, b%key); call move_alloc(a%ia, b%ia); call move_alloc(a%ib, b%ib)
+    call move_alloc(a%ob, b%ob); call move_alloc(a%value, b%value); call move_alloc(a%scene_v, b%scene_v)
+  end subroutine move_sample
 end module cr_piece_store

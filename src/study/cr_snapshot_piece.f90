@@ -30,6 +30,7 @@ module cr_snapshot_piece
   use cr_sampling, only: param_space_t
   use cr_h5file, only: h5file_t
   use cr_digest, only: digest_of, put_digest, check_digest, DIGEST_ALGORITHM
+  use cr_snapshot_file, only: sample_result_t => snap_sample_t, SET_NAMES => SNAP_SET_NAMES
   implicit none
   private
   public :: sample_result_t, compute_sample, write_piece, read_piece, piece_header, check_sample, &
@@ -37,34 +38,6 @@ module cr_snapshot_piece
 
   character(len=*), parameter :: PIECE_SCHEMA = "crowdrom-snapshot-piece"
   integer, parameter :: PIECE_SCHEMA_VERSION = 2
-  !> the sets of a study, by set_id
-  character(len=8), parameter :: SET_NAMES(2) = [character(len=8) :: 'train', 'valid']
-
-  !> Trajectory and statistics of one sample.
-  type :: sample_result_t
-    !> 'train' or 'valid', and the sample's index in its set
-    character(len=8) :: set = ''
-    integer :: index = 0
-    !> parameter values [n_expanded]
-    real(wp), allocatable :: mu(:)
-    !> positions q^0..q^{n_steps} [2*n_agents, n_steps+1]
-    real(wp), allocatable :: q(:,:)
-    !> velocities u^nu and desired velocities v(q^{nu-1}), nu = 1..n_steps [2*n_agents, n_steps]
-    real(wp), allocatable :: u(:,:), v(:,:)
-    !> per-step KKT residual and smallest gap [n_steps]
-    real(wp), allocatable :: kkt(:), min_gap(:)
-    !> per-step solver iterations, converged flag (1/0), active contacts [n_steps]
-    integer, allocatable :: iterations(:), converged(:), n_active(:)
-    !> sparse multipliers, CSR over the steps: step nu holds entries offset(nu)+1..offset(nu+1)
-    integer(i8), allocatable :: offset(:)
-    integer(i8), allocatable :: key(:)
-    integer, allocatable :: ia(:), ib(:), ob(:)
-    real(wp), allocatable :: value(:)
-    !> wall time of the sample (s), its start (s since the start of the run) and the rank that
-    !> computed it
-    real(wp) :: time = 0, start = 0
-    integer :: rank = -1
-  end type sample_result_t
 
 contains
 

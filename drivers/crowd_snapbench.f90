@@ -1,0 +1,115 @@
+!> Micro-benchmark of the snapshot stage's machine inputs (for scripts/snapshot_model.py; not a
+!> test): at the ranks it is started on, measures
+!>  * the shared counter: mean wall time of one fetch-and-add when every rank takes a ticket
+!>    after each 0.5..1.5 x `work` s of computation (env's shared_counter_t, as the scheduler);
+!>  * the cost of one collective for ranks arriving from computation: each of `reps` rounds,
+!>    every rank computes for a drawn 0.5..1.5 x `work` seconds, then all meet in an
+!>    MPI_Allreduce; cost = (wall - computing time) / reps, mean over ranks (on shared cores
+!>    this is the scheduler's wake-up delay, not the network latency);
+!>  * the block-write bandwidth of the database writer's path: every rank writes `mb` MB in
+!>    blocks of `block` bytes at disjoint offsets of one file with env's par_file_t (MPI-IO,
+!>    independent writes); per-rank bandwidth = bytes / time, aggregate = all bytes / slowest.
+!>
+!> Usage: mpirun -np P crowd_snapbench [FILE] [mb] [block] ; prints one JSON line (rank 0).
+program crowd_snapbench
+  use mpi_f08, only: MPI_Init, MPI_Finalize, MPI_COMM_WORLD
+  use cr_kinds, only: wp, i8
+  use cr_env, only: env_t, shared_counter_t, par_file_t
+  use cr_error, only: error_t
+  use cr_strings, only: str
+  use cr_random, only: rng_t
+  implicit none
+  type(env_t) :: env
+  type(error_t), allocatable :: error
+  type(shared_counter_t) :: counter
+  type(par_file_t) :: pf
+  type(rng_t) :: rng
+  character(len=256) :: arg
+  character(len=:), allocatable :: path
+  integer :: ierr, k, reps, u, nblk
+  integer(i8) :: t, bytes, block
+  real(wp) :: t0, t_counter, t_coll, spent, work, x, y, t_write, wmax, mb
+  real(wp), allocatable :: buf(:), r(:)
+
+  call MPI_Init(ierr)
+  call env%init(MPI_COMM_WORLD, error)
+  path = "snapbench.tmp"; mb = 20; block = 65536
+  if (command_argument_count() >= 1) then
+    call get_command_argument(1, arg); path = trim(arg)
+  end if
+  if (command_argument_count() >= 2) then
+    call get_command_argument(2, arg); read(arg, *) mb
+  end if
+  if (command_argument_count() >= 3) then
+    call get_command_argument(3, arg); read(arg, *) block
+  end if
+  ! shared counter: 50 tickets per rank, each after 0.5..1.5 x `work` s of computation (as in
+  ! the sample loop: rank 0, which holds the counters, is computing too)
+  reps = 30; work = 2.0e-3_wp; spent = 0
+  call rng%seed(1234, stream=env%rank)
+  if (.not. allocated(error)) call counter%init(env, 2, error)
+  if (.not. allocated(error)) then
+    call env%barrier()
+    do k = 1, 50
+      x = env%wtime()
+      y = work * (0.5_wp + rng%uniform())
+      do while (env%wtime() - x < y)
+      end do
+      t = counter%fetch_add(1, 1_i8, error)
+      if (allocated(error)) exit
+    end do
+    t_counter = counter%t_calls / max(counter%n_calls, 1)
+    call counter%free()
+  end if
+  ! collectives after computation
+  if (.not. allocated(error)) then
+    call env%barrier()
+    t0 = env%wtime()
+    do k = 1, reps
+      x = env%wtime()
+      y = work * (0.5_wp + rng%uniform())
+      do while (env%wtime() - x < y)
+      end do
+      spent = spent + (env%wtime() - x)
+      r = [1.0_wp]
+      call env%allreduce(r, 'sum', error)
+      if (allocated(error)) exit
+    end do
+    t_coll = ((env%wtime() - t0) - spent) / reps
+    t_coll = env%sum_real(t_coll) / env%size
+  end if
+  ! block writes
+  if (.not. allocated(error)) then
+    bytes = int(mb * 1.0e6_wp, i8)
+    nblk = int(max(bytes / block, 1_i8))
+    allocate(buf(block / 8)); buf = real(env%rank, wp)
+    if (env%is_root()) then
+      open(newunit=u, file=path, status='replace', action='write'); close(u)
+    end if
+    call env%barrier()
+    call pf%open(env, path, error)
+    t0 = env%wtime()
+    do k = 1, nblk
+      if (allocated(error)) exit
+      call pf%write_at((int(k - 1, i8) * env%size + env%rank) * block, buf, block, error)
+    end do
+    t_write = env%wtime() - t0
+    call pf%close(error)
+    wmax = env%max_real(t_write)
+    t_write = env%sum_real(t_write) / env%size
+    if (env%is_root()) then
+      open(newunit=u, file=path, status='old'); close(u, status='delete')
+    end if
+  end if
+  if (allocated(error)) then
+    if (env%is_root()) print '(a)', "error: crowd_snapbench: " // error%message
+  else if (env%is_root()) then
+    print '(a)', '{"ranks": ' // str(env%size) // ', "counter_latency": ' // str(t_counter) // &
+      ', "collective_cost": ' // str(t_coll) // ', "write_block_bytes": ' // str(block) // &
+      ', "write_bytes_per_rank": ' // str(real(nblk, wp) * block) // &
+      ', "write_bandwidth_per_rank": ' // str(real(nblk, wp) * block / max(t_write, 1.0e-9_wp)) // &
+      ', "write_bandwidth_aggregate": ' // str(real(nblk, wp) * block * env%size / max(wmax, 1.0e-9_wp)) // '}'
+  end if
+  call env%free()
+  call MPI_Finalize(ierr)
+end program crowd_snapbench

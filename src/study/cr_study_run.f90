@@ -1,0 +1,484 @@
+!> One run of the snapshot stage of a parameter study (what `crowd_snapshots` does): the
+!> samples, the resume from the pieces of earlier runs (verified; bad ones stop the run or are
+!> moved to quarantine), the dynamic schedule with batched pieces, and the database: each
+!> sample goes into it (cr_snapshot_file's writer, `put`) from the rank that computed or
+!> verified it, as soon as that rank has it; the writer's `finish` adds the multipliers, the
+!> checksums and `complete = 1`. Collective over env.
+!>
+!> `execute` leaves the figures of the run in the type (every rank); `summary_text` and
+!> `write_summary` report them (rank 0).
+module cr_study_run
+  use, intrinsic :: iso_fortran_env, only: compiler_version
+  use hdf5, only: h5get_libversion_f
+  use cr_kinds, only: wp, i8
+  use cr_error, only: error_t, set_error
+  use cr_strings, only: str, shorten
+  use cr_env, only: env_t
+  use cr_logger, only: logger_t
+  use cr_config, only: config_t, config_echo
+  use cr_fom, only: fom_t
+  use cr_scene, only: scene_t
+  use cr_fsys, only: remove_dir, remove_file, file_exists, file_size
+  use cr_json, only: json_writer_t
+  use cr_study_config, only: study_cfg_t, study_echo, study_hash
+  use cr_sampling, only: param_space_t, sample_set_t, generate_samples
+  use cr_scheduler, only: scheduler_t
+  use cr_snapshot_piece, only: sample_result_t, compute_sample, piece_path
+  use cr_piece_store, only: piece_index_t, piece_batch_t, scan_pieces, set_of_sample, move_sample
+  use cr_snapshot_file, only: SNAP_SCHEMA_VERSION, db_meta_t, snap_write_stats_t, snap_writer_t, &
+    probe_snap_database, scene_vertex_list
+  implicit none
+  private
+  public :: run_options_t, study_run_t, EXIT_STOPPED
+
+  !> exit status of a run stopped by --stop-after
+  integer, parameter :: EXIT_STOPPED = 3
+  character(len=*), parameter :: CROWDROM_VERSION = "crowdrom 0.1.0"
+
+  !> Options of a run (command line).
+  type :: run_options_t
+    !> compute at most this many samples, then stop without the database (< 0: no limit)
+    integer :: stop_after = -1
+    !> move bad pieces aside and recompute them instead of stopping
+    logical :: quarantine = .false.
+    !> time slice of one piece (s); 0: one sample per piece
+    real(wp) :: batch_seconds = 2
+  end type run_options_t
+
+  !> A run of the snapshot stage and its figures (every rank holds them after execute).
+  type :: study_run_t
+    character(len=:), allocatable :: db
+    character(len=16) :: hash = ''
+    !> the database was already complete: nothing was done
+    logical :: no_op = .false.
+    integer :: n_tot = 0, n_train = 0, n_valid = 0, n_run = 0, n_prev = 0
+    !> samples computed and busy time (samples and their pieces, s) of each rank [P]
+    integer, allocatable :: nsamp(:)
+    real(wp), allocatable :: busy(:)
+    !> sum of the busy times; wall times: total, setup, sample loop, assembly; assembly start
+    real(wp) :: sum_time = 0, t_total = 0, t_setup = 0, t_compute = 0, t_asm = 0, t_asm_start = 0
+    !> rank 0's time putting the samples of earlier runs' pieces into the database (setup, s)
+    real(wp) :: t_put_resumed = 0
+    !> the database writer's figures (its put time is this rank's; part of the busy time)
+    type(snap_write_stats_t) :: wstats
+    !> sum over ranks of the time spent putting computed samples into the database (s)
+    real(wp) :: t_put_all = 0
+    !> inputs of the scaling model: counter operations and their time (summed over ranks),
+    !> pieces written, their bytes and write time (summed), collective latency (s)
+    real(wp) :: counter(2) = 0, pieces_out(3) = 0, t_coll = 0
+    real(wp) :: batch_seconds = 2
+    !> totals over the database
+    integer :: nonconverged_steps = 0, nonconverged_samples = 0
+    real(wp) :: kkt_max = 0, time_max = 0
+    integer(i8) :: bytes = 0
+  contains
+    procedure :: execute
+    procedure :: summary_text
+    procedure :: write_summary
+  end type study_run_t
+
+contains
+
+  !> Collective: run the stage for configuration cfg and study (see the module header).
+  subroutine execute(this, env, log, cfg, study, opts, error)
+    class(study_run_t), intent(inout) :: this
+    type(env_t), intent(in) :: env
+    type(logger_t), intent(inout) :: log
+    type(config_t), intent(in) :: cfg
+    type(study_cfg_t), intent(in) :: study
+    type(run_options_t), intent(in) :: opts
+    type(error_t), allocatable, intent(out) :: error
+    type(fom_t) :: fom_ref
+    type(param_space_t) :: space
+    type(sample_set_t) :: sets(2)
+    type(scheduler_t) :: sched
+    type(sample_result_t) :: res
+    type(piece_index_t) :: pieces
+    type(piece_batch_t) :: batch
+    type(sample_result_t), allocatable :: held(:)
+    type(db_meta_t) :: meta
+    type(snap_writer_t) :: writer
+    real(wp), allocatable :: q0(:), redu(:)
+    integer :: ci(2), nv
+    real(wp) :: cr(2)
+    integer, allocatable :: done(:), todo(:)
+    character(len=:), allocatable :: dir, msg
+    integer :: status, g, k, is, t, n_mine, ndone, j, maj, mnr, rel, ierr
+    real(wp) :: t0, t_start, t_loop, t_sample, busy_mine
+
+    t_start = env%wtime()
+    this%db = trim(study%database)
+    dir = this%db // ".pieces"
+    this%batch_seconds = opts%batch_seconds
+    call log%stage_begin("crowd_snapshots: setup")
+    call log%info(config_echo(cfg) // study_echo(study))
+    ! the reference model: scene and the common initial positions (placed once, on rank 0)
+    call fom_ref%init(cfg, error)
+    if (allocated(error)) return
+    q0 = fom_ref%q
+    call env%bcast(q0, error)
+    if (allocated(error)) return
+    call space%init(study, fom_ref%n_agents)
+    call generate_samples(study, space, sets(1), sets(2), error)
+    if (allocated(error)) return
+    this%n_train = sets(1)%n; this%n_valid = sets(2)%n
+    this%n_tot = sets(1)%n + sets(2)%n
+    this%hash = study_hash(cfg, study, SNAP_SCHEMA_VERSION)
+    call log%info("   " // str(fom_ref%n_agents) // " agents, " // str(cfg%time%n_steps) // " steps per sample, " // &
+      str(space%n_expanded) // " parameter components (" // shorten(space%component_names(), 60) // "), " // &
+      str(sets(1)%n) // " training + " // str(sets(2)%n) // " validation samples on " // str(env%size) // &
+      " ranks; config_hash " // this%hash)
+
+    ! an existing database: done already, or refused
+    status = 0; msg = ""
+    if (env%is_root()) call probe_snap_database(this%db, this%hash, status, msg)
+    call env%bcast(status, error)
+    if (allocated(error)) return
+    if (status == 2) call env%bcast_string(msg)
+    if (status == 2) then
+      call set_error(error, msg, 2); return
+    end if
+    if (status == 1) then
+      this%no_op = .true.
+      call log%info("database '" // this%db // "' is already complete for this configuration: nothing to do")
+      call log%stage_end()
+      return
+    end if
+
+    ! pieces of earlier runs, verified (bad ones stop the run, or are moved aside on request);
+    ! the samples of the good ones stay with the rank that verified them
+    call scan_pieces(env, dir, this%hash, sets, 2 * fom_ref%n_agents, cfg%time%n_steps, opts%quarantine, pieces, &
+      held, msg, error)
+    if (allocated(error)) return
+    if (len(msg) > 0) call log%warn(msg // "the samples of the " // str(pieces%n_quarantined) // &
+      " bad piece(s) are recomputed")
+    allocate(done(this%n_tot))
+    done = merge(1, 0, pieces%piece_of > 0)
+    this%n_prev = count(done == 1)
+    todo = pack([(g, g = 1, this%n_tot)], done == 0)
+    this%n_run = size(todo)
+    if (opts%stop_after >= 0) this%n_run = min(this%n_run, opts%stop_after)
+    if (this%n_prev > 0) call log%info("   resuming: " // str(this%n_prev) // " of " // str(this%n_tot) // &
+      " samples already complete in '" // dir // "'")
+    ! the database (temporary name until finished), with the samples of the earlier pieces
+    call fill_meta()
+    nv = size(scene_vertex_list(fom_ref%scene))
+    ci = 0; cr = 0
+    call writer%begin(env, this%db, meta, q0, fom_ref%scene, error)
+    if (allocated(error)) return
+    msg = ""
+    do j = 1, size(held)
+      call put(held(j), error)
+      if (allocated(error)) exit
+    end do
+    deallocate(held)
+    if (allocated(error)) then
+      msg = error%message; deallocate(error)
+    end if
+    this%t_put_resumed = writer%stats%t_put
+    if (len(msg) > 0) call set_error(error, msg)
+    ! (every rank knows whether there were earlier pieces)
+    if (pieces%n_pieces > 0) call env%agree_error(error)
+    if (allocated(error)) then
+      call writer%discard(); return
+    end if
+    call log%stage_end()
+
+    ! the samples, dynamically assigned
+    call log%stage_begin("crowd_snapshots: " // str(this%n_run) // " full-order runs on " // str(env%size) // " ranks")
+    call sched%init(env, this%n_run, error)
+    if (allocated(error)) then
+      call writer%discard(); return
+    end if
+    call log%progress_start()
+    t_loop = env%wtime()
+    call batch%init(env, dir, this%hash, opts%batch_seconds)
+    msg = ""
+    n_mine = 0; busy_mine = 0; this%sum_time = 0
+    do
+      t = sched%next(error)
+      if (allocated(error)) then
+        msg = "rank " // str(env%rank) // ": " // error%message; deallocate(error); exit
+      end if
+      if (t == 0) exit
+      g = todo(t)
+      call set_of_sample(sets, g, is, k)
+      t0 = env%wtime()
+      res%set = sets(is)%name
+      res%index = k
+      res%rank = env%rank
+      res%start = t0 - t_start
+      call compute_sample(cfg, space, sets(is)%mu(:, k), q0, fom_ref%speeds, res, error)
+      if (.not. allocated(error)) then
+        res%time = env%wtime() - t0
+        call batch%add(res, g, sets, env%wtime() - t_start, error)
+      end if
+      if (.not. allocated(error)) call put(res, error)
+      if (allocated(error)) then
+        msg = trim(sets(is)%name) // " sample " // str(k) // " (mu = " // shorten(mu_text(sets(is)%mu(:, k)), 60) // &
+          ") on rank " // str(env%rank) // ": " // error%message
+        deallocate(error)
+        exit
+      end if
+      t_sample = env%wtime() - t0
+      busy_mine = busy_mine + t_sample
+      n_mine = n_mine + 1
+      ndone = sched%mark_done(error)
+      if (allocated(error)) then
+        msg = "rank " // str(env%rank) // ": " // error%message; deallocate(error); exit
+      end if
+      if (env%is_root()) call log%progress("samples", this%n_prev + ndone, this%n_tot)
+    end do
+    if (len(msg) == 0) then
+      t0 = env%wtime()
+      call batch%flush(sets, error)
+      busy_mine = busy_mine + (env%wtime() - t0)
+      if (allocated(error)) then
+        msg = "rank " // str(env%rank) // ": " // error%message; deallocate(error)
+      end if
+    end if
+    if (len(msg) > 0) call set_error(error, msg)
+    call env%agree_error(error)
+    ! (the agreement is the end of the loop on every rank)
+    this%t_compute = env%wtime() - t_loop
+    this%counter = [real(sched%n_calls(), wp), sched%t_calls()]
+    this%pieces_out = [real(batch%n_pieces, wp), real(batch%bytes_written, wp), batch%t_write]
+    call sched%free()
+    if (allocated(error)) then
+      call writer%discard(); return
+    end if
+    ! every rank's figures in two reductions: per-rank slots and sums, then maxima
+    allocate(redu(2 * env%size + 8))
+    redu = 0
+    redu(env%rank + 1) = busy_mine
+    redu(env%size + env%rank + 1) = n_mine
+    redu(2 * env%size + 1:) = [this%counter, this%pieces_out, writer%stats%t_put - this%t_put_resumed, &
+      real(ci, wp)]
+    call env%allreduce(redu, 'sum', error)
+    if (.not. allocated(error)) call env%allreduce(cr, 'max', error)
+    if (allocated(error)) then
+      call writer%discard(); return
+    end if
+    this%busy = redu(1:env%size)
+    this%nsamp = nint(redu(env%size + 1:2 * env%size))
+    this%sum_time = sum(this%busy)
+    associate (r => redu(2 * env%size + 1:))
+      this%counter = r(1:2); this%pieces_out = r(3:5); this%t_put_all = r(6)
+      this%nonconverged_steps = nint(r(7)); this%nonconverged_samples = nint(r(8))
+    end associate
+    this%kkt_max = cr(1); this%time_max = cr(2)
+    this%t_setup = t_loop - t_start
+    call log%info("   samples " // str(this%n_prev + this%n_run) // " of " // str(this%n_tot) // " complete")
+    call log%stage_end()
+    if (this%n_run < size(todo)) then
+      call writer%discard()
+      call set_error(error, "stopped after " // str(this%n_run) // " samples as requested by --stop-after (" // &
+        str(this%n_prev + this%n_run) // " of " // str(this%n_tot) // " complete, database not assembled): " // &
+        "run again without --stop-after to finish", EXIT_STOPPED)
+      return
+    end if
+
+    ! the database: multipliers, checksums, complete = 1
+    call log%stage_begin("crowd_snapshots: finishing '" // this%db // "'")
+    t0 = env%wtime()
+    this%t_asm_start = t0 - t_start
+    call writer%finish(error)
+    this%wstats = writer%stats
+    if (allocated(error)) return
+    ! the database is committed: the pieces can go (each rank its own, rank 0 those of earlier
+    ! runs and the temporaries of pieces a killed run did not finish)
+    j = 1
+    do while (j < size(batch%written))
+      call set_of_sample(sets, batch%written(j + 1), is, k)
+      ierr = remove_file(piece_path(dir, sets(is)%name, k))
+      j = j + batch%written(j) + 1
+    end do
+    if (env%is_root()) then
+      do g = 1, pieces%n_pieces
+        ierr = remove_file(pieces%path_of(g))
+      end do
+      do g = 1, this%n_tot
+        call set_of_sample(sets, g, is, k)
+        ierr = remove_file(piece_path(dir, sets(is)%name, k) // ".partial")
+      end do
+    end if
+    call env%barrier()
+    if (env%is_root()) then
+      if (file_exists(dir // "/quarantine/.")) then
+        call log%info("   bad pieces kept in '" // dir // "/quarantine' (inspect, then remove them)")
+      else if (remove_dir(dir) /= 0) then
+        call log%warn("could not remove '" // dir // "' (foreign files in it?)")
+      end if
+    end if
+    this%t_asm = env%wtime() - t0
+    call log%stage_end()
+    this%t_total = env%wtime() - t_start
+    if (env%is_root()) this%bytes = file_size(this%db)
+    ! a diagnostic for the scaling model, after the run's clock has stopped
+    this%t_coll = env%collective_latency(20, error)
+
+  contains
+
+    !> Map sample r's scene, count it in the totals, and put it into the database.
+    subroutine put(r, error)
+      type(sample_result_t), intent(inout) :: r
+      type(error_t), allocatable, intent(out) :: error
+      type(scene_t) :: sc
+      call space%scene_of(r%mu, cfg, sc, error)
+      if (allocated(error)) then
+        error%message = "scene of " // trim(r%set) // " sample " // str(r%index) // ": " // error%message
+        return
+      end if
+      r%scene_v = scene_vertex_list(sc)
+      if (size(r%scene_v) /= nv) then
+        call set_error(error, "scene of " // trim(r%set) // " sample " // str(r%index) // &
+          " has another vertex layout"); return
+      end if
+      r%scene_exit = [sc%x_lo, sc%width, sc%x_hi, sc%width]
+      ci(1) = ci(1) + count(r%converged == 0)
+      if (any(r%converged == 0)) ci(2) = ci(2) + 1
+      if (size(r%kkt) > 0) cr(1) = max(cr(1), maxval(r%kkt))
+      cr(2) = max(cr(2), r%time)
+      call writer%put(r, error)
+    end subroutine put
+
+    subroutine fill_meta()
+      meta%config_text = config_echo(cfg) // study_echo(study)
+      meta%input_text = cfg%text
+      meta%hash = this%hash
+      meta%param_names = space%component_names()
+      meta%version = CROWDROM_VERSION
+      call h5get_libversion_f(maj, mnr, rel, ierr)
+      meta%hdf5_version = "unknown"
+      if (ierr == 0) meta%hdf5_version = str(maj) // "." // str(mnr) // "." // str(rel)
+      meta%mpi_version = env%library_version()
+      meta%compiler = compiler_version()
+      meta%n_agents = fom_ref%n_agents
+      meta%n_steps = cfg%time%n_steps
+      meta%n_expanded = space%n_expanded
+      meta%n_train = sets(1)%n
+      meta%n_valid = sets(2)%n
+      meta%radius = fom_ref%radius
+      meta%dt = fom_ref%dt
+    end subroutine fill_meta
+  end subroutine execute
+
+  !> Busy-time efficiencies (sample loop, whole run) and load balance of a run.
+  subroutine efficiencies(this, p, eff_loop, eff_total, balance)
+    class(study_run_t), intent(in) :: this
+    integer, intent(in) :: p
+    real(wp), intent(out) :: eff_loop, eff_total, balance
+    eff_loop = 0; eff_total = 0; balance = 1
+    if (this%t_compute > 0) eff_loop = this%sum_time / (p * this%t_compute)
+    if (this%t_total > 0) eff_total = this%sum_time / (p * this%t_total)
+    if (maxval(this%busy) > 0) balance = sum(this%busy) / p / maxval(this%busy)
+  end subroutine efficiencies
+
+  !> The summary printed at the end of a run.
+  function summary_text(this) result(text)
+    class(study_run_t), intent(in) :: this
+    character(len=:), allocatable :: text
+    real(wp) :: eff_loop, eff_total, balance
+    integer :: r, p
+    p = size(this%busy)
+    call efficiencies(this, p, eff_loop, eff_total, balance)
+    text = "summary:" // new_line('a') // &
+      "  database            " // this%db // " (" // str(real(this%bytes, wp) / 1.0e6_wp, 'f0.2') // " MB)" // &
+      new_line('a') // &
+      "  samples             " // str(this%n_tot) // " (" // str(this%n_train) // " train + " // str(this%n_valid) // &
+      " valid), computed now " // str(this%n_run) // ", resumed " // str(this%n_prev) // new_line('a') // &
+      "  time per sample     mean " // str(this%sum_time / max(this%n_run, 1), 'f0.3') // " s (with its piece " // &
+      "file), max of the model runs in the database " // str(this%time_max, 'f0.3') // " s" // new_line('a') // &
+      "  ranks               " // str(p) // new_line('a')
+    do r = 1, p
+      text = text // "    rank " // str(r - 1) // ": " // str(this%nsamp(r)) // " samples, busy " // &
+        str(this%busy(r), 'f0.2') // " s" // new_line('a')
+    end do
+    text = text // &
+      "  load balance        " // str(balance, 'f0.3') // " (mean / max busy time)" // new_line('a') // &
+      "  busy-time efficiency " // str(eff_loop, 'f0.3') // " (sample loop), " // str(eff_total, 'f0.3') // &
+      " (whole run: sum of busy times / (P x wall))" // new_line('a') // &
+      "  overheads           counter " // str(1.0e6_wp * this%counter(2) / max(this%counter(1), 1.0_wp), 'f0.1') // &
+      " us per operation, " // str(nint(this%pieces_out(1))) // " pieces (" // &
+      str(this%pieces_out(2) / 1.0e6_wp, 'f0.2') // " MB, " // str(this%pieces_out(3), 'f0.3') // " s), collective " // &
+      str(1.0e6_wp * this%t_coll, 'f0.1') // " us" // new_line('a') // &
+      "  wall time           " // str(this%t_total, 'f0.2') // " s (samples " // str(this%t_compute, 'f0.2') // &
+      " s, end of the database " // str(this%t_asm, 'f0.3') // " s:" // &
+      " dictionary " // str(this%wstats%t_dict, 'f0.3') // ", layout " // str(this%wstats%t_layout, 'f0.3') // &
+      ", write " // str(this%wstats%t_write, 'f0.3') // ", seal " // str(this%wstats%t_seal, 'f0.3') // ")" // &
+      new_line('a') // &
+      "  non-converged steps " // str(this%nonconverged_steps) // " in " // str(this%nonconverged_samples) // &
+      " samples (largest KKT residual " // str(this%kkt_max) // ")" // new_line('a') // &
+      "  contact dictionary  " // str(this%wstats%n_dict) // " contacts, " // str(this%wstats%nnz) // &
+      " stored multipliers"
+  end function summary_text
+
+  !> Rank 0: the summary as JSON (`input`: the input file's name).
+  subroutine write_summary(this, path, input, error)
+    class(study_run_t), intent(in) :: this
+    character(len=*), intent(in) :: path, input
+    type(error_t), allocatable, intent(out) :: error
+    type(json_writer_t) :: js
+    real(wp) :: eff_loop, eff_total, balance
+    integer :: p
+    p = size(this%busy)
+    call efficiencies(this, p, eff_loop, eff_total, balance)
+    call js%add("program", "crowd_snapshots")
+    call js%add("input", input)
+    call js%add("database", this%db)
+    call js%add("database_bytes", this%bytes)
+    call js%add("config_hash", trim(this%hash))
+    call js%add("ranks", p)
+    call js%add("samples_total", this%n_tot)
+    call js%add("samples_train", this%n_train)
+    call js%add("samples_valid", this%n_valid)
+    call js%add("samples_computed", this%n_run)
+    call js%add("samples_resumed", this%n_prev)
+    call js%add("time_per_sample_mean", this%sum_time / max(this%n_run, 1))
+    call js%add("time_per_sample_max", this%time_max)
+    call js%add("samples_per_rank", this%nsamp)
+    call js%add("busy_time_per_rank", this%busy)
+    call js%add("load_balance", balance)
+    call js%add("parallel_efficiency", eff_total)
+    call js%add("parallel_efficiency_sample_loop", eff_loop)
+    call js%add("wall_time", this%t_total)
+    call js%add("wall_time_samples", this%t_compute)
+    call js%add("wall_time_assembly", this%t_asm)
+    call js%add("busy_time_efficiency", eff_total)
+    call js%add("busy_time_efficiency_sample_loop", eff_loop)
+    call js%add("wall_time_setup", this%t_setup)
+    call js%add("assembly_start", this%t_asm_start)
+    call js%add("counter_operations", nint(this%counter(1)))
+    call js%add("counter_latency_mean", this%counter(2) / max(this%counter(1), 1.0_wp))
+    call js%add("collective_latency", this%t_coll)
+    call js%add("pieces_written", nint(this%pieces_out(1)))
+    call js%add("piece_bytes_written", this%pieces_out(2))
+    call js%add("piece_write_time", this%pieces_out(3))
+    call js%add("database_put_time", this%t_put_all)
+    call js%add("database_put_time_resumed", this%t_put_resumed)
+    call js%add("assembly_dictionary_time", this%wstats%t_dict)
+    call js%add("assembly_layout_time", this%wstats%t_layout)
+    call js%add("assembly_write_time", this%wstats%t_write)
+    call js%add("assembly_seal_time", this%wstats%t_seal)
+    call js%add("assembly_bytes_written", real(this%wstats%bytes, wp))
+    call js%add("batch_seconds", this%batch_seconds)
+    call js%add("nonconverged_steps", this%nonconverged_steps)
+    call js%add("nonconverged_samples", this%nonconverged_samples)
+    call js%add("largest_kkt_residual", this%kkt_max)
+    call js%add("contacts_in_dictionary", this%wstats%n_dict)
+    call js%add("stored_multipliers", this%wstats%nnz)
+    call js%write_file(path, error)
+  end subroutine write_summary
+
+  !> "a, b, c" of a parameter vector.
+  function mu_text(mu) result(s)
+    real(wp), intent(in) :: mu(:)
+    character(len=:), allocatable :: s
+    integer :: k
+    s = ""
+    do k = 1, size(mu)
+      s = s // str(mu(k)) // merge(", ", "  ", k < size(mu))
+    end do
+    s = trim(s)
+  end function mu_text
+end module cr_study_run

@@ -1,0 +1,133 @@
+!> env_t's collectives, shared counter and MPI-IO block file (the snapshot stage's MPI goes
+!> through them). Run at 1 and 2 ranks: every result is checked against what it must be.
+program test_env_collectives
+  use mpi_f08, only: MPI_Init, MPI_Finalize, MPI_COMM_WORLD
+  use cr_kinds, only: wp, i8
+  use cr_error, only: error_t
+  use cr_env, only: env_t, shared_counter_t, par_file_t
+  use cr_strings, only: str
+  use cr_assert, only: check, test_summary
+  implicit none
+  type(env_t) :: env
+  type(error_t), allocatable :: error
+  type(shared_counter_t) :: counter
+  type(par_file_t) :: pf
+  integer :: ierr, p, r, k, u, ios
+  integer, allocatable :: ia(:), got(:), counts(:)
+  integer(i8), allocatable :: la(:), lall(:)
+  real(wp), allocatable :: ra(:)
+  integer(i8) :: old, tickets(1)
+  integer :: n0
+  character(len=:), allocatable :: text
+  character(len=*), parameter :: path = "test_env_collectives.bin"
+  integer(i8), allocatable :: back(:)
+
+  call MPI_Init(ierr)
+  call env%init(MPI_COMM_WORLD, error)
+  call check(.not. allocated(error), "env init")
+  p = env%size; r = env%rank
+
+  ! broadcasts from rank 0 and from the last rank
+  n0 = merge(42, -1, r == 0)
+  call env%bcast(n0, error)
+  call check(.not. allocated(error) .and. n0 == 42, "bcast of an integer from rank 0")
+  ia = [r, r + 1, r + 2]
+  call env%bcast(ia, error, root=p - 1)
+  call check(.not. allocated(error) .and. all(ia == [p - 1, p, p + 1]), "bcast of integers from the last rank")
+  la = [int(r, i8) * 10_i8**12]
+  call env%bcast(la, error)
+  call check(la(1) == 0, "bcast of 64-bit integers")
+  ra = [real(r, wp) + 0.5_wp]
+  call env%bcast(ra, error)
+  call check(ra(1) == 0.5_wp, "bcast of reals")
+
+  ! reductions
+  ia = [r, 1, -r]
+  call env%allreduce(ia, 'sum', error)
+  call check(all(ia == [p * (p - 1) / 2, p, -p * (p - 1) / 2]), "allreduce sum of integers")
+  la = [int(r, i8) + 10_i8**12]
+  call env%allreduce(la, 'max', error)
+  call check(la(1) == int(p - 1, i8) + 10_i8**12, "allreduce max of 64-bit integers")
+  ra = [real(r + 1, wp)]
+  call env%allreduce(ra, 'min', error)
+  call check(ra(1) == 1.0_wp, "allreduce min of reals")
+  call env%allreduce(ra, 'prod', error)
+  call check(allocated(error), "an unknown reduction is refused")
+  if (allocated(error)) then
+    call check(index(error%message, "unknown reduction 'prod'") > 0, "message names the reduction")
+    deallocate(error)
+  end if
+
+  ! gathers: rank r contributes r + 1 entries equal to r
+  call env%allgather(10 * r, got, error)
+  call check(size(got) == p .and. all(got == [(10 * k, k = 0, p - 1)]), "allgather of an integer")
+  call env%allgather(real(r, wp), ra, error)
+  call check(size(ra) == p .and. all(ra == [(real(k, wp), k = 0, p - 1)]), "allgather of a real")
+  ia = [(r, k = 1, r + 1)]
+  call env%allgatherv(ia, got, error, counts)
+  call check(.not. allocated(error) .and. size(got) == p * (p + 1) / 2, "allgatherv: total size")
+  call check(all(counts == [(k + 1, k = 0, p - 1)]), "allgatherv: counts")
+  call check(all(got == [((k, u = 1, k + 1), k = 0, p - 1)]), "allgatherv: rank order")
+  la = [(int(r, i8) * 10_i8**10, k = 1, 2)]
+  call env%allgatherv(la, lall, error)
+  call check(size(lall) == 2 * p .and. lall(2 * p) == int(p - 1, i8) * 10_i8**10, "allgatherv of 64-bit integers")
+  call env%gather_text(repeat(achar(iachar('a') + r), r + 1), text, error)
+  call check(len(text) == p * (p + 1) / 2 .and. text(1:1) == 'a', "gather_text: rank order")
+  if (p > 1) call check(text(2:3) == 'bb', "gather_text: second rank")
+
+  ! shared counter: every ticket is handed out exactly once
+  call counter%init(env, 2, error)
+  call check(.not. allocated(error), "counter init")
+  deallocate(ia); allocate(ia(0))
+  do k = 1, 5
+    old = counter%fetch_add(1, 1_i8, error)
+    ia = [ia, int(old)]
+  end do
+  old = counter%fetch_add(2, 7_i8, error)
+  call check(.not. allocated(error) .and. counter%n_calls == 6, "counter operations counted")
+  call env%allgatherv(ia, got, error)
+  call check(size(got) == 5 * p, "5 tickets per rank")
+  do k = 0, 5 * p - 1
+    call check(count(got == k) == 1, "ticket " // str(k) // " handed out once")
+  end do
+  call env%barrier()
+  tickets(1) = counter%fetch_add(2, 0_i8, error)
+  call check(tickets(1) == 7_i8 * p, "second counter: sum of the additions")
+  call counter%free()
+
+  ! MPI-IO block file: each rank writes its blocks interleaved; rank 0 reads the file back
+  if (r == 0) then
+    open(newunit=u, file=path, status='replace', action='write'); close(u)
+  end if
+  call env%barrier()
+  call pf%open(env, path, error)
+  call check(.not. allocated(error), "par_file open")
+  do k = 0, 2
+    la = [int(100 * r + k, i8)]
+    call pf%write_at(int(8 * (k * p + r), i8), la, 8_i8, error)
+  end do
+  call pf%close(error)
+  call check(.not. allocated(error), "par_file writes and close")
+  call env%barrier()
+  if (r == 0) then
+    allocate(back(3 * p))
+    open(newunit=u, file=path, access='stream', form='unformatted', status='old', iostat=ios)
+    read(u, iostat=ios) back
+    close(u, status='delete')
+    call check(ios == 0, "file read back")
+    do k = 0, 2
+      call check(all(back(k * p + 1:(k + 1) * p) == [(int(100 * u + k, i8), u = 0, p - 1)]), &
+        "block row " // str(k) // " in place")
+    end do
+  end if
+  call pf%open(env, "no_such_dir/x.bin", error)
+  call check(allocated(error), "opening a file in a missing directory fails")
+  if (allocated(error)) then
+    call check(index(error%message, "MPI_File_open of 'no_such_dir/x.bin'") > 0, "message names the file")
+    deallocate(error)
+  end if
+
+  call test_summary(r)
+  call env%free()
+  call MPI_Finalize(ierr)
+end program test_env_collectives
