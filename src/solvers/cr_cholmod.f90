@@ -36,6 +36,7 @@ module cr_cholmod
     procedure :: schur => chol_schur
     procedure :: symbolic_nnz => chol_symbolic_nnz
     procedure :: perm => chol_perm
+    procedure :: n_pattern => chol_n_pattern
   end type chol_t
 
   interface
@@ -119,6 +120,10 @@ module cr_cholmod
       import :: c_ptr, c_double
       type(c_ptr), value :: h
     end function c_min_pivot
+    integer(c_long) function c_n_pattern(h) bind(C, name='cr_chol_n_pattern')
+      import :: c_ptr, c_long
+      type(c_ptr), value :: h
+    end function c_n_pattern
     integer(c_long) function c_factor_nnz(h) bind(C, name='cr_chol_factor_nnz')
       import :: c_ptr, c_long
       type(c_ptr), value :: h
@@ -293,6 +298,14 @@ contains
     class(chol_t), intent(in) :: this
     d = real(c_min_pivot(this%h), wp)
   end function chol_min_pivot
+
+  !> Row deletions done with the row's pattern (row subtree of the analysis' elimination tree)
+  !> since init.
+  integer function chol_n_pattern(this) result(k)
+    class(chol_t), intent(in) :: this
+    k = 0
+    if (c_associated(this%h)) k = int(c_n_pattern(this%h))
+  end function chol_n_pattern
 
   !> Stored entries of the current factor.
   integer function chol_factor_nnz(this) result(nnz)

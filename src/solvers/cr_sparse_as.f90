@@ -81,6 +81,8 @@ module cr_sparse_as
     real(wp), allocatable :: fv(:), uv(:)
     !> velocities [2 n_agents]
     real(wp), allocatable :: uu(:)
+    !> solves whose warm start already met the KKT test (no analysis, no factorisation)
+    integer :: n_warm_exact = 0
   contains
     procedure :: solve => sparse_as_solve
     procedure :: free => sparse_as_free
@@ -224,6 +226,7 @@ contains
       call finish_stats(cs, v, u, lambda, this%settings%tol, stats)
       return
     end if
+    if (warm_is_optimal()) return
     call assemble()
     nfac0 = this%chol%n_factor; nmod0 = this%chol%n_modify
     call order_and_analyze()
@@ -269,6 +272,36 @@ contains
     end if
 
   contains
+
+    !> The warm start already solves the problem when its scaled KKT residual (the same test as
+    !> every other exit) is at most tol: then no analysis, no factorisation. This is the case of
+    !> the FOM's re-solves after a cutoff enlargement (the previous solution, on a superset of
+    !> rows that stays feasible) and of steps where nothing moved. (u, lambda) are returned
+    !> as they are (no iteration, stats%iterations = 0).
+    logical function warm_is_optimal() result(ok)
+      ok = .false.
+      if (.not. this%settings%warm_start) return
+      if (.not. any(this%lam(1:m) > 0.0_wp)) return
+      this%act(1:m) = this%lam(1:m) > 0.0_wp
+      call velocities()
+      this%act(1:m) = .false.
+      u = this%uu(1:2 * na)
+      do j = 1, m
+        lambda(j) = max(lambda(j), 0.0_wp)
+      end do
+      stats%converged = .false.
+      call finish_stats(cs, v, u, lambda, this%settings%tol, stats)
+      ok = stats%kkt <= this%settings%tol
+      stats%converged = .true.
+      if (ok) then
+        this%n_warm_exact = this%n_warm_exact + 1
+      else
+        ! not optimal: back to the input state (finish_stats is recomputed at the end)
+        lambda(1:m) = this%l0(1:m)
+        stats%primal = 0; stats%dual = 0; stats%compl = 0; stats%stat = 0; stats%kkt = 0
+        stats%note = ""
+      end if
+    end function warm_is_optimal
 
     !> The dense cluster solver on the whole problem; as safe path, counted and noted.
     subroutine dense_path(as_fallback)
