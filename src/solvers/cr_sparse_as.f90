@@ -285,6 +285,10 @@ contains
       this%act(1:m) = this%lam(1:m) > 0.0_wp
       call velocities()
       this%act(1:m) = .false.
+      ! cheap screen first (new time steps fail it at once): a violated row
+      do j = 1, m
+        if (row_slack(j) < -thr) return
+      end do
       u = this%uu(1:2 * na)
       do j = 1, m
         lambda(j) = max(lambda(j), 0.0_wp)
@@ -946,16 +950,21 @@ contains
 
     !> uu = v - B_P^T lambda_P, slack = d - B uu (normalised rows).
     subroutine slacks()
-      integer :: a, b
       call velocities()
       do j = 1, m
-        a = cs%ia(j); b = cs%ib(j)
-        this%slack(j) = this%c(1, j) * this%uu(2*a - 1) + this%c(2, j) * this%uu(2*a)
-        if (b > 0) this%slack(j) = this%slack(j) - this%c(1, j) * this%uu(2*b - 1) - &
-          this%c(2, j) * this%uu(2*b)
-        this%slack(j) = this%dd(j) - this%slack(j)
+        this%slack(j) = row_slack(j)
       end do
     end subroutine slacks
+
+    !> d_j - b_j . uu for row jj (normalised).
+    real(wp) function row_slack(jj) result(r)
+      integer, intent(in) :: jj
+      integer :: a, b
+      a = cs%ia(jj); b = cs%ib(jj)
+      r = this%c(1, jj) * this%uu(2*a - 1) + this%c(2, jj) * this%uu(2*a)
+      if (b > 0) r = r - this%c(1, jj) * this%uu(2*b - 1) - this%c(2, jj) * this%uu(2*b)
+      r = this%dd(jj) - r
+    end function row_slack
 
     subroutine velocities()
       integer :: a, b, jj
