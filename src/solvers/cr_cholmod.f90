@@ -54,21 +54,23 @@ module cr_cholmod
       character(kind=c_char), intent(out) :: buf(*)
       integer(c_int), value :: len
     end subroutine c_message
-    integer(c_int) function c_analyze(h, n, colptr, rowind, val, perm) bind(C, name='cr_chol_analyze')
+    integer(c_int) function c_analyze(h, n, colptr, rowind, val, perm, inset) bind(C, name='cr_chol_analyze')
       import :: c_ptr, c_int, c_double
       type(c_ptr), value :: h
       integer(c_int), value :: n
       integer(c_int), intent(in) :: colptr(*), rowind(*)
       real(c_double), intent(in) :: val(*)
       type(c_ptr), value :: perm
+      integer(c_int), intent(in) :: inset(*)
     end function c_analyze
-    integer(c_int) function c_analyze_perm(h, n, colptr, rowind, val, perm) bind(C, name='cr_chol_analyze')
+    integer(c_int) function c_analyze_perm(h, n, colptr, rowind, val, perm, inset) bind(C, name='cr_chol_analyze')
       import :: c_ptr, c_int, c_double
       type(c_ptr), value :: h
       integer(c_int), value :: n
       integer(c_int), intent(in) :: colptr(*), rowind(*)
       real(c_double), intent(in) :: val(*)
       integer(c_int), intent(in) :: perm(*)
+      integer(c_int), intent(in) :: inset(*)
     end function c_analyze_perm
     integer(c_int) function c_factor(h, active) bind(C, name='cr_chol_factor')
       import :: c_ptr, c_int
@@ -164,8 +166,10 @@ contains
   end subroutine shim_error
 
   !> Set M (upper triangle, compressed columns, 1-based, rows sorted within each column) and
-  !> analyse it; perm [n] (1-based) is the ordering to use, AMD when absent.
-  subroutine chol_analyze(this, n, colptr, rowind, val, error, perm)
+  !> analyse it; perm [n] (1-based) is the ordering to use, AMD when absent. inset [n]: the
+  !> rows that may become active (all when absent); M must hold every entry between two of
+  !> them; factor and rowadd refuse the other rows (an error, never a wrong factor).
+  subroutine chol_analyze(this, n, colptr, rowind, val, error, perm, inset)
     class(chol_t), intent(inout) :: this
     integer, intent(in) :: n
     !> column starts [n + 1], row indices and values [colptr(n+1) - 1]
@@ -173,17 +177,22 @@ contains
     real(wp), intent(in) :: val(:)
     type(error_t), allocatable, intent(out) :: error
     integer, intent(in), optional :: perm(:)
+    logical, intent(in), optional :: inset(:)
     integer(c_int) :: rc
+    integer(c_int), allocatable :: ins(:)
     integer :: nz
     call this%init(error)
     if (allocated(error)) return
     nz = colptr(n + 1) - 1
+    allocate(ins(max(n, 1)))
+    ins = 1_c_int
+    if (present(inset)) ins(1:n) = merge(1_c_int, 0_c_int, inset(1:n))
     if (present(perm)) then
       rc = c_analyze_perm(this%h, int(n, c_int), int(colptr(1:n + 1) - 1, c_int), &
-        int(rowind(1:max(nz, 1)) - 1, c_int), val, int(perm(1:max(n, 1)) - 1, c_int))
+        int(rowind(1:max(nz, 1)) - 1, c_int), val, int(perm(1:max(n, 1)) - 1, c_int), ins)
     else
       rc = c_analyze(this%h, int(n, c_int), int(colptr(1:n + 1) - 1, c_int), &
-        int(rowind(1:max(nz, 1)) - 1, c_int), val, c_null_ptr)
+        int(rowind(1:max(nz, 1)) - 1, c_int), val, c_null_ptr, ins)
     end if
     if (rc /= 0) then
       call shim_error(this, "analyze", rc, error); return

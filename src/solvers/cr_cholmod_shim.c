@@ -25,6 +25,7 @@ typedef struct {
   cholmod_sparse *r;      /* rowadd column [n, 1] */
   int *iperm;             /* position of each row in the factor [n] */
   int *active;            /* current active flags [n] */
+  int *inset;             /* rows of the analysed set W: the only rows that may be active [n] */
   double *yw;             /* zero work vector of the Schur-complement test [n] */
   double *xw;             /* work vector of the solve, factor order [n] */
   cholmod_sparse *pm;     /* pattern of P M P' (upper, factor order), for the row subtrees */
@@ -47,6 +48,7 @@ static void release(cr_chol_t *h) {
   if (h->r) cholmod_free_sparse(&h->r, &h->c);
   free(h->iperm); h->iperm = NULL;
   free(h->active); h->active = NULL;
+  free(h->inset); h->inset = NULL;
   free(h->yw); h->yw = NULL;
   free(h->xw); h->xw = NULL;
   if (h->pm) cholmod_free_sparse(&h->pm, &h->c);
@@ -126,9 +128,11 @@ static int permuted_etree(cr_chol_t *h) {
 
 /* Set M [n, n] (upper triangle, colptr [n+1], rowind and val [colptr[n]], 0-based, each
  * column's rows sorted) and analyse its pattern. perm [n] (0-based) is the ordering to use,
- * or NULL for AMD. */
+ * or NULL for AMD. inset [n] (or NULL: all rows) marks the rows that may become active; M
+ * must hold every entry between two such rows (the caller drops the others, so that the
+ * analysis is that of the rows that can become active); rowadd and factor refuse other rows. */
 int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const double *val,
-                    const int *perm) {
+                    const int *perm, const int *inset) {
   cr_chol_t *h = (cr_chol_t *)hp;
   int nz = colptr[n], j, *p, *ip;
   release(h);
@@ -148,6 +152,9 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
   if (!h->sym || h->c.status < CHOLMOD_OK) return fail(h, 4, "analyze");
   h->iperm = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
   h->active = calloc((size_t)(n > 0 ? n : 1), sizeof(int));
+  h->inset = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
+  if (!h->inset) { snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5; }
+  for (j = 0; j < n; j++) h->inset[j] = inset ? inset[j] : 1;
   h->yw = calloc((size_t)(n > 0 ? n : 1), sizeof(double));
   if (!h->iperm || !h->active || !h->yw) { snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5; }
   p = (int *)h->sym->Perm; ip = h->iperm;
@@ -187,6 +194,11 @@ int cr_chol_factor(void *hp, const int *active) {
   double *mx = (double *)h->m->x;
   cholmod_sparse *a;
   if (!h->sym) { snprintf(h->msg, sizeof h->msg, "cr_chol_factor before cr_chol_analyze"); return 7; }
+  for (j = 0; j < n; j++)
+    if (active[j] && !h->inset[j]) {
+      snprintf(h->msg, sizeof h->msg, "cr_chol_factor: row %d is active but outside the analysed set", j + 1);
+      return 26;
+    }
   memcpy(h->active, active, (size_t)n * sizeof(int));
   a = cholmod_allocate_sparse(n, n, mp[n] + n + 1, 1, 1, 1, CHOLMOD_REAL, &h->c);
   if (!a) return fail(h, 8, "allocate_sparse (active matrix)");
@@ -233,6 +245,7 @@ int cr_chol_rowadd(void *hp, int t, int nz, const int *idx, const double *val, d
   double *rx;
   if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowadd without a factor"); return 13; }
   if (h->active[t]) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowadd: row %d already active", t + 1); return 14; }
+  if (!h->inset[t]) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowadd: row %d is outside the analysed set", t + 1); return 27; }
   rp = (int *)h->r->p; ri = (int *)h->r->i; rx = (double *)h->r->x;
   for (q = 0; q < nz; q++) {
     k = idx[q];

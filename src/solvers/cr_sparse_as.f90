@@ -83,6 +83,15 @@ module cr_sparse_as
     real(wp), allocatable :: uu(:)
     !> solves whose warm start already met the KKT test (no analysis, no factorisation)
     integer :: n_warm_exact = 0
+    !> rows analysed (the set W that can become active): warm-start rows and rows whose slack
+    !> at u = v is below w_margin * (velocity scale); a violated row outside W enlarges W
+    !> (re-analysis, counted in n_reanalyse). w_margin < 0: every row is analysed.
+    real(wp) :: w_margin = 1.0_wp
+    integer :: n_reanalyse = 0
+    logical, allocatable :: inw(:)
+    !> upper triangle of M restricted to W (and the diagonal) [m + 1], [nnz]
+    integer, allocatable :: wptr(:), wi(:)
+    real(wp), allocatable :: wv(:)
   contains
     procedure :: solve => sparse_as_solve
     procedure :: free => sparse_as_free
@@ -355,6 +364,7 @@ contains
       call rgrow(this%l0, m)
       this%l0(1:m) = lambda(1:m)
       call lgrow(this%act, m); call lgrow(this%refused, m); call lgrow(this%newact, m)
+      call lgrow(this%inw, m)
       call igrow(this%viol, m); call igrow(this%rem, m); call igrow(this%mark, m)
       call rgrow(this%uu, 2 * na)
       if (allocated(this%c)) then
@@ -381,6 +391,10 @@ contains
         this%refused(j) = .false.
       end do
       thr = tolv * sv
+      do j = 1, m
+        this%inw(j) = this%w_margin < 0.0_wp .or. this%lam(j) > 0.0_wp .or. &
+          this%cc(j) > -this%w_margin * sv
+      end do
     end subroutine prepare
 
     !> M = B B^T (normalised rows): full CSC (fp, fi, fv) and upper triangle (up, ui, uv).
@@ -465,12 +479,45 @@ contains
       this%up(m + 1) = nzu + 1
     end subroutine assemble
 
-    !> Analyse M (AMD ordering). Reusing the previous call's ordering (carried over by contact
-    !> identity, CHOLMOD_GIVEN) was measured and is not cheaper: the symbolic analysis costs
-    !> about as much as AMD on these graphs.
+    !> Analyse M restricted to the rows of W (AMD ordering; the other rows are isolated: only
+    !> their diagonal), so that the ordering and the symbolic factor are those of the rows that
+    !> can become active. The factor is only ever asked for rows of W (the shim refuses the
+    !> others). Reusing the previous call's ordering (carried over by contact identity,
+    !> CHOLMOD_GIVEN) was measured and is not cheaper: the symbolic analysis costs about as
+    !> much as AMD on these graphs.
     subroutine order_and_analyze()
-      call this%chol%analyze(m, this%up, this%ui, this%uv, error)
+      integer :: jj, q, nzw
+      call igrow(this%wptr, m + 1); call igrow(this%wi, this%up(m + 1) - 1)
+      call rgrow(this%wv, this%up(m + 1) - 1)
+      nzw = 0
+      do jj = 1, m
+        this%wptr(jj) = nzw + 1
+        do q = this%up(jj), this%up(jj + 1) - 1
+          if (this%ui(q) == jj .or. (this%inw(jj) .and. this%inw(this%ui(q)))) then
+            nzw = nzw + 1
+            this%wi(nzw) = this%ui(q); this%wv(nzw) = this%uv(q)
+          end if
+        end do
+      end do
+      this%wptr(m + 1) = nzw + 1
+      call this%chol%analyze(m, this%wptr, this%wi, this%wv, error, inset=this%inw(1:m))
     end subroutine order_and_analyze
+
+    !> Rows viol(1:n) must be able to enter: if some lie outside W, W takes them and every row
+    !> whose current slack is below w_margin * sv, M is analysed again and P refactorised.
+    subroutine enlarge_w(n)
+      integer, intent(in) :: n
+      integer :: q
+      if (all(this%inw(this%viol(1:n)))) return
+      this%inw(this%viol(1:n)) = .true.
+      call slacks()
+      do q = 1, m
+        if (this%slack(q) < this%w_margin * sv) this%inw(q) = .true.
+      end do
+      this%n_reanalyse = this%n_reanalyse + 1
+      call order_and_analyze(); if (allocated(error)) return
+      call this%chol%factor(this%act(1:m), error)
+    end subroutine enlarge_w
 
     !> The active-set iteration from this%lam (warm start) on the current analysis. why is set
     !> (non-empty) when the safe path must take over.
@@ -544,6 +591,9 @@ contains
           end if
         end do
         if (nv == 0 .and. nrem == 0) exit sweeps
+        if (nv > 0) then
+          call enlarge_w(nv); if (allocated(error)) return
+        end if
         it = it + 1
         stats%iterations = stats%iterations + 1
         k = count(this%act(1:m))
@@ -648,6 +698,9 @@ contains
               nv = nv + 1; this%viol(nv) = j
             end if
           end do
+        end if
+        if (nv > 0) then
+          call enlarge_w(nv); if (allocated(error)) return
         end if
         exch = nv > 0 .and. all(this%refused(this%viol(1:nv)))
         if (nv == 0) then
