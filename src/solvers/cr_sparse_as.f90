@@ -7,8 +7,13 @@
 !>
 !> Rows are normalised to unit norm (same problem, lambda rescaled on exit). M = B B^T over all
 !> candidate rows is assembled once per solve (linear in rows: each row meets the rows of its
-!> two agents) and analysed once (AMD); the factor holds M on the passive set P and the identity
-!> elsewhere.
+!> two agents) and analysed once (AMD) on the rows that can become active (W: warm-start rows
+!> and rows with a small slack at u = v; a violated row outside W enlarges it and M is analysed
+!> again, counted in n_reanalyse); the factor holds M on the passive set P and the identity
+!> elsewhere. Row deletions hand CHOLMOD the row's pattern (its row subtree in the elimination
+!> tree of the analysed matrix) instead of letting it scan the factor.
+!> - Exact warm start: multipliers on entry that already meet the KKT test are returned with no
+!>   analysis and no factorisation (the FOM's re-solves after a cutoff enlargement).
 !> - Warm start: P = {rows with lambda > 0 on entry} (the FOM matches rows across steps by their
 !>   contact identity), factorised once; rows with non-positive minimiser leave.
 !> - Outer iteration (block Lawson-Hanson): all violated rows V enter at once (few: row
