@@ -219,7 +219,7 @@ contains
     type(solve_stats_t), intent(out) :: stats
     type(error_t), allocatable, intent(out) :: error
     integer :: m, na, j, it, itmax, nv, k, nmod0, nfac0, t
-    real(wp) :: sv, thr, tolv
+    real(wp) :: sv, thr, tolv, wmarg
     logical :: ok, bad, exch
     character(len=:), allocatable :: why
 
@@ -396,6 +396,7 @@ contains
         this%refused(j) = .false.
       end do
       thr = tolv * sv
+      wmarg = this%w_margin
       do j = 1, m
         this%inw(j) = this%w_margin < 0.0_wp .or. this%lam(j) > 0.0_wp .or. &
           this%cc(j) > -this%w_margin * sv
@@ -509,15 +510,18 @@ contains
     end subroutine order_and_analyze
 
     !> Rows viol(1:n) must be able to enter: if some lie outside W, W takes them and every row
-    !> whose current slack is below w_margin * sv, M is analysed again and P refactorised.
+    !> whose current slack is below the margin, M is analysed again and P refactorised. The
+    !> margin doubles at each enlargement of a solve, so that a solve re-analyses a few times
+    !> at most (W soon holds every row).
     subroutine enlarge_w(n)
       integer, intent(in) :: n
       integer :: q
       if (all(this%inw(this%viol(1:n)))) return
       this%inw(this%viol(1:n)) = .true.
+      wmarg = 2.0_wp * wmarg
       call slacks()
       do q = 1, m
-        if (this%slack(q) < this%w_margin * sv) this%inw(q) = .true.
+        if (this%slack(q) < wmarg * sv) this%inw(q) = .true.
       end do
       this%n_reanalyse = this%n_reanalyse + 1
       call order_and_analyze(); if (allocated(error)) return
