@@ -22,6 +22,9 @@ module cr_cholmod
     integer :: n_factor = 0, n_modify = 0
     !> row modifications since the last numeric factorisation
     integer :: n_since = 0
+    !> from this dimension on, the Schur pivot test visits only the elimination-tree reach of
+    !> the new row (below, a scan from its first position is cheaper)
+    integer :: reach_min = 16384
   contains
     procedure :: init => chol_init
     procedure :: free => chol_free
@@ -101,12 +104,13 @@ module cr_cholmod
       real(c_double), intent(in) :: b(*)
       real(c_double), intent(out) :: x(*)
     end function c_solve
-    integer(c_int) function c_schur(h, t, nz, idx, val, s) bind(C, name='cr_chol_schur')
+    integer(c_int) function c_schur(h, t, nz, idx, val, reach_min, s) bind(C, name='cr_chol_schur')
       import :: c_ptr, c_int, c_double
       type(c_ptr), value :: h
       integer(c_int), value :: t, nz
       integer(c_int), intent(in) :: idx(*)
       real(c_double), intent(in) :: val(*)
+      integer(c_int), value :: reach_min
       real(c_double), intent(out) :: s
     end function c_schur
     real(c_double) function c_symbolic_nnz(h) bind(C, name='cr_chol_symbolic_nnz')
@@ -277,7 +281,8 @@ contains
     real(wp), intent(out) :: s
     type(error_t), allocatable, intent(out) :: error
     integer(c_int) :: rc
-    rc = c_schur(this%h, int(t - 1, c_int), int(size(idx), c_int), int(idx - 1, c_int), val, s)
+    rc = c_schur(this%h, int(t - 1, c_int), int(size(idx), c_int), int(idx - 1, c_int), val, &
+      int(this%reach_min, c_int), s)
     if (rc /= 0) call shim_error(this, "schur", rc, error)
   end subroutine chol_schur
 

@@ -30,6 +30,7 @@ typedef struct {
   double *xw;             /* work vector of the solve, factor order [n] */
   cholmod_sparse *pm;     /* pattern of P M P' (upper, factor order), for the row subtrees */
   int *parent;            /* elimination tree of P M P' [n] */
+  int *mk, *stk;          /* marks (zero between calls) and a stack of the Schur test [n] */
   cholmod_sparse *rpat;   /* pattern of a row of L handed to cholmod_rowdel [n, 1] */
   long n_pattern;         /* row deletions done with a known row pattern */
   char msg[256];
@@ -54,6 +55,8 @@ static void release(cr_chol_t *h) {
   if (h->pm) cholmod_free_sparse(&h->pm, &h->c);
   if (h->rpat) cholmod_free_sparse(&h->rpat, &h->c);
   free(h->parent); h->parent = NULL;
+  free(h->mk); h->mk = NULL;
+  free(h->stk); h->stk = NULL;
   h->n = 0;
 }
 
@@ -98,9 +101,11 @@ static int permuted_etree(cr_chol_t *h) {
   int n = h->n, j, q, a, b, *mp = (int *)h->m->p, *mi = (int *)h->m->i, *cp, *ci, *cnt;
   h->pm = cholmod_allocate_sparse(n, n, mp[n] > 0 ? mp[n] : 1, 1, 1, 1, CHOLMOD_PATTERN, &h->c);
   h->parent = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
+  h->mk = calloc((size_t)(n > 0 ? n : 1), sizeof(int));
+  h->stk = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
   h->rpat = cholmod_allocate_sparse(n, 1, n > 0 ? n : 1, 0, 1, 0, CHOLMOD_PATTERN, &h->c);
   cnt = calloc((size_t)n + 1, sizeof(int));
-  if (!h->pm || !h->parent || !h->rpat || !cnt) {
+  if (!h->pm || !h->parent || !h->rpat || !cnt || !h->mk || !h->stk) {
     free(cnt);
     snprintf(h->msg, sizeof h->msg, "out of memory (elimination tree, n = %d)", n);
     return 23;
@@ -264,27 +269,70 @@ int cr_chol_rowadd(void *hp, int t, int nz, const int *idx, const double *val, d
 
 /* s = w' A^{-1} w for the column w = (idx[q], val[q]), q < nz, restricted to the active rows
  * other than t: the part of M(t,t) that the active rows explain (the pivot row t would get is
- * M(t,t) - s). One sparse forward solve y = L^{-1} P w, s = sum y_j^2 / D(j,j). */
-int cr_chol_schur(void *hp, int t, int nz, const int *idx, const double *val, double *s) {
+ * M(t,t) - s). One sparse forward solve y = L^{-1} P w, s = sum y_j^2 / D(j,j), over the
+ * reach of w only: the union of the paths from w's nonzeros to the root of the elimination
+ * tree of P M P' (a superset of the pattern of y, since the factor's pattern lies inside the
+ * symbolic factor of P M P'), visited in increasing order, when n >= reach_min; below, a
+ * scan of the positions from the first nonzero on (cheaper on small factors, where the paths
+ * to the root cover much of the tree). A fill outside the reach would mean the assumption is
+ * broken: an error, never a wrong pivot. */
+static int cmp_int(const void *a, const void *b) {
+  int x = *(const int *)a, y = *(const int *)b;
+  return (x > y) - (x < y);
+}
+
+int cr_chol_schur(void *hp, int t, int nz, const int *idx, const double *val, int reach_min,
+                  double *s) {
   cr_chol_t *h = (cr_chol_t *)hp;
-  int q, k, j, p, jmin, *lp, *li, *lnz;
+  int q, k, j, p, jmin, top = 0, bad = 0, *lp, *li, *lnz, *mk, *stk;
   double *lx, *y = h->yw, yj, acc = 0.0;
   if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_schur without a factor"); return 21; }
   lp = (int *)h->l->p; li = (int *)h->l->i; lnz = (int *)h->l->nz; lx = (double *)h->l->x;
-  jmin = h->n;
+  mk = h->mk; stk = h->stk;
+  if (h->n < reach_min) {
+    jmin = h->n;
+    for (q = 0; q < nz; q++) {
+      k = idx[q];
+      if (k == t || !h->active[k]) continue;
+      p = h->iperm[k];
+      y[p] += val[q];
+      if (p < jmin) jmin = p;
+    }
+    for (j = jmin; j < h->n; j++) {
+      yj = y[j];
+      if (yj == 0.0) continue;
+      y[j] = 0.0;
+      acc += yj * yj / lx[lp[j]];
+      for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) y[li[p]] -= lx[p] * yj;
+    }
+    *s = acc;
+    return 0;
+  }
   for (q = 0; q < nz; q++) {
     k = idx[q];
     if (k == t || !h->active[k]) continue;
     p = h->iperm[k];
     y[p] += val[q];
-    if (p < jmin) jmin = p;
+    for (j = p; j >= 0 && !mk[j]; j = h->parent[j]) { mk[j] = 1; stk[top++] = j; }
   }
-  for (j = jmin; j < h->n; j++) {
+  qsort(stk, (size_t)top, sizeof(int), cmp_int);
+  for (q = 0; q < top; q++) {
+    j = stk[q];
     yj = y[j];
     if (yj == 0.0) continue;
     y[j] = 0.0;
     acc += yj * yj / lx[lp[j]];
-    for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) y[li[p]] -= lx[p] * yj;
+    for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) {
+      if (!mk[li[p]]) bad = 1;
+      y[li[p]] -= lx[p] * yj;
+    }
+  }
+  for (q = 0; q < top; q++) { mk[stk[q]] = 0; y[stk[q]] = 0.0; }
+  if (bad) {
+    /* clear the work vector completely before reporting */
+    memset(y, 0, (size_t)h->n * sizeof(double));
+    snprintf(h->msg, sizeof h->msg, "cr_chol_schur: factor pattern outside the elimination-tree reach");
+    return 28;
   }
   *s = acc;
   return 0;
