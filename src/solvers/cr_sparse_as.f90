@@ -610,7 +610,7 @@ contains
         this%newact(1:m) = this%act(1:m)
         this%newact(this%viol(1:nv)) = .true.
         this%newact(this%rem(1:nrem)) = .false.
-        if (nv + nrem > max(this%bulk_min, k / this%bulk_div) .or. nrem > del_cap()) then
+        if (nv + nrem > max(this%bulk_min, k / this%bulk_div)) then
           call this%chol%factor(this%newact(1:m), error); if (allocated(error)) return
           call this%chol%pivots(this%piv(1:m), error); if (allocated(error)) return
           ! rows with a dependent pivot stay out (sweeps are heuristic; the monotone loop
@@ -895,19 +895,11 @@ contains
       end do
     end subroutine step_back
 
-    !> Most row deletions worth doing one by one: cholmod_rowdel without the row's pattern
-    !> scans the factor (O(nnz(L)) each), about 1/100 of a refactorisation; on large problems
-    !> (sweeps in use) more than bulk_min deletions are cheaper as one refactorisation.
-    integer function del_cap() result(cap)
-      cap = huge(1)
-      if (m >= this%pdas_rows) cap = this%bulk_min
-    end function del_cap
-
     !> Take rows viol(1:n) out of P (row deletions, or one refactorisation when many).
     subroutine remove_rows(n)
       integer, intent(in) :: n
       integer :: q
-      if (n > min(max(this%bulk_min, count(this%act(1:m)) / this%bulk_div), del_cap())) then
+      if (n > max(this%bulk_min, count(this%act(1:m)) / this%bulk_div)) then
         this%act(this%viol(1:n)) = .false.
         call this%chol%factor(this%act(1:m), error)
       else
