@@ -69,10 +69,10 @@ module cr_sparse_as
     integer :: bulk_min = 24, bulk_div = 4
     !> at most this many primal-dual active-set sweeps before the monotone loop
     integer :: pdas_max = 30
-    !> the sweeps are used on problems with at least this many rows (on smaller ones the
-    !> monotone loop with factor updates is cheaper: 2.4x fewer instructions on congested1000,
-    !> about 3 500 rows; on congested10000, about 35 000 rows, the sweeps save 10%)
-    integer :: pdas_rows = 20000
+    !> the sweeps are used on problems with at least this many rows; off by default (measured:
+    !> the monotone loop alone takes 2.4x fewer instructions on congested1000 and 12% less CPU
+    !> time on congested100000, where the sweeps cycle; the sweeps save 14% on congested10000)
+    integer :: pdas_rows = huge(1)
     !> rows: normalised coefficients [2, m], norms, rhs, B v - d, multipliers, slacks, minimiser
     real(wp), allocatable :: c(:,:), rn(:), dd(:), cc(:), lam(:), slack(:), z(:), rhs(:), piv(:)
     real(wp), allocatable :: w(:)
