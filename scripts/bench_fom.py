@@ -8,6 +8,11 @@ scaled by sqrt(N / 150)).
 
 Usage: .venv/bin/python scripts/bench_fom.py [--quick] [--out results/bench_fom.md]
        [--scenes congested150] [--ns 150 1000 10000] [--skip-solvers] [--skip-scaling]
+       [--fom PATH ...] [--repeat K]
+
+--fom runs several crowd_fom binaries (e.g. before and after a change, built from two commits)
+back to back on every case, alternating, K times each (--repeat): on a shared machine only
+ratios measured that way mean something. Rows are labelled by the binary's file name.
 
 Runs build/bin/crowd_fom (Release) on generated namelists and prints Markdown tables.
 Uzawa (the paper's scheme) needs 1e5-1e6 iterations per step in the congested scene, so it
@@ -26,6 +31,8 @@ DEFAULT_SOLVERS = ("sparse_active_set", "active_set", "gpcg", "apgd", "uzawa")
 SOLVERS = list(DEFAULT_SOLVERS)
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FOM = os.path.join(ROOT, "build", "bin", "crowd_fom")
+FOMS = [FOM]
+REPEAT = 1
 
 
 def read_nml(path):
@@ -33,7 +40,7 @@ def read_nml(path):
         return f.read()
 
 
-def run(nml_text, workdir, tag, timeout=None):
+def run(nml_text, workdir, tag, timeout=None, fom=None):
     nml = os.path.join(workdir, tag + ".nml")
     out = os.path.join(workdir, tag + ".h5")
     js = os.path.join(workdir, tag + ".json")
@@ -44,7 +51,7 @@ def run(nml_text, workdir, tag, timeout=None):
     t0 = time.perf_counter()
     logf = os.path.join(workdir, tag + ".log")
     with open(logf, "w") as lf:
-        p = subprocess.Popen([FOM, nml, "--summary", js], stdout=lf, stderr=subprocess.STDOUT, env=env)
+        p = subprocess.Popen([fom or FOM, nml, "--summary", js], stdout=lf, stderr=subprocess.STDOUT, env=env)
         deadline = None if timeout is None else t0 + timeout
         while True:
             pid, status, ru = os.wait4(p.pid, os.WNOHANG)
@@ -64,6 +71,7 @@ def run(nml_text, workdir, tag, timeout=None):
     with open(js) as f:
         s = json.load(f)
     s["wall"] = wall
+    s["cpu"] = ru.ru_utime + ru.ru_stime  # whole run (setup included)
     s["peak_rss_mb"] = ru.ru_maxrss / 1024.0  # Linux: kilobytes
     for f_ in (out, js):
         if os.path.exists(f_):
@@ -85,6 +93,19 @@ def strip_groups(text, groups):
     return "\n".join(out) + "\n"
 
 
+def label(solver, fom):
+    """Row label: the solver, plus the binary's name when several are compared."""
+    return solver if fom is None else "%s [%s]" % (solver, os.path.basename(fom))
+
+
+def best(runs):
+    """The fastest of repeated runs of one case (least disturbed by the machine's load)."""
+    ok = [r for r in runs if "failed" not in r]
+    if not ok:
+        return runs[0]
+    return min(ok, key=lambda r: r["solver_time_per_step"])
+
+
 def solver_table(scenes, tols, uzawa_steps, workdir):
     rows = []
     for scene in scenes:
@@ -99,17 +120,28 @@ def solver_table(scenes, tols, uzawa_steps, workdir):
                     text += "&solver name = 'uzawa', uzawa_eps = 1e-12, uzawa_max_iter = 10000000 /\n"
                 else:
                     text += "&solver name = '%s', tol = %g, max_iter = 1000000 /\n" % (solver, tol)
-                s = run(text, workdir, "%s_%s_%s" % (scene, solver, tol))
-                if "failed" in s:
-                    raise SystemExit("crowd_fom failed: %s" % s["failed"])
-                rows.append((scene, solver, "paper (eps=1e-12)" if tol is None else "%g" % tol, s))
-                print("  %-13s %-17s tol %-18s %8.3f ms/step  it mean %10.1f max %9d  KKT %.2e  failed %d"
-                      "  fact/step %.2f  updates/step %.1f  fallbacks %d" % (
-                    scene, solver, rows[-1][2], 1e3 * s["solver_time_per_step"], s["iterations_mean"],
-                    s["iterations_max"], s["largest_kkt_residual"], s["failed_steps"],
-                    s.get("factorizations_per_step", 0), s.get("factor_updates_per_step", 0),
-                    s.get("fallback_solves", 0)), flush=True)
+                runs = {f: [] for f in FOMS}
+                for rep in range(REPEAT):
+                    for f in FOMS:
+                        runs[f].append(run(text, workdir, "%s_%s_%s" % (scene, solver, tol), fom=f))
+                for f in FOMS:
+                    s = best(runs[f])
+                    if "failed" in s:
+                        raise SystemExit("crowd_fom failed: %s" % s["failed"])
+                    rows.append((scene, label(solver, f if len(FOMS) > 1 else None),
+                                 "paper (eps=1e-12)" if tol is None else "%g" % tol, s))
+                    print_solver_row(rows[-1])
     return rows
+
+
+def print_solver_row(row):
+    scene, solver, tol, s = row
+    print("  %-13s %-17s tol %-18s %8.3f ms/step  it mean %10.1f max %9d  KKT %.2e  failed %d"
+          "  fact/step %.2f  updates/step %.1f  fallbacks %d" % (
+              scene, solver, tol, 1e3 * s["solver_time_per_step"], s["iterations_mean"],
+              s["iterations_max"], s["largest_kkt_residual"], s["failed_steps"],
+              s.get("factorizations_per_step", 0), s.get("factor_updates_per_step", 0),
+              s.get("fallback_solves", 0)), flush=True)
 
 
 def scaling_table(ns, steps, solvers, workdir, timeout):
@@ -121,17 +153,27 @@ def scaling_table(ns, steps, solvers, workdir, timeout):
         for solver in solvers:
             text = base + "&time dt = 0.005, n_steps = %d /\n" % steps
             text += "&solver name = '%s', tol = 1e-10, max_iter = 1000000 /\n" % solver
-            s = run(text, workdir, "scale_%d_%s" % (n, solver), timeout=timeout)
-            rows.append((n, solver, s))
-            if "failed" in s:
-                print("  N = %6d %-17s: %s" % (n, solver, s["failed"]), flush=True)
-            else:
-                print("  N = %6d %-17s: %9.3f ms/step (solver %9.3f ms), %.2f us/step/agent, peak RSS %.0f MB, "
-                      "KKT %.2e, failed steps %d, fallbacks %d" % (
-                    n, solver, 1e3 * s["time_per_step"], 1e3 * s["solver_time_per_step"],
-                    1e6 * s["time_per_step"] / n, s["peak_rss_mb"], s["largest_kkt_residual"],
-                    s["failed_steps"], s.get("fallback_solves", 0)), flush=True)
+            runs = {f: [] for f in FOMS}
+            for rep in range(REPEAT):
+                for f in FOMS:
+                    runs[f].append(run(text, workdir, "scale_%d_%s" % (n, solver), timeout=timeout, fom=f))
+            for f in FOMS:
+                s = best(runs[f])
+                rows.append((n, label(solver, f if len(FOMS) > 1 else None), s))
+                print_scaling_row(rows[-1])
     return rows
+
+
+def print_scaling_row(row):
+    n, solver, s = row
+    if "failed" in s:
+        print("  N = %6d %-17s: %s" % (n, solver, s["failed"]), flush=True)
+    else:
+        print("  N = %6d %-17s: %9.3f ms/step (solver %9.3f ms), %.2f us/step/agent, peak RSS %.0f MB, "
+              "KKT %.2e, failed steps %d, fallbacks %d" % (
+                  n, solver, 1e3 * s["time_per_step"], 1e3 * s["solver_time_per_step"],
+                  1e6 * s["time_per_step"] / n, s["peak_rss_mb"], s["largest_kkt_residual"],
+                  s["failed_steps"], s.get("fallback_solves", 0)), flush=True)
 
 
 def main():
@@ -148,9 +190,16 @@ def main():
     ap.add_argument("--skip-solvers", action="store_true")
     ap.add_argument("--skip-scaling", action="store_true")
     ap.add_argument("--nice", action="store_true", help="run everything at niceness 10 (shared machine)")
+    ap.add_argument("--fom", nargs="+", default=[FOM],
+                    help="crowd_fom binaries to compare back to back (default build/bin/crowd_fom)")
+    ap.add_argument("--repeat", type=int, default=1, help="runs of each case and binary; the fastest is kept")
     a = ap.parse_args()
-    if not os.path.exists(FOM):
-        raise SystemExit("build/bin/crowd_fom not found: run scripts/setup.sh first")
+    global FOMS, REPEAT
+    FOMS = [os.path.abspath(f) for f in a.fom]
+    REPEAT = max(1, a.repeat)
+    for f in FOMS:
+        if not os.path.exists(f):
+            raise SystemExit("%s not found: run scripts/setup.sh first" % f)
     if a.nice:
         os.nice(10)
     tols = [1e-6, 1e-9, 1e-12] if not a.quick else [1e-9]

@@ -10,6 +10,7 @@ program test_sparse_as
   use cr_projection, only: projection_settings_t, solve_stats_t, projection_solver_t, &
     make_projection_solver
   use cr_sparse_as, only: sparse_as_solver_t
+  use cr_cholmod, only: chol_t
   implicit none
   real(wp), parameter :: rad = 0.05_wp, h = 0.01_wp
   call seed_random(2024)
@@ -17,6 +18,7 @@ program test_sparse_as
   call test_degenerate()
   call test_warm()
   call test_drift()
+  call test_analysed_set()
   call test_options()
   call test_summary()
 
@@ -131,7 +133,8 @@ contains
     call compare(cs, v, "hex 1e-5", 1.0e-10_wp)
   end subroutine test_degenerate
 
-  !> Warm start from the solution: no iteration, one factorisation, same u.
+  !> Warm start from the solution: it already meets the KKT test, so no iteration and no
+  !> factorisation (counted in n_warm_exact), same u.
   subroutine test_warm()
     type(contact_set_t) :: cs
     real(wp), allocatable :: v(:), u(:), u2(:), l(:)
@@ -145,8 +148,9 @@ contains
     call sp%init(s, err)
     call sp%solve(cs, v, u, l, st, err)
     call sp%solve(cs, v, u2, l, st, err)
-    call check(st%converged .and. st%iterations == 0 .and. st%n_factor == 1 .and. st%n_modify == 0, &
-      "warm start from the solution: no iteration, one factorisation")
+    call check(st%converged .and. st%kkt <= s%tol .and. st%iterations == 0 .and. st%n_factor == 0 &
+      .and. st%n_modify == 0 .and. sp%n_warm_exact == 1, &
+      "warm start from the solution: no iteration, no factorisation")
     call check(maxval(abs(u - u2)) <= 1.0e-12_wp * maxval(abs(v)), "warm start: same u")
     ! cold start through the dense kernel (dense_rows above the row count): same u
     s%dense_rows = cs%n
@@ -165,7 +169,8 @@ contains
   !> the updated factor; a fresh factor gives about eps). The solver relies on updated factors
   !> being backward stable to well within sqrt(eps) (the final iterative refinement and the KKT
   !> check with a fresh refactorisation cover the rest); the test checks that bound and that
-  !> every step agrees with active_set.
+  !> every step agrees with active_set. The Schur pivot tests take the elimination-tree reach
+  !> (reach_min = 0), the path used on large problems, so that a pattern outside it would show.
   subroutine test_drift()
     integer, parameter :: na = 144, nsteps = 60
     type(contact_set_t) :: cs
@@ -188,6 +193,8 @@ contains
     s = projection_settings_t(); s%name = 'sparse_active_set'; s%dense_rows = 0; s%refresh_every = 7
     call sp%init(s, err)
     sp%check_drift = .true.
+    ! the Schur pivot tests through the elimination-tree reach (the path of large problems)
+    sp%chol%reach_min = 0
     s%name = 'active_set'
     call make_projection_solver(s, sa, err)
     drift = 0; du = 0; nmod = 0; nfail = 0; nprev = 0
@@ -229,9 +236,65 @@ contains
       " factor modifications, largest backward error of an updated factor ", drift, ", largest |u - u_active_set| ", du
     call check(nfail == 0, "drift: every step converged on the sparse path")
     call check(nmod > 5 * nsteps, "drift: many active-set changes")
+    call check(sp%chol%n_pattern() > nsteps, "drift: row deletions given the row pattern (row subtree)")
     call check(drift <= sqrt(epsilon(1.0_wp)), "drift: backward error of updated factors <= sqrt(eps)")
     call check(du <= 10.0_wp * s%tol, "drift: agrees with active_set on every step")
   end subroutine test_drift
+
+  !> The analysed row set W (rows that can become active): with w_margin = 0 it holds only the
+  !> warm-start rows and the rows violated at u = v, so rows violated later must enlarge it
+  !> (re-analysis); the answer is the same as active_set's and as with every row analysed.
+  !> The shim refuses a row outside W (an error, never a wrong factor).
+  subroutine test_analysed_set()
+    type(contact_set_t) :: cs
+    real(wp), allocatable :: v(:), ua(:), u0(:), uall(:), la(:), l0(:), lall(:)
+    type(sparse_as_solver_t) :: sp, spall
+    class(projection_solver_t), allocatable :: sa
+    type(projection_settings_t) :: s
+    type(solve_stats_t) :: st, sta, stall
+    type(error_t), allocatable :: err
+    type(chol_t) :: ch
+    real(wp) :: pivot
+    call hex_scene(12, 10, 1.0e-5_wp, rad, h, cs, v)
+    allocate(ua(size(v)), u0(size(v)), uall(size(v)), la(cs%n), l0(cs%n), lall(cs%n))
+    s = projection_settings_t(); s%name = 'active_set'
+    call make_projection_solver(s, sa, err)
+    la = 0
+    call sa%solve(cs, v, ua, la, sta, err)
+    s%name = 'sparse_active_set'; s%dense_rows = 0
+    call sp%init(s, err); call spall%init(s, err)
+    sp%w_margin = 0.0_wp; spall%w_margin = -1.0_wp
+    l0 = 0; lall = 0
+    call sp%solve(cs, v, u0, l0, st, err)
+    call spall%solve(cs, v, uall, lall, stall, err)
+    print '(2x,a,i0,a,i0,a,es9.2)', "analysed set: re-analyses ", sp%n_reanalyse, " (all rows: ", &
+      spall%n_reanalyse, "), |u - u_active_set| ", maxval(abs(u0 - ua)) / maxval(abs(v))
+    call check(.not. allocated(err) .and. st%converged .and. st%kkt <= s%tol .and. st%n_fallback == 0, &
+      "analysed set w_margin = 0: converged on the sparse path")
+    call check(sp%n_reanalyse > 0, "analysed set w_margin = 0: W enlarged by violated rows")
+    call check(spall%n_reanalyse == 0 .and. stall%kkt <= s%tol, "w_margin < 0: every row analysed")
+    call check(maxval(abs(u0 - ua)) <= 10.0_wp * s%tol * maxval(abs(v)), "analysed set: same u as active_set")
+    call check(maxval(abs(u0 - uall)) <= 10.0_wp * s%tol * maxval(abs(v)), "analysed set: same u as all rows")
+    ! the same through the primal-dual sweeps (used on large problems): W enlarged there too
+    call sp%free(); call sp%init(s, err)
+    sp%w_margin = 0.0_wp; sp%pdas_rows = 0
+    l0 = 0
+    call sp%solve(cs, v, u0, l0, st, err)
+    call check(.not. allocated(err) .and. st%kkt <= s%tol .and. st%n_fallback == 0 .and. sp%n_reanalyse > 0, &
+      "analysed set with sweeps: converged, W enlarged")
+    call check(maxval(abs(u0 - ua)) <= 10.0_wp * s%tol * maxval(abs(v)), "analysed set with sweeps: same u")
+    ! the shim: M = [2 1; 1 2] analysed with row 2 outside the set
+    call ch%analyze(2, [1, 2, 4], [1, 1, 2], [2.0_wp, 1.0_wp, 2.0_wp], err, inset=[.true., .false.])
+    call check(.not. allocated(err), "shim: analysis with a restricted set")
+    call ch%factor([.true., .false.], err)
+    call check(.not. allocated(err), "shim: factor of the analysed row")
+    call ch%rowadd(2, [1, 2], [1.0_wp, 2.0_wp], pivot, err)
+    call check(allocated(err), "shim: row outside the analysed set refused by rowadd")
+    if (allocated(err)) call check(index(err%message, "outside the analysed set") > 0, "shim: message says why")
+    call ch%factor([.true., .true.], err)
+    call check(allocated(err), "shim: row outside the analysed set refused by factor")
+    call ch%free()
+  end subroutine test_analysed_set
 
   !> The new options: bad values give an error naming them.
   subroutine test_options()

@@ -22,6 +22,9 @@ module cr_cholmod
     integer :: n_factor = 0, n_modify = 0
     !> row modifications since the last numeric factorisation
     integer :: n_since = 0
+    !> from this dimension on, the Schur pivot test visits only the elimination-tree reach of
+    !> the new row (below, a scan from its first position is cheaper)
+    integer :: reach_min = 16384
   contains
     procedure :: init => chol_init
     procedure :: free => chol_free
@@ -36,6 +39,7 @@ module cr_cholmod
     procedure :: schur => chol_schur
     procedure :: symbolic_nnz => chol_symbolic_nnz
     procedure :: perm => chol_perm
+    procedure :: n_pattern => chol_n_pattern
   end type chol_t
 
   interface
@@ -53,21 +57,23 @@ module cr_cholmod
       character(kind=c_char), intent(out) :: buf(*)
       integer(c_int), value :: len
     end subroutine c_message
-    integer(c_int) function c_analyze(h, n, colptr, rowind, val, perm) bind(C, name='cr_chol_analyze')
+    integer(c_int) function c_analyze(h, n, colptr, rowind, val, perm, inset) bind(C, name='cr_chol_analyze')
       import :: c_ptr, c_int, c_double
       type(c_ptr), value :: h
       integer(c_int), value :: n
       integer(c_int), intent(in) :: colptr(*), rowind(*)
       real(c_double), intent(in) :: val(*)
       type(c_ptr), value :: perm
+      integer(c_int), intent(in) :: inset(*)
     end function c_analyze
-    integer(c_int) function c_analyze_perm(h, n, colptr, rowind, val, perm) bind(C, name='cr_chol_analyze')
+    integer(c_int) function c_analyze_perm(h, n, colptr, rowind, val, perm, inset) bind(C, name='cr_chol_analyze')
       import :: c_ptr, c_int, c_double
       type(c_ptr), value :: h
       integer(c_int), value :: n
       integer(c_int), intent(in) :: colptr(*), rowind(*)
       real(c_double), intent(in) :: val(*)
       integer(c_int), intent(in) :: perm(*)
+      integer(c_int), intent(in) :: inset(*)
     end function c_analyze_perm
     integer(c_int) function c_factor(h, active) bind(C, name='cr_chol_factor')
       import :: c_ptr, c_int
@@ -98,12 +104,13 @@ module cr_cholmod
       real(c_double), intent(in) :: b(*)
       real(c_double), intent(out) :: x(*)
     end function c_solve
-    integer(c_int) function c_schur(h, t, nz, idx, val, s) bind(C, name='cr_chol_schur')
+    integer(c_int) function c_schur(h, t, nz, idx, val, reach_min, s) bind(C, name='cr_chol_schur')
       import :: c_ptr, c_int, c_double
       type(c_ptr), value :: h
       integer(c_int), value :: t, nz
       integer(c_int), intent(in) :: idx(*)
       real(c_double), intent(in) :: val(*)
+      integer(c_int), value :: reach_min
       real(c_double), intent(out) :: s
     end function c_schur
     real(c_double) function c_symbolic_nnz(h) bind(C, name='cr_chol_symbolic_nnz')
@@ -119,6 +126,10 @@ module cr_cholmod
       import :: c_ptr, c_double
       type(c_ptr), value :: h
     end function c_min_pivot
+    integer(c_long) function c_n_pattern(h) bind(C, name='cr_chol_n_pattern')
+      import :: c_ptr, c_long
+      type(c_ptr), value :: h
+    end function c_n_pattern
     integer(c_long) function c_factor_nnz(h) bind(C, name='cr_chol_factor_nnz')
       import :: c_ptr, c_long
       type(c_ptr), value :: h
@@ -159,8 +170,10 @@ contains
   end subroutine shim_error
 
   !> Set M (upper triangle, compressed columns, 1-based, rows sorted within each column) and
-  !> analyse it; perm [n] (1-based) is the ordering to use, AMD when absent.
-  subroutine chol_analyze(this, n, colptr, rowind, val, error, perm)
+  !> analyse it; perm [n] (1-based) is the ordering to use, AMD when absent. inset [n]: the
+  !> rows that may become active (all when absent); M must hold every entry between two of
+  !> them; factor and rowadd refuse the other rows (an error, never a wrong factor).
+  subroutine chol_analyze(this, n, colptr, rowind, val, error, perm, inset)
     class(chol_t), intent(inout) :: this
     integer, intent(in) :: n
     !> column starts [n + 1], row indices and values [colptr(n+1) - 1]
@@ -168,17 +181,22 @@ contains
     real(wp), intent(in) :: val(:)
     type(error_t), allocatable, intent(out) :: error
     integer, intent(in), optional :: perm(:)
+    logical, intent(in), optional :: inset(:)
     integer(c_int) :: rc
+    integer(c_int), allocatable :: ins(:)
     integer :: nz
     call this%init(error)
     if (allocated(error)) return
     nz = colptr(n + 1) - 1
+    allocate(ins(max(n, 1)))
+    ins = 1_c_int
+    if (present(inset)) ins(1:n) = merge(1_c_int, 0_c_int, inset(1:n))
     if (present(perm)) then
       rc = c_analyze_perm(this%h, int(n, c_int), int(colptr(1:n + 1) - 1, c_int), &
-        int(rowind(1:max(nz, 1)) - 1, c_int), val, int(perm(1:max(n, 1)) - 1, c_int))
+        int(rowind(1:max(nz, 1)) - 1, c_int), val, int(perm(1:max(n, 1)) - 1, c_int), ins)
     else
       rc = c_analyze(this%h, int(n, c_int), int(colptr(1:n + 1) - 1, c_int), &
-        int(rowind(1:max(nz, 1)) - 1, c_int), val, c_null_ptr)
+        int(rowind(1:max(nz, 1)) - 1, c_int), val, c_null_ptr, ins)
     end if
     if (rc /= 0) then
       call shim_error(this, "analyze", rc, error); return
@@ -263,7 +281,8 @@ contains
     real(wp), intent(out) :: s
     type(error_t), allocatable, intent(out) :: error
     integer(c_int) :: rc
-    rc = c_schur(this%h, int(t - 1, c_int), int(size(idx), c_int), int(idx - 1, c_int), val, s)
+    rc = c_schur(this%h, int(t - 1, c_int), int(size(idx), c_int), int(idx - 1, c_int), val, &
+      int(this%reach_min, c_int), s)
     if (rc /= 0) call shim_error(this, "schur", rc, error)
   end subroutine chol_schur
 
@@ -293,6 +312,14 @@ contains
     class(chol_t), intent(in) :: this
     d = real(c_min_pivot(this%h), wp)
   end function chol_min_pivot
+
+  !> Row deletions done with the row's pattern (row subtree of the analysis' elimination tree)
+  !> since init.
+  integer function chol_n_pattern(this) result(k)
+    class(chol_t), intent(in) :: this
+    k = 0
+    if (c_associated(this%h)) k = int(c_n_pattern(this%h))
+  end function chol_n_pattern
 
   !> Stored entries of the current factor.
   integer function chol_factor_nnz(this) result(nnz)

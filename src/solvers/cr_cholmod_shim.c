@@ -23,10 +23,16 @@ typedef struct {
   cholmod_factor *sym;    /* symbolic analysis of M */
   cholmod_factor *l;      /* numeric LDL' factor of the active matrix */
   cholmod_sparse *r;      /* rowadd column [n, 1] */
-  cholmod_dense *b, *x, *y, *e;  /* solve: right-hand side, solution, workspace */
   int *iperm;             /* position of each row in the factor [n] */
   int *active;            /* current active flags [n] */
+  int *inset;             /* rows of the analysed set W: the only rows that may be active [n] */
   double *yw;             /* zero work vector of the Schur-complement test [n] */
+  double *xw;             /* work vector of the solve, factor order [n] */
+  cholmod_sparse *pm;     /* pattern of P M P' (upper, factor order), for the row subtrees */
+  int *parent;            /* elimination tree of P M P' [n] */
+  int *mk, *stk;          /* marks (zero between calls) and a stack of the Schur test [n] */
+  cholmod_sparse *rpat;   /* pattern of a row of L handed to cholmod_rowdel [n, 1] */
+  long n_pattern;         /* row deletions done with a known row pattern */
   char msg[256];
 } cr_chol_t;
 
@@ -41,13 +47,16 @@ static void release(cr_chol_t *h) {
   if (h->sym) cholmod_free_factor(&h->sym, &h->c);
   if (h->l) cholmod_free_factor(&h->l, &h->c);
   if (h->r) cholmod_free_sparse(&h->r, &h->c);
-  if (h->b) cholmod_free_dense(&h->b, &h->c);
-  if (h->x) cholmod_free_dense(&h->x, &h->c);
-  if (h->y) cholmod_free_dense(&h->y, &h->c);
-  if (h->e) cholmod_free_dense(&h->e, &h->c);
   free(h->iperm); h->iperm = NULL;
   free(h->active); h->active = NULL;
+  free(h->inset); h->inset = NULL;
   free(h->yw); h->yw = NULL;
+  free(h->xw); h->xw = NULL;
+  if (h->pm) cholmod_free_sparse(&h->pm, &h->c);
+  if (h->rpat) cholmod_free_sparse(&h->rpat, &h->c);
+  free(h->parent); h->parent = NULL;
+  free(h->mk); h->mk = NULL;
+  free(h->stk); h->stk = NULL;
   h->n = 0;
 }
 
@@ -83,11 +92,52 @@ void cr_chol_message(void *hp, char *buf, int len) {
   for (i = 0; i < len; i++) buf[i] = i < k ? h->msg[i] : ' ';
 }
 
+/* The pattern of P M P' (upper triangle, factor order) and its elimination tree. Every factor
+ * this handle holds is the LDL' factor of a principal submatrix of M (identity elsewhere) in
+ * the same ordering, so its pattern, even after row additions and deletions, lies inside the
+ * symbolic factor of P M P': the row subtree of row k of that tree (cholmod_row_subtree) is an
+ * upper bound of the pattern of row k of L, which lets cholmod_rowdel skip its O(nnz(L)) scan. */
+static int permuted_etree(cr_chol_t *h) {
+  int n = h->n, j, q, a, b, *mp = (int *)h->m->p, *mi = (int *)h->m->i, *cp, *ci, *cnt;
+  h->pm = cholmod_allocate_sparse(n, n, mp[n] > 0 ? mp[n] : 1, 1, 1, 1, CHOLMOD_PATTERN, &h->c);
+  h->parent = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
+  h->mk = calloc((size_t)(n > 0 ? n : 1), sizeof(int));
+  h->stk = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
+  h->rpat = cholmod_allocate_sparse(n, 1, n > 0 ? n : 1, 0, 1, 0, CHOLMOD_PATTERN, &h->c);
+  cnt = calloc((size_t)n + 1, sizeof(int));
+  if (!h->pm || !h->parent || !h->rpat || !cnt || !h->mk || !h->stk) {
+    free(cnt);
+    snprintf(h->msg, sizeof h->msg, "out of memory (elimination tree, n = %d)", n);
+    return 23;
+  }
+  cp = (int *)h->pm->p; ci = (int *)h->pm->i;
+  /* counting sort of the entries (i <= j of M) into column max(pi, pj) of P M P' */
+  for (j = 0; j < n; j++)
+    for (q = mp[j]; q < mp[j + 1]; q++) {
+      a = h->iperm[mi[q]]; b = h->iperm[j];
+      cnt[a > b ? a : b]++;
+    }
+  cp[0] = 0;
+  for (j = 0; j < n; j++) { cp[j + 1] = cp[j] + cnt[j]; cnt[j] = cp[j]; }
+  for (j = 0; j < n; j++)
+    for (q = mp[j]; q < mp[j + 1]; q++) {
+      a = h->iperm[mi[q]]; b = h->iperm[j];
+      if (a > b) ci[cnt[a]++] = b; else ci[cnt[b]++] = a;
+    }
+  free(cnt);
+  h->pm->sorted = 0;
+  if (!cholmod_etree(h->pm, h->parent, &h->c) || h->c.status < CHOLMOD_OK)
+    return fail(h, 24, "etree");
+  return 0;
+}
+
 /* Set M [n, n] (upper triangle, colptr [n+1], rowind and val [colptr[n]], 0-based, each
  * column's rows sorted) and analyse its pattern. perm [n] (0-based) is the ordering to use,
- * or NULL for AMD. */
+ * or NULL for AMD. inset [n] (or NULL: all rows) marks the rows that may become active; M
+ * must hold every entry between two such rows (the caller drops the others, so that the
+ * analysis is that of the rows that can become active); rowadd and factor refuse other rows. */
 int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const double *val,
-                    const int *perm) {
+                    const int *perm, const int *inset) {
   cr_chol_t *h = (cr_chol_t *)hp;
   int nz = colptr[n], j, *p, *ip;
   release(h);
@@ -107,14 +157,18 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
   if (!h->sym || h->c.status < CHOLMOD_OK) return fail(h, 4, "analyze");
   h->iperm = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
   h->active = calloc((size_t)(n > 0 ? n : 1), sizeof(int));
+  h->inset = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
+  if (!h->inset) { snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5; }
+  for (j = 0; j < n; j++) h->inset[j] = inset ? inset[j] : 1;
   h->yw = calloc((size_t)(n > 0 ? n : 1), sizeof(double));
   if (!h->iperm || !h->active || !h->yw) { snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5; }
   p = (int *)h->sym->Perm; ip = h->iperm;
   for (j = 0; j < n; j++) ip[p[j]] = j;
   h->r = cholmod_allocate_sparse(n, 1, n > 0 ? n : 1, 1, 1, 0, CHOLMOD_REAL, &h->c);
-  h->b = cholmod_zeros(n, 1, CHOLMOD_REAL, &h->c);
-  if (!h->r || !h->b) return fail(h, 6, "allocate (work space)");
-  return 0;
+  if (!h->r) return fail(h, 6, "allocate (work space)");
+  h->xw = malloc((size_t)(n > 0 ? n : 1) * sizeof(double));
+  if (!h->xw) { snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5; }
+  return permuted_etree(h);
 }
 
 /* Predicted entries of the factor of the whole M (sum of the symbolic column counts). */
@@ -145,6 +199,11 @@ int cr_chol_factor(void *hp, const int *active) {
   double *mx = (double *)h->m->x;
   cholmod_sparse *a;
   if (!h->sym) { snprintf(h->msg, sizeof h->msg, "cr_chol_factor before cr_chol_analyze"); return 7; }
+  for (j = 0; j < n; j++)
+    if (active[j] && !h->inset[j]) {
+      snprintf(h->msg, sizeof h->msg, "cr_chol_factor: row %d is active but outside the analysed set", j + 1);
+      return 26;
+    }
   memcpy(h->active, active, (size_t)n * sizeof(int));
   a = cholmod_allocate_sparse(n, n, mp[n] + n + 1, 1, 1, 1, CHOLMOD_REAL, &h->c);
   if (!a) return fail(h, 8, "allocate_sparse (active matrix)");
@@ -191,6 +250,7 @@ int cr_chol_rowadd(void *hp, int t, int nz, const int *idx, const double *val, d
   double *rx;
   if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowadd without a factor"); return 13; }
   if (h->active[t]) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowadd: row %d already active", t + 1); return 14; }
+  if (!h->inset[t]) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowadd: row %d is outside the analysed set", t + 1); return 27; }
   rp = (int *)h->r->p; ri = (int *)h->r->i; rx = (double *)h->r->x;
   for (q = 0; q < nz; q++) {
     k = idx[q];
@@ -209,27 +269,70 @@ int cr_chol_rowadd(void *hp, int t, int nz, const int *idx, const double *val, d
 
 /* s = w' A^{-1} w for the column w = (idx[q], val[q]), q < nz, restricted to the active rows
  * other than t: the part of M(t,t) that the active rows explain (the pivot row t would get is
- * M(t,t) - s). One sparse forward solve y = L^{-1} P w, s = sum y_j^2 / D(j,j). */
-int cr_chol_schur(void *hp, int t, int nz, const int *idx, const double *val, double *s) {
+ * M(t,t) - s). One sparse forward solve y = L^{-1} P w, s = sum y_j^2 / D(j,j), over the
+ * reach of w only: the union of the paths from w's nonzeros to the root of the elimination
+ * tree of P M P' (a superset of the pattern of y, since the factor's pattern lies inside the
+ * symbolic factor of P M P'), visited in increasing order, when n >= reach_min; below, a
+ * scan of the positions from the first nonzero on (cheaper on small factors, where the paths
+ * to the root cover much of the tree). A fill outside the reach would mean the assumption is
+ * broken: an error, never a wrong pivot. */
+static int cmp_int(const void *a, const void *b) {
+  int x = *(const int *)a, y = *(const int *)b;
+  return (x > y) - (x < y);
+}
+
+int cr_chol_schur(void *hp, int t, int nz, const int *idx, const double *val, int reach_min,
+                  double *s) {
   cr_chol_t *h = (cr_chol_t *)hp;
-  int q, k, j, p, jmin, *lp, *li, *lnz;
+  int q, k, j, p, jmin, top = 0, bad = 0, *lp, *li, *lnz, *mk, *stk;
   double *lx, *y = h->yw, yj, acc = 0.0;
   if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_schur without a factor"); return 21; }
   lp = (int *)h->l->p; li = (int *)h->l->i; lnz = (int *)h->l->nz; lx = (double *)h->l->x;
-  jmin = h->n;
+  mk = h->mk; stk = h->stk;
+  if (h->n < reach_min) {
+    jmin = h->n;
+    for (q = 0; q < nz; q++) {
+      k = idx[q];
+      if (k == t || !h->active[k]) continue;
+      p = h->iperm[k];
+      y[p] += val[q];
+      if (p < jmin) jmin = p;
+    }
+    for (j = jmin; j < h->n; j++) {
+      yj = y[j];
+      if (yj == 0.0) continue;
+      y[j] = 0.0;
+      acc += yj * yj / lx[lp[j]];
+      for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) y[li[p]] -= lx[p] * yj;
+    }
+    *s = acc;
+    return 0;
+  }
   for (q = 0; q < nz; q++) {
     k = idx[q];
     if (k == t || !h->active[k]) continue;
     p = h->iperm[k];
     y[p] += val[q];
-    if (p < jmin) jmin = p;
+    for (j = p; j >= 0 && !mk[j]; j = h->parent[j]) { mk[j] = 1; stk[top++] = j; }
   }
-  for (j = jmin; j < h->n; j++) {
+  qsort(stk, (size_t)top, sizeof(int), cmp_int);
+  for (q = 0; q < top; q++) {
+    j = stk[q];
     yj = y[j];
     if (yj == 0.0) continue;
     y[j] = 0.0;
     acc += yj * yj / lx[lp[j]];
-    for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) y[li[p]] -= lx[p] * yj;
+    for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) {
+      if (!mk[li[p]]) bad = 1;
+      y[li[p]] -= lx[p] * yj;
+    }
+  }
+  for (q = 0; q < top; q++) { mk[stk[q]] = 0; y[stk[q]] = 0.0; }
+  if (bad) {
+    /* clear the work vector completely before reporting */
+    memset(y, 0, (size_t)h->n * sizeof(double));
+    snprintf(h->msg, sizeof h->msg, "cr_chol_schur: factor pattern outside the elimination-tree reach");
+    return 28;
   }
   *s = acc;
   return 0;
@@ -247,27 +350,60 @@ double cr_chol_min_pivot(void *hp) {
   return d;
 }
 
-/* Delete row/column t (0-based) from the factor (it becomes an identity row). */
+/* Delete row/column t (0-based) from the factor (it becomes an identity row). The pattern of
+ * row t of L is bounded by its row subtree in the elimination tree of P M P' (permuted_etree). */
 int cr_chol_rowdel(void *hp, int t) {
   cr_chol_t *h = (cr_chol_t *)hp;
+  int k;
   if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowdel without a factor"); return 16; }
   if (!h->active[t]) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowdel: row %d not active", t + 1); return 17; }
-  if (!cholmod_rowdel((size_t)h->iperm[t], NULL, h->l, &h->c) || h->c.status < CHOLMOD_OK)
+  k = h->iperm[t];
+  if (!cholmod_row_subtree(h->pm, NULL, (size_t)k, h->parent, h->rpat, &h->c) || h->c.status < CHOLMOD_OK)
+    return fail(h, 25, "row_subtree");
+  if (!cholmod_rowdel((size_t)k, h->rpat, h->l, &h->c) || h->c.status < CHOLMOD_OK)
     return fail(h, 18, "rowdel");
+  h->n_pattern++;
   h->active[t] = 0;
   return 0;
 }
 
-/* x = A^{-1} b (b, x [n]; may alias). */
+/* x = A^{-1} b (b, x [n]; may alias): x = P' L^{-T} D^{-1} L^{-1} P b on the factor's arrays
+ * (simplicial LDL', unit diagonal stored first in each column). The same arithmetic as
+ * cholmod_solve2 without its per-call set-up, which dominated the cost for the small factors
+ * of the active-set iterations; a zero or NaN pivot gives a NaN solution, which the caller's
+ * KKT check turns into a failed (never silent) solve. */
 int cr_chol_solve(void *hp, const double *b, double *x) {
   cr_chol_t *h = (cr_chol_t *)hp;
+  int n, j, p, *lp, *li, *lnz, *perm;
+  double *lx, *y, yj;
   if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_solve without a factor"); return 19; }
-  memcpy(h->b->x, b, (size_t)h->n * sizeof(double));
-  if (!cholmod_solve2(CHOLMOD_A, h->l, h->b, NULL, &h->x, NULL, &h->y, &h->e, &h->c) ||
-      h->c.status < CHOLMOD_OK)
-    return fail(h, 20, "solve");
-  memcpy(x, h->x->x, (size_t)h->n * sizeof(double));
+  if (h->l->is_super || h->l->is_ll || h->l->xtype != CHOLMOD_REAL) {
+    snprintf(h->msg, sizeof h->msg, "cr_chol_solve: factor is not a real simplicial LDL'");
+    return 20;
+  }
+  n = h->n; y = h->xw;
+  lp = (int *)h->l->p; li = (int *)h->l->i; lnz = (int *)h->l->nz; lx = (double *)h->l->x;
+  perm = (int *)h->l->Perm;
+  for (j = 0; j < n; j++) y[j] = b[perm[j]];
+  for (j = 0; j < n; j++) {            /* L y = P b */
+    yj = y[j];
+    if (yj == 0.0) continue;
+    for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) y[li[p]] -= lx[p] * yj;
+  }
+  for (j = 0; j < n; j++) y[j] /= lx[lp[j]];  /* D */
+  for (j = n - 1; j >= 0; j--) {      /* L' x = y */
+    yj = y[j];
+    for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) yj -= lx[p] * y[li[p]];
+    y[j] = yj;
+  }
+  for (j = 0; j < n; j++) x[perm[j]] = y[j];
   return 0;
+}
+
+/* Row deletions done with a known row pattern since the handle was created. */
+long cr_chol_n_pattern(void *hp) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  return h->n_pattern;
 }
 
 /* Number of stored entries of the factor (nnz(L) including the diagonal). */
