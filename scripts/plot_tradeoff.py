@@ -205,7 +205,7 @@ def plot_tradeoff(rows, out, ml_points=(), set_name="valid", title=None, dpi=120
         ax1.scatter(t[free], err[free], s=160, facecolors="none", edgecolors="tab:green", lw=1.2,
                     label=f"no overlap (<= {overlap_tol:g} m)")
     cand = uni + [study_table.fom_row(rows)] + list(ml_rows)
-    front, key = study_table.overlap_free_front(cand, overlap_tol, "E_avg")
+    free_front, key = study_table.overlap_free_front(cand, overlap_tol, "E_avg")
     for u in cand:
         if u["kind"] == "fom" or u[key] <= 0 or u["E_avg"] < 0:
             continue
@@ -218,7 +218,7 @@ def plot_tradeoff(rows, out, ml_points=(), set_name="valid", title=None, dpi=120
     fom = study_table.fom_row(rows)
     if fom[key] > 0:
         ax3.axvline(fom[key], color="k", ls="--", lw=1, label=f"exact full model {fom[key]:.2e} s (error 0)")
-    pts = [u for u in front if u["E_avg"] > 0]
+    pts = [u for u in free_front if u["E_avg"] > 0]
     if pts:
         xs, ys = [pts[0][key]], [pts[0]["E_avg"]]
         for u in pts[1:]:
