@@ -441,6 +441,11 @@ def table_rows(res):
     return rows
 
 
+def _na(x, fmt):
+    """x formatted, or 'n/a' for the -1 of a missing figure."""
+    return format(x, fmt) if x >= 0 else "n/a"
+
+
 def markdown(rows):
     head = ["regressor", "n", "E_avg baseline", "E_avg corrected", "E_avg projection", "factor",
             "t_fit (s)", "t_predict/step (s)", "t_step (s)", "speedup (Uzawa)", "speedup (exact)"]
@@ -448,7 +453,7 @@ def markdown(rows):
             "t_predict_step", "t_step", "speedup_uzawa", "speedup_exact"]
     fmt = {"E_avg_baseline": "{:.3e}", "E_avg": "{:.3e}", "E_avg_projection": "{:.3e}",
            "factor": "{:.2f}", "t_fit": "{:.2f}", "t_predict_step": "{:.2e}", "t_step": "{:.2e}",
-           "speedup_uzawa": "{:.1f}", "speedup_exact": "{:.1f}"}
+           "speedup_uzawa": "{:.3g}", "speedup_exact": "{:.3g}"}
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         lines.append("| " + " | ".join(fmt.get(k, "{}").format(r[k]) for k in keys) + " |")
@@ -464,8 +469,8 @@ def markdown(rows):
                          f"{r['E_disp']:.3e} -> {r['E_disp_proj']:.3e} | {r['overlap_agents']:.2e} / "
                          f"{r['overlap_walls']:.2e} | {r['overlap_agents_proj']:.2e} / {r['overlap_walls_proj']:.2e} | "
                          f"{r['mobility']:.3f} -> {r['mobility_proj']:.3f} | {100 * r['moved_fraction']:.1f}% | "
-                         f"{r['t_project_step']:.2e} | {r['t_project_query']:.2e} | {r['t_query']:.2e} | "
-                         f"{r['speedup_query_exact']:.1f} | {r['speedup_exact_proj']:.1f} |")
+                         f"{r['t_project_step']:.2e} | {r['t_project_query']:.2e} | {_na(r['t_query'], '.2e')} | "
+                         f"{_na(r['speedup_query_exact'], '.3g')} | {_na(r['speedup_exact_proj'], '.3g')} |")
     return "\n".join(lines)
 
 
