@@ -104,7 +104,7 @@ contains
     settings = cfg%solver
     if (len_trim(req%solver) > 0) settings%name = req%solver
     if (req%tol > 0) settings%tol = req%tol
-    call pp%init(settings, cfg%contacts%cutoff_factor, error)
+    call pp%init(settings, cfg%contacts%cutoff_factor, error, refine_max=req%refine_max)
     if (allocated(error)) then
       call prefix_error(error, "projection request '" // cli%input // "'"); return
     end if

@@ -421,13 +421,15 @@ PROJ_PER_CONFIG = ("time", "displacement", "max_move", "depth_in", "overlap_agen
                    "refines", "refined")
 
 
-def run_projection(exe, database, params, positions, workdir, solver="", tol=0.0, timeout=None):
+def run_projection(exe, database, params, positions, workdir, solver="", tol=0.0, refine_max=50,
+                   timeout=None):
     """Exact position projection of ``positions`` [n_S, n_conf, n_dof] (sample s has the
     parameters ``params`` [n_S, n_mu] of ``database``) by the Fortran program ``crowd_project``:
     writes the request (schema crowdrom-projreq) in ``workdir``, runs the program and reads its
     result (schema crowdrom-projected). Returns a dict: ``positions`` [n_S, n_conf, n_dof], each
     of PROJ_PER_CONFIG [n_S, n_conf], and the root attributes ``solver``, ``tol``, ``t_total``.
-    The program's bad-input errors (exit 2) become InputError, other failures RuntimeError, with
+    ``refine_max``: refinement projections per configuration at most (0: the first-order
+    projection from the start only). The program's bad-input errors (exit 2) become InputError, other failures RuntimeError, with
     its one ``error:`` line."""
     import subprocess
 
@@ -450,6 +452,7 @@ def run_projection(exe, database, params, positions, workdir, solver="", tol=0.0
         a["output"] = np.bytes_(os.path.abspath(out))
         a["solver"] = np.bytes_(solver)
         a["tol"] = float(tol)
+        a["refine_max"] = np.int32(refine_max)
         a["n_agents"], a["configs_per_sample"] = np.int32(n_dof // 2), np.int32(n_conf)
         f["positions"] = positions.reshape(n_s * n_conf, n_dof)
         f["params"] = params

@@ -82,7 +82,7 @@ is the reverse); K = number of n values, n_S = validation samples, N_T = steps, 
   accuracy before the projection: E_avg_baseline_disp, mobility_baseline (the ROM itself);
     <regressor>/E_disp, mobility [K] (means over the samples)
   exact projection (root attribute projected = 1; -1 in every figure when --no-project):
-    root attributes project_solver, project_tol, t_query_rom, t_query_fom_exact (-1: not in the
+    root attributes project_solver, project_tol, project_refine_max, t_query_rom, t_query_fom_exact (-1: not in the
     ROM run file); <regressor>/: overlap_agents, overlap_walls [K] (deepest overlaps of the
     corrected positions, m), E_avg_proj, E_disp_proj, mobility_proj, overlap_agents_proj,
     overlap_walls_proj [K] (the same after the projection), moved_fraction [K] (agents moved per
@@ -522,6 +522,7 @@ def write_output(path, st, res, cfg, mode):
         a["projected"] = 1 if pr else 0
         a["project_solver"] = pr["solver"] if pr else ""
         a["project_tol"] = pr["tol"] if pr else -1.0
+        a["project_refine_max"] = pr["refine_max"] if pr else -1
         a["t_query_rom"] = pr["t_query_rom"] if pr else -1.0
         a["t_query_fom_exact"] = pr["t_query_fom_exact"] if pr else -1.0
         f["E_mu_projection"] = np.asarray(res["E_mu_projection"])
@@ -678,7 +679,7 @@ def query_costs(st):
     return t_rom, t_fom
 
 
-def project_all(st, res, exe, workdir, quiet=False):
+def project_all(st, res, exe, workdir, quiet=False, refine_max=50):
     """Exact projection (crowd_project) of the corrected validation positions of every
     (regressor, n) in one request; fills the PROJ_KEYS lists of each regressor."""
     q_val = st.db_valid["positions"][st.valid_idx]
@@ -688,10 +689,10 @@ def project_all(st, res, exe, workdir, quiet=False):
     params = np.tile(st.rom_valid["params"], (len(jobs), 1))
     log(f"exact projection of {len(jobs)} x {n_s} corrected trajectories ({q.shape[0] * q.shape[1]} "
         f"configurations) with crowd_project", quiet)
-    p = cio.run_projection(exe, st.db_path, params, q, workdir)
+    p = cio.run_projection(exe, st.db_path, params, q, workdir, refine_max=refine_max)
     t_query_rom, t_query_fom = query_costs(st)
-    res["projection"] = {"solver": p["solver"], "tol": p["tol"], "t_query_rom": t_query_rom,
-                         "t_query_fom_exact": t_query_fom}
+    res["projection"] = {"solver": p["solver"], "tol": p["tol"], "refine_max": refine_max,
+                         "t_query_rom": t_query_rom, "t_query_fom_exact": t_query_fom}
     t_ex = st.meta["t_step_exact"]
     for reg in res["regressors"]:
         for key in PROJ_KEYS:
@@ -758,6 +759,9 @@ def main(argv=None):
     ap.add_argument("--csv", help="also write the result table as CSV")
     ap.add_argument("--no-project", action="store_true",
                     help="skip the exact projection of the corrected positions (crowd_project)")
+    ap.add_argument("--project-refine", type=int, default=50, metavar="N",
+                    help="refinement projections per configuration at most (default 50; 0: the "
+                    "first-order projection from the previous projected configuration only)")
     ap.add_argument("--crowd-project", help="the crowd_project program (default: $CROWDROM_BIN/crowd_project, "
                     "else build/bin/crowd_project of this checkout)")
     ap.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -797,6 +801,8 @@ def main(argv=None):
         log(f"romrun '{args.romrun}', ROM '{st.rom_path}', database '{st.db_path}'; n = {n_values}; "
             f"regressors {cfg['regressors']}; models in '{models_dir}'", args.quiet)
         exe = None
+        if args.project_refine < 0:
+            raise InputError(f"--project-refine {args.project_refine}: must be >= 0")
         if not args.no_project:
             exe = args.crowd_project or os.path.join(
                 os.environ.get("CROWDROM_BIN") or os.path.join(ROOT, "build", "bin"), "crowd_project")
@@ -818,7 +824,7 @@ def main(argv=None):
             if exe:
                 with tempfile.TemporaryDirectory(prefix=".ml_project_",
                                                  dir=os.path.dirname(os.path.abspath(out))) as work:
-                    project_all(st, res, exe, work, args.quiet)
+                    project_all(st, res, exe, work, args.quiet, args.project_refine)
             else:
                 no_projection(res)
             for reg in res["regressors"]:

@@ -78,6 +78,11 @@ def test_projection_removes_overlaps(study, tmp_path):
     assert np.all(r["solves"][:, 0] == 0) and np.all(r["time"] >= 0)
     # closer to the input than the input is to the full model (a projection, not a reset)
     assert np.linalg.norm(r["positions"] - noisy) < np.linalg.norm(q - noisy)
+    # without refinement: one projection per configuration, still no overlap, not closer
+    r0 = cio.run_projection(EXE, study["db"], study["valid"]["params"], noisy, tmp_path, refine_max=0)
+    assert np.all(r0["refines"] == 0) and r0["solves"].sum() < r["solves"].sum()
+    assert max(r0["overlap_agents_after"].max(), r0["overlap_walls_after"].max()) <= TOL
+    assert np.linalg.norm(r["positions"] - noisy) <= np.linalg.norm(r0["positions"] - noisy)
 
 
 def test_bad_requests(study, tmp_path):
@@ -90,6 +95,8 @@ def test_bad_requests(study, tmp_path):
         cio.run_projection(EXE, tmp_path / "none.h5", params, study["valid"]["positions"][:, :2], tmp_path)
     with pytest.raises(cio.InputError, match="agents"):
         cio.run_projection(EXE, study["db"], params, study["valid"]["positions"][:, :2, :6], tmp_path)
+    with pytest.raises(cio.InputError, match="'refine_max' = -1 must be >= 0"):
+        cio.run_projection(EXE, study["db"], params, study["valid"]["positions"][:, :2], tmp_path, refine_max=-1)
     with pytest.raises(cio.InputError, match="not found or not executable"):
         cio.run_projection(tmp_path / "nope", study["db"], params, study["valid"]["positions"], tmp_path)
 

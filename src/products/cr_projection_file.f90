@@ -3,7 +3,8 @@
 !>   root attributes `database` (snapshot database the positions belong to: its configuration
 !>   gives the scene, &solver and &contacts), `output` (result file to write), `n_agents`,
 !>   `configs_per_sample`, `solver` ('' = the database's &solver name), `tol` (0 = the
-!>   database's &solver tol); datasets `positions` [2 n_a, n_conf] (h5py [n_conf, 2 n_a]) and
+!>   database's &solver tol), `refine_max` (refinement projections at most, >= 0; optional,
+!>   default 50); datasets `positions` [2 n_a, n_conf] (h5py [n_conf, 2 n_a]) and
 !>   `params` [n_mu, n_S] (h5py [n_S, n_mu]), n_conf = n_S * configs_per_sample, the
 !>   configurations of sample s being the columns (s - 1) * configs_per_sample + 1 ..;
 !> - the result (schema "crowdrom-projected", version 1), written atomically: root attributes
@@ -33,7 +34,7 @@ module cr_projection_file
   !> A projection request.
   type :: proj_request_t
     character(len=:), allocatable :: path, database, output, solver
-    integer :: n_agents = 0, configs_per_sample = 0, n_samples = 0, n_params = 0
+    integer :: n_agents = 0, configs_per_sample = 0, n_samples = 0, n_params = 0, refine_max = 0
     real(wp) :: tol = 0
     !> positions [2 n_a, n_conf]; parameters [n_mu, n_S]
     real(wp), allocatable :: positions(:,:), params(:,:)
@@ -87,6 +88,11 @@ contains
       call h5%read_attr("/", "tol", req%tol, error); if (allocated(error)) goto 9
       call h5%read_attr("/", "n_agents", req%n_agents, error); if (allocated(error)) goto 9
       call h5%read_attr("/", "configs_per_sample", req%configs_per_sample, error); if (allocated(error)) goto 9
+      ! optional: 50 refinement projections when absent
+      call h5%read_attr("/", "refine_max", req%refine_max, error)
+      if (allocated(error)) then
+        deallocate(error); req%refine_max = 50
+      end if
       if (len_trim(req%database) == 0 .or. len_trim(req%output) == 0) then
         call product_error(path, "attributes 'database' and 'output' must name files", error); return
       end if
@@ -96,6 +102,9 @@ contains
       if (req%n_agents < 1 .or. req%configs_per_sample < 1) then
         call product_error(path, "attributes 'n_agents' = " // str(req%n_agents) // " and 'configs_per_sample' = " // &
           str(req%configs_per_sample) // " must be >= 1", error); return
+      end if
+      if (req%refine_max < 0) then
+        call product_error(path, "attribute 'refine_max' = " // str(req%refine_max) // " must be >= 0", error); return
       end if
       if (.not. (req%tol >= 0 .and. req%tol < 1)) then
         call product_error(path, "attribute 'tol' = " // str(req%tol) // " outside [0, 1) (0: the database's)", error)
@@ -159,6 +168,7 @@ contains
       call h5%write_attr("/", "solver", res%solver, error); if (allocated(error)) return
       call h5%write_attr("/", "tol", res%tol, error); if (allocated(error)) return
       call h5%write_attr("/", "cutoff_factor", res%cutoff_factor, error); if (allocated(error)) return
+      call h5%write_attr("/", "refine_max", req%refine_max, error); if (allocated(error)) return
       call h5%write_attr("/", "n_agents", req%n_agents, error); if (allocated(error)) return
       call h5%write_attr("/", "n_samples", req%n_samples, error); if (allocated(error)) return
       call h5%write_attr("/", "configs_per_sample", req%configs_per_sample, error); if (allocated(error)) return
