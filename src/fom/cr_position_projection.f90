@@ -14,6 +14,7 @@
 !>    p = q_start; this is what makes deep, piled-up overlaps tractable: linearised at q_in the
 !>    rows of agents jammed into a wall or into each other can be infeasible (measured: agents
 !>    of ML-corrected hall20 positions inside the barrier walls of the exit).
+!>    From a start, the first-order projection is the first projection of step 2 (towards q_in).
 !> 2. Refinement (sequential convex projections): from the configuration p without overlap,
 !>    repeat u = argmin |u - (q_in - p)|^2 s.t. D_l(p) + G_l(p) . u >= 0, p = p + u, until
 !>    max_i |u_i| <= refine_tol * r (or refine_max times). u = 0 is feasible, so every iterate has
@@ -133,7 +134,7 @@ contains
     type(error_t), allocatable, intent(out) :: error
     real(wp), intent(in), optional :: q_start(:)
     integer(8) :: c0, c1, rate
-    integer :: na, i, l, k
+    integer :: na, i, l, k, n0
     real(wp), allocatable :: p(:), u(:), w(:)
     real(wp) :: depth_start
     logical :: ok
@@ -195,14 +196,16 @@ contains
       end if
       p = p + u
     end if
-    ! -- refinement: projections linearised at p towards q_in; every iterate without overlap
+    ! -- refinement: projections linearised at p towards q_in; every iterate without overlap.
+    ! From a start, the first of them is the first-order projection (not counted as refinement).
+    n0 = merge(1, 0, present(q_start))
     stats%refined = this%refine_max == 0
-    do k = 1, this%refine_max
+    do k = 1, this%refine_max + n0
       w = q_in - p
       call solve_at(this, scene, radius, p, w, u, ok, stats, error)
       if (allocated(error)) return
       if (.not. ok) exit
-      stats%refines = k
+      stats%refines = k - n0
       p = p + u
       if (maxval(abs(u)) <= this%refine_tol * radius) then
         stats%refined = .true.; exit
