@@ -206,7 +206,14 @@ contains
       if (allocated(error)) return
       if (.not. ok) exit
       stats%refines = k - n0
-      p = p + u
+      ! agents that got the wanted move are exactly at q_in (p + (q_in - p) may round off)
+      do i = 1, na
+        if (all(u(2*i-1:2*i) == w(2*i-1:2*i))) then
+          p(2*i-1:2*i) = q_in(2*i-1:2*i)
+        else
+          p(2*i-1:2*i) = p(2*i-1:2*i) + u(2*i-1:2*i)
+        end if
+      end do
       if (maxval(abs(u)) <= this%refine_tol * radius) then
         stats%refined = .true.; exit
       end if
