@@ -679,7 +679,7 @@ def query_costs(st):
     return t_rom, t_fom
 
 
-def project_all(st, res, exe, workdir, quiet=False, refine_max=50):
+def project_all(st, res, exe, workdir, quiet=False, refine_max=0):
     """Exact projection (crowd_project) of the corrected validation positions of every
     (regressor, n) in one request; fills the PROJ_KEYS lists of each regressor."""
     q_val = st.db_valid["positions"][st.valid_idx]
@@ -759,9 +759,9 @@ def main(argv=None):
     ap.add_argument("--csv", help="also write the result table as CSV")
     ap.add_argument("--no-project", action="store_true",
                     help="skip the exact projection of the corrected positions (crowd_project)")
-    ap.add_argument("--project-refine", type=int, default=50, metavar="N",
-                    help="refinement projections per configuration at most (default 50; 0: the "
-                    "first-order projection from the previous projected configuration only)")
+    ap.add_argument("--project-refine", type=int, default=0, metavar="N",
+                    help="refinement projections per configuration at most (default 0: the "
+                    "first-order projection from the previous projected configuration; see README)")
     ap.add_argument("--crowd-project", help="the crowd_project program (default: $CROWDROM_BIN/crowd_project, "
                     "else build/bin/crowd_project of this checkout)")
     ap.add_argument("--quiet", action="store_true", help="no progress lines")

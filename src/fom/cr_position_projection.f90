@@ -75,7 +75,9 @@ module cr_position_projection
     integer :: refine_max = 50
     real(wp) :: refine_tol = 1.0e-6_wp
     type(cell_list_t) :: cells
-    type(contact_set_t) :: cs, cs_loc
+    !> every candidate row within the cutoff (cs_all), the rows kept for the solve (cs), the
+    !> rows of the local problem (cs_loc)
+    type(contact_set_t) :: cs_all, cs, cs_loc
   contains
     procedure :: init
     procedure :: free
@@ -117,6 +119,7 @@ contains
       deallocate(this%solver)
     end if
     call this%cs%free()
+    call this%cs_all%free()
     call this%cs_loc%free()
     this%cells = cell_list_t()
   end subroutine free
@@ -158,6 +161,7 @@ contains
     end if
     q_out = q_in
     if (this%cs%n_agents /= na .or. .not. allocated(this%cs%ia)) call this%cs%init(na, 1.0_wp, 8 * na)
+    if (this%cs_all%n_agents /= na .or. .not. allocated(this%cs_all%ia)) call this%cs_all%init(na, 1.0_wp, 8 * na)
     ! -- overlaps of q_in
     call build_contacts(scene, q_in, radius, 1.0e-12_wp * radius, this%cells, this%cs)
     do l = 1, this%cs%n
@@ -246,9 +250,9 @@ contains
     type(pproj_stats_t), intent(inout) :: stats
     type(error_t), allocatable, intent(out) :: error
     integer :: na, i, l, a, b, restarts
-    real(wp) :: cutoff, need, umax, depth
-    real(wp), allocatable :: lam(:)
-    logical, allocatable :: free_ag(:), before(:)
+    real(wp) :: cutoff, need, umax, depth, reach
+    real(wp), allocatable :: lam(:), wn(:)
+    logical, allocatable :: free_ag(:), before(:), kept(:)
     logical :: added
     na = size(p) / 2
     allocate(free_ag(na))
@@ -266,9 +270,30 @@ contains
     cutoff = max(this%cutoff_factor * 2 * max(umax, depth), 1.0e-12_wp * radius)
     free_ag = .false.
     restarts = 0
+    allocate(wn(na))
+    do i = 1, na
+      wn(i) = norm2(w(2*i-1:2*i))
+    end do
     do
-      call build_contacts(scene, p, radius, cutoff, this%cells, this%cs)
-      stats%n_rows = this%cs%n
+      ! every row within the global cutoff; the solve keeps a row when its gap is within the
+      ! pair's own reach cutoff_factor * (|w_a| + |w_b|) (+ the deepest overlap), the others
+      ! are checked after the solve (gap > |u_a| + |u_b|: cannot close) and added if needed
+      call build_contacts(scene, p, radius, cutoff, this%cells, this%cs_all)
+      stats%n_rows = this%cs_all%n
+      if (allocated(kept)) deallocate(kept)
+      allocate(kept(this%cs_all%n))
+      do l = 1, this%cs_all%n
+        a = this%cs_all%ia(l); b = this%cs_all%ib(l)
+        reach = wn(a)
+        if (b > 0) reach = reach + wn(b)
+        kept(l) = this%cs_all%gap(l) <= this%cutoff_factor * (reach + depth) + 1.0e-12_wp * radius
+      end do
+      do
+      call this%cs%clear()
+      do l = 1, this%cs_all%n
+        if (kept(l)) call this%cs%add(this%cs_all%ia(l), this%cs_all%ib(l), this%cs_all%ob(l), &
+          this%cs_all%g(:, l), this%cs_all%gap(l))
+      end do
       ! agents of the rows that w violates
       do l = 1, this%cs%n
         if (lin_gap(this%cs, l, w) < 0) then
@@ -309,6 +334,20 @@ contains
         end do
         if (.not. added) exit
         stats%grows = stats%grows + 1
+      end do
+      ! a row left out that the solution could close: keep it and solve again
+      added = .false.
+      do l = 1, this%cs_all%n
+        if (kept(l)) cycle
+        a = this%cs_all%ia(l); b = this%cs_all%ib(l)
+        reach = norm2(u(2*a-1:2*a))
+        if (b > 0) reach = reach + norm2(u(2*b-1:2*b))
+        if (this%cs_all%gap(l) <= reach) then
+          kept(l) = .true.; added = .true.
+        end if
+      end do
+      if (.not. added) exit
+      stats%restarts = stats%restarts + 1
       end do
       umax = 0
       do i = 1, na
