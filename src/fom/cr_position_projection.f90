@@ -289,65 +289,65 @@ contains
         kept(l) = this%cs_all%gap(l) <= this%cutoff_factor * (reach + depth) + 1.0e-12_wp * radius
       end do
       do
-      call this%cs%clear()
-      do l = 1, this%cs_all%n
-        if (kept(l)) call this%cs%add(this%cs_all%ia(l), this%cs_all%ib(l), this%cs_all%ob(l), &
-          this%cs_all%g(:, l), this%cs_all%gap(l))
-      end do
-      ! agents of the rows that w violates
-      do l = 1, this%cs%n
-        if (lin_gap(this%cs, l, w) < 0) then
-          free_ag(this%cs%ia(l)) = .true.
-          if (this%cs%ib(l) > 0) free_ag(this%cs%ib(l)) = .true.
+        call this%cs%clear()
+        do l = 1, this%cs_all%n
+          if (kept(l)) call this%cs%add(this%cs_all%ia(l), this%cs_all%ib(l), this%cs_all%ob(l), &
+            this%cs_all%g(:, l), this%cs_all%gap(l))
+        end do
+        ! agents of the rows that w violates
+        do l = 1, this%cs%n
+          if (lin_gap(this%cs, l, w) < 0) then
+            free_ag(this%cs%ia(l)) = .true.
+            if (this%cs%ib(l) > 0) free_ag(this%cs%ib(l)) = .true.
+          end if
+        end do
+        if (.not. any(free_ag)) then
+          u = w; exit
         end if
-      end do
-      if (.not. any(free_ag)) then
-        u = w; exit
-      end if
-      do
-        call solve_local(this, free_ag, w, u, lam, ok, stats, error)
-        if (allocated(error)) return
-        if (.not. ok) then
-          if (all(free_ag)) return
-          ! a boxed-in free agent: free one ring over every candidate row
-          before = free_ag
+        do
+          call solve_local(this, free_ag, w, u, lam, ok, stats, error)
+          if (allocated(error)) return
+          if (.not. ok) then
+            if (all(free_ag)) return
+            ! a boxed-in free agent: free one ring over every candidate row
+            before = free_ag
+            do l = 1, this%cs%n
+              a = this%cs%ia(l); b = this%cs%ib(l)
+              if (b == 0) cycle
+              if (before(a) .neqv. before(b)) then
+                free_ag(a) = .true.; free_ag(b) = .true.
+              end if
+            end do
+            if (all(before .eqv. free_ag)) free_ag = .true.
+            stats%grows = stats%grows + 1
+            cycle
+          end if
+          ! an active row between a free and a fixed agent: the fixed one must make way too
+          added = .false.
           do l = 1, this%cs%n
+            if (lam(l) <= 0) cycle
             a = this%cs%ia(l); b = this%cs%ib(l)
             if (b == 0) cycle
-            if (before(a) .neqv. before(b)) then
-              free_ag(a) = .true.; free_ag(b) = .true.
+            if (free_ag(a) .neqv. free_ag(b)) then
+              free_ag(a) = .true.; free_ag(b) = .true.; added = .true.
             end if
           end do
-          if (all(before .eqv. free_ag)) free_ag = .true.
+          if (.not. added) exit
           stats%grows = stats%grows + 1
-          cycle
-        end if
-        ! an active row between a free and a fixed agent: the fixed one must make way too
+        end do
+        ! a row left out that the solution could close: keep it and solve again
         added = .false.
-        do l = 1, this%cs%n
-          if (lam(l) <= 0) cycle
-          a = this%cs%ia(l); b = this%cs%ib(l)
-          if (b == 0) cycle
-          if (free_ag(a) .neqv. free_ag(b)) then
-            free_ag(a) = .true.; free_ag(b) = .true.; added = .true.
+        do l = 1, this%cs_all%n
+          if (kept(l)) cycle
+          a = this%cs_all%ia(l); b = this%cs_all%ib(l)
+          reach = norm2(u(2*a-1:2*a))
+          if (b > 0) reach = reach + norm2(u(2*b-1:2*b))
+          if (this%cs_all%gap(l) <= reach) then
+            kept(l) = .true.; added = .true.
           end if
         end do
         if (.not. added) exit
-        stats%grows = stats%grows + 1
-      end do
-      ! a row left out that the solution could close: keep it and solve again
-      added = .false.
-      do l = 1, this%cs_all%n
-        if (kept(l)) cycle
-        a = this%cs_all%ia(l); b = this%cs_all%ib(l)
-        reach = norm2(u(2*a-1:2*a))
-        if (b > 0) reach = reach + norm2(u(2*b-1:2*b))
-        if (this%cs_all%gap(l) <= reach) then
-          kept(l) = .true.; added = .true.
-        end if
-      end do
-      if (.not. added) exit
-      stats%restarts = stats%restarts + 1
+        stats%restarts = stats%restarts + 1
       end do
       umax = 0
       do i = 1, na
