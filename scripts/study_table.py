@@ -245,8 +245,8 @@ def markdown(rows, extras, tol, fronts):
                  "%s / %s" % (_e(r["overlap_agents"]), _e(r["overlap_walls"])),
                  "%s (%s)" % (r["agents_not_left"], r["agents_not_left_fom"]) if "agents_not_left" in r else "",
                  _e(r["mobility"], "%.3f"), str(r["diverged"]), _e(r["t_step"]), _e(r["t_query"]),
-                 _e(r["speedup_step"], "%.1f"), _e(r["speedup_query"], "%.1f"),
-                 _e(_f(r, "speedup_uzawa"), "%.1f"), "yes" if no_overlap(r, tol) else "no"]
+                 _e(r["speedup_step"], "%.3g"), _e(r["speedup_query"], "%.3g"),
+                 _e(_f(r, "speedup_uzawa"), "%.3g"), "yes" if no_overlap(r, tol) else "no"]
         for c in extras:
             v = r.get(c, "")
             cells.append("%.3g" % v if isinstance(v, float) else str(v))
@@ -274,8 +274,8 @@ def render(rows, extras, levels, tol, error):
             lines.append(f"| {level:g} | none | | | | | | |")
         else:
             lines.append(f"| {level:g} | {r['label']} | {_e(r['E_avg'])} | {_e(r['E_disp'])} | "
-                         f"{_e(r['mobility'], '%.3f')} | {_e(r[key])} | {_e(r['speedup_query'], '%.1f')} | "
-                         f"{_e(r['speedup_step'], '%.1f')} |")
+                         f"{_e(r['mobility'], '%.3f')} | {_e(r[key])} | {_e(r['speedup_query'], '%.3g')} | "
+                         f"{_e(r['speedup_step'], '%.3g')} |")
     lines += ["", f"Front of the settings without overlap ({error} vs cost {what}): " +
               "; ".join(f"{r['label']} ({error} {_e(r[error])}, {_e(r[fkey])} s)" for r in front)]
     return lines, per_level, front, key
