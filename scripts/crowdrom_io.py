@@ -28,11 +28,13 @@ ROM_SCHEMA = "crowdrom-rom"
 ROMRUN_SCHEMA = "crowdrom-romrun"
 ML_SCHEMA = "crowdrom-ml"
 FOM_SCHEMA = "crowdrom-fom"
+PROJREQ_SCHEMA = "crowdrom-projreq"
+PROJ_SCHEMA = "crowdrom-projected"
 #: schema versions each reader accepts (as in src/products: *_VERSIONS_READ); the figures also
 #: read the offline results of a version-1 ROM file (written before the prepared pairs), which
 #: crowd_rom (pairs needed) refuses
 SCHEMA_VERSIONS = {FOM_SCHEMA: (1,), DB_SCHEMA: (1,), ROM_SCHEMA: (1, 2), ROMRUN_SCHEMA: (1,),
-                   ML_SCHEMA: (1,)}
+                   ML_SCHEMA: (1,), PROJ_SCHEMA: (1,)}
 
 
 class InputError(Exception):
@@ -441,6 +443,93 @@ def time_integrated_error(q_ref, q, h):
     num = np.sqrt(h * np.sum((q_ref[:, 1:] - q[:, 1:]) ** 2, axis=(1, 2)))
     den = np.sqrt(h * np.sum(q_ref[:, 1:] ** 2, axis=(1, 2)))
     return num / np.where(den > 0, den, 1.0)
+
+
+def displacement_error(q_ref, q):
+    """E_disp per sample: sqrt(sum_nu |q - q^|^2) / sqrt(sum_nu |q^ - q^0|^2), nu = 1..N_T (the
+    error relative to how far the agents move; as src/rom/cr_rom_metrics).
+
+    q_ref, q [n_S, N_T + 1, n_dof] -> [n_S] (-1 where the reference does not move)."""
+    num = np.sqrt(np.sum((q_ref[:, 1:] - q[:, 1:]) ** 2, axis=(1, 2)))
+    den = np.sqrt(np.sum((q_ref[:, 1:] - q_ref[:, :1]) ** 2, axis=(1, 2)))
+    return np.where(den > 0, num / np.where(den > 0, den, 1.0), -1.0)
+
+
+def mobility(q_ref, q):
+    """|q^N_T - q^0| / |q_ref^N_T - q_ref^0| per sample (< 1: a locked crowd; -1 where the
+    reference does not move). q_ref, q [n_S, N_T + 1, n_dof] -> [n_S]."""
+    num = np.linalg.norm(q[:, -1] - q[:, 0], axis=1)
+    den = np.linalg.norm(q_ref[:, -1] - q_ref[:, 0], axis=1)
+    return np.where(den > 0, num / np.where(den > 0, den, 1.0), -1.0)
+
+
+PROJ_PER_CONFIG = ("time", "displacement", "max_move", "depth_in", "overlap_agents_before",
+                   "overlap_walls_before", "overlap_agents_after", "overlap_walls_after", "kkt",
+                   "n_overlaps", "n_moved", "n_free", "solves", "iterations", "grows", "restarts",
+                   "refines", "refined")
+
+
+def run_projection(exe, database, params, positions, workdir, solver="", tol=0.0, refine_max=50,
+                   timeout=None):
+    """Exact position projection of ``positions`` [n_S, n_conf, n_dof] (sample s has the
+    parameters ``params`` [n_S, n_mu] of ``database``) by the Fortran program ``crowd_project``:
+    writes the request (schema crowdrom-projreq) in ``workdir``, runs the program and reads its
+    result (schema crowdrom-projected). Returns a dict: ``positions`` [n_S, n_conf, n_dof], each
+    of PROJ_PER_CONFIG [n_S, n_conf], and the root attributes ``solver``, ``tol``, ``t_total``.
+    ``refine_max``: refinement projections per configuration at most (0: the first-order
+    projection from the start only). The program's bad-input errors (exit 2) become InputError, other failures RuntimeError, with
+    its one ``error:`` line."""
+    import subprocess
+
+    import h5py
+
+    exe = os.fspath(exe)
+    if not (os.path.isfile(exe) and os.access(exe, os.X_OK)):
+        raise InputError(f"crowd_project not found or not executable: '{exe}' (build it with "
+                         "scripts/setup.sh, name it with --crowd-project, or skip the projection "
+                         "with --no-project)")
+    positions = np.asarray(positions, dtype=float)
+    params = np.asarray(params, dtype=float).reshape(positions.shape[0], -1)
+    n_s, n_conf, n_dof = positions.shape
+    req = os.path.join(os.fspath(workdir), "projection_request.h5")
+    out = os.path.join(os.fspath(workdir), "projection_result.h5")
+    with h5py.File(req, "w") as f:
+        a = f.attrs
+        a["schema"], a["schema_version"] = np.bytes_(PROJREQ_SCHEMA), np.int32(1)
+        a["database"] = np.bytes_(os.path.abspath(database))
+        a["output"] = np.bytes_(os.path.abspath(out))
+        a["solver"] = np.bytes_(solver)
+        a["tol"] = float(tol)
+        a["refine_max"] = np.int32(refine_max)
+        a["n_agents"], a["configs_per_sample"] = np.int32(n_dof // 2), np.int32(n_conf)
+        f["positions"] = positions.reshape(n_s * n_conf, n_dof)
+        f["params"] = params
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    if hasattr(os, "geteuid") and os.geteuid() == 0:
+        env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+    p = subprocess.run([exe, req], capture_output=True, text=True, env=env, timeout=timeout)
+    if p.returncode != 0:
+        lines = [ln.strip() for ln in (p.stdout + "\n" + p.stderr).splitlines() if "error:" in ln]
+        msg = lines[-1] if lines else (p.stderr.strip().splitlines() or ["(no message)"])[-1]
+        if p.returncode == 2:
+            raise InputError(f"crowd_project: {msg}")
+        raise RuntimeError(f"crowd_project failed (exit status {p.returncode}): {msg}")
+    res = {"log": p.stdout}
+    with open_h5(out, PROJ_SCHEMA, "projection result") as f:
+        q = dataset(f, "positions")
+        if q.shape != (n_s * n_conf, n_dof):
+            raise InputError(f"'{out}': 'positions' has h5py shape {q.shape}, expected "
+                             f"({n_s * n_conf}, {n_dof})")
+        res["positions"] = need_finite(out, "positions", q).reshape(n_s, n_conf, n_dof)
+        for key in PROJ_PER_CONFIG:
+            x = np.asarray(dataset(f, key)).ravel()
+            if x.size != n_s * n_conf:
+                raise InputError(f"'{out}': '{key}' has {x.size} entries, expected {n_s * n_conf}")
+            res[key] = x.reshape(n_s, n_conf)
+        res["solver"] = attr(f, "solver", str)
+        res["tol"] = attr(f, "tol", float)
+        res["t_total"] = attr(f, "t_total", float)
+    return res
 
 
 def error_in_time(q_ref, q):

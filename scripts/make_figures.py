@@ -388,7 +388,10 @@ def fig_tradeoff(ctx, out, dpi):
     if not src:
         raise Skip("needs --csv or --romrun")
     rows = pt.read_rows(src)
-    pt.plot_tradeoff(rows, out, pt.read_ml_points(ctx.get("ml") or []), dpi=dpi)
+    import study_table
+    ml = ctx.get("ml") or []
+    pt.plot_tradeoff(rows, out, pt.read_ml_points(ml), dpi=dpi,
+                     ml_rows=[u for p in ml for u in study_table.ml_rows(p)])
     return out
 
 

@@ -20,6 +20,13 @@ positions. Errors are the paper's time-integrated relative position errors E_mu,
 the validation parameters (E_avg), for the baseline ROM, the corrected ROM and the projection
 V_n V_n^T u_FOM (the best any correction in span(phi_1..phi_n) can do).
 
+The corrected positions overlap (nothing in the regression keeps agents apart), so every
+corrected configuration is then projected exactly onto the configurations without overlap
+(q_proj = argmin |q - q_ml|^2, the Fortran program crowd_project: one projection of the full
+model's kind with desired velocity 0 and h = 1, the full model's exact solver); the accuracy
+(E_avg, E_disp, mobility, deepest overlaps) is reported before and after, with the projection
+time per step and per query (--no-project skips it).
+
 The correction is a post-processing of the ROM coefficients: it is applied to all validation
 steps in one batch. Its cost per step (batch prediction time / number of steps) is added to the
 ROM step time to give the corrected speedups against the FOM (Uzawa and exact solver).
@@ -37,6 +44,7 @@ import hashlib
 import json
 import os
 import sys
+import tempfile
 import time
 import warnings
 
@@ -47,6 +55,7 @@ import crowdrom_io as cio  # noqa: E402
 from crowdrom_io import InputError  # noqa: E402
 
 PROG = "ml_correct"
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DEFAULT_CONFIG = os.path.join(os.path.dirname(os.path.abspath(__file__)), "ml_config.json")
 REGRESSORS = ("random_forest", "mlp")
 MODEL_FORMAT = "crowdrom-ml-model"
@@ -70,6 +79,18 @@ is the reverse); K = number of n values, n_S = validation samples, N_T = steps, 
     paper's reference), speedup_exact [K]; attributes best_n, best_E_avg
   <regressor>/best/positions [(N_T+1) n_S, n_dof] (corrected validation positions for best_n, the
     layout of the database and ROM run positions), <regressor>/best/err_time [n_S, N_T+1]
+  accuracy before the projection: E_avg_baseline_disp, mobility_baseline (the ROM itself);
+    <regressor>/E_disp, mobility [K] (means over the samples)
+  exact projection (root attribute projected = 1; -1 in every figure when --no-project):
+    root attributes project_solver, project_tol, project_refine_max, t_query_rom, t_query_fom_exact (-1: not in the
+    ROM run file); <regressor>/: overlap_agents, overlap_walls [K] (deepest overlaps of the
+    corrected positions, m), E_avg_proj, E_disp_proj, mobility_proj, overlap_agents_proj,
+    overlap_walls_proj [K] (the same after the projection), moved_fraction [K] (agents moved per
+    configuration / n_agents), t_project_step [K] (s per configuration nu >= 1),
+    t_project_query [K] (s per sample, its N_T + 1 configurations), t_query [K] (= t_query_rom
+    + N_T t_predict_step + t_project_query), speedup_query_exact [K] (t_query_fom_exact /
+    t_query), speedup_exact_proj [K] (per step: t_step_fom_exact / (t_step + t_project_step));
+    <regressor>/best/projected_positions [(N_T+1) n_S, n_dof], best/projected_err_time
 """
 
 
@@ -319,13 +340,12 @@ def model_path(models_dir, regressor, n):
     return os.path.join(models_dir, f"{regressor}_n{n}.joblib")
 
 
-def save_model(path, bundle):
+def save_model(path, bundle, outs):
+    """Write the model under a temporary name of the output set ``outs`` (renamed with the other
+    outputs when the whole run succeeded; removed when it fails)."""
     import joblib
 
-    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    tmp = path + ".partial"
-    joblib.dump(bundle, tmp)
-    os.replace(tmp, path)
+    joblib.dump(bundle, outs.tmp(path))
 
 
 def load_model(path, expected):
@@ -415,8 +435,15 @@ def table_rows(res):
                          "E_avg": r["E_avg"][i], "E_avg_projection": res["E_avg_projection"][i],
                          "factor": r["factor"][i], "t_fit": r["t_fit"][i],
                          "t_predict_step": r["t_predict_step"][i], "t_step": r["t_step"][i],
-                         "speedup_uzawa": r["speedup"][i], "speedup_exact": r["speedup_exact"][i]})
+                         "speedup_uzawa": r["speedup"][i], "speedup_exact": r["speedup_exact"][i],
+                         "E_disp": r["E_disp"][i], "mobility": r["mobility"][i],
+                         **{k: r[k][i] for k in PROJ_KEYS}})
     return rows
+
+
+def _na(x, fmt):
+    """x formatted, or 'n/a' for the -1 of a missing figure."""
+    return format(x, fmt) if x >= 0 else "n/a"
 
 
 def markdown(rows):
@@ -426,10 +453,24 @@ def markdown(rows):
             "t_predict_step", "t_step", "speedup_uzawa", "speedup_exact"]
     fmt = {"E_avg_baseline": "{:.3e}", "E_avg": "{:.3e}", "E_avg_projection": "{:.3e}",
            "factor": "{:.2f}", "t_fit": "{:.2f}", "t_predict_step": "{:.2e}", "t_step": "{:.2e}",
-           "speedup_uzawa": "{:.1f}", "speedup_exact": "{:.1f}"}
+           "speedup_uzawa": "{:.3g}", "speedup_exact": "{:.3g}"}
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         lines.append("| " + " | ".join(fmt.get(k, "{}").format(r[k]) for k in keys) + " |")
+    if rows and rows[0]["E_avg_proj"] >= 0:
+        head = ["regressor", "n", "E_avg ML -> projected", "E_disp ML -> projected",
+                "overlap agents / walls ML (m)", "after projection (m)", "mobility ML -> projected",
+                "agents moved", "t_project/step (s)", "t_project/query (s)", "t_query (s)",
+                "speedup/query (exact)", "speedup/step (exact)"]
+        lines += ["", "After the exact projection (crowd_project):", "",
+                  "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for r in rows:
+            lines.append(f"| {r['regressor']} | {r['n']} | {r['E_avg']:.3e} -> {r['E_avg_proj']:.3e} | "
+                         f"{r['E_disp']:.3e} -> {r['E_disp_proj']:.3e} | {r['overlap_agents']:.2e} / "
+                         f"{r['overlap_walls']:.2e} | {r['overlap_agents_proj']:.2e} / {r['overlap_walls_proj']:.2e} | "
+                         f"{r['mobility']:.3f} -> {r['mobility_proj']:.3f} | {100 * r['moved_fraction']:.1f}% | "
+                         f"{r['t_project_step']:.2e} | {r['t_project_query']:.2e} | {_na(r['t_query'], '.2e')} | "
+                         f"{_na(r['speedup_query_exact'], '.3g')} | {_na(r['speedup_exact_proj'], '.3g')} |")
     return "\n".join(lines)
 
 
@@ -475,12 +516,21 @@ def write_output(path, st, res, cfg, mode):
         f["E_avg_baseline"] = res["E_avg_baseline"]
         f["E_mu_baseline"] = res["E_mu_baseline"]
         f["E_avg_projection"] = np.asarray(res["E_avg_projection"])
+        f["E_avg_baseline_disp"] = res["E_disp_baseline"]
+        f["mobility_baseline"] = res["mobility_baseline"]
+        pr = res.get("projection")
+        a["projected"] = 1 if pr else 0
+        a["project_solver"] = pr["solver"] if pr else ""
+        a["project_tol"] = pr["tol"] if pr else -1.0
+        a["project_refine_max"] = pr["refine_max"] if pr else -1
+        a["t_query_rom"] = pr["t_query_rom"] if pr else -1.0
+        a["t_query_fom_exact"] = pr["t_query_fom_exact"] if pr else -1.0
         f["E_mu_projection"] = np.asarray(res["E_mu_projection"])
         for reg in res["regressors"]:
             r = res[reg]
             g = f.create_group(reg)
             for key in ("E_avg", "E_mu", "factor", "t_fit", "t_predict_step", "t_predict_single",
-                        "t_step", "speedup", "speedup_exact"):
+                        "t_step", "speedup", "speedup_exact", "E_disp", "mobility") + PROJ_KEYS:
                 g[key] = np.asarray(r[key], dtype=float)
             g.attrs["best_n"] = r["best_n"]
             g.attrs["best_E_avg"] = r["best_E_avg"]
@@ -488,14 +538,19 @@ def write_output(path, st, res, cfg, mode):
             q = r["best_positions"]
             b["positions"] = q.reshape(q.shape[0] * q.shape[1], q.shape[2])
             b["err_time"] = r["best_err_time"]
+            if "best_projected" in r:
+                qp = r["best_projected"]
+                b["projected_positions"] = qp.reshape(qp.shape[0] * qp.shape[1], qp.shape[2])
+                b["projected_err_time"] = r["best_projected_err_time"]
 
     _atomic_h5(path, write)
 
 
 # ------------------------------------------------------------------------------ main work
 
-def run(st, cfg, n_values, models_dir, predict_only, quiet=False):
-    """Train (or load) and evaluate every (regressor, n); return the result dictionary."""
+def run(st, cfg, n_values, models_dir, predict_only, quiet=False, outs=None):
+    """Train (or load) and evaluate every (regressor, n); return the result dictionary. Trained
+    models go to temporaries of the output set ``outs`` (committed with the other outputs)."""
     h, nt = st.h, st.n_steps
     V = st.pair["V"]
     q_val = st.db_valid["positions"][st.valid_idx]
@@ -503,7 +558,9 @@ def run(st, cfg, n_values, models_dir, predict_only, quiet=False):
     # baseline ROM error, recomputed from the run's positions
     e_base = cio.time_integrated_error(q_val, st.rom_valid["positions"], h)
     res = {"n_values": n_values, "regressors": list(cfg["regressors"]),
-           "E_mu_baseline": e_base, "E_avg_baseline": float(e_base.mean())}
+           "E_mu_baseline": e_base, "E_avg_baseline": float(e_base.mean()),
+           "E_disp_baseline": float(cio.displacement_error(q_val, st.rom_valid["positions"]).mean()),
+           "mobility_baseline": float(cio.mobility(q_val, st.rom_valid["positions"]).mean())}
     stored = st.setting["E_avg"]
     if abs(res["E_avg_baseline"] - stored) > 1e-6 * max(abs(stored), 1e-300):
         warn(f"recomputed baseline E_avg = {res['E_avg_baseline']:.6e} differs from the stored "
@@ -543,7 +600,8 @@ def run(st, cfg, n_values, models_dir, predict_only, quiet=False):
     t_start = time.perf_counter()
     for reg in cfg["regressors"]:
         res[reg] = {k: [] for k in ("E_avg", "E_mu", "factor", "t_fit", "t_predict_step",
-                                    "t_predict_single", "t_step", "speedup", "speedup_exact")}
+                                    "t_predict_single", "t_step", "speedup", "speedup_exact",
+                                    "E_disp", "mobility")}
         res[reg]["_q"] = {}
     for j, (reg, n) in enumerate(jobs, start=1):
         Vn = V[:, :n]
@@ -559,7 +617,7 @@ def run(st, cfg, n_values, models_dir, predict_only, quiet=False):
             y = (u_train @ Vn).reshape(-1, n) - a_train[:, :, :n].reshape(-1, n)
             bundle, note = fit_bundle(reg, cfg, x, y, meta)
             t_fit = time.perf_counter() - t0
-            save_model(path, bundle)
+            save_model(path, bundle, outs)
         xv = make_features(a_val, p_val, n, cfg)
         dalpha = predict(bundle, xv, n).reshape(n_valid, nt, n)
         u_corr = (a_val[:, :, :n] + dalpha) @ Vn.T                    # [n_S, N_T, n_dof]
@@ -577,6 +635,8 @@ def run(st, cfg, n_values, models_dir, predict_only, quiet=False):
         r["t_step"].append(t_rom + t_pred)
         r["speedup"].append(t_uz / (t_rom + t_pred))
         r["speedup_exact"].append(t_ex / (t_rom + t_pred))
+        r["E_disp"].append(float(cio.displacement_error(q_val, q_corr).mean()))
+        r["mobility"].append(float(cio.mobility(q_val, q_corr).mean()))
         r["_q"][n] = q_corr
         el = time.perf_counter() - t_start
         log(f"[{j}/{len(jobs)}] {reg} n = {n}: fit {t_fit:.2f} s{note}, E_avg = {e.mean():.4e} "
@@ -589,8 +649,92 @@ def run(st, cfg, n_values, models_dir, predict_only, quiet=False):
         r["best_n"], r["best_E_avg"] = n_values[i], r["E_avg"][i]
         r["best_positions"] = r["_q"][n_values[i]]
         r["best_err_time"] = cio.error_in_time(q_val, r["best_positions"])
-        del r["_q"]
     return res
+
+
+PROJ_KEYS = ("overlap_agents", "overlap_walls", "E_avg_proj", "E_disp_proj", "mobility_proj",
+             "overlap_agents_proj", "overlap_walls_proj", "moved_fraction", "t_project_step",
+             "t_project_query", "t_query", "speedup_query_exact", "speedup_exact_proj")
+
+
+def query_costs(st):
+    """(t_query_rom, t_query_fom_exact) of the setting's validation row in the ROM run file (its
+    ``table/``; the row of the last set run, whose t_step_rom is the setting's t_step); -1 where
+    the file predates the per-query columns."""
+    t_rom = t_fom = -1.0
+    with cio.open_h5(st.romrun_path, cio.ROMRUN_SCHEMA, "ROM run file") as f:
+        if "fom_timing" in f and "t_query_exact" in f["fom_timing"].attrs:
+            t_fom = float(cio.scalar(f["fom_timing"].attrs["t_query_exact"]))
+        if "table" in f and all(k in f["table"] for k in ("setting", "t_step_rom", "t_query_rom")):
+            g = f["table"]
+            k = np.asarray(g["setting"][()]).ravel()
+            ts = np.asarray(g["t_step_rom"][()]).ravel()
+            tq = np.asarray(g["t_query_rom"][()]).ravel()
+            rows = np.flatnonzero(k == st.setting["index"])
+            match = [i for i in rows if abs(ts[i] - st.setting["t_step"]) <= 1e-12 * max(ts[i], 1e-300)]
+            if match:
+                t_rom = float(tq[match[-1]])
+            elif rows.size:
+                t_rom = float(tq[rows[-1]])
+    return t_rom, t_fom
+
+
+def project_all(st, res, exe, workdir, quiet=False, refine_max=0):
+    """Exact projection (crowd_project) of the corrected validation positions of every
+    (regressor, n) in one request; fills the PROJ_KEYS lists of each regressor."""
+    q_val = st.db_valid["positions"][st.valid_idx]
+    n_s, nt = q_val.shape[0], st.n_steps
+    jobs = [(reg, n) for reg in res["regressors"] for n in res["n_values"]]
+    q = np.concatenate([res[reg]["_q"][n] for reg, n in jobs])
+    params = np.tile(st.rom_valid["params"], (len(jobs), 1))
+    log(f"exact projection of {len(jobs)} x {n_s} corrected trajectories ({q.shape[0] * q.shape[1]} "
+        f"configurations) with crowd_project", quiet)
+    p = cio.run_projection(exe, st.db_path, params, q, workdir, refine_max=refine_max)
+    t_query_rom, t_query_fom = query_costs(st)
+    res["projection"] = {"solver": p["solver"], "tol": p["tol"], "refine_max": refine_max,
+                         "t_query_rom": t_query_rom, "t_query_fom_exact": t_query_fom}
+    t_ex = st.meta["t_step_exact"]
+    for reg in res["regressors"]:
+        for key in PROJ_KEYS:
+            res[reg][key] = []
+    for j, (reg, n) in enumerate(jobs):
+        sl = slice(j * n_s, (j + 1) * n_s)
+        r, i = res[reg], res["n_values"].index(n)
+        qp = p["positions"][sl]
+        r["overlap_agents"].append(float(p["overlap_agents_before"][sl].max()))
+        r["overlap_walls"].append(float(p["overlap_walls_before"][sl].max()))
+        r["E_avg_proj"].append(float(cio.time_integrated_error(q_val, qp, st.h).mean()))
+        r["E_disp_proj"].append(float(cio.displacement_error(q_val, qp).mean()))
+        r["mobility_proj"].append(float(cio.mobility(q_val, qp).mean()))
+        r["overlap_agents_proj"].append(float(p["overlap_agents_after"][sl].max()))
+        r["overlap_walls_proj"].append(float(p["overlap_walls_after"][sl].max()))
+        r["moved_fraction"].append(float(p["n_moved"][sl].mean()) / (st.n_dof // 2))
+        t_step_proj = float(p["time"][sl][:, 1:].mean())
+        t_query_proj = float(p["time"][sl].sum(axis=1).mean())
+        r["t_project_step"].append(t_step_proj)
+        r["t_project_query"].append(t_query_proj)
+        tq = (t_query_rom + nt * r["t_predict_step"][i] + t_query_proj) if t_query_rom >= 0 else -1.0
+        r["t_query"].append(tq)
+        r["speedup_query_exact"].append(t_query_fom / tq if tq > 0 and t_query_fom > 0 else -1.0)
+        r["speedup_exact_proj"].append(t_ex / (r["t_step"][i] + t_step_proj))
+        if n == r["best_n"]:
+            r["best_projected"] = qp
+            r["best_projected_err_time"] = cio.error_in_time(q_val, qp)
+    for reg in res["regressors"]:
+        r = res[reg]
+        i = res["n_values"].index(r["best_n"])
+        log(f"{reg} n = {r['best_n']}: after projection E_avg {r['E_avg'][i]:.4e} -> {r['E_avg_proj'][i]:.4e}, "
+            f"E_disp {r['E_disp'][i]:.4e} -> {r['E_disp_proj'][i]:.4e}, overlap agents/walls "
+            f"{r['overlap_agents'][i]:.2e}/{r['overlap_walls'][i]:.2e} -> {r['overlap_agents_proj'][i]:.2e}/"
+            f"{r['overlap_walls_proj'][i]:.2e} m, mobility {r['mobility'][i]:.3f} -> {r['mobility_proj'][i]:.3f}; "
+            f"projection {r['t_project_step'][i]:.2e} s per step, {r['t_project_query'][i]:.2e} s per query", quiet)
+
+
+def no_projection(res):
+    """-1 in every projection figure (--no-project)."""
+    for reg in res["regressors"]:
+        for key in PROJ_KEYS:
+            res[reg][key] = [-1.0] * len(res["n_values"])
 
 
 def main(argv=None):
@@ -613,6 +757,13 @@ def main(argv=None):
     ap.add_argument("--predict-only", action="store_true",
                     help="reuse saved models (no training set needed); refuses models of another ROM")
     ap.add_argument("--csv", help="also write the result table as CSV")
+    ap.add_argument("--no-project", action="store_true",
+                    help="skip the exact projection of the corrected positions (crowd_project)")
+    ap.add_argument("--project-refine", type=int, default=0, metavar="N",
+                    help="refinement projections per configuration at most (default 0: the "
+                    "first-order projection from the previous projected configuration; see README)")
+    ap.add_argument("--crowd-project", help="the crowd_project program (default: $CROWDROM_BIN/crowd_project, "
+                    "else build/bin/crowd_project of this checkout)")
     ap.add_argument("--quiet", action="store_true", help="no progress lines")
     ap.add_argument("--help-output", action="store_true", help="describe the output file and exit")
     args = ap.parse_args(argv)
@@ -649,19 +800,53 @@ def main(argv=None):
             raise InputError(f"models directory '{models_dir}' is a file")
         log(f"romrun '{args.romrun}', ROM '{st.rom_path}', database '{st.db_path}'; n = {n_values}; "
             f"regressors {cfg['regressors']}; models in '{models_dir}'", args.quiet)
-        res = run(st, cfg, n_values, models_dir, args.predict_only, args.quiet)
+        exe = None
+        if args.project_refine < 0:
+            raise InputError(f"--project-refine {args.project_refine}: must be >= 0")
+        if not args.no_project:
+            exe = args.crowd_project or os.path.join(
+                os.environ.get("CROWDROM_BIN") or os.path.join(ROOT, "build", "bin"), "crowd_project")
+            if not (os.path.isfile(exe) and os.access(exe, os.X_OK)):
+                raise InputError(f"crowd_project not found or not executable: '{exe}' (build it with "
+                                 "scripts/setup.sh, name it with --crowd-project, or skip the projection "
+                                 "with --no-project)")
     except InputError as exc:
         fail(str(exc))
-    rows = table_rows(res)
-    # the output file and the CSV are one result: both written, then renamed together
-    with cio.OutputSet() as outs:
-        write_output(outs.tmp(out), st, res, cfg, "predict-only" if args.predict_only else "train")
-        if args.csv:
-            with open(outs.tmp(args.csv), "w") as fh:
-                fh.write(csv_text(rows))
-        outs.commit()
+    # the output file, the CSV and the trained models are one result: all written under
+    # temporary names, then renamed together; any failure leaves earlier outputs untouched
+    made_dir = False
+    try:
+        with cio.OutputSet() as outs:
+            if not args.predict_only and not os.path.isdir(models_dir):
+                os.makedirs(models_dir)
+                made_dir = True
+            res = run(st, cfg, n_values, models_dir, args.predict_only, args.quiet, outs=outs)
+            if exe:
+                with tempfile.TemporaryDirectory(prefix=".ml_project_",
+                                                 dir=os.path.dirname(os.path.abspath(out))) as work:
+                    project_all(st, res, exe, work, args.quiet, args.project_refine)
+            else:
+                no_projection(res)
+            for reg in res["regressors"]:
+                del res[reg]["_q"]
+            rows = table_rows(res)
+            write_output(outs.tmp(out), st, res, cfg, "predict-only" if args.predict_only else "train")
+            if args.csv:
+                with open(outs.tmp(args.csv), "w") as fh:
+                    fh.write(csv_text(rows))
+            outs.commit()
+    except BaseException as exc:
+        if made_dir:
+            try:
+                os.rmdir(models_dir)
+            except OSError:
+                pass
+        if isinstance(exc, InputError):
+            fail(str(exc))
+        raise
     print(markdown(rows))
-    log(f"wrote {out}" + (f" and {args.csv}" if args.csv else ""), args.quiet)
+    log(f"wrote {out}" + (f" and {args.csv}" if args.csv else "") +
+        ("" if args.predict_only else f"; models in '{models_dir}'"), args.quiet)
     return 0
 
 

@@ -14,6 +14,16 @@ kept off the Pareto front; one whose samples all diverged (E_avg -1) is left out
 ML-corrected results (files of scripts/ml_correct.py) can be overlaid (--ml):
 the best n of each regressor, at the ROM step time plus the prediction time per step.
 
+Settings without overlap (deepest agent-agent and agent-wall overlap <= --overlap-tol m, no
+diverged sample; the columns max_overlap_agents / max_overlap_walls, or max_overlap) are ringed in
+green. A third panel (c) answers "for each error level, the cheapest setting that has no
+overlap": E_avg against the cost per query (per step when the table has no per-query columns),
+the front of the settings without overlap as a staircase, the exact full model as a reference
+(error 0: a vertical line), and the ML-corrected positions after their exact projection
+(crowd_project; from --ml) as green diamonds; the answers are also printed per level
+(scripts/study_table.py prints the whole table). Columns the script does not know are ignored,
+and any contacts name is accepted.
+
 Exit codes: 0 success, 2 missing/unreadable input or missing columns (message on stderr).
 """
 import argparse
@@ -25,6 +35,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import crowdrom_io as cio  # noqa: E402
+import study_table  # noqa: E402
 from crowdrom_io import InputError  # noqa: E402
 
 PROG = "plot_tradeoff"
@@ -122,8 +133,10 @@ def _label(r):
     return f"({r['n']},{r['r']},{r['hyper']})"
 
 
-def plot_tradeoff(rows, out, ml_points=(), set_name="valid", title=None, dpi=120):
-    """Draw the two panels into ``out`` (PNG); return the Pareto-optimal rows."""
+def plot_tradeoff(rows, out, ml_points=(), set_name="valid", title=None, dpi=120, ml_rows=(),
+                  overlap_tol=1e-10):
+    """Draw the three panels into ``out`` (PNG); return the Pareto-optimal rows of panel (a).
+    ``ml_rows``: rows of study_table.ml_rows (ML results, corrected and projected) for panel (c)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -143,7 +156,7 @@ def plot_tradeoff(rows, out, ml_points=(), set_name="valid", title=None, dpi=120
     # a setting with diverged samples is not a trade-off a user can take: off the front
     big = np.full(t.size, np.inf)
     front = pareto_mask(np.where(div > 0, big, t), np.where(div > 0, big, err)) & (div == 0)
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 5))
+    fig, (ax1, ax2, ax3) = plt.subplots(1, 3, figsize=(18, 5.5))
     for hyper in sorted({str(r["hyper"]) for r in rows}):
         sel = np.array([str(r["hyper"]) == hyper for r in rows]) & (div == 0)
         mk = HYPER_MARKERS.get(hyper, "^")
@@ -185,10 +198,45 @@ def plot_tradeoff(rows, out, ml_points=(), set_name="valid", title=None, dpi=120
     if ml_points:
         ax1.scatter([], [], marker="*", c="tab:green", label="ML-corrected (best n)")
         ax2.scatter([], [], marker="*", c="tab:green", label="ML-corrected (best n)")
-    for ax in (ax1, ax2):
+    # settings without overlap, and panel (c): the cheapest of them for each error level
+    uni = [study_table.unify_row(r) for r in rows]
+    free = np.array([study_table.no_overlap(u, overlap_tol) for u in uni])
+    if free.any():
+        ax1.scatter(t[free], err[free], s=160, facecolors="none", edgecolors="tab:green", lw=1.2,
+                    label=f"no overlap (<= {overlap_tol:g} m)")
+    cand = uni + [study_table.fom_row(rows)] + list(ml_rows)
+    free_front, key = study_table.overlap_free_front(cand, overlap_tol, "E_avg")
+    for u in cand:
+        if u["kind"] == "fom" or u[key] <= 0 or u["E_avg"] < 0:
+            continue
+        ok = study_table.no_overlap(u, overlap_tol)
+        mk = {"rom": HYPER_MARKERS.get(str(u.get("hyper")), "^"), "ml": "*", "ml+proj": "D"}[u["kind"]]
+        col = "tab:green" if u["kind"] != "rom" else "tab:blue"
+        ax3.scatter([u[key]], [u["E_avg"]], marker=mk, s=60 if u["kind"] != "rom" else 36,
+                    facecolors=col if ok else "none", edgecolors=col, zorder=4)
+        ax3.annotate(u["label"], (u[key], u["E_avg"]), fontsize=6, xytext=(3, 3), textcoords="offset points")
+    fom = study_table.fom_row(rows)
+    if fom[key] > 0:
+        ax3.axvline(fom[key], color="k", ls="--", lw=1, label=f"exact full model {fom[key]:.2e} s (error 0)")
+    pts = [u for u in free_front if u["E_avg"] > 0]
+    if pts:
+        xs, ys = [pts[0][key]], [pts[0]["E_avg"]]
+        for u in pts[1:]:
+            xs += [u[key], u[key]]
+            ys += [ys[-1], u["E_avg"]]
+        ax3.plot(xs, ys, "-", color="tab:red", lw=1.5, label="cheapest without overlap per error level")
+    ax3.scatter([], [], marker="o", c="tab:blue", label="ROM (filled: no overlap)")
+    if ml_rows:
+        ax3.scatter([], [], marker="*", facecolors="none", edgecolors="tab:green", label="ML-corrected")
+        ax3.scatter([], [], marker="D", c="tab:green", label="ML-corrected + exact projection")
+    ax3.set_xlabel("cost per query (s)" if key == "t_query" else "cost per step (s) (no per-query columns)")
+    ax3.set_title("(c) the cheapest setting without overlap for each error level")
+    for ax in (ax1, ax2, ax3):
         ax.set_xscale("log")
         ax.margins(x=0.25, y=0.1)
-        if np.all(err > 0):
+        if np.all(err > 0) and ax is not ax3:
+            ax.set_yscale("log")
+        if ax is ax3 and any(u["E_avg"] > 0 for u in cand):
             ax.set_yscale("log")
         ax.set_ylabel(r"$E_{\rm avg}$ (validation)")
         ax.grid(True, which="both", alpha=0.3)
@@ -212,6 +260,8 @@ def main(argv=None):
     ap.add_argument("-o", "--output", help="PNG to write (default: <input>_tradeoff.png)")
     ap.add_argument("--set", default="valid", help="which set's rows to draw (default valid)")
     ap.add_argument("--ml", nargs="+", default=[], help="ML output files of ml_correct.py to overlay")
+    ap.add_argument("--overlap-tol", type=float, default=1e-10,
+                    help="deepest overlap counted as none [m] (default 1e-10)")
     ap.add_argument("--title", default=None)
     ap.add_argument("--dpi", type=int, default=120)
     args = ap.parse_args(argv)
@@ -221,13 +271,21 @@ def main(argv=None):
             raise InputError(f"--dpi {args.dpi}: must be >= 1")
         cio.check_outputs([("output", out)], [("input", args.input)] + [("ML output", p) for p in args.ml])
         rows = read_rows(args.input)
+        mlr = [u for p in args.ml for u in study_table.ml_rows(p)]
         with cio.OutputSet() as outs:
-            front = plot_tradeoff(rows, outs.tmp(out), read_ml_points(args.ml), args.set, args.title, args.dpi)
+            front = plot_tradeoff(rows, outs.tmp(out), read_ml_points(args.ml), args.set, args.title, args.dpi,
+                                  ml_rows=mlr, overlap_tol=args.overlap_tol)
             outs.commit()
+        uni = [study_table.unify_row(r) for r in rows if str(r["set"]) == args.set]
+        per_level, key = study_table.cheapest_per_level(uni + [study_table.fom_row(uni)] + mlr,
+                                                        study_table.DEFAULT_LEVELS, args.overlap_tol)
     except InputError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     print(f"{PROG}: Pareto front: " + ", ".join(_label(r) for r in front))
+    for level, r in per_level:
+        print(f"{PROG}: E_avg <= {level:g}: cheapest without overlap ({key}): " +
+              (f"{r['label']} ({r[key]:.2e} s)" if r else "none"))
     print(f"{PROG}: wrote {out}")
     return 0
 

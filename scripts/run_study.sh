@@ -57,31 +57,8 @@ stage 5 "figures (scripts/make_figures.py)"
 $PY scripts/make_figures.py --database "results/${CASE}_snapshots.h5" --rom "results/${CASE}_rom.h5" \
   --romrun "results/${CASE}_romrun.h5" --csv "results/${CASE}_table.csv" --ml "results/${CASE}_ml.h5" \
   --setting "$SETTING" -o "results/${CASE}_figures"
-stage 6 "accuracy / speed table"
-$PY - "$CASE" <<'PYEOF'
-import csv, sys
-case = sys.argv[1]
-rows = [r for r in csv.DictReader(open("results/%s_table.csv" % case)) if r["set"] == "valid"]
-print("Validation set: E_avg (paper's time-integrated relative position error), E_disp (the same error relative")
-print("to the displacement q - q0), relative error of the times at which 50% / 90% of the agents are out")
-print("(over the (n) samples where both models reach it), deepest overlaps, mobility, diverged samples")
-print("(* = E_avg over the other samples), time per reduced step, speedup over (a) the paper's Uzawa FOM")
-print("and (b) the exact active-set FOM, both timed in this run.")
-print("| N | R | Nb | hyper | contacts | E_avg | E_disp | t50 err | t90 err | overlap agents / walls | agents not out (FOM) | mobility | diverged | t_step [s] | speedup (a) | speedup (b) |")
-print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
-def t(r, k):
-    n = int(r[k + "_n"])
-    s = "%.2e (%d)" % (float(r[k + "_err"]), n) if n > 0 else "n/a"
-    if int(r[k + "_rom_missed"]) > 0:
-        s += ", ROM never %s" % r[k + "_rom_missed"]
-    return s
-for r in rows:
-    print("| %s | %s | %s | %s | %s | %.2e%s | %.2e | %s | %s | %.2e / %.2e | %s (%s) | %.3f | %s | %.2e | %.1f | %.1f |" % (
-        r["n"], r["r"], r["n_basis"], r["hyper"], r["contacts"], float(r["E_avg"]),
-        "*" if int(r["samples_diverged"]) > 0 else "", float(r["E_disp"]), t(r, "t50"), t(r, "t90"),
-        float(r["max_overlap_agents"]), float(r["max_overlap_walls"]), r["agents_not_left"], r["agents_not_left_fom"],
-        float(r["mobility"]), r["samples_diverged"], float(r["t_step_rom"]), float(r["speedup_uzawa"]),
-        float(r["speedup_exact"])))
-PYEOF
+stage 6 "accuracy / cost table and the cheapest setting without overlap per error level (scripts/study_table.py)"
+$PY scripts/study_table.py "results/${CASE}_table.csv" --ml "results/${CASE}_ml.csv" \
+  -o "results/${CASE}_study_table.md" --csv "results/${CASE}_cheapest.csv"
 echo
 echo "run_study [$CASE]: done in $(( $(date +%s) - t0 )) s; table results/${CASE}_table.csv, ML results/${CASE}_ml.csv, figures results/${CASE}_figures/"

@@ -48,7 +48,7 @@ def study(tmp_path_factory):
                                "mlp": {"max_iter": 200}, "timing_repeats": 1}))
     st["ml"] = str(tmp / "ml.h5")
     assert ml_correct.main([st["romrun"], "--setting", "1", "--config", str(cfg), "-o", st["ml"],
-                            "--quiet"]) == 0
+                            "--quiet", "--no-project"]) == 0
     st["tmp"] = tmp
     return st
 

@@ -1,0 +1,148 @@
+"""The exact projection of ML-corrected positions on a real tiny study (tests/inputs/rom_tiny.nml
+through crowd_snapshots, crowd_offline, crowd_rom): crowd_project leaves no overlap (checked
+here with the pair distances and the hall's walls), leaves a configuration without overlap
+bit for bit, refuses bad requests with one line; ml_correct.py reports the accuracy before and
+after the projection and its cost, and writes its outputs and models all together or not at all."""
+import csv
+import os
+import sys
+
+import h5py
+import numpy as np
+import pytest
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+sys.path.insert(0, os.path.dirname(HERE))
+import crowdrom_io as cio  # noqa: E402
+import ml_correct  # noqa: E402
+from test_rom import BIN, offline, rom_input, run, study_file  # noqa: E402
+
+EXE = os.path.join(BIN, "crowd_project")
+TOL = 1e-10
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("mlproj")
+    db = tmp / "tiny.h5"
+    sfile = study_file(tmp, "study.nml", db)
+    p = run(0, "crowd_snapshots", sfile, tmp)
+    assert p.returncode == 0, p.stdout + p.stderr
+    rom = offline(tmp, sfile, db, tmp / "rom.h5", extra=", rom_n = 4, rom_r = 3")
+    out = tmp / "run.h5"
+    p = run(0, "crowd_rom", rom_input(tmp, "rom.nml", rom, out, [dict(n=4, r=3, hyper="'none'")],
+                                      sets="'both'"), tmp)
+    assert p.returncode == 0, p.stdout + p.stderr
+    with h5py.File(db, "r") as f:
+        meta = cio.read_database_meta(f)
+        valid = cio.read_database_set(f, "valid", velocities=False)
+        scenes = cio.read_sample_scenes(f, "valid")
+    return dict(tmp=tmp, db=str(db), rom=str(rom), romrun=str(out), meta=meta, valid=valid, scenes=scenes)
+
+
+def overlaps(q, radius, scene):
+    """Deepest agent-agent overlap and deepest overlap with the hall's box (agents inside it)."""
+    x = q.reshape(-1, 2)
+    d = np.linalg.norm(x[:, None, :] - x[None, :, :], axis=2) + np.eye(len(x)) * 1e9
+    o_aa = max(0.0, float(2 * radius - d.min()))
+    lo, hi = scene["domain"][:2] + 0, scene["domain"][2:]
+    # the hall: x in [0, L], y >= 0 (walls of the reference scene: verts of the first three
+    # rectangles are the left, right and bottom walls)
+    L = scene["verts"][4, 0]
+    inside = x[:, 1] < scene["exit"][0, 1]
+    o_aw = 0.0
+    if inside.any():
+        xi = x[inside]
+        o_aw = max(0.0, float(np.max(np.concatenate([radius - xi[:, 0], xi[:, 0] - (L - radius),
+                                                         radius - xi[:, 1]]))))
+    return o_aa, o_aw
+
+
+def test_projection_removes_overlaps(study, tmp_path):
+    """Random overlapping configurations of every validation sample (jittered full-order
+    positions): no overlap left; the full-order configurations themselves come back unchanged."""
+    q = study["valid"]["positions"]                                 # [n_S, N_T + 1, n_dof]
+    rng = np.random.default_rng(5)
+    noisy = q + rng.normal(scale=0.03, size=q.shape)
+    noisy[:, 0] = q[:, 0]                                           # step 0: the full model's
+    r = cio.run_projection(EXE, study["db"], study["valid"]["params"], noisy, tmp_path)
+    radius = study["meta"]["agent_radius"]
+    assert r["depth_in"].max() > 0.01, "the test configurations must overlap"
+    assert max(r["overlap_agents_after"].max(), r["overlap_walls_after"].max()) <= TOL
+    for s, sc in enumerate(study["scenes"]):
+        for c in range(q.shape[1]):
+            o_aa, o_aw = overlaps(r["positions"][s, c], radius, sc)
+            assert o_aa <= TOL and o_aw <= TOL, (s, c, o_aa, o_aw)
+    np.testing.assert_array_equal(r["positions"][:, 0], q[:, 0])
+    assert np.all(r["solves"][:, 0] == 0) and np.all(r["time"] >= 0)
+    # closer to the input than the input is to the full model (a projection, not a reset)
+    assert np.linalg.norm(r["positions"] - noisy) < np.linalg.norm(q - noisy)
+    # without refinement: one projection per configuration, still no overlap, not closer
+    r0 = cio.run_projection(EXE, study["db"], study["valid"]["params"], noisy, tmp_path, refine_max=0)
+    assert np.all(r0["refines"] == 0) and r0["solves"].sum() < r["solves"].sum()
+    assert max(r0["overlap_agents_after"].max(), r0["overlap_walls_after"].max()) <= TOL
+    assert np.linalg.norm(r["positions"] - noisy) <= np.linalg.norm(r0["positions"] - noisy)
+
+
+def test_bad_requests(study, tmp_path):
+    q = study["valid"]["positions"][:, :2].copy()
+    params = study["valid"]["params"]
+    q[0, 1, 3] = np.nan
+    with pytest.raises(cio.InputError, match=r"crowd_project: .*'positions'.*non-finite|finite"):
+        cio.run_projection(EXE, study["db"], params, q, tmp_path)
+    with pytest.raises(cio.InputError, match="cannot open the snapshot database"):
+        cio.run_projection(EXE, tmp_path / "none.h5", params, study["valid"]["positions"][:, :2], tmp_path)
+    with pytest.raises(cio.InputError, match="agents"):
+        cio.run_projection(EXE, study["db"], params, study["valid"]["positions"][:, :2, :6], tmp_path)
+    with pytest.raises(cio.InputError, match="'refine_max' = -1 must be >= 0"):
+        cio.run_projection(EXE, study["db"], params, study["valid"]["positions"][:, :2], tmp_path, refine_max=-1)
+    with pytest.raises(cio.InputError, match="not found or not executable"):
+        cio.run_projection(tmp_path / "nope", study["db"], params, study["valid"]["positions"], tmp_path)
+
+
+def test_ml_correct_reports_projection(study, tmp_path, capsys):
+    cfg = tmp_path / "c.json"
+    cfg.write_text('{"n_values": [2, 4], "regressors": ["random_forest"], "random_forest": {"n_estimators": 10}, '
+                   '"timing_repeats": 1}')
+    out, table, models = tmp_path / "ml.h5", tmp_path / "ml.csv", tmp_path / "models"
+    args = [study["romrun"], "--setting", "1", "--config", str(cfg), "-o", str(out), "--csv", str(table),
+            "--models-dir", str(models), "--crowd-project", EXE, "--quiet"]
+    # a projection that fails leaves nothing behind: no output, no CSV, no models
+    with pytest.raises(SystemExit) as exc:
+        ml_correct.main(args[:-3] + ["--crowd-project", str(tmp_path / "nope")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("ml_correct: error: crowd_project not found or not executable")
+    failing = tmp_path / "fail.sh"
+    failing.write_text("#!/bin/sh\necho 'error: boom' >&2\nexit 1\n")
+    failing.chmod(0o755)
+    with pytest.raises(RuntimeError, match="boom"):
+        ml_correct.main(args[:-3] + ["--crowd-project", str(failing)])
+    assert not out.exists() and not table.exists() and not models.exists()
+    assert not [p for p in os.listdir(tmp_path) if ".partial" in p or p.startswith(".ml_project_")]
+    # the real run
+    assert ml_correct.main(args) == 0
+    text = capsys.readouterr().out
+    assert "After the exact projection (crowd_project):" in text
+    assert sorted(os.listdir(models)) == ["random_forest_n2.joblib", "random_forest_n4.joblib"]
+    rows = list(csv.DictReader(open(table)))
+    assert len(rows) == 2
+    for r in rows:
+        for key in ml_correct.PROJ_KEYS:
+            assert key in r
+        assert float(r["overlap_agents_proj"]) <= TOL and float(r["overlap_walls_proj"]) <= TOL
+        assert float(r["t_project_query"]) > 0 and float(r["t_query"]) > float(r["t_project_query"])
+        assert float(r["E_avg_proj"]) >= 0 and float(r["mobility_proj"]) > 0
+    with h5py.File(out, "r") as f:
+        assert f.attrs["projected"] == 1
+        g = f["random_forest"]
+        assert g["E_avg_proj"].shape == (2,) and np.all(g["overlap_walls_proj"][...] <= TOL)
+        qp = g["best/projected_positions"][...]
+        assert qp.shape == g["best/positions"].shape
+        m = study["meta"]
+        qp = qp.reshape(-1, m["n_steps"] + 1, 2 * m["n_agents"])
+        for s, sc in enumerate(study["scenes"]):
+            for c in range(qp.shape[1]):
+                o_aa, o_aw = overlaps(qp[s, c], m["agent_radius"], sc)
+                assert o_aa <= TOL and o_aw <= TOL
