@@ -26,6 +26,32 @@ module cr_env
     procedure :: bcast_string
     procedure :: agree_error
     procedure, nopass :: wtime
+    ! ---- checked collectives and messages for the library modules (linalg, offline, hyper,
+    ! io): every MPI status is checked and a failure returned as an error naming the call,
+    ! the sizes and MPI's own message. Arrays of any rank (contiguous; a section is copied).
+    !> broadcast from rank `root`
+    procedure :: bcast_int, bcast_i8, bcast_real
+    generic :: bcast => bcast_int, bcast_i8, bcast_real
+    !> in-place reduction over all ranks, op 'sum', 'min' or 'max'
+    procedure :: allreduce_int, allreduce_i8, allreduce_real
+    generic :: allreduce => allreduce_int, allreduce_i8, allreduce_real
+    !> in-place sum on rank 0 only
+    procedure :: reduce_sum_root
+    !> (value, index) pairs: the largest value over ranks and its index (ties: lowest index)
+    procedure :: allreduce_maxloc
+    !> one integer from every rank, in rank order
+    procedure :: allgather_int
+    !> variable-size gathers and exchanges of reals (counts, displacements in elements)
+    procedure :: gatherv_real, allgatherv_real, alltoallv_real
+    !> one integer to and from every rank
+    procedure :: alltoall_int
+    !> point-to-point messages
+    procedure :: send_int, send_real, recv_int, recv_real
+    generic :: send => send_int, send_real
+    generic :: recv => recv_int, recv_real
+    !> barrier with its status checked
+    procedure :: sync
+    ! ---- end of the checked collectives
   end type env_t
 
 contains
@@ -170,8 +196,250 @@ contains
     call set_error(error, msg, meta(2))
   end subroutine agree_error_on
 
+
   !> Wall-clock time in seconds.
   real(wp) function wtime()
     wtime = MPI_Wtime()
   end function wtime
+
+  ! ==================================================================================
+  ! Checked collectives and messages for the library modules (one block, see the type).
+  ! ==================================================================================
+
+  !> Turn a non-zero MPI status into an error "env: <what> failed: <MPI's message>".
+  subroutine check_mpi(ierr, what, error)
+    integer, intent(in) :: ierr
+    character(len=*), intent(in) :: what
+    type(error_t), allocatable, intent(inout) :: error
+    character(len=MPI_MAX_ERROR_STRING) :: msg
+    integer :: n, ierr2
+    if (ierr == MPI_SUCCESS .or. allocated(error)) return
+    msg = ''
+    call MPI_Error_string(ierr, msg, n, ierr2)
+    if (ierr2 /= MPI_SUCCESS) msg = 'MPI error code ' // str(ierr)
+    call set_error(error, "env: " // what // " failed: " // trim(msg))
+  end subroutine check_mpi
+
+  !> The MPI operation of 'sum', 'min' or 'max'.
+  subroutine op_of(op, mop, error)
+    character(len=*), intent(in) :: op
+    type(MPI_Op), intent(out) :: mop
+    type(error_t), allocatable, intent(out) :: error
+    select case (op)
+    case ('sum'); mop = MPI_SUM
+    case ('min'); mop = MPI_MIN
+    case ('max'); mop = MPI_MAX
+    case default
+      mop = MPI_OP_NULL
+      call set_error(error, "env: unknown reduction '" // op // "' (known: sum, min, max)")
+    end select
+  end subroutine op_of
+
+  subroutine bcast_int(this, x, root, error)
+    class(env_t), intent(in) :: this
+    integer, contiguous, intent(inout) :: x(..)
+    integer, intent(in) :: root
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    call MPI_Bcast(x, size(x), MPI_INTEGER, root, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Bcast of " // str(size(x)) // " integer(s) from rank " // str(root), error)
+  end subroutine bcast_int
+
+  subroutine bcast_i8(this, x, root, error)
+    class(env_t), intent(in) :: this
+    integer(i8), contiguous, intent(inout) :: x(..)
+    integer, intent(in) :: root
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    call MPI_Bcast(x, size(x), MPI_INTEGER8, root, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Bcast of " // str(size(x)) // " 64-bit integer(s) from rank " // str(root), error)
+  end subroutine bcast_i8
+
+  subroutine bcast_real(this, x, root, error)
+    class(env_t), intent(in) :: this
+    real(wp), contiguous, intent(inout) :: x(..)
+    integer, intent(in) :: root
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    call MPI_Bcast(x, size(x), MPI_DOUBLE_PRECISION, root, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Bcast of " // str(size(x)) // " real(s) from rank " // str(root), error)
+  end subroutine bcast_real
+
+  subroutine allreduce_int(this, x, op, error)
+    class(env_t), intent(in) :: this
+    integer, contiguous, intent(inout) :: x(..)
+    character(len=*), intent(in) :: op
+    type(error_t), allocatable, intent(out) :: error
+    type(MPI_Op) :: mop
+    integer :: ierr
+    call op_of(op, mop, error); if (allocated(error)) return
+    call MPI_Allreduce(MPI_IN_PLACE, x, size(x), MPI_INTEGER, mop, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allreduce (" // op // ") of " // str(size(x)) // " integer(s)", error)
+  end subroutine allreduce_int
+
+  subroutine allreduce_i8(this, x, op, error)
+    class(env_t), intent(in) :: this
+    integer(i8), contiguous, intent(inout) :: x(..)
+    character(len=*), intent(in) :: op
+    type(error_t), allocatable, intent(out) :: error
+    type(MPI_Op) :: mop
+    integer :: ierr
+    call op_of(op, mop, error); if (allocated(error)) return
+    call MPI_Allreduce(MPI_IN_PLACE, x, size(x), MPI_INTEGER8, mop, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allreduce (" // op // ") of " // str(size(x)) // " 64-bit integer(s)", error)
+  end subroutine allreduce_i8
+
+  subroutine allreduce_real(this, x, op, error)
+    class(env_t), intent(in) :: this
+    real(wp), contiguous, intent(inout) :: x(..)
+    character(len=*), intent(in) :: op
+    type(error_t), allocatable, intent(out) :: error
+    type(MPI_Op) :: mop
+    integer :: ierr
+    call op_of(op, mop, error); if (allocated(error)) return
+    call MPI_Allreduce(MPI_IN_PLACE, x, size(x), MPI_DOUBLE_PRECISION, mop, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allreduce (" // op // ") of " // str(size(x)) // " real(s)", error)
+  end subroutine allreduce_real
+
+  !> x summed over the ranks, on rank 0 (other ranks' x is left as it was or undefined).
+  subroutine reduce_sum_root(this, x, error)
+    class(env_t), intent(in) :: this
+    real(wp), contiguous, intent(inout) :: x(..)
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    if (this%rank == 0) then
+      call MPI_Reduce(MPI_IN_PLACE, x, size(x), MPI_DOUBLE_PRECISION, MPI_SUM, 0, this%comm, ierr)
+    else
+      call MPI_Reduce(x, x, size(x), MPI_DOUBLE_PRECISION, MPI_SUM, 0, this%comm, ierr)
+    end if
+    call check_mpi(ierr, "MPI_Reduce (sum to rank 0) of " // str(size(x)) // " real(s)", error)
+  end subroutine reduce_sum_root
+
+  !> pair = [value, index] on entry; on return on every rank the pair with the largest value
+  !> (ties: the lowest index), as MPI_MAXLOC on MPI_2DOUBLE_PRECISION.
+  subroutine allreduce_maxloc(this, pair, error)
+    class(env_t), intent(in) :: this
+    real(wp), intent(inout) :: pair(2)
+    type(error_t), allocatable, intent(out) :: error
+    real(wp) :: res(2)
+    integer :: ierr
+    call MPI_Allreduce(pair, res, 1, MPI_2DOUBLE_PRECISION, MPI_MAXLOC, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allreduce (maxloc)", error)
+    if (.not. allocated(error)) pair = res
+  end subroutine allreduce_maxloc
+
+  !> all(p) = x of rank p - 1 [this%size], on every rank.
+  subroutine allgather_int(this, x, all, error)
+    class(env_t), intent(in) :: this
+    integer, intent(in) :: x
+    integer, allocatable, intent(out) :: all(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    allocate(all(this%size))
+    call MPI_Allgather(x, 1, MPI_INTEGER, all, 1, MPI_INTEGER, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allgather of one integer per rank", error)
+  end subroutine allgather_int
+
+  !> Gather x of every rank into all on rank `root`: rank p's block at all(displs(p)+1:)
+  !> (counts, displs [this%size], significant on root only).
+  subroutine gatherv_real(this, x, all, counts, displs, root, error)
+    class(env_t), intent(in) :: this
+    real(wp), contiguous, intent(in) :: x(..)
+    real(wp), contiguous, intent(inout) :: all(..)
+    integer, intent(in) :: counts(:), displs(:)
+    integer, intent(in) :: root
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    call MPI_Gatherv(x, size(x), MPI_DOUBLE_PRECISION, all, counts, displs, MPI_DOUBLE_PRECISION, root, &
+      this%comm, ierr)
+    call check_mpi(ierr, "MPI_Gatherv of " // str(size(x)) // " real(s) to rank " // str(root), error)
+  end subroutine gatherv_real
+
+  !> Gather x of every rank into all on every rank (counts, displs [this%size]).
+  subroutine allgatherv_real(this, x, all, counts, displs, error)
+    class(env_t), intent(in) :: this
+    real(wp), contiguous, intent(in) :: x(..)
+    real(wp), contiguous, intent(inout) :: all(..)
+    integer, intent(in) :: counts(:), displs(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    call MPI_Allgatherv(x, size(x), MPI_DOUBLE_PRECISION, all, counts, displs, MPI_DOUBLE_PRECISION, &
+      this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allgatherv of " // str(size(x)) // " real(s)", error)
+  end subroutine allgatherv_real
+
+  !> Exchange blocks of reals between all ranks (counts, displacements [this%size]).
+  subroutine alltoallv_real(this, sendbuf, scount, sdispl, recvbuf, rcount, rdispl, error)
+    class(env_t), intent(in) :: this
+    real(wp), contiguous, intent(in) :: sendbuf(..)
+    integer, intent(in) :: scount(:), sdispl(:)
+    real(wp), contiguous, intent(inout) :: recvbuf(..)
+    integer, intent(in) :: rcount(:), rdispl(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    call MPI_Alltoallv(sendbuf, scount, sdispl, MPI_DOUBLE_PRECISION, recvbuf, rcount, rdispl, &
+      MPI_DOUBLE_PRECISION, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Alltoallv of " // str(sum(scount)) // " real(s)", error)
+  end subroutine alltoallv_real
+
+  !> recv(p) = send(this%rank + 1) of rank p - 1 [this%size].
+  subroutine alltoall_int(this, send, recv, error)
+    class(env_t), intent(in) :: this
+    integer, intent(in) :: send(:)
+    integer, intent(out) :: recv(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    call MPI_Alltoall(send, 1, MPI_INTEGER, recv, 1, MPI_INTEGER, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Alltoall of one integer per rank", error)
+  end subroutine alltoall_int
+
+  subroutine send_int(this, x, dest, tag, error)
+    class(env_t), intent(in) :: this
+    integer, contiguous, intent(in) :: x(..)
+    integer, intent(in) :: dest, tag
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    call MPI_Send(x, size(x), MPI_INTEGER, dest, tag, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Send of " // str(size(x)) // " integer(s) to rank " // str(dest), error)
+  end subroutine send_int
+
+  subroutine send_real(this, x, dest, tag, error)
+    class(env_t), intent(in) :: this
+    real(wp), contiguous, intent(in) :: x(..)
+    integer, intent(in) :: dest, tag
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    call MPI_Send(x, size(x), MPI_DOUBLE_PRECISION, dest, tag, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Send of " // str(size(x)) // " real(s) to rank " // str(dest), error)
+  end subroutine send_real
+
+  subroutine recv_int(this, x, source, tag, error)
+    class(env_t), intent(in) :: this
+    integer, contiguous, intent(inout) :: x(..)
+    integer, intent(in) :: source, tag
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    call MPI_Recv(x, size(x), MPI_INTEGER, source, tag, this%comm, MPI_STATUS_IGNORE, ierr)
+    call check_mpi(ierr, "MPI_Recv of " // str(size(x)) // " integer(s) from rank " // str(source), error)
+  end subroutine recv_int
+
+  subroutine recv_real(this, x, source, tag, error)
+    class(env_t), intent(in) :: this
+    real(wp), contiguous, intent(inout) :: x(..)
+    integer, intent(in) :: source, tag
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    call MPI_Recv(x, size(x), MPI_DOUBLE_PRECISION, source, tag, this%comm, MPI_STATUS_IGNORE, ierr)
+    call check_mpi(ierr, "MPI_Recv of " // str(size(x)) // " real(s) from rank " // str(source), error)
+  end subroutine recv_real
+
+  !> Barrier (every rank waits for all).
+  subroutine sync(this, error)
+    class(env_t), intent(in) :: this
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    call MPI_Barrier(this%comm, ierr)
+    call check_mpi(ierr, "MPI_Barrier", error)
+  end subroutine sync
+  ! ---- end of the checked collectives
 end module cr_env

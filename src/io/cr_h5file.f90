@@ -29,9 +29,8 @@
 module cr_h5file
   use, intrinsic :: iso_c_binding, only: c_ptr, c_null_ptr, c_loc, c_char, c_null_char, &
     c_associated, c_int, c_f_pointer, c_int64_t
-  use mpi_f08, only: MPI_Comm, MPI_COMM_NULL, MPI_INFO_NULL, MPI_Comm_dup, MPI_Comm_free, &
-    MPI_Allreduce, MPI_Bcast, MPI_Barrier, MPI_LOGICAL, MPI_LOR, MPI_INTEGER, MPI_INTEGER8, MPI_SUM, &
-    MPI_IN_PLACE, operator(/=), operator(==)
+  ! the MPI-IO driver of HDF5 takes the communicator itself; every other MPI call goes through env_t
+  use mpi_f08, only: MPI_INFO_NULL
   use hdf5, only: hid_t, hsize_t, size_t, h5open_f, h5close_f, h5fflush_f, H5F_SCOPE_GLOBAL_F, &
     h5eset_auto_f, h5kind_to_type, &
     H5_REAL_KIND, H5_INTEGER_KIND, H5P_DEFAULT_F, H5P_FILE_ACCESS_F, H5P_LINK_CREATE_F, &
@@ -49,7 +48,7 @@ module cr_h5file
     h5awrite_f, h5aread_f, h5aget_space_f, h5aget_type_f
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error
-  use cr_env, only: env_t, agree_error_on
+  use cr_env, only: env_t
   use cr_strings, only: str
   use cr_fsys, only: rename_file, remove_file, truncate_file, clear_errno, io_fault_text, discard_fd, errno_text, &
     reserve_space, errno_name, file_size, truncate_to
@@ -76,8 +75,9 @@ module cr_h5file
     logical :: temporary = .false.
     logical :: writable = .false.
     logical :: parallel = .false.
-    !> duplicate of the env communicator (owned, parallel only)
-    type(MPI_Comm) :: comm = MPI_COMM_NULL
+    !> environment on a duplicate of the env communicator (owned while comm_held, parallel only)
+    type(env_t) :: env
+    logical :: comm_held = .false.
     !> bytes of the file on disk reserved by ensure_space (a writable temporary only);
     !> -1: the file system cannot reserve, writes go on unreserved
     integer(i8) :: reserved = 0
@@ -203,8 +203,8 @@ contains
   subroutine sync_error(this, error)
     class(h5file_t), intent(in) :: this
     type(error_t), allocatable, intent(inout) :: error
-    if (.not. this%parallel .or. this%comm == MPI_COMM_NULL) return
-    call agree_error_on(this%comm, error)
+    if (.not. this%parallel .or. .not. this%comm_held) return
+    call this%env%agree_error(error)
   end subroutine sync_error
 
   subroutine init_hdf5(error)
@@ -357,11 +357,19 @@ contains
     type(error_t), allocatable, intent(inout) :: error
     integer(i8) :: total, need, want
     integer(c_int64_t) :: eoa
-    integer :: status, ierr
+    integer :: status
+    integer(i8) :: shared(2)
+    type(error_t), allocatable :: e
     if (this%fid < 0 .or. .not. this%writable) return
     if (this%reserved < 0) return
     total = max(nbytes, 0_i8)
-    if (this%parallel) call MPI_Allreduce(MPI_IN_PLACE, total, 1, MPI_INTEGER8, MPI_SUM, this%comm, ierr)
+    if (this%parallel) then
+      call this%env%allreduce(total, 'sum', e)
+      if (allocated(e)) then
+        if (.not. allocated(error)) call fail(this, error, op, name, e%message)
+        return
+      end if
+    end if
     status = 0
     if (this%rank == 0) then
       eoa = 0
@@ -381,8 +389,13 @@ contains
       end if
     end if
     if (this%parallel) then
-      call MPI_Bcast(status, 1, MPI_INTEGER, 0, this%comm, ierr)
-      call MPI_Bcast(this%reserved, 1, MPI_INTEGER8, 0, this%comm, ierr)
+      shared = [int(status, i8), this%reserved]
+      call this%env%bcast(shared, 0, e)
+      if (allocated(e)) then
+        if (.not. allocated(error)) call fail(this, error, op, name, e%message)
+        return
+      end if
+      status = int(shared(1)); this%reserved = shared(2)
     end if
     if (status /= 0 .and. .not. allocated(error)) &
       call fail(this, error, op, name, errno_name(status) // " (" // str(total) // " more bytes to write)")
@@ -396,17 +409,18 @@ contains
     character(len=*), intent(in) :: path
     type(env_t), intent(in), optional :: env
     type(error_t), allocatable, intent(out) :: error
-    integer :: ierr
     this%parallel = .false.
     this%rank = 0
     if (present(env)) then
       if (env%size > 1) then
         this%parallel = .true.
         this%rank = env%rank
-        call MPI_Comm_dup(env%comm, this%comm, ierr)
-        if (ierr /= 0) then
-          call set_error(error, "h5file: '" // path // "': MPI_Comm_dup failed")
+        call this%env%init(env%comm, error)
+        if (allocated(error)) then
+          error%message = "h5file: '" // path // "': " // error%message
           this%parallel = .false.
+        else
+          this%comm_held = .true.
         end if
       end if
     end if
@@ -414,9 +428,8 @@ contains
 
   subroutine release_comm(this)
     class(h5file_t), intent(inout) :: this
-    integer :: ierr
-    if (this%comm /= MPI_COMM_NULL) call MPI_Comm_free(this%comm, ierr)
-    this%comm = MPI_COMM_NULL
+    if (this%comm_held) call this%env%free()
+    this%comm_held = .false.
   end subroutine release_comm
 
   !> File access property list (MPI-IO in parallel); H5P_DEFAULT_F otherwise.
@@ -429,7 +442,7 @@ contains
     if (.not. this%parallel) return
     call h5pcreate_f(H5P_FILE_ACCESS_F, fapl, hdferr)
     if (hdferr < 0) return
-    call h5pset_fapl_mpio_f(fapl, this%comm%MPI_VAL, MPI_INFO_NULL%MPI_VAL, hdferr)
+    call h5pset_fapl_mpio_f(fapl, this%env%comm%MPI_VAL, MPI_INFO_NULL%MPI_VAL, hdferr)
   end subroutine make_fapl
 
   subroutine make_lcpl(this, hdferr)
@@ -598,7 +611,8 @@ contains
   subroutine h5_commit(this, error)
     class(h5file_t), intent(inout) :: this
     type(error_t), allocatable, intent(out) :: error
-    integer :: hdferr, status, ierr
+    integer :: hdferr, status
+    integer :: shared(1)
     character(len=*), parameter :: op = "commit"
     if (this%fid < 0) then
       call fail(this, error, op, "/", "file is not open"); return
@@ -628,15 +642,23 @@ contains
     if (allocated(error)) then
       call release_comm(this); return
     end if
-    if (this%parallel) call MPI_Barrier(this%comm, ierr)
+    if (this%parallel) call this%env%sync(error)
+    if (allocated(error)) then
+      call release_comm(this); return
+    end if
     status = 0
     if (this%rank == 0) then
       ! give back the reserved blocks past the end of the file
       status = truncate_to(this%disk_path, file_size(this%disk_path))
       status = rename_file(this%disk_path, this%final_path)
     end if
-    if (this%parallel) call MPI_Bcast(status, 1, MPI_INTEGER, 0, this%comm, ierr)
+    if (this%parallel) then
+      shared = status
+      call this%env%bcast(shared, 0, error)
+      status = shared(1)
+    end if
     call release_comm(this)
+    if (allocated(error)) return
     if (status /= 0) then
       call set_error(error, "h5file: commit: rename '" // this%disk_path // "' -> '" // &
         this%final_path // "' failed"); return
@@ -649,8 +671,9 @@ contains
   !> A file created in place or opened is only closed. Collective in parallel.
   subroutine h5_abort(this)
     class(h5file_t), intent(inout) :: this
-    integer :: hdferr, ierr, status
+    integer :: hdferr, status
     integer(c_int), pointer :: fd
+    type(error_t), allocatable :: e
     type(c_ptr) :: handle
     ! An abandoned temporary must close even when its pending writes cannot succeed (full
     ! disk): a failed h5fclose leaves HDF5 1.10 with a freed file still registered, which
@@ -667,16 +690,17 @@ contains
           end if
         end if
       else
-        call MPI_Barrier(this%comm, ierr)
+        ! errors are ignored here as everywhere in abort
+        if (this%comm_held) call this%env%sync(e)
         if (this%rank == 0) status = truncate_file(this%disk_path)
-        call MPI_Barrier(this%comm, ierr)
+        if (this%comm_held) call this%env%sync(e)
       end if
     end if
     call close_file(this, hdferr)
     if (this%temporary .and. allocated(this%disk_path)) then
-      if (this%parallel) call MPI_Barrier(this%comm, ierr)
+      if (this%parallel .and. this%comm_held) call this%env%sync(e)
       if (this%rank == 0) status = remove_file(this%disk_path)
-      if (this%parallel) call MPI_Barrier(this%comm, ierr)
+      if (this%parallel .and. this%comm_held) call this%env%sync(e)
     end if
     this%temporary = .false.
     call release_comm(this)
