@@ -7,7 +7,8 @@ module cr_config
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error
   use cr_env, only: env_t
-  use cr_namelist_text, only: namelist_text_t, nml_status, echo_real, echo_reals, echo_int
+  use cr_strings, only: str
+  use cr_namelist_text, only: namelist_text_t, nml_status, echo_real, echo_reals, echo_logical
   ! &obstacles (its variables, read, echo, checks, construction) is owned by cr_obstacles
   use cr_obstacles, only: obstacles_cfg_t, read_obstacles, obstacles_echo, MAX_OBST, MAX_POLY_V
   use cr_projection, only: projection_settings_t
@@ -327,30 +328,30 @@ contains
     end associate
     s = s // obstacles_echo(cfg%obstacles)
     associate (a => cfg%agents)
-      s = s // "&agents n_agents = " // echo_int(a%n_agents) // ", radius = " // echo_real(a%radius) // ", speed = " // &
+      s = s // "&agents n_agents = " // str(a%n_agents) // ", radius = " // echo_real(a%radius) // ", speed = " // &
         echo_real(a%speed) // ", speed_file = '" // trim(a%speed_file) // "', init = '" // trim(a%init) // &
         "', init_file = '" // trim(a%init_file) // "', region = " // echo_reals(a%region) // ", seed = " // &
-        echo_int(a%seed) // ", placement_max_iter = " // echo_int(a%placement_max_iter) // " /" // new_line('a')
+        str(a%seed) // ", placement_max_iter = " // str(a%placement_max_iter) // " /" // new_line('a')
     end associate
     associate (d => cfg%desired)
       s = s // "&desired mode = '" // trim(d%mode) // "', file = '" // trim(d%file) // "', field = '" // &
         trim(d%field) // "', grid_dx = " // echo_real(d%grid_dx) // " /" // new_line('a')
     end associate
     associate (t => cfg%time)
-      s = s // "&time dt = " // echo_real(t%dt) // ", n_steps = " // echo_int(t%n_steps) // ", until_empty = " // &
-        merge(".true. ", ".false.", t%until_empty) // ", max_steps = " // echo_int(t%max_steps) // " /" // new_line('a')
+      s = s // "&time dt = " // echo_real(t%dt) // ", n_steps = " // str(t%n_steps) // ", until_empty = " // &
+        echo_logical(t%until_empty) // ", max_steps = " // str(t%max_steps) // " /" // new_line('a')
     end associate
     associate (v => cfg%solver)
       s = s // "&solver name = '" // trim(v%name) // "', tol = " // echo_real(v%tol) // ", max_iter = " // &
-        echo_int(v%max_iter) // ", uzawa_rho_factor = " // echo_real(v%uzawa_rho_factor) // ", uzawa_eps = " // &
-        echo_real(v%uzawa_eps) // ", uzawa_max_iter = " // echo_int(v%uzawa_max_iter) // ", warm_start = " // &
-        merge(".true. ", ".false.", v%warm_start) // ", dense_rows = " // echo_int(v%dense_rows) // &
-        ", refresh_every = " // echo_int(v%refresh_every) // " /" // new_line('a')
+        str(v%max_iter) // ", uzawa_rho_factor = " // echo_real(v%uzawa_rho_factor) // ", uzawa_eps = " // &
+        echo_real(v%uzawa_eps) // ", uzawa_max_iter = " // str(v%uzawa_max_iter) // ", warm_start = " // &
+        echo_logical(v%warm_start) // ", dense_rows = " // str(v%dense_rows) // &
+        ", refresh_every = " // str(v%refresh_every) // " /" // new_line('a')
     end associate
     s = s // "&contacts cutoff_factor = " // echo_real(cfg%contacts%cutoff_factor) // " /" // new_line('a')
     associate (o => cfg%output)
-      s = s // "&output file = '" // trim(o%file) // "', every = " // echo_int(o%every) // ", store_multipliers = " // &
-        merge(".true. ", ".false.", o%store_multipliers) // ", log_level = '" // trim(o%log_level) // "' /" // &
+      s = s // "&output file = '" // trim(o%file) // "', every = " // str(o%every) // ", store_multipliers = " // &
+        echo_logical(o%store_multipliers) // ", log_level = '" // trim(o%log_level) // "' /" // &
         new_line('a')
     end associate
 

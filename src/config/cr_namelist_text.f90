@@ -12,7 +12,7 @@ module cr_namelist_text
   private
   public :: namelist_text_t, MAX_LINE
   !> shared by every group reader: the read status, the echo of values (exact round trip)
-  public :: nml_status, echo_real, echo_reals, echo_int, echo_logical
+  public :: nml_status, echo_real, echo_reals, echo_logical
 
   integer, parameter :: MAX_LINE = 1024
 
@@ -287,9 +287,7 @@ contains
   function echo_real(x) result(t)
     real(wp), intent(in) :: x
     character(len=:), allocatable :: t
-    character(len=32) :: b
-    write(b, '(es23.16)') x
-    t = trim(adjustl(b))
+    t = str(x, "es23.16")
   end function echo_real
 
   !> Reals separated by ", ".
@@ -303,15 +301,6 @@ contains
       t = t // echo_real(x(m))
     end do
   end function echo_reals
-
-  !> An integer without blanks.
-  function echo_int(n) result(t)
-    integer, intent(in) :: n
-    character(len=:), allocatable :: t
-    character(len=16) :: b
-    write(b, '(i0)') n
-    t = trim(b)
-  end function echo_int
 
   !> ".true. " or ".false." (the width the echoes have always had).
   function echo_logical(l) result(t)

@@ -12,7 +12,7 @@ module cr_obstacles
   use cr_kinds, only: wp
   use cr_error, only: error_t, problems_t
   use cr_strings, only: str
-  use cr_namelist_text, only: namelist_text_t, nml_status, echo_real, echo_reals, echo_int
+  use cr_namelist_text, only: namelist_text_t, nml_status, echo_real, echo_reals
   use cr_sane, only: need_sane, MAX_LENGTH, MIN_LENGTH
   use cr_shapes, only: obstacle_t, make_disk, make_segment, make_polygon
   implicit none
@@ -74,22 +74,22 @@ contains
     type(obstacles_cfg_t), intent(in) :: o
     character(len=:), allocatable :: s
     integer :: k
-    s = "&obstacles n_disks = " // echo_int(o%n_disks) // ", n_segments = " // echo_int(o%n_segments) // &
-      ", n_polygons = " // echo_int(o%n_polygons)
+    s = "&obstacles n_disks = " // str(o%n_disks) // ", n_segments = " // str(o%n_segments) // &
+      ", n_polygons = " // str(o%n_polygons)
     do k = 1, o%n_disks
-      s = s // new_line('a') // "  disk_x(" // echo_int(k) // ") = " // echo_real(o%disk_x(k)) // ", disk_y(" // &
-        echo_int(k) // ") = " // echo_real(o%disk_y(k)) // ", disk_r(" // echo_int(k) // ") = " // &
+      s = s // new_line('a') // "  disk_x(" // str(k) // ") = " // echo_real(o%disk_x(k)) // ", disk_y(" // &
+        str(k) // ") = " // echo_real(o%disk_y(k)) // ", disk_r(" // str(k) // ") = " // &
         echo_real(o%disk_r(k))
     end do
     do k = 1, o%n_segments
-      s = s // new_line('a') // "  seg_x1(" // echo_int(k) // ") = " // echo_real(o%seg_x1(k)) // ", seg_y1(" // &
-        echo_int(k) // ") = " // echo_real(o%seg_y1(k)) // ", seg_x2(" // echo_int(k) // ") = " // &
-        echo_real(o%seg_x2(k)) // ", seg_y2(" // echo_int(k) // ") = " // echo_real(o%seg_y2(k)) // &
-        ", seg_half_thickness(" // echo_int(k) // ") = " // echo_real(o%seg_half_thickness(k))
+      s = s // new_line('a') // "  seg_x1(" // str(k) // ") = " // echo_real(o%seg_x1(k)) // ", seg_y1(" // &
+        str(k) // ") = " // echo_real(o%seg_y1(k)) // ", seg_x2(" // str(k) // ") = " // &
+        echo_real(o%seg_x2(k)) // ", seg_y2(" // str(k) // ") = " // echo_real(o%seg_y2(k)) // &
+        ", seg_half_thickness(" // str(k) // ") = " // echo_real(o%seg_half_thickness(k))
     end do
     do k = 1, o%n_polygons
-      s = s // new_line('a') // "  poly_nv(" // echo_int(k) // ") = " // echo_int(o%poly_nv(k)) // ", poly_x(:," // &
-        echo_int(k) // ") = " // echo_reals(o%poly_x(1:o%poly_nv(k), k)) // ", poly_y(:," // echo_int(k) // &
+      s = s // new_line('a') // "  poly_nv(" // str(k) // ") = " // str(o%poly_nv(k)) // ", poly_x(:," // &
+        str(k) // ") = " // echo_reals(o%poly_x(1:o%poly_nv(k), k)) // ", poly_y(:," // str(k) // &
         ") = " // echo_reals(o%poly_y(1:o%poly_nv(k), k))
     end do
     s = s // " /" // new_line('a')

@@ -62,7 +62,6 @@ module cr_h5file
   !> h5open_f has been called (once per process)
   logical, save :: h5_ready = .false.
 
-
   !> An open HDF5 file (see the module header for atomic and parallel semantics).
   type :: h5file_t
     private
@@ -95,22 +94,20 @@ module cr_h5file
     procedure :: get_dims
     procedure :: create_extendible
     procedure :: create_dataset
-    procedure, private :: w_real0, w_real1, w_real2, w_real3, w_int0, w_int1, w_int2, &
-      w_int64_1, w_string
-    generic :: write => w_real0, w_real1, w_real2, w_real3, w_int0, w_int1, w_int2, &
-      w_int64_1, w_string
+    procedure, private :: w_real, w_int, w_int64_1, w_string
+    generic :: write => w_real, w_int, w_int64_1, w_string
     procedure, private :: r_real0, r_real1, r_real2, r_real3, r_int0, r_int1, r_int2, &
       r_int64_1, r_string
     generic :: read => r_real0, r_real1, r_real2, r_real3, r_int0, r_int1, r_int2, &
       r_int64_1, r_string
     procedure, private :: a_real0, a_real1, a_real2, a_int0, a_int1, a_int2, a_int64_0, a_int64_1
     generic :: append => a_real0, a_real1, a_real2, a_int0, a_int1, a_int2, a_int64_0, a_int64_1
-    procedure, private :: wb_real1, wb_real2, wb_int1, wb_int2, wb_int64_1
-    generic :: write_block => wb_real1, wb_real2, wb_int1, wb_int2, wb_int64_1
-    procedure, private :: wr_real1, wr_real2, wr_int1, wr_int2, wr_int64_1
-    generic :: write_ranges => wr_real1, wr_real2, wr_int1, wr_int2, wr_int64_1
-    procedure, private :: rb_real1, rb_real2, rb_int1, rb_int2, rb_int64_1
-    generic :: read_block => rb_real1, rb_real2, rb_int1, rb_int2, rb_int64_1
+    procedure, private :: wb_real, wb_int, wb_int64_1
+    generic :: write_block => wb_real, wb_int, wb_int64_1
+    procedure, private :: wr_real, wr_int, wr_int64_1
+    generic :: write_ranges => wr_real, wr_int, wr_int64_1
+    procedure, private :: rb_real, rb_int, rb_int64_1
+    generic :: read_block => rb_real, rb_int, rb_int64_1
     procedure, private :: wa_string, wa_real, wa_int, wa_real1, wa_int1
     generic :: write_attr => wa_string, wa_real, wa_int, wa_real1, wa_int1
     procedure, private :: ra_string, ra_real, ra_int, ra_real1, ra_int1
@@ -765,8 +762,7 @@ contains
     type(error_t), allocatable, intent(out) :: error
     logical, intent(out), optional :: varstr
     integer(hid_t) :: dset, space, dtype
-    integer(hsize_t), allocatable :: maxd(:)
-    integer :: hdferr, r
+    integer :: hdferr
     logical :: isvar
     dset = -1; space = -1; dtype = -1
     tclass = -1; tsize = 0
@@ -784,21 +780,10 @@ contains
       call h5dget_space_f(dset, space, hdferr)
       call check_h5(hdferr, this, error, op, name, "h5dget_space_f")
       if (allocated(error)) exit ops
-      call h5sget_simple_extent_ndims_f(space, r, hdferr)
-      call check_h5(hdferr, this, error, op, name, "h5sget_simple_extent_ndims_f")
-      if (allocated(error)) exit ops
-      deallocate(d)
-      allocate(d(r), maxd(r))
-      if (r > 0) then
-        call h5sget_simple_extent_dims_f(space, d, maxd, hdferr)
-        call check_h5(hdferr, this, error, op, name, "h5sget_simple_extent_dims_f")
-        if (allocated(error)) exit ops
-      end if
       call h5dget_type_f(dset, dtype, hdferr)
       call check_h5(hdferr, this, error, op, name, "h5dget_type_f")
       if (allocated(error)) exit ops
-      call h5tget_class_f(dtype, tclass, hdferr)
-      call check_h5(hdferr, this, error, op, name, "h5tget_class_f")
+      call shape_and_class(this, space, dtype, op, name, d, tclass, error)
       if (allocated(error)) exit ops
       call h5tget_size_f(dtype, tsize, hdferr)
       call check_h5(hdferr, this, error, op, name, "h5tget_size_f")
@@ -811,6 +796,32 @@ contains
     end block ops
     call close_ids(dset=dset, space=space, dtype=dtype)
   end subroutine inspect
+
+  !> Dimensions of dataspace `space` [rank] and class of datatype `dtype` of the dataset or
+  !> attribute `label` (shared by datasets and attributes).
+  subroutine shape_and_class(this, space, dtype, op, label, d, tclass, error)
+    class(h5file_t), intent(in) :: this
+    integer(hid_t), intent(in) :: space, dtype
+    character(len=*), intent(in) :: op, label
+    integer(hsize_t), allocatable, intent(inout) :: d(:)
+    integer, intent(out) :: tclass
+    type(error_t), allocatable, intent(inout) :: error
+    integer(hsize_t), allocatable :: maxd(:)
+    integer :: hdferr, r
+    tclass = -1
+    call h5sget_simple_extent_ndims_f(space, r, hdferr)
+    call check_h5(hdferr, this, error, op, label, "h5sget_simple_extent_ndims_f")
+    if (allocated(error)) return
+    if (allocated(d)) deallocate(d)
+    allocate(d(r), maxd(r))
+    if (r > 0) then
+      call h5sget_simple_extent_dims_f(space, d, maxd, hdferr)
+      call check_h5(hdferr, this, error, op, label, "h5sget_simple_extent_dims_f")
+      if (allocated(error)) return
+    end if
+    call h5tget_class_f(dtype, tclass, hdferr)
+    call check_h5(hdferr, this, error, op, label, "h5tget_class_f")
+  end subroutine shape_and_class
 
   !> inspect + check rank (-1: scalar or one element) and type class
   subroutine query(this, name, op, rank_expected, class_expected, d, error)
@@ -1036,90 +1047,25 @@ contains
     if (n > 0) q = p
   end function cptr_of_size
 
-  !> Write a real(wp) scalar dataset.
-  subroutine w_real0(this, name, x, error)
+  !> Write a real(wp) dataset of any rank (a scalar: a scalar dataset).
+  subroutine w_real(this, name, x, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
-    real(wp), intent(in), target :: x
+    real(wp), intent(in), target, contiguous :: x(..)
     type(error_t), allocatable, intent(out) :: error
-    call write_raw(this, name, c_loc(x), type_of(cr_h5_real), H5T_FLOAT_F, &
-      [integer(hsize_t) ::], error)
-  end subroutine w_real0
-
-  !> Write a real(wp) dataset [n].
-  subroutine w_real1(this, name, x, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    real(wp), intent(in), target, contiguous :: x(:)
-    type(error_t), allocatable, intent(out) :: error
-    type(c_ptr) :: p
-    p = c_null_ptr
-    if (size(x) > 0) p = c_loc(x)
-    call write_raw(this, name, p, type_of(cr_h5_real), H5T_FLOAT_F, &
+    call write_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), H5T_FLOAT_F, &
       int(shape(x), hsize_t), error)
-  end subroutine w_real1
+  end subroutine w_real
 
-  !> Write a real(wp) dataset [n1, n2].
-  subroutine w_real2(this, name, x, error)
+  !> Write an integer dataset of any rank (a scalar: a scalar dataset).
+  subroutine w_int(this, name, x, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
-    real(wp), intent(in), target, contiguous :: x(:,:)
+    integer, intent(in), target, contiguous :: x(..)
     type(error_t), allocatable, intent(out) :: error
-    type(c_ptr) :: p
-    p = c_null_ptr
-    if (size(x) > 0) p = c_loc(x)
-    call write_raw(this, name, p, type_of(cr_h5_real), H5T_FLOAT_F, &
+    call write_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), H5T_INTEGER_F, &
       int(shape(x), hsize_t), error)
-  end subroutine w_real2
-
-  !> Write a real(wp) dataset [n1, n2, n3].
-  subroutine w_real3(this, name, x, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    real(wp), intent(in), target, contiguous :: x(:,:,:)
-    type(error_t), allocatable, intent(out) :: error
-    type(c_ptr) :: p
-    p = c_null_ptr
-    if (size(x) > 0) p = c_loc(x)
-    call write_raw(this, name, p, type_of(cr_h5_real), H5T_FLOAT_F, &
-      int(shape(x), hsize_t), error)
-  end subroutine w_real3
-
-  !> Write an integer scalar dataset.
-  subroutine w_int0(this, name, x, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    integer, intent(in), target :: x
-    type(error_t), allocatable, intent(out) :: error
-    call write_raw(this, name, c_loc(x), type_of(cr_h5_int), H5T_INTEGER_F, &
-      [integer(hsize_t) ::], error)
-  end subroutine w_int0
-
-  !> Write an integer dataset [n].
-  subroutine w_int1(this, name, x, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    integer, intent(in), target, contiguous :: x(:)
-    type(error_t), allocatable, intent(out) :: error
-    type(c_ptr) :: p
-    p = c_null_ptr
-    if (size(x) > 0) p = c_loc(x)
-    call write_raw(this, name, p, type_of(cr_h5_int), H5T_INTEGER_F, &
-      int(shape(x), hsize_t), error)
-  end subroutine w_int1
-
-  !> Write an integer dataset [n1, n2].
-  subroutine w_int2(this, name, x, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    integer, intent(in), target, contiguous :: x(:,:)
-    type(error_t), allocatable, intent(out) :: error
-    type(c_ptr) :: p
-    p = c_null_ptr
-    if (size(x) > 0) p = c_loc(x)
-    call write_raw(this, name, p, type_of(cr_h5_int), H5T_INTEGER_F, &
-      int(shape(x), hsize_t), error)
-  end subroutine w_int2
+  end subroutine w_int
 
   !> Write an integer(int64) dataset [n].
   subroutine w_int64_1(this, name, x, error)
@@ -1577,87 +1523,54 @@ contains
   end subroutine ranges_raw
 
   !> Collective: write this rank's elements offset+1..offset+size(x) of a 1D dataset.
-  subroutine wb_real1(this, name, x, offset, error)
+  subroutine wb_real(this, name, x, offset, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
-    !> local part, distributed over ranks: [n_local]
-    real(wp), intent(in), target, contiguous :: x(:)
-    !> number of elements before this rank's part (0-based offset)
+    !> local part, distributed over ranks: [n_local] of a 1D dataset, or columns
+    !> [n_rows, n_cols_local] of a [n_rows, n_cols] dataset (n_cols_local may be 0)
+    real(wp), intent(in), target, contiguous :: x(..)
+    !> number of elements (1D) or columns (2D) before this rank's part (0-based offset)
     integer, intent(in) :: offset
     type(error_t), allocatable, intent(out) :: error
     call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), &
       H5T_FLOAT_F, int(shape(x), hsize_t), offset, .true., error)
-  end subroutine wb_real1
+  end subroutine wb_real
 
-  !> Collective: write this rank's columns offset+1..offset+size(x,2) of a [n_rows, n_cols] dataset.
-  subroutine wb_real2(this, name, x, offset, error)
+  !> Collective: integer version of wb_real.
+  subroutine wb_int(this, name, x, offset, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
-    !> local columns, distributed over ranks: [n_rows, n_cols_local] (n_cols_local may be 0)
-    real(wp), intent(in), target, contiguous :: x(:,:)
-    !> number of columns before this rank's block (0-based offset)
-    integer, intent(in) :: offset
-    type(error_t), allocatable, intent(out) :: error
-    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), &
-      H5T_FLOAT_F, int(shape(x), hsize_t), offset, .true., error)
-  end subroutine wb_real2
-
-  !> Collective: integer version of wb_real2.
-  subroutine wb_int2(this, name, x, offset, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    integer, intent(in), target, contiguous :: x(:,:)
+    integer, intent(in), target, contiguous :: x(..)
     integer, intent(in) :: offset
     type(error_t), allocatable, intent(out) :: error
     call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
       H5T_INTEGER_F, int(shape(x), hsize_t), offset, .true., error)
-  end subroutine wb_int2
+  end subroutine wb_int
 
   !> Collective: read elements offset+1..offset+size(x) of a 1D dataset into x (caller-sized).
-  subroutine rb_real1(this, name, x, offset, error)
+  subroutine rb_real(this, name, x, offset, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
-    real(wp), intent(inout), target, contiguous :: x(:)
+    !> [n_local] of a 1D dataset, or columns [n_rows, n_cols_local] (caller-sized)
+    real(wp), intent(inout), target, contiguous :: x(..)
     integer, intent(in) :: offset
     type(error_t), allocatable, intent(out) :: error
     call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), &
       H5T_FLOAT_F, int(shape(x), hsize_t), offset, .false., error)
-  end subroutine rb_real1
+  end subroutine rb_real
 
-  !> Collective: read columns offset+1..offset+size(x,2) into x [n_rows, n_cols_local].
-  subroutine rb_real2(this, name, x, offset, error)
+  !> Collective: integer version of rb_real.
+  subroutine rb_int(this, name, x, offset, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
-    real(wp), intent(inout), target, contiguous :: x(:,:)
-    integer, intent(in) :: offset
-    type(error_t), allocatable, intent(out) :: error
-    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), &
-      H5T_FLOAT_F, int(shape(x), hsize_t), offset, .false., error)
-  end subroutine rb_real2
-
-  !> Collective: integer version of rb_real2.
-  subroutine rb_int2(this, name, x, offset, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    integer, intent(inout), target, contiguous :: x(:,:)
+    integer, intent(inout), target, contiguous :: x(..)
     integer, intent(in) :: offset
     type(error_t), allocatable, intent(out) :: error
     call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
       H5T_INTEGER_F, int(shape(x), hsize_t), offset, .false., error)
-  end subroutine rb_int2
+  end subroutine rb_int
 
-  !> Collective: integer version of wb_real1 (elements offset+1..offset+size(x) of a 1D dataset).
-  subroutine wb_int1(this, name, x, offset, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    integer, intent(in), target, contiguous :: x(:)
-    integer, intent(in) :: offset
-    type(error_t), allocatable, intent(out) :: error
-    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
-      H5T_INTEGER_F, int(shape(x), hsize_t), offset, .true., error)
-  end subroutine wb_int1
-
-  !> Collective: int64 version of wb_real1.
+  !> Collective: int64 version of wb_real (1D).
   subroutine wb_int64_1(this, name, x, offset, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
@@ -1671,50 +1584,29 @@ contains
   !> Collective: write this rank's ranges of the last dimension (ranges(:, q) = 0-based offset,
   !> count; increasing, disjoint), packed one after the other in x [n_local]. Ranks may own any
   !> set of ranges (the ranks' ranges must not overlap); a rank with none passes size(x) = 0.
-  subroutine wr_real1(this, name, x, ranges, error)
+  subroutine wr_real(this, name, x, ranges, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
-    real(wp), intent(in), target, contiguous :: x(:)
+    !> [n_local] of a 1D dataset, or columns [n_rows, n_local] of a [n_rows, n_cols] dataset
+    real(wp), intent(in), target, contiguous :: x(..)
     integer, intent(in) :: ranges(:,:)
     type(error_t), allocatable, intent(out) :: error
     call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), &
       H5T_FLOAT_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
-  end subroutine wr_real1
+  end subroutine wr_real
 
-  !> Collective: write_ranges of columns of a [n_rows, n_cols] dataset from x [n_rows, n_local].
-  subroutine wr_real2(this, name, x, ranges, error)
+  !> Collective: integer version of wr_real.
+  subroutine wr_int(this, name, x, ranges, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
-    real(wp), intent(in), target, contiguous :: x(:,:)
-    integer, intent(in) :: ranges(:,:)
-    type(error_t), allocatable, intent(out) :: error
-    call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), &
-      H5T_FLOAT_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
-  end subroutine wr_real2
-
-  !> Collective: integer version of wr_real1.
-  subroutine wr_int1(this, name, x, ranges, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    integer, intent(in), target, contiguous :: x(:)
+    integer, intent(in), target, contiguous :: x(..)
     integer, intent(in) :: ranges(:,:)
     type(error_t), allocatable, intent(out) :: error
     call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
       H5T_INTEGER_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
-  end subroutine wr_int1
+  end subroutine wr_int
 
-  !> Collective: integer version of wr_real2.
-  subroutine wr_int2(this, name, x, ranges, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    integer, intent(in), target, contiguous :: x(:,:)
-    integer, intent(in) :: ranges(:,:)
-    type(error_t), allocatable, intent(out) :: error
-    call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
-      H5T_INTEGER_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
-  end subroutine wr_int2
-
-  !> Collective: int64 version of wr_real1.
+  !> Collective: int64 version of wr_real (1D).
   subroutine wr_int64_1(this, name, x, ranges, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
@@ -1725,18 +1617,7 @@ contains
       H5T_INTEGER_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
   end subroutine wr_int64_1
 
-  !> Collective: integer version of rb_real1.
-  subroutine rb_int1(this, name, x, offset, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    integer, intent(inout), target, contiguous :: x(:)
-    integer, intent(in) :: offset
-    type(error_t), allocatable, intent(out) :: error
-    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
-      H5T_INTEGER_F, int(shape(x), hsize_t), offset, .false., error)
-  end subroutine rb_int1
-
-  !> Collective: int64 version of rb_real1.
+  !> Collective: int64 version of rb_real (1D).
   subroutine rb_int64_1(this, name, x, offset, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
@@ -1826,7 +1707,6 @@ contains
     character(kind=c_char), allocatable, target, intent(out), optional :: sbuf(:)
     integer(hid_t) :: oid, aid, space, atype, stype
     type(c_ptr) :: pp
-    integer(hsize_t), allocatable :: maxd(:)
     integer(size_t) :: tsize
     integer :: hdferr, e, r, tclass
     logical :: ex, isvar
@@ -1856,22 +1736,12 @@ contains
       call h5aget_space_f(aid, space, hdferr)
       call check_h5(hdferr, this, error, op, label, "h5aget_space_f")
       if (allocated(error)) exit ops
-      call h5sget_simple_extent_ndims_f(space, r, hdferr)
-      call check_h5(hdferr, this, error, op, label, "h5sget_simple_extent_ndims_f")
-      if (allocated(error)) exit ops
-      deallocate(d)
-      allocate(d(r), maxd(r))
-      if (r > 0) then
-        call h5sget_simple_extent_dims_f(space, d, maxd, hdferr)
-        call check_h5(hdferr, this, error, op, label, "h5sget_simple_extent_dims_f")
-        if (allocated(error)) exit ops
-      end if
       call h5aget_type_f(aid, atype, hdferr)
       call check_h5(hdferr, this, error, op, label, "h5aget_type_f")
       if (allocated(error)) exit ops
-      call h5tget_class_f(atype, tclass, hdferr)
-      call check_h5(hdferr, this, error, op, label, "h5tget_class_f")
+      call shape_and_class(this, space, atype, op, label, d, tclass, error)
       if (allocated(error)) exit ops
+      r = size(d)
       if (tclass /= tclass_expected) then
         call fail(this, error, op, label, "expected a " // class_name(tclass_expected) // &
           " attribute, found " // class_name(tclass), d); exit ops
