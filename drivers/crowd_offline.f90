@@ -11,9 +11,8 @@ program crowd_offline
   use cr_logger, only: logger_t
   use cr_cli, only: cli_t
   use cr_program, only: program_start, program_finish, log_level_of
-  use cr_config, only: config_t, read_config
-  use cr_inputs, only: check_input_groups
-  use cr_config_check, only: check_config
+  use cr_config, only: config_t
+  use cr_inputs, only: read_model_input
   use cr_namelist_text, only: namelist_text_t
   use cr_study_match, only: check_database_matches
   use cr_offline_config, only: offline_cfg_t, read_offline, check_offline, check_offline_paths
@@ -35,10 +34,8 @@ program crowd_offline
     code = program_finish(env, log, error)
     stop
   end if
-  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, nml, &
-    program='crowd_offline', needed=[character(len=8) :: 'scene', 'agents', 'offline'])
-  if (.not. allocated(error)) call check_input_groups(nml, error)
-  if (.not. allocated(error)) call check_config(cfg, error)
+  if (.not. allocated(error)) call read_model_input(cli%input, env, 'crowd_offline', &
+    [character(len=8) :: 'scene', 'agents', 'offline'], cfg, nml, error)
   if (.not. allocated(error)) call read_offline(nml, ocfg, error)
   if (.not. allocated(error)) call check_offline(cli%input, ocfg, error)
   if (.not. allocated(error)) call check_offline_paths(cli%input, cli%summary, ocfg, error)

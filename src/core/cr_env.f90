@@ -29,7 +29,7 @@ module cr_env
     ! ---- checked collectives and messages for the library modules (linalg, offline, hyper,
     ! io): every MPI status is checked and a failure returned as an error naming the call,
     ! the sizes and MPI's own message. Arrays of any rank (contiguous; a section is copied).
-    !> broadcast from rank `root`
+    !> broadcast from rank `root` (default 0)
     procedure :: bcast_int, bcast_i8, bcast_real
     generic :: bcast => bcast_int, bcast_i8, bcast_real
     !> in-place reduction over all ranks, op 'sum', 'min' or 'max'
@@ -39,8 +39,9 @@ module cr_env
     procedure :: reduce_sum_root
     !> (value, index) pairs: the largest value over ranks and its index (ties: lowest index)
     procedure :: allreduce_maxloc
-    !> one integer from every rank, in rank order
-    procedure :: allgather_int
+    !> one value from every rank, in rank order
+    procedure :: allgather_int, allgather_real
+    generic :: allgather => allgather_int, allgather_real
     !> variable-size gathers and exchanges of reals (counts, displacements in elements)
     procedure :: gatherv_real, allgatherv_real, alltoallv_real
     !> one integer to and from every rank
@@ -221,7 +222,7 @@ contains
   end subroutine check_mpi
 
   !> The MPI operation of 'sum', 'min' or 'max'.
-  subroutine op_of(op, mop, error)
+  subroutine reduction_op(op, mop, error)
     character(len=*), intent(in) :: op
     type(MPI_Op), intent(out) :: mop
     type(error_t), allocatable, intent(out) :: error
@@ -233,36 +234,42 @@ contains
       mop = MPI_OP_NULL
       call set_error(error, "env: unknown reduction '" // op // "' (known: sum, min, max)")
     end select
-  end subroutine op_of
+  end subroutine reduction_op
 
-  subroutine bcast_int(this, x, root, error)
+  subroutine bcast_int(this, x, error, root)
     class(env_t), intent(in) :: this
     integer, contiguous, intent(inout) :: x(..)
-    integer, intent(in) :: root
     type(error_t), allocatable, intent(out) :: error
-    integer :: ierr
-    call MPI_Bcast(x, size(x), MPI_INTEGER, root, this%comm, ierr)
-    call check_mpi(ierr, "MPI_Bcast of " // str(size(x)) // " integer(s) from rank " // str(root), error)
+    integer, intent(in), optional :: root
+    integer :: ierr, r
+    r = 0
+    if (present(root)) r = root
+    call MPI_Bcast(x, size(x), MPI_INTEGER, r, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Bcast of " // str(size(x)) // " integer(s) from rank " // str(r), error)
   end subroutine bcast_int
 
-  subroutine bcast_i8(this, x, root, error)
+  subroutine bcast_i8(this, x, error, root)
     class(env_t), intent(in) :: this
     integer(i8), contiguous, intent(inout) :: x(..)
-    integer, intent(in) :: root
     type(error_t), allocatable, intent(out) :: error
-    integer :: ierr
-    call MPI_Bcast(x, size(x), MPI_INTEGER8, root, this%comm, ierr)
-    call check_mpi(ierr, "MPI_Bcast of " // str(size(x)) // " 64-bit integer(s) from rank " // str(root), error)
+    integer, intent(in), optional :: root
+    integer :: ierr, r
+    r = 0
+    if (present(root)) r = root
+    call MPI_Bcast(x, size(x), MPI_INTEGER8, r, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Bcast of " // str(size(x)) // " 64-bit integer(s) from rank " // str(r), error)
   end subroutine bcast_i8
 
-  subroutine bcast_real(this, x, root, error)
+  subroutine bcast_real(this, x, error, root)
     class(env_t), intent(in) :: this
     real(wp), contiguous, intent(inout) :: x(..)
-    integer, intent(in) :: root
     type(error_t), allocatable, intent(out) :: error
-    integer :: ierr
-    call MPI_Bcast(x, size(x), MPI_DOUBLE_PRECISION, root, this%comm, ierr)
-    call check_mpi(ierr, "MPI_Bcast of " // str(size(x)) // " real(s) from rank " // str(root), error)
+    integer, intent(in), optional :: root
+    integer :: ierr, r
+    r = 0
+    if (present(root)) r = root
+    call MPI_Bcast(x, size(x), MPI_DOUBLE_PRECISION, r, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Bcast of " // str(size(x)) // " real(s) from rank " // str(r), error)
   end subroutine bcast_real
 
   subroutine allreduce_int(this, x, op, error)
@@ -272,7 +279,7 @@ contains
     type(error_t), allocatable, intent(out) :: error
     type(MPI_Op) :: mop
     integer :: ierr
-    call op_of(op, mop, error); if (allocated(error)) return
+    call reduction_op(op, mop, error); if (allocated(error)) return
     call MPI_Allreduce(MPI_IN_PLACE, x, size(x), MPI_INTEGER, mop, this%comm, ierr)
     call check_mpi(ierr, "MPI_Allreduce (" // op // ") of " // str(size(x)) // " integer(s)", error)
   end subroutine allreduce_int
@@ -284,7 +291,7 @@ contains
     type(error_t), allocatable, intent(out) :: error
     type(MPI_Op) :: mop
     integer :: ierr
-    call op_of(op, mop, error); if (allocated(error)) return
+    call reduction_op(op, mop, error); if (allocated(error)) return
     call MPI_Allreduce(MPI_IN_PLACE, x, size(x), MPI_INTEGER8, mop, this%comm, ierr)
     call check_mpi(ierr, "MPI_Allreduce (" // op // ") of " // str(size(x)) // " 64-bit integer(s)", error)
   end subroutine allreduce_i8
@@ -296,7 +303,7 @@ contains
     type(error_t), allocatable, intent(out) :: error
     type(MPI_Op) :: mop
     integer :: ierr
-    call op_of(op, mop, error); if (allocated(error)) return
+    call reduction_op(op, mop, error); if (allocated(error)) return
     call MPI_Allreduce(MPI_IN_PLACE, x, size(x), MPI_DOUBLE_PRECISION, mop, this%comm, ierr)
     call check_mpi(ierr, "MPI_Allreduce (" // op // ") of " // str(size(x)) // " real(s)", error)
   end subroutine allreduce_real
@@ -327,6 +334,18 @@ contains
     call check_mpi(ierr, "MPI_Allreduce (maxloc)", error)
     if (.not. allocated(error)) pair = res
   end subroutine allreduce_maxloc
+
+  !> all(p) = x of rank p - 1 [this%size], on every rank.
+  subroutine allgather_real(this, x, all, error)
+    class(env_t), intent(in) :: this
+    real(wp), intent(in) :: x
+    real(wp), allocatable, intent(out) :: all(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    allocate(all(this%size))
+    call MPI_Allgather(x, 1, MPI_DOUBLE_PRECISION, all, 1, MPI_DOUBLE_PRECISION, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allgather of one real per rank", error)
+  end subroutine allgather_real
 
   !> all(p) = x of rank p - 1 [this%size], on every rank.
   subroutine allgather_int(this, x, all, error)

@@ -128,7 +128,7 @@ contains
         pos = pos + j
       end do
       call env%reduce_sum_root(packed, error)
-      if (.not. allocated(error)) call env%bcast(packed, ROOT, error)
+      if (.not. allocated(error)) call env%bcast(packed, error, root=ROOT)
       if (allocated(error)) then
         call prefix_error(error, "eq_gramian: summing the " // str(p) // " x " // str(p) // &
           & " Gramian over the ranks")

@@ -387,7 +387,7 @@ contains
     end if
     if (this%parallel) then
       shared = [int(status, i8), this%reserved]
-      call this%env%bcast(shared, 0, e)
+      call this%env%bcast(shared, e, root=0)
       if (allocated(e)) then
         if (.not. allocated(error)) call fail(this, error, op, name, e%message)
         return
@@ -651,7 +651,7 @@ contains
     end if
     if (this%parallel) then
       shared = status
-      call this%env%bcast(shared, 0, error)
+      call this%env%bcast(shared, error, root=0)
       status = shared(1)
     end if
     call release_comm(this)

@@ -113,7 +113,7 @@ contains
     integer, allocatable, intent(out), optional :: counts(:)
     integer, allocatable :: cnt(:)
     integer :: n_dof
-    call env%allgather_int(size(s_local, 2), cnt, error)
+    call env%allgather(size(s_local, 2), cnt, error)
     if (allocated(error)) return
     n_snap = sum(cnt)
     offset = sum(cnt(1:env%rank))
@@ -191,7 +191,7 @@ contains
       nsig = size(sigma_all)
     end if
     if (env%rank == ROOT) meta = [result%rank, result%n_modes, nsig]
-    call env%bcast(meta, ROOT, error)
+    call env%bcast(meta, error, root=ROOT)
     if (allocated(error)) return
     result%rank = meta(1); result%n_modes = meta(2); nsig = meta(3)
     nk = result%n_modes
@@ -204,9 +204,9 @@ contains
         if (result%phi(i, j) < 0.0_wp) result%phi(:, j) = -result%phi(:, j)
       end do
     end if
-    if (nsig > 0) call env%bcast(result%sigma_all, ROOT, error)
+    if (nsig > 0) call env%bcast(result%sigma_all, error, root=ROOT)
     if (allocated(error)) return
-    if (nk * result%n_dof > 0) call env%bcast(result%phi, ROOT, error)
+    if (nk * result%n_dof > 0) call env%bcast(result%phi, error, root=ROOT)
     if (allocated(error)) return
     result%sigma = result%sigma_all(1:nk)
     result%energy = 0.0_wp
@@ -475,7 +475,7 @@ contains
     end if
     call sync_error(env, error, "rsvd: orthonormalisation")
     if (allocated(error)) return
-    if (size(y) > 0) call env%bcast(y, ROOT, error)
+    if (size(y) > 0) call env%bcast(y, error, root=ROOT)
   end subroutine root_orthonormalize
 
   !> Sum of y over ranks, on rank 0 (ROOT).

@@ -131,7 +131,7 @@ contains
     ! size of the final R, known to all
     m = 0
     if (env%rank == 0) m = size(r, 1)
-    call env%bcast(m, 0, error)
+    call env%bcast(m, error, root=0)
     if (allocated(error)) return
     if (env%rank /= 0) then
       deallocate(r)

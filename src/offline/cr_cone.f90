@@ -85,7 +85,7 @@ contains
         x(lam%idx(p)) = lam%val(p)
       end do
     end if
-    call env%bcast(x, owner, error)
+    call env%bcast(x, error, root=owner)
     if (allocated(error)) call prefix_error(error, "cone: a snapshot")
   end subroutine fetch_column
 

@@ -165,7 +165,7 @@ contains
       end if
       if (env%rank == owner) call supremizer(scenes(scene_of(k)), radius, h, dict_ia, dict_ib, dict_ob, cone, rr, &
         q_local(:, k), s)
-      call env%bcast(s, owner, error)
+      call env%bcast(s, error, root=owner)
       if (allocated(error)) then
         call prefix_error(error, "pga: a supremizer"); return
       end if

@@ -3,7 +3,7 @@
 !> exchanges and point-to-point messages give exact results (integers, or reals that are
 !> small integers) at any number of ranks, return no error, and an unknown reduction is an
 !> error. Run at 1, 2 and 3 ranks.
-program test_env_collectives
+program test_env_checked
   use mpi_f08, only: MPI_Init, MPI_Finalize, MPI_COMM_WORLD
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t
@@ -16,7 +16,7 @@ program test_env_collectives
   integer :: iv(3), ia(2)
   integer(i8) :: lv(2)
   real(wp) :: rv(2, 2), pair(2), x
-  real(wp), allocatable :: mine(:), gath(:), sendbuf(:), recvbuf(:)
+  real(wp), allocatable :: mine(:), gath(:), sendbuf(:), recvbuf(:), gr(:)
   integer, allocatable :: counts(:), displs(:), got(:), sc(:), rc(:), sd(:), rd(:)
 
   call MPI_Init(ierr)
@@ -29,16 +29,16 @@ program test_env_collectives
   if (r == last) then
     iv = [1, 2, 3]; lv = [huge(1_i8), -5_i8]; rv = reshape([1.5_wp, 2.5_wp, 3.5_wp, 4.5_wp], [2, 2])
   end if
-  call env%bcast(iv, last, error); call check(.not. allocated(error), "bcast int: no error")
-  call env%bcast(lv, last, error); call check(.not. allocated(error), "bcast i8: no error")
-  call env%bcast(rv, last, error); call check(.not. allocated(error), "bcast real: no error")
+  call env%bcast(iv, error, root=last); call check(.not. allocated(error), "bcast int: no error")
+  call env%bcast(lv, error, root=last); call check(.not. allocated(error), "bcast i8: no error")
+  call env%bcast(rv, error, root=last); call check(.not. allocated(error), "bcast real: no error")
   call check(all(iv == [1, 2, 3]), "bcast int: values")
   call check(all(lv == [huge(1_i8), -5_i8]), "bcast i8: values")
   call check(all(rv == reshape([1.5_wp, 2.5_wp, 3.5_wp, 4.5_wp], [2, 2])), "bcast real 2D: values")
   ! a scalar
   n = merge(42, 0, r == 0)
-  call env%bcast(n, 0, error)
-  call check(n == 42 .and. .not. allocated(error), "bcast of a scalar")
+  call env%bcast(n, error)
+  call check(n == 42 .and. .not. allocated(error), "bcast of a scalar from rank 0 (the default root)")
 
   ! in-place reductions
   ia = [r + 1, -(r + 1)]
@@ -79,9 +79,12 @@ program test_env_collectives
   end if
 
   ! allgather of one integer per rank
-  call env%allgather_int(10 * r, got, error)
-  call check(.not. allocated(error) .and. size(got) == p, "allgather_int: size")
-  call check(all(got == [(10 * i, i = 0, last)]), "allgather_int: values in rank order")
+  call env%allgather(10 * r, got, error)
+  call check(.not. allocated(error) .and. size(got) == p, "allgather int: size")
+  call check(all(got == [(10 * i, i = 0, last)]), "allgather int: values in rank order")
+  call env%allgather(0.5_wp * r, gr, error)
+  call check(.not. allocated(error) .and. size(gr) == p, "allgather real: size")
+  call check(all(gr == [(0.5_wp * i, i = 0, last)]), "allgather real: values in rank order")
 
   ! gatherv / allgatherv: rank q sends q + 1 values equal to q
   allocate(counts(p), displs(p))
@@ -160,4 +163,4 @@ contains
     call env%recv(iv, modulo(r - 1, p), 7, error); call check(.not. allocated(error), "recv int")
     call env%recv(rv, modulo(r - 1, p), 8, error); call check(.not. allocated(error), "recv real")
   end subroutine ring_recv
-end program test_env_collectives
+end program test_env_checked
