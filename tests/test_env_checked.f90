@@ -16,7 +16,7 @@ program test_env_checked
   integer :: iv(3), ia(2)
   integer(i8) :: lv(2)
   real(wp) :: rv(2, 2), pair(2), x
-  real(wp), allocatable :: mine(:), gath(:), sendbuf(:), recvbuf(:), gr(:)
+  real(wp), allocatable :: mine(:), gath(:), sendbuf(:), recvbuf(:), gr(:), empty(:)
   integer, allocatable :: counts(:), displs(:), got(:), sc(:), rc(:), sd(:), rd(:)
 
   call MPI_Init(ierr)
@@ -134,6 +134,10 @@ program test_env_checked
     call check(all(rv == real(modulo(r - 1, p), wp)), "recv real 2D from the previous rank")
   end if
 
+  ! a zero-size assumed-shape array handed on (gfortran 12 gives such a copied dummy the extent -1)
+  allocate(empty(0))
+  call hand_on(empty)
+
   call env%sync(error)
   call check(.not. allocated(error), "sync")
   call test_summary(r)
@@ -150,6 +154,14 @@ contains
       all_blocks = all_blocks .and. all(a(displs(q) + 1:displs(q) + counts(q)) == real(q - 1, wp))
     end do
   end function all_blocks
+
+  subroutine hand_on(a)
+    real(wp), intent(inout) :: a(:)
+    call env%allreduce(a, 'sum', error)
+    call check(.not. allocated(error), "allreduce of a zero-size assumed-shape array")
+    call env%bcast(a, error)
+    call check(.not. allocated(error), "bcast of a zero-size assumed-shape array")
+  end subroutine hand_on
 
   subroutine ring_send()
     integer :: tmp(3)

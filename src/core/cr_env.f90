@@ -207,6 +207,14 @@ contains
   ! Checked collectives and messages for the library modules (one block, see the type).
   ! ==================================================================================
 
+  !> Number of elements of an assumed-rank dummy from its shape. gfortran 12 reports the extent
+  !> -1 for a zero-size assumed-shape actual copied into a contiguous assumed-rank dummy, so the
+  !> extents are clamped at 0 (size() would be wrong too).
+  pure integer function n_of(shp)
+    integer, intent(in) :: shp(:)
+    n_of = product(max(shp, 0))
+  end function n_of
+
   !> Turn a non-zero MPI status into an error "env: <what> failed: <MPI's message>".
   subroutine check_mpi(ierr, what, error)
     integer, intent(in) :: ierr
@@ -244,8 +252,8 @@ contains
     integer :: ierr, r
     r = 0
     if (present(root)) r = root
-    call MPI_Bcast(x, size(x), MPI_INTEGER, r, this%comm, ierr)
-    call check_mpi(ierr, "MPI_Bcast of " // str(size(x)) // " integer(s) from rank " // str(r), error)
+    call MPI_Bcast(x, n_of(shape(x)), MPI_INTEGER, r, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Bcast of " // str(n_of(shape(x))) // " integer(s) from rank " // str(r), error)
   end subroutine bcast_int
 
   subroutine bcast_i8(this, x, error, root)
@@ -256,8 +264,8 @@ contains
     integer :: ierr, r
     r = 0
     if (present(root)) r = root
-    call MPI_Bcast(x, size(x), MPI_INTEGER8, r, this%comm, ierr)
-    call check_mpi(ierr, "MPI_Bcast of " // str(size(x)) // " 64-bit integer(s) from rank " // str(r), error)
+    call MPI_Bcast(x, n_of(shape(x)), MPI_INTEGER8, r, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Bcast of " // str(n_of(shape(x))) // " 64-bit integer(s) from rank " // str(r), error)
   end subroutine bcast_i8
 
   subroutine bcast_real(this, x, error, root)
@@ -268,8 +276,8 @@ contains
     integer :: ierr, r
     r = 0
     if (present(root)) r = root
-    call MPI_Bcast(x, size(x), MPI_DOUBLE_PRECISION, r, this%comm, ierr)
-    call check_mpi(ierr, "MPI_Bcast of " // str(size(x)) // " real(s) from rank " // str(r), error)
+    call MPI_Bcast(x, n_of(shape(x)), MPI_DOUBLE_PRECISION, r, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Bcast of " // str(n_of(shape(x))) // " real(s) from rank " // str(r), error)
   end subroutine bcast_real
 
   subroutine allreduce_int(this, x, op, error)
@@ -280,8 +288,8 @@ contains
     type(MPI_Op) :: mop
     integer :: ierr
     call reduction_op(op, mop, error); if (allocated(error)) return
-    call MPI_Allreduce(MPI_IN_PLACE, x, size(x), MPI_INTEGER, mop, this%comm, ierr)
-    call check_mpi(ierr, "MPI_Allreduce (" // op // ") of " // str(size(x)) // " integer(s)", error)
+    call MPI_Allreduce(MPI_IN_PLACE, x, n_of(shape(x)), MPI_INTEGER, mop, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allreduce (" // op // ") of " // str(n_of(shape(x))) // " integer(s)", error)
   end subroutine allreduce_int
 
   subroutine allreduce_i8(this, x, op, error)
@@ -292,8 +300,8 @@ contains
     type(MPI_Op) :: mop
     integer :: ierr
     call reduction_op(op, mop, error); if (allocated(error)) return
-    call MPI_Allreduce(MPI_IN_PLACE, x, size(x), MPI_INTEGER8, mop, this%comm, ierr)
-    call check_mpi(ierr, "MPI_Allreduce (" // op // ") of " // str(size(x)) // " 64-bit integer(s)", error)
+    call MPI_Allreduce(MPI_IN_PLACE, x, n_of(shape(x)), MPI_INTEGER8, mop, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allreduce (" // op // ") of " // str(n_of(shape(x))) // " 64-bit integer(s)", error)
   end subroutine allreduce_i8
 
   subroutine allreduce_real(this, x, op, error)
@@ -304,8 +312,8 @@ contains
     type(MPI_Op) :: mop
     integer :: ierr
     call reduction_op(op, mop, error); if (allocated(error)) return
-    call MPI_Allreduce(MPI_IN_PLACE, x, size(x), MPI_DOUBLE_PRECISION, mop, this%comm, ierr)
-    call check_mpi(ierr, "MPI_Allreduce (" // op // ") of " // str(size(x)) // " real(s)", error)
+    call MPI_Allreduce(MPI_IN_PLACE, x, n_of(shape(x)), MPI_DOUBLE_PRECISION, mop, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allreduce (" // op // ") of " // str(n_of(shape(x))) // " real(s)", error)
   end subroutine allreduce_real
 
   !> x summed over the ranks, on rank 0 (other ranks' x is left as it was or undefined).
@@ -315,11 +323,11 @@ contains
     type(error_t), allocatable, intent(out) :: error
     integer :: ierr
     if (this%rank == 0) then
-      call MPI_Reduce(MPI_IN_PLACE, x, size(x), MPI_DOUBLE_PRECISION, MPI_SUM, 0, this%comm, ierr)
+      call MPI_Reduce(MPI_IN_PLACE, x, n_of(shape(x)), MPI_DOUBLE_PRECISION, MPI_SUM, 0, this%comm, ierr)
     else
-      call MPI_Reduce(x, x, size(x), MPI_DOUBLE_PRECISION, MPI_SUM, 0, this%comm, ierr)
+      call MPI_Reduce(x, x, n_of(shape(x)), MPI_DOUBLE_PRECISION, MPI_SUM, 0, this%comm, ierr)
     end if
-    call check_mpi(ierr, "MPI_Reduce (sum to rank 0) of " // str(size(x)) // " real(s)", error)
+    call check_mpi(ierr, "MPI_Reduce (sum to rank 0) of " // str(n_of(shape(x))) // " real(s)", error)
   end subroutine reduce_sum_root
 
   !> pair = [value, index] on entry; on return on every rank the pair with the largest value
@@ -369,9 +377,9 @@ contains
     integer, intent(in) :: root
     type(error_t), allocatable, intent(out) :: error
     integer :: ierr
-    call MPI_Gatherv(x, size(x), MPI_DOUBLE_PRECISION, all, counts, displs, MPI_DOUBLE_PRECISION, root, &
+    call MPI_Gatherv(x, n_of(shape(x)), MPI_DOUBLE_PRECISION, all, counts, displs, MPI_DOUBLE_PRECISION, root, &
       this%comm, ierr)
-    call check_mpi(ierr, "MPI_Gatherv of " // str(size(x)) // " real(s) to rank " // str(root), error)
+    call check_mpi(ierr, "MPI_Gatherv of " // str(n_of(shape(x))) // " real(s) to rank " // str(root), error)
   end subroutine gatherv_real
 
   !> Gather x of every rank into all on every rank (counts, displs [this%size]).
@@ -382,9 +390,9 @@ contains
     integer, intent(in) :: counts(:), displs(:)
     type(error_t), allocatable, intent(out) :: error
     integer :: ierr
-    call MPI_Allgatherv(x, size(x), MPI_DOUBLE_PRECISION, all, counts, displs, MPI_DOUBLE_PRECISION, &
+    call MPI_Allgatherv(x, n_of(shape(x)), MPI_DOUBLE_PRECISION, all, counts, displs, MPI_DOUBLE_PRECISION, &
       this%comm, ierr)
-    call check_mpi(ierr, "MPI_Allgatherv of " // str(size(x)) // " real(s)", error)
+    call check_mpi(ierr, "MPI_Allgatherv of " // str(n_of(shape(x))) // " real(s)", error)
   end subroutine allgatherv_real
 
   !> Exchange blocks of reals between all ranks (counts, displacements [this%size]).
@@ -418,8 +426,8 @@ contains
     integer, intent(in) :: dest, tag
     type(error_t), allocatable, intent(out) :: error
     integer :: ierr
-    call MPI_Send(x, size(x), MPI_INTEGER, dest, tag, this%comm, ierr)
-    call check_mpi(ierr, "MPI_Send of " // str(size(x)) // " integer(s) to rank " // str(dest), error)
+    call MPI_Send(x, n_of(shape(x)), MPI_INTEGER, dest, tag, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Send of " // str(n_of(shape(x))) // " integer(s) to rank " // str(dest), error)
   end subroutine send_int
 
   subroutine send_real(this, x, dest, tag, error)
@@ -428,8 +436,8 @@ contains
     integer, intent(in) :: dest, tag
     type(error_t), allocatable, intent(out) :: error
     integer :: ierr
-    call MPI_Send(x, size(x), MPI_DOUBLE_PRECISION, dest, tag, this%comm, ierr)
-    call check_mpi(ierr, "MPI_Send of " // str(size(x)) // " real(s) to rank " // str(dest), error)
+    call MPI_Send(x, n_of(shape(x)), MPI_DOUBLE_PRECISION, dest, tag, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Send of " // str(n_of(shape(x))) // " real(s) to rank " // str(dest), error)
   end subroutine send_real
 
   subroutine recv_int(this, x, source, tag, error)
@@ -438,8 +446,8 @@ contains
     integer, intent(in) :: source, tag
     type(error_t), allocatable, intent(out) :: error
     integer :: ierr
-    call MPI_Recv(x, size(x), MPI_INTEGER, source, tag, this%comm, MPI_STATUS_IGNORE, ierr)
-    call check_mpi(ierr, "MPI_Recv of " // str(size(x)) // " integer(s) from rank " // str(source), error)
+    call MPI_Recv(x, n_of(shape(x)), MPI_INTEGER, source, tag, this%comm, MPI_STATUS_IGNORE, ierr)
+    call check_mpi(ierr, "MPI_Recv of " // str(n_of(shape(x))) // " integer(s) from rank " // str(source), error)
   end subroutine recv_int
 
   subroutine recv_real(this, x, source, tag, error)
@@ -448,8 +456,8 @@ contains
     integer, intent(in) :: source, tag
     type(error_t), allocatable, intent(out) :: error
     integer :: ierr
-    call MPI_Recv(x, size(x), MPI_DOUBLE_PRECISION, source, tag, this%comm, MPI_STATUS_IGNORE, ierr)
-    call check_mpi(ierr, "MPI_Recv of " // str(size(x)) // " real(s) from rank " // str(source), error)
+    call MPI_Recv(x, n_of(shape(x)), MPI_DOUBLE_PRECISION, source, tag, this%comm, MPI_STATUS_IGNORE, ierr)
+    call check_mpi(ierr, "MPI_Recv of " // str(n_of(shape(x))) // " real(s) from rank " // str(source), error)
   end subroutine recv_real
 
   !> Barrier (every rank waits for all).

@@ -1039,6 +1039,9 @@ contains
     call close_ids(dset=dset)
   end subroutine read_raw
 
+  !> p, or a null pointer for an empty buffer. (The assumed-rank wrappers pass the extents as
+  !> max(shape(x), 0): gfortran 12 reports -1 for a zero-size assumed-shape actual copied into a
+  !> contiguous assumed-rank dummy.)
   function cptr_of_size(p, n) result(q)
     type(c_ptr), intent(in) :: p
     integer, intent(in) :: n
@@ -1053,8 +1056,8 @@ contains
     character(len=*), intent(in) :: name
     real(wp), intent(in), target, contiguous :: x(..)
     type(error_t), allocatable, intent(out) :: error
-    call write_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), H5T_FLOAT_F, &
-      int(shape(x), hsize_t), error)
+    call write_raw(this, name, cptr_of_size(c_loc(x), product(max(shape(x), 0))), type_of(cr_h5_real), H5T_FLOAT_F, &
+      int(max(shape(x), 0), hsize_t), error)
   end subroutine w_real
 
   !> Write an integer dataset of any rank (a scalar: a scalar dataset).
@@ -1063,8 +1066,8 @@ contains
     character(len=*), intent(in) :: name
     integer, intent(in), target, contiguous :: x(..)
     type(error_t), allocatable, intent(out) :: error
-    call write_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), H5T_INTEGER_F, &
-      int(shape(x), hsize_t), error)
+    call write_raw(this, name, cptr_of_size(c_loc(x), product(max(shape(x), 0))), type_of(cr_h5_int), H5T_INTEGER_F, &
+      int(max(shape(x), 0), hsize_t), error)
   end subroutine w_int
 
   !> Write an integer(int64) dataset [n].
@@ -1532,8 +1535,8 @@ contains
     !> number of elements (1D) or columns (2D) before this rank's part (0-based offset)
     integer, intent(in) :: offset
     type(error_t), allocatable, intent(out) :: error
-    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), &
-      H5T_FLOAT_F, int(shape(x), hsize_t), offset, .true., error)
+    call block_raw(this, name, cptr_of_size(c_loc(x), product(max(shape(x), 0))), type_of(cr_h5_real), &
+      H5T_FLOAT_F, int(max(shape(x), 0), hsize_t), offset, .true., error)
   end subroutine wb_real
 
   !> Collective: integer version of wb_real.
@@ -1543,8 +1546,8 @@ contains
     integer, intent(in), target, contiguous :: x(..)
     integer, intent(in) :: offset
     type(error_t), allocatable, intent(out) :: error
-    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
-      H5T_INTEGER_F, int(shape(x), hsize_t), offset, .true., error)
+    call block_raw(this, name, cptr_of_size(c_loc(x), product(max(shape(x), 0))), type_of(cr_h5_int), &
+      H5T_INTEGER_F, int(max(shape(x), 0), hsize_t), offset, .true., error)
   end subroutine wb_int
 
   !> Collective: read elements offset+1..offset+size(x) of a 1D dataset into x (caller-sized).
@@ -1555,8 +1558,8 @@ contains
     real(wp), intent(inout), target, contiguous :: x(..)
     integer, intent(in) :: offset
     type(error_t), allocatable, intent(out) :: error
-    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), &
-      H5T_FLOAT_F, int(shape(x), hsize_t), offset, .false., error)
+    call block_raw(this, name, cptr_of_size(c_loc(x), product(max(shape(x), 0))), type_of(cr_h5_real), &
+      H5T_FLOAT_F, int(max(shape(x), 0), hsize_t), offset, .false., error)
   end subroutine rb_real
 
   !> Collective: integer version of rb_real.
@@ -1566,8 +1569,8 @@ contains
     integer, intent(inout), target, contiguous :: x(..)
     integer, intent(in) :: offset
     type(error_t), allocatable, intent(out) :: error
-    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
-      H5T_INTEGER_F, int(shape(x), hsize_t), offset, .false., error)
+    call block_raw(this, name, cptr_of_size(c_loc(x), product(max(shape(x), 0))), type_of(cr_h5_int), &
+      H5T_INTEGER_F, int(max(shape(x), 0), hsize_t), offset, .false., error)
   end subroutine rb_int
 
   !> Collective: int64 version of wb_real (1D).
@@ -1591,8 +1594,8 @@ contains
     real(wp), intent(in), target, contiguous :: x(..)
     integer, intent(in) :: ranges(:,:)
     type(error_t), allocatable, intent(out) :: error
-    call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), &
-      H5T_FLOAT_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
+    call ranges_raw(this, name, cptr_of_size(c_loc(x), product(max(shape(x), 0))), type_of(cr_h5_real), &
+      H5T_FLOAT_F, int(max(shape(x), 0), hsize_t), ranges, .true., error, independent=.true.)
   end subroutine wr_real
 
   !> Collective: integer version of wr_real.
@@ -1602,8 +1605,8 @@ contains
     integer, intent(in), target, contiguous :: x(..)
     integer, intent(in) :: ranges(:,:)
     type(error_t), allocatable, intent(out) :: error
-    call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
-      H5T_INTEGER_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
+    call ranges_raw(this, name, cptr_of_size(c_loc(x), product(max(shape(x), 0))), type_of(cr_h5_int), &
+      H5T_INTEGER_F, int(max(shape(x), 0), hsize_t), ranges, .true., error, independent=.true.)
   end subroutine wr_int
 
   !> Collective: int64 version of wr_real (1D).
