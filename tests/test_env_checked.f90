@@ -95,18 +95,18 @@ program test_env_checked
   end do
   mine = [(real(r, wp), i = 1, r + 1)]
   allocate(gath(sum(counts))); gath = -1
-  call env%gatherv_real(mine, gath, counts, displs, 0, error)
+  call env%gatherv(mine, gath, counts, displs, 0, error)
   call check(.not. allocated(error), "gatherv: no error")
   if (r == 0) call check(all_blocks(gath), "gatherv: blocks on rank 0")
   gath = -1
-  call env%allgatherv_real(mine, gath, counts, displs, error)
+  call env%allgatherv(mine, gath, counts, displs, error)
   call check(.not. allocated(error) .and. all_blocks(gath), "allgatherv: blocks on every rank")
 
   ! all-to-all: rank r sends (q + 1) values 100 r + q to rank q
   allocate(sc(p), rc(p), sd(p), rd(p))
   sc = [(i + 1, i = 0, last)]
-  call env%alltoall_int(sc, rc, error)
-  call check(.not. allocated(error) .and. all(rc == r + 1), "alltoall_int: counts")
+  call env%alltoall(sc, rc, error)
+  call check(.not. allocated(error) .and. all(rc == r + 1), "alltoall: counts")
   sd(1) = 0; rd(1) = 0
   do i = 2, p
     sd(i) = sd(i - 1) + sc(i - 1); rd(i) = rd(i - 1) + rc(i - 1)
@@ -116,7 +116,7 @@ program test_env_checked
     sendbuf(sd(i) + 1:sd(i) + sc(i)) = real(100 * r + (i - 1), wp)
   end do
   recvbuf = -1
-  call env%alltoallv_real(sendbuf, sc, sd, recvbuf, rc, rd, error)
+  call env%alltoallv(sendbuf, sc, sd, recvbuf, rc, rd, error)
   call check(.not. allocated(error), "alltoallv: no error")
   do i = 1, p
     call check(all(recvbuf(rd(i) + 1:rd(i) + rc(i)) == real(100 * (i - 1) + r, wp)), "alltoallv: block from each rank")

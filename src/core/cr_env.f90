@@ -50,10 +50,13 @@ module cr_env
     procedure :: allgatherv_int, allgatherv_i8, allgatherv_real
     generic :: allgatherv => allgatherv_int, allgatherv_i8, allgatherv_real
     procedure :: gatherv_real, alltoallv_real
+    generic :: gatherv => gatherv_real
+    generic :: alltoallv => alltoallv_real
     !> every rank's text concatenated in rank order
     procedure :: gather_text
     !> one integer to and from every rank
     procedure :: alltoall_int
+    generic :: alltoall => alltoall_int
     !> point-to-point messages
     procedure :: send_int, send_real, recv_int, recv_real
     generic :: send => send_int, send_real

@@ -326,7 +326,7 @@ contains
       else
         allocate(s(1, 1))
       end if
-      call env%gatherv_real(s_local, s, counts, displs, ROOT, error)
+      call env%gatherv(s_local, s, counts, displs, ROOT, error)
       if (env%rank == ROOT .and. .not. allocated(error)) then
         allocate(c(n_snap, n_snap), lam(n_snap))
         call la_gemm('T', 'N', 1.0_wp, s, s, 0.0_wp, c, error)
@@ -428,7 +428,7 @@ contains
       rdispl(p) = rdispl(p - 1) + rcount(p - 1)
     end do
     allocate(rows(nrow, n_snap))
-    call env%alltoallv_real(sendbuf, scount, sdispl, rows, rcount, rdispl, error)
+    call env%alltoallv(sendbuf, scount, sdispl, rows, rcount, rdispl, error)
     if (allocated(error)) return
     deallocate(sendbuf)
     call srft_draws(seed, n_snap, l, d, sel)
@@ -663,7 +663,7 @@ contains
         sendbuf(fill(p)) = s_local(i, jl)
       end do
     end do
-    call env%alltoall_int(scount, rcount, error)
+    call env%alltoall(scount, rcount, error)
     if (allocated(error)) then
       call grid%free(); return
     end if
@@ -672,7 +672,7 @@ contains
       rdispl(p) = rdispl(p - 1) + rcount(p - 1)
     end do
     allocate(recvbuf(max(1, sum(rcount))))
-    call env%alltoallv_real(sendbuf, scount, sdispl, recvbuf, rcount, rdispl, error)
+    call env%alltoallv(sendbuf, scount, sdispl, recvbuf, rcount, rdispl, error)
     if (allocated(error)) then
       call grid%free(); return
     end if
