@@ -13,10 +13,9 @@ program crowd_fom
   use cr_logger, only: logger_t
   use cr_cli, only: cli_t
   use cr_program, only: program_start, program_finish, log_level_of
-  use cr_config, only: config_t, read_config, config_echo, check_fom_paths
+  use cr_config, only: config_t, config_echo, check_fom_paths
   use cr_namelist_text, only: namelist_text_t
-  use cr_inputs, only: check_input_groups
-  use cr_config_check, only: check_config
+  use cr_inputs, only: read_model_input
   use cr_fom, only: fom_t, step_record_t
   use cr_fom_file, only: fom_writer_t
   use cr_json, only: json_writer_t
@@ -35,10 +34,8 @@ program crowd_fom
     code = program_finish(env, log, error)
     stop
   end if
-  if (.not. allocated(error)) call read_config(cli%input, env, cfg, error, nml, &
-    program='crowd_fom', needed=[character(len=8) :: 'scene', 'agents'])
-  if (.not. allocated(error)) call check_input_groups(nml, error)
-  if (.not. allocated(error)) call check_config(cfg, error)
+  if (.not. allocated(error)) call read_model_input(cli%input, env, 'crowd_fom', &
+    [character(len=8) :: 'scene', 'agents'], cfg, nml, error)
   if (.not. allocated(error)) call check_fom_paths(cli%input, cli%summary, cfg, error)
   if (.not. allocated(error)) then
     log%level = log_level_of(cfg%output%log_level)

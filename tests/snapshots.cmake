@@ -64,5 +64,3 @@ add_test(NAME snapshots_bad_stop_after_fom
 set_tests_properties(snapshots_bad_stop_after_fom PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}"
   RESOURCE_LOCK bad_out)
 
-# env_t's collectives, shared counter and MPI-IO block file (the snapshot stage's MPI)
-cr_mpi_test(test_env_collectives NP 1 2)

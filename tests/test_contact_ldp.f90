@@ -6,7 +6,7 @@ program test_contact_ldp
   use cr_kinds, only: wp
   use cr_error, only: error_t
   use cr_assert, only: check, test_summary
-  use cr_test_scenes, only: seed_random
+  use cr_test_scenes, only: seed_random, hex_scene
   use cr_contact_set, only: contact_set_t, kkt_residuals
   use cr_contact_ldp, only: contact_ldp_solve, contact_ldp_stats_t, contact_ldp_work_t
   use cr_nnls, only: ldp_solve, ldp_stats_t
@@ -23,44 +23,6 @@ program test_contact_ldp
   call test_summary()
 
 contains
-
-  !> nx x ny disks in hexagonal packing (touching neighbours) resting on the wall y = 0 and
-  !> against the wall x = 0, every touching pair a row (3 per agent: many dependent rows);
-  !> the desired velocity pushes into the corner, plus noise.
-  subroutine hex_scene(nx, ny, jitter, cs, v)
-    integer, intent(in) :: nx, ny
-    real(wp), intent(in) :: jitter
-    type(contact_set_t), intent(out) :: cs
-    real(wp), allocatable, intent(out) :: v(:)
-    real(wp), allocatable :: q(:,:), jit(:,:), nz(:)
-    real(wp) :: dist
-    integer :: na, i, j, k
-    na = nx * ny
-    allocate(q(2, na), jit(2, na), nz(2 * na))
-    call random_number(jit)
-    do j = 1, ny
-      do i = 1, nx
-        k = i + (j - 1) * nx
-        q(:, k) = [rad + 2.0_wp * rad * (i - 1) + rad * mod(j - 1, 2), &
-          rad + sqrt(3.0_wp) * rad * (j - 1)] + jitter * (jit(:, k) - 0.5_wp)
-      end do
-    end do
-    call cs%init(na, h, 4 * na)
-    do i = 1, na
-      do j = i + 1, na
-        dist = norm2(q(:, i) - q(:, j))
-        if (dist - 2.0_wp * rad < 1.0e-3_wp) call cs%add(i, j, 0, (q(:, i) - q(:, j)) / dist, &
-          dist - 2.0_wp * rad)
-      end do
-      if (q(2, i) - rad < 1.0e-3_wp) call cs%add(i, 0, 1, [0.0_wp, 1.0_wp], q(2, i) - rad)
-      if (q(1, i) - rad < 1.0e-3_wp) call cs%add(i, 0, 2, [1.0_wp, 0.0_wp], q(1, i) - rad)
-    end do
-    call random_number(nz)
-    allocate(v(2 * na))
-    do k = 1, na
-      v(2*k - 1:2*k) = [-0.5_wp, -1.0_wp] + 0.6_wp * (nz(2*k - 1:2*k) - 0.5_wp)
-    end do
-  end subroutine hex_scene
 
   !> Dense B of a contact set [n, 2 n_agents].
   subroutine dense_b(cs, bm)
@@ -90,7 +52,7 @@ contains
     type(error_t), allocatable :: err
     real(wp) :: p, du, cp, s
     integer :: l, rows_before
-    call hex_scene(12, 10, jitter, cs, v)
+    call hex_scene(12, 10, jitter, rad, h, cs, v)
     call check(cs%n > 3 * cs%n_agents - 30, name // ": many redundant rows (" // &
       trim(adjustl(itoa(cs%n))) // " rows, 240 dof)")
     allocate(u(size(v)), ud(size(v)), lam(cs%n), ld(cs%n), ia(cs%n), ib(cs%n), coef(2, cs%n))
@@ -170,7 +132,7 @@ contains
     type(active_set_solver_t) :: solver
     type(solve_stats_t) :: ss
     type(error_t), allocatable :: err
-    call hex_scene(6, 5, 0.0_wp, cs, v)
+    call hex_scene(6, 5, 0.0_wp, rad, h, cs, v)
     allocate(u(size(v)), lam(cs%n))
     call solver%init(projection_settings_t(), err)
     solver%max_dense_bytes = 1000.0_wp

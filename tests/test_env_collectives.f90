@@ -1,5 +1,7 @@
-!> env_t's collectives, shared counter and MPI-IO block file (the snapshot stage's MPI goes
-!> through them). Run at 1 and 2 ranks: every result is checked against what it must be.
+!> env_t's variable-size gathers of integers (block_counts, allgatherv), text gather, measures,
+!> shared counter and MPI-IO block file (the snapshot stage's MPI goes through them; the other
+!> collectives are checked by test_env_checked). Run at 1 and 2 ranks: every result is checked
+!> against what it must be.
 program test_env_collectives
   use mpi_f08, only: MPI_Init, MPI_Finalize, MPI_COMM_WORLD
   use cr_kinds, only: wp, i8
@@ -13,11 +15,10 @@ program test_env_collectives
   type(shared_counter_t) :: counter
   type(par_file_t) :: pf
   integer :: ierr, p, r, k, u, ios
-  integer, allocatable :: ia(:), got(:), counts(:)
+  integer, allocatable :: ia(:), got(:), counts(:), displs(:)
   integer(i8), allocatable :: la(:), lall(:)
-  real(wp), allocatable :: ra(:)
   integer(i8) :: old, tickets(1)
-  integer :: n0
+  real(wp) :: t, tt(1)
   character(len=:), allocatable :: text
   character(len=*), parameter :: path = "test_env_collectives.bin"
   integer(i8), allocatable :: back(:)
@@ -27,53 +28,34 @@ program test_env_collectives
   call check(.not. allocated(error), "env init")
   p = env%size; r = env%rank
 
-  ! broadcasts from rank 0 and from the last rank
-  n0 = merge(42, -1, r == 0)
-  call env%bcast(n0, error)
-  call check(.not. allocated(error) .and. n0 == 42, "bcast of an integer from rank 0")
-  ia = [r, r + 1, r + 2]
-  call env%bcast(ia, error, root=p - 1)
-  call check(.not. allocated(error) .and. all(ia == [p - 1, p, p + 1]), "bcast of integers from the last rank")
-  la = [int(r, i8) * 10_i8**12]
-  call env%bcast(la, error)
-  call check(la(1) == 0, "bcast of 64-bit integers")
-  ra = [real(r, wp) + 0.5_wp]
-  call env%bcast(ra, error)
-  call check(ra(1) == 0.5_wp, "bcast of reals")
-
-  ! reductions
-  ia = [r, 1, -r]
-  call env%allreduce(ia, 'sum', error)
-  call check(all(ia == [p * (p - 1) / 2, p, -p * (p - 1) / 2]), "allreduce sum of integers")
-  la = [int(r, i8) + 10_i8**12]
-  call env%allreduce(la, 'max', error)
-  call check(la(1) == int(p - 1, i8) + 10_i8**12, "allreduce max of 64-bit integers")
-  ra = [real(r + 1, wp)]
-  call env%allreduce(ra, 'min', error)
-  call check(ra(1) == 1.0_wp, "allreduce min of reals")
-  call env%allreduce(ra, 'prod', error)
-  call check(allocated(error), "an unknown reduction is refused")
-  if (allocated(error)) then
-    call check(index(error%message, "unknown reduction 'prod'") > 0, "message names the reduction")
-    deallocate(error)
-  end if
-
-  ! gathers: rank r contributes r + 1 entries equal to r
-  call env%allgather(10 * r, got, error)
-  call check(size(got) == p .and. all(got == [(10 * k, k = 0, p - 1)]), "allgather of an integer")
-  call env%allgather(real(r, wp), ra, error)
-  call check(size(ra) == p .and. all(ra == [(real(k, wp), k = 0, p - 1)]), "allgather of a real")
+  ! variable-size gathers of integers: rank r contributes r + 1 entries equal to r (the
+  ! broadcasts, reductions and gathers of reals are checked by test_env_checked)
   ia = [(r, k = 1, r + 1)]
-  call env%allgatherv(ia, got, error, counts)
+  call env%block_counts(size(ia), counts, displs, error)
+  call check(.not. allocated(error) .and. all(counts == [(k + 1, k = 0, p - 1)]), "block_counts: counts")
+  call check(all(displs == [(k * (k + 1) / 2, k = 0, p - 1)]), "block_counts: displacements")
+  allocate(got(sum(counts)))
+  call env%allgatherv(ia, got, counts, displs, error)
   call check(.not. allocated(error) .and. size(got) == p * (p + 1) / 2, "allgatherv: total size")
-  call check(all(counts == [(k + 1, k = 0, p - 1)]), "allgatherv: counts")
   call check(all(got == [((k, u = 1, k + 1), k = 0, p - 1)]), "allgatherv: rank order")
   la = [(int(r, i8) * 10_i8**10, k = 1, 2)]
-  call env%allgatherv(la, lall, error)
-  call check(size(lall) == 2 * p .and. lall(2 * p) == int(p - 1, i8) * 10_i8**10, "allgatherv of 64-bit integers")
+  call env%block_counts(size(la), counts, displs, error)
+  allocate(lall(sum(counts)))
+  call env%allgatherv(la, lall, counts, displs, error)
+  call check(.not. allocated(error) .and. size(lall) == 2 * p .and. lall(2 * p) == int(p - 1, i8) * 10_i8**10, &
+    "allgatherv of 64-bit integers")
   call env%gather_text(repeat(achar(iachar('a') + r), r + 1), text, error)
   call check(len(text) == p * (p + 1) / 2 .and. text(1:1) == 'a', "gather_text: rank order")
   if (p > 1) call check(text(2:3) == 'bb', "gather_text: second rank")
+
+  ! measures: a positive latency, the same on every rank; a version line without a newline
+  t = env%collective_latency(5, error)
+  call check(.not. allocated(error) .and. t > 0, "collective_latency: positive")
+  tt = t
+  call env%allreduce(tt, 'max', error)
+  call check(tt(1) == t, "collective_latency: rank 0's value on every rank")
+  text = env%library_version()
+  call check(len(text) > 0 .and. index(text, new_line('a')) == 0, "library_version: one line")
 
   ! shared counter: every ticket is handed out exactly once
   call counter%init(env, 2, error)
@@ -85,7 +67,9 @@ program test_env_collectives
   end do
   old = counter%fetch_add(2, 7_i8, error)
   call check(.not. allocated(error) .and. counter%n_calls == 6, "counter operations counted")
-  call env%allgatherv(ia, got, error)
+  call env%block_counts(size(ia), counts, displs, error)
+  deallocate(got); allocate(got(sum(counts)))
+  call env%allgatherv(ia, got, counts, displs, error)
   call check(size(got) == 5 * p, "5 tickets per rank")
   do k = 0, 5 * p - 1
     call check(count(got == k) == 1, "ticket " // str(k) // " handed out once")

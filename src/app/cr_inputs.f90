@@ -7,14 +7,16 @@
 !> that uses the group.
 module cr_inputs
   use cr_error, only: error_t
+  use cr_env, only: env_t
   use cr_namelist_text, only: namelist_text_t
-  use cr_config, only: config_t, parse_config
+  use cr_config, only: config_t, parse_config, read_config
+  use cr_config_check, only: check_config
   use cr_study_config, only: study_cfg_t, read_study
   use cr_offline_config, only: offline_cfg_t, read_offline
   use cr_rom_config, only: rom_cfg_t, read_rom
   implicit none
   private
-  public :: check_input_groups
+  public :: check_input_groups, read_model_input
 
 contains
 
@@ -33,4 +35,22 @@ contains
     call read_offline(t, ocfg, error); if (allocated(error)) return
     if (t%has_group('rom')) call read_rom(t, rcfg, error)
   end subroutine check_input_groups
+
+  !> A program's input: rank 0 reads `path` (broadcast to every rank of env), the groups
+  !> `needed` must be present, every group is checked by its owner (check_input_groups) and the
+  !> full model's configuration `cfg` by check_config. `nml` keeps the text for the program's
+  !> own groups.
+  subroutine read_model_input(path, env, program, needed, cfg, nml, error)
+    character(len=*), intent(in) :: path, program
+    type(env_t), intent(in) :: env
+    character(len=*), intent(in) :: needed(:)
+    type(config_t), intent(out) :: cfg
+    type(namelist_text_t), intent(out) :: nml
+    type(error_t), allocatable, intent(out) :: error
+    call read_config(path, env, cfg, error, nml, program=program, needed=needed)
+    if (allocated(error)) return
+    call check_input_groups(nml, error)
+    if (allocated(error)) return
+    call check_config(cfg, error)
+  end subroutine read_model_input
 end module cr_inputs

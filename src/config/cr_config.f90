@@ -7,7 +7,10 @@ module cr_config
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error
   use cr_env, only: env_t
-  use cr_namelist_text, only: namelist_text_t
+  use cr_strings, only: str
+  use cr_namelist_text, only: namelist_text_t, nml_status, echo_real, echo_reals, echo_logical
+  ! &obstacles (its variables, read, echo, checks, construction) is owned by cr_obstacles
+  use cr_obstacles, only: obstacles_cfg_t, read_obstacles, obstacles_echo, MAX_OBST, MAX_POLY_V
   use cr_projection, only: projection_settings_t
   use cr_paths, only: io_paths_t
   implicit none
@@ -16,7 +19,7 @@ module cr_config
     contacts_cfg_t, output_cfg_t, read_config, parse_config, config_echo, MAX_OBST, MAX_POLY_V, MAX_PATH, &
     FOM_GROUPS, nml_status, model_inputs, check_fom_paths
 
-  integer, parameter :: MAX_OBST = 64, MAX_POLY_V = 16, MAX_PATH = 512
+  integer, parameter :: MAX_PATH = 512
 
   !> Every namelist group a crowdrom program reads (one file may hold the groups of every stage;
   !> any other group is refused): the full model (read here), &study (crowd_snapshots,
@@ -37,20 +40,6 @@ module cr_config
     real(wp) :: exit_center = -1.0_wp
     real(wp) :: wall_thickness = 0.1_wp
   end type scene_cfg_t
-
-  !> &obstacles: extra convex obstacles (disks, thick segments, convex polygons).
-  type :: obstacles_cfg_t
-    integer :: n_disks = 0
-    real(wp) :: disk_x(MAX_OBST) = 0.0_wp, disk_y(MAX_OBST) = 0.0_wp, disk_r(MAX_OBST) = 0.0_wp
-    integer :: n_segments = 0
-    real(wp) :: seg_x1(MAX_OBST) = 0.0_wp, seg_y1(MAX_OBST) = 0.0_wp
-    real(wp) :: seg_x2(MAX_OBST) = 0.0_wp, seg_y2(MAX_OBST) = 0.0_wp
-    real(wp) :: seg_half_thickness(MAX_OBST) = 0.0_wp
-    integer :: n_polygons = 0
-    integer :: poly_nv(MAX_OBST) = 0
-    !> polygon vertices: poly_x(k, p) is the x of vertex k of polygon p
-    real(wp) :: poly_x(MAX_POLY_V, MAX_OBST) = 0.0_wp, poly_y(MAX_POLY_V, MAX_OBST) = 0.0_wp
-  end type obstacles_cfg_t
 
   !> &agents: count, radius, speed and initial placement.
   type :: agents_cfg_t
@@ -195,20 +184,6 @@ contains
     call read_output(t, cfg%output, error); if (allocated(error)) return
   end subroutine parse_config
 
-  !> Turn a namelist read status into an error naming file and group.
-  !> Error of a namelist read of `group` (iostat ios, iomsg msg) naming the file, the group and
-  !> what the compiler says (e.g. the variable); an absent group keeps its defaults.
-  subroutine nml_status(t, group, ios, msg, error)
-    type(namelist_text_t), intent(in) :: t
-    character(len=*), intent(in) :: group
-    integer, intent(in) :: ios
-    character(len=*), intent(in) :: msg
-    type(error_t), allocatable, intent(out) :: error
-    if (ios == 0) return
-    if (is_iostat_end(ios) .and. .not. t%has_group(group)) return
-    call set_error(error, t%path // ": namelist group &" // group // ": " // trim(msg), 2)
-  end subroutine nml_status
-
   subroutine read_scene(t, c, error)
     type(namelist_text_t), intent(in) :: t
     type(scene_cfg_t), intent(inout) :: c
@@ -225,32 +200,6 @@ contains
     c%hall_length = hall_length; c%hall_width = hall_width; c%l_exit = l_exit
     c%exit_center = exit_center; c%wall_thickness = wall_thickness
   end subroutine read_scene
-
-  subroutine read_obstacles(t, c, error)
-    type(namelist_text_t), intent(in) :: t
-    type(obstacles_cfg_t), intent(inout) :: c
-    type(error_t), allocatable, intent(out) :: error
-    integer :: n_disks, n_segments, n_polygons, poly_nv(MAX_OBST)
-    real(wp) :: disk_x(MAX_OBST), disk_y(MAX_OBST), disk_r(MAX_OBST)
-    real(wp) :: seg_x1(MAX_OBST), seg_y1(MAX_OBST), seg_x2(MAX_OBST), seg_y2(MAX_OBST)
-    real(wp) :: seg_half_thickness(MAX_OBST)
-    real(wp) :: poly_x(MAX_POLY_V, MAX_OBST), poly_y(MAX_POLY_V, MAX_OBST)
-    namelist /obstacles/ n_disks, disk_x, disk_y, disk_r, n_segments, seg_x1, seg_y1, seg_x2, &
-      seg_y2, seg_half_thickness, n_polygons, poly_nv, poly_x, poly_y
-    integer :: ios
-    character(len=512) :: msg
-    n_disks = c%n_disks; disk_x = c%disk_x; disk_y = c%disk_y; disk_r = c%disk_r
-    n_segments = c%n_segments; seg_x1 = c%seg_x1; seg_y1 = c%seg_y1; seg_x2 = c%seg_x2
-    seg_y2 = c%seg_y2; seg_half_thickness = c%seg_half_thickness
-    n_polygons = c%n_polygons; poly_nv = c%poly_nv; poly_x = c%poly_x; poly_y = c%poly_y
-    msg = ''
-    read(t%lines, nml=obstacles, iostat=ios, iomsg=msg)
-    call nml_status(t, 'obstacles', ios, msg, error); if (allocated(error)) return
-    c%n_disks = n_disks; c%disk_x = disk_x; c%disk_y = disk_y; c%disk_r = disk_r
-    c%n_segments = n_segments; c%seg_x1 = seg_x1; c%seg_y1 = seg_y1; c%seg_x2 = seg_x2
-    c%seg_y2 = seg_y2; c%seg_half_thickness = seg_half_thickness
-    c%n_polygons = n_polygons; c%poly_nv = poly_nv; c%poly_x = poly_x; c%poly_y = poly_y
-  end subroutine read_obstacles
 
   subroutine read_agents(t, c, error)
     type(namelist_text_t), intent(in) :: t
@@ -371,88 +320,40 @@ contains
   function config_echo(cfg) result(s)
     type(config_t), intent(in) :: cfg
     character(len=:), allocatable :: s
-    integer :: k
     s = "! effective configuration (source: " // cfg%source // ")" // new_line('a')
     associate (c => cfg%scene)
-      s = s // "&scene hall_length = " // r(c%hall_length) // ", hall_width = " // r(c%hall_width) // &
-        ", l_exit = " // r(c%l_exit) // ", exit_center = " // r(c%exit_center) // &
-        ", wall_thickness = " // r(c%wall_thickness) // " /" // new_line('a')
+      s = s // "&scene hall_length = " // echo_real(c%hall_length) // ", hall_width = " // echo_real(c%hall_width) // &
+        ", l_exit = " // echo_real(c%l_exit) // ", exit_center = " // echo_real(c%exit_center) // &
+        ", wall_thickness = " // echo_real(c%wall_thickness) // " /" // new_line('a')
     end associate
-    associate (o => cfg%obstacles)
-      s = s // "&obstacles n_disks = " // i(o%n_disks) // ", n_segments = " // i(o%n_segments) // &
-        ", n_polygons = " // i(o%n_polygons)
-      do k = 1, o%n_disks
-        s = s // new_line('a') // "  disk_x(" // i(k) // ") = " // r(o%disk_x(k)) // ", disk_y(" // i(k) // &
-          ") = " // r(o%disk_y(k)) // ", disk_r(" // i(k) // ") = " // r(o%disk_r(k))
-      end do
-      do k = 1, o%n_segments
-        s = s // new_line('a') // "  seg_x1(" // i(k) // ") = " // r(o%seg_x1(k)) // ", seg_y1(" // i(k) // &
-          ") = " // r(o%seg_y1(k)) // ", seg_x2(" // i(k) // ") = " // r(o%seg_x2(k)) // ", seg_y2(" // &
-          i(k) // ") = " // r(o%seg_y2(k)) // ", seg_half_thickness(" // i(k) // ") = " // &
-          r(o%seg_half_thickness(k))
-      end do
-      do k = 1, o%n_polygons
-        s = s // new_line('a') // "  poly_nv(" // i(k) // ") = " // i(o%poly_nv(k)) // ", poly_x(:," // i(k) // &
-          ") = " // rs(o%poly_x(1:o%poly_nv(k), k)) // ", poly_y(:," // i(k) // ") = " // &
-          rs(o%poly_y(1:o%poly_nv(k), k))
-      end do
-      s = s // " /" // new_line('a')
-    end associate
+    s = s // obstacles_echo(cfg%obstacles)
     associate (a => cfg%agents)
-      s = s // "&agents n_agents = " // i(a%n_agents) // ", radius = " // r(a%radius) // ", speed = " // &
-        r(a%speed) // ", speed_file = '" // trim(a%speed_file) // "', init = '" // trim(a%init) // &
-        "', init_file = '" // trim(a%init_file) // "', region = " // rs(a%region) // ", seed = " // &
-        i(a%seed) // ", placement_max_iter = " // i(a%placement_max_iter) // " /" // new_line('a')
+      s = s // "&agents n_agents = " // str(a%n_agents) // ", radius = " // echo_real(a%radius) // ", speed = " // &
+        echo_real(a%speed) // ", speed_file = '" // trim(a%speed_file) // "', init = '" // trim(a%init) // &
+        "', init_file = '" // trim(a%init_file) // "', region = " // echo_reals(a%region) // ", seed = " // &
+        str(a%seed) // ", placement_max_iter = " // str(a%placement_max_iter) // " /" // new_line('a')
     end associate
     associate (d => cfg%desired)
       s = s // "&desired mode = '" // trim(d%mode) // "', file = '" // trim(d%file) // "', field = '" // &
-        trim(d%field) // "', grid_dx = " // r(d%grid_dx) // " /" // new_line('a')
+        trim(d%field) // "', grid_dx = " // echo_real(d%grid_dx) // " /" // new_line('a')
     end associate
     associate (t => cfg%time)
-      s = s // "&time dt = " // r(t%dt) // ", n_steps = " // i(t%n_steps) // ", until_empty = " // &
-        merge(".true. ", ".false.", t%until_empty) // ", max_steps = " // i(t%max_steps) // " /" // new_line('a')
+      s = s // "&time dt = " // echo_real(t%dt) // ", n_steps = " // str(t%n_steps) // ", until_empty = " // &
+        echo_logical(t%until_empty) // ", max_steps = " // str(t%max_steps) // " /" // new_line('a')
     end associate
     associate (v => cfg%solver)
-      s = s // "&solver name = '" // trim(v%name) // "', tol = " // r(v%tol) // ", max_iter = " // &
-        i(v%max_iter) // ", uzawa_rho_factor = " // r(v%uzawa_rho_factor) // ", uzawa_eps = " // &
-        r(v%uzawa_eps) // ", uzawa_max_iter = " // i(v%uzawa_max_iter) // ", warm_start = " // &
-        merge(".true. ", ".false.", v%warm_start) // ", dense_rows = " // i(v%dense_rows) // &
-        ", refresh_every = " // i(v%refresh_every) // " /" // new_line('a')
+      s = s // "&solver name = '" // trim(v%name) // "', tol = " // echo_real(v%tol) // ", max_iter = " // &
+        str(v%max_iter) // ", uzawa_rho_factor = " // echo_real(v%uzawa_rho_factor) // ", uzawa_eps = " // &
+        echo_real(v%uzawa_eps) // ", uzawa_max_iter = " // str(v%uzawa_max_iter) // ", warm_start = " // &
+        echo_logical(v%warm_start) // ", dense_rows = " // str(v%dense_rows) // &
+        ", refresh_every = " // str(v%refresh_every) // " /" // new_line('a')
     end associate
-    s = s // "&contacts cutoff_factor = " // r(cfg%contacts%cutoff_factor) // " /" // new_line('a')
+    s = s // "&contacts cutoff_factor = " // echo_real(cfg%contacts%cutoff_factor) // " /" // new_line('a')
     associate (o => cfg%output)
-      s = s // "&output file = '" // trim(o%file) // "', every = " // i(o%every) // ", store_multipliers = " // &
-        merge(".true. ", ".false.", o%store_multipliers) // ", log_level = '" // trim(o%log_level) // "' /" // &
+      s = s // "&output file = '" // trim(o%file) // "', every = " // str(o%every) // ", store_multipliers = " // &
+        echo_logical(o%store_multipliers) // ", log_level = '" // trim(o%log_level) // "' /" // &
         new_line('a')
     end associate
 
-  contains
-
-    function r(x) result(t)
-      real(wp), intent(in) :: x
-      character(len=:), allocatable :: t
-      character(len=32) :: b
-      write(b, '(es23.16)') x
-      t = trim(adjustl(b))
-    end function r
-
-    function rs(x) result(t)
-      real(wp), intent(in) :: x(:)
-      character(len=:), allocatable :: t
-      integer :: m
-      t = ""
-      do m = 1, size(x)
-        if (m > 1) t = t // ", "
-        t = t // r(x(m))
-      end do
-    end function rs
-
-    function i(n) result(t)
-      integer, intent(in) :: n
-      character(len=:), allocatable :: t
-      character(len=16) :: b
-      write(b, '(i0)') n
-      t = trim(b)
-    end function i
   end function config_echo
 end module cr_config

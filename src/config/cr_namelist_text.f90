@@ -4,12 +4,15 @@
 !> Unknown group names (a misspelt `&agent` for `&agents`) are rejected, so that a group
 !> is never silently ignored.
 module cr_namelist_text
+  use cr_kinds, only: wp
   use cr_error, only: error_t, set_error
   use cr_env, only: env_t
   use cr_strings, only: to_lower, str
   implicit none
   private
   public :: namelist_text_t, MAX_LINE
+  !> shared by every group reader: the read status, the echo of values (exact round trip)
+  public :: nml_status, echo_real, echo_reals, echo_logical
 
   integer, parameter :: MAX_LINE = 1024
 
@@ -267,4 +270,42 @@ contains
     allocate(character(len=64) :: groups(n))
     groups = found(1:n)
   end subroutine list_groups
+  !> Error of a namelist read of `group` (iostat ios, iomsg msg) naming the file, the group and
+  !> what the compiler says (e.g. the variable); an absent group keeps its defaults.
+  subroutine nml_status(t, group, ios, msg, error)
+    type(namelist_text_t), intent(in) :: t
+    character(len=*), intent(in) :: group
+    integer, intent(in) :: ios
+    character(len=*), intent(in) :: msg
+    type(error_t), allocatable, intent(out) :: error
+    if (ios == 0) return
+    if (is_iostat_end(ios) .and. .not. t%has_group(group)) return
+    call set_error(error, t%path // ": namelist group &" // group // ": " // trim(msg), 2)
+  end subroutine nml_status
+
+  !> A real as the echo of a configuration writes it (es23.16: reads back exactly).
+  function echo_real(x) result(t)
+    real(wp), intent(in) :: x
+    character(len=:), allocatable :: t
+    t = str(x, "es23.16")
+  end function echo_real
+
+  !> Reals separated by ", ".
+  function echo_reals(x) result(t)
+    real(wp), intent(in) :: x(:)
+    character(len=:), allocatable :: t
+    integer :: m
+    t = ""
+    do m = 1, size(x)
+      if (m > 1) t = t // ", "
+      t = t // echo_real(x(m))
+    end do
+  end function echo_reals
+
+  !> ".true. " or ".false." (the width the echoes have always had).
+  function echo_logical(l) result(t)
+    logical, intent(in) :: l
+    character(len=:), allocatable :: t
+    t = merge(".true. ", ".false.", l)
+  end function echo_logical
 end module cr_namelist_text

@@ -11,9 +11,7 @@ module cr_env
   implicit none
   private
   public :: env_t, agree_error_on
-  ! ---- snap2 additions (snapshot stage): collectives, shared counter, MPI-IO block file ----
   public :: shared_counter_t, par_file_t
-  ! ---- end snap2 additions ----
 
   !> MPI environment: private duplicate communicator, rank, size.
   type :: env_t
@@ -30,22 +28,46 @@ module cr_env
     procedure :: bcast_string
     procedure :: agree_error
     procedure, nopass :: wtime
-    ! ---- snap2 additions (snapshot stage) ----
-    procedure :: bcast_i4_0, bcast_i4_1, bcast_i8_1, bcast_r8_1
-    generic :: bcast => bcast_i4_0, bcast_i4_1, bcast_i8_1, bcast_r8_1
-    procedure :: allgather_i4, allgather_r8
-    generic :: allgather => allgather_i4, allgather_r8
-    procedure :: allgatherv_i4, allgatherv_i8
-    generic :: allgatherv => allgatherv_i4, allgatherv_i8
-    procedure :: reduce_i4_1, reduce_i8_1, reduce_r8_1
-    generic :: allreduce => reduce_i4_1, reduce_i8_1, reduce_r8_1
-    procedure :: collective_latency
-    procedure :: library_version
+    ! ---- checked collectives and messages for the library modules (linalg, offline, hyper,
+    ! io): every MPI status is checked and a failure returned as an error naming the call,
+    ! the sizes and MPI's own message. Arrays of any rank (contiguous; a section is copied).
+    !> broadcast from rank `root` (default 0)
+    procedure :: bcast_int, bcast_i8, bcast_real
+    generic :: bcast => bcast_int, bcast_i8, bcast_real
+    !> in-place reduction over all ranks, op 'sum', 'min' or 'max'
+    procedure :: allreduce_int, allreduce_i8, allreduce_real
+    generic :: allreduce => allreduce_int, allreduce_i8, allreduce_real
+    !> in-place sum on rank 0 only
+    procedure :: reduce_sum_root
+    !> (value, index) pairs: the largest value over ranks and its index (ties: lowest index)
+    procedure :: allreduce_maxloc
+    !> one value from every rank, in rank order
+    procedure :: allgather_int, allgather_real
+    generic :: allgather => allgather_int, allgather_real
+    !> counts and displacements of a variable-size gather: every rank's n, in rank order
+    procedure :: block_counts
+    !> variable-size gathers and exchanges (counts, displacements in elements)
+    procedure :: allgatherv_int, allgatherv_i8, allgatherv_real
+    generic :: allgatherv => allgatherv_int, allgatherv_i8, allgatherv_real
+    procedure :: gatherv_real, alltoallv_real
+    generic :: gatherv => gatherv_real
+    generic :: alltoallv => alltoallv_real
+    !> every rank's text concatenated in rank order
     procedure :: gather_text
-    ! ---- end snap2 additions ----
+    !> one integer to and from every rank
+    procedure :: alltoall_int
+    generic :: alltoall => alltoall_int
+    !> point-to-point messages
+    procedure :: send_int, send_real, recv_int, recv_real
+    generic :: send => send_int, send_real
+    generic :: recv => recv_int, recv_real
+    !> barrier with its status checked
+    procedure :: sync
+    !> mean time of a small allreduce (s); the MPI library's version line
+    procedure :: collective_latency, library_version
+    ! ---- end of the checked collectives
   end type env_t
 
-  ! ---- snap2 additions (snapshot stage) ----
   !> A set of 64-bit counters held by rank 0 in an MPI one-sided window; any rank adds to one
   !> atomically (passive target: rank 0 need not take part).
   type :: shared_counter_t
@@ -71,7 +93,6 @@ module cr_env
     procedure :: write_at => pfile_write_at
     procedure :: close => pfile_close
   end type par_file_t
-  ! ---- end snap2 additions ----
 
 contains
 
@@ -215,85 +236,154 @@ contains
     call set_error(error, msg, meta(2))
   end subroutine agree_error_on
 
-  ! ---- snap2 additions (snapshot stage): every MPI status checked; on failure `error` says
-  ! ---- which operation failed with which sizes. Collective unless said otherwise.
 
-  !> Error "env: <op> failed (<MPI error string>)" if ierr is not MPI_SUCCESS.
-  subroutine mpi_check(ierr, op, error)
+  !> Wall-clock time in seconds.
+  real(wp) function wtime()
+    wtime = MPI_Wtime()
+  end function wtime
+
+  ! ==================================================================================
+  ! Checked collectives and messages for the library modules (one block, see the type).
+  ! ==================================================================================
+
+  !> Number of elements of an assumed-rank dummy from its shape. gfortran 12 reports the extent
+  !> -1 for a zero-size assumed-shape actual copied into a contiguous assumed-rank dummy, so the
+  !> extents are clamped at 0 (size() would be wrong too).
+  pure integer function n_of(shp)
+    integer, intent(in) :: shp(:)
+    n_of = product(max(shp, 0))
+  end function n_of
+
+  !> Turn a non-zero MPI status into an error "env: <what> failed: <MPI's message>".
+  subroutine check_mpi(ierr, what, error)
     integer, intent(in) :: ierr
-    character(len=*), intent(in) :: op
+    character(len=*), intent(in) :: what
     type(error_t), allocatable, intent(inout) :: error
     character(len=MPI_MAX_ERROR_STRING) :: msg
-    integer :: n, ie
+    integer :: n, ierr2
     if (ierr == MPI_SUCCESS .or. allocated(error)) return
     msg = ''
-    call MPI_Error_string(ierr, msg, n, ie)
-    call set_error(error, "env: " // op // " failed (" // trim(msg) // ")")
-  end subroutine mpi_check
+    call MPI_Error_string(ierr, msg, n, ierr2)
+    if (ierr2 /= MPI_SUCCESS) msg = 'MPI error code ' // str(ierr)
+    call set_error(error, "env: " // what // " failed: " // trim(msg))
+  end subroutine check_mpi
 
-  !> Broadcast x from rank `root` (default 0).
-  subroutine bcast_i4_0(this, x, error, root)
+  !> The MPI operation of 'sum', 'min' or 'max'.
+  subroutine reduction_op(op, mop, error)
+    character(len=*), intent(in) :: op
+    type(MPI_Op), intent(out) :: mop
+    type(error_t), allocatable, intent(out) :: error
+    select case (op)
+    case ('sum'); mop = MPI_SUM
+    case ('min'); mop = MPI_MIN
+    case ('max'); mop = MPI_MAX
+    case default
+      mop = MPI_OP_NULL
+      call set_error(error, "env: unknown reduction '" // op // "' (known: sum, min, max)")
+    end select
+  end subroutine reduction_op
+
+  subroutine bcast_int(this, x, error, root)
     class(env_t), intent(in) :: this
-    integer, intent(inout) :: x
+    integer, contiguous, intent(inout) :: x(..)
     type(error_t), allocatable, intent(out) :: error
     integer, intent(in), optional :: root
-    integer :: ierr
-    call MPI_Bcast(x, 1, MPI_INTEGER, root_of(root), this%comm, ierr)
-    call mpi_check(ierr, "MPI_Bcast of 1 integer", error)
-  end subroutine bcast_i4_0
+    integer :: ierr, r
+    r = 0
+    if (present(root)) r = root
+    call MPI_Bcast(x, n_of(shape(x)), MPI_INTEGER, r, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Bcast of " // str(n_of(shape(x))) // " integer(s) from rank " // str(r), error)
+  end subroutine bcast_int
 
-  subroutine bcast_i4_1(this, x, error, root)
+  subroutine bcast_i8(this, x, error, root)
     class(env_t), intent(in) :: this
-    integer, intent(inout) :: x(:)
+    integer(i8), contiguous, intent(inout) :: x(..)
     type(error_t), allocatable, intent(out) :: error
     integer, intent(in), optional :: root
-    integer :: ierr
-    if (size(x) == 0) return
-    call MPI_Bcast(x, size(x), MPI_INTEGER, root_of(root), this%comm, ierr)
-    call mpi_check(ierr, "MPI_Bcast of " // str(size(x)) // " integers", error)
-  end subroutine bcast_i4_1
+    integer :: ierr, r
+    r = 0
+    if (present(root)) r = root
+    call MPI_Bcast(x, n_of(shape(x)), MPI_INTEGER8, r, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Bcast of " // str(n_of(shape(x))) // " 64-bit integer(s) from rank " // str(r), error)
+  end subroutine bcast_i8
 
-  subroutine bcast_i8_1(this, x, error, root)
+  subroutine bcast_real(this, x, error, root)
     class(env_t), intent(in) :: this
-    integer(i8), intent(inout) :: x(:)
+    real(wp), contiguous, intent(inout) :: x(..)
     type(error_t), allocatable, intent(out) :: error
     integer, intent(in), optional :: root
-    integer :: ierr
-    if (size(x) == 0) return
-    call MPI_Bcast(x, size(x), MPI_INTEGER8, root_of(root), this%comm, ierr)
-    call mpi_check(ierr, "MPI_Bcast of " // str(size(x)) // " 64-bit integers", error)
-  end subroutine bcast_i8_1
+    integer :: ierr, r
+    r = 0
+    if (present(root)) r = root
+    call MPI_Bcast(x, n_of(shape(x)), MPI_DOUBLE_PRECISION, r, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Bcast of " // str(n_of(shape(x))) // " real(s) from rank " // str(r), error)
+  end subroutine bcast_real
 
-  subroutine bcast_r8_1(this, x, error, root)
+  subroutine allreduce_int(this, x, op, error)
     class(env_t), intent(in) :: this
-    real(wp), intent(inout) :: x(:)
+    integer, contiguous, intent(inout) :: x(..)
+    character(len=*), intent(in) :: op
     type(error_t), allocatable, intent(out) :: error
-    integer, intent(in), optional :: root
+    type(MPI_Op) :: mop
     integer :: ierr
-    if (size(x) == 0) return
-    call MPI_Bcast(x, size(x), MPI_DOUBLE_PRECISION, root_of(root), this%comm, ierr)
-    call mpi_check(ierr, "MPI_Bcast of " // str(size(x)) // " reals", error)
-  end subroutine bcast_r8_1
+    call reduction_op(op, mop, error); if (allocated(error)) return
+    call MPI_Allreduce(MPI_IN_PLACE, x, n_of(shape(x)), MPI_INTEGER, mop, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allreduce (" // op // ") of " // str(n_of(shape(x))) // " integer(s)", error)
+  end subroutine allreduce_int
 
-  pure integer function root_of(root)
-    integer, intent(in), optional :: root
-    root_of = 0
-    if (present(root)) root_of = root
-  end function root_of
-
-  !> Every rank's x, in rank order [size].
-  subroutine allgather_i4(this, x, all, error)
+  subroutine allreduce_i8(this, x, op, error)
     class(env_t), intent(in) :: this
-    integer, intent(in) :: x
-    integer, allocatable, intent(out) :: all(:)
+    integer(i8), contiguous, intent(inout) :: x(..)
+    character(len=*), intent(in) :: op
+    type(error_t), allocatable, intent(out) :: error
+    type(MPI_Op) :: mop
+    integer :: ierr
+    call reduction_op(op, mop, error); if (allocated(error)) return
+    call MPI_Allreduce(MPI_IN_PLACE, x, n_of(shape(x)), MPI_INTEGER8, mop, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allreduce (" // op // ") of " // str(n_of(shape(x))) // " 64-bit integer(s)", error)
+  end subroutine allreduce_i8
+
+  subroutine allreduce_real(this, x, op, error)
+    class(env_t), intent(in) :: this
+    real(wp), contiguous, intent(inout) :: x(..)
+    character(len=*), intent(in) :: op
+    type(error_t), allocatable, intent(out) :: error
+    type(MPI_Op) :: mop
+    integer :: ierr
+    call reduction_op(op, mop, error); if (allocated(error)) return
+    call MPI_Allreduce(MPI_IN_PLACE, x, n_of(shape(x)), MPI_DOUBLE_PRECISION, mop, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allreduce (" // op // ") of " // str(n_of(shape(x))) // " real(s)", error)
+  end subroutine allreduce_real
+
+  !> x summed over the ranks, on rank 0 (other ranks' x is left as it was or undefined).
+  subroutine reduce_sum_root(this, x, error)
+    class(env_t), intent(in) :: this
+    real(wp), contiguous, intent(inout) :: x(..)
     type(error_t), allocatable, intent(out) :: error
     integer :: ierr
-    allocate(all(this%size))
-    call MPI_Allgather(x, 1, MPI_INTEGER, all, 1, MPI_INTEGER, this%comm, ierr)
-    call mpi_check(ierr, "MPI_Allgather of 1 integer", error)
-  end subroutine allgather_i4
+    if (this%rank == 0) then
+      call MPI_Reduce(MPI_IN_PLACE, x, n_of(shape(x)), MPI_DOUBLE_PRECISION, MPI_SUM, 0, this%comm, ierr)
+    else
+      call MPI_Reduce(x, x, n_of(shape(x)), MPI_DOUBLE_PRECISION, MPI_SUM, 0, this%comm, ierr)
+    end if
+    call check_mpi(ierr, "MPI_Reduce (sum to rank 0) of " // str(n_of(shape(x))) // " real(s)", error)
+  end subroutine reduce_sum_root
 
-  subroutine allgather_r8(this, x, all, error)
+  !> pair = [value, index] on entry; on return on every rank the pair with the largest value
+  !> (ties: the lowest index), as MPI_MAXLOC on MPI_2DOUBLE_PRECISION.
+  subroutine allreduce_maxloc(this, pair, error)
+    class(env_t), intent(in) :: this
+    real(wp), intent(inout) :: pair(2)
+    type(error_t), allocatable, intent(out) :: error
+    real(wp) :: res(2)
+    integer :: ierr
+    call MPI_Allreduce(pair, res, 1, MPI_2DOUBLE_PRECISION, MPI_MAXLOC, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allreduce (maxloc)", error)
+    if (.not. allocated(error)) pair = res
+  end subroutine allreduce_maxloc
+
+  !> all(p) = x of rank p - 1 [this%size], on every rank.
+  subroutine allgather_real(this, x, all, error)
     class(env_t), intent(in) :: this
     real(wp), intent(in) :: x
     real(wp), allocatable, intent(out) :: all(:)
@@ -301,112 +391,169 @@ contains
     integer :: ierr
     allocate(all(this%size))
     call MPI_Allgather(x, 1, MPI_DOUBLE_PRECISION, all, 1, MPI_DOUBLE_PRECISION, this%comm, ierr)
-    call mpi_check(ierr, "MPI_Allgather of 1 real", error)
-  end subroutine allgather_r8
+    call check_mpi(ierr, "MPI_Allgather of one real per rank", error)
+  end subroutine allgather_real
 
-  !> Concatenation of every rank's x in rank order [sum of sizes]; counts(r) = size on rank r-1.
-  subroutine allgatherv_i4(this, x, all, error, counts)
+  !> all(p) = x of rank p - 1 [this%size], on every rank.
+  subroutine allgather_int(this, x, all, error)
     class(env_t), intent(in) :: this
-    integer, intent(in) :: x(:)
+    integer, intent(in) :: x
     integer, allocatable, intent(out) :: all(:)
     type(error_t), allocatable, intent(out) :: error
-    integer, allocatable, intent(out), optional :: counts(:)
-    integer, allocatable :: cnt(:), displs(:)
     integer :: ierr
-    call gather_counts(this, size(x), cnt, displs, error)
-    if (allocated(error)) return
-    allocate(all(sum(cnt)))
-    call MPI_Allgatherv(x, size(x), MPI_INTEGER, all, cnt, displs, MPI_INTEGER, this%comm, ierr)
-    call mpi_check(ierr, "MPI_Allgatherv of " // str(sum(cnt)) // " integers", error)
-    if (present(counts)) call move_alloc(cnt, counts)
-  end subroutine allgatherv_i4
+    allocate(all(this%size))
+    call MPI_Allgather(x, 1, MPI_INTEGER, all, 1, MPI_INTEGER, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allgather of one integer per rank", error)
+  end subroutine allgather_int
 
-  subroutine allgatherv_i8(this, x, all, error, counts)
+  !> Gather x of every rank into all on rank `root`: rank p's block at all(displs(p)+1:)
+  !> (counts, displs [this%size], significant on root only).
+  subroutine gatherv_real(this, x, all, counts, displs, root, error)
     class(env_t), intent(in) :: this
-    integer(i8), intent(in) :: x(:)
-    integer(i8), allocatable, intent(out) :: all(:)
+    real(wp), contiguous, intent(in) :: x(..)
+    real(wp), contiguous, intent(inout) :: all(..)
+    integer, intent(in) :: counts(:), displs(:)
+    integer, intent(in) :: root
     type(error_t), allocatable, intent(out) :: error
-    integer, allocatable, intent(out), optional :: counts(:)
-    integer, allocatable :: cnt(:), displs(:)
     integer :: ierr
-    call gather_counts(this, size(x), cnt, displs, error)
-    if (allocated(error)) return
-    allocate(all(sum(cnt)))
-    call MPI_Allgatherv(x, size(x), MPI_INTEGER8, all, cnt, displs, MPI_INTEGER8, this%comm, ierr)
-    call mpi_check(ierr, "MPI_Allgatherv of " // str(sum(cnt)) // " 64-bit integers", error)
-    if (present(counts)) call move_alloc(cnt, counts)
-  end subroutine allgatherv_i8
+    call MPI_Gatherv(x, n_of(shape(x)), MPI_DOUBLE_PRECISION, all, counts, displs, MPI_DOUBLE_PRECISION, root, &
+      this%comm, ierr)
+    call check_mpi(ierr, "MPI_Gatherv of " // str(n_of(shape(x))) // " real(s) to rank " // str(root), error)
+  end subroutine gatherv_real
 
-  subroutine gather_counts(this, n, cnt, displs, error)
+  !> counts(p) = n of rank p - 1 and displs(p) = sum(counts(1:p-1)) [this%size] on every rank:
+  !> the layout of a gather of blocks of n elements (error if the total exceeds 32-bit counts).
+  subroutine block_counts(this, n, counts, displs, error)
     class(env_t), intent(in) :: this
     integer, intent(in) :: n
-    integer, allocatable, intent(out) :: cnt(:), displs(:)
+    integer, allocatable, intent(out) :: counts(:), displs(:)
     type(error_t), allocatable, intent(out) :: error
-    integer :: r
-    call this%allgather(n, cnt, error)
+    integer :: p
+    call this%allgather(n, counts, error)
     if (allocated(error)) return
     allocate(displs(this%size))
     displs(1) = 0
-    do r = 2, this%size
-      displs(r) = displs(r - 1) + cnt(r - 1)
+    do p = 2, this%size
+      displs(p) = displs(p - 1) + counts(p - 1)
     end do
-    if (sum(int(cnt, i8)) > huge(1)) call set_error(error, "env: MPI_Allgatherv of " // &
-      str(sum(int(cnt, i8))) // " entries exceeds the 32-bit counts")
-  end subroutine gather_counts
+    if (sum(int(counts, i8)) > huge(1)) call set_error(error, "env: a gather of " // &
+      str(sum(int(counts, i8))) // " elements exceeds the 32-bit MPI counts")
+  end subroutine block_counts
 
-  !> In-place reduction of x over the ranks; op = 'sum', 'max' or 'min'.
-  subroutine reduce_i4_1(this, x, op, error)
+  !> Gather x of every rank into all on every rank: rank p's block at all(displs(p)+1:)
+  !> (counts, displs [this%size], e.g. from block_counts).
+  subroutine allgatherv_int(this, x, all, counts, displs, error)
     class(env_t), intent(in) :: this
-    integer, intent(inout) :: x(:)
-    character(len=*), intent(in) :: op
+    integer, contiguous, intent(in) :: x(..)
+    integer, contiguous, intent(inout) :: all(..)
+    integer, intent(in) :: counts(:), displs(:)
     type(error_t), allocatable, intent(out) :: error
-    type(MPI_Op) :: o
     integer :: ierr
-    call op_of(op, o, error)
-    if (allocated(error) .or. size(x) == 0) return
-    call MPI_Allreduce(MPI_IN_PLACE, x, size(x), MPI_INTEGER, o, this%comm, ierr)
-    call mpi_check(ierr, "MPI_Allreduce (" // op // ") of " // str(size(x)) // " integers", error)
-  end subroutine reduce_i4_1
+    call MPI_Allgatherv(x, n_of(shape(x)), MPI_INTEGER, all, counts, displs, MPI_INTEGER, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allgatherv of " // str(sum(int(counts, i8))) // " integer(s)", error)
+  end subroutine allgatherv_int
 
-  subroutine reduce_i8_1(this, x, op, error)
+  subroutine allgatherv_i8(this, x, all, counts, displs, error)
     class(env_t), intent(in) :: this
-    integer(i8), intent(inout) :: x(:)
-    character(len=*), intent(in) :: op
+    integer(i8), contiguous, intent(in) :: x(..)
+    integer(i8), contiguous, intent(inout) :: all(..)
+    integer, intent(in) :: counts(:), displs(:)
     type(error_t), allocatable, intent(out) :: error
-    type(MPI_Op) :: o
     integer :: ierr
-    call op_of(op, o, error)
-    if (allocated(error) .or. size(x) == 0) return
-    call MPI_Allreduce(MPI_IN_PLACE, x, size(x), MPI_INTEGER8, o, this%comm, ierr)
-    call mpi_check(ierr, "MPI_Allreduce (" // op // ") of " // str(size(x)) // " 64-bit integers", error)
-  end subroutine reduce_i8_1
+    call MPI_Allgatherv(x, n_of(shape(x)), MPI_INTEGER8, all, counts, displs, MPI_INTEGER8, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allgatherv of " // str(sum(int(counts, i8))) // " 64-bit integer(s)", error)
+  end subroutine allgatherv_i8
 
-  subroutine reduce_r8_1(this, x, op, error)
+  subroutine allgatherv_real(this, x, all, counts, displs, error)
     class(env_t), intent(in) :: this
-    real(wp), intent(inout) :: x(:)
-    character(len=*), intent(in) :: op
+    real(wp), contiguous, intent(in) :: x(..)
+    real(wp), contiguous, intent(inout) :: all(..)
+    integer, intent(in) :: counts(:), displs(:)
     type(error_t), allocatable, intent(out) :: error
-    type(MPI_Op) :: o
     integer :: ierr
-    call op_of(op, o, error)
-    if (allocated(error) .or. size(x) == 0) return
-    call MPI_Allreduce(MPI_IN_PLACE, x, size(x), MPI_DOUBLE_PRECISION, o, this%comm, ierr)
-    call mpi_check(ierr, "MPI_Allreduce (" // op // ") of " // str(size(x)) // " reals", error)
-  end subroutine reduce_r8_1
+    call MPI_Allgatherv(x, n_of(shape(x)), MPI_DOUBLE_PRECISION, all, counts, displs, MPI_DOUBLE_PRECISION, &
+      this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allgatherv of " // str(sum(int(counts, i8))) // " real(s)", error)
+  end subroutine allgatherv_real
 
-  subroutine op_of(op, o, error)
-    character(len=*), intent(in) :: op
-    type(MPI_Op), intent(out) :: o
+  !> Exchange blocks of reals between all ranks (counts, displacements [this%size]).
+  subroutine alltoallv_real(this, sendbuf, scount, sdispl, recvbuf, rcount, rdispl, error)
+    class(env_t), intent(in) :: this
+    real(wp), contiguous, intent(in) :: sendbuf(..)
+    integer, intent(in) :: scount(:), sdispl(:)
+    real(wp), contiguous, intent(inout) :: recvbuf(..)
+    integer, intent(in) :: rcount(:), rdispl(:)
     type(error_t), allocatable, intent(out) :: error
-    select case (op)
-    case ('sum'); o = MPI_SUM
-    case ('max'); o = MPI_MAX
-    case ('min'); o = MPI_MIN
-    case default
-      o = MPI_OP_NULL
-      call set_error(error, "env: unknown reduction '" // op // "' (sum, max, min)")
-    end select
-  end subroutine op_of
+    integer :: ierr
+    call MPI_Alltoallv(sendbuf, scount, sdispl, MPI_DOUBLE_PRECISION, recvbuf, rcount, rdispl, &
+      MPI_DOUBLE_PRECISION, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Alltoallv of " // str(sum(scount)) // " real(s)", error)
+  end subroutine alltoallv_real
+
+  !> recv(p) = send(this%rank + 1) of rank p - 1 [this%size].
+  subroutine alltoall_int(this, send, recv, error)
+    class(env_t), intent(in) :: this
+    integer, intent(in) :: send(:)
+    integer, intent(out) :: recv(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    call MPI_Alltoall(send, 1, MPI_INTEGER, recv, 1, MPI_INTEGER, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Alltoall of one integer per rank", error)
+  end subroutine alltoall_int
+
+  subroutine send_int(this, x, dest, tag, error)
+    class(env_t), intent(in) :: this
+    integer, contiguous, intent(in) :: x(..)
+    integer, intent(in) :: dest, tag
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    call MPI_Send(x, n_of(shape(x)), MPI_INTEGER, dest, tag, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Send of " // str(n_of(shape(x))) // " integer(s) to rank " // str(dest), error)
+  end subroutine send_int
+
+  subroutine send_real(this, x, dest, tag, error)
+    class(env_t), intent(in) :: this
+    real(wp), contiguous, intent(in) :: x(..)
+    integer, intent(in) :: dest, tag
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    call MPI_Send(x, n_of(shape(x)), MPI_DOUBLE_PRECISION, dest, tag, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Send of " // str(n_of(shape(x))) // " real(s) to rank " // str(dest), error)
+  end subroutine send_real
+
+  subroutine recv_int(this, x, source, tag, error)
+    class(env_t), intent(in) :: this
+    integer, contiguous, intent(inout) :: x(..)
+    integer, intent(in) :: source, tag
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    call MPI_Recv(x, n_of(shape(x)), MPI_INTEGER, source, tag, this%comm, MPI_STATUS_IGNORE, ierr)
+    call check_mpi(ierr, "MPI_Recv of " // str(n_of(shape(x))) // " integer(s) from rank " // str(source), error)
+  end subroutine recv_int
+
+  subroutine recv_real(this, x, source, tag, error)
+    class(env_t), intent(in) :: this
+    real(wp), contiguous, intent(inout) :: x(..)
+    integer, intent(in) :: source, tag
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    call MPI_Recv(x, n_of(shape(x)), MPI_DOUBLE_PRECISION, source, tag, this%comm, MPI_STATUS_IGNORE, ierr)
+    call check_mpi(ierr, "MPI_Recv of " // str(n_of(shape(x))) // " real(s) from rank " // str(source), error)
+  end subroutine recv_real
+
+  !> Barrier (every rank waits for all).
+  subroutine sync(this, error)
+    class(env_t), intent(in) :: this
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    call MPI_Barrier(this%comm, ierr)
+    call check_mpi(ierr, "MPI_Barrier", error)
+  end subroutine sync
+  ! ---- end of the checked collectives
+
+  ! ==================================================================================
+  ! Measures, text gathers, shared counters and MPI-IO block files (snapshot stage).
+  ! ==================================================================================
 
   !> Mean wall time of a one-integer MPI_Allreduce over `reps` repetitions (s), rank 0's value
   !> on every rank.
@@ -419,13 +566,13 @@ contains
     real(wp) :: t0
     t = 0
     call MPI_Barrier(this%comm, ierr)
-    call mpi_check(ierr, "MPI_Barrier", error)
+    call check_mpi(ierr, "MPI_Barrier", error)
     if (allocated(error)) return
     t0 = MPI_Wtime()
     do k = 1, reps
       one = 1
       call MPI_Allreduce(MPI_IN_PLACE, one, 1, MPI_INTEGER, MPI_SUM, this%comm, ierr)
-      call mpi_check(ierr, "MPI_Allreduce of 1 integer", error)
+      call check_mpi(ierr, "MPI_Allreduce of 1 integer", error)
       if (allocated(error)) return
     end do
     tt = (MPI_Wtime() - t0) / max(reps, 1)
@@ -441,11 +588,11 @@ contains
     type(error_t), allocatable, intent(out) :: error
     integer, allocatable :: cnt(:), displs(:)
     integer :: ierr
-    call gather_counts(this, len(s), cnt, displs, error)
+    call this%block_counts(len(s), cnt, displs, error)
     if (allocated(error)) return
     allocate(character(len=sum(cnt)) :: all)
     call MPI_Allgatherv(s, len(s), MPI_CHARACTER, all, cnt, displs, MPI_CHARACTER, this%comm, ierr)
-    call mpi_check(ierr, "MPI_Allgatherv of " // str(sum(cnt)) // " characters", error)
+    call check_mpi(ierr, "MPI_Allgatherv of " // str(sum(cnt)) // " characters", error)
   end subroutine gather_text
 
   !> First line of the MPI library's version string (not collective).
@@ -473,16 +620,16 @@ contains
     bytes = 0
     if (env%rank == 0) bytes = 8 * n_slots
     call MPI_Win_allocate(bytes, 8, MPI_INFO_NULL, env%comm, base, this%win, ierr)
-    call mpi_check(ierr, "MPI_Win_allocate of " // str(n_slots) // " counters", error)
+    call check_mpi(ierr, "MPI_Win_allocate of " // str(n_slots) // " counters", error)
     if (allocated(error)) return
     if (env%rank == 0) then
       call c_f_pointer(base, this%slots, [n_slots])
       call MPI_Win_lock(MPI_LOCK_EXCLUSIVE, 0, 0, this%win, ierr)
-      call mpi_check(ierr, "MPI_Win_lock (counter init)", error)
+      call check_mpi(ierr, "MPI_Win_lock (counter init)", error)
       if (allocated(error)) return
       this%slots = 0
       call MPI_Win_unlock(0, this%win, ierr)
-      call mpi_check(ierr, "MPI_Win_unlock (counter init)", error)
+      call check_mpi(ierr, "MPI_Win_unlock (counter init)", error)
     end if
     ! the agreement is also the barrier: no rank takes a ticket before rank 0 has zeroed them
     call env%agree_error(error)
@@ -503,16 +650,16 @@ contains
     res = 0
     old = -1
     call MPI_Win_lock(MPI_LOCK_SHARED, 0, 0, this%win, ierr)
-    call mpi_check(ierr, "MPI_Win_lock (shared counter)", error)
+    call check_mpi(ierr, "MPI_Win_lock (shared counter)", error)
     if (allocated(error)) return
     if (inc == 0) then
       call MPI_Fetch_and_op(one, res, MPI_INTEGER8, 0, int(slot - 1, MPI_ADDRESS_KIND), MPI_NO_OP, this%win, ierr)
     else
       call MPI_Fetch_and_op(one, res, MPI_INTEGER8, 0, int(slot - 1, MPI_ADDRESS_KIND), MPI_SUM, this%win, ierr)
     end if
-    call mpi_check(ierr, "MPI_Fetch_and_op (shared counter " // str(slot) // ")", error)
+    call check_mpi(ierr, "MPI_Fetch_and_op (shared counter " // str(slot) // ")", error)
     call MPI_Win_unlock(0, this%win, ierr)
-    call mpi_check(ierr, "MPI_Win_unlock (shared counter)", error)
+    call check_mpi(ierr, "MPI_Win_unlock (shared counter)", error)
     if (allocated(error)) return
     old = res(1)
     this%n_calls = this%n_calls + 1
@@ -538,7 +685,7 @@ contains
     this%path = path
     this%comm = env%comm
     call MPI_File_open(env%comm, path, MPI_MODE_WRONLY, MPI_INFO_NULL, this%fh, ierr)
-    call mpi_check(ierr, "MPI_File_open of '" // path // "' for writing", error)
+    call check_mpi(ierr, "MPI_File_open of '" // path // "' for writing", error)
   end subroutine pfile_open
 
   !> Write nbytes bytes of buf at byte offset `offset` of the file (independent: not
@@ -556,7 +703,7 @@ contains
         "' exceeds one MPI count"); return
     end if
     call MPI_File_write_at(this%fh, int(offset, MPI_OFFSET_KIND), buf, int(nbytes), MPI_BYTE, st, ierr)
-    call mpi_check(ierr, "MPI_File_write_at of " // str(nbytes) // " bytes at offset " // str(offset) // &
+    call check_mpi(ierr, "MPI_File_write_at of " // str(nbytes) // " bytes at offset " // str(offset) // &
       " of '" // this%path // "'", error)
     if (allocated(error)) return
     call MPI_Get_count(st, MPI_BYTE, got, ierr)
@@ -572,13 +719,8 @@ contains
     integer :: ierr
     if (this%fh == MPI_FILE_NULL) return
     call MPI_File_close(this%fh, ierr)
-    call mpi_check(ierr, "MPI_File_close of '" // this%path // "'", error)
+    call check_mpi(ierr, "MPI_File_close of '" // this%path // "'", error)
     this%fh = MPI_FILE_NULL
   end subroutine pfile_close
-  ! ---- end snap2 additions ----
-
-  !> Wall-clock time in seconds.
-  real(wp) function wtime()
-    wtime = MPI_Wtime()
-  end function wtime
 end module cr_env
+

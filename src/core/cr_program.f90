@@ -3,7 +3,8 @@
 !> once (`error: <message>`), the exit code is agreed by all ranks, MPI is finalised.
 !> Only the driver stops (with the code returned by program_finish).
 module cr_program
-  use mpi_f08
+  ! MPI's life cycle (init, finalize) is the program's; every other call goes through env_t
+  use mpi_f08, only: MPI_Init, MPI_Finalize, MPI_COMM_WORLD
   use cr_error, only: error_t
   use cr_env, only: env_t
   use cr_logger, only: logger_t, LOG_ERROR, LOG_WARN, LOG_INFO, LOG_DEBUG
@@ -38,12 +39,17 @@ contains
     type(logger_t), intent(in) :: log
     type(error_t), allocatable, intent(in) :: error
     integer :: ierr
+    type(error_t), allocatable :: e
     code = 0
     if (allocated(error)) then
       call log%error(error%message)
       code = error%code
     end if
-    call MPI_Allreduce(MPI_IN_PLACE, code, 1, MPI_INTEGER, MPI_MAX, env%comm, ierr)
+    call env%allreduce(code, 'max', e)
+    if (allocated(e)) then
+      call log%error(e%message)
+      code = max(code, 1)
+    end if
     call env%free()
     ! HDF5 (objects, files, then the library) is shut down before MPI, also after an error
     call h5_library_close()

@@ -6,15 +6,15 @@ module cr_config_check
   use cr_kinds, only: wp
   use cr_error, only: error_t, problems_t
   use cr_strings, only: str
-  use cr_config, only: config_t, MAX_OBST, MAX_POLY_V
+  use cr_config, only: config_t
+  use cr_obstacles, only: check_obstacles_sane, check_obstacles
   use cr_projection, only: projection_solver_t, make_projection_solver
+  ! the sane magnitudes and their check (cr_sane) are also offered here to the other readers
+  use cr_sane, only: need_sane, MAX_LENGTH, MIN_LENGTH, MAX_SPEED
   implicit none
   private
   public :: check_config, PACKING_LIMIT, need_sane, MAX_LENGTH, MIN_LENGTH, MAX_SPEED, MAX_STEPS
 
-  !> Sane magnitudes of input values (SI units): beyond them a run is meaningless and sizes
-  !> derived from them (grids, cell lists, step counts) overflow.
-  real(wp), parameter :: MAX_LENGTH = 1.0e4_wp, MIN_LENGTH = 1.0e-6_wp, MAX_SPEED = 1.0e6_wp
   !> the largest number of time steps (records of every step are kept in memory)
   integer, parameter :: MAX_STEPS = 10000000
   !> the largest distance-field grid (cells) and hall size in agent radii (cell lists)
@@ -43,27 +43,7 @@ contains
       call need_sane(probs, s%l_exit, "&scene: l_exit", MAX_LENGTH, MIN_LENGTH)
       call need_sane(probs, s%exit_center, "&scene: exit_center", MAX_LENGTH)
       call need_sane(probs, s%wall_thickness, "&scene: wall_thickness", MAX_LENGTH, MIN_LENGTH)
-      do k = 1, min(max(o%n_disks, 0), MAX_OBST)
-        call need_sane(probs, o%disk_x(k), "&obstacles: disk_x(" // str(k) // ")", MAX_LENGTH)
-        call need_sane(probs, o%disk_y(k), "&obstacles: disk_y(" // str(k) // ")", MAX_LENGTH)
-        call need_sane(probs, o%disk_r(k), "&obstacles: disk_r(" // str(k) // ")", MAX_LENGTH, MIN_LENGTH)
-      end do
-      do k = 1, min(max(o%n_segments, 0), MAX_OBST)
-        call need_sane(probs, o%seg_x1(k), "&obstacles: seg_x1(" // str(k) // ")", MAX_LENGTH)
-        call need_sane(probs, o%seg_y1(k), "&obstacles: seg_y1(" // str(k) // ")", MAX_LENGTH)
-        call need_sane(probs, o%seg_x2(k), "&obstacles: seg_x2(" // str(k) // ")", MAX_LENGTH)
-        call need_sane(probs, o%seg_y2(k), "&obstacles: seg_y2(" // str(k) // ")", MAX_LENGTH)
-        call need_sane(probs, o%seg_half_thickness(k), "&obstacles: seg_half_thickness(" // str(k) // ")", &
-          MAX_LENGTH, MIN_LENGTH)
-      end do
-      do k = 1, min(max(o%n_polygons, 0), MAX_OBST)
-        if (.not. (all(ieee_is_finite(o%poly_x(:, k))) .and. all(ieee_is_finite(o%poly_y(:, k))))) then
-          call probs%need(.false., "&obstacles: poly_x/poly_y of polygon " // str(k) // " must be finite")
-        else
-          call probs%need(all(abs(o%poly_x(:, k)) <= MAX_LENGTH) .and. all(abs(o%poly_y(:, k)) <= MAX_LENGTH), &
-            "&obstacles: vertices of polygon " // str(k) // " must lie within " // str(MAX_LENGTH) // " m")
-        end if
-      end do
+      call check_obstacles_sane(o, probs)
       call need_sane(probs, a%radius, "&agents: radius", MAX_LENGTH, MIN_LENGTH)
       call need_sane(probs, a%speed, "&agents: speed", MAX_SPEED)
       do k = 1, 4
@@ -87,7 +67,7 @@ contains
           ieee_is_finite(s%hall_width)) then
         call probs%need(max(s%hall_length, s%hall_width) / a%radius <= MAX_RADII, "&agents: radius = " // &
           str(a%radius) // " is below 1e-6 of the hall size (" // str(max(s%hall_length, s%hall_width)) // ")")
-        if (d%field == 'grid' .or. (d%field == 'auto' .and. o%n_disks + o%n_segments + o%n_polygons > 0)) then
+        if (d%field == 'grid' .or. (d%field == 'auto' .and. o%count() > 0)) then
           frac = d%grid_dx
           if (frac == 0) frac = a%radius / 4
           if (ieee_is_finite(frac) .and. frac > 0) then
@@ -108,22 +88,7 @@ contains
         call probs%need(s%exit_center - s%l_exit / 2 >= 0 .and. s%exit_center + s%l_exit / 2 <= s%hall_length, &
           "&scene: exit_center = " // str(s%exit_center) // " puts the opening outside the wall")
       end if
-      ! &obstacles
-      call probs%need(o%n_disks >= 0 .and. o%n_disks <= MAX_OBST, "&obstacles: n_disks must be in 0.." // str(MAX_OBST))
-      call probs%need(o%n_segments >= 0 .and. o%n_segments <= MAX_OBST, "&obstacles: n_segments must be in 0.." // str(MAX_OBST))
-      call probs%need(o%n_polygons >= 0 .and. o%n_polygons <= MAX_OBST, "&obstacles: n_polygons must be in 0.." // str(MAX_OBST))
-      do k = 1, min(max(o%n_disks, 0), MAX_OBST)
-        call probs%need(o%disk_r(k) > 0, "&obstacles: disk_r(" // str(k) // ") must be > 0 (got " // str(o%disk_r(k)) // ")")
-      end do
-      do k = 1, min(max(o%n_segments, 0), MAX_OBST)
-        call probs%need(o%seg_half_thickness(k) >= 0, "&obstacles: seg_half_thickness(" // str(k) // ") must be >= 0")
-        call probs%need(o%seg_x1(k) /= o%seg_x2(k) .or. o%seg_y1(k) /= o%seg_y2(k), &
-          "&obstacles: segment " // str(k) // " has equal endpoints (seg_x1/seg_y1 = seg_x2/seg_y2)")
-      end do
-      do k = 1, min(max(o%n_polygons, 0), MAX_OBST)
-        call probs%need(o%poly_nv(k) >= 3 .and. o%poly_nv(k) <= MAX_POLY_V, "&obstacles: poly_nv(" // str(k) // &
-          ") must be in 3.." // str(MAX_POLY_V) // " (got " // str(o%poly_nv(k)) // ")")
-      end do
+      call check_obstacles(o, probs)
       ! &agents
       call probs%need(a%n_agents >= 1, "&agents: n_agents must be >= 1 (got " // str(a%n_agents) // ")")
       call probs%need(a%radius > 0, "&agents: radius must be > 0 (got " // str(a%radius) // ")")
@@ -183,31 +148,4 @@ contains
 
   end subroutine check_config
 
-  !> Record a problem unless `x` is finite, |x| <= hi and (when given, for x > 0) x >= lo.
-  subroutine need_sane(probs, x, what, hi, lo)
-    type(problems_t), intent(inout) :: probs
-    real(wp), intent(in) :: x, hi
-    character(len=*), intent(in) :: what
-    real(wp), intent(in), optional :: lo
-    if (.not. ieee_is_finite(x)) then
-      call probs%need(.false., what // " must be a finite number (got " // num(x) // ")")
-    else if (abs(x) > hi) then
-      call probs%need(.false., what // " = " // num(x) // " is beyond the sane magnitude " // num(hi))
-    else if (present(lo)) then
-      if (x > 0 .and. x < lo) call probs%need(.false., what // " = " // num(x) // " is below " // num(lo))
-    end if
-  end subroutine need_sane
-
-  !> A number for a message, with three exponent digits when needed (1.0E+308).
-  function num(x) result(t)
-    real(wp), intent(in) :: x
-    character(len=:), allocatable :: t
-    character(len=32) :: buf
-    if (ieee_is_finite(x) .and. x /= 0 .and. (abs(x) >= 1.0e99_wp .or. abs(x) < 1.0e-99_wp)) then
-      write(buf, '(es12.4e3)') x
-      t = trim(adjustl(buf))
-    else
-      t = str(x)
-    end if
-  end function num
 end module cr_config_check

@@ -16,7 +16,6 @@
 !> at i_k), interp_k(s) = interp_{k-1}(s) + (r_{k-1}(i_k) / rho_k(i_k)) rho_k, where r_{k-1} =
 !> s - interp_{k-1}(s). Each snapshot costs O(p m) for the whole history.
 module cr_eim
-  use mpi_f08, only: MPI_Allreduce, MPI_IN_PLACE, MPI_DOUBLE_PRECISION, MPI_MAX, MPI_SUCCESS
   use cr_kinds, only: wp
   use cr_env, only: env_t
   use cr_error, only: error_t, set_error, prefix_error
@@ -75,7 +74,7 @@ contains
     integer, parameter :: NB = 32
     real(wp), allocatable :: rho(:, :), r(:, :), err_local(:), snorm(:)
     real(wp) :: alpha
-    integer :: p, m, n_snap, offset, i, j, j0, k, nb_here, ierr
+    integer :: p, m, n_snap, offset, i, j, j0, k, nb_here
 
     p = size(s_local, 1)
     if (m_max < 0 .or. m_max > p) then
@@ -137,10 +136,9 @@ contains
     end do
     eim%err = err_local
     if (env%size > 1) then
-      call MPI_Allreduce(MPI_IN_PLACE, eim%err, m, MPI_DOUBLE_PRECISION, MPI_MAX, env%comm, ierr)
-      if (ierr /= MPI_SUCCESS) then
-        call set_error(error, "eim_build: MPI_Allreduce of the error history failed (m = " // &
-          & str(m) // ")")
+      call env%allreduce(eim%err(1:m), 'max', error)
+      if (allocated(error)) then
+        call prefix_error(error, "eim_build: the error history (m = " // str(m) // ")")
         return
       end if
     end if

@@ -39,7 +39,6 @@
 !> * Stops at m_max, when err <= tol (tol > 0), or when no admissible candidate is left; the
 !>   last two set `note`.
 module cr_eq
-  use mpi_f08, only: MPI_Reduce, MPI_Bcast, MPI_IN_PLACE, MPI_DOUBLE_PRECISION, MPI_SUM, MPI_SUCCESS
   use cr_kinds, only: wp
   use cr_env, only: env_t
   use cr_error, only: error_t, set_error, prefix_error
@@ -102,7 +101,7 @@ contains
     real(wp), allocatable, intent(out) :: h(:, :)
     type(error_t), allocatable, intent(out) :: error
     real(wp), allocatable :: packed(:)
-    integer :: p, n_snap, offset, i, j, pos, ierr, n
+    integer :: p, n_snap, offset, i, j, pos, n
 
     call snapshot_layout(env, s_local, n_snap, offset, error)
     if (allocated(error)) then
@@ -128,15 +127,11 @@ contains
         packed(pos + 1:pos + j) = h(1:j, j)
         pos = pos + j
       end do
-      if (env%rank == ROOT) then
-        call MPI_Reduce(MPI_IN_PLACE, packed, n, MPI_DOUBLE_PRECISION, MPI_SUM, ROOT, env%comm, ierr)
-      else
-        call MPI_Reduce(packed, packed, n, MPI_DOUBLE_PRECISION, MPI_SUM, ROOT, env%comm, ierr)
-      end if
-      if (ierr == MPI_SUCCESS) call MPI_Bcast(packed, n, MPI_DOUBLE_PRECISION, ROOT, env%comm, ierr)
-      if (ierr /= MPI_SUCCESS) then
-        call set_error(error, "eq_gramian: summing the " // str(p) // " x " // str(p) // &
-          & " Gramian over the ranks failed")
+      call env%reduce_sum_root(packed, error)
+      if (.not. allocated(error)) call env%bcast(packed, error, root=ROOT)
+      if (allocated(error)) then
+        call prefix_error(error, "eq_gramian: summing the " // str(p) // " x " // str(p) // &
+          & " Gramian over the ranks")
         return
       end if
       pos = 0

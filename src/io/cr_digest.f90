@@ -11,7 +11,6 @@
 !> Stored as the attribute `checksum` (16 hex digits) of the dataset; `put_digest` writes it,
 !> `check_digest` compares it with the digest of the data a reader actually read.
 module cr_digest
-  use mpi_f08, only: MPI_Allreduce, MPI_IN_PLACE, MPI_INTEGER8, MPI_SUM
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error
   use cr_env, only: env_t
@@ -172,12 +171,16 @@ contains
   end function digest_add
 
   !> Collective: the sum of every rank's parts (each rank gets the digests of the wholes), for
-  !> one digest or several at once (one MPI_Allreduce).
-  subroutine digest_allreduce(env, d)
+  !> one digest or several at once (one MPI_Allreduce). If the sum fails, the error is
+  !> returned (when asked for) and the digests are set to an impossible value (-1), so that
+  !> no checksum can match them.
+  subroutine digest_allreduce(env, d, error)
     type(env_t), intent(in) :: env
     type(digest_t), intent(inout) :: d(..)
+    type(error_t), allocatable, intent(out), optional :: error
     integer(i8), allocatable :: s(:)
-    integer :: ierr, k, n
+    type(error_t), allocatable :: e
+    integer :: k, n
     if (env%size == 1) return
     select rank (d)
     rank (0)
@@ -190,15 +193,18 @@ contains
       end do
     end select
     ! at most 2^31 ranks of residues < 2^31: no overflow
-    call MPI_Allreduce(MPI_IN_PLACE, s, size(s), MPI_INTEGER8, MPI_SUM, env%comm, ierr)
+    call env%allreduce(s, 'sum', e)
+    if (.not. allocated(e)) s = fold(s)
+    if (allocated(e)) s = -1
     select rank (d)
     rank (0)
-      d%s1 = fold(s(1)); d%s2 = fold(s(2))
+      d%s1 = s(1); d%s2 = s(2)
     rank (1)
       do k = 1, size(d)
-        d(k)%s1 = fold(s(2 * k - 1)); d(k)%s2 = fold(s(2 * k))
+        d(k)%s1 = s(2 * k - 1); d(k)%s2 = s(2 * k)
       end do
     end select
+    if (allocated(e) .and. present(error)) call move_alloc(e, error)
   end subroutine digest_allreduce
 
   !> 16 lower-case hex digits.
@@ -248,7 +254,8 @@ contains
     type(error_t), allocatable, intent(out) :: error
     type(digest_t) :: total
     total = d
-    call digest_allreduce(env, total)
+    call digest_allreduce(env, total, error)
+    if (allocated(error)) return
     call check_digest(h5, name, total, what, error)
   end subroutine check_digest_parts
 end module cr_digest

@@ -29,9 +29,8 @@
 module cr_h5file
   use, intrinsic :: iso_c_binding, only: c_ptr, c_null_ptr, c_loc, c_char, c_null_char, &
     c_associated, c_int, c_f_pointer, c_int64_t
-  use mpi_f08, only: MPI_Comm, MPI_COMM_NULL, MPI_INFO_NULL, MPI_Comm_dup, MPI_Comm_free, &
-    MPI_Allreduce, MPI_Bcast, MPI_Barrier, MPI_LOGICAL, MPI_LOR, MPI_INTEGER, MPI_INTEGER8, MPI_SUM, &
-    MPI_IN_PLACE, operator(/=), operator(==)
+  ! the MPI-IO driver of HDF5 takes the communicator itself; every other MPI call goes through env_t
+  use mpi_f08, only: MPI_INFO_NULL
   use hdf5, only: hid_t, hsize_t, size_t, h5open_f, h5close_f, h5fflush_f, H5F_SCOPE_GLOBAL_F, &
     h5eset_auto_f, h5kind_to_type, &
     H5_REAL_KIND, H5_INTEGER_KIND, H5P_DEFAULT_F, H5P_FILE_ACCESS_F, H5P_LINK_CREATE_F, &
@@ -50,7 +49,7 @@ module cr_h5file
     h5pset_alloc_time_f, h5pset_fill_time_f, h5dget_offset_f, H5D_ALLOC_TIME_EARLY_F, H5D_FILL_TIME_NEVER_F
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error
-  use cr_env, only: env_t, agree_error_on
+  use cr_env, only: env_t
   use cr_strings, only: str
   use cr_fsys, only: rename_file, remove_file, truncate_file, clear_errno, io_fault_text, discard_fd, errno_text, &
     reserve_space, errno_name, file_size, truncate_to
@@ -64,7 +63,6 @@ module cr_h5file
   !> h5open_f has been called (once per process)
   logical, save :: h5_ready = .false.
 
-
   !> An open HDF5 file (see the module header for atomic and parallel semantics).
   type :: h5file_t
     private
@@ -77,8 +75,9 @@ module cr_h5file
     logical :: temporary = .false.
     logical :: writable = .false.
     logical :: parallel = .false.
-    !> duplicate of the env communicator (owned, parallel only)
-    type(MPI_Comm) :: comm = MPI_COMM_NULL
+    !> environment on a duplicate of the env communicator (owned while comm_held, parallel only)
+    type(env_t) :: env
+    logical :: comm_held = .false.
     !> bytes of the file on disk reserved by ensure_space (a writable temporary only);
     !> -1: the file system cannot reserve, writes go on unreserved
     integer(i8) :: reserved = 0
@@ -97,22 +96,20 @@ module cr_h5file
     procedure :: create_extendible
     procedure :: create_dataset
     procedure :: create_placed
-    procedure, private :: w_real0, w_real1, w_real2, w_real3, w_int0, w_int1, w_int2, &
-      w_int64_1, w_string
-    generic :: write => w_real0, w_real1, w_real2, w_real3, w_int0, w_int1, w_int2, &
-      w_int64_1, w_string
+    procedure, private :: w_real, w_int, w_int64_1, w_string
+    generic :: write => w_real, w_int, w_int64_1, w_string
     procedure, private :: r_real0, r_real1, r_real2, r_real3, r_int0, r_int1, r_int2, &
       r_int64_1, r_string
     generic :: read => r_real0, r_real1, r_real2, r_real3, r_int0, r_int1, r_int2, &
       r_int64_1, r_string
     procedure, private :: a_real0, a_real1, a_real2, a_int0, a_int1, a_int2, a_int64_0, a_int64_1
     generic :: append => a_real0, a_real1, a_real2, a_int0, a_int1, a_int2, a_int64_0, a_int64_1
-    procedure, private :: wb_real1, wb_real2, wb_int1, wb_int2, wb_int64_1
-    generic :: write_block => wb_real1, wb_real2, wb_int1, wb_int2, wb_int64_1
-    procedure, private :: wr_real1, wr_real2, wr_int1, wr_int2, wr_int64_1
-    generic :: write_ranges => wr_real1, wr_real2, wr_int1, wr_int2, wr_int64_1
-    procedure, private :: rb_real1, rb_real2, rb_int1, rb_int2, rb_int64_1
-    generic :: read_block => rb_real1, rb_real2, rb_int1, rb_int2, rb_int64_1
+    procedure, private :: wb_real, wb_int, wb_int64_1
+    generic :: write_block => wb_real, wb_int, wb_int64_1
+    procedure, private :: wr_real, wr_int, wr_int64_1
+    generic :: write_ranges => wr_real, wr_int, wr_int64_1
+    procedure, private :: rb_real, rb_int, rb_int64_1
+    generic :: read_block => rb_real, rb_int, rb_int64_1
     procedure, private :: wa_string, wa_real, wa_int, wa_real1, wa_int1
     generic :: write_attr => wa_string, wa_real, wa_int, wa_real1, wa_int1
     procedure, private :: ra_string, ra_real, ra_int, ra_real1, ra_int1
@@ -205,8 +202,8 @@ contains
   subroutine sync_error(this, error)
     class(h5file_t), intent(in) :: this
     type(error_t), allocatable, intent(inout) :: error
-    if (.not. this%parallel .or. this%comm == MPI_COMM_NULL) return
-    call agree_error_on(this%comm, error)
+    if (.not. this%parallel .or. .not. this%comm_held) return
+    call this%env%agree_error(error)
   end subroutine sync_error
 
   subroutine init_hdf5(error)
@@ -359,11 +356,19 @@ contains
     type(error_t), allocatable, intent(inout) :: error
     integer(i8) :: total, need, want
     integer(c_int64_t) :: eoa
-    integer :: status, ierr
+    integer :: status
+    integer(i8) :: shared(2)
+    type(error_t), allocatable :: e
     if (this%fid < 0 .or. .not. this%writable) return
     if (this%reserved < 0) return
     total = max(nbytes, 0_i8)
-    if (this%parallel) call MPI_Allreduce(MPI_IN_PLACE, total, 1, MPI_INTEGER8, MPI_SUM, this%comm, ierr)
+    if (this%parallel) then
+      call this%env%allreduce(total, 'sum', e)
+      if (allocated(e)) then
+        if (.not. allocated(error)) call fail(this, error, op, name, e%message)
+        return
+      end if
+    end if
     status = 0
     if (this%rank == 0) then
       eoa = 0
@@ -383,8 +388,13 @@ contains
       end if
     end if
     if (this%parallel) then
-      call MPI_Bcast(status, 1, MPI_INTEGER, 0, this%comm, ierr)
-      call MPI_Bcast(this%reserved, 1, MPI_INTEGER8, 0, this%comm, ierr)
+      shared = [int(status, i8), this%reserved]
+      call this%env%bcast(shared, e, root=0)
+      if (allocated(e)) then
+        if (.not. allocated(error)) call fail(this, error, op, name, e%message)
+        return
+      end if
+      status = int(shared(1)); this%reserved = shared(2)
     end if
     if (status /= 0 .and. .not. allocated(error)) &
       call fail(this, error, op, name, errno_name(status) // " (" // str(total) // " more bytes to write)")
@@ -398,17 +408,18 @@ contains
     character(len=*), intent(in) :: path
     type(env_t), intent(in), optional :: env
     type(error_t), allocatable, intent(out) :: error
-    integer :: ierr
     this%parallel = .false.
     this%rank = 0
     if (present(env)) then
       if (env%size > 1) then
         this%parallel = .true.
         this%rank = env%rank
-        call MPI_Comm_dup(env%comm, this%comm, ierr)
-        if (ierr /= 0) then
-          call set_error(error, "h5file: '" // path // "': MPI_Comm_dup failed")
+        call this%env%init(env%comm, error)
+        if (allocated(error)) then
+          error%message = "h5file: '" // path // "': " // error%message
           this%parallel = .false.
+        else
+          this%comm_held = .true.
         end if
       end if
     end if
@@ -416,9 +427,8 @@ contains
 
   subroutine release_comm(this)
     class(h5file_t), intent(inout) :: this
-    integer :: ierr
-    if (this%comm /= MPI_COMM_NULL) call MPI_Comm_free(this%comm, ierr)
-    this%comm = MPI_COMM_NULL
+    if (this%comm_held) call this%env%free()
+    this%comm_held = .false.
   end subroutine release_comm
 
   !> File access property list (MPI-IO in parallel); H5P_DEFAULT_F otherwise.
@@ -431,7 +441,7 @@ contains
     if (.not. this%parallel) return
     call h5pcreate_f(H5P_FILE_ACCESS_F, fapl, hdferr)
     if (hdferr < 0) return
-    call h5pset_fapl_mpio_f(fapl, this%comm%MPI_VAL, MPI_INFO_NULL%MPI_VAL, hdferr)
+    call h5pset_fapl_mpio_f(fapl, this%env%comm%MPI_VAL, MPI_INFO_NULL%MPI_VAL, hdferr)
   end subroutine make_fapl
 
   subroutine make_lcpl(this, hdferr)
@@ -600,7 +610,8 @@ contains
   subroutine h5_commit(this, error)
     class(h5file_t), intent(inout) :: this
     type(error_t), allocatable, intent(out) :: error
-    integer :: hdferr, status, ierr
+    integer :: hdferr, status
+    integer :: shared(1)
     character(len=*), parameter :: op = "commit"
     if (this%fid < 0) then
       call fail(this, error, op, "/", "file is not open"); return
@@ -630,15 +641,23 @@ contains
     if (allocated(error)) then
       call release_comm(this); return
     end if
-    if (this%parallel) call MPI_Barrier(this%comm, ierr)
+    if (this%parallel) call this%env%sync(error)
+    if (allocated(error)) then
+      call release_comm(this); return
+    end if
     status = 0
     if (this%rank == 0) then
       ! give back the reserved blocks past the end of the file
       status = truncate_to(this%disk_path, file_size(this%disk_path))
       status = rename_file(this%disk_path, this%final_path)
     end if
-    if (this%parallel) call MPI_Bcast(status, 1, MPI_INTEGER, 0, this%comm, ierr)
+    if (this%parallel) then
+      shared = status
+      call this%env%bcast(shared, error, root=0)
+      status = shared(1)
+    end if
     call release_comm(this)
+    if (allocated(error)) return
     if (status /= 0) then
       call set_error(error, "h5file: commit: rename '" // this%disk_path // "' -> '" // &
         this%final_path // "' failed"); return
@@ -651,8 +670,9 @@ contains
   !> A file created in place or opened is only closed. Collective in parallel.
   subroutine h5_abort(this)
     class(h5file_t), intent(inout) :: this
-    integer :: hdferr, ierr, status
+    integer :: hdferr, status
     integer(c_int), pointer :: fd
+    type(error_t), allocatable :: e
     type(c_ptr) :: handle
     ! An abandoned temporary must close even when its pending writes cannot succeed (full
     ! disk): a failed h5fclose leaves HDF5 1.10 with a freed file still registered, which
@@ -669,16 +689,17 @@ contains
           end if
         end if
       else
-        call MPI_Barrier(this%comm, ierr)
+        ! errors are ignored here as everywhere in abort
+        if (this%comm_held) call this%env%sync(e)
         if (this%rank == 0) status = truncate_file(this%disk_path)
-        call MPI_Barrier(this%comm, ierr)
+        if (this%comm_held) call this%env%sync(e)
       end if
     end if
     call close_file(this, hdferr)
     if (this%temporary .and. allocated(this%disk_path)) then
-      if (this%parallel) call MPI_Barrier(this%comm, ierr)
+      if (this%parallel .and. this%comm_held) call this%env%sync(e)
       if (this%rank == 0) status = remove_file(this%disk_path)
-      if (this%parallel) call MPI_Barrier(this%comm, ierr)
+      if (this%parallel .and. this%comm_held) call this%env%sync(e)
     end if
     this%temporary = .false.
     call release_comm(this)
@@ -743,8 +764,7 @@ contains
     type(error_t), allocatable, intent(out) :: error
     logical, intent(out), optional :: varstr
     integer(hid_t) :: dset, space, dtype
-    integer(hsize_t), allocatable :: maxd(:)
-    integer :: hdferr, r
+    integer :: hdferr
     logical :: isvar
     dset = -1; space = -1; dtype = -1
     tclass = -1; tsize = 0
@@ -762,21 +782,10 @@ contains
       call h5dget_space_f(dset, space, hdferr)
       call check_h5(hdferr, this, error, op, name, "h5dget_space_f")
       if (allocated(error)) exit ops
-      call h5sget_simple_extent_ndims_f(space, r, hdferr)
-      call check_h5(hdferr, this, error, op, name, "h5sget_simple_extent_ndims_f")
-      if (allocated(error)) exit ops
-      deallocate(d)
-      allocate(d(r), maxd(r))
-      if (r > 0) then
-        call h5sget_simple_extent_dims_f(space, d, maxd, hdferr)
-        call check_h5(hdferr, this, error, op, name, "h5sget_simple_extent_dims_f")
-        if (allocated(error)) exit ops
-      end if
       call h5dget_type_f(dset, dtype, hdferr)
       call check_h5(hdferr, this, error, op, name, "h5dget_type_f")
       if (allocated(error)) exit ops
-      call h5tget_class_f(dtype, tclass, hdferr)
-      call check_h5(hdferr, this, error, op, name, "h5tget_class_f")
+      call shape_and_class(this, space, dtype, op, name, d, tclass, error)
       if (allocated(error)) exit ops
       call h5tget_size_f(dtype, tsize, hdferr)
       call check_h5(hdferr, this, error, op, name, "h5tget_size_f")
@@ -789,6 +798,32 @@ contains
     end block ops
     call close_ids(dset=dset, space=space, dtype=dtype)
   end subroutine inspect
+
+  !> Dimensions of dataspace `space` [rank] and class of datatype `dtype` of the dataset or
+  !> attribute `label` (shared by datasets and attributes).
+  subroutine shape_and_class(this, space, dtype, op, label, d, tclass, error)
+    class(h5file_t), intent(in) :: this
+    integer(hid_t), intent(in) :: space, dtype
+    character(len=*), intent(in) :: op, label
+    integer(hsize_t), allocatable, intent(inout) :: d(:)
+    integer, intent(out) :: tclass
+    type(error_t), allocatable, intent(inout) :: error
+    integer(hsize_t), allocatable :: maxd(:)
+    integer :: hdferr, r
+    tclass = -1
+    call h5sget_simple_extent_ndims_f(space, r, hdferr)
+    call check_h5(hdferr, this, error, op, label, "h5sget_simple_extent_ndims_f")
+    if (allocated(error)) return
+    if (allocated(d)) deallocate(d)
+    allocate(d(r), maxd(r))
+    if (r > 0) then
+      call h5sget_simple_extent_dims_f(space, d, maxd, hdferr)
+      call check_h5(hdferr, this, error, op, label, "h5sget_simple_extent_dims_f")
+      if (allocated(error)) return
+    end if
+    call h5tget_class_f(dtype, tclass, hdferr)
+    call check_h5(hdferr, this, error, op, label, "h5tget_class_f")
+  end subroutine shape_and_class
 
   !> inspect + check rank (-1: scalar or one element) and type class
   subroutine query(this, name, op, rank_expected, class_expected, d, error)
@@ -1063,6 +1098,9 @@ contains
     call close_ids(dset=dset)
   end subroutine read_raw
 
+  !> p, or a null pointer for an empty buffer. (The assumed-rank wrappers pass the extents as
+  !> max(shape(x), 0): gfortran 12 reports -1 for a zero-size assumed-shape actual copied into a
+  !> contiguous assumed-rank dummy.)
   function cptr_of_size(p, n) result(q)
     type(c_ptr), intent(in) :: p
     integer, intent(in) :: n
@@ -1071,90 +1109,25 @@ contains
     if (n > 0) q = p
   end function cptr_of_size
 
-  !> Write a real(wp) scalar dataset.
-  subroutine w_real0(this, name, x, error)
+  !> Write a real(wp) dataset of any rank (a scalar: a scalar dataset).
+  subroutine w_real(this, name, x, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
-    real(wp), intent(in), target :: x
+    real(wp), intent(in), target, contiguous :: x(..)
     type(error_t), allocatable, intent(out) :: error
-    call write_raw(this, name, c_loc(x), type_of(cr_h5_real), H5T_FLOAT_F, &
-      [integer(hsize_t) ::], error)
-  end subroutine w_real0
+    call write_raw(this, name, cptr_of_size(c_loc(x), product(max(shape(x), 0))), type_of(cr_h5_real), H5T_FLOAT_F, &
+      int(max(shape(x), 0), hsize_t), error)
+  end subroutine w_real
 
-  !> Write a real(wp) dataset [n].
-  subroutine w_real1(this, name, x, error)
+  !> Write an integer dataset of any rank (a scalar: a scalar dataset).
+  subroutine w_int(this, name, x, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
-    real(wp), intent(in), target, contiguous :: x(:)
+    integer, intent(in), target, contiguous :: x(..)
     type(error_t), allocatable, intent(out) :: error
-    type(c_ptr) :: p
-    p = c_null_ptr
-    if (size(x) > 0) p = c_loc(x)
-    call write_raw(this, name, p, type_of(cr_h5_real), H5T_FLOAT_F, &
-      int(shape(x), hsize_t), error)
-  end subroutine w_real1
-
-  !> Write a real(wp) dataset [n1, n2].
-  subroutine w_real2(this, name, x, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    real(wp), intent(in), target, contiguous :: x(:,:)
-    type(error_t), allocatable, intent(out) :: error
-    type(c_ptr) :: p
-    p = c_null_ptr
-    if (size(x) > 0) p = c_loc(x)
-    call write_raw(this, name, p, type_of(cr_h5_real), H5T_FLOAT_F, &
-      int(shape(x), hsize_t), error)
-  end subroutine w_real2
-
-  !> Write a real(wp) dataset [n1, n2, n3].
-  subroutine w_real3(this, name, x, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    real(wp), intent(in), target, contiguous :: x(:,:,:)
-    type(error_t), allocatable, intent(out) :: error
-    type(c_ptr) :: p
-    p = c_null_ptr
-    if (size(x) > 0) p = c_loc(x)
-    call write_raw(this, name, p, type_of(cr_h5_real), H5T_FLOAT_F, &
-      int(shape(x), hsize_t), error)
-  end subroutine w_real3
-
-  !> Write an integer scalar dataset.
-  subroutine w_int0(this, name, x, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    integer, intent(in), target :: x
-    type(error_t), allocatable, intent(out) :: error
-    call write_raw(this, name, c_loc(x), type_of(cr_h5_int), H5T_INTEGER_F, &
-      [integer(hsize_t) ::], error)
-  end subroutine w_int0
-
-  !> Write an integer dataset [n].
-  subroutine w_int1(this, name, x, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    integer, intent(in), target, contiguous :: x(:)
-    type(error_t), allocatable, intent(out) :: error
-    type(c_ptr) :: p
-    p = c_null_ptr
-    if (size(x) > 0) p = c_loc(x)
-    call write_raw(this, name, p, type_of(cr_h5_int), H5T_INTEGER_F, &
-      int(shape(x), hsize_t), error)
-  end subroutine w_int1
-
-  !> Write an integer dataset [n1, n2].
-  subroutine w_int2(this, name, x, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    integer, intent(in), target, contiguous :: x(:,:)
-    type(error_t), allocatable, intent(out) :: error
-    type(c_ptr) :: p
-    p = c_null_ptr
-    if (size(x) > 0) p = c_loc(x)
-    call write_raw(this, name, p, type_of(cr_h5_int), H5T_INTEGER_F, &
-      int(shape(x), hsize_t), error)
-  end subroutine w_int2
+    call write_raw(this, name, cptr_of_size(c_loc(x), product(max(shape(x), 0))), type_of(cr_h5_int), H5T_INTEGER_F, &
+      int(max(shape(x), 0), hsize_t), error)
+  end subroutine w_int
 
   !> Write an integer(int64) dataset [n].
   subroutine w_int64_1(this, name, x, error)
@@ -1612,87 +1585,54 @@ contains
   end subroutine ranges_raw
 
   !> Collective: write this rank's elements offset+1..offset+size(x) of a 1D dataset.
-  subroutine wb_real1(this, name, x, offset, error)
+  subroutine wb_real(this, name, x, offset, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
-    !> local part, distributed over ranks: [n_local]
-    real(wp), intent(in), target, contiguous :: x(:)
-    !> number of elements before this rank's part (0-based offset)
+    !> local part, distributed over ranks: [n_local] of a 1D dataset, or columns
+    !> [n_rows, n_cols_local] of a [n_rows, n_cols] dataset (n_cols_local may be 0)
+    real(wp), intent(in), target, contiguous :: x(..)
+    !> number of elements (1D) or columns (2D) before this rank's part (0-based offset)
     integer, intent(in) :: offset
     type(error_t), allocatable, intent(out) :: error
-    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), &
-      H5T_FLOAT_F, int(shape(x), hsize_t), offset, .true., error)
-  end subroutine wb_real1
+    call block_raw(this, name, cptr_of_size(c_loc(x), product(max(shape(x), 0))), type_of(cr_h5_real), &
+      H5T_FLOAT_F, int(max(shape(x), 0), hsize_t), offset, .true., error)
+  end subroutine wb_real
 
-  !> Collective: write this rank's columns offset+1..offset+size(x,2) of a [n_rows, n_cols] dataset.
-  subroutine wb_real2(this, name, x, offset, error)
+  !> Collective: integer version of wb_real.
+  subroutine wb_int(this, name, x, offset, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
-    !> local columns, distributed over ranks: [n_rows, n_cols_local] (n_cols_local may be 0)
-    real(wp), intent(in), target, contiguous :: x(:,:)
-    !> number of columns before this rank's block (0-based offset)
+    integer, intent(in), target, contiguous :: x(..)
     integer, intent(in) :: offset
     type(error_t), allocatable, intent(out) :: error
-    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), &
-      H5T_FLOAT_F, int(shape(x), hsize_t), offset, .true., error)
-  end subroutine wb_real2
-
-  !> Collective: integer version of wb_real2.
-  subroutine wb_int2(this, name, x, offset, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    integer, intent(in), target, contiguous :: x(:,:)
-    integer, intent(in) :: offset
-    type(error_t), allocatable, intent(out) :: error
-    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
-      H5T_INTEGER_F, int(shape(x), hsize_t), offset, .true., error)
-  end subroutine wb_int2
+    call block_raw(this, name, cptr_of_size(c_loc(x), product(max(shape(x), 0))), type_of(cr_h5_int), &
+      H5T_INTEGER_F, int(max(shape(x), 0), hsize_t), offset, .true., error)
+  end subroutine wb_int
 
   !> Collective: read elements offset+1..offset+size(x) of a 1D dataset into x (caller-sized).
-  subroutine rb_real1(this, name, x, offset, error)
+  subroutine rb_real(this, name, x, offset, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
-    real(wp), intent(inout), target, contiguous :: x(:)
+    !> [n_local] of a 1D dataset, or columns [n_rows, n_cols_local] (caller-sized)
+    real(wp), intent(inout), target, contiguous :: x(..)
     integer, intent(in) :: offset
     type(error_t), allocatable, intent(out) :: error
-    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), &
-      H5T_FLOAT_F, int(shape(x), hsize_t), offset, .false., error)
-  end subroutine rb_real1
+    call block_raw(this, name, cptr_of_size(c_loc(x), product(max(shape(x), 0))), type_of(cr_h5_real), &
+      H5T_FLOAT_F, int(max(shape(x), 0), hsize_t), offset, .false., error)
+  end subroutine rb_real
 
-  !> Collective: read columns offset+1..offset+size(x,2) into x [n_rows, n_cols_local].
-  subroutine rb_real2(this, name, x, offset, error)
+  !> Collective: integer version of rb_real.
+  subroutine rb_int(this, name, x, offset, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
-    real(wp), intent(inout), target, contiguous :: x(:,:)
+    integer, intent(inout), target, contiguous :: x(..)
     integer, intent(in) :: offset
     type(error_t), allocatable, intent(out) :: error
-    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), &
-      H5T_FLOAT_F, int(shape(x), hsize_t), offset, .false., error)
-  end subroutine rb_real2
+    call block_raw(this, name, cptr_of_size(c_loc(x), product(max(shape(x), 0))), type_of(cr_h5_int), &
+      H5T_INTEGER_F, int(max(shape(x), 0), hsize_t), offset, .false., error)
+  end subroutine rb_int
 
-  !> Collective: integer version of rb_real2.
-  subroutine rb_int2(this, name, x, offset, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    integer, intent(inout), target, contiguous :: x(:,:)
-    integer, intent(in) :: offset
-    type(error_t), allocatable, intent(out) :: error
-    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
-      H5T_INTEGER_F, int(shape(x), hsize_t), offset, .false., error)
-  end subroutine rb_int2
-
-  !> Collective: integer version of wb_real1 (elements offset+1..offset+size(x) of a 1D dataset).
-  subroutine wb_int1(this, name, x, offset, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    integer, intent(in), target, contiguous :: x(:)
-    integer, intent(in) :: offset
-    type(error_t), allocatable, intent(out) :: error
-    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
-      H5T_INTEGER_F, int(shape(x), hsize_t), offset, .true., error)
-  end subroutine wb_int1
-
-  !> Collective: int64 version of wb_real1.
+  !> Collective: int64 version of wb_real (1D).
   subroutine wb_int64_1(this, name, x, offset, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
@@ -1706,50 +1646,29 @@ contains
   !> Collective: write this rank's ranges of the last dimension (ranges(:, q) = 0-based offset,
   !> count; increasing, disjoint), packed one after the other in x [n_local]. Ranks may own any
   !> set of ranges (the ranks' ranges must not overlap); a rank with none passes size(x) = 0.
-  subroutine wr_real1(this, name, x, ranges, error)
+  subroutine wr_real(this, name, x, ranges, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
-    real(wp), intent(in), target, contiguous :: x(:)
+    !> [n_local] of a 1D dataset, or columns [n_rows, n_local] of a [n_rows, n_cols] dataset
+    real(wp), intent(in), target, contiguous :: x(..)
     integer, intent(in) :: ranges(:,:)
     type(error_t), allocatable, intent(out) :: error
-    call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), &
-      H5T_FLOAT_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
-  end subroutine wr_real1
+    call ranges_raw(this, name, cptr_of_size(c_loc(x), product(max(shape(x), 0))), type_of(cr_h5_real), &
+      H5T_FLOAT_F, int(max(shape(x), 0), hsize_t), ranges, .true., error, independent=.true.)
+  end subroutine wr_real
 
-  !> Collective: write_ranges of columns of a [n_rows, n_cols] dataset from x [n_rows, n_local].
-  subroutine wr_real2(this, name, x, ranges, error)
+  !> Collective: integer version of wr_real.
+  subroutine wr_int(this, name, x, ranges, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
-    real(wp), intent(in), target, contiguous :: x(:,:)
+    integer, intent(in), target, contiguous :: x(..)
     integer, intent(in) :: ranges(:,:)
     type(error_t), allocatable, intent(out) :: error
-    call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_real), &
-      H5T_FLOAT_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
-  end subroutine wr_real2
+    call ranges_raw(this, name, cptr_of_size(c_loc(x), product(max(shape(x), 0))), type_of(cr_h5_int), &
+      H5T_INTEGER_F, int(max(shape(x), 0), hsize_t), ranges, .true., error, independent=.true.)
+  end subroutine wr_int
 
-  !> Collective: integer version of wr_real1.
-  subroutine wr_int1(this, name, x, ranges, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    integer, intent(in), target, contiguous :: x(:)
-    integer, intent(in) :: ranges(:,:)
-    type(error_t), allocatable, intent(out) :: error
-    call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
-      H5T_INTEGER_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
-  end subroutine wr_int1
-
-  !> Collective: integer version of wr_real2.
-  subroutine wr_int2(this, name, x, ranges, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    integer, intent(in), target, contiguous :: x(:,:)
-    integer, intent(in) :: ranges(:,:)
-    type(error_t), allocatable, intent(out) :: error
-    call ranges_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
-      H5T_INTEGER_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
-  end subroutine wr_int2
-
-  !> Collective: int64 version of wr_real1.
+  !> Collective: int64 version of wr_real (1D).
   subroutine wr_int64_1(this, name, x, ranges, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
@@ -1760,18 +1679,7 @@ contains
       H5T_INTEGER_F, int(shape(x), hsize_t), ranges, .true., error, independent=.true.)
   end subroutine wr_int64_1
 
-  !> Collective: integer version of rb_real1.
-  subroutine rb_int1(this, name, x, offset, error)
-    class(h5file_t), intent(inout) :: this
-    character(len=*), intent(in) :: name
-    integer, intent(inout), target, contiguous :: x(:)
-    integer, intent(in) :: offset
-    type(error_t), allocatable, intent(out) :: error
-    call block_raw(this, name, cptr_of_size(c_loc(x), size(x)), type_of(cr_h5_int), &
-      H5T_INTEGER_F, int(shape(x), hsize_t), offset, .false., error)
-  end subroutine rb_int1
-
-  !> Collective: int64 version of rb_real1.
+  !> Collective: int64 version of rb_real (1D).
   subroutine rb_int64_1(this, name, x, offset, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name
@@ -1861,7 +1769,6 @@ contains
     character(kind=c_char), allocatable, target, intent(out), optional :: sbuf(:)
     integer(hid_t) :: oid, aid, space, atype, stype
     type(c_ptr) :: pp
-    integer(hsize_t), allocatable :: maxd(:)
     integer(size_t) :: tsize
     integer :: hdferr, e, r, tclass
     logical :: ex, isvar
@@ -1891,22 +1798,12 @@ contains
       call h5aget_space_f(aid, space, hdferr)
       call check_h5(hdferr, this, error, op, label, "h5aget_space_f")
       if (allocated(error)) exit ops
-      call h5sget_simple_extent_ndims_f(space, r, hdferr)
-      call check_h5(hdferr, this, error, op, label, "h5sget_simple_extent_ndims_f")
-      if (allocated(error)) exit ops
-      deallocate(d)
-      allocate(d(r), maxd(r))
-      if (r > 0) then
-        call h5sget_simple_extent_dims_f(space, d, maxd, hdferr)
-        call check_h5(hdferr, this, error, op, label, "h5sget_simple_extent_dims_f")
-        if (allocated(error)) exit ops
-      end if
       call h5aget_type_f(aid, atype, hdferr)
       call check_h5(hdferr, this, error, op, label, "h5aget_type_f")
       if (allocated(error)) exit ops
-      call h5tget_class_f(atype, tclass, hdferr)
-      call check_h5(hdferr, this, error, op, label, "h5tget_class_f")
+      call shape_and_class(this, space, atype, op, label, d, tclass, error)
       if (allocated(error)) exit ops
+      r = size(d)
       if (tclass /= tclass_expected) then
         call fail(this, error, op, label, "expected a " // class_name(tclass_expected) // &
           " attribute, found " // class_name(tclass), d); exit ops

@@ -21,8 +21,8 @@
 !> Sign rule: the entry of largest magnitude of each mode is positive (lowest index on ties).
 !> Results are computed on rank 0 and broadcast: identical on every rank.
 module cr_pod
-  use, intrinsic :: iso_c_binding, only: c_ptr, c_int, c_double
-  use mpi_f08
+  ! all of iso_c_binding: fftw3.f03 (included below) names many of its kinds
+  use, intrinsic :: iso_c_binding
   use cr_kinds, only: wp
   use cr_env, only: env_t
   use cr_error, only: error_t, set_error, prefix_error
@@ -112,9 +112,9 @@ contains
     !> number of columns of every rank [env%size]
     integer, allocatable, intent(out), optional :: counts(:)
     integer, allocatable :: cnt(:)
-    integer :: ierr, n_dof
-    allocate(cnt(env%size))
-    call MPI_Allgather(size(s_local, 2), 1, MPI_INTEGER, cnt, 1, MPI_INTEGER, env%comm, ierr)
+    integer :: n_dof
+    call env%allgather(size(s_local, 2), cnt, error)
+    if (allocated(error)) return
     n_snap = sum(cnt)
     offset = sum(cnt(1:env%rank))
     n_dof = size(s_local, 1)
@@ -151,15 +151,16 @@ contains
   !> On rank 0: rank, truncation and sign rule from sigma_all and the candidate modes
   !> modes [n_dof, >= rank]; then broadcast the result. `rank_tol` is the relative
   !> threshold on sigma_i / sigma_1 for the numerical rank; `n_cap` an extra upper bound.
-  subroutine finish(env, result, sigma_all, modes, rank_tol, eps, n_modes, n_cap)
+  subroutine finish(env, result, sigma_all, modes, rank_tol, error, eps, n_modes, n_cap)
     type(env_t), intent(in) :: env
     type(pod_result_t), intent(inout) :: result
     real(wp), intent(in) :: sigma_all(:)
     real(wp), intent(in) :: modes(:, :)
     real(wp), intent(in) :: rank_tol
+    type(error_t), allocatable, intent(out) :: error
     real(wp), intent(in), optional :: eps
     integer, intent(in), optional :: n_modes, n_cap
-    integer :: nr, nk, i, j, ierr, nsig
+    integer :: nr, nk, i, j, nsig, meta(3)
     real(wp) :: cum
     if (env%rank == ROOT) then
       nr = 0
@@ -189,9 +190,10 @@ contains
       result%n_modes = nk
       nsig = size(sigma_all)
     end if
-    call MPI_Bcast(result%rank, 1, MPI_INTEGER, ROOT, env%comm, ierr)
-    call MPI_Bcast(result%n_modes, 1, MPI_INTEGER, ROOT, env%comm, ierr)
-    call MPI_Bcast(nsig, 1, MPI_INTEGER, ROOT, env%comm, ierr)
+    if (env%rank == ROOT) meta = [result%rank, result%n_modes, nsig]
+    call env%bcast(meta, error, root=ROOT)
+    if (allocated(error)) return
+    result%rank = meta(1); result%n_modes = meta(2); nsig = meta(3)
     nk = result%n_modes
     allocate(result%sigma_all(nsig), result%phi(result%n_dof, nk))
     if (env%rank == ROOT) then
@@ -202,9 +204,10 @@ contains
         if (result%phi(i, j) < 0.0_wp) result%phi(:, j) = -result%phi(:, j)
       end do
     end if
-    if (nsig > 0) call MPI_Bcast(result%sigma_all, nsig, MPI_DOUBLE_PRECISION, ROOT, env%comm, ierr)
-    if (nk * result%n_dof > 0) call MPI_Bcast(result%phi, nk * result%n_dof, MPI_DOUBLE_PRECISION, &
-      & ROOT, env%comm, ierr)
+    if (nsig > 0) call env%bcast(result%sigma_all, error, root=ROOT)
+    if (allocated(error)) return
+    if (nk * result%n_dof > 0) call env%bcast(result%phi, error, root=ROOT)
+    if (allocated(error)) return
     result%sigma = result%sigma_all(1:nk)
     result%energy = 0.0_wp
     if (result%total_energy > 0.0_wp) result%energy = min(1.0_wp, sum(result%sigma**2) / result%total_energy)
@@ -244,7 +247,7 @@ contains
     st = transpose(s_local)
     call right_svd(env, st, sigma, w, error)
     if (allocated(error)) return
-    call finish(env, result, sigma, w, real(max(n_dof, n_snap), wp) * epsilon(1.0_wp), eps, n_modes)
+    call finish(env, result, sigma, w, real(max(n_dof, n_snap), wp) * epsilon(1.0_wp), error, eps, n_modes)
   end subroutine pod_tsqr
 
   !> Singular values and right singular vectors of A [n_total, n] distributed by rows
@@ -281,7 +284,7 @@ contains
     type(error_t), allocatable, intent(out) :: error
     real(wp), intent(in), optional :: eps
     integer, intent(in), optional :: n_modes
-    integer :: n_snap, offset, n_dof, ierr, i, k
+    integer :: n_snap, offset, n_dof, i, k
     integer, allocatable :: counts(:), displs(:)
     real(wp), allocatable :: c(:, :), lam(:), sigma(:), modes(:, :), s(:, :), v(:, :)
     real(wp) :: tol
@@ -299,14 +302,10 @@ contains
     if (n_dof <= n_snap) then
       allocate(c(n_dof, n_dof))
       call la_gemm('N', 'T', 1.0_wp, s_local, s_local, 0.0_wp, c, error)
-      if (env%size > 1 .and. n_dof > 0) then
-        if (env%rank == ROOT) then
-          call MPI_Reduce(MPI_IN_PLACE, c, n_dof * n_dof, MPI_DOUBLE_PRECISION, MPI_SUM, ROOT, env%comm, ierr)
-        else
-          call MPI_Reduce(c, c, n_dof * n_dof, MPI_DOUBLE_PRECISION, MPI_SUM, ROOT, env%comm, ierr)
-        end if
-      end if
-      if (env%rank == ROOT) then
+      call sync_error(env, error, "pod_snapshots")
+      if (allocated(error)) return
+      call reduce_root(env, c, error)
+      if (env%rank == ROOT .and. .not. allocated(error)) then
         allocate(lam(n_dof))
         call la_syevd(c, lam, error)
         if (.not. allocated(error)) then
@@ -327,9 +326,8 @@ contains
       else
         allocate(s(1, 1))
       end if
-      call MPI_Gatherv(s_local, size(s_local), MPI_DOUBLE_PRECISION, s, counts, displs, &
-        & MPI_DOUBLE_PRECISION, ROOT, env%comm, ierr)
-      if (env%rank == ROOT) then
+      call env%gatherv(s_local, s, counts, displs, ROOT, error)
+      if (env%rank == ROOT .and. .not. allocated(error)) then
         allocate(c(n_snap, n_snap), lam(n_snap))
         call la_gemm('T', 'N', 1.0_wp, s, s, 0.0_wp, c, error)
         if (.not. allocated(error)) call la_syevd(c, lam, error)
@@ -351,7 +349,7 @@ contains
     call sync_error(env, error, "pod_snapshots")
     if (allocated(error)) return
     if (.not. allocated(sigma)) allocate(sigma(k), modes(n_dof, 0))
-    call finish(env, result, sigma(1:k), modes, tol, eps, n_modes)
+    call finish(env, result, sigma(1:k), modes, tol, error, eps, n_modes)
   end subroutine pod_snapshots
 
   !> Gaussian test matrix rows for this rank: omega [n_r, l], row j (global offset + j)
@@ -401,7 +399,7 @@ contains
     integer, intent(in) :: l, seed
     real(wp), allocatable, intent(out) :: y(:, :)
     type(error_t), allocatable, intent(out) :: error
-    integer :: n_dof, n_snap, offset, nrow, roff, p, ierr, pos, j, ro, rc, c
+    integer :: n_dof, n_snap, offset, nrow, roff, p, pos, j, ro, rc, c
     integer, allocatable :: counts(:), scount(:), sdispl(:), rcount(:), rdispl(:)
     real(wp), allocatable :: sendbuf(:), rows(:, :), trans(:, :), d(:), yt(:, :), yrows_t(:, :)
     integer, allocatable :: sel(:)
@@ -430,8 +428,8 @@ contains
       rdispl(p) = rdispl(p - 1) + rcount(p - 1)
     end do
     allocate(rows(nrow, n_snap))
-    call MPI_Alltoallv(sendbuf, scount, sdispl, MPI_DOUBLE_PRECISION, rows, rcount, rdispl, &
-      & MPI_DOUBLE_PRECISION, env%comm, ierr)
+    call env%alltoallv(sendbuf, scount, sdispl, rows, rcount, rdispl, error)
+    if (allocated(error)) return
     deallocate(sendbuf)
     call srft_draws(seed, n_snap, l, d, sel)
     allocate(yrows_t(l, nrow))
@@ -458,8 +456,8 @@ contains
       rdispl(p) = ro * l
     end do
     allocate(yt(l, n_dof))
-    call MPI_Allgatherv(yrows_t, nrow * l, MPI_DOUBLE_PRECISION, yt, rcount, rdispl, &
-      & MPI_DOUBLE_PRECISION, env%comm, ierr)
+    call env%allgatherv(yrows_t, yt, rcount, rdispl, error)
+    if (allocated(error)) return
     y = transpose(yt)
   end subroutine sketch_srft
 
@@ -470,7 +468,6 @@ contains
     real(wp), contiguous, intent(inout) :: y(:, :)
     type(error_t), allocatable, intent(out) :: error
     real(wp), allocatable :: tau(:)
-    integer :: ierr
     if (env%rank == ROOT) then
       allocate(tau(size(y, 2)))
       call la_geqrf(y, tau, error)
@@ -478,20 +475,16 @@ contains
     end if
     call sync_error(env, error, "rsvd: orthonormalisation")
     if (allocated(error)) return
-    if (size(y) > 0) call MPI_Bcast(y, size(y), MPI_DOUBLE_PRECISION, ROOT, env%comm, ierr)
+    if (size(y) > 0) call env%bcast(y, error, root=ROOT)
   end subroutine root_orthonormalize
 
-  !> Sum of y over ranks, on rank 0.
-  subroutine reduce_root(env, y)
+  !> Sum of y over ranks, on rank 0 (ROOT).
+  subroutine reduce_root(env, y, error)
     type(env_t), intent(in) :: env
     real(wp), contiguous, intent(inout) :: y(:, :)
-    integer :: ierr
+    type(error_t), allocatable, intent(out) :: error
     if (env%size == 1 .or. size(y) == 0) return
-    if (env%rank == ROOT) then
-      call MPI_Reduce(MPI_IN_PLACE, y, size(y), MPI_DOUBLE_PRECISION, MPI_SUM, ROOT, env%comm, ierr)
-    else
-      call MPI_Reduce(y, y, size(y), MPI_DOUBLE_PRECISION, MPI_SUM, ROOT, env%comm, ierr)
-    end if
+    call env%reduce_sum_root(y, error)
   end subroutine reduce_root
 
   !> Randomized POD: range finder Y = S Omega with l = k + oversampling columns (capped at
@@ -544,7 +537,8 @@ contains
       call la_gemm('N', 'N', 1.0_wp, s_local, omega, 0.0_wp, y, error)
       if (allocated(error)) return
       deallocate(omega)
-      call reduce_root(env, y)
+      call reduce_root(env, y, error)
+      if (allocated(error)) return
     else
       call sketch_srft(env, s_local, l, seed, y, error)
       if (allocated(error)) return
@@ -565,7 +559,8 @@ contains
       end if
       call la_gemm('N', 'N', 1.0_wp, s_local, zq, 0.0_wp, y, error)
       if (allocated(error)) return
-      call reduce_root(env, y)
+      call reduce_root(env, y, error)
+      if (allocated(error)) return
       call root_orthonormalize(env, y, error)
       if (allocated(error)) return
     end do
@@ -584,7 +579,7 @@ contains
     end if
     call sync_error(env, error, "pod_rsvd")
     if (allocated(error)) return
-    call finish(env, result, sigma, modes, real(max(n_dof, n_snap), wp) * epsilon(1.0_wp), eps, &
+    call finish(env, result, sigma, modes, real(max(n_dof, n_snap), wp) * epsilon(1.0_wp), error, eps, &
       & n_modes, n_cap=k)
   end subroutine pod_rsvd
 
@@ -601,7 +596,7 @@ contains
     !> block size of the block-cyclic layout (default 32)
     integer, intent(in), optional :: block
     type(blacs_grid_t) :: grid
-    integer :: n_snap, offset, n_dof, nb, mloc, nloc, kmin, kloc, ierr, p, i, j, jg, pos, src
+    integer :: n_snap, offset, n_dof, nb, mloc, nloc, kmin, kloc, p, i, j, jg, pos, src
     integer :: desca(DLEN), descu(DLEN), pcol, nk, jl
     integer, allocatable :: counts(:), scount(:), sdispl(:), rcount(:), rdispl(:), rowpr(:), rowli(:)
     integer, allocatable :: fill(:), pn(:, :)
@@ -620,7 +615,7 @@ contains
     kmin = min(n_dof, n_snap)
     if (kmin == 0) then
       allocate(sigma(0), modes(n_dof, 0))
-      call finish(env, result, sigma, modes, 1.0_wp, eps, n_modes)
+      call finish(env, result, sigma, modes, 1.0_wp, error, eps, n_modes)
       return
     end if
     call grid%init(env, error)
@@ -668,14 +663,19 @@ contains
         sendbuf(fill(p)) = s_local(i, jl)
       end do
     end do
-    call MPI_Alltoall(scount, 1, MPI_INTEGER, rcount, 1, MPI_INTEGER, env%comm, ierr)
+    call env%alltoall(scount, rcount, error)
+    if (allocated(error)) then
+      call grid%free(); return
+    end if
     rdispl(1) = 0
     do p = 2, env%size
       rdispl(p) = rdispl(p - 1) + rcount(p - 1)
     end do
     allocate(recvbuf(max(1, sum(rcount))))
-    call MPI_Alltoallv(sendbuf, scount, sdispl, MPI_DOUBLE_PRECISION, recvbuf, rcount, rdispl, &
-      & MPI_DOUBLE_PRECISION, env%comm, ierr)
+    call env%alltoallv(sendbuf, scount, sdispl, recvbuf, rcount, rdispl, error)
+    if (allocated(error)) then
+      call grid%free(); return
+    end if
     deallocate(sendbuf)
     allocate(a(max(1, mloc) * max(1, nloc)))
     a = 0.0_wp
@@ -717,8 +717,9 @@ contains
         modes(i, j) = u(rowli(i) + (jl - 1) * max(1, mloc))
       end do
     end do
-    call reduce_root(env, modes)
     call grid%free()
-    call finish(env, result, sigma, modes, real(max(n_dof, n_snap), wp) * epsilon(1.0_wp), eps, n_modes)
+    call reduce_root(env, modes, error)
+    if (allocated(error)) return
+    call finish(env, result, sigma, modes, real(max(n_dof, n_snap), wp) * epsilon(1.0_wp), error, eps, n_modes)
   end subroutine pod_scalapack
 end module cr_pod

@@ -8,7 +8,6 @@
 !> A = Q R with Q distributed like A. R is unique up to the signs of its rows, so the
 !> singular values and right singular vectors of R do not depend on the number of ranks.
 module cr_tsqr
-  use mpi_f08
   use cr_kinds, only: wp
   use cr_env, only: env_t
   use cr_error, only: error_t, set_error
@@ -37,11 +36,12 @@ contains
     real(wp), allocatable, intent(out) :: r(:, :)
     type(error_t), allocatable, intent(out) :: error
     real(wp), allocatable, intent(out), optional :: q_local(:, :)
-    integer :: n, n_r, m, step, partner, ierr, m_b, nmerge, i, lvl
+    integer :: n, n_r, m, step, partner, m_b, nmerge, i, lvl
     logical :: want_q, leaf_q, failed
     real(wp), allocatable :: leaf(:, :), tau(:), rb(:, :), stacked(:, :), c(:, :), cab(:, :)
     type(merge_t) :: merges(32)
     integer :: parent, m_up
+    type(error_t), allocatable :: e_mpi
 
     n = size(a_local, 2)
     n_r = size(a_local, 1)
@@ -79,10 +79,12 @@ contains
       if (mod(env%rank, 2 * step) == 0) then
         partner = env%rank + step
         if (partner < env%size) then
-          call MPI_Recv(m_b, 1, MPI_INTEGER, partner, 100 + lvl, env%comm, MPI_STATUS_IGNORE, ierr)
+          m_b = 0
+          call env%recv(m_b, partner, 100 + lvl, e_mpi)
+          call keep(e_mpi)
           allocate(rb(m_b, n))
-          if (m_b * n > 0) call MPI_Recv(rb, m_b * n, MPI_DOUBLE_PRECISION, partner, 100 + lvl, &
-            & env%comm, MPI_STATUS_IGNORE, ierr)
+          if (m_b * n > 0) call env%recv(rb, partner, 100 + lvl, e_mpi)
+          call keep(e_mpi)
           nmerge = nmerge + 1
           merges(nmerge)%partner = partner
           merges(nmerge)%level = lvl
@@ -114,9 +116,10 @@ contains
       else if (mod(env%rank, 2 * step) == step) then
         parent = env%rank - step
         m_up = size(r, 1)
-        call MPI_Send(m_up, 1, MPI_INTEGER, parent, 100 + lvl, env%comm, ierr)
-        if (m_up * n > 0) call MPI_Send(r, m_up * n, MPI_DOUBLE_PRECISION, parent, 100 + lvl, &
-          & env%comm, ierr)
+        call env%send(m_up, parent, 100 + lvl, e_mpi)
+        call keep(e_mpi)
+        if (m_up * n > 0) call env%send(r, parent, 100 + lvl, e_mpi)
+        call keep(e_mpi)
         exit
       end if
       step = 2 * step
@@ -128,7 +131,8 @@ contains
     ! size of the final R, known to all
     m = 0
     if (env%rank == 0) m = size(r, 1)
-    call MPI_Bcast(m, 1, MPI_INTEGER, 0, env%comm, ierr)
+    call env%bcast(m, error, root=0)
+    if (allocated(error)) return
     if (env%rank /= 0) then
       deallocate(r)
       allocate(r(0, n))
@@ -144,8 +148,8 @@ contains
       end do
     else
       allocate(c(m_up, m))
-      if (m_up * m > 0) call MPI_Recv(c, m_up * m, MPI_DOUBLE_PRECISION, parent, 200 + lvl, &
-        & env%comm, MPI_STATUS_IGNORE, ierr)
+      if (m_up * m > 0) call env%recv(c, parent, 200 + lvl, error)
+      if (allocated(error)) return
     end if
     do i = nmerge, 1, -1
       associate (mg => merges(i))
@@ -158,8 +162,8 @@ contains
         end if
         if (mg%m_b * m > 0) then
           rb = cab(mg%m_a + 1:, :)
-          call MPI_Send(rb, mg%m_b * m, MPI_DOUBLE_PRECISION, mg%partner, 200 + mg%level, &
-            & env%comm, ierr)
+          call env%send(rb, mg%partner, 200 + mg%level, error)
+          if (allocated(error)) return
         end if
         c = cab(1:mg%m_a, :)
         deallocate(cab)
@@ -172,6 +176,17 @@ contains
       q_local = c
     end if
     call env%agree_error(error)
+
+  contains
+
+    !> Keep the first error of the way up (the tree goes on so that no rank waits forever).
+    subroutine keep(e)
+      type(error_t), allocatable, intent(inout) :: e
+      if (.not. allocated(e)) return
+      failed = .true.
+      if (.not. allocated(error)) call move_alloc(e, error)
+      if (allocated(e)) deallocate(e)
+    end subroutine keep
   end subroutine tsqr
 
   !> Upper-trapezoidal part of a [m, n].

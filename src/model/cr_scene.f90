@@ -11,10 +11,9 @@
 module cr_scene
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error, prefix_error
-  use cr_strings, only: str
-  use cr_config, only: scene_cfg_t, obstacles_cfg_t
-  use cr_shapes, only: obstacle_t, make_disk, make_segment, make_polygon, make_rectangle, &
-    obstacle_bbox
+  use cr_config, only: scene_cfg_t
+  use cr_obstacles, only: obstacles_cfg_t, build_obstacles
+  use cr_shapes, only: obstacle_t, make_rectangle, obstacle_bbox
   implicit none
   private
   public :: scene_t
@@ -39,15 +38,15 @@ module cr_scene
 
 contains
 
-  !> Build the walls from &scene and the extra obstacles from &obstacles.
+  !> Build the walls from &scene and the extra obstacles from &obstacles (cr_obstacles).
   subroutine init(this, sc, oc, error)
     class(scene_t), intent(inout) :: this
     type(scene_cfg_t), intent(in) :: sc
     type(obstacles_cfg_t), intent(in) :: oc
     type(error_t), allocatable, intent(out) :: error
-    type(obstacle_t) :: tmp(5 + 3 * 64)
+    type(obstacle_t) :: tmp(5)
+    type(obstacle_t), allocatable :: interior(:)
     real(wp) :: L, H, t, xc
-    real(wp), allocatable :: verts(:,:)
     integer :: n, k
     L = sc%hall_length; H = sc%hall_width; t = sc%wall_thickness
     xc = sc%exit_center
@@ -66,27 +65,10 @@ contains
       call add_rect(this%x_hi, H, L, H + t, "right barrier wall"); if (allocated(error)) return
     end if
     this%n_walls = n
-    do k = 1, oc%n_disks
-      n = n + 1
-      call make_disk([oc%disk_x(k), oc%disk_y(k)], oc%disk_r(k), "&obstacles disk " // str(k), tmp(n), error)
-      if (allocated(error)) return
-    end do
-    do k = 1, oc%n_segments
-      n = n + 1
-      call make_segment([oc%seg_x1(k), oc%seg_y1(k)], [oc%seg_x2(k), oc%seg_y2(k)], &
-        oc%seg_half_thickness(k), "&obstacles segment " // str(k), tmp(n), error)
-      if (allocated(error)) return
-    end do
-    do k = 1, oc%n_polygons
-      n = n + 1
-      allocate(verts(2, oc%poly_nv(k)))
-      verts(1, :) = oc%poly_x(1:oc%poly_nv(k), k)
-      verts(2, :) = oc%poly_y(1:oc%poly_nv(k), k)
-      call make_polygon(verts, "&obstacles polygon " // str(k), tmp(n), error)
-      deallocate(verts)
-      if (allocated(error)) return
-    end do
-    this%obstacles = tmp(1:n)
+    call build_obstacles(oc, interior, error)
+    if (allocated(error)) return
+    this%obstacles = [tmp(1:n), interior]
+    n = size(this%obstacles)
     allocate(this%lo(2, n), this%hi(2, n))
     do k = 1, n
       call obstacle_bbox(this%obstacles(k), this%lo(:, k), this%hi(:, k))

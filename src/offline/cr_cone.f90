@@ -8,7 +8,6 @@
 !> tie-break (largest value, then lowest global column), so the result does not depend on
 !> the number of ranks.
 module cr_cone
-  use mpi_f08
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
@@ -49,19 +48,19 @@ contains
     real(wp), intent(out) :: vmax
     integer(i8), intent(out) :: gcol
     type(error_t), allocatable, intent(out) :: error
-    real(wp) :: pair(2), res(2)
-    integer :: k, ierr
+    real(wp) :: pair(2)
+    integer :: k
     pair = [-huge(1.0_wp), huge(1.0_wp)]
     if (lam%n_cols > 0) then
       k = maxloc(val(1:lam%n_cols), dim=1)
       pair = [val(k), real(lam%col_offset + k, wp)]
     end if
-    call MPI_Allreduce(pair, res, 1, MPI_2DOUBLE_PRECISION, MPI_MAXLOC, env%comm, ierr)
-    if (ierr /= MPI_SUCCESS) then
-      call set_error(error, "cone: MPI_Allreduce(MAXLOC) failed"); return
+    call env%allreduce_maxloc(pair, error)
+    if (allocated(error)) then
+      call prefix_error(error, "cone"); return
     end if
-    vmax = res(1)
-    gcol = nint(res(2), i8)
+    vmax = pair(1)
+    gcol = nint(pair(2), i8)
   end subroutine global_argmax
 
   !> The dense copy [n_rows] of global column `gcol`, on every rank.
@@ -71,11 +70,14 @@ contains
     integer(i8), intent(in) :: gcol
     real(wp), intent(out) :: x(:)
     type(error_t), allocatable, intent(out) :: error
-    integer :: owner, mine, ierr, k
+    integer :: owner, k
     integer(i8) :: p
-    mine = 0
-    if (gcol > lam%col_offset .and. gcol <= lam%col_offset + lam%n_cols) mine = env%rank
-    call MPI_Allreduce(mine, owner, 1, MPI_INTEGER, MPI_MAX, env%comm, ierr)
+    owner = 0
+    if (gcol > lam%col_offset .and. gcol <= lam%col_offset + lam%n_cols) owner = env%rank
+    call env%allreduce(owner, 'max', error)
+    if (allocated(error)) then
+      call prefix_error(error, "cone: owner of a snapshot"); return
+    end if
     x = 0
     if (env%rank == owner) then
       k = int(gcol - lam%col_offset)
@@ -83,8 +85,8 @@ contains
         x(lam%idx(p)) = lam%val(p)
       end do
     end if
-    call MPI_Bcast(x, size(x), MPI_DOUBLE_PRECISION, owner, env%comm, ierr)
-    if (ierr /= MPI_SUCCESS) call set_error(error, "cone: MPI_Bcast of a snapshot failed")
+    call env%bcast(x, error, root=owner)
+    if (allocated(error)) call prefix_error(error, "cone: a snapshot")
   end subroutine fetch_column
 
   !> Squared norms of the local columns [n_cols].
@@ -118,17 +120,22 @@ contains
   end subroutine check_columns
 
   !> Mean over all snapshots of the relative projection error sqrt(res2) / n1.
-  real(wp) function mean_relative(env, lam, res2, n1)
+  subroutine mean_relative(env, lam, res2, n1, mean, error)
     type(env_t), intent(in) :: env
     type(sparse_columns_t), intent(in) :: lam
     real(wp), intent(in) :: res2(:), n1
+    real(wp), intent(out) :: mean
+    type(error_t), allocatable, intent(out) :: error
     real(wp) :: s(2)
-    integer :: ierr
     s(1) = sum(sqrt(max(res2(1:lam%n_cols), 0.0_wp))) / n1
     s(2) = lam%n_cols
-    call MPI_Allreduce(MPI_IN_PLACE, s, 2, MPI_DOUBLE_PRECISION, MPI_SUM, env%comm, ierr)
-    mean_relative = s(1) / max(s(2), 1.0_wp)
-  end function mean_relative
+    mean = 0
+    call env%allreduce(s, 'sum', error)
+    if (allocated(error)) then
+      call prefix_error(error, "cone: the mean projection error"); return
+    end if
+    mean = s(1) / max(s(2), 1.0_wp)
+  end subroutine mean_relative
 
   !> Store R, the selected snapshots, the error history and the time in `res`.
   subroutine record_history(res, r, sig, err, mean, n1, time)
@@ -217,7 +224,7 @@ contains
       call finish(); return
     end if
     tmp_err(1) = 1.0_wp
-    tmp_mean(1) = mean_relative(env, lam, res2, n1)
+    call mean_relative(env, lam, res2, n1, tmp_mean(1), error); if (allocated(error)) return
     do while (r < r_max)
       if (sqrt(max(worst, 0.0_wp)) / n1 <= delta .and. r > 0) exit
       call fetch_column(env, lam, gcol, col, error); if (allocated(error)) return
@@ -241,7 +248,7 @@ contains
       end do
       call global_argmax(env, lam, res2, worst, gcol, error); if (allocated(error)) return
       tmp_err(r + 1) = sqrt(max(worst, 0.0_wp)) / n1
-      tmp_mean(r + 1) = mean_relative(env, lam, res2, n1)
+      call mean_relative(env, lam, res2, n1, tmp_mean(r + 1), error); if (allocated(error)) return
     end do
     call finish()
 
@@ -365,7 +372,7 @@ contains
       call finish(); return
     end if
     tmp_err(1) = 1.0_wp
-    tmp_mean(1) = mean_relative(env, lam, res2, n1)
+    call mean_relative(env, lam, res2, n1, tmp_mean(1), error); if (allocated(error)) return
     call global_max(acc_max, error); if (allocated(error)) return
     tmp_acc(1) = acc_max
     do while (r < r_max)
@@ -416,7 +423,7 @@ contains
         worst, gcol, error); if (allocated(error)) return
       worst = max(worst, 0.0_wp)
       tmp_err(r + 1) = sqrt(worst) / n1
-      tmp_mean(r + 1) = mean_relative(env, lam, res2, n1)
+      call mean_relative(env, lam, res2, n1, tmp_mean(r + 1), error); if (allocated(error)) return
       call global_max(acc_max, error); if (allocated(error)) return
       tmp_acc(r + 1) = acc_max
     end do
@@ -428,13 +435,13 @@ contains
     subroutine global_max(amax, error)
       real(wp), intent(out) :: amax
       type(error_t), allocatable, intent(out) :: error
-      integer :: kk2, ierr
+      integer :: kk2
       amax = 0
       do kk2 = 1, lam%n_cols
         if (.not. used(kk2)) amax = max(amax, sqrt(max(acc2(kk2), 0.0_wp)) / n1)
       end do
-      call MPI_Allreduce(MPI_IN_PLACE, amax, 1, MPI_DOUBLE_PRECISION, MPI_MAX, env%comm, ierr)
-      if (ierr /= MPI_SUCCESS) call set_error(error, "mcpg: MPI_Allreduce(MAX) of the accuracy failed")
+      call env%allreduce(amax, 'max', error)
+      if (allocated(error)) call prefix_error(error, "mcpg: the accuracy")
     end subroutine global_max
 
     subroutine mark_used(g)

@@ -3,9 +3,8 @@
 !> evaluates the sampled columns it holds), without and with supremizer enrichment (PGA of
 !> the first N POD modes for the first R cone vectors).
 module cr_infsup_table
-  use mpi_f08
   use cr_kinds, only: wp
-  use cr_error, only: error_t
+  use cr_error, only: error_t, prefix_error
   use cr_strings, only: str
   use cr_env, only: env_t
   use cr_logger, only: logger_t
@@ -37,7 +36,8 @@ contains
     type(sparse_cone_t) :: sub
     type(pga_result_t) :: pres
     real(wp), allocatable :: vv(:,:), acc(:)
-    integer :: a, b, m, npair, ncols, stride, ierr
+    integer :: a, b, m, npair, ncols, stride
+    real(wp) :: lo(4), hi(4)
     ns = pack(ocfg%infsup_n, ocfg%infsup_n > 0)
     rs = pack(ocfg%infsup_r, ocfg%infsup_r > 0)
     if (size(ns) == 0) ns = pack([5, 10, 20, 40], [5, 10, 20, 40] <= pod%n_modes)
@@ -70,8 +70,13 @@ contains
         tab%is_n_pga(m) = size(vv, 2)
         call sweep(ocfg, data, sub, vv, stride, ncols, acc(5:8), error)
         if (allocated(error)) return
-        call MPI_Allreduce(MPI_IN_PLACE, acc([1, 2, 5, 6]), 4, MPI_DOUBLE_PRECISION, MPI_MIN, env%comm, ierr)
-        call MPI_Allreduce(MPI_IN_PLACE, acc([3, 4, 7, 8]), 4, MPI_DOUBLE_PRECISION, MPI_SUM, env%comm, ierr)
+        lo = acc([1, 2, 5, 6]); hi = acc([3, 4, 7, 8])
+        call env%allreduce(lo, 'min', error)
+        if (.not. allocated(error)) call env%allreduce(hi, 'sum', error)
+        if (allocated(error)) then
+          call prefix_error(error, "infsup_table"); return
+        end if
+        acc([1, 2, 5, 6]) = lo; acc([3, 4, 7, 8]) = hi
         tab%is_low_min(m) = acc(1); tab%is_up_min(m) = acc(2); tab%is_up_mean(m) = acc(3) / max(acc(4), 1.0_wp)
         tab%is_low_min_pga(m) = acc(5); tab%is_up_min_pga(m) = acc(6)
         tab%is_up_mean_pga(m) = acc(7) / max(acc(8), 1.0_wp)

@@ -16,9 +16,8 @@
 !> such a candidate lies in the span, and orthonormalising it would add a direction made of
 !> rounding errors (a delta below that level is unreachable, not a reason to add noise).
 module cr_supremizer
-  use mpi_f08
   use cr_kinds, only: wp, i8
-  use cr_error, only: error_t, set_error
+  use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
   use cr_env, only: env_t
   use cr_scene, only: scene_t
@@ -88,7 +87,7 @@ contains
     real(wp), allocatable :: gq(:,:,:), nrm2(:,:), res2(:,:), t(:), s(:), vn(:,:), hist(:)
     integer(i8), allocatable :: chosen(:)
     logical :: exact
-    integer :: nd, nl, ns, k, j, r, added, ierr, owner, mine, rr
+    integer :: nd, nl, ns, k, j, r, added, owner, rr
     integer(i8) :: gid
     real(wp) :: gap, pair(2), best(2), err
     nd = size(v, 1); nl = size(q_local, 2)
@@ -130,7 +129,8 @@ contains
     exact = .false.
     added = 0
     do
-      call argmax(best)
+      call argmax(best, error)
+      if (allocated(error)) return
       err = sqrt(max(best(1), 0.0_wp))
       if (.not. exact .and. err < 1.0e-5_wp) then
         ! relative accuracy of |s|^2 - |V^T s|^2 is exhausted: recompute exactly
@@ -157,12 +157,18 @@ contains
       ! the owner forms the candidate, everybody orthonormalises it into v
       k = int((gid - 1) / cone%r - col_offset) + 1
       rr = int(mod(gid - 1, int(cone%r, i8))) + 1
-      mine = -1
-      if (k >= 1 .and. k <= nl) mine = env%rank
-      call MPI_Allreduce(mine, owner, 1, MPI_INTEGER, MPI_MAX, env%comm, ierr)
+      owner = -1
+      if (k >= 1 .and. k <= nl) owner = env%rank
+      call env%allreduce(owner, 'max', error)
+      if (allocated(error)) then
+        call prefix_error(error, "pga: owner of a supremizer"); return
+      end if
       if (env%rank == owner) call supremizer(scenes(scene_of(k)), radius, h, dict_ia, dict_ib, dict_ob, cone, rr, &
         q_local(:, k), s)
-      call MPI_Bcast(s, nd, MPI_DOUBLE_PRECISION, owner, env%comm, ierr)
+      call env%bcast(s, error, root=owner)
+      if (allocated(error)) then
+        call prefix_error(error, "pga: a supremizer"); return
+      end if
       do j = 1, 2
         s = s - matmul(v, matmul(s, v))
       end do
@@ -228,8 +234,9 @@ contains
     end subroutine recompute_all
 
     !> Global (max relative squared residual, candidate id), ties to the lowest id.
-    subroutine argmax(out)
+    subroutine argmax(out, error)
       real(wp), intent(out) :: out(2)
+      type(error_t), allocatable, intent(out) :: error
       integer :: kk, r2
       real(wp) :: rel
       pair = [-1.0_wp, huge(1.0_wp)]
@@ -240,7 +247,9 @@ contains
           if (rel > pair(1)) pair = [rel, real((col_offset + kk - 1) * cone%r + r2, wp)]
         end do
       end do
-      call MPI_Allreduce(pair, out, 1, MPI_2DOUBLE_PRECISION, MPI_MAXLOC, env%comm, ierr)
+      call env%allreduce_maxloc(pair, error)
+      if (allocated(error)) call prefix_error(error, "pga: the largest projection error")
+      out = pair
     end subroutine argmax
   end subroutine pga_enrich
 end module cr_supremizer

@@ -777,7 +777,7 @@ contains
     integer, allocatable, intent(out) :: dia(:), dib(:), dob(:)
     type(error_t), allocatable, intent(out) :: error
     integer(i8), allocatable :: keys(:), allk(:), pack4(:,:)
-    integer, allocatable :: ids(:,:), idx(:)
+    integer, allocatable :: ids(:,:), idx(:), counts(:), displs(:)
     integer :: n, j, m
     n = 0
     do j = 1, size(samples)
@@ -800,7 +800,10 @@ contains
     allocate(pack4(4, n))
     pack4(1, :) = keys(1:n)
     pack4(2:4, :) = int(ids(:, 1:n), i8)
-    call env%allgatherv(reshape(pack4, [4 * n]), allk, error)
+    call env%block_counts(4 * n, counts, displs, error)
+    if (allocated(error)) return
+    allocate(allk(sum(counts)))
+    call env%allgatherv(pack4, allk, counts, displs, error)
     if (allocated(error)) return
     m = size(allk) / 4
     deallocate(ids, pack4)

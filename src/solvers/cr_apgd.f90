@@ -7,6 +7,7 @@
 !> (u(lambda), lambda) is checked every check_every iterations; the best iterate is returned.
 module cr_apgd
   use cr_kinds, only: wp
+  use cr_grow, only: grow => grow_real
   use cr_error, only: error_t
   use cr_strings, only: str
   use cr_contact_set, only: contact_set_t, velocity_scale
@@ -114,14 +115,4 @@ contains
     class(apgd_solver_t), intent(inout) :: this
     if (allocated(this%y)) deallocate(this%y, this%lnew, this%g, this%best, this%w)
   end subroutine apgd_free
-
-  subroutine grow(a, n)
-    real(wp), allocatable, intent(inout) :: a(:)
-    integer, intent(in) :: n
-    if (allocated(a)) then
-      if (size(a) >= n) return
-      deallocate(a)
-    end if
-    allocate(a(max(n, 16)))
-  end subroutine grow
 end module cr_apgd

@@ -28,6 +28,7 @@
 !> steps (one product with A each, plus one more per expansion step).
 module cr_gpcg
   use cr_kinds, only: wp
+  use cr_grow, only: grow => grow_real
   use cr_error, only: error_t
   use cr_strings, only: str
   use cr_contact_set, only: contact_set_t, velocity_scale
@@ -319,14 +320,4 @@ contains
     if (allocated(this%g)) deallocate(this%g, this%p, this%ap, this%z, this%dinv, this%best)
     if (allocated(this%w)) deallocate(this%w, this%t, this%ut)
   end subroutine gpcg_free
-
-  subroutine grow(a, n)
-    real(wp), allocatable, intent(inout) :: a(:)
-    integer, intent(in) :: n
-    if (allocated(a)) then
-      if (size(a) >= n) return
-      deallocate(a)
-    end if
-    allocate(a(max(n, 16)))
-  end subroutine grow
 end module cr_gpcg

@@ -10,6 +10,7 @@
 !> any overflow: there is no usable velocity to return.
 module cr_uzawa
   use cr_kinds, only: wp
+  use cr_grow, only: grow => grow_real
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
   use cr_contact_set, only: contact_set_t, velocity_scale
@@ -106,13 +107,4 @@ contains
   end subroutine uzawa_free
 
   !> Make sure a has at least n entries (contents not kept).
-  subroutine grow(a, n)
-    real(wp), allocatable, intent(inout) :: a(:)
-    integer, intent(in) :: n
-    if (allocated(a)) then
-      if (size(a) >= n) return
-      deallocate(a)
-    end if
-    allocate(a(max(n, 16)))
-  end subroutine grow
 end module cr_uzawa

@@ -19,6 +19,7 @@ module cr_study_config
   use cr_config_check, only: need_sane, MAX_LENGTH, MAX_SPEED
   use cr_hash, only: hash_text
   use cr_param_model, only: KNOWN_PARAMS, KNOWN_PARAMS_TEXT
+  use cr_snapshot_file, only: SNAP_SCHEMA
   implicit none
   private
   public :: check_study_paths
@@ -254,7 +255,7 @@ contains
       if (e(i0:i0) /= '!' .and. index(e(i0:i1), '&output') /= 1) kept = kept // e(i0:i1)
       i0 = i1 + 1
     end do
-    h = hash_text("crowdrom-snapshots v" // str(schema_version) // new_line('a') // kept // &
+    h = hash_text(SNAP_SCHEMA // " v" // str(schema_version) // new_line('a') // kept // &
       study_echo(s, with_database=.false.))
   end function study_hash
 end module cr_study_config

@@ -8,11 +8,10 @@ module cr_study_match
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
   use cr_env, only: env_t
-  use cr_h5file, only: h5file_t
   use cr_namelist_text, only: namelist_text_t
   use cr_config, only: config_t, parse_config, config_echo
   use cr_study_config, only: study_cfg_t, read_study, study_echo, study_hash
-  use cr_snapshot_file, only: SNAP_SCHEMA, SNAP_SCHEMA_VERSION
+  use cr_snapshot_file, only: SNAP_SCHEMA_VERSION, snap_header_t, read_snap_header
   implicit none
   private
   public :: check_database_matches, compare_with_database
@@ -22,7 +21,8 @@ module cr_study_match
 
 contains
 
-  !> Collective: rank 0 reads the database's stored configuration and compares it with the
+  !> Collective: rank 0 reads the database's header through the product reader
+  !> (cr_snapshot_file: schema, version, completeness) and compares its stored configuration with the
   !> input (`cfg`, and &study from `nml` when present); every rank returns the same error.
   !> `where` starts the message (e.g. "in.nml: &offline").
   subroutine check_database_matches(env, where, db_path, cfg, nml, error)
@@ -31,31 +31,12 @@ contains
     type(config_t), intent(in) :: cfg
     type(namelist_text_t), intent(in) :: nml
     type(error_t), allocatable, intent(out) :: error
-    type(h5file_t) :: h5
-    type(error_t), allocatable :: e2
-    character(len=:), allocatable :: text, hash, schema
+    type(snap_header_t) :: hdr
     if (env%is_root()) then
-      call h5%open(db_path, error)
-      if (.not. allocated(error)) then
-        call h5%read_attr("/", "schema", schema, e2)
-        if (allocated(e2)) schema = ""
-        if (allocated(e2)) deallocate(e2)
-        ! not a snapshot database: the reader says so (and why)
-        if (schema == SNAP_SCHEMA) then
-          call h5%read_attr("/", "config", text, error)
-          if (.not. allocated(error)) call h5%read_attr("/", "config_hash", hash, error)
-        end if
-        call h5%close(e2)
-        if (allocated(error)) then
-          error%message = where // ": database: " // error%message
-          error%code = 2
-        else if (schema == SNAP_SCHEMA) then
-          call compare_with_database(cfg, nml, db_path, text, hash, where, error)
-        end if
-      else
-        error%message = where // ": database: " // error%message
-        error%code = 2
-      end if
+      ! the product reader checks schema, version and completeness (input error, exit 2)
+      call read_snap_header(db_path, where // ": database", hdr, error)
+      if (.not. allocated(error)) call compare_with_database(cfg, nml, db_path, hdr%config_text, hdr%hash, &
+        where, error)
     end if
     call env%agree_error(error)
   end subroutine check_database_matches
