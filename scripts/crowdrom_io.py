@@ -20,6 +20,7 @@ Every problem with an input raises ``InputError`` with a one-line message naming
 missing object; the command-line scripts turn it into ``<script>: error: <message>`` and exit 2.
 """
 import os
+import sys
 
 import numpy as np
 
@@ -470,7 +471,7 @@ PROJ_PER_CONFIG = ("time", "displacement", "max_move", "depth_in", "overlap_agen
 
 
 def run_projection(exe, database, params, positions, workdir, solver="", tol=0.0, refine_max=50,
-                   timeout=None):
+                   timeout=None, show_progress=False):
     """Exact position projection of ``positions`` [n_S, n_conf, n_dof] (sample s has the
     parameters ``params`` [n_S, n_mu] of ``database``) by the Fortran program ``crowd_project``:
     writes the request (schema crowdrom-projreq) in ``workdir``, runs the program and reads its
@@ -478,7 +479,8 @@ def run_projection(exe, database, params, positions, workdir, solver="", tol=0.0
     of PROJ_PER_CONFIG [n_S, n_conf], and the root attributes ``solver``, ``tol``, ``t_total``.
     ``refine_max``: refinement projections per configuration at most (0: the first-order
     projection from the start only). The program's bad-input errors (exit 2) become InputError, other failures RuntimeError, with
-    its one ``error:`` line."""
+    its one ``error:`` line. ``show_progress``: the program's progress lines (stage, sample k of n,
+    ETA) go to this process's standard output instead of being captured."""
     import subprocess
 
     import h5py
@@ -507,14 +509,18 @@ def run_projection(exe, database, params, positions, workdir, solver="", tol=0.0
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
     if hasattr(os, "geteuid") and os.geteuid() == 0:
         env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
-    p = subprocess.run([exe, req], capture_output=True, text=True, env=env, timeout=timeout)
+    if show_progress:
+        sys.stdout.flush()
+    p = subprocess.run([exe, req], stdout=None if show_progress else subprocess.PIPE,
+                       stderr=subprocess.PIPE, text=True, env=env, timeout=timeout)
+    out_text = p.stdout or ""
     if p.returncode != 0:
-        lines = [ln.strip() for ln in (p.stdout + "\n" + p.stderr).splitlines() if "error:" in ln]
+        lines = [ln.strip() for ln in (out_text + "\n" + p.stderr).splitlines() if "error:" in ln]
         msg = lines[-1] if lines else (p.stderr.strip().splitlines() or ["(no message)"])[-1]
         if p.returncode == 2:
             raise InputError(f"crowd_project: {msg}")
         raise RuntimeError(f"crowd_project failed (exit status {p.returncode}): {msg}")
-    res = {"log": p.stdout}
+    res = {"log": out_text}
     with open_h5(out, PROJ_SCHEMA, "projection result") as f:
         q = dataset(f, "positions")
         if q.shape != (n_s * n_conf, n_dof):

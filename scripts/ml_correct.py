@@ -25,7 +25,8 @@ corrected configuration is then projected exactly onto the configurations withou
 (q_proj = argmin |q - q_ml|^2, the Fortran program crowd_project: one projection of the full
 model's kind with desired velocity 0 and h = 1, the full model's exact solver); the accuracy
 (E_avg, E_disp, mobility, deepest overlaps) is reported before and after, with the projection
-time per step and per query (--no-project skips it).
+time per step and per query (each regressor's best n by default, --project-all: every n;
+--no-project skips it).
 
 The correction is a post-processing of the ROM coefficients: it is applied to all validation
 steps in one batch. Its cost per step (batch prediction time / number of steps) is added to the
@@ -457,14 +458,15 @@ def markdown(rows):
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         lines.append("| " + " | ".join(fmt.get(k, "{}").format(r[k]) for k in keys) + " |")
-    if rows and rows[0]["E_avg_proj"] >= 0:
+    proj_rows = [r for r in rows if r["E_avg_proj"] >= 0]
+    if proj_rows:
         head = ["regressor", "n", "E_avg ML -> projected", "E_disp ML -> projected",
                 "overlap agents / walls ML (m)", "after projection (m)", "mobility ML -> projected",
                 "agents moved", "t_project/step (s)", "t_project/query (s)", "t_query (s)",
                 "speedup/query (exact)", "speedup/step (exact)"]
-        lines += ["", "After the exact projection (crowd_project):", "",
+        lines += ["", "After the exact projection (crowd_project; only the projected n):", "",
                   "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-        for r in rows:
+        for r in proj_rows:
             lines.append(f"| {r['regressor']} | {r['n']} | {r['E_avg']:.3e} -> {r['E_avg_proj']:.3e} | "
                          f"{r['E_disp']:.3e} -> {r['E_disp_proj']:.3e} | {r['overlap_agents']:.2e} / "
                          f"{r['overlap_walls']:.2e} | {r['overlap_agents_proj']:.2e} / {r['overlap_walls_proj']:.2e} | "
@@ -679,44 +681,46 @@ def query_costs(st):
     return t_rom, t_fom
 
 
-def project_all(st, res, exe, workdir, quiet=False, refine_max=0):
-    """Exact projection (crowd_project) of the corrected validation positions of every
-    (regressor, n) in one request; fills the PROJ_KEYS lists of each regressor."""
+def project_all(st, res, exe, workdir, quiet=False, refine_max=0, every_n=False):
+    """Exact projection (crowd_project) of the corrected validation positions of each regressor's
+    best n (``every_n``: of every (regressor, n)) in one request; fills the PROJ_KEYS lists of each
+    regressor (-1 for an n not projected)."""
     q_val = st.db_valid["positions"][st.valid_idx]
     n_s, nt = q_val.shape[0], st.n_steps
-    jobs = [(reg, n) for reg in res["regressors"] for n in res["n_values"]]
+    jobs = [(reg, n) for reg in res["regressors"] for n in res["n_values"]
+            if every_n or n == res[reg]["best_n"]]
     q = np.concatenate([res[reg]["_q"][n] for reg, n in jobs])
     params = np.tile(st.rom_valid["params"], (len(jobs), 1))
     log(f"exact projection of {len(jobs)} x {n_s} corrected trajectories ({q.shape[0] * q.shape[1]} "
         f"configurations) with crowd_project", quiet)
-    p = cio.run_projection(exe, st.db_path, params, q, workdir, refine_max=refine_max)
+    p = cio.run_projection(exe, st.db_path, params, q, workdir, refine_max=refine_max, show_progress=not quiet)
     t_query_rom, t_query_fom = query_costs(st)
     res["projection"] = {"solver": p["solver"], "tol": p["tol"], "refine_max": refine_max,
                          "t_query_rom": t_query_rom, "t_query_fom_exact": t_query_fom}
     t_ex = st.meta["t_step_exact"]
     for reg in res["regressors"]:
         for key in PROJ_KEYS:
-            res[reg][key] = []
+            res[reg][key] = [-1.0] * len(res["n_values"])
     for j, (reg, n) in enumerate(jobs):
         sl = slice(j * n_s, (j + 1) * n_s)
         r, i = res[reg], res["n_values"].index(n)
         qp = p["positions"][sl]
-        r["overlap_agents"].append(float(p["overlap_agents_before"][sl].max()))
-        r["overlap_walls"].append(float(p["overlap_walls_before"][sl].max()))
-        r["E_avg_proj"].append(float(cio.time_integrated_error(q_val, qp, st.h).mean()))
-        r["E_disp_proj"].append(float(cio.displacement_error(q_val, qp).mean()))
-        r["mobility_proj"].append(float(cio.mobility(q_val, qp).mean()))
-        r["overlap_agents_proj"].append(float(p["overlap_agents_after"][sl].max()))
-        r["overlap_walls_proj"].append(float(p["overlap_walls_after"][sl].max()))
-        r["moved_fraction"].append(float(p["n_moved"][sl].mean()) / (st.n_dof // 2))
+        r["overlap_agents"][i] = float(p["overlap_agents_before"][sl].max())
+        r["overlap_walls"][i] = float(p["overlap_walls_before"][sl].max())
+        r["E_avg_proj"][i] = float(cio.time_integrated_error(q_val, qp, st.h).mean())
+        r["E_disp_proj"][i] = float(cio.displacement_error(q_val, qp).mean())
+        r["mobility_proj"][i] = float(cio.mobility(q_val, qp).mean())
+        r["overlap_agents_proj"][i] = float(p["overlap_agents_after"][sl].max())
+        r["overlap_walls_proj"][i] = float(p["overlap_walls_after"][sl].max())
+        r["moved_fraction"][i] = float(p["n_moved"][sl].mean()) / (st.n_dof // 2)
         t_step_proj = float(p["time"][sl][:, 1:].mean())
         t_query_proj = float(p["time"][sl].sum(axis=1).mean())
-        r["t_project_step"].append(t_step_proj)
-        r["t_project_query"].append(t_query_proj)
+        r["t_project_step"][i] = t_step_proj
+        r["t_project_query"][i] = t_query_proj
         tq = (t_query_rom + nt * r["t_predict_step"][i] + t_query_proj) if t_query_rom >= 0 else -1.0
-        r["t_query"].append(tq)
-        r["speedup_query_exact"].append(t_query_fom / tq if tq > 0 and t_query_fom > 0 else -1.0)
-        r["speedup_exact_proj"].append(t_ex / (r["t_step"][i] + t_step_proj))
+        r["t_query"][i] = tq
+        r["speedup_query_exact"][i] = t_query_fom / tq if tq > 0 and t_query_fom > 0 else -1.0
+        r["speedup_exact_proj"][i] = t_ex / (r["t_step"][i] + t_step_proj)
         if n == r["best_n"]:
             r["best_projected"] = qp
             r["best_projected_err_time"] = cio.error_in_time(q_val, qp)
@@ -759,6 +763,9 @@ def main(argv=None):
     ap.add_argument("--csv", help="also write the result table as CSV")
     ap.add_argument("--no-project", action="store_true",
                     help="skip the exact projection of the corrected positions (crowd_project)")
+    ap.add_argument("--project-all", action="store_true",
+                    help="project the corrected positions of every n (default: each regressor's best n only; "
+                    "the other n get -1 in the projection columns)")
     ap.add_argument("--project-refine", type=int, default=0, metavar="N",
                     help="refinement projections per configuration at most (default 0: the "
                     "first-order projection from the previous projected configuration; see README)")
@@ -824,7 +831,7 @@ def main(argv=None):
             if exe:
                 with tempfile.TemporaryDirectory(prefix=".ml_project_",
                                                  dir=os.path.dirname(os.path.abspath(out))) as work:
-                    project_all(st, res, exe, work, args.quiet, args.project_refine)
+                    project_all(st, res, exe, work, args.quiet, args.project_refine, args.project_all)
             else:
                 no_projection(res)
             for reg in res["regressors"]:

@@ -124,20 +124,40 @@ def test_ml_correct_reports_projection(study, tmp_path, capsys):
     # the real run
     assert ml_correct.main(args) == 0
     text = capsys.readouterr().out
-    assert "After the exact projection (crowd_project):" in text
+    assert "After the exact projection (crowd_project; only the projected n):" in text
     assert sorted(os.listdir(models)) == ["random_forest_n2.joblib", "random_forest_n4.joblib"]
     rows = list(csv.DictReader(open(table)))
     assert len(rows) == 2
-    for r in rows:
+
+    def projected_ok(r):
         for key in ml_correct.PROJ_KEYS:
             assert key in r
-        assert float(r["overlap_agents_proj"]) <= TOL and float(r["overlap_walls_proj"]) <= TOL
+        assert 0 <= float(r["overlap_agents_proj"]) <= TOL and 0 <= float(r["overlap_walls_proj"]) <= TOL
         assert float(r["t_project_query"]) > 0 and float(r["t_query"]) > float(r["t_project_query"])
         assert float(r["E_avg_proj"]) >= 0 and float(r["mobility_proj"]) > 0
+
+    with h5py.File(out, "r") as f:
+        best_n = int(f["random_forest"].attrs["best_n"])
+    # by default only the best n is projected; the other n carry -1 (not measured)
+    for r in rows:
+        if int(r["n"]) == best_n:
+            projected_ok(r)
+        else:
+            assert all(float(r[key]) == -1 for key in ml_correct.PROJ_KEYS)
+    # --project-all projects every n
+    out_all, table_all = tmp_path / "ml_all.h5", tmp_path / "ml_all.csv"
+    args_all = list(args)
+    args_all[args_all.index(str(out))] = str(out_all)
+    args_all[args_all.index(str(table))] = str(table_all)
+    args_all[args_all.index(str(models))] = str(tmp_path / "models_all")
+    assert ml_correct.main(args_all + ["--project-all"]) == 0
+    for r in csv.DictReader(open(table_all)):
+        projected_ok(r)
     with h5py.File(out, "r") as f:
         assert f.attrs["projected"] == 1
         g = f["random_forest"]
-        assert g["E_avg_proj"].shape == (2,) and np.all(g["overlap_walls_proj"][...] <= TOL)
+        i_best = [int(x) for x in f["n_values"][()]].index(best_n)
+        assert g["E_avg_proj"].shape == (2,) and g["overlap_walls_proj"][i_best] <= TOL
         qp = g["best/projected_positions"][...]
         assert qp.shape == g["best/positions"].shape
         m = study["meta"]
