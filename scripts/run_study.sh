@@ -2,33 +2,39 @@
 # The whole parametric study on one case: set up (packages, venv, Release build), snapshots on
 # 2 ranks, offline bases on 2 ranks, the online ROM sweep, the ML correction, all figures, and
 # the accuracy/speed table.
-#   scripts/run_study.sh [hall20|congested150]        (default: hall20)
+#   scripts/run_study.sh [hall20|congested150|crowd1000]        (default: hall20)
 # Inputs: inputs/<case>_study.nml (&study + &offline), inputs/<case>_rom.nml (&rom),
 # inputs/<case>_ml.json (ML settings). Results in results/: <case>_snapshots.h5, <case>_rom.h5,
-# <case>_romrun.h5, <case>_table.csv, <case>_ml.h5, figures in results/<case>_figures/.
+# <case>_romrun.h5, <case>_table.csv, <case>_ml.h5, figures in results/<case>_figures/
+# (evacuation figures and table of scripts/evac_figures.py in results/<case>_figures/evac/).
 # A complete snapshot database of the same configuration is reused (crowd_snapshots resumes).
+# Environment: NP (ranks, 2), CROWDROM_BIN (programs; default build/bin after scripts/setup.sh;
+# given: no setup), CROWDROM_WORK (folder holding inputs/ and results/; default the repository).
 set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 CASE=${1:-hall20}
 NP=${NP:-2}
-"$ROOT/scripts/setup.sh"
-cd "$ROOT"
+if [ -z "${CROWDROM_BIN:-}" ]; then "$ROOT/scripts/setup.sh"; fi
+BIN=${CROWDROM_BIN:-$ROOT/build/bin}
+cd "${CROWDROM_WORK:-$ROOT}"
 for f in "inputs/${CASE}_study.nml" "inputs/${CASE}_rom.nml" "inputs/${CASE}_ml.json"; do
-  [ -f "$f" ] || { echo "run_study: error: $f not found (cases: hall20, congested150)" >&2; exit 2; }
+  [ -f "$f" ] || { echo "run_study: error: $f not found (cases: hall20, congested150, crowd1000)" >&2; exit 2; }
 done
 mkdir -p results
 export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1
 if [ "$(id -u)" -eq 0 ]; then export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1; fi
-PY=.venv/bin/python
+export OMPI_MCA_rmaps_base_oversubscribe=${OMPI_MCA_rmaps_base_oversubscribe:-1}
+PY=$ROOT/.venv/bin/python
+SCRIPTS=$ROOT/scripts
 t0=$(date +%s)
 stage() { echo; echo "=== run_study [$CASE] stage $1 of 6: $2 (elapsed $(( $(date +%s) - t0 )) s)"; }
 
 stage 1 "snapshots (mpirun -np $NP crowd_snapshots)"
-mpirun -np "$NP" build/bin/crowd_snapshots "inputs/${CASE}_study.nml" --summary "results/${CASE}_snapshots.json"
+mpirun -np "$NP" "$BIN/crowd_snapshots" "inputs/${CASE}_study.nml" --summary "results/${CASE}_snapshots.json"
 stage 2 "offline bases (mpirun -np $NP crowd_offline)"
-mpirun -np "$NP" build/bin/crowd_offline "inputs/${CASE}_study.nml" --summary "results/${CASE}_offline.json"
+mpirun -np "$NP" "$BIN/crowd_offline" "inputs/${CASE}_study.nml" --summary "results/${CASE}_offline.json"
 stage 3 "online reduced model sweep (crowd_rom)"
-build/bin/crowd_rom "inputs/${CASE}_rom.nml" --summary "results/${CASE}_rom.json"
+"$BIN/crowd_rom" "inputs/${CASE}_rom.nml" --summary "results/${CASE}_rom.json"
 # the ML correction uses the setting given in the ML file's "_setting" key (default: the last
 # 'eq' setting with the largest N among those run on both sets)
 SETTING=$($PY - "$CASE" <<'PYEOF'
@@ -51,14 +57,16 @@ print(best["setting"])
 PYEOF
 )
 stage 4 "ML correction (scripts/ml_correct.py, setting $SETTING)"
-$PY scripts/ml_correct.py "results/${CASE}_romrun.h5" --setting "$SETTING" --config "inputs/${CASE}_ml.json" \
+$PY "$SCRIPTS/ml_correct.py" "results/${CASE}_romrun.h5" --setting "$SETTING" --config "inputs/${CASE}_ml.json" \
   -o "results/${CASE}_ml.h5" --models-dir "results/${CASE}_ml_models" --csv "results/${CASE}_ml.csv"
 stage 5 "figures (scripts/make_figures.py)"
-$PY scripts/make_figures.py --database "results/${CASE}_snapshots.h5" --rom "results/${CASE}_rom.h5" \
+$PY "$SCRIPTS/make_figures.py" --database "results/${CASE}_snapshots.h5" --rom "results/${CASE}_rom.h5" \
   --romrun "results/${CASE}_romrun.h5" --csv "results/${CASE}_table.csv" --ml "results/${CASE}_ml.h5" \
   --setting "$SETTING" -o "results/${CASE}_figures"
+$PY "$SCRIPTS/evac_figures.py" --database "results/${CASE}_snapshots.h5" --romrun "results/${CASE}_romrun.h5" \
+  --csv "results/${CASE}_table.csv" --ml "results/${CASE}_ml.h5" -o "results/${CASE}_figures/evac"
 stage 6 "accuracy / cost table and the cheapest setting without overlap per error level (scripts/study_table.py)"
-$PY scripts/study_table.py "results/${CASE}_table.csv" --ml "results/${CASE}_ml.csv" \
+$PY "$SCRIPTS/study_table.py" "results/${CASE}_table.csv" --ml "results/${CASE}_ml.csv" \
   -o "results/${CASE}_study_table.md" --csv "results/${CASE}_cheapest.csv"
 echo
 echo "run_study [$CASE]: done in $(( $(date +%s) - t0 )) s; table results/${CASE}_table.csv, ML results/${CASE}_ml.csv, figures results/${CASE}_figures/"

@@ -31,13 +31,18 @@ module cr_config
     'rom', 'sweep', 'reduced', 'fom_timing']
 
   !> &scene: rectangular hall [0, hall_length] x [0, hall_width] closed by walls of thickness
-  !> wall_thickness; the top wall has an opening of width l_exit centred at exit_center.
+  !> wall_thickness; the top wall has an opening of width l_exit centred at exit_center, and
+  !> the right wall a second opening of width l_exit2 centred at y = exit2_center if l_exit2 > 0.
   type :: scene_cfg_t
     real(wp) :: hall_length = 1.3_wp
     real(wp) :: hall_width = 1.0_wp
     real(wp) :: l_exit = 0.3_wp
     !> x of the exit centre; negative means centred (hall_length / 2)
     real(wp) :: exit_center = -1.0_wp
+    !> width of the second exit, in the right wall; 0 means none
+    real(wp) :: l_exit2 = 0.0_wp
+    !> y of the second exit's centre; negative means centred (hall_width / 2)
+    real(wp) :: exit2_center = -1.0_wp
     real(wp) :: wall_thickness = 0.1_wp
   end type scene_cfg_t
 
@@ -188,17 +193,19 @@ contains
     type(namelist_text_t), intent(in) :: t
     type(scene_cfg_t), intent(inout) :: c
     type(error_t), allocatable, intent(out) :: error
-    real(wp) :: hall_length, hall_width, l_exit, exit_center, wall_thickness
-    namelist /scene/ hall_length, hall_width, l_exit, exit_center, wall_thickness
+    real(wp) :: hall_length, hall_width, l_exit, exit_center, wall_thickness, l_exit2, exit2_center
+    namelist /scene/ hall_length, hall_width, l_exit, exit_center, wall_thickness, l_exit2, exit2_center
     integer :: ios
     character(len=512) :: msg
     hall_length = c%hall_length; hall_width = c%hall_width; l_exit = c%l_exit
     exit_center = c%exit_center; wall_thickness = c%wall_thickness
+    l_exit2 = c%l_exit2; exit2_center = c%exit2_center
     msg = ''
     read(t%lines, nml=scene, iostat=ios, iomsg=msg)
     call nml_status(t, 'scene', ios, msg, error); if (allocated(error)) return
     c%hall_length = hall_length; c%hall_width = hall_width; c%l_exit = l_exit
     c%exit_center = exit_center; c%wall_thickness = wall_thickness
+    c%l_exit2 = l_exit2; c%exit2_center = exit2_center
   end subroutine read_scene
 
   subroutine read_agents(t, c, error)
@@ -324,7 +331,10 @@ contains
     associate (c => cfg%scene)
       s = s // "&scene hall_length = " // echo_real(c%hall_length) // ", hall_width = " // echo_real(c%hall_width) // &
         ", l_exit = " // echo_real(c%l_exit) // ", exit_center = " // echo_real(c%exit_center) // &
-        ", wall_thickness = " // echo_real(c%wall_thickness) // " /" // new_line('a')
+        ", wall_thickness = " // echo_real(c%wall_thickness)
+      ! the second exit only when there is one (one-exit configurations keep their text and hash)
+      if (c%l_exit2 /= 0) s = s // ", l_exit2 = " // echo_real(c%l_exit2) // ", exit2_center = " // echo_real(c%exit2_center)
+      s = s // " /" // new_line('a')
     end associate
     s = s // obstacles_echo(cfg%obstacles)
     associate (a => cfg%agents)

@@ -42,6 +42,8 @@ contains
       call need_sane(probs, s%hall_width, "&scene: hall_width", MAX_LENGTH, MIN_LENGTH)
       call need_sane(probs, s%l_exit, "&scene: l_exit", MAX_LENGTH, MIN_LENGTH)
       call need_sane(probs, s%exit_center, "&scene: exit_center", MAX_LENGTH)
+      call need_sane(probs, s%l_exit2, "&scene: l_exit2", MAX_LENGTH)
+      call need_sane(probs, s%exit2_center, "&scene: exit2_center", MAX_LENGTH)
       call need_sane(probs, s%wall_thickness, "&scene: wall_thickness", MAX_LENGTH, MIN_LENGTH)
       call check_obstacles_sane(o, probs)
       call need_sane(probs, a%radius, "&agents: radius", MAX_LENGTH, MIN_LENGTH)
@@ -87,6 +89,13 @@ contains
       if (s%exit_center >= 0 .and. s%l_exit <= s%hall_length) then
         call probs%need(s%exit_center - s%l_exit / 2 >= 0 .and. s%exit_center + s%l_exit / 2 <= s%hall_length, &
           "&scene: exit_center = " // str(s%exit_center) // " puts the opening outside the wall")
+      end if
+      call probs%need(s%l_exit2 >= 0, "&scene: l_exit2 must be >= 0 (0: no second exit; got " // str(s%l_exit2) // ")")
+      call probs%need(s%l_exit2 <= s%hall_width, "&scene: l_exit2 = " // str(s%l_exit2) // &
+        " is wider than the right wall (hall_width = " // str(s%hall_width) // ")")
+      if (s%l_exit2 > 0 .and. s%exit2_center >= 0 .and. s%l_exit2 <= s%hall_width) then
+        call probs%need(s%exit2_center - s%l_exit2 / 2 >= 0 .and. s%exit2_center + s%l_exit2 / 2 <= s%hall_width, &
+          "&scene: exit2_center = " // str(s%exit2_center) // " puts the second opening outside the right wall")
       end if
       call check_obstacles(o, probs)
       ! &agents

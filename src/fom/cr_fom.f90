@@ -118,7 +118,7 @@ contains
     allocate(this%v(2 * this%n_agents), this%u(2 * this%n_agents), this%inside(this%n_agents))
     this%v = 0; this%u = 0
     do i = 1, this%n_agents
-      this%inside(i) = this%q(2*i) <= this%scene%y_out(this%radius)
+      this%inside(i) = .not. this%scene%is_out(this%q(2*i-1:2*i), this%radius)
     end do
     call this%cs%init(this%n_agents, this%dt, 8 * this%n_agents)
     allocate(this%lambda(0), this%prev_keys(0), this%prev_lambda(0))
@@ -197,7 +197,7 @@ contains
     end do
     call obstacle_gaps(this, rec%min_gap)
     do i = 1, this%n_agents
-      if (this%q(2*i) > this%scene%y_out(this%radius)) this%inside(i) = .false.
+      if (this%scene%is_out(this%q(2*i-1:2*i), this%radius)) this%inside(i) = .false.
     end do
     rec%n_inside = count(this%inside)
     call system_clock(c2)

@@ -5,6 +5,10 @@
 !> [x_lo + r, x_hi - r] on the inner face y = hall_width (aiming at the full opening lets an
 !> agent slide under a door corner and stop there for good). Inside the doorway agents walk
 !> straight out (+y); past the wall they keep walking away from the exit centre.
+!> With a second exit in the right wall (&scene l_exit2 > 0) every model takes the nearer of
+!> the two openings (exact: the smaller of two geodesic distances; grid: one field seeded at
+!> both openings; analytic: the nearer narrowed opening), and the same rules hold at the
+!> right wall (+x in its doorway, away from its centre beyond it).
 !>
 !> Inside the hall the direction comes from one of three models (&desired field):
 !> - 'analytic': straight to the closest point of the narrowed opening (no obstacle model);
@@ -40,6 +44,12 @@ module cr_desired
     real(wp), allocatable :: fixed(:)
     real(wp) :: r = 0, y_door = 0, y_top = 0, t_lo = 0, t_hi = 0, x_lo = 0, x_hi = 0
     real(wp) :: centre(2) = 0
+    !> second exit (right wall): present, its exact geodesic, x of the wall's inner and outer
+    !> faces, narrowed target s_lo..s_hi (y) and centre
+    logical :: has2 = .false.
+    type(geodesic_t) :: exact2
+    real(wp) :: x_door = 0, x_right = 0, s_lo = 0, s_hi = 0
+    real(wp) :: centre2(2) = 0
   contains
     procedure :: init
     procedure :: direction
@@ -58,7 +68,7 @@ contains
     real(wp), intent(in) :: radius
     integer, intent(in) :: n_agents
     type(error_t), allocatable, intent(out) :: error
-    type(obstacle_t) :: target(1)
+    type(obstacle_t) :: target(2)
     real(wp) :: dx
     character(len=:), allocatable :: why
     this%use_field = .false.
@@ -72,6 +82,13 @@ contains
       this%t_lo = (scene%x_lo + scene%x_hi) / 2; this%t_hi = this%t_lo
     end if
     this%centre = scene%exit_center()
+    this%has2 = scene%has_exit2()
+    this%x_door = scene%length; this%x_right = scene%length + scene%wall
+    this%s_lo = scene%y_lo2 + radius; this%s_hi = scene%y_hi2 - radius
+    if (this%s_lo > this%s_hi) then
+      this%s_lo = (scene%y_lo2 + scene%y_hi2) / 2; this%s_hi = this%s_lo
+    end if
+    this%centre2 = scene%exit2_center()
     this%from_file = cfg%mode == 'file'
     if (this%from_file) then
       call read_vectors(trim(cfg%file), n_agents, this%fixed, error)
@@ -98,6 +115,10 @@ contains
       call this%exact%init([0.0_wp, 0.0_wp], [scene%length, scene%width], scene%obstacles, radius, &
         [this%t_lo, scene%width], [this%t_hi, scene%width], error)
       if (allocated(error)) call prefix_error(error, "desired velocity: exact geodesic")
+      if (allocated(error) .or. .not. this%has2) return
+      call this%exact2%init([0.0_wp, 0.0_wp], [scene%length, scene%width], scene%obstacles, radius, &
+        [scene%length, this%s_lo], [scene%length, this%s_hi], error)
+      if (allocated(error)) call prefix_error(error, "desired velocity: exact geodesic to the second exit")
       return
     end if
     if (.not. this%use_field) return
@@ -105,8 +126,13 @@ contains
     if (dx <= 0) dx = radius / 4
     call make_segment([scene%x_lo, scene%width], [scene%x_hi, scene%width], 0.0_wp, "exit", target(1), error)
     if (allocated(error)) return
+    if (this%has2) then
+      call make_segment([scene%length, scene%y_lo2], [scene%length, scene%y_hi2], 0.0_wp, "second exit", &
+        target(2), error)
+      if (allocated(error)) return
+    end if
     call this%field%init([0.0_wp, 0.0_wp], [scene%length, scene%width], dx, scene%obstacles, &
-      radius - 1.5_wp * dx, target, error)
+      radius - 1.5_wp * dx, target(1:merge(2, 1, this%has2)), error)
     if (allocated(error)) call prefix_error(error, "desired velocity: distance field")
   end subroutine init
 
@@ -115,24 +141,41 @@ contains
     class(desired_t), intent(in) :: this
     real(wp), intent(in) :: p(2)
     real(wp), intent(out) :: dir(2)
-    real(wp) :: t(2), n, dn
-    logical :: ok
+    real(wp) :: t(2), t2(2), n, dn, dn2, dir2(2)
+    logical :: ok, ok2
     if (p(2) >= this%y_top) then
       ! past the wall: walk away from the exit centre
       dir = p - this%centre
+    else if (this%has2 .and. p(1) >= this%x_right) then
+      ! past the right wall (second exit): walk away from its centre
+      dir = p - this%centre2
     else if (p(2) >= this%y_door - this%r .and. p(1) >= this%t_lo .and. p(1) <= this%t_hi) then
       dir = [0.0_wp, 1.0_wp]
+    else if (this%has2 .and. p(1) >= this%x_door - this%r .and. p(2) >= this%s_lo .and. p(2) <= this%s_hi) then
+      dir = [1.0_wp, 0.0_wp]
     else
-      if (this%use_exact .and. p(2) < this%y_door) then
+      if (this%use_exact .and. p(2) < this%y_door .and. p(1) < this%x_door) then
         call this%exact%query(p, dn, dir, ok)
+        if (this%has2) then
+          ! the nearer exit by geodesic distance
+          call this%exact2%query(p, dn2, dir2, ok2)
+          if (ok2 .and. (.not. ok .or. dn2 < dn)) then
+            dir = dir2; ok = .true.
+          end if
+        end if
         if (ok) return
       end if
-      if (this%use_field .and. p(2) < this%y_door - this%r) then
+      if (this%use_field .and. p(2) < this%y_door - this%r .and. p(1) < this%x_door - this%r) then
         call this%field%direction(p, dir, ok)
         if (ok) return
       end if
       t = [min(max(p(1), this%t_lo), this%t_hi), this%y_door]
       dir = t - p
+      if (this%has2) then
+        ! straight to the nearer (narrowed) opening
+        t2 = [this%x_door, min(max(p(2), this%s_lo), this%s_hi)]
+        if (norm2(t2 - p) < norm2(dir)) dir = t2 - p
+      end if
     end if
     n = norm2(dir)
     if (n > 0) then
@@ -225,12 +268,24 @@ contains
       why = str(nc) // " obstacle vertices and disks exceed the limit of " // str(GEODESIC_MAX_CIRCLES)
       return
     end if
+    if (scene%has_exit2() .and. scene%y_hi2 - scene%y_lo2 <= 2 * r) then
+      why = "the second exit (width " // str(scene%y_hi2 - scene%y_lo2) // ") is not wider than an agent (diameter " &
+        // str(2 * r) // ")"
+      return
+    end if
     a = [scene%x_lo + r, scene%width]
     b = [scene%x_hi - r, scene%width]
     do k = scene%n_walls + 1, scene%n_obstacles()
       if (segment_obstacle_distance(scene%obstacles(k), a, b) < r) then
         why = "obstacle '" // scene%obstacles(k)%label // "' comes closer than the agent radius to the exit opening"
         return
+      end if
+      if (scene%has_exit2()) then
+        if (segment_obstacle_distance(scene%obstacles(k), [scene%length, scene%y_lo2 + r], &
+            [scene%length, scene%y_hi2 - r]) < r) then
+          why = "obstacle '" // scene%obstacles(k)%label // "' comes closer than the agent radius to the second exit"
+          return
+        end if
       end if
     end do
     ok = .true.

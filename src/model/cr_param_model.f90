@@ -1,4 +1,5 @@
-!> The one mapping from a parameter vector mu to the model of a sample: the scene (l_exit), the
+!> The one mapping from a parameter vector mu to the model of a sample: the scene (l_exit, and
+!> l_exit2 the width of the second exit in the right wall), the
 !> per-agent desired speeds (speed, speeds) and the desired velocity field built on that scene.
 !> Used by the sampling (crowd_snapshots), the offline stage (one scene per training sample)
 !> and the online stage (scene, speeds and desired velocity per sample); the snapshot database
@@ -19,8 +20,8 @@ module cr_param_model
   public :: param_model_t, KNOWN_PARAMS, KNOWN_PARAMS_TEXT
 
   !> parameter names a study may vary
-  character(len=8), parameter :: KNOWN_PARAMS(3) = [character(len=8) :: 'l_exit', 'speed', 'speeds']
-  character(len=*), parameter :: KNOWN_PARAMS_TEXT = "l_exit, speed, speeds"
+  character(len=8), parameter :: KNOWN_PARAMS(4) = [character(len=8) :: 'l_exit', 'speed', 'speeds', 'l_exit2']
+  character(len=*), parameter :: KNOWN_PARAMS_TEXT = "l_exit, speed, speeds, l_exit2"
 
   !> The parameters of a study, expanded to components.
   type :: param_model_t
@@ -81,7 +82,7 @@ contains
       end if
       tok = trim(adjustl(csv(i0:i1 - 1)))
       i0 = i1 + 1
-      if (tok == 'l_exit' .or. tok == 'speed') then
+      if (tok == 'l_exit' .or. tok == 'speed' .or. tok == 'l_exit2') then
         n = n + 1; names(n) = tok
       else if (index(tok, 'speed_') == 1) then
         read(tok(7:), *, iostat=ios) j
@@ -120,7 +121,7 @@ contains
     if (len(s) > 0) s = s(1:len(s) - 1)
   end function component_names
 
-  !> Set the model inputs of sample mu: cfg%scene%l_exit and the per-agent speeds.
+  !> Set the model inputs of sample mu: cfg%scene%l_exit, cfg%scene%l_exit2 and the per-agent speeds.
   subroutine apply(this, mu, cfg, speeds)
     class(param_model_t), intent(in) :: this
     !> parameter values [n_expanded]
@@ -135,6 +136,8 @@ contains
       select case (trim(this%names(k)))
       case ('l_exit')
         cfg%scene%l_exit = mu(j)
+      case ('l_exit2')
+        cfg%scene%l_exit2 = mu(j)
       case ('speed')
         speeds = mu(j)
       case ('speeds')

@@ -1,5 +1,6 @@
 !> The geometry of a scene: a rectangular hall closed by thick walls, an exit opening in
-!> the top wall (two barrier walls either side, as in the paper's Fig. 'region'), and any
+!> the top wall (two barrier walls either side, as in the paper's Fig. 'region'), optionally
+!> a second exit opening in the right wall (y_lo2..y_hi2, when &scene l_exit2 > 0), and any
 !> number of extra convex obstacles. All distances are exact (see cr_shapes).
 !>
 !>   y = hall_width + wall_thickness  +-------+         +-------+
@@ -24,6 +25,8 @@ module cr_scene
     real(wp) :: length = 0, width = 0, wall = 0, l_exit = 0
     !> x range of the exit opening
     real(wp) :: x_lo = 0, x_hi = 0
+    !> width and y range of the second exit opening, in the right wall (l_exit2 = 0: none)
+    real(wp) :: l_exit2 = 0, y_lo2 = 0, y_hi2 = 0
     type(obstacle_t), allocatable :: obstacles(:)
     integer :: n_walls = 0
     !> bounding boxes of the obstacles [2, n_obst]
@@ -34,6 +37,9 @@ module cr_scene
     procedure :: n_interior
     procedure :: exit_center
     procedure :: y_out
+    procedure :: has_exit2
+    procedure :: exit2_center
+    procedure :: is_out
   end type scene_t
 
 contains
@@ -44,9 +50,9 @@ contains
     type(scene_cfg_t), intent(in) :: sc
     type(obstacles_cfg_t), intent(in) :: oc
     type(error_t), allocatable, intent(out) :: error
-    type(obstacle_t) :: tmp(5)
+    type(obstacle_t) :: tmp(6)
     type(obstacle_t), allocatable :: interior(:)
-    real(wp) :: L, H, t, xc
+    real(wp) :: L, H, t, xc, yc
     integer :: n, k
     L = sc%hall_length; H = sc%hall_width; t = sc%wall_thickness
     xc = sc%exit_center
@@ -54,9 +60,19 @@ contains
     this%length = L; this%width = H; this%wall = t; this%l_exit = sc%l_exit
     this%x_lo = xc - sc%l_exit / 2
     this%x_hi = xc + sc%l_exit / 2
+    this%l_exit2 = max(sc%l_exit2, 0.0_wp)
+    yc = sc%exit2_center
+    if (yc < 0) yc = H / 2
+    this%y_lo2 = yc - this%l_exit2 / 2
+    this%y_hi2 = yc + this%l_exit2 / 2
     n = 0
     call add_rect(-t, -t, 0.0_wp, H + t, "left wall"); if (allocated(error)) return
-    call add_rect(L, -t, L + t, H + t, "right wall"); if (allocated(error)) return
+    if (this%has_exit2()) then
+      call add_rect(L, -t, L + t, this%y_lo2, "lower right barrier wall"); if (allocated(error)) return
+      call add_rect(L, this%y_hi2, L + t, H + t, "upper right barrier wall"); if (allocated(error)) return
+    else
+      call add_rect(L, -t, L + t, H + t, "right wall"); if (allocated(error)) return
+    end if
     call add_rect(-t, -t, L + t, 0.0_wp, "bottom wall"); if (allocated(error)) return
     if (this%x_lo > 0) then
       call add_rect(0.0_wp, H, this%x_lo, H + t, "left barrier wall"); if (allocated(error)) return
@@ -110,4 +126,28 @@ contains
     real(wp), intent(in) :: r
     y_out = this%width + this%wall + r
   end function y_out
+
+  !> Whether the scene has a second exit (in the right wall).
+  pure logical function has_exit2(this)
+    class(scene_t), intent(in) :: this
+    has_exit2 = this%l_exit2 > 0
+  end function has_exit2
+
+  !> Centre of the second exit opening on the inner face of the right wall.
+  pure function exit2_center(this) result(c)
+    class(scene_t), intent(in) :: this
+    real(wp) :: c(2)
+    c = [this%length, (this%y_lo2 + this%y_hi2) / 2]
+  end function exit2_center
+
+  !> Whether an agent of radius r centred at p has left the hall: above the top wall's outer
+  !> face + r, or (second exit) right of the right wall's outer face + r.
+  pure logical function is_out(this, p, r)
+    class(scene_t), intent(in) :: this
+    !> centre [2]
+    real(wp), intent(in) :: p(2)
+    real(wp), intent(in) :: r
+    is_out = p(2) > this%y_out(r)
+    if (this%has_exit2()) is_out = is_out .or. p(1) > this%length + this%wall + r
+  end function is_out
 end module cr_scene

@@ -118,7 +118,8 @@ contains
     end do
   end subroutine max_overlaps
 
-  !> Evacuation curve: agents out of the hall (centre above scene%y_out(radius)) in each
+  !> Evacuation curve: agents out of the hall (scene%is_out: centre above scene%y_out(radius),
+  !> or beyond the right wall when the scene has a second exit) in each
   !> configuration of q [n_dof, n_conf].
   function evacuation_curve(scene, radius, q) result(nout)
     type(scene_t), intent(in) :: scene
@@ -246,7 +247,7 @@ contains
     integer :: i
     n = 0
     do i = 1, size(q) / 2
-      if (q(2*i) <= scene%y_out(radius)) n = n + 1
+      if (.not. scene%is_out(q(2*i-1:2*i), radius)) n = n + 1
     end do
   end function agents_not_left
 end module cr_rom_metrics

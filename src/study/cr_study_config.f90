@@ -5,7 +5,7 @@
 !>          param_max = 0.36, 5.5, sampling = 'random', n_train = 200, n_valid = 50, seed = 1,
 !>          database = 'results/congested150_snapshots.h5' /
 !>
-!> Parameter names: 'l_exit' (exit width, m), 'speed' (one desired speed c shared by every
+!> Parameter names: 'l_exit' (exit width, m), 'l_exit2' (second exit, right wall, m), 'speed' (one desired speed c shared by every
 !> agent, m/s), 'speeds' (each agent's speed c_i drawn independently in [param_min, param_max]:
 !> n_agents components). Bounds are absolute. Reading follows cr_config (defaults, iostat,
 !> message naming file and group); check_study collects every problem.
@@ -125,7 +125,7 @@ contains
     do k = 1, np
       nm = trim(s%param_name(k))
       select case (nm)
-      case (KNOWN_PARAMS(1), KNOWN_PARAMS(2), KNOWN_PARAMS(3))
+      case (KNOWN_PARAMS(1), KNOWN_PARAMS(2), KNOWN_PARAMS(3), KNOWN_PARAMS(4))
       case default
         call probs%need(.false., "&study: param_name(" // str(k) // ") = '" // nm // &
           "' is not a known parameter (known: " // KNOWN_PARAMS_TEXT // ")")
@@ -144,6 +144,14 @@ contains
           cfg%scene%exit_center + s%param_max(k) / 2 <= cfg%scene%hall_length, &
           "&study: l_exit up to " // str(s%param_max(k)) // " puts the opening outside the wall (exit_center = " &
           // str(cfg%scene%exit_center) // ")")
+      else if (nm == 'l_exit2') then
+        call probs%need(s%param_min(k) > 0 .and. s%param_max(k) <= cfg%scene%hall_width, &
+          "&study: l_exit2 range [" // str(s%param_min(k)) // ", " // str(s%param_max(k)) // &
+          "] must lie in (0, hall_width = " // str(cfg%scene%hall_width) // "]")
+        if (cfg%scene%exit2_center >= 0) call probs%need(cfg%scene%exit2_center - s%param_max(k) / 2 >= 0 .and. &
+          cfg%scene%exit2_center + s%param_max(k) / 2 <= cfg%scene%hall_width, &
+          "&study: l_exit2 up to " // str(s%param_max(k)) // " puts the second opening outside the right wall " // &
+          "(exit2_center = " // str(cfg%scene%exit2_center) // ")")
       else if (nm == 'speed' .or. nm == 'speeds') then
         call probs%need(s%param_min(k) >= 0, "&study: " // nm // " range must be >= 0 (param_min = " // &
           str(s%param_min(k)) // ")")

@@ -1,0 +1,390 @@
+#!/usr/bin/env python3
+"""Evacuation figures and table of a crowdrom study, for a safety engineer (issue 15).
+
+Inputs (files only, read through crowdrom_io):
+  --database   snapshot database (crowdrom-snapshots): the full-order trajectories, parameters
+  --romrun     ROM run file of crowd_rom (crowdrom-romrun): evacuation curves and times per setting
+  --csv        sweep table of crowd_rom (the table below; default: the romrun's name with .csv)
+  --ml         output of scripts/ml_correct.py (crowdrom-ml; optional): ML-corrected positions
+  -o/--outdir  output directory (created)
+
+Figures (PNG):
+  evac_curves.png     agents out of the hall vs time for a few validation parameters: full model,
+                      reduced model (several settings) and ML-corrected reduced model; 50% / 90%
+                      lines
+  t90_map.png         the time at which 90% of the crowd is out over the parameter box (the two
+                      exit widths; marker size = desired speed), full vs reduced, and the relative
+                      error; training (circles) and validation (triangles) parameters
+  train_convergence.png
+                      the offline error curves against the training-set size: the validation
+                      velocity error of a POD basis of N modes built from the first n training
+                      samples (1 - captured energy, from Gramians), for several N; flat curves
+                      mean more samples would not improve the bases
+Table (markdown, ``<outdir>/evac_table.md``, also printed): per validation setting the per-step
+and per-query speedups against the exact full model, E_avg, E_disp, t50 / t90 errors,
+overlaps, agents not out, mobility, diverged samples; ML rows from --ml.
+
+Exit codes: 0 success, 2 an input is missing, unreadable or of the wrong schema.
+"""
+import argparse
+import csv
+import math
+import os
+import re
+import sys
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+import crowdrom_io as cio  # noqa: E402
+from crowdrom_io import InputError  # noqa: E402
+
+PROG = "evac_figures"
+#: columns of the sweep CSV this script needs
+NEEDED = ("setting", "set", "n", "r", "n_basis", "hyper", "contacts", "E_avg", "E_disp", "t50_err", "t50_n",
+          "t50_rom_missed", "t90_err", "t90_n", "t90_rom_missed", "max_overlap_agents", "max_overlap_walls",
+          "agents_not_left", "agents_not_left_fom", "mobility", "samples_diverged", "t_step_rom",
+          "t_step_fom_exact", "speedup_exact", "t_query_rom", "t_query_fom_exact", "speedup_query_exact")
+#: columns of evac_table.md
+TABLE_HEADER = ("N", "R", "Nb", "hyper", "contacts", "E_avg", "E_disp", "t50 err (n)", "t90 err (n)",
+                "overlap agents / walls", "not out ROM (FOM)", "mobility", "diverged", "t_step [s]",
+                "speedup/step", "t_query [s]", "speedup/query")
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+# ------------------------------------------------------------------------------ inputs
+
+def out_rule(db):
+    """The 'agent has left' rule of the model (cr_scene%is_out) from the database's effective
+    configuration: a function q [..., n_dof] -> bool [..., n_agents]."""
+    with cio.open_h5(db, cio.DB_SCHEMA, "snapshot database") as f:
+        meta = cio.read_database_meta(f)
+        cfg = cio.attr(f, "config", str)
+    line = next((ln for ln in cfg.splitlines() if ln.strip().lower().startswith("&scene")), None)
+    if line is None:
+        raise InputError(f"'{db}': no &scene group in the stored configuration")
+    vals = {k.lower(): float(v.replace("d", "e").replace("D", "e"))
+            for k, v in re.findall(r"(\w+)\s*=\s*([-+0-9.eEdD]+)", line)}
+    try:
+        length, width, wall = vals["hall_length"], vals["hall_width"], vals["wall_thickness"]
+    except KeyError as exc:
+        raise InputError(f"'{db}': &scene of the stored configuration lacks {exc}") from None
+    r = meta["agent_radius"]
+    has2 = vals.get("l_exit2", 0.0) > 0 or "l_exit2" in meta["param_names"]
+
+    def is_out(q):
+        q = np.asarray(q)
+        x, y = q[..., 0::2], q[..., 1::2]
+        out = y > width + wall + r
+        if has2:
+            out |= x > length + wall + r
+        return out
+    return is_out, meta
+
+
+def read_rows(path):
+    if not os.path.exists(path):
+        raise InputError(f"sweep table not found: '{path}'")
+    with open(path, newline="") as fh:
+        rd = csv.DictReader(fh)
+        missing = [c for c in NEEDED if c not in (rd.fieldnames or [])]
+        if missing:
+            raise InputError(f"'{path}': missing column(s) {missing} in the header")
+        rows = list(rd)
+    if not rows:
+        raise InputError(f"'{path}': no rows")
+    return rows
+
+
+def read_runs(romrun):
+    """Per setting: attributes and, per set present, params, evacuation curves and times."""
+    out = {}
+    with cio.open_h5(romrun, cio.ROMRUN_SCHEMA, "ROM run") as f:
+        meta = cio.romrun_meta(f)
+        n_dof = 2 * meta["n_agents"]
+        for k in range(1, meta["n_settings"] + 1):
+            s = cio.romrun_setting(f, k)
+            s["data"] = {}
+            for name in s["sets"]:
+                d = cio.romrun_set(f, k, name, meta["n_steps"], n_dof)
+                if "evac_rom" not in d:
+                    raise InputError(f"'{romrun}': setting {k} has no evacuation curves (older crowd_rom)")
+                d.pop("positions"); d.pop("alpha")
+                s["data"][name] = d
+            out[k] = s
+    return meta, out
+
+
+def read_ml(path, is_out, n_steps):
+    """ML-corrected validation evacuation curves [n_S, N_T + 1] per regressor (best n)."""
+    res = {}
+    with cio.open_h5(path, cio.ML_SCHEMA, "ML output") as f:
+        params = cio.dataset(f, "valid_params")
+        for reg in ("random_forest", "mlp"):
+            if reg not in f:
+                continue
+            g = cio.group(f, reg)
+            q = cio.dataset(g, "best/positions")
+            n_s = q.shape[0] // (n_steps + 1)
+            q = q.reshape(n_s, n_steps + 1, -1)
+            res[reg] = {"evac": is_out(q).sum(axis=2), "best_n": int(cio.attr(g, "best_n", int)),
+                        "E_avg": float(cio.attr(g, "best_E_avg", float)),
+                        "speedup_exact": cio.dataset(g, "speedup_exact").ravel(),
+                        "n_values": cio.dataset(f, "n_values").ravel()}
+    return params, res
+
+
+def t_frac(curve, n_agents, frac, h):
+    """First time at which ceil(frac n_agents) agents are out (-1: not within the horizon)."""
+    k = math.ceil(frac * n_agents)
+    idx = np.nonzero(np.asarray(curve) >= k)[0]
+    return idx[0] * h if idx.size else -1.0
+
+
+# ------------------------------------------------------------------------------ figures
+
+def fig_curves(meta, runs, settings, samples, ml, out, dpi):
+    plt = _plt()
+    h, na, nt = meta["dt"], meta["n_agents"], meta["n_steps"]
+    t = h * np.arange(nt + 1)
+    first = runs[settings[0]]["data"]["valid"]
+    samples = [i for i in samples if i < first["params"].shape[0]]
+    fig, axes = plt.subplots(1, len(samples), figsize=(4.6 * len(samples), 4.0), squeeze=False)
+    names = meta["param_names"]
+    for ax, i in zip(axes[0], samples):
+        ax.plot(t, 100 * first["evac_fom"][i] / na, "k-", lw=2.4, label="full model")
+        for k in settings:
+            s = runs[k]
+            d = s["data"]["valid"]
+            ax.plot(t, 100 * d["evac_rom"][i] / na, lw=1.3,
+                    label=f"ROM ({s['n']}, {s['r']}) {s['hyper']}/{s.get('contacts') or 'cone'}")
+        for reg, r in ml.items():
+            ax.plot(t, 100 * r["evac"][i] / na, "--", lw=1.5, label=f"ML-corrected ({reg}, n = {r['best_n']})")
+        for p in (50, 90):
+            ax.axhline(p, color="0.6", lw=0.8, ls=":")
+        mu = ", ".join(f"{n} = {v:.3g}" for n, v in zip(names, first["params"][i]))
+        ax.set_title(f"validation sample {i + 1}\n{mu}", fontsize=9)
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("agents out [%]")
+        ax.set_ylim(0, 101)
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(out, dpi=dpi)
+    plt.close(fig)
+
+
+def fig_t90_map(meta, runs, setting, out, dpi):
+    plt = _plt()
+    names = meta["param_names"]
+    s = runs[setting]
+    ix = [names.index(n) for n in ("l_exit", "l_exit2") if n in names]
+    if len(ix) < 2:
+        ix = [0, 1] if len(names) > 1 else [0, 0]
+    isp = names.index("speed") if "speed" in names else None
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
+    pts = []
+    for name, marker in (("train", "o"), ("valid", "^")):
+        if name not in s["data"]:
+            continue
+        d = s["data"][name]
+        tf, tr = d["t_out_fom"][:, 1], d["t_out_rom"][:, 1]
+        pts.append((name, marker, d["params"], tf, tr))
+    allf = np.concatenate([p[3][p[3] > 0] for p in pts] + [np.array([])])
+    allr = np.concatenate([p[4][p[4] > 0] for p in pts] + [np.array([])])
+    both = np.concatenate([allf, allr]) if allf.size + allr.size else np.array([0.0, 1.0])
+    vmin, vmax = float(both.min()), float(both.max())
+    errs = []
+    for name, marker, P, tf, tr in pts:
+        ok = (tf > 0) & (tr > 0)
+        errs.append(np.where(ok, 100 * np.abs(tr - tf) / np.where(tf > 0, tf, 1.0), np.nan))
+    emax = max([np.nanmax(e) for e in errs if np.isfinite(e).any()] + [1.0])
+    for (name, marker, P, tf, tr), e in zip(pts, errs):
+        size = 30.0 if isp is None else 15 + 60 * (P[:, isp] - P[:, isp].min()) / max(np.ptp(P[:, isp]), 1e-12)
+        x, y = P[:, ix[0]], P[:, ix[1]]
+        for ax, val in ((axes[0], tf), (axes[1], tr)):
+            good = val > 0
+            sc = ax.scatter(x[good], y[good], c=val[good], s=size if np.isscalar(size) else size[good],
+                            marker=marker, cmap="viridis", vmin=vmin, vmax=vmax, edgecolors="k", linewidths=0.3)
+            ax.scatter(x[~good], y[~good], marker="x", c="r", s=25)
+        sc2 = axes[2].scatter(x, y, c=e, s=size, marker=marker, cmap="magma_r", vmin=0, vmax=emax,
+                              edgecolors="k", linewidths=0.3)
+        bad = ~np.isfinite(e)
+        axes[2].scatter(x[bad], y[bad], marker="x", c="r", s=25)
+    if pts:
+        fig.colorbar(sc, ax=axes[0], label="t90 [s]")
+        fig.colorbar(sc, ax=axes[1], label="t90 [s]")
+        fig.colorbar(sc2, ax=axes[2], label="|t90 ROM - t90 FOM| / t90 FOM [%]")
+    titles = ("full model t90", f"ROM t90: ({s['n']}, {s['r']}) {s['hyper']}/{s.get('contacts') or 'cone'}",
+              "relative error of t90 (x: not reached)")
+    for ax, title in zip(axes, titles):
+        ax.set_xlabel(f"{names[ix[0]]} [m]")
+        ax.set_ylabel(f"{names[ix[1]]} [m]")
+        ax.set_title(title, fontsize=10)
+        ax.grid(alpha=0.3)
+    if isp is not None:
+        fig.suptitle("circles: training, triangles: validation; marker size grows with the desired speed", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(out, dpi=dpi)
+    plt.close(fig)
+
+
+def train_convergence(db, n_modes, sizes, stride):
+    """Validation velocity error of POD bases of N modes built from the first n training samples:
+    1 - tr(V_N^T G_val V_N) / tr(G_val), G the Gramian [n_dof, n_dof] of the (strided) snapshots."""
+    with cio.open_h5(db, cio.DB_SCHEMA, "snapshot database") as f:
+        tr = cio.read_database_set(f, "train")
+        va = cio.read_database_set(f, "valid")
+    u_tr, u_va = tr["velocities"], va["velocities"]
+    n_tr = u_tr.shape[0]
+    sizes = sorted({min(max(1, s), n_tr) for s in sizes} | {n_tr})
+    g_val = np.zeros((u_va.shape[2],) * 2)
+    for k in range(u_va.shape[0]):
+        a = u_va[k, ::stride]
+        g_val += a.T @ a
+    tot = np.trace(g_val)
+    g = np.zeros_like(g_val)
+    err = np.full((len(sizes), len(n_modes)), np.nan)
+    done = 0
+    for i, n in enumerate(sizes):
+        for k in range(done, n):
+            a = u_tr[k, ::stride]
+            g += a.T @ a
+        done = n
+        w, v = np.linalg.eigh(g)
+        v = v[:, ::-1]
+        for j, m in enumerate(n_modes):
+            m = min(m, v.shape[1])
+            vm = v[:, :m]
+            err[i, j] = max(1.0 - np.trace(vm.T @ g_val @ vm) / tot, 0.0)
+    return np.array(sizes), err
+
+
+def fig_convergence(sizes, err, n_modes, out, dpi):
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.6, 4.2))
+    for j, m in enumerate(n_modes):
+        ax.semilogy(sizes, err[:, j], "o-", label=f"N = {m}")
+    ax.set_xlabel("training samples used")
+    ax.set_ylabel("validation velocity error of the POD basis\n(1 - captured energy)")
+    ax.set_title("offline error vs training-set size", fontsize=10)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out, dpi=dpi)
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------------------ table
+
+def _f(x, fmt="%.2e"):
+    x = float(x)
+    return "n/a" if x < 0 else fmt % x
+
+
+def table_lines(rows, ml):
+    def t(r, k):
+        n = int(r[k + "_n"])
+        s = "%.2e (%d)" % (float(r[k + "_err"]), n) if n > 0 else "n/a"
+        if int(r[k + "_rom_missed"]) > 0:
+            s += ", ROM never %s" % r[k + "_rom_missed"]
+        return s
+    out = ["| " + " | ".join(TABLE_HEADER) + " |", "|" + "---|" * len(TABLE_HEADER)]
+    for r in rows:
+        if r["set"] != "valid":
+            continue
+        out.append("| " + " | ".join([
+            r["n"], r["r"], r["n_basis"], r["hyper"], r["contacts"],
+            _f(r["E_avg"]) + ("*" if int(r["samples_diverged"]) > 0 else ""), _f(r["E_disp"]),
+            t(r, "t50"), t(r, "t90"),
+            "%s / %s" % (_f(r["max_overlap_agents"]), _f(r["max_overlap_walls"])),
+            "%s (%s)" % (r["agents_not_left"], r["agents_not_left_fom"]), _f(r["mobility"], "%.3f"),
+            r["samples_diverged"], _f(r["t_step_rom"]), _f(r["speedup_exact"], "%.1f"), _f(r["t_query_rom"]),
+            _f(r["speedup_query_exact"], "%.1f")]) + " |")
+    for reg, m in ml.items():
+        sp = m["speedup_exact"]
+        k = list(m["n_values"]).index(m["best_n"]) if m["best_n"] in list(m["n_values"]) else -1
+        out.append(f"| ML {reg} (n = {m['best_n']}) | | | | | {m['E_avg']:.2e} | | | | | | | | | "
+                   f"{sp[k]:.1f} | | |")
+    return out
+
+
+# ------------------------------------------------------------------------------ main
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="evac_figures.py", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--database", required=True)
+    ap.add_argument("--romrun", required=True)
+    ap.add_argument("--csv")
+    ap.add_argument("--ml")
+    ap.add_argument("-o", "--outdir", required=True)
+    ap.add_argument("--settings", type=int, nargs="+", help="settings of the curves (default: up to 4)")
+    ap.add_argument("--map-setting", type=int, help="setting of the t90 map (default: the valid row with "
+                    "the smallest t90 error among those without agent overlap, else the smallest t90 error)")
+    ap.add_argument("--samples", type=int, nargs="+", default=[1, 2, 3], help="validation samples (1-based)")
+    ap.add_argument("--modes", type=int, nargs="+", default=[10, 25, 50, 100], help="N of the convergence curves")
+    ap.add_argument("--sizes", type=int, nargs="+", help="training sizes of the convergence curves "
+                    "(default: 8 sizes up to n_train)")
+    ap.add_argument("--stride", type=int, default=3, help="step stride of the convergence Gramians")
+    ap.add_argument("--dpi", type=int, default=110)
+    args = ap.parse_args(argv)
+    try:
+        csv_path = args.csv or os.path.splitext(args.romrun)[0] + ".csv"
+        is_out, dbmeta = out_rule(args.database)
+        meta, runs = read_runs(args.romrun)
+        rows = read_rows(csv_path)
+        if meta["n_agents"] != dbmeta["n_agents"]:
+            raise InputError(f"'{args.romrun}' has {meta['n_agents']} agents, '{args.database}' {dbmeta['n_agents']}")
+        valid_settings = [k for k, s in runs.items() if "valid" in s["data"]]
+        if not valid_settings:
+            raise InputError(f"'{args.romrun}': no setting has a validation set")
+        settings = args.settings or valid_settings[:4]
+        for k in settings:
+            if k not in valid_settings:
+                raise InputError(f"'{args.romrun}': setting {k} has no validation set")
+        ml = {}
+        if args.ml:
+            _, ml = read_ml(args.ml, is_out, meta["n_steps"])
+        os.makedirs(args.outdir, exist_ok=True)
+        fig_curves(meta, runs, settings, [i - 1 for i in args.samples], ml,
+                   os.path.join(args.outdir, "evac_curves.png"), args.dpi)
+        ms = args.map_setting
+        if ms is None:
+            cand = [r for r in rows if r["set"] == "valid" and int(r["t90_n"]) > 0]
+            clean = [r for r in cand if float(r["max_overlap_agents"]) <= 1e-6]
+            pool = clean or cand
+            ms = int(min(pool, key=lambda r: float(r["t90_err"]))["setting"]) if pool else valid_settings[0]
+        if ms not in runs:
+            raise InputError(f"'{args.romrun}': no setting {ms}")
+        fig_t90_map(meta, runs, ms, os.path.join(args.outdir, "t90_map.png"), args.dpi)
+        n_train = None
+        with cio.open_h5(args.database, cio.DB_SCHEMA, "snapshot database") as f:
+            n_train = cio.attr(f, "n_train", int)
+        sizes = args.sizes or sorted({max(1, round(n_train * x)) for x in (0.05, 0.1, 0.2, 0.3, 0.45, 0.6, 0.8, 1.0)})
+        modes = [m for m in args.modes if m <= 2 * meta["n_agents"]]
+        sz, err = train_convergence(args.database, modes, sizes, max(1, args.stride))
+        fig_convergence(sz, err, modes, os.path.join(args.outdir, "train_convergence.png"), args.dpi)
+        lines = table_lines(rows, ml)
+        conv = ["", "Validation velocity error of a POD basis vs training samples (strided snapshots):",
+                "| samples | " + " | ".join(f"N = {m}" for m in modes) + " |", "|---|" + "---|" * len(modes)]
+        conv += ["| %d | %s |" % (n, " | ".join("%.3e" % e for e in err[i])) for i, n in enumerate(sz)]
+        with open(os.path.join(args.outdir, "evac_table.md"), "w") as fh:
+            fh.write("\n".join(lines + conv) + "\n")
+        print("\n".join(lines + conv))
+    except InputError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{PROG}: evac_curves.png, t90_map.png, train_convergence.png, evac_table.md written to {args.outdir}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
