@@ -38,12 +38,12 @@ def main(argv=None):
     ap.add_argument("--pair", type=int, default=1)
     ap.add_argument("--m", type=int, nargs="+", default=[25, 50, 100, 147, 200, 250])
     a = ap.parse_args(argv)
-    with cio.open_h5(a.rom, "crowdrom-rom", "ROM file") as f:
+    with cio.open_h5(a.rom, cio.ROM_SCHEMA, "ROM file") as f:
         pair = cio.read_rom_pair(f, a.pair)
         deim = cio.read_rom_pair_vdeim(f, a.pair)
     if deim is None:
         raise InputError(f"'{a.rom}': pair {a.pair} stores no DEIM of the desired velocity (eq/v_deim)")
-    with cio.open_h5(a.database, "crowdrom-snapshots", "snapshot database") as f:
+    with cio.open_h5(a.database, cio.DB_SCHEMA, "snapshot database") as f:
         vd = cio.read_database_desired(f, "valid")
     v = pair["V"]
     x = vd.reshape(-1, vd.shape[-1])            # [configurations, n_dof]
