@@ -6,19 +6,15 @@
 !> the HDF5 trajectory (&output file) and prints a summary; --summary also writes it as JSON.
 !> The model itself is serial: under mpirun rank 0 computes and the other ranks wait.
 program crowd_fom
-  use cr_kinds, only: wp
-  use cr_error, only: error_t, set_error
-  use cr_strings, only: str
+  use cr_error, only: error_t
   use cr_env, only: env_t
   use cr_logger, only: logger_t
   use cr_cli, only: cli_t
   use cr_program, only: program_start, program_finish, log_level_of
-  use cr_config, only: config_t, config_echo, check_fom_paths
+  use cr_config, only: config_t, check_fom_paths
   use cr_namelist_text, only: namelist_text_t
   use cr_inputs, only: read_model_input
-  use cr_fom, only: fom_t, step_record_t
-  use cr_fom_file, only: fom_writer_t
-  use cr_json, only: json_writer_t
+  use cr_fom_run, only: fom_run
   implicit none
   type(env_t) :: env
   type(logger_t) :: log
@@ -39,7 +35,7 @@ program crowd_fom
   if (.not. allocated(error)) call check_fom_paths(cli%input, cli%summary, cfg, error)
   if (.not. allocated(error)) then
     log%level = log_level_of(cfg%output%log_level)
-    if (env%is_root()) call run(cfg, cli, log, error)
+    if (env%is_root()) call fom_run(cfg, cli%summary, log, error)
   end if
   code = program_finish(env, log, error)
   ! a plain (quiet) stop: the error line was printed; no runtime backtrace on bad input
@@ -60,153 +56,4 @@ contains
     print '(a)', "Exit status: 0 success, 2 bad input, 1 other failure."
   end subroutine print_help
 
-  subroutine run(cfg, cli, log, error)
-    type(config_t), intent(in) :: cfg
-    type(cli_t), intent(in) :: cli
-    type(logger_t), intent(inout) :: log
-    type(error_t), allocatable, intent(out) :: error
-    type(fom_t) :: fom
-    type(fom_writer_t) :: out
-    type(step_record_t), allocatable :: recs(:)
-    type(step_record_t) :: rec
-    integer :: n_target, k, n_failed, it_max, n_warned
-    !> non-converged steps warned about one by one
-    integer, parameter :: MAX_STEP_WARNINGS = 10
-    real(wp) :: min_gap, kkt_max, t_total, it_mean
-    integer(8) :: c0, c1, rate
-    character(len=:), allocatable :: text, gap_text
-    logical :: warned_rho
-
-    call log%stage_begin("crowd_fom: setup")
-    call log%info(config_echo(cfg))
-    call fom%init(cfg, error)
-    if (allocated(error)) return
-    call log%info("   " // str(fom%n_agents) // " agents of radius " // str(fom%radius) // ", " // &
-      str(fom%scene%n_obstacles()) // " obstacles (" // str(fom%scene%n_interior()) // " interior), " // &
-      "distance field: " // merge("grid    ", "analytic", fom%desired%use_field))
-    if (cfg%agents%init == 'random') call log%info("   placement: overlap removal took " // &
-      str(fom%placement_iterations) // " projection iterations")
-    call out%open(trim(cfg%output%file), cfg, fom, error)
-    if (allocated(error)) return
-    call log%stage_end()
-
-    n_target = cfg%time%n_steps
-    if (cfg%time%until_empty) n_target = cfg%time%max_steps
-    allocate(recs(n_target))
-    call log%stage_begin("crowd_fom: time stepping with solver '" // trim(cfg%solver%name) // "'")
-    call log%progress_start()
-    call system_clock(c0, rate)
-    k = 0
-    n_warned = 0
-    warned_rho = .false.
-    do while (k < n_target)
-      if (cfg%time%until_empty .and. fom%n_inside() == 0) exit
-      call fom%advance(rec, error)
-      if (allocated(error)) then
-        call out%abort(); return
-      end if
-      k = k + 1
-      recs(k) = rec
-      if (.not. rec%converged) then
-        n_warned = n_warned + 1
-        if (n_warned <= MAX_STEP_WARNINGS) call log%warn("step " // str(k) // ": projection not converged " // &
-          "(KKT residual " // str(rec%kkt) // ", tol " // str(cfg%solver%tol) // ", " // str(rec%iterations) // &
-          " iterations)")
-        if (n_warned == MAX_STEP_WARNINGS) call log%warn("further non-converged steps are counted (summary: " // &
-          "failed steps; stats/converged) but not printed")
-      end if
-      if (fom%solver%name() == 'uzawa' .and. .not. warned_rho) then
-        ! rho L > 2 (no division: L = 0 without rows)
-        if (cfg%solver%uzawa_rho_factor / cfg%time%dt**2 * fom%cs%lipschitz_bound() > 2.0_wp) then
-          call log%warn("uzawa: rho = " // str(cfg%solver%uzawa_rho_factor / cfg%time%dt**2) // &
-            " exceeds the convergence bound 2/||B||^2 >= " // str(2.0_wp / fom%cs%lipschitz_bound()) // &
-            " at step " // str(k))
-          warned_rho = .true.
-        end if
-      end if
-      if (mod(k, cfg%output%every) == 0 .or. k == n_target) then
-        call out%write_step(fom, error)
-        if (allocated(error)) then
-          call out%abort(); return
-        end if
-      end if
-      call log%progress("step", k, n_target)
-    end do
-    call system_clock(c1)
-    t_total = real(c1 - c0, wp) / real(rate, wp)
-    call log%stage_end()
-
-    call out%close(recs(1:k), error)
-    if (allocated(error)) return
-
-    n_failed = count(.not. recs(1:k)%converged)
-    min_gap = huge(1.0_wp); kkt_max = 0; it_max = 0; it_mean = 0
-    if (k > 0) then
-      min_gap = minval(recs(1:k)%min_gap)
-      kkt_max = maxval(recs(1:k)%kkt)
-      it_max = maxval(recs(1:k)%iterations)
-      it_mean = real(sum(recs(1:k)%iterations), wp) / k
-    end if
-    ! min_gap stays huge when no contact was ever within the cutoff (nothing close)
-    gap_text = str(min_gap)
-    if (min_gap == huge(1.0_wp)) gap_text = "none (no contact within the cutoff in any step)"
-    text = "summary:" // new_line('a') // &
-      "  agents              " // str(fom%n_agents) // new_line('a') // &
-      "  steps               " // str(k) // new_line('a') // &
-      "  agents left / still inside  " // str(fom%n_agents - fom%n_inside()) // " / " // str(fom%n_inside()) // new_line('a') // &
-      "  output file         " // trim(cfg%output%file) // new_line('a') // &
-      "  smallest gap seen   " // gap_text // " (radius " // str(fom%radius) // ")" // new_line('a') // &
-      "  largest KKT residual " // str(kkt_max) // new_line('a') // &
-      "  failed steps        " // str(n_failed) // new_line('a') // &
-      "  iterations mean/max " // str(it_mean, 'f0.1') // " / " // str(it_max) // new_line('a') // &
-      "  time per step       " // str(sum(recs(1:k)%t_step) / max(k, 1)) // " s (solver " // &
-      str(sum(recs(1:k)%t_solve) / max(k, 1)) // " s; with output " // str(t_total / max(k, 1)) // " s)"
-    call log%info(text)
-    if (len(cli%summary) > 0) then
-      call write_summary(cli%summary, cfg, fom, recs(1:k), t_total, error)
-      if (allocated(error)) return
-      call log%info("summary written to " // cli%summary)
-    end if
-  end subroutine run
-
-  !> The summary as JSON (keys documented in the README).
-  subroutine write_summary(path, cfg, fom, recs, t_total, error)
-    character(len=*), intent(in) :: path
-    type(config_t), intent(in) :: cfg
-    type(fom_t), intent(in) :: fom
-    type(step_record_t), intent(in) :: recs(:)
-    real(wp), intent(in) :: t_total
-    type(error_t), allocatable, intent(out) :: error
-    type(json_writer_t) :: js
-    integer :: k
-    k = size(recs)
-    call js%add("program", "crowd_fom")
-    call js%add("input", cfg%source)
-    call js%add("solver", trim(cfg%solver%name))
-    call js%add("agents", fom%n_agents)
-    call js%add("steps", k)
-    call js%add("agents_left", fom%n_agents - fom%n_inside())
-    call js%add("agents_inside", fom%n_inside())
-    call js%add("output_file", trim(cfg%output%file))
-    if (k > 0) then
-      ! omitted when no contact was ever within the cutoff (see stats/min_gap)
-      if (minval(recs%min_gap) < huge(1.0_wp)) call js%add("smallest_gap", minval(recs%min_gap))
-      call js%add("largest_kkt_residual", maxval(recs%kkt))
-      call js%add("failed_steps", count(.not. recs%converged))
-      call js%add("iterations_mean", real(sum(recs%iterations), wp) / k)
-      call js%add("iterations_max", maxval(recs%iterations))
-      call js%add("resolves", sum(recs%resolves))
-      call js%add("solver_time_per_step", sum(recs%t_solve) / k)
-      call js%add("factorizations_per_step", real(sum(recs%n_factor), wp) / k)
-      call js%add("factor_updates_per_step", real(sum(recs%n_modify), wp) / k)
-      call js%add("fallback_solves", sum(recs%n_fallback))
-    else
-      call js%add("failed_steps", 0)
-    end if
-    if (k > 0) call js%add("time_per_step", sum(recs%t_step) / k)
-    call js%add("wall_time_per_step_with_output", t_total / max(k, 1))
-    call js%add("time_total", t_total)
-    call js%add("placement_iterations", fom%placement_iterations)
-    call js%write_file(path, error)
-  end subroutine write_summary
 end program crowd_fom
