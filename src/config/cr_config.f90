@@ -11,7 +11,7 @@ module cr_config
   use cr_namelist_text, only: namelist_text_t, nml_status, echo_real, echo_reals, echo_logical
   ! &obstacles (its variables, read, echo, checks, construction) is owned by cr_obstacles
   use cr_obstacles, only: obstacles_cfg_t, read_obstacles, obstacles_echo, MAX_OBST, MAX_POLY_V
-  use cr_projection, only: projection_settings_t
+  use cr_solver_settings, only: projection_settings_t
   use cr_paths, only: io_paths_t
   implicit none
   private
