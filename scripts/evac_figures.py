@@ -52,6 +52,11 @@ TABLE_HEADER = ("N", "R", "Nb", "hyper", "contacts", "E_avg", "E_disp", "t50 err
                 "speedup/step", "t_query [s]", "speedup/query")
 
 
+def mode(s):
+    """The contacts mode of a setting (or table row), '+local' with the local exact correction."""
+    return (s.get("contacts") or "cone") + ("+local" if s.get("correction") == "local" else "")
+
+
 def _plt():
     import matplotlib
     matplotlib.use("Agg")
@@ -164,7 +169,7 @@ def fig_curves(meta, runs, settings, samples, ml, out, dpi):
             s = runs[k]
             d = s["data"]["valid"]
             ax.plot(t, 100 * d["evac_rom"][i] / na, lw=1.3,
-                    label=f"ROM ({s['n']}, {s['r']}) {s['hyper']}/{s.get('contacts') or 'cone'}")
+                    label=f"ROM ({s['n']}, {s['r']}) {s['hyper']}/{mode(s)}")
         for reg, r in ml.items():
             ax.plot(t, 100 * r["evac"][i] / na, "--", lw=1.5, label=f"ML-corrected ({reg}, n = {r['best_n']})")
         for p in (50, 90):
@@ -222,7 +227,7 @@ def fig_t90_map(meta, runs, setting, out, dpi):
         fig.colorbar(sc, ax=axes[0], label="t90 [s]")
         fig.colorbar(sc, ax=axes[1], label="t90 [s]")
         fig.colorbar(sc2, ax=axes[2], label="|t90 ROM - t90 FOM| / t90 FOM [%]")
-    titles = ("full model t90", f"ROM t90: ({s['n']}, {s['r']}) {s['hyper']}/{s.get('contacts') or 'cone'}",
+    titles = ("full model t90", f"ROM t90: ({s['n']}, {s['r']}) {s['hyper']}/{mode(s)}",
               "relative error of t90 (x: not reached)")
     for ax, title in zip(axes, titles):
         ax.set_xlabel(f"{names[ix[0]]} [m]")
@@ -301,7 +306,7 @@ def table_lines(rows, ml):
         if r["set"] != "valid":
             continue
         out.append("| " + " | ".join([
-            r["n"], r["r"], r["n_basis"], r["hyper"], r["contacts"],
+            r["n"], r["r"], r["n_basis"], r["hyper"], mode(r),
             _f(r["E_avg"]) + ("*" if int(r["samples_diverged"]) > 0 else ""), _f(r["E_disp"]),
             t(r, "t50"), t(r, "t90"),
             "%s / %s" % (_f(r["max_overlap_agents"]), _f(r["max_overlap_walls"])),

@@ -96,7 +96,13 @@ def test_crowd1000_mini_pipeline(tmp_path):
                 "mobility", "speedup_exact", "speedup_query_exact", "t_query_rom", "t_query_fom_exact"):
         assert col in rows[0], col
     valid = [r for r in rows if r["set"] == "valid"]
-    assert len(valid) == 4 and {r["contacts"] for r in valid} == {"cone", "online"}
+    assert len(valid) == 5 and {r["contacts"] for r in valid} == {"cone", "online"}
+    # the local exact correction leaves no overlap beyond the exact solver's bound
+    # (KKT tolerance 1e-10 scaled by h 2 max|u| < 1 m: below 1e-10 m), and nothing diverges
+    local = [r for r in valid if r["correction"] == "local"]
+    assert len(local) == 1 and int(local[0]["samples_diverged"]) == 0
+    assert float(local[0]["max_overlap_agents"]) <= 1e-10 and float(local[0]["max_overlap_walls"]) <= 1e-10
+    assert 0 < float(local[0]["corrected_fraction"]) <= 1
     # both exits are used and the full model evacuates: t90 defined for some validation sample
     assert any(int(r["t90_n"]) + int(r["t90_rom_missed"]) > 0 for r in valid)
     figs = res / f"{case}_figures"
@@ -106,4 +112,5 @@ def test_crowd1000_mini_pipeline(tmp_path):
     table = (figs / "evac" / "evac_table.md").read_text()
     assert "speedup/query" in table and table.count("| valid") == 0
     assert len([ln for ln in table.splitlines() if "| cone |" in ln or "| online |" in ln]) == 4
+    assert len([ln for ln in table.splitlines() if "| cone+local |" in ln]) == 1
     assert "=== run_study [crowd1000_mini] stage 6 of 6" in p.stdout
