@@ -41,7 +41,7 @@ contains
     if (allocated(error)) return
     call log%info("   " // str(fom%n_agents) // " agents of radius " // str(fom%radius) // ", " // &
       str(fom%scene%n_obstacles()) // " obstacles (" // str(fom%scene%n_interior()) // " interior), " // &
-      "distance field: " // merge("grid    ", "analytic", fom%desired%use_field))
+      "desired velocity: " // fom%desired%model_name())
     if (cfg%agents%init == 'random') call log%info("   placement: overlap removal took " // &
       str(fom%placement_iterations) // " projection iterations")
     call out%open(trim(cfg%output%file), cfg, fom, error)
