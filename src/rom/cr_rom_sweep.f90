@@ -550,7 +550,8 @@ contains
   !> solver of `solvers` (t_step, kkt_max, n_nonconv, t_query [size(solvers)]), and t_query:
   !> the mean wall time of one whole query (parameter applied, model built with its scene and
   !> desired velocity, every step timed). The solvers are interleaved sample by sample, so
-  !> that a change of the machine's load during the timing biases none of them.
+  !> that a change of the machine's load during the timing biases none of them; each exact
+  !> solver's sample counts with the fastest of timing_repeats runs, as the reduced model's.
   subroutine fom_timing(this, env, log, blk, solvers, t_step, kkt_max, n_nonconv, t_query, error)
     type(rom_sweep_t), intent(in) :: this
     type(env_t), intent(in) :: env
@@ -561,11 +562,11 @@ contains
     integer, intent(out) :: n_nonconv(:)
     real(wp), intent(out) :: t_query(:)
     type(error_t), allocatable, intent(out) :: error
-    real(wp) :: w0
+    real(wp) :: w0, ts, ts_best, tq_best
     type(config_t) :: c2
     type(step_record_t) :: rec
     real(wp), allocatable :: speeds(:)
-    integer :: k, nu, ns, j
+    integer :: k, nu, ns, j, rep, n_rep
     integer :: nsteps(size(solvers))
     character(len=:), allocatable :: solver
     t_step = 0; kkt_max = 0; n_nonconv = 0; t_query = 0
@@ -586,24 +587,37 @@ contains
           ! every pair and agent-obstacle pair a row, as in the paper (cutoff beyond the scene)
           if (this%cfg%fom_uzawa_rows == 'all') c2%contacts%cutoff_factor = 1.0e9_wp
         end if
-        speeds = this%st%speeds
-        w0 = env%wtime()
-        call this%st%space%apply(blk%mu(:, k), c2, speeds)
-        fresh: block
-          type(fom_t) :: fom
-          call fom%init(c2, error, q0=this%st%q0, speeds=speeds)
-          if (allocated(error)) return
-          do nu = 1, nsteps(j)
-            call fom%advance(rec, error)
-            if (allocated(error)) then
-              call prefix_error(error, "full-order timing (" // solver // ")"); return
-            end if
-            t_step(j) = t_step(j) + rec%t_step
-            kkt_max(j) = max(kkt_max(j), rec%kkt)
-            if (.not. rec%converged) n_nonconv(j) = n_nonconv(j) + 1
-          end do
-          t_query(j) = t_query(j) + (env%wtime() - w0)
-        end block fresh
+        ! the exact solvers as the reduced model is timed: the fastest of timing_repeats runs of
+        ! each sample (the paper's Uzawa, far slower, once)
+        n_rep = 1
+        if (solver /= 'uzawa') n_rep = max(1, this%cfg%timing_repeats)
+        ts_best = huge(1.0_wp); tq_best = huge(1.0_wp)
+        do rep = 1, n_rep
+          speeds = this%st%speeds
+          w0 = env%wtime()
+          call this%st%space%apply(blk%mu(:, k), c2, speeds)
+          ts = 0
+          fresh: block
+            type(fom_t) :: fom
+            call fom%init(c2, error, q0=this%st%q0, speeds=speeds)
+            if (allocated(error)) return
+            do nu = 1, nsteps(j)
+              call fom%advance(rec, error)
+              if (allocated(error)) then
+                call prefix_error(error, "full-order timing (" // solver // ")"); return
+              end if
+              ts = ts + rec%t_step
+              if (rep == 1) then
+                kkt_max(j) = max(kkt_max(j), rec%kkt)
+                if (.not. rec%converged) n_nonconv(j) = n_nonconv(j) + 1
+              end if
+            end do
+            tq_best = min(tq_best, env%wtime() - w0)
+            ts_best = min(ts_best, ts)
+          end block fresh
+        end do
+        t_step(j) = t_step(j) + ts_best
+        t_query(j) = t_query(j) + tq_best
       end do
       call log%progress("full-order sample", k, ns)
     end do
