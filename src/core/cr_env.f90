@@ -24,7 +24,7 @@ module cr_env
     procedure :: is_root
     procedure :: barrier
     procedure :: any_true
-    procedure :: sum_real, sum_real_array, sum_int, max_real, min_real, max_int
+    procedure :: sum_real, sum_real_array, max_real, max_int
     procedure :: bcast_string
     procedure :: agree_error
     procedure, nopass :: wtime
@@ -154,26 +154,12 @@ contains
     call MPI_Allreduce(MPI_IN_PLACE, x, size(x), MPI_DOUBLE_PRECISION, MPI_SUM, this%comm, ierr)
   end subroutine sum_real_array
 
-  integer(i8) function sum_int(this, i)
-    class(env_t), intent(in) :: this
-    integer(i8), intent(in) :: i
-    integer :: ierr
-    call MPI_Allreduce(i, sum_int, 1, MPI_INTEGER8, MPI_SUM, this%comm, ierr)
-  end function sum_int
-
   real(wp) function max_real(this, x)
     class(env_t), intent(in) :: this
     real(wp), intent(in) :: x
     integer :: ierr
     call MPI_Allreduce(x, max_real, 1, MPI_DOUBLE_PRECISION, MPI_MAX, this%comm, ierr)
   end function max_real
-
-  real(wp) function min_real(this, x)
-    class(env_t), intent(in) :: this
-    real(wp), intent(in) :: x
-    integer :: ierr
-    call MPI_Allreduce(x, min_real, 1, MPI_DOUBLE_PRECISION, MPI_MIN, this%comm, ierr)
-  end function min_real
 
   integer function max_int(this, i)
     class(env_t), intent(in) :: this
