@@ -221,7 +221,7 @@ contains
     type(error_t), allocatable, intent(out) :: error
     integer :: m, na, j, it, itmax, nv, k, nmod0, nfac0, t
     real(wp) :: sv, thr, tolv, wmarg
-    logical :: ok, bad, exch
+    logical :: ok, bad, exch, done
     character(len=:), allocatable :: why
 
     call check_sizes("sparse_active_set", cs, v, u, lambda, error)
@@ -250,38 +250,14 @@ contains
     end if
     why = ""
     call run(why)
-    if (allocated(error)) then
-      call fallback(error%message); return
-    end if
-    stats%n_factor = this%chol%n_factor - nfac0
-    stats%n_modify = this%chol%n_modify - nmod0
-    if (len(why) > 0) then
-      call fallback(why); return
-    end if
-    call velocities()
-    do j = 1, m
-      lambda(j) = this%lam(j) / this%rn(j)
-    end do
-    u = this%uu(1:2 * na)
-    call finish_stats(cs, v, u, lambda, this%settings%tol, stats)
+    call conclude(done)
+    if (.not. done) return
     if (.not. (stats%kkt <= this%settings%tol)) then
       ! the updated factor may have drifted: one fresh refactorisation and restart from here
       call this%chol%factor(this%act(1:m), error)
       if (.not. allocated(error)) call run(why)
-      if (allocated(error)) then
-        call fallback(error%message); return
-      end if
-      stats%n_factor = this%chol%n_factor - nfac0
-      stats%n_modify = this%chol%n_modify - nmod0
-      if (len(why) > 0) then
-        call fallback(why); return
-      end if
-      call velocities()
-      do j = 1, m
-        lambda(j) = this%lam(j) / this%rn(j)
-      end do
-      u = this%uu(1:2 * na)
-      call finish_stats(cs, v, u, lambda, this%settings%tol, stats)
+      call conclude(done)
+      if (.not. done) return
       if (.not. (stats%kkt <= this%settings%tol)) call fallback("KKT residual " // str(stats%kkt, "es9.2") // &
         " > tol after a fresh refactorisation")
     end if
@@ -343,6 +319,29 @@ contains
         if (len(ds%note) > 0) call add_note(stats, ds%note)
       end if
     end subroutine dense_path
+
+    !> After a run of the active-set iterations: hand a failed run (error or `why`) to the
+    !> fallback (done = .false.), otherwise the factor counts, u, lambda and the KKT statistics.
+    subroutine conclude(done)
+      logical, intent(out) :: done
+      integer :: jj
+      done = .false.
+      if (allocated(error)) then
+        call fallback(error%message); return
+      end if
+      stats%n_factor = this%chol%n_factor - nfac0
+      stats%n_modify = this%chol%n_modify - nmod0
+      if (len(why) > 0) then
+        call fallback(why); return
+      end if
+      call velocities()
+      do jj = 1, m
+        lambda(jj) = this%lam(jj) / this%rn(jj)
+      end do
+      u = this%uu(1:2 * na)
+      call finish_stats(cs, v, u, lambda, this%settings%tol, stats)
+      done = .true.
+    end subroutine conclude
 
     subroutine fallback(reason)
       character(len=*), intent(in) :: reason
