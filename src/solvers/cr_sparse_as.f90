@@ -320,6 +320,27 @@ contains
       end if
     end subroutine dense_path
 
+    !> Factorise the active rows, leaving out (multiplier zero) the rows whose pivot shows them
+    !> dependent on the others, up to four factorisations; bad: the fourth still had such a
+    !> row (it is left out too and the factor is rebuilt without it).
+    subroutine factor_independent(bad)
+      logical, intent(out) :: bad
+      integer :: tr, jj
+      bad = .false.
+      do tr = 1, 4
+        call this%chol%factor(this%act(1:m), error); if (allocated(error)) return
+        call this%chol%pivots(this%piv(1:m), error); if (allocated(error)) return
+        bad = .false.
+        do jj = 1, m
+          if (this%act(jj) .and. .not. (this%piv(jj) > dep_tol)) then
+            this%act(jj) = .false.; this%lam(jj) = 0.0_wp; bad = .true.
+          end if
+        end do
+        if (.not. bad) return
+      end do
+      call this%chol%factor(this%act(1:m), error)
+    end subroutine factor_independent
+
     !> After a run of the active-set iterations: hand a failed run (error or `why`) to the
     !> fallback (done = .false.), otherwise the factor counts, u, lambda and the KKT statistics.
     subroutine conclude(done)
@@ -543,20 +564,7 @@ contains
       end do
       k = count(this%act(1:m))
       if (k > 0) then
-        do ntry = 1, 4
-          call this%chol%factor(this%act(1:m), error); if (allocated(error)) return
-          call this%chol%pivots(this%piv(1:m), error); if (allocated(error)) return
-          bad = .false.
-          do j = 1, m
-            if (this%act(j) .and. .not. (this%piv(j) > dep_tol)) then
-              this%act(j) = .false.; this%lam(j) = 0.0_wp; bad = .true.
-            end if
-          end do
-          if (.not. bad) exit
-        end do
-        if (bad) then
-          call this%chol%factor(this%act(1:m), error); if (allocated(error)) return
-        end if
+        call factor_independent(bad); if (allocated(error)) return
         do
           call solve_p(); if (allocated(error)) return
           nv = 0
@@ -651,21 +659,8 @@ contains
           if (.not. bad) bad = .not. (this%chol%min_pivot() > dep_tol)
           if (bad) then
             ! refactorise the current set, leaving out the rows with a dependent pivot
-            do q = 1, 4
-              call this%chol%factor(this%act(1:m), error); if (allocated(error)) return
-              call this%chol%pivots(this%piv(1:m), error); if (allocated(error)) return
-              bad = .false.
-              do j = 1, m
-                if (this%act(j) .and. .not. (this%piv(j) > dep_tol)) then
-                  this%act(j) = .false.; this%lam(j) = 0.0_wp; bad = .true.
-                end if
-              end do
-              if (.not. bad) exit
-            end do
-            if (bad) then
-              call this%chol%factor(this%act(1:m), error); if (allocated(error)) return
-              exit sweeps
-            end if
+            call factor_independent(bad); if (allocated(error)) return
+            if (bad) exit sweeps
           end if
         end if
       end do sweeps
