@@ -31,6 +31,7 @@ ROM = {
     "n": ("sweep", "n"), "r": ("sweep", "r"), "hyper": ("sweep", "hyper"),
     "contacts": ("sweep", "contacts"), "m_v": ("sweep", "m_v"), "m_b": ("sweep", "m_b"),
     "m_d": ("sweep", "m_d"), "correction": ("sweep", "correction"),
+    "setting_sets": ("sweep", "sets"),
     "solver": ("reduced", "solver"), "nnls_max_iter": ("reduced", "nnls_max_iter"),
     "uzawa_rho_factor": ("reduced", "uzawa_rho_factor"), "uzawa_eps": ("reduced", "uzawa_eps"),
     "uzawa_max_iter": ("reduced", "uzawa_max_iter"),

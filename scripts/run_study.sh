@@ -35,16 +35,20 @@ stage 2 "offline bases (mpirun -np $NP crowd_offline)"
 mpirun -np "$NP" "$BIN/crowd_offline" "inputs/${CASE}_study.nml" --summary "results/${CASE}_offline.json"
 stage 3 "online reduced model sweep (crowd_rom)"
 "$BIN/crowd_rom" "inputs/${CASE}_rom.nml" --summary "results/${CASE}_rom.json"
-# the ML correction uses the setting given in the ML file's "_setting" key (default: the last
-# 'eq' setting with the largest N among those run on both sets)
+# the ML correction uses the setting given in the ML file's "_setting" key (default: the first
+# uncorrected 'eq' / 'cone' setting with the largest N among those run on both sets)
 SETTING=$($PY - "$CASE" <<'PYEOF'
 import csv, json, sys
 case = sys.argv[1]
 cfg = json.load(open("inputs/%s_ml.json" % case))
 if "_setting" in cfg:
     print(cfg["_setting"]); sys.exit()
-rows = [r for r in csv.DictReader(open("results/%s_table.csv" % case)) if r["set"] == "valid"
-        and r["hyper"] == "eq" and r["contacts"] == "cone"]
+table = list(csv.DictReader(open("results/%s_table.csv" % case)))
+# the ML correction learns on the training set: a setting run on the validation set only
+# (&sweep sets(k) = 'valid') cannot be corrected
+trained = {r["setting"] for r in table if r["set"] == "train"}
+rows = [r for r in table if r["set"] == "valid" and r["setting"] in trained
+        and r["hyper"] == "eq" and r["contacts"] == "cone" and r.get("correction", "none") == "none"]
 # a setting with diverged reduced trajectories cannot be corrected (on either set)
 bad = {r["setting"] for r in csv.DictReader(open("results/%s_table.csv" % case))
        if int(r.get("samples_diverged", "0")) > 0}

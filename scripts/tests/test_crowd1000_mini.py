@@ -103,6 +103,9 @@ def test_crowd1000_mini_pipeline(tmp_path):
     assert len(local) == 1 and int(local[0]["samples_diverged"]) == 0
     assert float(local[0]["max_overlap_agents"]) <= 1e-10 and float(local[0]["max_overlap_walls"]) <= 1e-10
     assert 0 < float(local[0]["corrected_fraction"]) <= 1
+    # &sweep sets(5) = 'valid': the local correction is not run on the training set
+    train = [r for r in rows if r["set"] == "train"]
+    assert len(train) == 4 and not [r for r in train if r["correction"] == "local"]
     # both exits are used and the full model evacuates: t90 defined for some validation sample
     assert any(int(r["t90_n"]) + int(r["t90_rom_missed"]) > 0 for r in valid)
     figs = res / f"{case}_figures"

@@ -265,6 +265,7 @@ def test_given_parameter_extrapolates(study):
     ("m_too_large", r"m_b = 1000 is larger than the \d+ EQ candidates"),
     ("bad_hyper", r"&sweep: hyper\(1\) must be one of none, eim, eq, eq_deim"),
     ("bad_correction", r"&sweep: correction\(1\) must be 'none' or 'local' \(got 'global'\)"),
+    ("bad_sets", r"&sweep: sets\(1\) must be '' or one of the sets of &rom sets = 'valid' \(got 'train'\)"),
     ("bad_exact_solver", r"&fom_timing: exact_solver must be 'fastest', .*\(got 'uzawa'\)"),
     ("misspelt", r"namelist group &rom"),
     ("misplaced", r"namelist group &rom: .*solver"),
@@ -295,6 +296,8 @@ def test_bad_input(study, case, message):
         setting = [dict(n=4, r=3, hyper="'deim'")]
     elif case == "bad_correction":
         setting = [dict(n=4, r=3, hyper="'eq'", correction="'global'")]
+    elif case == "bad_sets":
+        setting = [dict(n=4, r=3, hyper="'eq'", setting_sets="'train'")]
     elif case == "bad_exact_solver":
         kw["fom_exact_solver"] = "'uzawa'"
     elif case == "parallel":

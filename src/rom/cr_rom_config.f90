@@ -10,7 +10,8 @@
 !> paper's defaults 2 Nb, R, 2 R, capped by what the ROM file stores), correction(k) what
 !> happens after each reduced step ('none': the reduced positions as they are; 'local': the
 !> local exact correction of cr_local_correction with the exact full-order solver of
-!> &fom_timing, the positions then carried in full, see cr_rom_stepper).
+!> &fom_timing, the positions then carried in full, see cr_rom_stepper), sets(k) the
+!> parameter sets it runs on ('': all those of &rom sets).
 module cr_rom_config
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error, problems_t
@@ -53,6 +54,10 @@ module cr_rom_config
     integer :: m_d(MAX_SETTINGS) = 0
     !> after each reduced step: 'none' or 'local' (local exact correction)
     character(len=8) :: correction(MAX_SETTINGS) = 'none'
+    !> the parameter sets of this setting: '' (those of &rom sets) or one of them ('valid',
+    !> 'train'): an expensive setting (e.g. the local correction) measured on the validation
+    !> set only while the ML correction's setting runs on both
+    character(len=8) :: setting_sets(MAX_SETTINGS) = ''
     !> reduced solver: 'dual' (warm-started dual active set on the active rows' Gram, with
     !> 'nnls' as certified fallback), 'nnls' (Lawson-Hanson active set, warm started) or
     !> 'uzawa' (the paper's)
@@ -126,18 +131,18 @@ contains
 
     subroutine read_sweep(error)
       type(error_t), allocatable, intent(out) :: error
-      character(len=8) :: hyper(MAX_SETTINGS), contacts(MAX_SETTINGS), correction(MAX_SETTINGS)
+      character(len=8) :: hyper(MAX_SETTINGS), contacts(MAX_SETTINGS), correction(MAX_SETTINGS), sets(MAX_SETTINGS)
       integer :: n(MAX_SETTINGS), r(MAX_SETTINGS), m_v(MAX_SETTINGS), m_b(MAX_SETTINGS), m_d(MAX_SETTINGS)
-      namelist /sweep/ n, r, hyper, contacts, m_v, m_b, m_d, correction
+      namelist /sweep/ n, r, hyper, contacts, m_v, m_b, m_d, correction, sets
       integer :: ios
       character(len=512) :: msg
       n = c%n; r = c%r; hyper = c%hyper; contacts = c%contacts; m_v = c%m_v; m_b = c%m_b; m_d = c%m_d
-      correction = c%correction
+      correction = c%correction; sets = c%setting_sets
       msg = ''
       read(t%lines, nml=sweep, iostat=ios, iomsg=msg)
       call nml_status(t, 'sweep', ios, msg, error); if (allocated(error)) return
       c%n = n; c%r = r; c%hyper = hyper; c%contacts = contacts; c%m_v = m_v; c%m_b = m_b; c%m_d = m_d
-      c%correction = correction
+      c%correction = correction; c%setting_sets = sets
     end subroutine read_sweep
 
     subroutine read_reduced(error)
@@ -233,6 +238,10 @@ contains
         "&sweep: m_v, m_b, m_d(" // str(k) // ") must be >= 0 (0: defaults)")
       call probs%need(c%correction(k) == 'none' .or. c%correction(k) == 'local', &
         "&sweep: correction(" // str(k) // ") must be 'none' or 'local' (got '" // trim(c%correction(k)) // "')")
+      call probs%need(len_trim(c%setting_sets(k)) == 0 .or. c%setting_sets(k) == c%sets .or. &
+        (c%sets == 'both' .and. any(c%setting_sets(k) == [character(len=8) :: 'valid', 'train'])), &
+        "&sweep: sets(" // str(k) // ") must be '' or one of the sets of &rom sets = '" // trim(c%sets) // &
+        "' (got '" // trim(c%setting_sets(k)) // "')")
     end do
     call probs%need(c%solver == 'dual' .or. c%solver == 'nnls' .or. c%solver == 'uzawa', &
       "&reduced: solver must be 'dual', 'nnls' or 'uzawa'")
@@ -277,6 +286,7 @@ contains
         ") = '" // trim(c%contacts(k)) // "', m_v(" // str(k) // ") = " // str(c%m_v(k)) // ", m_b(" // &
         str(k) // ") = " // str(c%m_b(k)) // ", m_d(" // str(k) // ") = " // str(c%m_d(k)) // &
         ", correction(" // str(k) // ") = '" // trim(c%correction(k)) // "'"
+      if (len_trim(c%setting_sets(k)) > 0) s = s // ", sets(" // str(k) // ") = '" // trim(c%setting_sets(k)) // "'"
     end do
     s = s // " /" // nl // "&reduced solver = '" // trim(c%solver) // "', nnls_max_iter = " // str(c%nnls_max_iter) // &
       ", uzawa_rho_factor = " // str(c%uzawa_rho_factor, "es23.16") // ", uzawa_eps = " // &

@@ -220,6 +220,7 @@ contains
         trim(this%cfg%contacts(this%setting_ids(ks))) // ", solver " // trim(this%cfg%solver) // &
         ", correction " // trim(this%cfg%correction(this%setting_ids(ks))))
       do ib = 1, size(this%blocks)
+        if (.not. runs_on(this, this%setting_ids(ks), this%blocks(ib))) cycle
         nrow = nrow + 1
         call run_setting(this, env, log, out, ks, this%setting_ids(ks), pairs(kp), this%blocks(ib), &
           this%rows(nrow), error)
@@ -227,7 +228,8 @@ contains
       end do
       call log%stage_end()
     end do
-    call out%write_table(rhdr, this%rows(1:nrow), error); if (allocated(error)) goto 9
+    this%rows = this%rows(1:nrow)   ! settings with &sweep sets(k) skip a set
+    call out%write_table(rhdr, this%rows, error); if (allocated(error)) goto 9
     ! the run file and the table are one result: the table is written completely first, then
     ! both are renamed; if either fails, neither replaces an earlier result
     call write_csv(this, error); if (allocated(error)) goto 9
@@ -243,6 +245,15 @@ contains
     return
 9   call out%abort()
   end subroutine run
+
+  !> Whether setting kset runs on the parameter set blk (&sweep sets(kset): '' = every set).
+  pure logical function runs_on(this, kset, blk)
+    type(rom_sweep_t), intent(in) :: this
+    integer, intent(in) :: kset
+    type(sample_block_t), intent(in) :: blk
+    runs_on = len_trim(this%cfg%setting_sets(kset)) == 0 .or. &
+      trim(this%cfg%setting_sets(kset)) == trim(blk%name)
+  end function runs_on
 
   !> Free everything (init may be called again).
   subroutine free(this)
@@ -508,7 +519,8 @@ contains
       call corr%free()
     end if
     out_set%name = blk%name
-    out_set%summary = trim(blk%name) == trim(this%blocks(size(this%blocks))%name)
+    out_set%summary = trim(blk%name) == trim(this%blocks(size(this%blocks))%name) .or. &
+      trim(blk%name) == trim(this%cfg%setting_sets(kset))
     out_set%e_avg = row%e_avg; out_set%samples_diverged = row%diverged; out_set%t_step = row%t_step
     out_set%speedup_uzawa = speedup(this%ref%t_uz, row%t_step); out_set%speedup_exact = speedup(this%ref%t_ex, row%t_step)
     out_set%params = blk%mu
