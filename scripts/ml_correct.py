@@ -177,6 +177,8 @@ def check_config(cfg):
         problems.append(f"regressors must be a non-empty list of distinct names from {list(REGRESSORS)}")
     if not isinstance(cfg["timing_repeats"], int) or cfg["timing_repeats"] < 1:
         problems.append("timing_repeats must be an integer >= 1")
+    if cfg["project"] not in ("best", "all", "none"):
+        problems.append("project must be 'best', 'all' or 'none'")
     for name in REGRESSORS:
         try:
             make_regressor(name, cfg)
@@ -810,6 +812,14 @@ def main(argv=None):
         exe = None
         if args.project_refine < 0:
             raise InputError(f"--project-refine {args.project_refine}: must be >= 0")
+        # the exact projection of the corrected positions: the config's "project" ('best': each
+        # regressor's best n, 'all': every n, 'none': skipped), overridden by the options
+        if cfg["project"] == "all":
+            args.project_all = True
+        if cfg["project"] == "none" and not args.project_all:
+            args.no_project = True
+            log("exact projection of the corrected positions skipped (config \"project\": \"none\")",
+                args.quiet)
         if not args.no_project:
             exe = args.crowd_project or os.path.join(
                 os.environ.get("CROWDROM_BIN") or os.path.join(ROOT, "build", "bin"), "crowd_project")

@@ -120,6 +120,8 @@ def test_config_errors(tmp_path):
         ml_correct.load_config(bad)
     with pytest.raises(cio.InputError, match="n_step"):
         ml_correct.load_config(overrides={"n_step": 0})
+    with pytest.raises(cio.InputError, match="project must be 'best', 'all' or 'none'"):
+        ml_correct.load_config(overrides={"project": "some"})
     cfg = ml_correct.load_config()
     assert cfg["mlp"]["hidden_layer_sizes"] == [100, 50] and cfg["mlp"]["learning_rate_init"] == 0.01
     assert cfg["mlp"]["max_iter"] == 2000 and cfg["mlp"]["activation"] == "relu"

@@ -144,15 +144,30 @@ def test_ml_correct_reports_projection(study, tmp_path, capsys):
             projected_ok(r)
         else:
             assert all(float(r[key]) == -1 for key in ml_correct.PROJ_KEYS)
-    # --project-all projects every n
+    # --project-all (or the config's "project": "all") projects every n
     out_all, table_all = tmp_path / "ml_all.h5", tmp_path / "ml_all.csv"
     args_all = list(args)
     args_all[args_all.index(str(out))] = str(out_all)
     args_all[args_all.index(str(table))] = str(table_all)
     args_all[args_all.index(str(models))] = str(tmp_path / "models_all")
-    assert ml_correct.main(args_all + ["--project-all"]) == 0
+    cfg_all = tmp_path / "c_all.json"
+    cfg_all.write_text(cfg.read_text()[:-1] + ', "project": "all"}')
+    args_all[args_all.index(str(cfg))] = str(cfg_all)
+    assert ml_correct.main(args_all) == 0
     for r in csv.DictReader(open(table_all)):
         projected_ok(r)
+    # the config's "project": "none" skips the projection (as --no-project): -1 everywhere
+    out_none, table_none = tmp_path / "ml_none.h5", tmp_path / "ml_none.csv"
+    cfg_none = tmp_path / "c_none.json"
+    cfg_none.write_text(cfg.read_text()[:-1] + ', "project": "none"}')
+    args_none = [study["romrun"], "--setting", "1", "--config", str(cfg_none), "-o", str(out_none), "--csv",
+                 str(table_none), "--models-dir", str(tmp_path / "models_none"), "--crowd-project",
+                 str(tmp_path / "nope"), "--quiet"]
+    assert ml_correct.main(args_none) == 0
+    for r in csv.DictReader(open(table_none)):
+        assert all(float(r[key]) == -1 for key in ml_correct.PROJ_KEYS)
+    with h5py.File(out_none, "r") as f:
+        assert f.attrs["projected"] == 0
     with h5py.File(out, "r") as f:
         assert f.attrs["projected"] == 1
         g = f["random_forest"]
