@@ -5,6 +5,7 @@ program test_enrichment
   use mpi_f08
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t
+  use cr_strings, only: str
   use cr_env, only: env_t
   use cr_assert, only: check, check_close, test_summary
   use cr_config, only: scene_cfg_t, obstacles_cfg_t
@@ -30,6 +31,7 @@ program test_enrichment
   call scene%init(scene_cfg_t(), obstacles_cfg_t(), error)
   call make_data()
   call test_pga()
+  call test_pga_graded()
   call test_infsup()
   call solo%free(); call env%free()
   call MPI_Comm_free(self, ierr)
@@ -103,6 +105,7 @@ contains
       j = size(v, 2)
       call check(maxval(abs(vs - v)) < 1e-12_wp, "distributed = serial: same basis")
     end if
+    call check_choices(vs, ress, q, "delta 1e-8")
     ! a small budget stops early and says so through the error history
     vs = v0
     call pga_enrich(solo, [scene], [(1, k = 1, nsnap)], rad, h, dia, dib, dob, cone, q, 0_i8, vs, &
@@ -120,7 +123,77 @@ contains
     call check(maxval(abs(matmul(transpose(vs), vs) - eye(size(vs, 2)))) < 1e-12_wp, "tiny delta: basis orthonormal")
     call check(all(ress%err == ress%err) .and. ress%err(ress%n_added + 1) <= 1.0e-12_wp, &
       "tiny delta: every supremizer represented to round-off")
+    call check_choices(vs, ress, q, "tiny delta")
   end subroutine test_pga
+
+  !> Snapshots that differ from the first by 1e-5 ... 1e-10: the residuals of their supremizers
+  !> decay gradually through the exact phase (relative residual < 1e-5), where the choice is
+  !> lazy; every choice is checked against an eager recomputation.
+  subroutine test_pga_graded()
+    real(wp) :: qg(nd, nsnap), dq(nd)
+    real(wp), allocatable :: v(:,:)
+    type(pga_result_t) :: res
+    type(error_t), allocatable :: err
+    type(rng_t) :: rng
+    integer :: k, i
+    call rng%seed(7)
+    do k = 1, nsnap
+      do i = 1, nd
+        dq(i) = rng%normal()
+      end do
+      qg(:, k) = q(:, 1) + 10.0_wp**(-5 - 5 * real(k - 1, wp) / (nsnap - 1)) * rad * dq / norm2(dq)
+    end do
+    v = v0
+    call pga_enrich(solo, [scene], [(1, k = 1, nsnap)], rad, h, dia, dib, dob, cone, qg, 0_i8, v, &
+      1.0e-11_wp, 100, res, err)
+    call check(.not. allocated(err), "graded pga runs")
+    call check(count(res%err(1:res%n_added) < 1.0e-5_wp) >= 2, "graded pga: several additions in the exact phase")
+    call check_choices(v, res, qg, "graded")
+  end subroutine test_pga_graded
+
+  !> Every choice of a PGA run (basis v = v0 followed by the added vectors) is the candidate
+  !> with the largest exact relative residual against the basis before it: an eager
+  !> recomputation of every candidate at every step (the lazy choice of the exact phase must
+  !> agree), checked while that maximum is above the round-off level.
+  subroutine check_choices(v, res, qq, tag)
+    real(wp), intent(in) :: v(:,:), qq(:,:)
+    type(pga_result_t), intent(in) :: res
+    character(len=*), intent(in) :: tag
+    integer :: j, k, r, n_checked
+    real(wp) :: worst, rel
+    n_checked = 0
+    do j = 1, res%n_added
+      worst = 0
+      do k = 1, size(qq, 2)
+        do r = 1, cone%r
+          worst = max(worst, exact_rel(v(:, 1:n0 + j - 1), qq(:, k), r))
+        end do
+      end do
+      if (worst <= 1.0e-10_wp) exit
+      k = int((res%chosen(j) - 1) / cone%r) + 1
+      r = int(mod(res%chosen(j) - 1, int(cone%r, i8))) + 1
+      rel = exact_rel(v(:, 1:n0 + j - 1), qq(:, k), r)
+      call check(rel >= worst * (1 - 1.0e-9_wp), tag // ": choice " // str(j) // " has the largest exact residual")
+      n_checked = n_checked + 1
+    end do
+    call check(n_checked >= min(res%n_added, 3), tag // ": choices checked")
+  end subroutine check_choices
+
+  !> Exact relative residual |(I - V V^T) s| / |s| of the supremizer of cone vector r at
+  !> snapshot k (orthogonalised twice).
+  real(wp) function exact_rel(v, qk, r) result(rel)
+    real(wp), intent(in) :: v(:,:), qk(:)
+    integer, intent(in) :: r
+    real(wp) :: s(nd), w(nd)
+    integer :: m
+    call supremizer(scene, rad, h, dia, dib, dob, cone, r, qk, s)
+    w = s
+    do m = 1, 2
+      w = w - matmul(v, matmul(w, v))
+    end do
+    rel = 0
+    if (norm2(s) > 0) rel = norm2(w) / norm2(s)
+  end function exact_rel
 
   subroutine test_infsup()
     type(infsup_t) :: g0, g1, g2
