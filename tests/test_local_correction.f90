@@ -9,15 +9,11 @@
 program test_local_correction
   use cr_kinds, only: wp
   use cr_assert, only: check, check_close, test_summary
-  use cr_test_scenes, only: seed_random
+  use cr_test_scenes, only: seed_random, hall_lattice, min_true_gap, full_projection
   use cr_error, only: error_t
   use cr_config, only: scene_cfg_t, obstacles_cfg_t
   use cr_scene, only: scene_t
-  use cr_shapes, only: obstacle_distance
-  use cr_contact_set, only: contact_set_t
-  use cr_neighbours, only: cell_list_t, build_contacts
-  use cr_projection, only: projection_settings_t, projection_solver_t, solve_stats_t, &
-    make_projection_solver
+  use cr_projection, only: projection_settings_t, solve_stats_t
   use cr_local_correction, only: local_correction_t, local_stats_t
   implicit none
 
@@ -54,37 +50,10 @@ contains
     integer, intent(in) :: nx, ny
     real(wp), intent(in) :: gap0, jit
     real(wp), allocatable, intent(out) :: q(:)
-    real(wp), allocatable :: r(:)
     real(wp) :: dx
-    integer :: i, j, a
     dx = 2 * rad + gap0 + 2 * jit
-    allocate(q(2 * nx * ny), r(2 * nx * ny))
-    call random_number(r)
-    do j = 1, ny
-      do i = 1, nx
-        a = i + (j - 1) * nx
-        q(2*a-1) = 0.1_wp + i * dx + jit * (r(2*a-1) - 0.5_wp)
-        q(2*a) = 0.1_wp + j * dx + jit * (r(2*a) - 0.5_wp)
-      end do
-    end do
+    call hall_lattice(nx, ny, 0.1_wp + dx, dx, jit, q)
   end subroutine lattice
-
-  !> Smallest true gap (agent pairs and agent-obstacle) at positions q, all pairs.
-  real(wp) function min_true_gap(q) result(gmin)
-    real(wp), intent(in) :: q(:)
-    integer :: i, j, k
-    real(wp) :: dist, nrm(2)
-    gmin = huge(1.0_wp)
-    do i = 1, size(q) / 2
-      do j = i + 1, size(q) / 2
-        gmin = min(gmin, norm2(q(2*i-1:2*i) - q(2*j-1:2*j)) - 2 * rad)
-      end do
-      do k = 1, scene%n_obstacles()
-        call obstacle_distance(scene%obstacles(k), q(2*i-1:2*i), dist, nrm)
-        gmin = min(gmin, dist - rad)
-      end do
-    end do
-  end function min_true_gap
 
   !> Allowed overlap after a correction of u_r (see the header).
   real(wp) function gap_tol(u_r)
@@ -133,13 +102,13 @@ contains
       do i = 1, na
         if (r(i) < 0.05_wp) u_r(2*i-1:2*i) = 40 * u_r(2*i-1:2*i)
       end do
-      call check(min_true_gap(q) > 0, name // " random: start without overlap")
+      call check(min_true_gap(scene, rad, q) > 0, name // " random: start without overlap")
       call lc%correct(scene, rad, q, u_r, h, u, st, error)
       if (allocated(error)) then
         ok_err = .false.; deallocate(error)
       else
         ok_conv = ok_conv .and. st%converged .and. st%kkt <= settings%tol
-        ok_gap = ok_gap .and. min_true_gap(q + h * u) >= -gap_tol(u_r)
+        ok_gap = ok_gap .and. min_true_gap(scene, rad, q + h * u) >= -gap_tol(u_r)
         do i = 1, na
           if (.not. lc%corrected(i)) ok_out = ok_out .and. all(u(2*i-1:2*i) == u_r(2*i-1:2*i))
         end do
@@ -160,13 +129,10 @@ contains
   !> (3) every agent in the set: the result is the full projection of u_r.
   subroutine test_full_cover(name)
     character(len=*), intent(in) :: name
-    real(wp), allocatable :: q(:), u_r(:), u(:), u_full(:), lambda(:)
+    real(wp), allocatable :: q(:), u_r(:), u(:), u_full(:)
     type(local_stats_t) :: st
-    type(contact_set_t) :: cs
-    type(cell_list_t) :: cells
-    class(projection_solver_t), allocatable :: full
     type(solve_stats_t) :: fst
-    integer :: na, i
+    integer :: na, i, n_rows
     real(wp) :: xc, s
     ! a row of 6 agents, gaps 1e-3, squeezed towards its centre (every adjacent pair violated)
     na = 6
@@ -184,11 +150,7 @@ contains
     call check(st%n_clusters == 1, name // " full cover: one cluster")
     ! reference: the full model's projection of u_r on every row within a cutoff that holds
     ! every pair of the row (rows that cannot bind do not move the optimum)
-    call cs%init(na, h)
-    call build_contacts(scene, q, rad, 0.5_wp, cells, cs)
-    call make_projection_solver(settings, full, error)
-    allocate(lambda(cs%n)); lambda = 0
-    call full%solve(cs, u_r, u_full, lambda, fst, error)
+    call full_projection(scene, settings, q, rad, h, 0.5_wp, u_r, u_full, fst, n_rows, error)
     call check(.not. allocated(error) .and. fst%kkt <= settings%tol, name // " full cover: reference solved")
     ! both are KKT points of the same strongly convex projection with independent active rows
     ! (a chain) to the scaled tolerance tol: they agree to O(tol) s
@@ -196,7 +158,7 @@ contains
     call check_close(maxval(abs(u - u_full)), 0.0_wp, 100 * settings%tol * s, &
       name // " full cover: equals the full projection of u_r")
     call check(maxval(abs(u - u_r)) > 1.0e-3_wp, name // " full cover: the correction is not trivial")
-    call check(min_true_gap(q + h * u) >= -gap_tol(u_r), name // " full cover: no overlap")
+    call check(min_true_gap(scene, rad, q + h * u) >= -gap_tol(u_r), name // " full cover: no overlap")
   end subroutine test_full_cover
 
   !> (4) a column of agents driven into the bottom wall, bystanders far away.
@@ -225,7 +187,7 @@ contains
     call check(.not. allocated(error), name // " wall jam: no error")
     call check(all(lc%corrected(1:5)) .and. .not. any(lc%corrected(6:8)), name // " wall jam: the column is corrected")
     call check(all(u(11:16) == u_r(11:16)), name // " wall jam: bystanders untouched")
-    call check(min_true_gap(q + h * u) >= -gap_tol(u_r), name // " wall jam: no overlap, no wall penetration")
+    call check(min_true_gap(scene, rad, q + h * u) >= -gap_tol(u_r), name // " wall jam: no overlap, no wall penetration")
     ! the bottom agent can only close its gap to the wall: u_y >= -gap0 / h
     call check(u(2) >= -gap0 / h - settings%tol * 2 * maxval(abs(u_r)), name // " wall jam: stopped by the wall")
     ! each agent moves down by at most the gaps below it
