@@ -1,12 +1,15 @@
 !> Local exact correction of a reduced velocity (cr_local_correction): nothing changes without
 !> a conflict, no overlap after any correction, agents outside the correction set untouched,
-!> the full projection when every agent is in the set, a jam against a wall.
+!> the full projection when every agent is in the set, a jam against a wall, an overlap found
+!> only by the cutoff restart, a step that even the full projection cannot solve (reported,
+!> not an error), bad input.
 !>
 !> Tolerances: the solver is asked for a scaled KKT residual <= tol; the primal part bounds
 !> every linearised gap after the step below by -tol h s, with s <= 2 max|u_r| here (initial
 !> gaps >= 0; a shifted gap adds at most sqrt(2) max|u_r| h), and the true gap is >= the
 !> linearised one (convex gaps). Position round-off adds a few ulps of the hall size.
 program test_local_correction
+  use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_positive_inf, ieee_quiet_nan, ieee_is_finite
   use cr_kinds, only: wp
   use cr_assert, only: check, check_close, test_summary
   use cr_test_scenes, only: seed_random, hall_lattice, min_true_gap, full_projection
@@ -36,11 +39,17 @@ program test_local_correction
     call test_random(trim(solvers(k)))
     call test_full_cover(trim(solvers(k)))
     call test_wall_jam(trim(solvers(k)))
+    call test_overlap_restart(trim(solvers(k)))
+    call test_unsolvable(trim(solvers(k)))
+    call test_bad_input(trim(solvers(k)))
     call lc%free()
   end do
   ! bad input is an error, not a stop
   call lc%init(settings, 0.5_wp, error)
   call check(allocated(error), "cutoff_factor < 1 refused")
+  if (allocated(error)) deallocate(error)
+  call lc%init(settings, ieee_value(1.0_wp, ieee_positive_inf), error)
+  call check(allocated(error), "infinite cutoff_factor refused")
   call test_summary()
 
 contains
@@ -196,4 +205,81 @@ contains
         name // " wall jam: agent stopped by the column below")
     end do
   end subroutine test_wall_jam
+
+  !> (5) an overlapping pair at rest must separate; the agent it then pushes is beyond the first
+  !> cutoff (set by u_r = 0): only the restart with the larger cutoff finds its row.
+  subroutine test_overlap_restart(name)
+    character(len=*), intent(in) :: name
+    real(wp) :: q(6), u_r(6), u(6), s
+    type(local_stats_t) :: st
+    q = [0.6_wp, 0.5_wp, 0.6_wp + 2 * rad - 0.01_wp, 0.5_wp, 0.6_wp + 4 * rad - 0.007_wp, 0.5_wp]
+    u_r = 0
+    call lc%correct(scene, rad, q, u_r, h, u, st, error)
+    call check(.not. allocated(error), name // " overlap: no error")
+    if (allocated(error)) then
+      deallocate(error); return
+    end if
+    call check(st%restarts >= 1 .and. st%converged, name // " overlap: the cutoff grew, solved")
+    ! agent 3 is at rest (its pair's own cutoff is 0): fixed, a constraint that stops agent 2;
+    ! without the restart its row would be missing and agent 2 would move 0.005 into its gap 0.003
+    call check(lc%corrected(1) .and. lc%corrected(2) .and. .not. lc%corrected(3) .and. all(u(5:6) == 0), &
+      name // " overlap: the pair is corrected, the agent at rest is a fixed constraint")
+    ! velocity scale of the local problems: the overlap 0.01 / h = 1 m/s, shifted gaps no larger
+    s = 0.01_wp / h
+    call check(u(3) <= 0.003_wp / h + settings%tol * s, name // " overlap: stopped by the agent at rest")
+    call check(min_true_gap(scene, rad, q + h * u) >= -(settings%tol * h * s + 16 * epsilon(1.0_wp) * scene%length), &
+      name // " overlap: removed without creating another")
+  end subroutine test_overlap_restart
+
+  !> (6) a disk wider than the hall (radius 0.55 in a hall 1 m wide) overlaps the bottom and the
+  !> top wall: no velocity removes both overlaps, so even the projection with every agent free
+  !> misses the tolerance. Reported (converged = .false., finite best iterate), not an error.
+  subroutine test_unsolvable(name)
+    character(len=*), intent(in) :: name
+    real(wp) :: q(2), u_r(2), u(2)
+    type(local_stats_t) :: st
+    q = [0.3_wp, 0.5_wp]
+    u_r = 0
+    call lc%correct(scene, 0.55_wp, q, u_r, h, u, st, error)
+    call check(.not. allocated(error), name // " unsolvable: not an error")
+    if (allocated(error)) then
+      deallocate(error); return
+    end if
+    call check(.not. st%converged .and. st%kkt > settings%tol, name // " unsolvable: reported as not converged")
+    call check(all(lc%corrected) .and. all(ieee_is_finite(u)), name // " unsolvable: every agent free, finite iterate")
+  end subroutine test_unsolvable
+
+  !> (7) inconsistent sizes, non-finite or non-positive input: errors (code 2), not stops.
+  subroutine test_bad_input(name)
+    character(len=*), intent(in) :: name
+    real(wp) :: q(4), u_r(4), u(4), u3(3)
+    type(local_stats_t) :: st
+    type(local_correction_t) :: blank
+    q = [0.5_wp, 0.5_wp, 0.7_wp, 0.5_wp]; u_r = 0
+    call lc%correct(scene, rad, q, u_r, h, u3, st, error)
+    call check(allocated(error), name // " bad input: inconsistent sizes refused")
+    if (allocated(error)) deallocate(error)
+    u_r(1) = ieee_value(1.0_wp, ieee_positive_inf)
+    call lc%correct(scene, rad, q, u_r, h, u, st, error)
+    call check(allocated(error), name // " bad input: infinite u_r refused")
+    if (allocated(error)) deallocate(error)
+    u_r(1) = 0
+    q(3) = ieee_value(1.0_wp, ieee_quiet_nan)
+    call lc%correct(scene, rad, q, u_r, h, u, st, error)
+    call check(allocated(error), name // " bad input: NaN position refused")
+    if (allocated(error)) deallocate(error)
+    q(3) = 0.7_wp
+    call lc%correct(scene, rad, q, u_r, -h, u, st, error)
+    call check(allocated(error), name // " bad input: negative step refused")
+    if (allocated(error)) then
+      call check(error%code == 2, name // " bad input: an input error (code 2)")
+      deallocate(error)
+    end if
+    call lc%correct(scene, rad, q, u_r, ieee_value(1.0_wp, ieee_positive_inf), u, st, error)
+    call check(allocated(error), name // " bad input: infinite step refused")
+    if (allocated(error)) deallocate(error)
+    call blank%correct(scene, rad, q, u_r, h, u, st, error)
+    call check(allocated(error), name // " bad input: correct before init refused")
+    if (allocated(error)) deallocate(error)
+  end subroutine test_bad_input
 end program test_local_correction
