@@ -9,6 +9,7 @@ program crowd_geobench
   use cr_kinds, only: wp
   use cr_env, only: env_t
   use cr_error, only: error_t, set_error
+  use cr_strings, only: str
   use cr_logger, only: logger_t
   use cr_cli, only: cli_t
   use cr_program, only: program_start, program_finish
@@ -105,8 +106,8 @@ contains
     speeds = 1.0_wp
     n_eval = max(1, 2000 / max(na, 1)) * repeats
     if (root) then
-      write(*, '(a)') "input: " // path // " (" // itoa(na) // " agents, " // itoa(scene%n_interior()) // &
-        " interior obstacles); times per call, mean of " // itoa(repeats) // " setups and " // itoa(n_eval) // &
+      write(*, '(a)') "input: " // path // " (" // str(na) // " agents, " // str(scene%n_interior()) // &
+        " interior obstacles); times per call, mean of " // str(repeats) // " setups and " // str(n_eval) // &
         " evaluations"
       write(*, '(a)') ""
       write(*, '(a)') "| model | used | setup per sample (ms) | evaluation at all agents (us) | per agent (us) |"
@@ -141,12 +142,4 @@ contains
       write(*, '(a, es10.3)') "largest |d_grid - d_exact| over agents at the initial positions: ", dmax
     end if
   end subroutine run
-
-  function itoa(k) result(s)
-    integer, intent(in) :: k
-    character(len=:), allocatable :: s
-    character(len=16) :: buf
-    write(buf, '(i0)') k
-    s = trim(buf)
-  end function itoa
 end program crowd_geobench
