@@ -5,74 +5,85 @@
 !> S = U diag(1/i) V^T with U [n_dof, r], V [n_snap, r] Gaussian / sqrt(rows) (nearly
 !> orthonormal), r = min(n_dof, n_snap); columns distributed in balanced blocks. The
 !> reference spectrum and optimal errors are those of pod_tsqr. Prints a Markdown table.
+!> Start and end through cr_program (MPI, one `error:` line, exit 2 for bad arguments).
 program crowd_podbench
-  use mpi_f08
   use cr_kinds, only: wp
   use cr_env, only: env_t
-  use cr_error, only: error_t
+  use cr_error, only: error_t, set_error, prefix_error
+  use cr_logger, only: logger_t
+  use cr_cli, only: cli_t
+  use cr_program, only: program_start, program_finish
   use cr_random, only: rng_t
   use cr_lapack, only: la_gemm
   use cr_distribution, only: block_range
   use cr_pod, only: pod_result_t, pod_tsqr, pod_snapshots, pod_rsvd, pod_scalapack, sketch_gaussian
   implicit none
   type(env_t) :: env
+  type(logger_t) :: log
+  type(cli_t) :: cli
   type(error_t), allocatable :: error
-  integer :: ierr, ncase, c, nargs, ios, length
+  integer :: ncase, c, code
   integer, allocatable :: sizes(:)
-  character(len=:), allocatable :: arg
 
-  call MPI_Init(ierr)
-  call env%init(MPI_COMM_WORLD, error)
-  nargs = command_argument_count()
-  if (nargs == 1 .or. mod(nargs, 2) /= 0) call refuse("crowd_podbench: the arguments are pairs " // &
-    "'n_dof n_snap' (got " // trim(count_text(nargs)) // " arguments)")
-  if (nargs >= 2) then
-    ncase = nargs / 2
-    allocate(sizes(2 * ncase))
-    do c = 1, 2 * ncase
+  call program_start("crowd_podbench", env, log, cli, error, own_arguments=.true.)
+  if (.not. allocated(error)) call read_sizes(sizes, error)
+  if (.not. allocated(error)) then
+    ncase = size(sizes) / 2
+    if (env%is_root()) then
+      write(*, '(a, i0, a)') "ranks: ", env%size, "; times in s (max over ranks); err = ||S - Phi Phi^T S||_F / ||S||_F"
+      write(*, '(a)') ""
+      write(*, '(a)') "| n_dof | n_snap | method | N | time | err | optimal err | max rel. err sigma_1..N |"
+      write(*, '(a)') "|---:|---:|---|---:|---:|---:|---:|---:|"
+    end if
+    do c = 1, ncase
+      call run_case(sizes(2 * c - 1), sizes(2 * c), error)
+      if (allocated(error)) then
+        call prefix_error(error, "crowd_podbench"); exit
+      end if
+    end do
+  end if
+  code = program_finish(env, log, error)
+  if (code /= 0) stop code, quiet=.true.
+
+contains
+
+  !> The cases (n_dof, n_snap) of the command line [2 n_cases] (default 300 10000 20000 2000);
+  !> a bad command line is an input error (code 2).
+  subroutine read_sizes(sizes, error)
+    integer, allocatable, intent(out) :: sizes(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer :: nargs, c, ios, length
+    character(len=:), allocatable :: arg
+    nargs = command_argument_count()
+    if (nargs == 0) then
+      sizes = [300, 10000, 20000, 2000]; return
+    end if
+    if (mod(nargs, 2) /= 0) then
+      call set_error(error, "crowd_podbench: the arguments are pairs 'n_dof n_snap' (got " // &
+        trim(count_text(nargs)) // " arguments)", 2); return
+    end if
+    allocate(sizes(nargs))
+    do c = 1, nargs
       call get_command_argument(c, length=length)
       if (allocated(arg)) deallocate(arg)
       allocate(character(len=length) :: arg)
       call get_command_argument(c, arg)
       read(arg, *, iostat=ios) sizes(c)
       if (ios /= 0) then
-        call refuse("crowd_podbench: argument " // trim(count_text(c)) // " '" // arg // &
-          "' is not a whole number (usage: crowd_podbench [n_dof n_snap] ...)")
+        call set_error(error, "crowd_podbench: argument " // trim(count_text(c)) // " '" // arg // &
+          "' is not a whole number (usage: crowd_podbench [n_dof n_snap] ...)", 2); return
       else if (sizes(c) < 1 .or. sizes(c) > 10000000) then
-        call refuse("crowd_podbench: argument " // trim(count_text(c)) // " = " // arg // &
-          " must be in 1..10000000")
+        call set_error(error, "crowd_podbench: argument " // trim(count_text(c)) // " = " // arg // &
+          " must be in 1..10000000", 2); return
       end if
     end do
-    do c = 1, ncase
-      if (int(sizes(2 * c - 1), 8) * sizes(2 * c) > 2000000000_8) call refuse("crowd_podbench: case " // &
-        trim(count_text(c)) // ": n_dof * n_snap exceeds 2e9 entries (the snapshot matrix would not fit)")
+    do c = 1, nargs / 2
+      if (int(sizes(2 * c - 1), 8) * sizes(2 * c) > 2000000000_8) then
+        call set_error(error, "crowd_podbench: case " // trim(count_text(c)) // ": n_dof * n_snap exceeds 2e9 " // &
+          "entries (the snapshot matrix would not fit)", 2); return
+      end if
     end do
-  else
-    ncase = 2
-    sizes = [300, 10000, 20000, 2000]
-  end if
-  if (env%is_root()) then
-    write(*, '(a, i0, a)') "ranks: ", env%size, "; times in s (max over ranks); err = ||S - Phi Phi^T S||_F / ||S||_F"
-    write(*, '(a)') ""
-    write(*, '(a)') "| n_dof | n_snap | method | N | time | err | optimal err | max rel. err sigma_1..N |"
-    write(*, '(a)') "|---:|---:|---|---:|---:|---:|---:|---:|"
-  end if
-  do c = 1, ncase
-    call run_case(sizes(2 * c - 1), sizes(2 * c))
-  end do
-  call env%free()
-  call MPI_Finalize(ierr)
-
-contains
-
-  !> Bad command line: one error line (rank 0), MPI finalised, exit 2.
-  subroutine refuse(msg)
-    character(len=*), intent(in) :: msg
-    if (env%is_root()) write(*, '(a)') "error: " // msg
-    call env%free()
-    call MPI_Finalize(ierr)
-    stop 2, quiet=.true.
-  end subroutine refuse
+  end subroutine read_sizes
 
   !> Decimal text of an integer.
   function count_text(i) result(s)
@@ -81,8 +92,9 @@ contains
     write(s, '(i0)') i
   end function count_text
 
-  subroutine run_case(n_dof, n_snap)
+  subroutine run_case(n_dof, n_snap, error)
     integer, intent(in) :: n_dof, n_snap
+    type(error_t), allocatable, intent(out) :: error
     real(wp), allocatable :: s(:, :), u(:, :), v(:, :)
     type(pod_result_t) :: ref, res
     integer :: off, n_r, r, i, j, in, k
@@ -102,6 +114,7 @@ contains
     call sketch_gaussian(98, off, v)
     v = v / sqrt(real(n_snap, wp))
     call la_gemm('N', 'T', 1.0_wp, u, v, 0.0_wp, s, error)
+    if (allocated(error)) return
     deallocate(u, v)
     total = sqrt(env%sum_real(sum(s**2)))
 
@@ -114,7 +127,7 @@ contains
       case (3); call pod_scalapack(env, s, res, error, n_modes=100)
       end select
       t = env%max_real(env%wtime() - t0)
-      call stop_on(error)
+      if (allocated(error)) return
       if (k == 1) ref = res
       do in = 1, 3
         call report(n_dof, n_snap, trim(methods(k)), nlist(in), t, s, res, ref, total)
@@ -126,7 +139,7 @@ contains
         t0 = env%wtime()
         call pod_rsvd(env, s, nlist(in), 10, 1, trim(merge("gaussian", "srft    ", k == 1)), 7, res, error)
         t = env%max_real(env%wtime() - t0)
-        call stop_on(error)
+        if (allocated(error)) return
         call report(n_dof, n_snap, "rsvd-" // trim(merge("gaussian", "srft    ", k == 1)) // " p=10 q=1", &
           & nlist(in), t, s, res, ref, total)
       end do
@@ -161,12 +174,4 @@ contains
     proj_err = sqrt(env%sum_real(sum(rres**2)))
   end function proj_err
 
-  subroutine stop_on(err)
-    type(error_t), allocatable, intent(in) :: err
-    integer :: ie
-    if (.not. allocated(err)) return
-    if (env%is_root()) write(*, '(a)') "error: crowd_podbench: " // err%message
-    call MPI_Finalize(ie)
-    error stop 1
-  end subroutine stop_on
 end program crowd_podbench

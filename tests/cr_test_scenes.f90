@@ -1,11 +1,20 @@
-!> Shared helpers of the solver tests: seeding the Fortran random generator, and a random
-!> feasible disk scene (jittered lattice) with its contact rows and a desired velocity.
+!> Shared helpers of the solver tests: seeding the Fortran random generator, a random
+!> feasible disk scene (jittered lattice) with its contact rows and a desired velocity; for
+!> the tests of the projections in a hall (position projection, local correction): agents on
+!> a jittered lattice, the smallest true gap of a configuration and the full model's
+!> projection with every agent free.
 module cr_test_scenes
   use cr_kinds, only: wp
+  use cr_error, only: error_t
   use cr_contact_set, only: contact_set_t
+  use cr_scene, only: scene_t
+  use cr_shapes, only: obstacle_distance
+  use cr_neighbours, only: cell_list_t, build_contacts
+  use cr_projection, only: projection_settings_t, projection_solver_t, solve_stats_t, &
+    make_projection_solver
   implicit none
   private
-  public :: seed_random, lattice_scene, hex_scene
+  public :: seed_random, lattice_scene, hex_scene, hall_lattice, min_true_gap, full_projection
 
 contains
 
@@ -111,4 +120,69 @@ contains
       v(2*k - 1:2*k) = [-0.5_wp, -1.0_wp] + 0.6_wp * (nz(2*k - 1:2*k) - 0.5_wp)
     end do
   end subroutine hex_scene
+
+  !> Agents on an nx x ny lattice, spacing dx, the first at (x0, x0), each coordinate jittered
+  !> by +-jit/2 (random_number): q [2 nx ny].
+  subroutine hall_lattice(nx, ny, x0, dx, jit, q)
+    integer, intent(in) :: nx, ny
+    real(wp), intent(in) :: x0, dx, jit
+    real(wp), allocatable, intent(out) :: q(:)
+    real(wp), allocatable :: r(:)
+    integer :: i, j, a
+    allocate(q(2 * nx * ny), r(2 * nx * ny))
+    call random_number(r)
+    do j = 1, ny
+      do i = 1, nx
+        a = i + (j - 1) * nx
+        q(2*a-1) = x0 + (i - 1) * dx + jit * (r(2*a-1) - 0.5_wp)
+        q(2*a) = x0 + (j - 1) * dx + jit * (r(2*a) - 0.5_wp)
+      end do
+    end do
+  end subroutine hall_lattice
+
+  !> Smallest true gap at positions q [2 n_a] of disks of radius rad in scene: every agent pair
+  !> and every agent-obstacle pair (O(n_a^2), for tests).
+  real(wp) function min_true_gap(scene, rad, q) result(gmin)
+    type(scene_t), intent(in) :: scene
+    real(wp), intent(in) :: rad, q(:)
+    integer :: i, j, k
+    real(wp) :: dist, nrm(2)
+    gmin = huge(1.0_wp)
+    do i = 1, size(q) / 2
+      do j = i + 1, size(q) / 2
+        gmin = min(gmin, norm2(q(2*i-1:2*i) - q(2*j-1:2*j)) - 2 * rad)
+      end do
+      do k = 1, scene%n_obstacles()
+        call obstacle_distance(scene%obstacles(k), q(2*i-1:2*i), dist, nrm)
+        gmin = min(gmin, dist - rad)
+      end do
+    end do
+  end function min_true_gap
+
+  !> The full model's projection with every agent free, the reference of the local ones:
+  !> u [2 n_a] = argmin |u - w|^2 s.t. every row of the step h whose gap at q [2 n_a] is within
+  !> cutoff holds (disks of radius rad in scene), by the solver of `settings`; st its
+  !> statistics, n_rows the number of rows.
+  subroutine full_projection(scene, settings, q, rad, h, cutoff, w, u, st, n_rows, error)
+    type(scene_t), intent(in) :: scene
+    type(projection_settings_t), intent(in) :: settings
+    real(wp), intent(in) :: q(:), rad, h, cutoff, w(:)
+    real(wp), intent(out) :: u(:)
+    type(solve_stats_t), intent(out) :: st
+    integer, intent(out) :: n_rows
+    type(error_t), allocatable, intent(out) :: error
+    class(projection_solver_t), allocatable :: solver
+    type(contact_set_t) :: cs
+    type(cell_list_t) :: cells
+    real(wp), allocatable :: lambda(:)
+    call make_projection_solver(settings, solver, error)
+    if (allocated(error)) return
+    call cs%init(size(q) / 2, h)
+    call build_contacts(scene, q, rad, cutoff, cells, cs)
+    n_rows = cs%n
+    allocate(lambda(cs%n))
+    lambda = 0
+    call solver%solve(cs, w, u, lambda, st, error)
+    call solver%free()
+  end subroutine full_projection
 end module cr_test_scenes

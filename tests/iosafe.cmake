@@ -38,6 +38,11 @@ cr_refused(podbench_args_zero "argument 2 = 0 must be in" $<TARGET_FILE:crowd_po
 cr_refused(podbench_args_negative "argument 1 = -3 must be in" $<TARGET_FILE:crowd_podbench> -3 4)
 cr_refused(podbench_args_real "argument 1 '1e99' is not a whole number" $<TARGET_FILE:crowd_podbench> 1e99 5)
 cr_refused(podbench_args_huge "n_dof \\* n_snap exceeds" $<TARGET_FILE:crowd_podbench> 100000 100000)
+# crowd_geobench (through cr_program like the other drivers): bad command lines, a missing input
+cr_refused(geobench_no_input "crowd_geobench: no input file given" $<TARGET_FILE:crowd_geobench>)
+cr_refused(geobench_args_repeats "repeats must be a positive integer, got '0'" $<TARGET_FILE:crowd_geobench>
+  ${CMAKE_SOURCE_DIR}/inputs/hall20.nml 0)
+cr_refused(geobench_missing_input "missing.nml: cannot open input file" $<TARGET_FILE:crowd_geobench> missing.nml)
 
 # Issue 11 item 7 / 18: hostile namelist values (Inf, NaN, 1e308, 1e-308, 2147483647, size
 # products that overflow), a generated family per program

@@ -1,23 +1,22 @@
 !> Local exact correction of a reduced velocity (cr_local_correction): nothing changes without
 !> a conflict, no overlap after any correction, agents outside the correction set untouched,
-!> the full projection when every agent is in the set, a jam against a wall.
+!> the full projection when every agent is in the set, a jam against a wall, an overlap found
+!> only by the cutoff restart, a step that even the full projection cannot solve (reported,
+!> not an error), bad input.
 !>
 !> Tolerances: the solver is asked for a scaled KKT residual <= tol; the primal part bounds
 !> every linearised gap after the step below by -tol h s, with s <= 2 max|u_r| here (initial
 !> gaps >= 0; a shifted gap adds at most sqrt(2) max|u_r| h), and the true gap is >= the
 !> linearised one (convex gaps). Position round-off adds a few ulps of the hall size.
 program test_local_correction
+  use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_positive_inf, ieee_quiet_nan, ieee_is_finite
   use cr_kinds, only: wp
   use cr_assert, only: check, check_close, test_summary
-  use cr_test_scenes, only: seed_random
+  use cr_test_scenes, only: seed_random, hall_lattice, min_true_gap, full_projection
   use cr_error, only: error_t
   use cr_config, only: scene_cfg_t, obstacles_cfg_t
   use cr_scene, only: scene_t
-  use cr_shapes, only: obstacle_distance
-  use cr_contact_set, only: contact_set_t
-  use cr_neighbours, only: cell_list_t, build_contacts
-  use cr_projection, only: projection_settings_t, projection_solver_t, solve_stats_t, &
-    make_projection_solver
+  use cr_projection, only: projection_settings_t, solve_stats_t
   use cr_local_correction, only: local_correction_t, local_stats_t
   implicit none
 
@@ -40,11 +39,17 @@ program test_local_correction
     call test_random(trim(solvers(k)))
     call test_full_cover(trim(solvers(k)))
     call test_wall_jam(trim(solvers(k)))
+    call test_overlap_restart(trim(solvers(k)))
+    call test_unsolvable(trim(solvers(k)))
+    call test_bad_input(trim(solvers(k)))
     call lc%free()
   end do
   ! bad input is an error, not a stop
   call lc%init(settings, 0.5_wp, error)
   call check(allocated(error), "cutoff_factor < 1 refused")
+  if (allocated(error)) deallocate(error)
+  call lc%init(settings, ieee_value(1.0_wp, ieee_positive_inf), error)
+  call check(allocated(error), "infinite cutoff_factor refused")
   call test_summary()
 
 contains
@@ -54,37 +59,10 @@ contains
     integer, intent(in) :: nx, ny
     real(wp), intent(in) :: gap0, jit
     real(wp), allocatable, intent(out) :: q(:)
-    real(wp), allocatable :: r(:)
     real(wp) :: dx
-    integer :: i, j, a
     dx = 2 * rad + gap0 + 2 * jit
-    allocate(q(2 * nx * ny), r(2 * nx * ny))
-    call random_number(r)
-    do j = 1, ny
-      do i = 1, nx
-        a = i + (j - 1) * nx
-        q(2*a-1) = 0.1_wp + i * dx + jit * (r(2*a-1) - 0.5_wp)
-        q(2*a) = 0.1_wp + j * dx + jit * (r(2*a) - 0.5_wp)
-      end do
-    end do
+    call hall_lattice(nx, ny, 0.1_wp + dx, dx, jit, q)
   end subroutine lattice
-
-  !> Smallest true gap (agent pairs and agent-obstacle) at positions q, all pairs.
-  real(wp) function min_true_gap(q) result(gmin)
-    real(wp), intent(in) :: q(:)
-    integer :: i, j, k
-    real(wp) :: dist, nrm(2)
-    gmin = huge(1.0_wp)
-    do i = 1, size(q) / 2
-      do j = i + 1, size(q) / 2
-        gmin = min(gmin, norm2(q(2*i-1:2*i) - q(2*j-1:2*j)) - 2 * rad)
-      end do
-      do k = 1, scene%n_obstacles()
-        call obstacle_distance(scene%obstacles(k), q(2*i-1:2*i), dist, nrm)
-        gmin = min(gmin, dist - rad)
-      end do
-    end do
-  end function min_true_gap
 
   !> Allowed overlap after a correction of u_r (see the header).
   real(wp) function gap_tol(u_r)
@@ -133,13 +111,13 @@ contains
       do i = 1, na
         if (r(i) < 0.05_wp) u_r(2*i-1:2*i) = 40 * u_r(2*i-1:2*i)
       end do
-      call check(min_true_gap(q) > 0, name // " random: start without overlap")
+      call check(min_true_gap(scene, rad, q) > 0, name // " random: start without overlap")
       call lc%correct(scene, rad, q, u_r, h, u, st, error)
       if (allocated(error)) then
         ok_err = .false.; deallocate(error)
       else
         ok_conv = ok_conv .and. st%converged .and. st%kkt <= settings%tol
-        ok_gap = ok_gap .and. min_true_gap(q + h * u) >= -gap_tol(u_r)
+        ok_gap = ok_gap .and. min_true_gap(scene, rad, q + h * u) >= -gap_tol(u_r)
         do i = 1, na
           if (.not. lc%corrected(i)) ok_out = ok_out .and. all(u(2*i-1:2*i) == u_r(2*i-1:2*i))
         end do
@@ -160,13 +138,10 @@ contains
   !> (3) every agent in the set: the result is the full projection of u_r.
   subroutine test_full_cover(name)
     character(len=*), intent(in) :: name
-    real(wp), allocatable :: q(:), u_r(:), u(:), u_full(:), lambda(:)
+    real(wp), allocatable :: q(:), u_r(:), u(:), u_full(:)
     type(local_stats_t) :: st
-    type(contact_set_t) :: cs
-    type(cell_list_t) :: cells
-    class(projection_solver_t), allocatable :: full
     type(solve_stats_t) :: fst
-    integer :: na, i
+    integer :: na, i, n_rows
     real(wp) :: xc, s
     ! a row of 6 agents, gaps 1e-3, squeezed towards its centre (every adjacent pair violated)
     na = 6
@@ -184,11 +159,7 @@ contains
     call check(st%n_clusters == 1, name // " full cover: one cluster")
     ! reference: the full model's projection of u_r on every row within a cutoff that holds
     ! every pair of the row (rows that cannot bind do not move the optimum)
-    call cs%init(na, h)
-    call build_contacts(scene, q, rad, 0.5_wp, cells, cs)
-    call make_projection_solver(settings, full, error)
-    allocate(lambda(cs%n)); lambda = 0
-    call full%solve(cs, u_r, u_full, lambda, fst, error)
+    call full_projection(scene, settings, q, rad, h, 0.5_wp, u_r, u_full, fst, n_rows, error)
     call check(.not. allocated(error) .and. fst%kkt <= settings%tol, name // " full cover: reference solved")
     ! both are KKT points of the same strongly convex projection with independent active rows
     ! (a chain) to the scaled tolerance tol: they agree to O(tol) s
@@ -196,7 +167,7 @@ contains
     call check_close(maxval(abs(u - u_full)), 0.0_wp, 100 * settings%tol * s, &
       name // " full cover: equals the full projection of u_r")
     call check(maxval(abs(u - u_r)) > 1.0e-3_wp, name // " full cover: the correction is not trivial")
-    call check(min_true_gap(q + h * u) >= -gap_tol(u_r), name // " full cover: no overlap")
+    call check(min_true_gap(scene, rad, q + h * u) >= -gap_tol(u_r), name // " full cover: no overlap")
   end subroutine test_full_cover
 
   !> (4) a column of agents driven into the bottom wall, bystanders far away.
@@ -225,7 +196,7 @@ contains
     call check(.not. allocated(error), name // " wall jam: no error")
     call check(all(lc%corrected(1:5)) .and. .not. any(lc%corrected(6:8)), name // " wall jam: the column is corrected")
     call check(all(u(11:16) == u_r(11:16)), name // " wall jam: bystanders untouched")
-    call check(min_true_gap(q + h * u) >= -gap_tol(u_r), name // " wall jam: no overlap, no wall penetration")
+    call check(min_true_gap(scene, rad, q + h * u) >= -gap_tol(u_r), name // " wall jam: no overlap, no wall penetration")
     ! the bottom agent can only close its gap to the wall: u_y >= -gap0 / h
     call check(u(2) >= -gap0 / h - settings%tol * 2 * maxval(abs(u_r)), name // " wall jam: stopped by the wall")
     ! each agent moves down by at most the gaps below it
@@ -234,4 +205,81 @@ contains
         name // " wall jam: agent stopped by the column below")
     end do
   end subroutine test_wall_jam
+
+  !> (5) an overlapping pair at rest must separate; the agent it then pushes is beyond the first
+  !> cutoff (set by u_r = 0): only the restart with the larger cutoff finds its row.
+  subroutine test_overlap_restart(name)
+    character(len=*), intent(in) :: name
+    real(wp) :: q(6), u_r(6), u(6), s
+    type(local_stats_t) :: st
+    q = [0.6_wp, 0.5_wp, 0.6_wp + 2 * rad - 0.01_wp, 0.5_wp, 0.6_wp + 4 * rad - 0.007_wp, 0.5_wp]
+    u_r = 0
+    call lc%correct(scene, rad, q, u_r, h, u, st, error)
+    call check(.not. allocated(error), name // " overlap: no error")
+    if (allocated(error)) then
+      deallocate(error); return
+    end if
+    call check(st%restarts >= 1 .and. st%converged, name // " overlap: the cutoff grew, solved")
+    ! agent 3 is at rest (its pair's own cutoff is 0): fixed, a constraint that stops agent 2;
+    ! without the restart its row would be missing and agent 2 would move 0.005 into its gap 0.003
+    call check(lc%corrected(1) .and. lc%corrected(2) .and. .not. lc%corrected(3) .and. all(u(5:6) == 0), &
+      name // " overlap: the pair is corrected, the agent at rest is a fixed constraint")
+    ! velocity scale of the local problems: the overlap 0.01 / h = 1 m/s, shifted gaps no larger
+    s = 0.01_wp / h
+    call check(u(3) <= 0.003_wp / h + settings%tol * s, name // " overlap: stopped by the agent at rest")
+    call check(min_true_gap(scene, rad, q + h * u) >= -(settings%tol * h * s + 16 * epsilon(1.0_wp) * scene%length), &
+      name // " overlap: removed without creating another")
+  end subroutine test_overlap_restart
+
+  !> (6) a disk wider than the hall (radius 0.55 in a hall 1 m wide) overlaps the bottom and the
+  !> top wall: no velocity removes both overlaps, so even the projection with every agent free
+  !> misses the tolerance. Reported (converged = .false., finite best iterate), not an error.
+  subroutine test_unsolvable(name)
+    character(len=*), intent(in) :: name
+    real(wp) :: q(2), u_r(2), u(2)
+    type(local_stats_t) :: st
+    q = [0.3_wp, 0.5_wp]
+    u_r = 0
+    call lc%correct(scene, 0.55_wp, q, u_r, h, u, st, error)
+    call check(.not. allocated(error), name // " unsolvable: not an error")
+    if (allocated(error)) then
+      deallocate(error); return
+    end if
+    call check(.not. st%converged .and. st%kkt > settings%tol, name // " unsolvable: reported as not converged")
+    call check(all(lc%corrected) .and. all(ieee_is_finite(u)), name // " unsolvable: every agent free, finite iterate")
+  end subroutine test_unsolvable
+
+  !> (7) inconsistent sizes, non-finite or non-positive input: errors (code 2), not stops.
+  subroutine test_bad_input(name)
+    character(len=*), intent(in) :: name
+    real(wp) :: q(4), u_r(4), u(4), u3(3)
+    type(local_stats_t) :: st
+    type(local_correction_t) :: blank
+    q = [0.5_wp, 0.5_wp, 0.7_wp, 0.5_wp]; u_r = 0
+    call lc%correct(scene, rad, q, u_r, h, u3, st, error)
+    call check(allocated(error), name // " bad input: inconsistent sizes refused")
+    if (allocated(error)) deallocate(error)
+    u_r(1) = ieee_value(1.0_wp, ieee_positive_inf)
+    call lc%correct(scene, rad, q, u_r, h, u, st, error)
+    call check(allocated(error), name // " bad input: infinite u_r refused")
+    if (allocated(error)) deallocate(error)
+    u_r(1) = 0
+    q(3) = ieee_value(1.0_wp, ieee_quiet_nan)
+    call lc%correct(scene, rad, q, u_r, h, u, st, error)
+    call check(allocated(error), name // " bad input: NaN position refused")
+    if (allocated(error)) deallocate(error)
+    q(3) = 0.7_wp
+    call lc%correct(scene, rad, q, u_r, -h, u, st, error)
+    call check(allocated(error), name // " bad input: negative step refused")
+    if (allocated(error)) then
+      call check(error%code == 2, name // " bad input: an input error (code 2)")
+      deallocate(error)
+    end if
+    call lc%correct(scene, rad, q, u_r, ieee_value(1.0_wp, ieee_positive_inf), u, st, error)
+    call check(allocated(error), name // " bad input: infinite step refused")
+    if (allocated(error)) deallocate(error)
+    call blank%correct(scene, rad, q, u_r, h, u, st, error)
+    call check(allocated(error), name // " bad input: correct before init refused")
+    if (allocated(error)) deallocate(error)
+  end subroutine test_bad_input
 end program test_local_correction

@@ -17,15 +17,11 @@ program test_position_projection
   use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_positive_inf
   use cr_kinds, only: wp
   use cr_assert, only: check, check_close, test_summary
-  use cr_test_scenes, only: seed_random
+  use cr_test_scenes, only: seed_random, hall_lattice, min_true_gap, full_projection
   use cr_error, only: error_t
   use cr_config, only: scene_cfg_t, obstacles_cfg_t
   use cr_scene, only: scene_t
-  use cr_shapes, only: obstacle_distance
-  use cr_contact_set, only: contact_set_t
-  use cr_neighbours, only: cell_list_t, build_contacts
-  use cr_projection, only: projection_settings_t, projection_solver_t, solve_stats_t, &
-    make_projection_solver
+  use cr_projection, only: projection_settings_t, solve_stats_t
   use cr_position_projection, only: position_projection_t, pproj_stats_t
   implicit none
 
@@ -62,23 +58,6 @@ program test_position_projection
   call test_summary()
 
 contains
-
-  !> Smallest true gap (agent pairs and agent-obstacle) at positions q, all pairs.
-  real(wp) function min_true_gap(q) result(gmin)
-    real(wp), intent(in) :: q(:)
-    integer :: i, j, kk
-    real(wp) :: dist, nrm(2)
-    gmin = huge(1.0_wp)
-    do i = 1, size(q) / 2
-      do j = i + 1, size(q) / 2
-        gmin = min(gmin, norm2(q(2*i-1:2*i) - q(2*j-1:2*j)) - 2 * rad)
-      end do
-      do kk = 1, scene%n_obstacles()
-        call obstacle_distance(scene%obstacles(kk), q(2*i-1:2*i), dist, nrm)
-        gmin = min(gmin, dist - rad)
-      end do
-    end do
-  end function min_true_gap
 
   !> Allowed overlap after projecting a configuration whose deepest overlap is depth.
   real(wp) function gap_tol(depth)
@@ -129,7 +108,7 @@ contains
     q3(3:4) = [3 * rad - d + 1.0e-12_wp, rad]
     call pp%project(scene, rad, q3, qp3, st, error)
     call check(.not. allocated(error), name // " wall corner: no error")
-    call check(min_true_gap(qp3) >= -gap_tol(d), name // " wall corner: no overlap")
+    call check(min_true_gap(scene, rad, qp3) >= -gap_tol(d), name // " wall corner: no overlap")
     call check_close(qp3(1), rad, settings%tol * d + 16 * epsilon(1.0_wp), name // " wall corner: out of the wall")
     call check_close(qp3(3), 3 * rad, settings%tol * d + 16 * epsilon(1.0_wp), &
       name // " wall corner: the neighbour made way")
@@ -146,7 +125,7 @@ contains
     ! two agents touching (gap 1e-12, far above the round-off of the distance)
     q(3:4) = q(1:2) + [2 * rad + 1.0e-12_wp, 0.0_wp]
     allocate(qp(size(q)))
-    call check(min_true_gap(q) >= 0, name // " feasible: start without overlap")
+    call check(min_true_gap(scene, rad, q) >= 0, name // " feasible: start without overlap")
     call pp%project(scene, rad, q, qp, st, error)
     call check(.not. allocated(error), name // " feasible: no error")
     call check(all(qp == q), name // " feasible: unchanged bit for bit")
@@ -156,19 +135,14 @@ contains
   !> (4) random overlapping lattices, some agents pushed into the walls.
   subroutine test_random(name)
     character(len=*), intent(in) :: name
-    real(wp), allocatable :: q(:), qp(:), q_full(:), lambda(:), r(:), qr(:), qs(:)
+    real(wp), allocatable :: q(:), qp(:), q_full(:), r(:), qr(:), qs(:)
     type(pproj_stats_t) :: st, st2
-    type(contact_set_t) :: cs
-    type(cell_list_t) :: cells
-    class(projection_solver_t), allocatable :: full
     type(solve_stats_t) :: fst
-    integer :: trial, na, i, n_partial
+    integer :: trial, na, i, n_partial, n_rows
     logical :: ok_err, ok_gap, ok_full, ok_walls, ok_ref, ok_seq
     real(wp) :: bound
     ok_err = .true.; ok_gap = .true.; ok_full = .true.; ok_walls = .true.; ok_ref = .true.; ok_seq = .true.
     n_partial = 0
-    call make_projection_solver(settings, full, error)
-    call check(.not. allocated(error), name // " random: reference solver")
     do trial = 1, 12
       call seed_random(300 + trial)
       ! spacing 2 r - 2e-3 + jitter 1e-2: many overlaps up to ~1e-2
@@ -190,7 +164,7 @@ contains
       if (allocated(error)) then
         ok_err = .false.; deallocate(error)
       else
-        ok_ref = ok_ref .and. min_true_gap(qr) >= -gap_tol(st%depth_in) .and. &
+        ok_ref = ok_ref .and. min_true_gap(scene, rad, qr) >= -gap_tol(st%depth_in) .and. &
           norm2(qr - q) <= norm2(qp - q) * (1 + 1.0e-12_wp) .and. st2%refines >= 1
       end if
       ! from a start without overlap (the first-order projection, shifted by 1e-3 away)
@@ -199,28 +173,26 @@ contains
       if (allocated(error)) then
         ok_err = .false.; deallocate(error)
       else
-        ok_seq = ok_seq .and. min_true_gap(qr) >= -gap_tol(st%depth_in) .and. &
+        ok_seq = ok_seq .and. min_true_gap(scene, rad, qr) >= -gap_tol(st%depth_in) .and. &
           norm2(qr - q) <= norm2(qp - q) * (1 + 1.0e-12_wp)
       end if
-      ok_gap = ok_gap .and. min_true_gap(qp) >= -gap_tol(st%depth_in)
+      ok_gap = ok_gap .and. min_true_gap(scene, rad, qp) >= -gap_tol(st%depth_in)
       ok_walls = ok_walls .and. st%n_overlaps > 0 .and. st%depth_in > 0.2_wp * rad
       if (st%n_free < na) n_partial = n_partial + 1
       ! reference: every agent free, every row within 2 * the largest move (+ margin)
-      call cs%init(na, 1.0_wp)
-      call build_contacts(scene, q, rad, 2.1_wp * st%max_move + 1.0e-3_wp, cells, cs)
-      allocate(lambda(cs%n), q_full(2 * na))
-      lambda = 0
-      call full%solve(cs, [(0.0_wp, i = 1, 2 * na)], q_full, lambda, fst, error)
+      allocate(q_full(2 * na))
+      call full_projection(scene, settings, q, rad, 1.0_wp, 2.1_wp * st%max_move + 1.0e-3_wp, &
+        [(0.0_wp, i = 1, 2 * na)], q_full, fst, n_rows, error)
       if (allocated(error)) then
         ok_err = .false.; deallocate(error)
       else
-        bound = st%depth_in * (settings%tol + sqrt(2 * cs%n * settings%tol)) + 16 * epsilon(1.0_wp) * scene%length
+        bound = st%depth_in * (settings%tol + sqrt(2 * n_rows * settings%tol)) + 16 * epsilon(1.0_wp) * scene%length
         ok_full = ok_full .and. fst%kkt <= settings%tol .and. maxval(abs(qp - q - q_full)) <= bound
       end if
       if (trial == 1) print '(a, 5(a, i0), a, es9.2, a, es9.2, a)', name, ": overlaps ", st%n_overlaps, &
         ", free ", st%n_free, " of ", na, ", solves ", st%solves, ", restarts ", st%restarts, &
         ", depth ", st%depth_in, ", time ", st%t_total, " s"
-      deallocate(q, qp, r, lambda, q_full, qr, qs)
+      deallocate(q, qp, r, q_full, qr, qs)
     end do
     call check(ok_err, name // " random: no error")
     call check(ok_walls, name // " random: the inputs overlap (agents and walls)")
@@ -267,18 +239,6 @@ contains
     integer, intent(in) :: nx, ny
     real(wp), intent(in) :: gap0, jit
     real(wp), allocatable, intent(out) :: q(:)
-    real(wp), allocatable :: r(:)
-    real(wp) :: dx
-    integer :: i, j, a
-    dx = 2 * rad + gap0 + jit
-    allocate(q(2 * nx * ny), r(2 * nx * ny))
-    call random_number(r)
-    do j = 1, ny
-      do i = 1, nx
-        a = i + (j - 1) * nx
-        q(2*a-1) = 0.05_wp + (i - 1) * dx + jit * (r(2*a-1) - 0.5_wp)
-        q(2*a) = 0.05_wp + (j - 1) * dx + jit * (r(2*a) - 0.5_wp)
-      end do
-    end do
+    call hall_lattice(nx, ny, 0.05_wp, 2 * rad + gap0 + jit, jit, q)
   end subroutine lattice
 end program test_position_projection

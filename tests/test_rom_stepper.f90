@@ -3,7 +3,8 @@
 !> least-violation coefficients, is counted and never produces NaN; the reduced Uzawa
 !> iteration cap is counted; a feasible problem gives the exact projection; positions are
 !> rebuilt as q0 + h V sum alpha; rows that change order from step to step (online contacts)
-!> keep their multipliers by identity, so the dual solver's warm start survives.
+!> keep their multipliers by identity, so the dual solver's warm start survives; a local
+!> correction that even the full projection cannot solve is counted per step, not an error.
 module test_rom_stepper_ops
   use cr_kinds, only: wp
   use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t
@@ -88,6 +89,8 @@ program test_rom_stepper
   use cr_random, only: rng_t
   use cr_lapack, only: la_geqrf, la_orgqr
   use cr_rom_guard, only: rom_guard_t
+  use cr_projection, only: projection_settings_t
+  use cr_local_correction, only: local_correction_t
   implicit none
   type(const_ops_t) :: ops
   type(eval_ctx_t) :: ctx
@@ -143,9 +146,43 @@ program test_rom_stepper
   call check_gram()
   call check_guard()
   call check_identities()
+  call check_unsolved_correction()
   call test_summary()
 
 contains
+
+  !> Local correction of every step (&sweep correction = 'local') where no velocity can remove
+  !> the overlaps: agent 1 is a disk of radius 0.55 in a hall 1 m wide, overlapping the bottom
+  !> and the top wall. Every step is counted in corr_unsolved, none is an error, the carried
+  !> positions stay finite.
+  subroutine check_unsolved_correction()
+    type(local_correction_t) :: corr
+    type(eval_ctx_t) :: c2
+    real(wp) :: q1(4)
+    call c2%scene%init(scene_cfg_t(), obstacles_cfg_t(), error)
+    call check(.not. allocated(error), "unsolved correction: scene")
+    c2%h = 0.01_wp
+    c2%radius = 0.55_wp
+    q1 = [0.3_wp, 0.5_wp, 1.0_wp, 0.5_wp]
+    call corr%init(projection_settings_t(), 1.5_wp, error)
+    call check(.not. allocated(error), "unsolved correction: init")
+    scfg = rom_solver_cfg_t()
+    ! the feasible reduced problem of the main program: alpha = 0.2 moves agent 1 along x
+    ops%nb = 1; ops%r = 2
+    ops%v = reshape([1.0_wp, 0.0_wp, 0.0_wp, 0.0_wp], [4, 1])
+    ops%agents = [1, 2]
+    ops%vh = [0.5_wp]
+    ops%bh = reshape([1.0_wp, -1.0_wp], [2, 1])
+    ops%dh = [0.2_wp, 1.0_wp]
+    call run_trajectory(ops, c2, q1, 3, scfg, traj, error, corr=corr)
+    call check(.not. allocated(error), "unsolved correction: not an error")
+    if (allocated(error)) then
+      deallocate(error); return
+    end if
+    call check(traj%corr_unsolved == 3, "unsolved correction: every step counted")
+    call check(all(abs(traj%q) < huge(1.0_wp)), "unsolved correction: finite positions")
+    call corr%free()
+  end subroutine check_unsolved_correction
 
   !> Rows permuted at every step, matched by identity: after the first step the dual solver's
   !> warm start is the answer (nothing added), and every step gives the same projection as a

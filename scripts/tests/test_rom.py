@@ -200,6 +200,8 @@ def test_local_correction_small_basis_no_overlap(study):
     rows = list(csv.DictReader(open(tmp / "small_local.csv")))
     assert len(rows) == 8
     for r_ in rows:
+        # every corrected step is solved to the tolerance here (the column counts those that are not)
+        assert int(r_["correction_unsolved_steps"]) == 0
         if r_["correction"] == "local":
             assert int(r_["samples_diverged"]) == 0
             assert float(r_["max_overlap_agents"]) <= 1e-10 and float(r_["max_overlap_walls"]) <= 1e-10, r_
@@ -227,6 +229,7 @@ def test_local_correction_small_basis_no_overlap(study):
         assert "n_corrected" not in cio.romrun_set(f, 4, "valid", meta["n_steps"], 2 * meta["n_agents"])
     js = json.load(open(summary))
     assert js["rows"]["correction_local"] == [1, 1, 1, 1, 1, 1, 0, 0]
+    assert js["rows"]["correction_unsolved_steps"] == [0] * 8 and js["correction_unsolved_steps"] == 0
     assert js["fom_exact_solver"] in ("sparse_active_set", "active_set") and js["fom_exact_solver_asked"] == "fastest"
     np.testing.assert_allclose(js["rows"]["corrected_fraction"], [float(r_["corrected_fraction"]) for r_ in rows],
                                rtol=1e-5)

@@ -16,19 +16,24 @@ module cr_program
 
 contains
 
-  !> MPI_Init, env on MPI_COMM_WORLD, logger active on rank 0, parsed command line.
-  subroutine program_start(name, env, log, cli, error, allow_stop_after)
+  !> MPI_Init, env on MPI_COMM_WORLD, logger active on rank 0, parsed command line. With
+  !> own_arguments (the benchmark drivers: positional arguments of their own) the command
+  !> line is left to the driver and cli stays empty.
+  subroutine program_start(name, env, log, cli, error, allow_stop_after, own_arguments)
     character(len=*), intent(in) :: name
     type(env_t), intent(inout) :: env
     type(logger_t), intent(inout) :: log
     type(cli_t), intent(out) :: cli
     type(error_t), allocatable, intent(out) :: error
-    logical, intent(in), optional :: allow_stop_after
+    logical, intent(in), optional :: allow_stop_after, own_arguments
     integer :: ierr
     call MPI_Init(ierr)
     call env%init(MPI_COMM_WORLD, error)
     call log%init(env%is_root())
     if (allocated(error)) return
+    if (present(own_arguments)) then
+      if (own_arguments) return
+    end if
     call parse_cli(name, cli, error, allow_stop_after=allow_stop_after)
   end subroutine program_start
 

@@ -33,16 +33,18 @@
 !> conditions (u = w, zero multipliers), so the result is the projection over *all* agents, not
 !> a local approximation. A local problem the solver cannot meet frees one ring of neighbours.
 !> A configuration without overlap is returned unchanged (bit for bit) without a solve.
+!> The solver, the candidate rows, the rings and the local problem are cr_local_projection's
+!> (shared with the local correction of a reduced velocity, cr_local_correction).
 module cr_position_projection
   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
   use cr_kinds, only: wp
-  use cr_error, only: error_t, set_error, prefix_error
+  use cr_error, only: error_t, set_error
   use cr_strings, only: str
   use cr_scene, only: scene_t
   use cr_contact_set, only: contact_set_t
-  use cr_neighbours, only: cell_list_t, build_contacts
-  use cr_projection, only: projection_settings_t, projection_solver_t, solve_stats_t, &
-    make_projection_solver
+  use cr_neighbours, only: build_contacts
+  use cr_projection, only: projection_settings_t, solve_stats_t
+  use cr_local_projection, only: local_projection_t, max_agent_norm
   implicit none
   private
   public :: position_projection_t, pproj_stats_t
@@ -68,16 +70,13 @@ module cr_position_projection
 
   !> Position projection; holds the exact solver and work space across calls.
   type :: position_projection_t
-    class(projection_solver_t), allocatable :: solver
-    !> candidate rows: gap <= cutoff_factor * (expected displacement), as &contacts cutoff_factor
-    real(wp) :: cutoff_factor = 1.5_wp
+    !> the exact solver, the rows kept for the solve (this%lp%cs, h = 1) and the local problem
+    type(local_projection_t) :: lp
     !> refinement: at most refine_max projections, stopped when max_i |u_i| <= refine_tol * radius
     integer :: refine_max = 50
     real(wp) :: refine_tol = 1.0e-6_wp
-    type(cell_list_t) :: cells
-    !> every candidate row within the cutoff (cs_all), the rows kept for the solve (cs), the
-    !> rows of the local problem (cs_loc)
-    type(contact_set_t) :: cs_all, cs, cs_loc
+    !> every candidate row within the cutoff
+    type(contact_set_t) :: cs_all
   contains
     procedure :: init
     procedure :: free
@@ -103,25 +102,13 @@ contains
     if (this%refine_max < 0 .or. .not. (this%refine_tol > 0 .and. this%refine_tol < 1)) then
       call set_error(error, "position_projection: refine_max must be >= 0 and refine_tol in (0, 1)", 2); return
     end if
-    if (.not. (cutoff_factor >= 1.0_wp .and. cutoff_factor < huge(1.0_wp))) then
-      call set_error(error, "position_projection: cutoff_factor must be finite and >= 1, got " // &
-        str(cutoff_factor), 2); return
-    end if
-    this%cutoff_factor = cutoff_factor
-    call make_projection_solver(settings, this%solver, error)
-    if (allocated(error)) call prefix_error(error, "position_projection")
+    call this%lp%init("position_projection", settings, cutoff_factor, error)
   end subroutine init
 
   subroutine free(this)
     class(position_projection_t), intent(inout) :: this
-    if (allocated(this%solver)) then
-      call this%solver%free()
-      deallocate(this%solver)
-    end if
-    call this%cs%free()
+    call this%lp%free()
     call this%cs_all%free()
-    call this%cs_loc%free()
-    this%cells = cell_list_t()
   end subroutine free
 
   !> q_out [2 n_a]: the projection of q_in [2 n_a] (agents of radius `radius` in `scene`)
@@ -142,7 +129,7 @@ contains
     real(wp) :: depth_start
     logical :: ok
     call system_clock(c0, rate)
-    if (.not. allocated(this%solver)) then
+    if (.not. allocated(this%lp%solver)) then
       call set_error(error, "position_projection: project called before init"); return
     end if
     na = size(q_in) / 2
@@ -160,17 +147,17 @@ contains
       end if
     end if
     q_out = q_in
-    if (this%cs%n_agents /= na .or. .not. allocated(this%cs%ia)) call this%cs%init(na, 1.0_wp, 8 * na)
+    call this%lp%prepare(na, 1.0_wp)
     if (this%cs_all%n_agents /= na .or. .not. allocated(this%cs_all%ia)) call this%cs_all%init(na, 1.0_wp, 8 * na)
     ! -- overlaps of q_in
-    call build_contacts(scene, q_in, radius, 1.0e-12_wp * radius, this%cells, this%cs)
-    do l = 1, this%cs%n
-      if (this%cs%gap(l) < 0) then
+    call build_contacts(scene, q_in, radius, 1.0e-12_wp * radius, this%lp%cells, this%lp%cs)
+    do l = 1, this%lp%cs%n
+      if (this%lp%cs%gap(l) < 0) then
         stats%n_overlaps = stats%n_overlaps + 1
-        stats%depth_in = max(stats%depth_in, -this%cs%gap(l))
+        stats%depth_in = max(stats%depth_in, -this%lp%cs%gap(l))
       end if
     end do
-    stats%n_rows = this%cs%n
+    stats%n_rows = this%lp%cs%n
     if (stats%n_overlaps == 0) then
       call finish(); return
     end if
@@ -178,12 +165,12 @@ contains
     ! -- start: q_start, or the first-order projection linearised at q_in
     if (present(q_start)) then
       p = q_start
-      call build_contacts(scene, p, radius, 1.0e-12_wp * radius, this%cells, this%cs)
+      call build_contacts(scene, p, radius, 1.0e-12_wp * radius, this%lp%cells, this%lp%cs)
       depth_start = 0
-      do l = 1, this%cs%n
-        depth_start = max(depth_start, -this%cs%gap(l))
+      do l = 1, this%lp%cs%n
+        depth_start = max(depth_start, -this%lp%cs%gap(l))
       end do
-      if (depth_start > max(this%solver%settings%tol, 1.0e-9_wp) * radius) then
+      if (depth_start > max(this%lp%solver%settings%tol, 1.0e-9_wp) * radius) then
         call set_error(error, "position_projection: the start overlaps by " // str(depth_start, "es9.2") // &
           " m", 2); return
       end if
@@ -249,208 +236,101 @@ contains
     logical, intent(out) :: ok
     type(pproj_stats_t), intent(inout) :: stats
     type(error_t), allocatable, intent(out) :: error
-    integer :: na, i, l, a, b, restarts
-    real(wp) :: cutoff, need, umax, depth, reach
+    integer :: na, i, l, a, b, restarts, n_violated
+    real(wp) :: cutoff, depth, reach
     real(wp), allocatable :: lam(:), wn(:)
-    logical, allocatable :: free_ag(:), before(:), kept(:)
-    logical :: added
+    logical, allocatable :: free_ag(:), kept(:)
+    logical :: added, done
+    type(solve_stats_t) :: st
     na = size(p) / 2
     allocate(free_ag(na))
     ok = .true.
-    ! the largest motion to expect: the wanted one, or the deepest overlap of p
-    call build_contacts(scene, p, radius, 1.0e-12_wp * radius, this%cells, this%cs)
-    depth = 0
-    do l = 1, this%cs%n
-      depth = max(depth, -this%cs%gap(l))
-    end do
-    umax = 0
-    do i = 1, na
-      umax = max(umax, norm2(w(2*i-1:2*i)))
-    end do
-    cutoff = max(this%cutoff_factor * 2 * max(umax, depth), 1.0e-12_wp * radius)
-    free_ag = .false.
-    restarts = 0
-    allocate(wn(na))
-    do i = 1, na
-      wn(i) = norm2(w(2*i-1:2*i))
-    end do
-    do
-      ! every row within the global cutoff; the solve keeps a row when its gap is within the
-      ! pair's own reach cutoff_factor * (|w_a| + |w_b|) (+ the deepest overlap), the others
-      ! are checked after the solve (gap > |u_a| + |u_b|: cannot close) and added if needed
-      call build_contacts(scene, p, radius, cutoff, this%cells, this%cs_all)
-      stats%n_rows = this%cs_all%n
-      if (allocated(kept)) deallocate(kept)
-      allocate(kept(this%cs_all%n))
-      do l = 1, this%cs_all%n
-        a = this%cs_all%ia(l); b = this%cs_all%ib(l)
-        reach = wn(a)
-        if (b > 0) reach = reach + wn(b)
-        kept(l) = this%cs_all%gap(l) <= this%cutoff_factor * (reach + depth) + 1.0e-12_wp * radius
+    associate (lp => this%lp, cs => this%lp%cs, cs_all => this%cs_all)
+      ! the largest motion to expect: the wanted one, or the deepest overlap of p
+      call build_contacts(scene, p, radius, 1.0e-12_wp * radius, lp%cells, cs)
+      depth = 0
+      do l = 1, cs%n
+        depth = max(depth, -cs%gap(l))
+      end do
+      cutoff = max(lp%cutoff_factor * 2 * max(max_agent_norm(w), depth), 1.0e-12_wp * radius)
+      free_ag = .false.
+      restarts = 0
+      allocate(wn(na))
+      do i = 1, na
+        wn(i) = norm2(w(2*i-1:2*i))
       end do
       do
-        call this%cs%clear()
-        do l = 1, this%cs_all%n
-          if (kept(l)) call this%cs%add(this%cs_all%ia(l), this%cs_all%ib(l), this%cs_all%ob(l), &
-            this%cs_all%g(:, l), this%cs_all%gap(l))
+        ! every row within the global cutoff; the solve keeps a row when its gap is within the
+        ! pair's own reach cutoff_factor * (|w_a| + |w_b|) (+ the deepest overlap), the others
+        ! are checked after the solve (gap > |u_a| + |u_b|: cannot close) and added if needed
+        call build_contacts(scene, p, radius, cutoff, lp%cells, cs_all)
+        stats%n_rows = cs_all%n
+        if (allocated(kept)) deallocate(kept)
+        allocate(kept(cs_all%n))
+        do l = 1, cs_all%n
+          a = cs_all%ia(l); b = cs_all%ib(l)
+          reach = wn(a)
+          if (b > 0) reach = reach + wn(b)
+          kept(l) = cs_all%gap(l) <= lp%cutoff_factor * (reach + depth) + 1.0e-12_wp * radius
         end do
-        ! agents of the rows that w violates
-        do l = 1, this%cs%n
-          if (lin_gap(this%cs, l, w) < 0) then
-            free_ag(this%cs%ia(l)) = .true.
-            if (this%cs%ib(l) > 0) free_ag(this%cs%ib(l)) = .true.
-          end if
-        end do
-        if (.not. any(free_ag)) then
-          u = w; exit
-        end if
         do
-          call solve_local(this, free_ag, w, u, lam, ok, stats, error)
-          if (allocated(error)) return
-          if (.not. ok) then
-            if (all(free_ag)) return
-            ! a boxed-in free agent: free one ring over every candidate row
-            before = free_ag
-            do l = 1, this%cs%n
-              a = this%cs%ia(l); b = this%cs%ib(l)
+          call cs%clear()
+          do l = 1, cs_all%n
+            if (kept(l)) call cs%add(cs_all%ia(l), cs_all%ib(l), cs_all%ob(l), cs_all%g(:, l), cs_all%gap(l))
+          end do
+          ! agents of the rows that w violates
+          call lp%mark_violated(w, free_ag, n_violated)
+          if (.not. any(free_ag)) then
+            u = w; exit
+          end if
+          do
+            call lp%solve_local(free_ag, w, u, lam, ok, st, error)
+            if (allocated(error)) return
+            stats%n_local_rows = lp%cs_loc%n
+            stats%solves = stats%solves + 1
+            stats%iterations = stats%iterations + st%iterations
+            stats%kkt = st%kkt
+            if (.not. ok) then
+              if (all(free_ag)) return
+              ! a boxed-in free agent: free one ring over every candidate row
+              call lp%grow_ring(w, free_ag)
+              stats%grows = stats%grows + 1
+              cycle
+            end if
+            ! an active row between a free and a fixed agent: the fixed one must make way too
+            added = .false.
+            do l = 1, cs%n
+              if (lam(l) <= 0) cycle
+              a = cs%ia(l); b = cs%ib(l)
               if (b == 0) cycle
-              if (before(a) .neqv. before(b)) then
-                free_ag(a) = .true.; free_ag(b) = .true.
+              if (free_ag(a) .neqv. free_ag(b)) then
+                free_ag(a) = .true.; free_ag(b) = .true.; added = .true.
               end if
             end do
-            if (all(before .eqv. free_ag)) free_ag = .true.
+            if (.not. added) exit
             stats%grows = stats%grows + 1
-            cycle
-          end if
-          ! an active row between a free and a fixed agent: the fixed one must make way too
+          end do
+          ! a row left out that the solution could close: keep it and solve again
           added = .false.
-          do l = 1, this%cs%n
-            if (lam(l) <= 0) cycle
-            a = this%cs%ia(l); b = this%cs%ib(l)
-            if (b == 0) cycle
-            if (free_ag(a) .neqv. free_ag(b)) then
-              free_ag(a) = .true.; free_ag(b) = .true.; added = .true.
+          do l = 1, cs_all%n
+            if (kept(l)) cycle
+            a = cs_all%ia(l); b = cs_all%ib(l)
+            reach = norm2(u(2*a-1:2*a))
+            if (b > 0) reach = reach + norm2(u(2*b-1:2*b))
+            if (cs_all%gap(l) <= reach) then
+              kept(l) = .true.; added = .true.
             end if
           end do
           if (.not. added) exit
-          stats%grows = stats%grows + 1
+          stats%restarts = stats%restarts + 1
         end do
-        ! a row left out that the solution could close: keep it and solve again
-        added = .false.
-        do l = 1, this%cs_all%n
-          if (kept(l)) cycle
-          a = this%cs_all%ia(l); b = this%cs_all%ib(l)
-          reach = norm2(u(2*a-1:2*a))
-          if (b > 0) reach = reach + norm2(u(2*b-1:2*b))
-          if (this%cs_all%gap(l) <= reach) then
-            kept(l) = .true.; added = .true.
-          end if
-        end do
-        if (.not. added) exit
+        ! a row outside the set has gap > cutoff and closes by at most 2 max_i |u_i|
+        call lp%next_cutoff(u, cutoff, restarts, done, error)
+        if (allocated(error) .or. done) exit
         stats%restarts = stats%restarts + 1
       end do
-      umax = 0
-      do i = 1, na
-        umax = max(umax, norm2(u(2*i-1:2*i)))
-      end do
-      ! a row outside the set has gap > cutoff and closes by at most 2 umax
-      need = 2 * umax
-      if (need <= cutoff) exit
-      restarts = restarts + 1
-      stats%restarts = stats%restarts + 1
-      cutoff = 1.05_wp * need
-      if (restarts > 50) then
-        call set_error(error, "position_projection: contact set did not stabilise after 50 restarts"); return
-      end if
-    end do
+    end associate
+    if (allocated(error)) return
     stats%n_free = max(stats%n_free, count(free_ag))
   end subroutine solve_at
-
-  !> Linearised gap of row l after the displacement w (h = 1): D_l + G_l . w.
-  pure real(wp) function lin_gap(cs, l, w) result(s)
-    type(contact_set_t), intent(in) :: cs
-    integer, intent(in) :: l
-    real(wp), intent(in) :: w(:)
-    integer :: a, b
-    a = cs%ia(l); b = cs%ib(l)
-    s = cs%g(1, l) * w(2*a-1) + cs%g(2, l) * w(2*a)
-    if (b > 0) s = s - cs%g(1, l) * w(2*b-1) - cs%g(2, l) * w(2*b)
-    s = cs%gap(l) + s
-  end function lin_gap
-
-  !> Solve for the displacement u [2 n_a] of the free agents (desired displacement w, the others
-  !> moving by w) under the rows of this%cs; lam [this%cs%n]: the multiplier of each row in the
-  !> local problem (0 for rows left out: between fixed agents). converged: the solver met its
-  !> stopping test and tol.
-  subroutine solve_local(this, free_ag, w, u, lam, converged, stats, error)
-    type(position_projection_t), intent(inout) :: this
-    logical, intent(in) :: free_ag(:)
-    real(wp), intent(in) :: w(:)
-    real(wp), intent(out) :: u(:)
-    real(wp), allocatable, intent(out) :: lam(:)
-    logical, intent(out) :: converged
-    type(pproj_stats_t), intent(inout) :: stats
-    type(error_t), allocatable, intent(out) :: error
-    integer, allocatable :: map(:), back(:), row_of(:)
-    real(wp), allocatable :: v_loc(:), u_loc(:), lam_loc(:)
-    type(solve_stats_t) :: st
-    integer :: na, m, i, l, a, b, k
-    na = size(free_ag)
-    allocate(map(na))
-    map = 0; m = 0
-    do i = 1, na
-      if (free_ag(i)) then
-        m = m + 1; map(i) = m
-      end if
-    end do
-    allocate(back(m), v_loc(2 * m), u_loc(2 * m), row_of(this%cs%n))
-    do i = 1, na
-      if (map(i) > 0) then
-        back(map(i)) = i
-        v_loc(2*map(i)-1:2*map(i)) = w(2*i-1:2*i)
-      end if
-    end do
-    ! rows of the local problem (h = 1): free-free as they are, free-fixed as one-agent rows
-    ! of the free agent with the gap shifted by the fixed agent's motion w
-    call this%cs_loc%init(m, 1.0_wp, max(4 * m, this%cs%n))
-    row_of = 0
-    do l = 1, this%cs%n
-      a = this%cs%ia(l); b = this%cs%ib(l)
-      if (b == 0) then
-        if (map(a) > 0) call this%cs_loc%add(map(a), 0, this%cs%ob(l), this%cs%g(:, l), this%cs%gap(l))
-      else if (map(a) > 0 .and. map(b) > 0) then
-        call this%cs_loc%add(map(a), map(b), 0, this%cs%g(:, l), this%cs%gap(l))
-      else if (map(a) > 0) then
-        call this%cs_loc%add(map(a), 0, 0, this%cs%g(:, l), &
-          this%cs%gap(l) - this%cs%g(1, l) * w(2*b-1) - this%cs%g(2, l) * w(2*b))
-      else if (map(b) > 0) then
-        call this%cs_loc%add(map(b), 0, 0, -this%cs%g(:, l), &
-          this%cs%gap(l) + this%cs%g(1, l) * w(2*a-1) + this%cs%g(2, l) * w(2*a))
-      else
-        cycle
-      end if
-      row_of(l) = this%cs_loc%n
-    end do
-    stats%n_local_rows = this%cs_loc%n
-    allocate(lam_loc(max(this%cs_loc%n, 1)))
-    lam_loc = 0
-    call this%solver%solve(this%cs_loc, v_loc, u_loc, lam_loc, st, error)
-    if (allocated(error)) then
-      call prefix_error(error, "position_projection"); return
-    end if
-    stats%solves = stats%solves + 1
-    stats%iterations = stats%iterations + st%iterations
-    stats%kkt = st%kkt
-    converged = st%converged .and. st%kkt <= this%solver%settings%tol
-    u = w
-    do k = 1, m
-      i = back(k)
-      u(2*i-1:2*i) = u_loc(2*k-1:2*k)
-    end do
-    allocate(lam(this%cs%n))
-    lam = 0
-    do l = 1, this%cs%n
-      if (row_of(l) > 0) lam(l) = lam_loc(row_of(l))
-    end do
-  end subroutine solve_local
 end module cr_position_projection

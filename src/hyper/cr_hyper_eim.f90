@@ -9,14 +9,15 @@
 !> diverge).
 module cr_hyper_eim
   use cr_kinds, only: wp
-  use cr_error, only: error_t, set_error, prefix_error
+  use cr_error, only: error_t, prefix_error
   use cr_strings, only: str
   use cr_env, only: env_t
   use cr_h5file, only: h5file_t
   use cr_eim, only: eim_t, eim_build, eim_interp_matrix
   use cr_hyper_terms, only: hyper_terms_t
-  use cr_hyper_method, only: hyper_method_t, hyper_train_t, choose_points, TERM_NAMES
-  use cr_reduced_base, only: reduced_ops_t, eval_ctx_t, add_row, ensure, agent_desired, mark_agents
+  use cr_hyper_method, only: hyper_method_t, hyper_train_t, choose_points, default_points, max_points, &
+    write_term_attrs, read_term_attrs, TERM_NAMES
+  use cr_reduced_base, only: reduced_ops_t, eval_ctx_t, ensure, agent_desired, mark_agents
   use cr_contact_eval, only: eval_contact
   use cr_product_check, only: need_finite, need_range, need_size, product_error
   implicit none
@@ -28,7 +29,7 @@ module cr_hyper_eim
     type(eim_t) :: eim(3)
   contains
     procedure, nopass :: storage => eim_storage
-    procedure :: build => eim_method_build
+    procedure :: build_data => eim_method_build
     procedure :: write => eim_method_write
     procedure :: read => eim_method_read
     procedure :: summary => eim_summary
@@ -41,7 +42,7 @@ module cr_hyper_eim
     real(wp), allocatable :: minv1(:,:), minv2(:,:), minv3(:,:)
     !> reduced images of the modes: a1 [nb, m1], a3 [R, m3]; s2 modes u2 [p2, m2]
     real(wp), allocatable :: a1(:,:), a3(:,:), u2(:,:)
-    integer, allocatable :: ia(:), ib(:), ob(:), s2_row(:), s2_dof(:)
+    integer, allocatable :: s2_row(:), s2_dof(:)
     real(wp), allocatable :: s2_sgn(:)
     !> s2 entries of each support row (CSR: row l has r2e(r2p(l)+1 : r2p(l+1)))
     integer, allocatable :: r2p(:), r2e(:)
@@ -64,14 +65,11 @@ contains
     type(env_t), intent(in) :: env
     type(hyper_train_t), intent(in) :: train
     type(error_t), allocatable, intent(out) :: error
-    integer :: k, m_max, mdef(3)
-    real(wp) :: t0
-    t0 = env%wtime()
-    mdef = [2 * size(train%v, 2), train%r, 2 * train%r]
+    integer :: k, m_max
     do k = 1, 3
       this%eim(k)%p = train%terms%p(k)
       if (train%terms%p(k) == 0) cycle
-      m_max = min(train%terms%p(k), max(1, ceiling(train%m_factor * mdef(k))))
+      m_max = max_points(train, k, train%terms%p(k))
       select case (k)
       case (1)
         call eim_build(env, train%s1, m_max, this%eim(k), error)
@@ -84,7 +82,6 @@ contains
         call prefix_error(error, "EIM of " // TERM_NAMES(k)); return
       end if
     end do
-    this%time = env%wtime() - t0
   end subroutine eim_method_build
 
   subroutine eim_method_write(this, h5, g, error)
@@ -128,12 +125,7 @@ contains
     character(len=*), intent(in) :: t
     type(eim_t), intent(in) :: e
     type(error_t), allocatable, intent(out) :: error
-    call h5%make_group(t, error); if (allocated(error)) return
-    call h5%write_attr(t, "p", e%p, error); if (allocated(error)) return
-    call h5%write_attr(t, "m", e%m, error); if (allocated(error)) return
-    if (allocated(e%note)) then
-      call h5%write_attr(t, "note", e%note, error); if (allocated(error)) return
-    end if
+    call write_term_attrs(h5, t, e%p, e%m, e%note, error); if (allocated(error)) return
     if (e%m > 0) then
       call h5%write(t // "/basis", e%basis(:, 1:e%m), error); if (allocated(error)) return
       call h5%write(t // "/indices", e%idx(1:e%m), error); if (allocated(error)) return
@@ -151,16 +143,7 @@ contains
     integer, intent(in) :: p
     type(eim_t), intent(out) :: e
     type(error_t), allocatable, intent(out) :: error
-    type(error_t), allocatable :: en
-    character(len=:), allocatable :: s
-    e%p = p
-    call h5%read_attr(t, "m", e%m, error); if (allocated(error)) return
-    call h5%read_attr(t, "note", s, en)
-    if (.not. allocated(en)) e%note = s
-    if (e%m < 0 .or. e%m > e%p) then
-      call product_error(path, "group '" // t // "': attribute m = " // str(e%m) // " outside 0.." // &
-        str(e%p), error); return
-    end if
+    call read_term_attrs(h5, path, t, p, e%p, e%m, e%note, error); if (allocated(error)) return
     if (e%m > 0) then
       call h5%read(t // "/basis", e%basis, error); if (allocated(error)) return
       call h5%read(t // "/indices", e%idx, error); if (allocated(error)) return
@@ -189,15 +172,13 @@ contains
     integer :: m(3), k, nb
     logical, allocatable :: need(:)
     nb = size(v, 2)
-    call choose_points('EIM', where, n, r, m_req, [2 * nb, r, 2 * r], [(this%eim(k)%m, k = 1, 3)], &
+    call choose_points('EIM', where, n, r, m_req, default_points(nb, r), [(this%eim(k)%m, k = 1, 3)], &
       [(terms%p(k), k = 1, 3)], m, error)
     if (allocated(error)) return
     allocate(ops_eim_t :: ops)
     select type (ops)
     type is (ops_eim_t)
-      call ops%init_base(v, terms%w)
-      ops%m = m
-      ops%ia = terms%ia; ops%ib = terms%ib; ops%ob = terms%ob
+      call ops%init_base(v, terms%w, terms%ia, terms%ib, terms%ob, m)
       ops%s2_row = terms%s2_row; ops%s2_dof = terms%s2_dof; ops%s2_sgn = terms%s2_sgn
       call eim_setup(ops, this%eim, v, terms, m, error)
       if (allocated(error)) return
@@ -319,9 +300,7 @@ contains
           call eval_contact(ctx%scene, q, ctx%radius, this%ia(l), this%ib(l), this%ob(l), gap, g)
           this%n_exact_rows = this%n_exact_rows + 1
         end if
-        do p = this%wp0(l) + 1, this%wp0(l + 1)
-          call add_row(bt(:, this%wk(p)), this%vt, this%wv(p) * ctx%h, this%ia(l), this%ib(l), g)
-        end do
+        call this%add_support_row(l, g, ctx%h, bt)
       end do
     else
       bt = 0

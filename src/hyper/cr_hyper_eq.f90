@@ -26,7 +26,8 @@ module cr_hyper_eq
   use cr_eim, only: eim_t, eim_build
   use cr_eq, only: eq_t, eq_gramian, eq_build
   use cr_hyper_terms, only: hyper_terms_t
-  use cr_hyper_method, only: hyper_method_t, hyper_train_t, choose_points, TERM_NAMES
+  use cr_hyper_method, only: hyper_method_t, hyper_train_t, choose_points, default_points, max_points, &
+    write_term_attrs, read_term_attrs, TERM_NAMES
   use cr_hyper_eim, only: write_eim_group, read_eim_group
   use cr_reduced_base, only: reduced_ops_t, eval_ctx_t, gram_setup, add_row, add_pair, ensure, &
     agent_desired, mark_agents, unique_map
@@ -44,7 +45,7 @@ module cr_hyper_eq
     type(eim_t) :: vdeim
   contains
     procedure, nopass :: storage => eq_storage
-    procedure :: build => eq_method_build
+    procedure :: build_data => eq_method_build
     procedure :: write => eq_method_write
     procedure :: read => eq_method_read
     procedure :: summary => eq_summary
@@ -55,9 +56,6 @@ module cr_hyper_eq
   type, extends(reduced_ops_t) :: ops_eq_t
     integer, allocatable :: idx1(:), idx2(:), idx3(:)
     real(wp), allocatable :: w1(:), w2(:), w3(:)
-    integer, allocatable :: ia(:), ib(:), ob(:)
-    !> cone on the support rows [p3, R]
-    real(wp), allocatable :: w(:,:)
     !> each point's contact row / agent evaluated once per step: distinct rows of the s2 and
     !> s3 points and their positions, distinct agents of the s1 points and their positions
     integer, allocatable :: urows(:), pos2(:), pos3(:), uagents(:), pos1(:)
@@ -92,11 +90,8 @@ contains
     type(hyper_train_t), intent(in) :: train
     type(error_t), allocatable, intent(out) :: error
     real(wp), allocatable :: kmat(:,:), h(:,:)
-    integer :: k, nb, mdef(3), m_max
-    real(wp) :: t0
-    t0 = env%wtime()
+    integer :: k, nb, m_max
     nb = size(train%v, 2)
-    mdef = [2 * nb, train%r, 2 * train%r]
     do k = 1, 3
       this%eq(k)%p = train%terms%p(merge(1, 3, k == 1))
       if (train%terms%p(k) == 0) cycle
@@ -112,7 +107,7 @@ contains
       if (allocated(error)) then
         call prefix_error(error, "EQ Gramian of " // TERM_NAMES(k)); return
       end if
-      m_max = min(size(h, 1), max(1, ceiling(train%m_factor * mdef(k))))
+      m_max = max_points(train, k, size(h, 1))
       call eq_build(h, k /= 2, m_max, train%eq_tol, this%eq(k), error)
       if (allocated(error)) then
         call prefix_error(error, "EQ of " // TERM_NAMES(k)); return
@@ -120,13 +115,12 @@ contains
     end do
     ! the DEIM of the desired velocity ('eq_deim')
     if (train%terms%p(1) > 0) then
-      m_max = min(train%terms%p(1), max(1, ceiling(train%m_factor * mdef(1))))
+      m_max = max_points(train, 1, train%terms%p(1))
       call eim_build(env, train%s1, m_max, this%vdeim, error)
       if (allocated(error)) then
         call prefix_error(error, "DEIM of the desired velocity"); return
       end if
     end if
-    this%time = env%wtime() - t0
 
   contains
 
@@ -163,12 +157,7 @@ contains
     do k = 1, 3
       t = g // "/eq/" // TERM_NAMES(k)
       associate (e => this%eq(k))
-        call h5%make_group(t, error); if (allocated(error)) return
-        call h5%write_attr(t, "p", e%p, error); if (allocated(error)) return
-        call h5%write_attr(t, "m", e%m, error); if (allocated(error)) return
-        if (allocated(e%note)) then
-          call h5%write_attr(t, "note", e%note, error); if (allocated(error)) return
-        end if
+        call write_term_attrs(h5, t, e%p, e%m, e%note, error); if (allocated(error)) return
         if (e%m > 0) then
           call h5%write(t // "/indices", e%idx(1:e%m), error); if (allocated(error)) return
           call h5%write(t // "/weights", e%w(1:e%m, 1:e%m), error); if (allocated(error)) return
@@ -185,26 +174,13 @@ contains
     character(len=*), intent(in) :: path, g
     type(hyper_terms_t), intent(in) :: terms
     type(error_t), allocatable, intent(out) :: error
-    type(error_t), allocatable :: en
-    character(len=:), allocatable :: t, s
-    integer :: j, p_eq
+    character(len=:), allocatable :: t
+    integer :: j
     do j = 1, 3
       t = g // "/eq/" // TERM_NAMES(j)
-      p_eq = terms%p(merge(1, 3, j == 1))
       associate (e => this%eq(j))
-        call h5%read_attr(t, "p", e%p, error); if (allocated(error)) return
-        call h5%read_attr(t, "m", e%m, error); if (allocated(error)) return
-        call h5%read_attr(t, "note", s, en)
-        if (.not. allocated(en)) e%note = s
-        if (allocated(en)) deallocate(en)
-        if (e%p /= p_eq) then
-          call product_error(path, "group '" // t // "': attribute p = " // str(e%p) // &
-            ", but the cone has " // str(p_eq) // " candidates", error); return
-        end if
-        if (e%m < 0 .or. e%m > e%p) then
-          call product_error(path, "group '" // t // "': attribute m = " // str(e%m) // " outside 0.." // &
-            str(e%p), error); return
-        end if
+        call read_term_attrs(h5, path, t, terms%p(merge(1, 3, j == 1)), e%p, e%m, e%note, error)
+        if (allocated(error)) return
         if (e%m > 0) then
           call h5%read(t // "/indices", e%idx, error); if (allocated(error)) return
           call h5%read(t // "/weights", e%w, error); if (allocated(error)) return
@@ -264,17 +240,14 @@ contains
       call choose_points('EQ', where, n, r, m_req, [nb, r, 2 * r], [this%vdeim%m, this%eq(2)%m, this%eq(3)%m], &
         [terms%p(1), terms%p(3), terms%p(3)], m, error)
     else
-      call choose_points('EQ', where, n, r, m_req, [2 * nb, r, 2 * r], [(this%eq(k)%m, k = 1, 3)], &
+      call choose_points('EQ', where, n, r, m_req, default_points(nb, r), [(this%eq(k)%m, k = 1, 3)], &
         [terms%p(1), terms%p(3), terms%p(3)], m, error)
     end if
     if (allocated(error)) return
     allocate(ops_eq_t :: ops)
     select type (ops)
     type is (ops_eq_t)
-      call ops%init_base(v, terms%w)
-      ops%m = m
-      ops%ia = terms%ia; ops%ib = terms%ib; ops%ob = terms%ob
-      ops%w = terms%w
+      call ops%init_base(v, terms%w, terms%ia, terms%ib, terms%ob, m)
       ops%deim_v = deim_v
       if (deim_v) then
         ! the agents of the first m_v DEIM dofs, both components of each (an agent's desired

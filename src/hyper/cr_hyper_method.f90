@@ -2,15 +2,20 @@
 !> online assembly, so that a new method is one module (src/hyper/cr_hyper_<name>.f90) plus
 !> one line in the factory (cr_hyper_factory).
 !>
-!> - Offline (`build`, collective): from the training set of one prepared pair (`hyper_train_t`:
-!>   the pair's basis and cone candidates, the candidate snapshots of s1 = v(q), s2 = B(q),
-!>   s3 = d(q) at the training configurations this rank holds, and those configurations).
+!> - Offline (`build`, collective, timed here): the method's `build_data` from the training set
+!>   of one prepared pair (`hyper_train_t`: the pair's basis and cone candidates, the candidate
+!>   snapshots of s1 = v(q), s2 = B(q), s3 = d(q) at the training configurations this rank
+!>   holds, and those configurations); `max_points` caps the points of a term.
 !> - Stored data (`write`, `read`): the method owns one group in each pair of the ROM file,
 !>   `pairs/<k>/<storage()>`, with named datasets; the ROM file (cr_rom_file) calls these
 !>   generically and writes the build time as the pair attribute `time_<storage()>`. A method
 !>   whose `storage()` is '' stores nothing (the exact projection 'none').
+!>   Each term k is one subgroup (`<storage()>/s1`, ...) whose attributes p (candidates),
+!>   m (points) and an optional note are written and validated by `write_term_attrs` and
+!>   `read_term_attrs`; the datasets below them are the method's.
 !> - Online (`make_ops`): the assembly of the reduced problem of one time step, a
-!>   `reduced_ops_t` (cr_reduced_base), from the stored data.
+!>   `reduced_ops_t` (cr_reduced_base, whose `init_base` takes the basis, the support rows and
+!>   the points), from the stored data; `choose_points` picks the points of each term.
 module cr_hyper_method
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error
@@ -20,9 +25,11 @@ module cr_hyper_method
   use cr_scene, only: scene_t
   use cr_hyper_terms, only: hyper_terms_t
   use cr_reduced_base, only: reduced_ops_t
+  use cr_product_check, only: product_error
   implicit none
   private
-  public :: hyper_train_t, hyper_method_t, hyper_slot_t, choose_points, TERM_NAMES
+  public :: hyper_train_t, hyper_method_t, hyper_slot_t, choose_points, default_points, max_points, &
+    write_term_attrs, read_term_attrs, TERM_NAMES
 
   !> the three hyper-reduced terms s1 = v(q), s2 = B(q), s3 = d(q)
   character(len=2), parameter :: TERM_NAMES(3) = ['s1', 's2', 's3']
@@ -47,15 +54,16 @@ module cr_hyper_method
     real(wp) :: m_factor = 1, eq_tol = 0
   end type hyper_train_t
 
-  !> A hyper-reduction method (see the module header). The defaults of build, write, read and
-  !> summary do nothing: a method that stores nothing implements storage and make_ops only.
+  !> A hyper-reduction method (see the module header). The defaults of build_data, write, read
+  !> and summary do nothing: a method that stores nothing implements storage and make_ops only.
   type, abstract :: hyper_method_t
     !> offline build time (s)
     real(wp) :: time = 0
   contains
     procedure(storage_i), deferred, nopass :: storage
     procedure(make_ops_i), deferred :: make_ops
-    procedure :: build => no_build
+    procedure, non_overridable :: build
+    procedure :: build_data => no_build
     procedure :: write => no_write
     procedure :: read => no_read
     procedure :: summary => no_summary
@@ -89,6 +97,20 @@ module cr_hyper_method
 
 contains
 
+  !> The offline build of one pair (collective): the method's build_data, timed (this%time).
+  subroutine build(this, env, train, error)
+    class(hyper_method_t), intent(inout) :: this
+    type(env_t), intent(in) :: env
+    type(hyper_train_t), intent(in) :: train
+    type(error_t), allocatable, intent(out) :: error
+    real(wp) :: t0
+    t0 = env%wtime()
+    call this%build_data(env, train, error)
+    if (allocated(error)) return
+    this%time = env%wtime() - t0
+  end subroutine build
+
+  !> Build the stored data from the training set (collective; default: nothing to build).
   subroutine no_build(this, env, train, error)
     class(hyper_method_t), intent(inout) :: this
     type(env_t), intent(in) :: env
@@ -148,4 +170,62 @@ contains
       end if
     end do
   end subroutine choose_points
+
+  !> The paper's default number of points of s1, s2, s3 for a basis of nb vectors and R cone
+  !> vectors: (2 nb, R, 2 R).
+  pure function default_points(nb, r) result(m)
+    integer, intent(in) :: nb, r
+    integer :: m(3)
+    m = [2 * nb, r, 2 * r]
+  end function default_points
+
+  !> Most points the offline build of term k keeps: m_factor times the default
+  !> (default_points), at least 1 and at most n_cand (the candidates).
+  pure integer function max_points(train, k, n_cand) result(m_max)
+    type(hyper_train_t), intent(in) :: train
+    integer, intent(in) :: k, n_cand
+    integer :: mdef(3)
+    mdef = default_points(size(train%v, 2), train%r)
+    m_max = min(n_cand, max(1, ceiling(train%m_factor * mdef(k))))
+  end function max_points
+
+  !> Create the group t of one term and write its attributes: p (candidates), m (points) and
+  !> the note when allocated.
+  subroutine write_term_attrs(h5, t, p, m, note, error)
+    type(h5file_t), intent(inout) :: h5
+    character(len=*), intent(in) :: t
+    integer, intent(in) :: p, m
+    character(len=:), allocatable, intent(in) :: note
+    type(error_t), allocatable, intent(out) :: error
+    call h5%make_group(t, error); if (allocated(error)) return
+    call h5%write_attr(t, "p", p, error); if (allocated(error)) return
+    call h5%write_attr(t, "m", m, error); if (allocated(error)) return
+    if (allocated(note)) call h5%write_attr(t, "note", note, error)
+  end subroutine write_term_attrs
+
+  !> Read and validate the attributes of the term group t written by write_term_attrs in the
+  !> ROM file `path`: p must be p_expected (the candidates of the pair), m in 0..p; the note
+  !> when present. Input errors (code 2) name the file and the group.
+  subroutine read_term_attrs(h5, path, t, p_expected, p, m, note, error)
+    type(h5file_t), intent(in) :: h5
+    character(len=*), intent(in) :: path, t
+    integer, intent(in) :: p_expected
+    integer, intent(out) :: p, m
+    character(len=:), allocatable, intent(inout) :: note
+    type(error_t), allocatable, intent(out) :: error
+    type(error_t), allocatable :: en
+    character(len=:), allocatable :: s
+    call h5%read_attr(t, "p", p, error); if (allocated(error)) return
+    call h5%read_attr(t, "m", m, error); if (allocated(error)) return
+    call h5%read_attr(t, "note", s, en)
+    if (.not. allocated(en)) note = s
+    if (p /= p_expected) then
+      call product_error(path, "group '" // t // "': attribute p = " // str(p) // &
+        ", but the pair has " // str(p_expected) // " candidates for this term", error); return
+    end if
+    if (m < 0 .or. m > p) then
+      call product_error(path, "group '" // t // "': attribute m = " // str(m) // " outside 0.." // &
+        str(p), error); return
+    end if
+  end subroutine read_term_attrs
 end module cr_hyper_method

@@ -5,7 +5,7 @@ module cr_hyper_none
   use cr_error, only: error_t
   use cr_hyper_terms, only: hyper_terms_t
   use cr_hyper_method, only: hyper_method_t
-  use cr_reduced_base, only: reduced_ops_t, eval_ctx_t, gram_setup, add_row, ensure
+  use cr_reduced_base, only: reduced_ops_t, eval_ctx_t, gram_setup, ensure
   use cr_contact_eval, only: eval_contact
   use cr_lapack, only: la_gemv
   implicit none
@@ -20,9 +20,7 @@ module cr_hyper_none
 
   !> Exact projection over the cone's support rows.
   type, extends(reduced_ops_t) :: ops_exact_t
-    integer, allocatable :: ia(:), ib(:), ob(:)
-    !> cone on the support rows [p3, R]
-    real(wp), allocatable :: w(:,:)
+    !> the desired velocity of every agent [n_dof]
     real(wp), allocatable :: vfull(:)
   contains
     procedure :: assemble => exact_assemble
@@ -47,9 +45,7 @@ contains
     allocate(ops_exact_t :: ops)
     select type (ops)
     type is (ops_exact_t)
-      call ops%init_base(v, terms%w)
-      ops%ia = terms%ia; ops%ib = terms%ib; ops%ob = terms%ob
-      ops%w = terms%w
+      call ops%init_base(v, terms%w, terms%ia, terms%ib, terms%ob)
       allocate(ops%vfull(size(v, 1)))
       ops%agents = [(k, k = 1, size(v, 1) / 2)]
       call gram_setup(ops, v, terms%w)
@@ -63,21 +59,15 @@ contains
     real(wp), intent(out) :: vhat(:)
     real(wp), allocatable, intent(inout) :: bt(:,:), dhat(:)
     real(wp) :: gap, g(2)
-    integer :: k, a, b, j, p
+    integer :: l
     call ctx%desired%evaluate(q, ctx%speeds, this%vfull)
     call la_gemv('N', 1.0_wp, this%vt, this%vfull, 0.0_wp, vhat)
     call ensure(bt, dhat, this%nb, this%r)
     bt = 0; dhat = 0
     if (this%has_gram) this%zn = 0
-    do k = 1, size(this%ia)
-      a = this%ia(k); b = this%ib(k)
-      call eval_contact(ctx%scene, q, ctx%radius, a, b, this%ob(k), gap, g)
-      do p = this%wp0(k) + 1, this%wp0(k + 1)
-        j = this%wk(p)
-        call add_row(bt(:, j), this%vt, this%wv(p) * ctx%h, a, b, g)
-        dhat(j) = dhat(j) + this%wv(p) * gap
-        if (this%has_gram) call this%z_add(j, this%wv(p), a, b, g, ctx%h)
-      end do
+    do l = 1, size(this%ia)
+      call eval_contact(ctx%scene, q, ctx%radius, this%ia(l), this%ib(l), this%ob(l), gap, g)
+      call this%add_support_row(l, g, ctx%h, bt, gap, dhat)
     end do
   end subroutine exact_assemble
 end module cr_hyper_none

@@ -32,6 +32,8 @@ module cr_reduced_base
     integer, allocatable :: agents(:)
     !> number of interpolation / quadrature entries of s1, s2, s3 (0 for exact)
     integer :: m(3) = 0
+    !> the cone's support rows: agents ia, ib (0: obstacle) and obstacle ob of each [p3]
+    integer, allocatable :: ia(:), ib(:), ob(:)
     !> velocity basis [n_dof, nb] and its transpose [nb, n_dof] (contiguous rows of V)
     real(wp), allocatable :: v(:,:), vt(:,:)
     !> .true. when the rows are the R cone vectors (multipliers comparable across steps)
@@ -59,6 +61,7 @@ module cr_reduced_base
     procedure :: gram_diag => ops_gram_diag
     procedure :: z_add
     procedure :: init_base
+    procedure :: add_support_row
   end type reduced_ops_t
 
   abstract interface
@@ -106,17 +109,41 @@ contains
     end if
   end subroutine unique_map
 
-  !> The part every assembly shares: basis v [n_dof, nb] and its transpose, R, and the cone w
-  !> [p3, R] on its support rows by rows.
-  subroutine init_base(this, v, w)
+  !> The part every assembly shares: basis v [n_dof, nb] and its transpose, R, the cone w
+  !> [p3, R] on its support rows by rows, the support rows (agents ia, ib, obstacle ob [p3])
+  !> and the points m of s1, s2, s3 (default 0: exact).
+  subroutine init_base(this, v, w, ia, ib, ob, m)
     class(reduced_ops_t), intent(inout) :: this
     real(wp), intent(in) :: v(:,:), w(:,:)
+    integer, intent(in) :: ia(:), ib(:), ob(:)
+    integer, intent(in), optional :: m(3)
     this%nb = size(v, 2)
     this%r = size(w, 2)
     this%v = v
     this%vt = transpose(v)
     call cone_rows(w, this%wp0, this%wk, this%wv)
+    this%ia = ia; this%ib = ib; this%ob = ob
+    if (present(m)) this%m = m
   end subroutine init_base
+
+  !> Add support row l with unit normal g (agents ia(l), ib(l)) to every cone column it enters:
+  !> bt(:, k) += w_lk h V^T g-row; with gap, dhat(k) += w_lk gap, and the Gram entries of the
+  !> column are recorded (when has_gram).
+  subroutine add_support_row(this, l, g, h, bt, gap, dhat)
+    class(reduced_ops_t), intent(inout) :: this
+    integer, intent(in) :: l
+    real(wp), intent(in) :: g(2), h
+    real(wp), contiguous, intent(inout) :: bt(:,:)
+    real(wp), intent(in), optional :: gap
+    real(wp), intent(inout), optional :: dhat(:)
+    integer :: p, k
+    do p = this%wp0(l) + 1, this%wp0(l + 1)
+      k = this%wk(p)
+      call add_row(bt(:, k), this%vt, this%wv(p) * h, this%ia(l), this%ib(l), g)
+      if (present(dhat)) dhat(k) = dhat(k) + this%wv(p) * gap
+      if (this%has_gram) call this%z_add(k, this%wv(p), this%ia(l), this%ib(l), g, h)
+    end do
+  end subroutine add_support_row
 
   !> Prepare the cheap Gram matrix of the rows (see reduced_ops_t) when it pays: v [n_dof, nb]
   !> the basis, w [p3, R] the cone on its support rows.

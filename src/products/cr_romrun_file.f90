@@ -76,9 +76,12 @@ module cr_romrun_file
     type(row_measures_t) :: meas
     !> after each reduced step: 'none' or 'local' (local exact correction); with 'local', the
     !> mean and largest fraction of the agents corrected per step and the mean wall time of
-    !> the correction per step (included in t_step) [s], over the samples that did not diverge
+    !> the correction per step (included in t_step) [s], over the samples that did not diverge;
+    !> the steps whose correction even the full projection could not solve to the tolerance,
+    !> over every sample (written to the table and the summary only, not to this file)
     character(len=8) :: correction = 'none'
     real(wp) :: corr_frac = 0, corr_frac_max = 0, t_correct = 0
+    integer :: corr_unsolved = 0
   end type romrun_row_t
 
   !> One setting run on one set of samples (n samples, N_T steps, nb basis vectors).

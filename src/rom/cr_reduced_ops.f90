@@ -52,7 +52,7 @@ contains
     if (contacts == 'online') then
       n_agents = size(pair%v, 1) / 2
       allocate(ops_online_t :: ops)
-      call ops%init_base(pair%v, pair%terms%w)
+      call ops%init_base(pair%v, pair%terms%w, pair%terms%ia, pair%terms%ib, pair%terms%ob)
       select type (ops)
       type is (ops_online_t)
         ops%cutoff_factor = cutoff_factor

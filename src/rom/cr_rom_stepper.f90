@@ -80,6 +80,9 @@ module cr_rom_stepper
     integer :: conflict_steps = 0
     !> agents of the violated rows (before neighbours), summed over the steps
     integer :: n_conflict_agents = 0
+    !> steps whose correction even the projection with every agent free could not solve to
+    !> the tolerance (the solver's best iterate was used: reported, not an error)
+    integer :: corr_unsolved = 0
     real(wp) :: time_correct = 0
   end type rom_traj_t
 
@@ -253,6 +256,7 @@ contains
         traj%q(:, nu + 1) = q
         traj%n_corrected(nu) = lst%n_corrected
         if (lst%n_violated > 0) traj%conflict_steps = traj%conflict_steps + 1
+        if (.not. lst%converged) traj%corr_unsolved = traj%corr_unsolved + 1
         traj%n_conflict_agents = traj%n_conflict_agents + lst%n_seeds
         call system_clock(t4)
         traj%time_correct = traj%time_correct + real(t4 - t3, wp) / real(rate, wp)

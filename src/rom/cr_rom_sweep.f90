@@ -410,6 +410,7 @@ contains
         tcorr(k) = traj%time_correct
         n_conflict = n_conflict + traj%conflict_steps
         n_seed = n_seed + traj%n_conflict_agents
+        row%corr_unsolved = row%corr_unsolved + traj%corr_unsolved
       end if
       div_step(k) = traj%diverged_step
       n_done(k) = merge(traj%diverged_step, nt, traj%diverged_step > 0)
@@ -500,6 +501,9 @@ contains
       str(100 * real(n_seed, wp) / (real(this%st%n_agents, wp) * max(1, sum(n_done))), "f7.3") // &
       "% (the rest: their neighbours); conflicts on " // str(n_conflict) // " of " // &
       str(sum(n_done)) // " steps, " // str(row%t_correct, "es9.2") // " s per step")
+    if (row%corr_unsolved > 0) call log%warn(str(row%corr_unsolved) // " corrected steps were not solved to the " // &
+      "tolerance even by the projection with every agent free (infeasible step): the exact solver's best " // &
+      "iterate was used (column correction_unsolved_steps)")
     call log%info("   time per step (fastest repeat of each sample): positions " // &
       str(t_parts(1) / max(1, nt * blk%n), "es9.2") // " s, assembly " // str(t_parts(2) / max(1, nt * blk%n), "es9.2") // &
       " s, solve " // str(t_parts(3) / max(1, nt * blk%n), "es9.2") // " s")
@@ -674,7 +678,7 @@ contains
         e(r%meas%overlap_aw) // "," // evac_csv(r%meas, 1) // "," // evac_csv(r%meas, 2) // "," // &
         e(r%t_query) // "," // e(f%t_query) // "," // e(speedup(f%t_query, r%t_query)) // "," // &
         trim(r%correction) // "," // e(r%corr_frac) // "," // e(r%corr_frac_max) // "," // e(r%t_correct) // "," // &
-        trim(f%exact_solver)
+        trim(f%exact_solver) // "," // str(r%corr_unsolved)
     end associate
   end function csv_line
 
@@ -697,7 +701,8 @@ contains
       "t_step_fom_uzawa,t_step_fom_exact,speedup_uzawa,speedup_exact,extrapolating,mobility,samples_diverged," // &
       "E_disp,max_overlap_agents,max_overlap_walls,t50_err,t50_n,t50_rom_missed,t50_fom_missed," // &
       "t90_err,t90_n,t90_rom_missed,t90_fom_missed,t_query_rom,t_query_fom_exact,speedup_query_exact," // &
-      "correction,corrected_fraction,corrected_fraction_max,t_correct_step,fom_exact_solver" // &
+      "correction,corrected_fraction,corrected_fraction_max,t_correct_step,fom_exact_solver," // &
+      "correction_unsolved_steps" // &
       new_line('a')
     do k = 1, size(this%rows)
       text = text // csv_line(this, this%rows(k)) // new_line('a')
@@ -746,7 +751,8 @@ contains
       if (this%cfg%fom_exact_solver == 'fastest' .and. len(f%timings) > 0) call log%info("exact full model: " // &
         trim(f%exact_solver) // ", the fastest per step of (name, s/step, s/query) " // f%timings)
       if (any(rows%correction == 'local')) call log%info("corrected/step: mean (largest) per cent of the agents " // &
-        "whose velocity the local exact correction solved for, per step")
+        "whose velocity the local exact correction solved for, per step; 'k unsolved': k steps that even the " // &
+        "projection with every agent free could not solve to the tolerance")
     end associate
   end subroutine print_table
 
@@ -756,6 +762,7 @@ contains
     character(len=:), allocatable :: s
     if (r%correction == 'local') then
       s = str(100 * r%corr_frac, "f7.3") // "% (" // str(100 * r%corr_frac_max, "f7.3") // "%)"
+      if (r%corr_unsolved > 0) s = s // ", " // str(r%corr_unsolved) // " unsolved"
     else
       s = "-"
     end if
@@ -807,6 +814,7 @@ contains
       call js%add("extrapolating_samples", sum(rows%extrapolating))
       call js%add("samples_diverged", sum(rows%diverged))
       call js%add("rows_with_diverged_samples", count(rows%diverged > 0))
+      call js%add("correction_unsolved_steps", sum(rows%corr_unsolved))
       ! one array per column, in table order (-1: not available; t*_err over t*_n samples)
       call js%begin_object("rows")
       call js%add("setting", rows%setting)
@@ -831,6 +839,7 @@ contains
       call js%add("corrected_fraction", rows%corr_frac)
       call js%add("corrected_fraction_max", rows%corr_frac_max)
       call js%add("t_correct_step", rows%t_correct)
+      call js%add("correction_unsolved_steps", rows%corr_unsolved)
       call js%end_object()
     end associate
     call js%write_file(path, error)
