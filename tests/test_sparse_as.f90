@@ -341,7 +341,7 @@ contains
       do var = 1, 3
         write(tag, '(a,i0,a,i0)') "scene ", sc, " var ", var
         call sp%init(s, err)
-        sp%proj_search = proj(var); sp%add_frac = frac(var)
+        sp%proj_search = proj(var); sp%add_frac = frac(var); sp%add_frac_rows = huge(1)
         sp%n_proj = 0; sp%n_proj_rows = 0
         l = lw
         call sp%solve(cs, v, u, l, st, err)
