@@ -887,7 +887,9 @@ contains
         alpha = 1.0_wp
         do jj = 1, m
           if (this%act(jj) .and. this%z(jj) <= 0.0_wp) then
-            r = this%lam(jj) / (this%lam(jj) - this%z(jj))
+            ! a row at zero (lambda = 0, e.g. entered with z = 0) blocks at once: alpha = 0
+            r = 0.0_wp
+            if (this%lam(jj) > 0.0_wp) r = this%lam(jj) / (this%lam(jj) - this%z(jj))
             alpha = min(alpha, r)
           end if
         end do
