@@ -19,6 +19,7 @@ program test_sparse_as
   call test_warm()
   call test_drift()
   call test_analysed_set()
+  call test_step_back()
   call test_options()
   call test_summary()
 
@@ -295,6 +296,71 @@ contains
     call check(allocated(err), "shim: row outside the analysed set refused by factor")
     call ch%free()
   end subroutine test_analysed_set
+
+  !> The step back by projected search (proj_search) and the partial entry of violated rows
+  !> (add_frac) against the classical step back with every violated row entering: on jammed
+  !> scenes (many dependent rows) and a lattice, warm started from a perturbed solution so
+  !> that rows enter and leave, every variant solves to scaled KKT <= tol on the sparse path
+  !> and gives the same u as active_set to 10 tol |v| (as in compare). The projected searches
+  !> must have run and, at least once, frozen several rows in one step (else the test would
+  !> not exercise the walk over breakpoints).
+  subroutine test_step_back()
+    type(contact_set_t) :: cs
+    real(wp), allocatable :: v(:), ua(:), u(:), la(:), l(:), lw(:)
+    type(sparse_as_solver_t) :: sp
+    class(projection_solver_t), allocatable :: sa
+    type(projection_settings_t) :: s
+    type(solve_stats_t) :: st, sta
+    type(error_t), allocatable :: err
+    integer :: sc, var, nproj, nrows
+    logical :: proj(3) = [.false., .true., .true.]
+    real(wp) :: frac(3) = [0.0_wp, 0.0_wp, 0.5_wp]
+    character(len=16) :: tag
+    nproj = 0; nrows = 0
+    do sc = 1, 3
+      select case (sc)
+      case (1)
+        call hex_scene(12, 10, 1.0e-5_wp, rad, h, cs, v)
+      case (2)
+        call hex_scene(12, 10, 0.0_wp, rad, h, cs, v)
+        cs%gap(1:cs%n) = cs%gap(1:cs%n) - 1.0e-4_wp
+      case default
+        call lattice_scene(9, 9, 4, 0.03_wp, rad, h, cs, v, near_touch=.true.)
+      end select
+      if (allocated(ua)) deallocate(ua, u, la, l, lw)
+      allocate(ua(size(v)), u(size(v)), la(cs%n), l(cs%n), lw(cs%n))
+      s = projection_settings_t(); s%name = 'active_set'
+      call make_projection_solver(s, sa, err)
+      la = 0
+      call sa%solve(cs, v, ua, la, sta, err)
+      ! warm start: the solution with every other multiplier dropped and the rest scaled
+      lw = la
+      lw(1:cs%n:2) = 0.0_wp
+      lw = 1.5_wp * lw
+      s%name = 'sparse_active_set'; s%dense_rows = 0
+      do var = 1, 3
+        write(tag, '(a,i0,a,i0)') "scene ", sc, " var ", var
+        call sp%init(s, err)
+        sp%proj_search = proj(var); sp%add_frac = frac(var); sp%add_frac_rows = huge(1)
+        sp%n_proj = 0; sp%n_proj_rows = 0
+        l = lw
+        call sp%solve(cs, v, u, l, st, err)
+        call check(.not. allocated(err) .and. st%converged .and. st%kkt <= s%tol .and. &
+          st%n_fallback == 0, "step back " // trim(tag) // ": converged on the sparse path")
+        call check(maxval(abs(u - ua)) <= 10.0_wp * s%tol * max(maxval(abs(v)), 1.0_wp), &
+          "step back " // trim(tag) // ": same u as active_set")
+        if (.not. proj(var)) call check(sp%n_proj == 0, "step back " // trim(tag) // ": no projected search")
+        if (proj(var)) then
+          nproj = nproj + sp%n_proj; nrows = nrows + sp%n_proj_rows
+        end if
+        print '(2x,a,": it ",i0," fac ",i0," mod ",i0," projected searches ",i0," rows frozen ",i0," kkt ",es9.2)', &
+          trim(tag), st%iterations, st%n_factor, st%n_modify, sp%n_proj, sp%n_proj_rows, st%kkt
+        call sp%free()
+      end do
+    end do
+    call check(nproj > 0, "step back: projected searches ran")
+    call check(nrows > nproj, "step back: some projected search froze several rows")
+  end subroutine test_step_back
 
   !> The new options: bad values give an error naming them.
   subroutine test_options()

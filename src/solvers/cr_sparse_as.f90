@@ -16,12 +16,15 @@
 !>   analysis and no factorisation (the FOM's re-solves after a cutoff enlargement).
 !> - Warm start: P = {rows with lambda > 0 on entry} (the FOM matches rows across steps by their
 !>   contact identity), factorised once; rows with non-positive minimiser leave.
-!> - Outer iteration (block Lawson-Hanson): all violated rows V enter at once (few: row
-!>   additions of the factor; many: one numeric refactorisation), then the step-back loop moves
-!>   lambda towards the minimiser z on P until z > 0, removing the rows that reach zero. f falls
-!>   strictly at every outer iteration (at the start lambda minimises f on P, so grad f is zero
-!>   on P and negative on V, and the directional derivative towards z is negative), so no face
-!>   repeats and the method is finite.
+!> - Outer iteration (block Lawson-Hanson): the violated rows V whose slack is below add_frac
+!>   times the most negative one enter at once (few: row additions of the factor; many: one
+!>   numeric refactorisation); after the first dependent block every violated row enters. Then
+!>   the step-back loop moves lambda towards the minimiser z on P until z > 0: by a projected
+!>   search along max(0, lambda + t (z - lambda)), t in [0, 1] (past every breakpoint where f
+!>   still falls; the rows frozen at zero leave P together), or, without proj_search, to the
+!>   first breakpoint. f falls strictly at every outer iteration (at the start lambda minimises
+!>   f on P, so grad f is zero on P and negative on V, and the directional derivative towards
+!>   z is negative), so no face repeats and the method is finite.
 !> - Linearly dependent rows (jammed crowds): an entering row whose new pivot D(t,t) is below
 !>   dep_tol is taken out again; if every violated row is dependent, the most violated enters by
 !>   exchange (b_t = B_P^T alpha: lambda_P -= tau alpha, lambda_t = tau, the row reaching zero
@@ -73,6 +76,24 @@ module cr_sparse_as
     !> the monotone loop alone takes 2.4x fewer instructions on congested1000 and 12% less CPU
     !> time on congested100000, where the sweeps cycle; the sweeps save 14% on congested10000)
     integer :: pdas_rows = huge(1)
+    !> step back by a projected search: lambda moves to the minimiser of f along the path
+    !> max(0, lambda + t (z - lambda)), t in [0, 1], past as many breakpoints as f keeps
+    !> falling (every row reaching zero on the way leaves P at once); otherwise the classical
+    !> step to the first breakpoint
+    logical :: proj_search = .true.
+    !> only violated rows with a slack below add_frac times the most negative one enter at an
+    !> outer iteration (0: every violated row), on problems with fewer than add_frac_rows rows.
+    !> Measured (README, third pass): 0.5 takes 12% fewer instructions on congested150, 19% on
+    !> congested1000 and halves the CPU time of the crowd1000 scene; on congested10000 and
+    !> congested100000 (one global threshold holds back the many separate jams) every violated
+    !> row entering is 10-20% cheaper
+    real(wp) :: add_frac = 0.5_wp
+    integer :: add_frac_rows = 10000
+    !> projected searches done and rows they froze (left P) since init
+    integer :: n_proj = 0, n_proj_rows = 0
+    !> projected search: M d, gradient, breakpoints [m], their order [m]
+    real(wp), allocatable :: md(:), gd(:), tbk(:), tl(:)
+    integer, allocatable :: ord(:)
     !> rows: normalised coefficients [2, m], norms, rhs, B v - d, multipliers, slacks, minimiser
     real(wp), allocatable :: c(:,:), rn(:), dd(:), cc(:), lam(:), slack(:), z(:), rhs(:), piv(:)
     real(wp), allocatable :: w(:)
@@ -388,6 +409,8 @@ contains
       call rgrow(this%lam, m); call rgrow(this%slack, m); call rgrow(this%z, m)
       call rgrow(this%rhs, m); call rgrow(this%piv, m); call rgrow(this%w, m)
       call rgrow(this%l0, m)
+      call rgrow(this%md, m); call rgrow(this%gd, m); call rgrow(this%tbk, m); call rgrow(this%tl, m)
+      call igrow(this%ord, m)
       this%l0(1:m) = lambda(1:m)
       call lgrow(this%act, m); call lgrow(this%refused, m); call lgrow(this%newact, m)
       call lgrow(this%inw, m)
@@ -553,7 +576,8 @@ contains
     !> (non-empty) when the safe path must take over.
     subroutine run(why)
       character(len=:), allocatable, intent(inout) :: why
-      integer :: q, pmin, nadd, ntry, n_ref, nrem
+      integer :: q, pmin, nadd, ntry, n_ref, nrem, nv_all
+      real(wp) :: frac
       integer, parameter :: n_refine = 3
       real(wp) :: pivot, tau, xmax, r, r_ref
       why = ""
@@ -681,6 +705,7 @@ contains
       end do
 
       ! ---- main loop (block Lawson-Hanson)
+      frac = merge(this%add_frac, 0.0_wp, m < this%add_frac_rows)
       itmax = min(this%settings%max_iter, 10 * m + 100)
       n_ref = 0; r_ref = huge(1.0_wp)
       outer: do
@@ -702,6 +727,21 @@ contains
               nv = nv + 1; this%viol(nv) = j
             end if
           end do
+        end if
+        nv_all = nv
+        if (nv > 0 .and. frac > 0.0_wp) then
+          ! only the rows violated by at least add_frac times the largest violation enter
+          r = 0.0_wp
+          do q = 1, nv
+            r = min(r, this%slack(this%viol(q)))
+          end do
+          nadd = 0
+          do q = 1, nv
+            if (this%slack(this%viol(q)) <= frac * r) then
+              nadd = nadd + 1; this%viol(nadd) = this%viol(q)
+            end if
+          end do
+          nv = nadd
         end if
         if (nv > 0) then
           call enlarge_w(nv); if (allocated(error)) return
@@ -769,8 +809,15 @@ contains
             end if
           end do
         end if
+        if (nadd == 0 .and. .not. exch .and. nv < nv_all) then
+          ! the most violated rows are dependent on P: from here on every violated row enters
+          ! (the classical rule; a dependent block is where degenerate exchanges could cycle)
+          frac = 0.0_wp
+          cycle outer
+        end if
         if (nadd == 0) then
           ! every violated row is dependent on P: exchange the most violated one
+          frac = 0.0_wp
           t = this%viol(1)
           do q = 2, nv
             if (this%slack(this%viol(q)) < this%slack(t)) t = this%viol(q)
@@ -840,7 +887,9 @@ contains
         alpha = 1.0_wp
         do jj = 1, m
           if (this%act(jj) .and. this%z(jj) <= 0.0_wp) then
-            r = this%lam(jj) / (this%lam(jj) - this%z(jj))
+            ! a row at zero (lambda = 0, e.g. entered with z = 0) blocks at once: alpha = 0
+            r = 0.0_wp
+            if (this%lam(jj) > 0.0_wp) r = this%lam(jj) / (this%lam(jj) - this%z(jj))
             alpha = min(alpha, r)
           end if
         end do
@@ -856,6 +905,13 @@ contains
         end if
         it = it + 1
         stats%iterations = stats%iterations + 1
+        if (this%proj_search) then
+          call projected_step(); if (allocated(error)) return
+          if (nv > 0) then
+            call remove_rows(nv); if (allocated(error)) return
+            cycle
+          end if
+        end if
         lmax = 0.0_wp
         do jj = 1, m
           if (this%act(jj)) then
@@ -888,6 +944,104 @@ contains
         call remove_rows(nv); if (allocated(error)) return
       end do
     end subroutine step_back
+
+    !> Projected search from lambda (feasible, zero off P) towards the minimiser z on P (some
+    !> z_j <= 0): f along the path lambda(t) = max(0, lambda + t d), d = z - lambda, t in [0, 1],
+    !> is a convex piecewise quadratic whose pieces end where a row reaches zero (breakpoints
+    !> t_j = lambda_j / (lambda_j - z_j), sorted). Walk the pieces while f still falls; at each
+    !> breakpoint the row is frozen at zero (d_j = 0; M d and the slope are updated from column
+    !> j of M). lambda becomes lambda(t*), the frozen rows are returned in viol(1:nv) (they
+    !> leave P). f(lambda(t*)) <= f at the first breakpoint (the classical step), so the
+    !> method stays monotone and finite. nv = 0 (round-off: no descent) leaves lambda as is.
+    subroutine projected_step()
+      integer :: jj, q, nb, kb, p1, p2, l, i
+      real(wp) :: sl, qq, ta, tn, ts, dj, lmax
+      ! d = z - lambda on P (in this%w); the gradient g = M lambda - c on P is the slack of the
+      ! rows at u(lambda), and M d = M_P z - M_P lambda = -g on P (z solves M_P z = c_P)
+      call velocities()
+      sl = 0.0_wp; nb = 0
+      do jj = 1, m
+        if (.not. this%act(jj)) cycle
+        this%w(jj) = this%z(jj) - this%lam(jj)
+        this%gd(jj) = row_slack(jj); this%md(jj) = -this%gd(jj); this%tl(jj) = 0.0_wp
+        sl = sl + this%gd(jj) * this%w(jj)
+        if (this%z(jj) <= 0.0_wp) then
+          nb = nb + 1; this%ord(nb) = jj
+          if (this%lam(jj) > 0.0_wp) then
+            this%tbk(jj) = this%lam(jj) / (this%lam(jj) - this%z(jj))
+          else
+            this%tbk(jj) = 0.0_wp
+          end if
+        end if
+      end do
+      qq = -sl
+      ta = 0.0_wp; kb = 0; ts = 0.0_wp
+      do
+        tn = 1.0_wp
+        if (kb < nb) then
+          ! next breakpoint: the smallest left (selection: the walk usually stops after a few)
+          p2 = kb + 1
+          do p1 = kb + 2, nb
+            if (this%tbk(this%ord(p1)) < this%tbk(this%ord(p2))) p2 = p1
+          end do
+          l = this%ord(p2); this%ord(p2) = this%ord(kb + 1); this%ord(kb + 1) = l
+          tn = min(1.0_wp, this%tbk(l))
+        end if
+        if (.not. (sl < 0.0_wp)) then
+          ts = ta; exit
+        end if
+        if (qq > 0.0_wp) then
+          if (ta - sl / qq <= tn) then
+            ts = ta - sl / qq; exit
+          end if
+        end if
+        if (kb >= nb .or. tn >= 1.0_wp) then
+          ts = tn; exit
+        end if
+        ! move to the breakpoint, freeze its row: the slope there with d, then without d_l;
+        ! the gradient of a row is brought up to date (gd + (t - tl) M d) only when its M d
+        ! changes, so that a breakpoint costs one column of M
+        sl = sl + (tn - ta) * qq
+        kb = kb + 1
+        l = this%ord(kb)
+        dj = this%w(l)
+        sl = sl - dj * (this%gd(l) + (tn - this%tl(l)) * this%md(l))
+        ! q' = (d - dj e_l)' M (d - dj e_l) = q - 2 dj (M d)_l + dj^2 M_ll, then M d -= dj M(:, l)
+        qq = qq - 2.0_wp * dj * this%md(l)
+        do q = this%fp(l), this%fp(l + 1) - 1
+          i = this%fi(q)
+          if (i == l) qq = qq + dj * dj * this%fv(q)
+          if (this%act(i)) then
+            this%gd(i) = this%gd(i) + (tn - this%tl(i)) * this%md(i)
+            this%tl(i) = tn
+            this%md(i) = this%md(i) - dj * this%fv(q)
+          end if
+        end do
+        this%w(l) = 0.0_wp
+        ta = tn
+      end do
+      nv = 0
+      if (kb == 0) return
+      ! lambda(t*): frozen rows (and rows that reach zero at t* by round-off) leave
+      lmax = 0.0_wp
+      do jj = 1, m
+        if (this%act(jj)) then
+          this%lam(jj) = max(0.0_wp, this%lam(jj) + ts * this%w(jj))
+          lmax = max(lmax, this%lam(jj))
+        end if
+      end do
+      do q = 1, kb
+        this%lam(this%ord(q)) = 0.0_wp
+      end do
+      this%n_proj = this%n_proj + 1
+      do jj = 1, m
+        if (this%act(jj) .and. this%z(jj) <= 0.0_wp .and. this%lam(jj) <= 64.0_wp * epsilon(1.0_wp) * lmax) then
+          this%lam(jj) = 0.0_wp
+          nv = nv + 1; this%viol(nv) = jj
+        end if
+      end do
+      this%n_proj_rows = this%n_proj_rows + nv
+    end subroutine projected_step
 
     !> Take rows viol(1:n) out of P (row deletions, or one refactorisation when many).
     subroutine remove_rows(n)
