@@ -88,6 +88,7 @@ contains
     integer :: off, n_r, r, i, j, in, k
     integer, parameter :: nlist(3) = [10, 50, 100]
     real(wp) :: t0, t, total
+    type(error_t), allocatable :: e2
     type(rng_t) :: rng
     character(len=16) :: methods(3) = [character(len=16) :: "tsqr", "snapshots", "scalapack"]
     call block_range(n_snap, env%size, env%rank, off, n_r)
@@ -103,18 +104,24 @@ contains
     v = v / sqrt(real(n_snap, wp))
     call la_gemm('N', 'T', 1.0_wp, u, v, 0.0_wp, s, error)
     deallocate(u, v)
-    total = sqrt(env%sum_real(sum(s**2)))
+    total = sum(s**2)
+    call env%allreduce(total, 'sum', error)
+    call stop_on(error)
+    total = sqrt(total)
 
     do k = 1, 3
-      call env%barrier()
+      call env%sync(error)
+      call stop_on(error)
       t0 = env%wtime()
       select case (k)
       case (1); call pod_tsqr(env, s, res, error, n_modes=100)
       case (2); call pod_snapshots(env, s, res, error, n_modes=100)
       case (3); call pod_scalapack(env, s, res, error, n_modes=100)
       end select
-      t = env%max_real(env%wtime() - t0)
+      t = env%wtime() - t0
+      call env%allreduce(t, 'max', e2)
       call stop_on(error)
+      call stop_on(e2)
       if (k == 1) ref = res
       do in = 1, 3
         call report(n_dof, n_snap, trim(methods(k)), nlist(in), t, s, res, ref, total)
@@ -122,11 +129,14 @@ contains
     end do
     do k = 1, 2
       do in = 1, 3
-        call env%barrier()
+        call env%sync(error)
+        call stop_on(error)
         t0 = env%wtime()
         call pod_rsvd(env, s, nlist(in), 10, 1, trim(merge("gaussian", "srft    ", k == 1)), 7, res, error)
-        t = env%max_real(env%wtime() - t0)
+        t = env%wtime() - t0
+        call env%allreduce(t, 'max', e2)
         call stop_on(error)
+        call stop_on(e2)
         call report(n_dof, n_snap, "rsvd-" // trim(merge("gaussian", "srft    ", k == 1)) // " p=10 q=1", &
           & nlist(in), t, s, res, ref, total)
       end do
@@ -158,7 +168,10 @@ contains
     rres = s
     call la_gemm('T', 'N', 1.0_wp, phi, s, 0.0_wp, c, err)
     call la_gemm('N', 'N', -1.0_wp, phi, c, 1.0_wp, rres, err)
-    proj_err = sqrt(env%sum_real(sum(rres**2)))
+    proj_err = sum(rres**2)
+    call env%allreduce(proj_err, 'sum', err)
+    call stop_on(err)
+    proj_err = sqrt(proj_err)
   end function proj_err
 
   subroutine stop_on(err)

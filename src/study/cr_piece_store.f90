@@ -139,7 +139,8 @@ contains
     type(error_t), allocatable, intent(out) :: error
     character(len=:), allocatable :: fatal, bad_msg, h, path, all_msg, m
     character(len=8), allocatable :: hsets(:)
-    integer, allocatable :: hidx(:), bad(:), claimed(:)
+    integer, allocatable :: hidx(:), bad(:), claimed(:), lens(:), buf(:)
+    integer :: head(2)
     type(sample_result_t), allocatable :: res(:)
     type(error_t), allocatable :: e
     type(path_t), allocatable :: tmp(:)
@@ -204,30 +205,47 @@ contains
         end do
       end do
     end if
-    call env%bcast_string(fatal)
-    if (len(fatal) > 0) then
-      call set_error(error, fatal, 2); return
-    end if
-    ! share the index
-    n = idx%n_pieces
-    call env%bcast(n, error)
+    ! share the outcome: [message length, pieces found] (a fresh study ends here: one broadcast)
+    head = [len(fatal), idx%n_pieces]
+    call env%bcast(head, error)
     if (allocated(error)) return
+    if (head(1) > 0) then
+      call env%bcast(fatal, error)
+      if (.not. allocated(error)) call set_error(error, fatal, 2)
+      return
+    end if
+    n = head(2)
+    if (n == 0) return
+    ! ... and the index: [piece_of, slot_of, bad, path lengths], then the paths in one text
+    if (.not. allocated(bad_msg)) bad_msg = ""
+    call resize_bad(n)
+    allocate(lens(n))
+    lens = 0
+    all_msg = ""
+    if (env%is_root()) then
+      do p = 1, n
+        lens(p) = len(idx%path(p)%s)
+        all_msg = all_msg // idx%path(p)%s
+      end do
+    end if
+    buf = [idx%piece_of, idx%slot_of, bad, lens]
+    call env%bcast(buf, error)
+    if (.not. allocated(error)) call env%bcast(all_msg, error)
+    if (allocated(error)) return
+    j = 2 * idx%n_tot
+    idx%piece_of = buf(1:idx%n_tot); idx%slot_of = buf(idx%n_tot + 1:j)
+    bad = buf(j + 1:j + n); lens = buf(j + n + 1:j + 2 * n)
     if (.not. env%is_root()) then
       deallocate(idx%path); allocate(idx%path(n))
       idx%n_pieces = n
+      k = 0
+      do p = 1, n
+        idx%path(p)%s = all_msg(k + 1:k + lens(p))
+        k = k + lens(p)
+      end do
     end if
-    do p = 1, n
-      if (.not. env%is_root()) idx%path(p)%s = ""
-      call env%bcast_string(idx%path(p)%s)
-    end do
-    call env%bcast(idx%piece_of, error)
-    if (.not. allocated(error)) call env%bcast(idx%slot_of, error)
-    if (allocated(error)) return
-    if (.not. allocated(bad_msg)) bad_msg = ""
-    call resize_bad(n)
+    all_msg = ""
     ! 2. full verification of the pieces with good headers, round-robin over the ranks
-    call env%bcast(bad, error)
-    if (allocated(error)) return
     do p = 1, n
       if (bad(p) /= 0 .or. mod(p - 1, env%size) /= env%rank) cycle
       call read_piece(idx%path(p)%s, res, e)
@@ -287,7 +305,8 @@ contains
       end do
       warnings = all_msg // warnings
     end if
-    call env%bcast_string(m)
+    call env%bcast(m, error)
+    if (allocated(error)) return
     if (len(m) > 0) then
       call set_error(error, m, 2); return
     end if
