@@ -2,7 +2,7 @@
 !> block file `block_file_t` (POSIX pwrite of byte blocks at explicit offsets).
 module cr_fsys
   use, intrinsic :: iso_c_binding, only: c_int, c_char, c_null_char, c_ptr, c_long, c_f_pointer, &
-    c_associated, c_size_t
+    c_associated, c_size_t, c_loc, c_intptr_t, c_null_ptr
   use cr_kinds, only: i8
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
@@ -98,9 +98,9 @@ module cr_fsys
       integer(c_int), value :: fd
     end function c_close
     integer(c_long) function c_pwrite(fd, buf, n, offset) bind(c, name="pwrite")
-      import :: c_int, c_long, c_size_t
+      import :: c_int, c_long, c_size_t, c_ptr
       integer(c_int), value :: fd
-      type(*), intent(in) :: buf(*)
+      type(c_ptr), value :: buf
       integer(c_size_t), value :: n
       integer(c_long), value :: offset
     end function c_pwrite
@@ -376,33 +376,48 @@ contains
   end subroutine bf_open
 
   !> Write nbytes bytes of buf at byte offset `offset` of the file (blocks written by several
-  !> processes must not overlap). A short write (no space left) is an error naming the sizes.
+  !> processes must not overlap). A failure (e.g. no space left) is an error naming the sizes
+  !> and the system's reason.
   subroutine bf_write_at(this, offset, buf, nbytes, error)
     class(block_file_t), intent(inout) :: this
     integer(i8), intent(in) :: offset, nbytes
-    type(*), intent(in) :: buf(*)
+    type(*), intent(in), target :: buf(*)
     type(error_t), allocatable, intent(out) :: error
     integer(c_long) :: got
+    integer(c_intptr_t) :: base
     integer(c_int), pointer :: e
+    integer(i8) :: done
     integer :: tries
     if (nbytes <= 0) return
     if (this%fd < 0) then
       call set_error(error, "write to '" // this%path // "': the file is not open"); return
     end if
     call c_f_pointer(c_errno_location(), e)
-    ! (a write interrupted before it wrote anything is repeated: EINTR)
-    do tries = 1, 100
+    base = transfer(c_loc(buf), base)
+    done = 0
+    tries = 0
+    ! the rest of a short write is written again (a full disk then says so); a write interrupted
+    ! before it wrote anything (EINTR) is repeated
+    do while (done < nbytes)
       e = 0
-      got = c_pwrite(this%fd, buf, int(nbytes, c_size_t), int(offset, c_long))
-      if (got >= 0 .or. e /= 4) exit
+      got = c_pwrite(this%fd, transfer(base + int(done, c_intptr_t), c_null_ptr), int(nbytes - done, c_size_t), &
+        int(offset + done, c_long))
+      if (got < 0 .and. e == 4 .and. tries < 100) then
+        tries = tries + 1
+        cycle
+      end if
+      if (got <= 0) then
+        if (got == 0 .and. e == 0) then
+          call set_error(error, "write of " // str(nbytes) // " bytes at offset " // str(offset) // " of '" // &
+            this%path // "' wrote only " // str(done) // " bytes (disk full?)")
+        else
+          call set_error(error, "write of " // str(nbytes) // " bytes at offset " // str(offset) // " of '" // &
+            this%path // "' failed: " // errno_text())
+        end if
+        return
+      end if
+      done = done + int(got, i8)
     end do
-    if (got < 0) then
-      call set_error(error, "write of " // str(nbytes) // " bytes at offset " // str(offset) // " of '" // &
-        this%path // "' failed: " // errno_text())
-    else if (got /= nbytes) then
-      call set_error(error, "write of " // str(nbytes) // " bytes at offset " // str(offset) // " of '" // &
-        this%path // "' wrote " // str(int(got, i8)) // " bytes (disk full?)")
-    end if
   end subroutine bf_write_at
 
   !> Close the file (a failure, e.g. a write the system could only report now, is an error).

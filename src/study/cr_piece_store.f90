@@ -38,6 +38,9 @@ module cr_piece_store
     type(path_t), allocatable :: path(:)
     !> pieces moved to quarantine by this scan
     integer :: n_quarantined = 0
+    !> (rank 0) the directory did not exist before this scan: no piece, and no temporary of a
+    !> killed run, can be in it
+    logical :: fresh = .false.
   contains
     procedure :: path_of
   end type piece_index_t
@@ -154,11 +157,12 @@ contains
     fatal = ""
     ! 1. headers, on rank 0
     if (env%is_root()) then
+      idx%fresh = .not. file_exists(dir // "/.")
       if (make_dir(dir) /= 0) fatal = "cannot create the directory '" // dir // "' for the pieces"
       allocate(claimed(idx%n_tot))
       claimed = 0
       do g = 1, idx%n_tot
-        if (len(fatal) > 0) exit
+        if (len(fatal) > 0 .or. idx%fresh) exit
         if (idx%piece_of(g) > 0) cycle
         call set_of_sample(sets, g, is, k)
         path = piece_path(dir, sets(is)%name, k)

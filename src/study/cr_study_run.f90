@@ -60,8 +60,9 @@ module cr_study_run
     !> samples computed and busy time (samples and their pieces, s) of each rank [P]
     integer, allocatable :: nsamp(:)
     real(wp), allocatable :: busy(:)
-    !> sum of the busy times; wall times: total, setup, sample loop, assembly; assembly start
-    real(wp) :: sum_time = 0, t_total = 0, t_setup = 0, t_compute = 0, t_asm = 0, t_asm_start = 0
+    !> sum of the busy times (and of those in the sample loop); wall times: total (the longest
+    !> rank's), setup, sample loop, assembly; assembly start
+    real(wp) :: sum_time = 0, sum_loop = 0, t_total = 0, t_setup = 0, t_compute = 0, t_asm = 0, t_asm_start = 0
     !> rank 0's time putting the samples of earlier runs' pieces into the database (setup, s)
     real(wp) :: t_put_resumed = 0
     !> the database writer's figures (its put time is this rank's; part of the busy time)
@@ -253,7 +254,11 @@ contains
       ! (ticket t: t - 1 samples were handed out before this one)
       if (env%is_root()) call log%progress("samples started", this%n_prev + t, this%n_tot)
     end do
-    if (len(msg) == 0) then
+    ! the samples of the last, unfinished time slice go into a piece only when the run stops
+    ! before the database is finished (--stop-after); otherwise they are in the database a few
+    ! moments later, and a run killed in between loses at most that one slice of work per
+    ! rank, as it could in any slice (a piece written only to be deleted is not written)
+    if (len(msg) == 0 .and. this%n_run < size(todo)) then
       t0 = env%wtime()
       call batch%flush(sets, error)
       busy_mine = busy_mine + (env%wtime() - t0)
@@ -293,6 +298,7 @@ contains
     this%busy = redu(1:p)
     this%nsamp = nint(redu(p + 1:2 * p))
     this%sum_time = sum(this%busy)
+    this%sum_loop = this%sum_time
     this%kkt_max = maxval(redu(2 * p + 1:3 * p)); this%time_max = maxval(redu(3 * p + 1:4 * p))
     associate (r => redu(5 * p + 1:))
       this%counter = r(1:2); this%pieces_out = r(3:5); this%t_put_all = r(6)
@@ -332,10 +338,12 @@ contains
       do g = 1, pieces%n_pieces
         ierr = remove_file(pieces%path_of(g))
       end do
-      do g = 1, this%n_tot
-        call set_of_sample(sets, g, is, k)
-        ierr = remove_file(piece_path(dir, sets(is)%name, k) // ".partial")
-      end do
+      if (.not. pieces%fresh) then
+        do g = 1, this%n_tot
+          call set_of_sample(sets, g, is, k)
+          ierr = remove_file(piece_path(dir, sets(is)%name, k) // ".partial")
+        end do
+      end if
     end if
     mk(12) = env%wtime() - t_start
     quarantined = file_exists(dir // "/quarantine/.")
@@ -361,6 +369,10 @@ contains
     this%marks = this%marks(1:N_MARKS, :)
     this%busy = this%busy + this%end_blocks
     this%sum_time = sum(this%busy)
+    ! the run ends when its last rank ends: rank 0's time to the first broadcast (where the ranks
+    ! meet: before it a rank may wait for a partner still in the driver's input checks), then
+    ! the longest rank's time after it (each on its own clock)
+    this%t_total = this%marks(2, 1) + maxval(this%marks(N_MARKS, :) - this%marks(2, :))
     ! (every rank has passed its removal now)
     if (env%is_root()) then
       if (quarantined) then
@@ -422,7 +434,7 @@ contains
     integer, intent(in) :: p
     real(wp), intent(out) :: eff_loop, eff_total, balance
     eff_loop = 0; eff_total = 0; balance = 1
-    if (this%t_compute > 0) eff_loop = this%sum_time / (p * this%t_compute)
+    if (this%t_compute > 0) eff_loop = this%sum_loop / (p * this%t_compute)
     if (this%t_total > 0) eff_total = this%sum_time / (p * this%t_total)
     if (maxval(this%busy) > 0) balance = sum(this%busy) / p / maxval(this%busy)
   end subroutine efficiencies
