@@ -14,10 +14,12 @@ Model of the wall time at P ranks:
   piece writes, per sample), puts it into the database (its bytes at the per-rank block-write
   bandwidth W). A rank writes a piece when its time slice S is over, and at the end (c_w per
   byte of sample data). The loop ends when the last rank has written its last piece.
-* T_setup and T_end: the serial work of the 1-rank run (setup; the end of the database:
-  dictionary, multiplier datasets, checksums, complete = 1), which does not shrink with P, plus
-  N_SETUP and N_END light collective operations of cost c(P) each and the counter window
-  (created in the setup, freed at the end: its measured cost at P ranks, half in each).
+* T_setup and T_end: the 1-rank run's setup and end of the database (dictionary, multiplier
+  datasets, checksums, complete = 1), which do not shrink with P except the end's work on each
+  rank's own samples' multipliers (unique contacts, CSR places, checksum parts, block writes:
+  `end_block_time_per_rank`, divided by P), plus N_SETUP and N_END light collective operations
+  of cost c(P) each, the counter window's creation (setup) and release (end) at their measured
+  costs at P ranks.
 * Machine speed f: the 1-rank run's work other than the model runs (handling, pieces, serial
   setup and end) is scaled by f = mean per-sample time of the run / mean per-sample time of the
   1-rank run (both from the databases): on a shared machine the ranks of a P-rank run each get a
@@ -71,10 +73,11 @@ def inputs_from_run(summary, db=None):
     n = s["samples_total"]
     t = sample_times(db) if db else None
     # per-sample handling outside the model run (copy into the batch, scene mapping, checksum
-    # parts, database blocks): busy time minus model runs and piece writes, per sample
+    # parts, database blocks): busy time in the loop minus model runs and piece writes, per sample
     handling = None
     if t is not None and s["samples_computed"] == len(t):
-        handling = max(sum(s["busy_time_per_rank"]) - float(np.sum(t)) - s["piece_write_time"], 0.0) / max(len(t), 1)
+        handling = max(sum(s["busy_time_per_rank"]) - sum(s.get("end_block_time_per_rank", [0.0])) - float(np.sum(t))
+                       - s["piece_write_time"], 0.0) / max(len(t), 1)
     return dict(
         handling=handling, ranks=s["ranks"], n=n, times=t, setup=s["wall_time_setup"],
         mean_time=float(np.mean(t)) if t is not None and len(t) else None,
@@ -83,6 +86,9 @@ def inputs_from_run(summary, db=None):
         db_bytes_per_sample=s["assembly_bytes_written"] / max(n, 1),
         write_per_byte=s["piece_write_time"] / max(s["piece_bytes_written"], 1.0),
         end=s["wall_time_assembly"], wall=s["wall_time"], loop=s["wall_time_samples"],
+        # the end's work on each rank's own samples' multipliers (shrinks with P); the rest of
+        # the end is rank 0's serial work and the collectives
+        end_parallel=float(np.mean(s.get("end_block_time_per_rank", [0.0]))) * s["ranks"],
         busy=s["busy_time_per_rank"])
 
 
@@ -90,7 +96,8 @@ def bench_inputs(path):
     """Machine figures of crowd_snapbench at one rank count (JSON line)."""
     b = json.loads(open(path).read().strip().splitlines()[-1])
     return dict(ranks=b["ranks"], latency=b["counter_latency"], collective=b["collective_cost"],
-                bandwidth=b["write_bandwidth_per_rank"], window=b.get("window_create_free_cost", 0.0))
+                bandwidth=b["write_bandwidth_per_rank"], window_create=b.get("window_create_cost", 0.0),
+                window_free=b.get("window_free_cost", 0.0))
 
 
 def simulate_loop(times, p, latency, slice_s, bytes_per_sample, write_per_byte, occupancy=None, put=0.0):
@@ -145,9 +152,11 @@ def model_wall(p, inp, one, bench, speed=None):
            + one["db_bytes_per_sample"] / b["bandwidth"])
     loop = simulate_loop(inp["times"], p, b["latency"], one["slice"], one["bytes_per_sample"],
                          f * one["write_per_byte"], put=put)
-    heavy = b.get("window", 0.0) - b1.get("window", 0.0)
-    setup = f * one["setup"] + N_SETUP * (b["collective"] - b1["collective"]) + 0.5 * heavy
-    end = f * one["end"] + N_END * (b["collective"] - b1["collective"]) + 0.5 * heavy
+    par = min(one.get("end_parallel", 0.0), one["end"])
+    setup = (f * one["setup"] + N_SETUP * (b["collective"] - b1["collective"])
+             + b.get("window_create", 0.0) - b1.get("window_create", 0.0))
+    end = (f * (one["end"] - par + par / p) + N_END * (b["collective"] - b1["collective"])
+           + b.get("window_free", 0.0) - b1.get("window_free", 0.0))
     return setup + loop + end, loop, end
 
 
@@ -181,7 +190,7 @@ def predict(db, summary, agents=1000, agents_ref=150, step_ratio=194.385 / 3.036
     `agents` over `agents_ref` agents, README "Full-order model: scaling"); data per sample x
     agents / agents_ref. Machine (assumed, not measured here): counter latency `latency` (s, one
     RDMA atomic), per-rank write rate (the aggregate capped by the file system's bandwidth),
-    collective cost alpha log2(P) (a window created and freed: 4 collectives).
+    collective cost alpha log2(P) (creating or freeing the window: 2 collectives each).
     The serial end of the database (dictionary, multiplier layout, checksums) and the per-sample
     handling (copies, checksum parts) are the 1-rank run's, scaled with the data. Returns one
     row per rank count."""
@@ -199,8 +208,8 @@ def predict(db, summary, agents=1000, agents_ref=150, step_ratio=194.385 / 3.036
     for p in ranks:
         w = min(write_rate, fs_bandwidth / p)
         c = alpha * math.log2(max(p, 2))
-        bench = {1: dict(latency=latency, collective=0.0, bandwidth=write_rate, window=0.0),
-                 p: dict(latency=latency, collective=c, bandwidth=w, window=4 * c)}
+        bench = {1: dict(latency=latency, collective=0.0, bandwidth=write_rate, window_create=0.0, window_free=0.0),
+                 p: dict(latency=latency, collective=c, bandwidth=w, window_create=2 * c, window_free=2 * c)}
         wall, loop, end = model_wall(p, dict(inp, times=times), one, bench, speed=1.0)
         rows.append(dict(ranks=p, samples=len(times), wall=wall, loop=loop, assembly=end,
                          efficiency=work / (p * wall), loop_efficiency=work / (p * loop),

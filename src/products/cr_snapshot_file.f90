@@ -80,8 +80,9 @@ module cr_snapshot_file
     !> counts, contact dictionary and checksum sums; serial layout by rank 0 (begin and finish);
     !> the ranks' multiplier block writes; completion (complete = 1, rename)
     real(wp) :: t_put = 0, t_dict = 0, t_layout = 0, t_write = 0, t_seal = 0
-    !> this rank's time in finish on its own samples' multiplier blocks (their CSR places and
-    !> dictionary indices, checksum parts, block writes), no waiting in it
+    !> this rank's time in finish on its own samples' multipliers (their unique contacts for the
+    !> dictionary, CSR places and dictionary indices, checksum parts, block writes), no waiting
+    !> in it
     real(wp) :: t_blocks = 0
     !> contacts in the dictionary, stored multipliers, data bytes written by all ranks
     integer :: n_dict = 0
@@ -537,7 +538,9 @@ contains
     ntot = sum(this%nset)
     p = env%size
     ! this rank's contacts (unique keys and identities) for the dictionary
+    t1 = env%wtime()
     call local_contacts(this%lam(1:this%nl), pack4)
+    this%stats%t_blocks = env%wtime() - t1
     ! one reduction: held (exactly once) and multipliers of every sample, data bytes, every
     ! rank's contact entries [P]
     allocate(cnt(2 * ntot + 1 + p))
@@ -593,7 +596,7 @@ contains
         this%dg(5, is) = digest_add(this%dg(5, is), digest_of([0_i8], 0_i8))
       end do
     end if
-    this%stats%t_blocks = env%wtime() - t1
+    this%stats%t_blocks = this%stats%t_blocks + (env%wtime() - t1)
     dg1 = reshape(this%dg, [34])
     call digest_allreduce(env, dg1, error)
     if (allocated(error)) goto 9

@@ -157,8 +157,11 @@ contains
     fatal = ""
     ! 1. headers, on rank 0
     if (env%is_root()) then
+      ! (the directory is created with the first piece: a study too short to write one never
+      ! has one)
       idx%fresh = .not. file_exists(dir // "/.")
-      if (make_dir(dir) /= 0) fatal = "cannot create the directory '" // dir // "' for the pieces"
+      if (idx%fresh .and. file_exists(dir)) fatal = "'" // dir // "' exists and is not a directory: " // &
+        "it cannot hold the pieces of '" // dir(1:len(dir) - 7) // "'"
       allocate(claimed(idx%n_tot))
       claimed = 0
       do g = 1, idx%n_tot
@@ -449,6 +452,9 @@ contains
     if (this%n == 0) return
     call set_of_sample(sets, this%g(1), is, k)
     t0 = this%env%wtime()
+    if (make_dir(this%dir) /= 0) then
+      call set_error(error, "cannot create the directory '" // this%dir // "' for the pieces"); return
+    end if
     call write_piece(piece_path(this%dir, sets(is)%name, k), this%hash, this%res(1:this%n), error)
     if (allocated(error)) return
     this%t_write = this%t_write + (this%env%wtime() - t0)

@@ -346,8 +346,13 @@ contains
       end if
     end if
     mk(12) = env%wtime() - t_start
-    quarantined = file_exists(dir // "/quarantine/.")
-    if (.not. quarantined) ierr = remove_dir(dir)
+    ! (the directory exists only if a piece was ever written: a rank that removed nothing here,
+    ! and rank 0 of a study whose directory did not exist, need not look)
+    quarantined = .false.
+    if (batch%n_pieces > 0 .or. (env%is_root() .and. .not. pieces%fresh)) then
+      quarantined = file_exists(dir // "/quarantine/.")
+      if (.not. quarantined) ierr = remove_dir(dir)
+    end if
     mk(13) = env%wtime() - t_start
     this%t_asm = env%wtime() - t0
     call log%stage_end()
@@ -373,9 +378,11 @@ contains
     ! meet: before it a rank may wait for a partner still in the driver's input checks), then
     ! the longest rank's time after it (each on its own clock)
     this%t_total = this%marks(2, 1) + maxval(this%marks(N_MARKS, :) - this%marks(2, :))
+    ! the sample loop: from its start to its agreed end, the longest rank's
+    this%t_compute = maxval(this%marks(9, :) - this%marks(6, :))
     ! (every rank has passed its removal now)
     if (env%is_root()) then
-      if (quarantined) then
+      if (file_exists(dir // "/quarantine/.")) then
         call log%info("   bad pieces kept in '" // dir // "/quarantine' (inspect, then remove them)")
       else if (file_exists(dir // "/.")) then
         call log%warn("could not remove '" // dir // "' (foreign files in it?)")
