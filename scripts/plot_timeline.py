@@ -90,9 +90,9 @@ def main():
         flat = np.asarray(js["phase_marks"], dtype=float)
         if flat.size == len(names) * p:
             marks = flat.reshape(p, len(names))
-    cmap = plt.get_cmap("tab20")
+    cmap = plt.get_cmap("tab20b")
     phase_color = {n: cmap(i % 20) for i, n in enumerate(names or [])}
-    fig, ax = plt.subplots(figsize=(10, 1.0 + 0.45 * p))
+    fig, ax = plt.subplots(figsize=(11, 1.6 + 0.45 * p + (1.2 if marks is not None else 0.0)))
     colors = {"train": "tab:blue", "valid": "tab:orange"}
     for r in range(p):
         for s in ("train", "valid"):
@@ -121,7 +121,10 @@ def main():
     eff = js.get("busy_time_efficiency", js.get("parallel_efficiency"))
     ax.set_title(a.title or "%s: %d samples on %d ranks, busy-time efficiency %.2f, load balance %.3f" % (
         os.path.basename(a.database), len(start), p, eff, js["load_balance"]))
-    ax.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=8)
+    if marks is None:
+        ax.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=8)
+    else:
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.45), ncol=6, fontsize=7)
     fig.tight_layout()
     tmp = a.out + ".partial.png"
     fig.savefig(tmp, dpi=120)
