@@ -6,7 +6,8 @@
 !> This module owns the schema's name, version, units, the sample and metadata types, the
 !> writer `snap_writer_t` (begin: rank 0 lays the file out serially, every fixed-size dataset's
 !> storage placed; put: a rank writes one of its samples' blocks at their byte offsets with
-!> MPI-IO as soon as it has the sample; finish: the contact dictionary, the multipliers, the
+!> its own block writes (cr_fsys's block_file_t, nothing collective) as soon as it has the
+!> sample; finish: the contact dictionary, the multipliers, the
 !> checksums and complete = 1; a fixed, small number of collectives whatever the number of
 !> samples and datasets), `probe_snap_database` (is a file under the name a complete database
 !> of this configuration?) and the readers `read_snap_header` and `read_snap_block`. Readers
@@ -257,7 +258,8 @@ contains
   !> Collective: create `<path>.partial`. Rank 0 lays it out serially: root attributes, initial
   !> positions, scene, and every dataset whose size the study fixes (all but the contact
   !> dictionary and the multipliers) with its storage placed; the byte offsets are broadcast and
-  !> every rank opens the file for its block writes (MPI-IO). `prior`: a failure of this rank
+  !> every rank opens the file for its own block writes (block_file_t: POSIX pwrite, not
+  !> collective). `prior`: a failure of this rank
   !> just before begin that the others may not know of (e.g. rank 0 zeroing a counter); it is
   !> shared like a failure of the layout (rank 0's in the broadcast, any other's in the
   !> agreement that ends begin), and begin then fails on every rank.
@@ -714,7 +716,7 @@ contains
     end subroutine global_csr
   end subroutine writer_finish
 
-  !> Collective: give up a database being written (after begin): the MPI-IO handle is closed and
+  !> Collective: give up a database being written (after begin): each rank's file is closed and
   !> rank 0 removes the temporary. Nothing under the final name is touched.
   subroutine writer_discard(this)
     class(snap_writer_t), intent(inout) :: this
