@@ -116,62 +116,83 @@ contains
     call la_gemm('N', 'T', 1.0_wp, u, v, 0.0_wp, s, error)
     if (allocated(error)) return
     deallocate(u, v)
-    total = sqrt(env%sum_real(sum(s**2)))
+    total = sum(s**2)
+    call env%allreduce(total, 'sum', error)
+    if (allocated(error)) return
+    total = sqrt(total)
 
     do k = 1, 3
-      call env%barrier()
+      call env%sync(error)
+      if (allocated(error)) return
       t0 = env%wtime()
       select case (k)
       case (1); call pod_tsqr(env, s, res, error, n_modes=100)
       case (2); call pod_snapshots(env, s, res, error, n_modes=100)
       case (3); call pod_scalapack(env, s, res, error, n_modes=100)
       end select
-      t = env%max_real(env%wtime() - t0)
+      t = env%wtime() - t0
+      if (allocated(error)) return
+      call env%allreduce(t, 'max', error)
       if (allocated(error)) return
       if (k == 1) ref = res
       do in = 1, 3
-        call report(n_dof, n_snap, trim(methods(k)), nlist(in), t, s, res, ref, total)
+        call report(n_dof, n_snap, trim(methods(k)), nlist(in), t, s, res, ref, total, error)
+        if (allocated(error)) return
       end do
     end do
     do k = 1, 2
       do in = 1, 3
-        call env%barrier()
+        call env%sync(error)
+        if (allocated(error)) return
         t0 = env%wtime()
         call pod_rsvd(env, s, nlist(in), 10, 1, trim(merge("gaussian", "srft    ", k == 1)), 7, res, error)
-        t = env%max_real(env%wtime() - t0)
+        t = env%wtime() - t0
+        if (allocated(error)) return
+        call env%allreduce(t, 'max', error)
         if (allocated(error)) return
         call report(n_dof, n_snap, "rsvd-" // trim(merge("gaussian", "srft    ", k == 1)) // " p=10 q=1", &
-          & nlist(in), t, s, res, ref, total)
+          & nlist(in), t, s, res, ref, total, error)
+        if (allocated(error)) return
       end do
     end do
   end subroutine run_case
 
   !> One table row: error of the first n modes of res against the optimum from ref.
-  subroutine report(n_dof, n_snap, method, n, t, s, res, ref, total)
+  subroutine report(n_dof, n_snap, method, n, t, s, res, ref, total, error)
     integer, intent(in) :: n_dof, n_snap, n
     character(len=*), intent(in) :: method
     real(wp), intent(in) :: t, total
     real(wp), contiguous, intent(in) :: s(:, :)
     type(pod_result_t), intent(in) :: res, ref
+    type(error_t), allocatable, intent(out) :: error
     real(wp) :: e, eopt, esig
     integer :: nn
     nn = min(n, res%n_modes)
-    e = proj_err(s, res%phi(:, 1:nn))
-    eopt = proj_err(s, ref%phi(:, 1:min(n, ref%n_modes)))
+    call proj_err(s, res%phi(:, 1:nn), e, error)
+    if (allocated(error)) return
+    call proj_err(s, ref%phi(:, 1:min(n, ref%n_modes)), eopt, error)
+    if (allocated(error)) return
     esig = maxval(abs(res%sigma(1:nn) - ref%sigma(1:nn)) / ref%sigma(1:nn))
     if (env%is_root()) write(*, '("| ", i0, " | ", i0, " | ", a, " | ", i0, " | ", f8.3, " | ", es10.3, " | ", &
       & es10.3, " | ", es9.2, " |")') n_dof, n_snap, method, nn, t, e / total, eopt / total, esig
   end subroutine report
 
-  real(wp) function proj_err(s, phi)
+  !> e = ||S - Phi Phi^T S||_F over all ranks.
+  subroutine proj_err(s, phi, e, error)
     real(wp), contiguous, intent(in) :: s(:, :), phi(:, :)
+    real(wp), intent(out) :: e
+    type(error_t), allocatable, intent(out) :: error
     real(wp), allocatable :: c(:, :), rres(:, :)
-    type(error_t), allocatable :: err
     allocate(c(size(phi, 2), size(s, 2)))
     rres = s
-    call la_gemm('T', 'N', 1.0_wp, phi, s, 0.0_wp, c, err)
-    call la_gemm('N', 'N', -1.0_wp, phi, c, 1.0_wp, rres, err)
-    proj_err = sqrt(env%sum_real(sum(rres**2)))
-  end function proj_err
+    e = 0
+    call la_gemm('T', 'N', 1.0_wp, phi, s, 0.0_wp, c, error)
+    if (allocated(error)) return
+    call la_gemm('N', 'N', -1.0_wp, phi, c, 1.0_wp, rres, error)
+    if (allocated(error)) return
+    e = sum(rres**2)
+    call env%allreduce(e, 'sum', error)
+    e = sqrt(e)
+  end subroutine proj_err
 
 end program crowd_podbench

@@ -7,14 +7,19 @@
 !>    MPI_Allreduce; cost = (wall - computing time) / reps, mean over ranks (on shared cores
 !>    this is the scheduler's wake-up delay, not the network latency);
 !>  * the block-write bandwidth of the database writer's path: every rank writes `mb` MB in
-!>    blocks of `block` bytes at disjoint offsets of one file with env's par_file_t (MPI-IO,
-!>    independent writes); per-rank bandwidth = bytes / time, aggregate = all bytes / slowest.
+!>    blocks of `block` bytes at disjoint offsets of one file with cr_fsys's block_file_t (each
+!>    rank its own POSIX pwrite); per-rank bandwidth = bytes / time, aggregate = all bytes /
+!>    slowest;
+!>  * the heavier collective calls of the stage for ranks arriving from computation (as the
+!>    collective above): a counter window created, and freed (each timed from the end of the
+!>    computation; mean over `reps_h` rounds and over ranks).
 !>
 !> Usage: mpirun -np P crowd_snapbench [FILE] [mb] [block] ; prints one JSON line (rank 0).
 program crowd_snapbench
   use mpi_f08, only: MPI_Init, MPI_Finalize, MPI_COMM_WORLD
   use cr_kinds, only: wp, i8
-  use cr_env, only: env_t, shared_counter_t, par_file_t
+  use cr_env, only: env_t, shared_counter_t
+  use cr_fsys, only: block_file_t
   use cr_error, only: error_t
   use cr_strings, only: str
   use cr_random, only: rng_t
@@ -22,13 +27,14 @@ program crowd_snapbench
   type(env_t) :: env
   type(error_t), allocatable :: error
   type(shared_counter_t) :: counter
-  type(par_file_t) :: pf
+  type(block_file_t) :: pf
   type(rng_t) :: rng
   character(len=256) :: arg
   character(len=:), allocatable :: path
-  integer :: ierr, k, reps, u, nblk
+  integer :: ierr, k, reps, u, nblk, ios, j
+  integer, parameter :: reps_h = 10
   integer(i8) :: t, bytes, block
-  real(wp) :: t0, t_counter, t_coll, spent, work, x, y, t_write, wmax, mb
+  real(wp) :: t0, t_counter, t_coll, spent, work, x, y, t_write, wmax, mb, t_win(2)
   real(wp), allocatable :: buf(:), r(:)
 
   call MPI_Init(ierr)
@@ -48,8 +54,8 @@ program crowd_snapbench
   reps = 30; work = 2.0e-3_wp; spent = 0
   call rng%seed(1234, stream=env%rank)
   if (.not. allocated(error)) call counter%init(env, 2, error)
+  if (.not. allocated(error)) call env%sync(error)
   if (.not. allocated(error)) then
-    call env%barrier()
     do k = 1, 50
       x = env%wtime()
       y = work * (0.5_wp + rng%uniform())
@@ -62,8 +68,8 @@ program crowd_snapbench
     call counter%free()
   end if
   ! collectives after computation
+  if (.not. allocated(error)) call env%sync(error)
   if (.not. allocated(error)) then
-    call env%barrier()
     t0 = env%wtime()
     do k = 1, reps
       x = env%wtime()
@@ -76,7 +82,8 @@ program crowd_snapbench
       if (allocated(error)) exit
     end do
     t_coll = ((env%wtime() - t0) - spent) / reps
-    t_coll = env%sum_real(t_coll) / env%size
+    if (.not. allocated(error)) call env%allreduce(t_coll, 'sum', error)
+    t_coll = t_coll / env%size
   end if
   ! block writes
   if (.not. allocated(error)) then
@@ -86,20 +93,50 @@ program crowd_snapbench
     if (env%is_root()) then
       open(newunit=u, file=path, status='replace', action='write'); close(u)
     end if
-    call env%barrier()
-    call pf%open(env, path, error)
+    call env%sync(error)
+    if (.not. allocated(error)) call pf%open(path, error)
     t0 = env%wtime()
     do k = 1, nblk
       if (allocated(error)) exit
       call pf%write_at((int(k - 1, i8) * env%size + env%rank) * block, buf, block, error)
     end do
     t_write = env%wtime() - t0
-    call pf%close(error)
-    wmax = env%max_real(t_write)
-    t_write = env%sum_real(t_write) / env%size
-    if (env%is_root()) then
-      open(newunit=u, file=path, status='old'); close(u, status='delete')
-    end if
+    if (.not. allocated(error)) call pf%close(error)
+    wmax = t_write
+    if (.not. allocated(error)) call env%allreduce(wmax, 'max', error)
+    if (.not. allocated(error)) call env%allreduce(t_write, 'sum', error)
+    t_write = t_write / env%size
+  end if
+  ! the heavier collective calls of the stage, for ranks arriving from computation: a counter
+  ! window created and freed (MPI_Win_allocate, MPI_Win_free)
+  if (.not. allocated(error)) call env%sync(error)
+  if (.not. allocated(error)) then
+    ! (creation and release timed apart, each after computation: the stage creates the window
+    ! in its setup and frees it at the end of the loop)
+    t_win = 0
+    do k = 1, reps_h
+      do j = 1, 2
+        x = env%wtime()
+        y = work * (0.5_wp + rng%uniform())
+        do while (env%wtime() - x < y)
+        end do
+        t0 = env%wtime()
+        if (j == 1) then
+          call counter%init(env, 1, error)
+        else
+          call counter%free()
+        end if
+        t_win(j) = t_win(j) + (env%wtime() - t0)
+        if (allocated(error)) exit
+      end do
+      if (allocated(error)) exit
+    end do
+    t_win = t_win / reps_h
+    if (.not. allocated(error)) call env%allreduce(t_win, 'sum', error)
+    t_win = t_win / env%size
+  end if
+  if (env%is_root()) then
+    open(newunit=u, file=path, status='old', iostat=ios); if (ios == 0) close(u, status='delete')
   end if
   if (allocated(error)) then
     if (env%is_root()) print '(a)', "error: crowd_snapbench: " // error%message
@@ -108,7 +145,8 @@ program crowd_snapbench
       ', "collective_cost": ' // str(t_coll) // ', "write_block_bytes": ' // str(block) // &
       ', "write_bytes_per_rank": ' // str(real(nblk, wp) * block) // &
       ', "write_bandwidth_per_rank": ' // str(real(nblk, wp) * block / max(t_write, 1.0e-9_wp)) // &
-      ', "write_bandwidth_aggregate": ' // str(real(nblk, wp) * block * env%size / max(wmax, 1.0e-9_wp)) // '}'
+      ', "write_bandwidth_aggregate": ' // str(real(nblk, wp) * block * env%size / max(wmax, 1.0e-9_wp)) // &
+      ', "window_create_cost": ' // str(t_win(1)) // ', "window_free_cost": ' // str(t_win(2)) // '}'
   end if
   call env%free()
   call MPI_Finalize(ierr)

@@ -12,18 +12,25 @@ Model of the wall time at P ranks:
   sample (its time from the per-sample time distribution of a database), hands it on (copy into
   the batch, scene mapping, checksum parts: the 1-rank run's busy time minus its model runs and
   piece writes, per sample), puts it into the database (its bytes at the per-rank block-write
-  bandwidth W) and records it (a second counter operation). A rank writes a piece when its time slice S is over, and at the end (c_w per byte
-  of sample data). The loop ends when the last rank has written its last piece.
-* T_setup and T_end: the serial work of the 1-rank run (setup; the end of the database:
-  dictionary, multiplier datasets, checksums, complete = 1), which does not shrink with P, plus
-  N_SETUP and N_END collective operations of cost c(P) each.
+  bandwidth W). A rank writes a piece when its time slice S is over, and at the end (c_w per
+  byte of sample data). The loop ends when the last rank has written its last piece.
+* T_setup and T_end: the 1-rank run's setup and end of the database (dictionary, multiplier
+  datasets, checksums, complete = 1), which do not shrink with P except the end's work on each
+  rank's own samples' multipliers (unique contacts, CSR places, checksum parts, block writes:
+  `end_block_time_per_rank`, divided by P), plus N_SETUP and N_END light collective operations
+  of cost c(P) each, the counter window's creation (setup) and release (end) at their measured
+  costs at P ranks.
+* Machine speed f: the 1-rank run's work other than the model runs (handling, pieces, serial
+  setup and end) is scaled by f = mean per-sample time of the run / mean per-sample time of the
+  1-rank run (both from the databases): on a shared machine the ranks of a P-rank run each get a
+  share of a core, for all their work, not only for the model runs.
 
 Inputs, none fitted on the run a row predicts: the run's database (per-sample times
 `stats/time`, the work and how fast this machine did it in that run), the 1-rank run's summary
-(setup and end-of-database times, per-sample handling, piece bytes and write time, bytes per
-sample) and the
-micro-benchmark `crowd_snapbench` at P ranks (counter latency L, cost c of a collective for ranks
-arriving from computation, per-rank block-write bandwidth W). `validate` rebuilds T(P) of
+and database (setup and end-of-database times, per-sample handling, piece bytes and write time,
+bytes per sample, mean per-sample time) and the micro-benchmark `crowd_snapbench` at P ranks
+(counter latency L, cost c of a collective and of a window created and freed for ranks arriving
+from computation, per-rank block-write bandwidth W). `validate` rebuilds T(P) of
 measured runs; `predict` extrapolates to an assumed cluster.
 
 Usage:
@@ -42,14 +49,15 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import crowdrom_io as cio  # noqa: E402
 
-# collective operations outside the sample loop (src/study/cr_study_run.f90, a fresh run):
-# setup: initial positions, database probe, piece scan (4), writer begin (places, MPI-IO open,
-# agreement), agreement after the resumed samples, counter window (create, agreement, barrier);
-# end: loop-end agreement, window free, two packed reductions, writer finish (MPI-IO close,
-# counts, dictionary (2), checksum sum, places, MPI-IO open and close, agreement, seal), and
-# the barrier before the pieces directory is removed
-N_SETUP = 13
-N_END = 15
+# light collective operations outside the sample loop (src/study/cr_study_run.f90 and the
+# writer of src/products/cr_snapshot_file.f90, a fresh run):
+# setup: initial positions with the database probe (one broadcast), the pieces found (one
+# broadcast), the places of the database (one broadcast); end: the loop-end reduction of every
+# rank's figures, the writer's counts, dictionary (MPI_Allgatherv), checksum sums, places,
+# agreement after the blocks, and the rename's status. The heavy one (the counter window,
+# created and freed) is measured by crowd_snapbench as a pair and counted apart.
+N_SETUP = 3
+N_END = 7
 
 
 def sample_times(db):
@@ -65,17 +73,22 @@ def inputs_from_run(summary, db=None):
     n = s["samples_total"]
     t = sample_times(db) if db else None
     # per-sample handling outside the model run (copy into the batch, scene mapping, checksum
-    # parts, database blocks): busy time minus model runs and piece writes, per sample
+    # parts, database blocks): busy time in the loop minus model runs and piece writes, per sample
     handling = None
     if t is not None and s["samples_computed"] == len(t):
-        handling = max(sum(s["busy_time_per_rank"]) - float(np.sum(t)) - s["piece_write_time"], 0.0) / max(len(t), 1)
+        handling = max(sum(s["busy_time_per_rank"]) - sum(s.get("end_block_time_per_rank", [0.0])) - float(np.sum(t))
+                       - s["piece_write_time"], 0.0) / max(len(t), 1)
     return dict(
         handling=handling, ranks=s["ranks"], n=n, times=t, setup=s["wall_time_setup"],
+        mean_time=float(np.mean(t)) if t is not None and len(t) else None,
         latency=s["counter_latency_mean"], slice=s.get("batch_seconds", 2.0),
         bytes_per_sample=s["piece_bytes_written"] / max(s["samples_computed"], 1),
         db_bytes_per_sample=s["assembly_bytes_written"] / max(n, 1),
         write_per_byte=s["piece_write_time"] / max(s["piece_bytes_written"], 1.0),
         end=s["wall_time_assembly"], wall=s["wall_time"], loop=s["wall_time_samples"],
+        # the end's work on each rank's own samples' multipliers (shrinks with P); the rest of
+        # the end is rank 0's serial work and the collectives
+        end_parallel=float(np.mean(s.get("end_block_time_per_rank", [0.0]))) * s["ranks"],
         busy=s["busy_time_per_rank"])
 
 
@@ -83,14 +96,14 @@ def bench_inputs(path):
     """Machine figures of crowd_snapbench at one rank count (JSON line)."""
     b = json.loads(open(path).read().strip().splitlines()[-1])
     return dict(ranks=b["ranks"], latency=b["counter_latency"], collective=b["collective_cost"],
-                bandwidth=b["write_bandwidth_per_rank"])
+                bandwidth=b["write_bandwidth_per_rank"], window_create=b.get("window_create_cost", 0.0),
+                window_free=b.get("window_free_cost", 0.0))
 
 
 def simulate_loop(times, p, latency, slice_s, bytes_per_sample, write_per_byte, occupancy=None, put=0.0):
     """Wall time of the sample loop: dynamic schedule, events in time order. A ticket costs the
     rank `latency` and occupies the counter for `occupancy` (default: min(latency, 2 us); the
-    counter serves one operation at a time); putting a sample into the database costs `put`;
-    marking a sample done costs `latency`."""
+    counter serves one operation at a time); putting a sample into the database costs `put`."""
     occ = min(latency, 2e-6) if occupancy is None else occupancy
     clock = [0.0] * p          # each rank's time
     batch_start = [None] * p   # start of the rank's open piece
@@ -118,21 +131,32 @@ def simulate_loop(times, p, latency, slice_s, bytes_per_sample, write_per_byte, 
             clock[r] += batch_bytes[r] * write_per_byte
             batch_bytes[r] = 0.0
             batch_start[r] = None
-        clock[r] += latency    # mark_done (progress counter)
     return max(clock)
 
 
-def model_wall(p, inp, one, bench):
+def model_wall(p, inp, one, bench, speed=None):
     """Wall time at p ranks: inp = the run's figures (per-sample times), one = the 1-rank run's,
-    bench = crowd_snapbench at p ranks and at 1 rank ({p: figures})."""
+    bench = crowd_snapbench at p ranks and at 1 rank ({p: figures}).
+
+    `speed`: how much slower this machine ran every rank's own work in the run than in the
+    1-rank run; by default the ratio of the mean per-sample times of the two databases (the same
+    measured input as the per-sample times). The 1-rank run's other work (per-sample handling,
+    piece files, serial setup and end of the database) is scaled by it: on a shared machine the
+    ranks of a 2-rank run each get less of a core, and not only for the model runs."""
     b, b1 = bench[p], bench[1]
+    f = speed
+    if f is None:
+        f = inp["mean_time"] / one["mean_time"] if inp.get("mean_time") and one.get("mean_time") else 1.0
     # the 1-rank run's per-sample handling, its database blocks at the bandwidth of p ranks
-    put = (max((one.get("handling") or 0.0) - one["db_bytes_per_sample"] / b1["bandwidth"], 0.0)
+    put = (f * max((one.get("handling") or 0.0) - one["db_bytes_per_sample"] / b1["bandwidth"], 0.0)
            + one["db_bytes_per_sample"] / b["bandwidth"])
-    loop = simulate_loop(inp["times"], p, b["latency"], one["slice"], one["bytes_per_sample"], one["write_per_byte"],
-                         put=put)
-    setup = one["setup"] + N_SETUP * (b["collective"] - b1["collective"])
-    end = one["end"] + N_END * (b["collective"] - b1["collective"])
+    loop = simulate_loop(inp["times"], p, b["latency"], one["slice"], one["bytes_per_sample"],
+                         f * one["write_per_byte"], put=put)
+    par = min(one.get("end_parallel", 0.0), one["end"])
+    setup = (f * one["setup"] + N_SETUP * (b["collective"] - b1["collective"])
+             + b.get("window_create", 0.0) - b1.get("window_create", 0.0))
+    end = (f * (one["end"] - par + par / p) + N_END * (b["collective"] - b1["collective"])
+           + b.get("window_free", 0.0) - b1.get("window_free", 0.0))
     return setup + loop + end, loop, end
 
 
@@ -166,9 +190,10 @@ def predict(db, summary, agents=1000, agents_ref=150, step_ratio=194.385 / 3.036
     `agents` over `agents_ref` agents, README "Full-order model: scaling"); data per sample x
     agents / agents_ref. Machine (assumed, not measured here): counter latency `latency` (s, one
     RDMA atomic), per-rank write rate (the aggregate capped by the file system's bandwidth),
-    collective cost alpha log2(P). The serial end of the database (dictionary, multiplier
-    layout, checksums) is the 1-rank run's, scaled with the data. Returns one row per rank
-    count."""
+    collective cost alpha log2(P) (creating or freeing the window: 2 collectives each).
+    The serial end of the database (dictionary, multiplier layout, checksums) and the per-sample
+    handling (copies, checksum parts) are the 1-rank run's, scaled with the data. Returns one
+    row per rank count."""
     inp = inputs_from_run(summary, db)
     times = inp["times"] * step_ratio
     if n_samples is not None:
@@ -176,17 +201,19 @@ def predict(db, summary, agents=1000, agents_ref=150, step_ratio=194.385 / 3.036
         times = rng.choice(times, n_samples)
     scale = agents / agents_ref
     one = dict(inp, setup=1.0, end=inp["end"] * scale, bytes_per_sample=inp["bytes_per_sample"] * scale,
-               db_bytes_per_sample=inp["db_bytes_per_sample"] * scale, write_per_byte=1.0 / write_rate)
+               db_bytes_per_sample=inp["db_bytes_per_sample"] * scale, write_per_byte=1.0 / write_rate,
+               handling=(inp.get("handling") or 0.0) * scale)
     work = float(np.sum(times))
     rows = []
     for p in ranks:
         w = min(write_rate, fs_bandwidth / p)
-        bench = {1: dict(latency=latency, collective=0.0, bandwidth=write_rate),
-                 p: dict(latency=latency, collective=alpha * math.log2(max(p, 2)), bandwidth=w)}
-        wall, loop, end = model_wall(p, dict(inp, times=times), one, bench)
+        c = alpha * math.log2(max(p, 2))
+        bench = {1: dict(latency=latency, collective=0.0, bandwidth=write_rate, window_create=0.0, window_free=0.0),
+                 p: dict(latency=latency, collective=c, bandwidth=w, window_create=2 * c, window_free=2 * c)}
+        wall, loop, end = model_wall(p, dict(inp, times=times), one, bench, speed=1.0)
         rows.append(dict(ranks=p, samples=len(times), wall=wall, loop=loop, assembly=end,
                          efficiency=work / (p * wall), loop_efficiency=work / (p * loop),
-                         counter_busy=2 * len(times) * latency / loop, work=work))
+                         counter_busy=len(times) * latency / loop, work=work))
     return rows
 
 

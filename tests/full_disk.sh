@@ -51,14 +51,14 @@ check crowd_rom "$disk/run.h5" "$bin/crowd_rom" rom.nml
 printf "%s\n" "&rom rom_file = 'rom.h5', output = 'run.h5', table = '$disk/run.csv', timing_repeats = 1 /" "&sweep n = 3, r = 3 /" "&fom_timing samples = 1 /" > rom_table.nml
 dd if=/dev/zero of="$disk/fill" bs=4k 2>/dev/null   # the table is small: fill the disk first
 check crowd_rom_table "run.h5" "$bin/crowd_rom" rom_table.nml
-# a disk that fills in the middle of the writing: a longer run (crowd_fom), and a database
-# assembled in parallel (MPI-IO) after its pieces fit
+# a disk that fills in the middle of the writing: a longer run (crowd_fom), and a study at 2
+# ranks whose pieces (one per sample) fill it while its database is being written
 umount "$disk" && mount -t tmpfs -o size=512k tmpfs "$disk" || exit 1
 sed 's/n_steps = 10/n_steps = 3000/' fom.nml > fom_long.nml
 check crowd_fom_midway "$disk/fom.h5" "$bin/crowd_fom" fom_long.nml
 umount "$disk" && mount -t tmpfs -o size=1400k tmpfs "$disk" || exit 1
 sed 's/n_steps = 10/n_steps = 200/' study2.nml > study3.nml
-check crowd_snapshots_np2_assembly "$work/marker" "$mpiexec" -np 2 --oversubscribe "$bin/crowd_snapshots" study3.nml
+check crowd_snapshots_np2_assembly "$work/marker" "$mpiexec" -np 2 --oversubscribe "$bin/crowd_snapshots" study3.nml --batch-seconds 0
 # a read-only file system: refused before any work (exit 2), saying why
 umount "$disk" && mount -t tmpfs -o ro,size=64k tmpfs "$disk" || exit 1
 for p in crowd_fom crowd_offline; do

@@ -17,6 +17,7 @@ program test_env_checked
   integer(i8) :: lv(2)
   real(wp) :: rv(2, 2), pair(2), x
   real(wp), allocatable :: mine(:), gath(:), sendbuf(:), recvbuf(:), gr(:), empty(:)
+  character(len=:), allocatable :: text
   integer, allocatable :: counts(:), displs(:), got(:), sc(:), rc(:), sd(:), rd(:)
 
   call MPI_Init(ierr)
@@ -39,6 +40,18 @@ program test_env_checked
   n = merge(42, 0, r == 0)
   call env%bcast(n, error)
   call check(n == 42 .and. .not. allocated(error), "bcast of a scalar from rank 0 (the default root)")
+  ! a deferred-length string takes the root's length (the others' may be longer, or unallocated)
+  if (r == last) then
+    text = "from the last rank"
+  else if (mod(r, 2) == 0) then
+    text = "a longer text on an even rank that is not the root"
+  end if
+  call env%bcast(text, error, root=last)
+  call check(.not. allocated(error), "bcast string: no error")
+  call check(text == "from the last rank" .and. len(text) == 18, "bcast string: text and length")
+  if (r == 0) text = ""
+  call env%bcast(text, error)
+  call check(.not. allocated(error) .and. len(text) == 0, "bcast of an empty string")
 
   ! in-place reductions
   ia = [r + 1, -(r + 1)]

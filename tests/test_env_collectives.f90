@@ -1,19 +1,21 @@
 !> env_t's variable-size gathers of integers (block_counts, allgatherv), text gather, measures,
-!> shared counter and MPI-IO block file (the snapshot stage's MPI goes through them; the other
-!> collectives are checked by test_env_checked). Run at 1 and 2 ranks: every result is checked
-!> against what it must be.
+!> shared counter (the snapshot stage's MPI goes through them; the other collectives are checked
+!> by test_env_checked), and the block file the ranks write the snapshot database with
+!> (cr_fsys's block_file_t: every rank opens the same file and writes its own blocks). Run at 1
+!> and 2 ranks: every result is checked against what it must be.
 program test_env_collectives
   use mpi_f08, only: MPI_Init, MPI_Finalize, MPI_COMM_WORLD
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t
-  use cr_env, only: env_t, shared_counter_t, par_file_t
+  use cr_env, only: env_t, shared_counter_t
+  use cr_fsys, only: block_file_t
   use cr_strings, only: str
   use cr_assert, only: check, test_summary
   implicit none
   type(env_t) :: env
   type(error_t), allocatable :: error
   type(shared_counter_t) :: counter
-  type(par_file_t) :: pf
+  type(block_file_t) :: pf
   integer :: ierr, p, r, k, u, ios
   integer, allocatable :: ia(:), got(:), counts(:), displs(:)
   integer(i8), allocatable :: la(:), lall(:)
@@ -74,25 +76,28 @@ program test_env_collectives
   do k = 0, 5 * p - 1
     call check(count(got == k) == 1, "ticket " // str(k) // " handed out once")
   end do
-  call env%barrier()
+  call env%sync(error)
+  call check(.not. allocated(error), "barrier")
   tickets(1) = counter%fetch_add(2, 0_i8, error)
   call check(tickets(1) == 7_i8 * p, "second counter: sum of the additions")
   call counter%free()
 
-  ! MPI-IO block file: each rank writes its blocks interleaved; rank 0 reads the file back
+  ! block file: each rank opens the file and writes its blocks interleaved; rank 0 reads it back
   if (r == 0) then
     open(newunit=u, file=path, status='replace', action='write'); close(u)
   end if
-  call env%barrier()
-  call pf%open(env, path, error)
-  call check(.not. allocated(error), "par_file open")
+  call env%sync(error)
+  call check(.not. allocated(error), "barrier")
+  call pf%open(path, error)
+  call check(.not. allocated(error), "block file open")
   do k = 0, 2
     la = [int(100 * r + k, i8)]
     call pf%write_at(int(8 * (k * p + r), i8), la, 8_i8, error)
   end do
   call pf%close(error)
-  call check(.not. allocated(error), "par_file writes and close")
-  call env%barrier()
+  call check(.not. allocated(error), "block file writes and close")
+  call env%sync(error)
+  call check(.not. allocated(error), "barrier")
   if (r == 0) then
     allocate(back(3 * p))
     open(newunit=u, file=path, access='stream', form='unformatted', status='old', iostat=ios)
@@ -104,12 +109,16 @@ program test_env_collectives
         "block row " // str(k) // " in place")
     end do
   end if
-  call pf%open(env, "no_such_dir/x.bin", error)
+  call pf%open("no_such_dir/x.bin", error)
   call check(allocated(error), "opening a file in a missing directory fails")
   if (allocated(error)) then
-    call check(index(error%message, "MPI_File_open of 'no_such_dir/x.bin'") > 0, "message names the file")
+    call check(index(error%message, "'no_such_dir/x.bin'") > 0 .and. &
+      index(error%message, "No such file or directory") > 0, "message names the file and the reason")
     deallocate(error)
   end if
+  call pf%write_at(0_i8, [1_i8], 8_i8, error)
+  call check(allocated(error), "a write to a file that is not open fails")
+  if (allocated(error)) deallocate(error)
 
   call test_summary(r)
   call env%free()

@@ -86,11 +86,12 @@ contains
   !> .true. when the integer array is the same on every rank.
   logical function same_on_all_ranks(idx)
     integer, intent(in) :: idx(:)
-    integer :: k
-    same_on_all_ranks = .true.
-    do k = 1, size(idx)
-      if (env%max_int(idx(k)) /= -env%max_int(-idx(k))) same_on_all_ranks = .false.
-    end do
+    integer :: mm(2 * size(idx))
+    type(error_t), allocatable :: e
+    mm = [idx, -idx]
+    call env%allreduce(mm, 'max', e)
+    call check(.not. allocated(e), "allreduce of the indices")
+    same_on_all_ranks = all(mm(1:size(idx)) == -mm(size(idx) + 1:))
   end function same_on_all_ranks
 
   !> max over the columns of s of |s - interp_k(s)| / |s| with the first k EIM modes, and

@@ -308,7 +308,8 @@ contains
         call compare_block(b, make_block(set, n, 1, n), "db serial set " // str(set))
       end do
     end if
-    call env%barrier()
+    call env%sync(error)
+    call check(.not. allocated(error), "db: barrier")
   end subroutine snapshot_roundtrip
 
   subroutine snapshot_corrupt()

@@ -28,8 +28,8 @@ def test_schedule_known_cases():
     # one long sample and many short ones: the long one sets the end
     t = np.array([5.0] + [0.1] * 20)
     assert sm.simulate_loop(t, 2, 0.0, 1e9, 0.0, 0.0) == pytest.approx(5.0)
-    # counter latency: 2 operations per sample plus the final ticket, per rank
-    assert sm.simulate_loop(ones, 1, 0.01, 1e9, 0.0, 0.0) == pytest.approx(8 + 17 * 0.01)
+    # counter latency: one ticket per sample plus the final (empty) ticket, per rank
+    assert sm.simulate_loop(ones, 1, 0.01, 1e9, 0.0, 0.0) == pytest.approx(8 + 9 * 0.01)
     # piece writes: every slice (here every sample) plus nothing left at the end
     assert sm.simulate_loop(ones, 1, 0.0, 0.0, 100.0, 0.001) == pytest.approx(8 * 1.1)
 
@@ -86,7 +86,23 @@ def test_timeline(tiny_run):
     assert p.returncode == 0, p.stderr
     assert out.exists() and out.stat().st_size > 1000
     s = json.load(open(js))
-    assert 0 < s["busy_time_efficiency"] <= 1 and s["pieces_written"] >= 1
+    assert 0 < s["busy_time_efficiency"] <= 1
+    # a study finished within one time slice writes no piece (its last, unfinished slice goes
+    # only into the database) and leaves no pieces directory
+    assert s["pieces_written"] == 0 and s["batch_seconds"] > s["wall_time"]
+    assert not os.path.exists(db + ".pieces")
+    # every rank's phase marks: in time order, the last one its end of the run (rank 0's is the
+    # wall time); the figure's script prints each rank's phases
+    names = s["phase_names"].split(",")
+    marks = np.asarray(s["phase_marks"]).reshape(s["ranks"], len(names))
+    assert names[0] == "setup_local" and names[-1] == "end" and "loop_start" in names
+    assert np.all(np.diff(marks, axis=1) >= 0) and np.all(marks[:, 0] >= 0)
+    assert marks[0, 1] + np.max(marks[:, -1] - marks[:, 1]) == pytest.approx(s["wall_time"], rel=1e-9)
+    assert marks[0, names.index("loop_start")] == pytest.approx(s["wall_time_setup"], abs=1e-6)
+    assert "| phase (ends at) | rank 0 (ms) | rank 1 (ms) |" in p.stdout
+    # the end's multiplier blocks are part of each rank's busy time
+    assert len(s["end_block_time_per_rank"]) == s["ranks"]
+    assert all(b >= e >= 0 for b, e in zip(s["busy_time_per_rank"], s["end_block_time_per_rank"]))
     bad = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "plot_timeline.py"), str(tmp / "nothing.h5"), js,
                           "--out", str(tmp / "bad.png")], capture_output=True, text=True)
     assert bad.returncode == 2 and "plot_timeline.py: error:" in bad.stderr

@@ -71,11 +71,13 @@ contains
         close(unit)
       end if
     end if
-    call env%bcast_string(status)
+    call env%bcast(status, error)
+    if (allocated(error)) return
     if (len(status) > 0) then
       call set_error(error, status, 2); return
     end if
-    call env%bcast_string(this%text)
+    call env%bcast(this%text, error)
+    if (allocated(error)) return
     call this%set_text(path, this%text)
   end subroutine load
 

@@ -11,7 +11,7 @@ module cr_env
   implicit none
   private
   public :: env_t, agree_error_on
-  public :: shared_counter_t, par_file_t
+  public :: shared_counter_t
 
   !> MPI environment: private duplicate communicator, rank, size.
   type :: env_t
@@ -22,18 +22,14 @@ module cr_env
     procedure :: init
     procedure :: free
     procedure :: is_root
-    procedure :: barrier
-    procedure :: any_true
-    procedure :: sum_real, sum_real_array, max_real, max_int
-    procedure :: bcast_string
     procedure :: agree_error
     procedure, nopass :: wtime
     ! ---- checked collectives and messages for the library modules (linalg, offline, hyper,
     ! io): every MPI status is checked and a failure returned as an error naming the call,
     ! the sizes and MPI's own message. Arrays of any rank (contiguous; a section is copied).
-    !> broadcast from rank `root` (default 0)
-    procedure :: bcast_int, bcast_i8, bcast_real
-    generic :: bcast => bcast_int, bcast_i8, bcast_real
+    !> broadcast from rank `root` (default 0); a deferred-length string takes the root's length
+    procedure :: bcast_int, bcast_i8, bcast_real, bcast_text
+    generic :: bcast => bcast_int, bcast_i8, bcast_real, bcast_text
     !> in-place reduction over all ranks, op 'sum', 'min' or 'max'
     procedure :: allreduce_int, allreduce_i8, allreduce_real
     generic :: allreduce => allreduce_int, allreduce_i8, allreduce_real
@@ -76,23 +72,14 @@ module cr_env
     !> this rank's operations and the wall time spent in them (s)
     integer :: n_calls = 0
     real(wp) :: t_calls = 0
+    !> this rank's access epoch (MPI_Win_lock_all) is open: opened by the first fetch_add, closed by free
+    logical :: epoch = .false.
   contains
     procedure :: init => counter_init
     procedure :: fetch_add => counter_fetch_add
     procedure :: free => counter_free
   end type shared_counter_t
 
-  !> A file opened for writing with MPI-IO by every rank of an environment; each rank writes
-  !> its own byte blocks at explicit offsets (independent writes: no rank waits for another).
-  type :: par_file_t
-    type(MPI_File) :: fh = MPI_FILE_NULL
-    character(len=:), allocatable :: path
-    type(MPI_Comm) :: comm = MPI_COMM_NULL
-  contains
-    procedure :: open => pfile_open
-    procedure :: write_at => pfile_write_at
-    procedure :: close => pfile_close
-  end type par_file_t
 
 contains
 
@@ -123,65 +110,6 @@ contains
     class(env_t), intent(in) :: this
     is_root = this%rank == 0
   end function is_root
-
-  subroutine barrier(this)
-    class(env_t), intent(in) :: this
-    integer :: ierr
-    call MPI_Barrier(this%comm, ierr)
-  end subroutine barrier
-
-  !> Logical OR over ranks (used to make failures collective).
-  logical function any_true(this, flag)
-    class(env_t), intent(in) :: this
-    logical, intent(in) :: flag
-    integer :: ierr
-    call MPI_Allreduce(flag, any_true, 1, MPI_LOGICAL, MPI_LOR, this%comm, ierr)
-  end function any_true
-
-  real(wp) function sum_real(this, x)
-    class(env_t), intent(in) :: this
-    real(wp), intent(in) :: x
-    integer :: ierr
-    call MPI_Allreduce(x, sum_real, 1, MPI_DOUBLE_PRECISION, MPI_SUM, this%comm, ierr)
-  end function sum_real
-
-  !> In-place sum over ranks of a real array (all ranks receive the result).
-  subroutine sum_real_array(this, x)
-    class(env_t), intent(in) :: this
-    real(wp), intent(inout) :: x(:)
-    integer :: ierr
-    if (this%size == 1 .or. size(x) == 0) return
-    call MPI_Allreduce(MPI_IN_PLACE, x, size(x), MPI_DOUBLE_PRECISION, MPI_SUM, this%comm, ierr)
-  end subroutine sum_real_array
-
-  real(wp) function max_real(this, x)
-    class(env_t), intent(in) :: this
-    real(wp), intent(in) :: x
-    integer :: ierr
-    call MPI_Allreduce(x, max_real, 1, MPI_DOUBLE_PRECISION, MPI_MAX, this%comm, ierr)
-  end function max_real
-
-  integer function max_int(this, i)
-    class(env_t), intent(in) :: this
-    integer, intent(in) :: i
-    integer :: ierr
-    call MPI_Allreduce(i, max_int, 1, MPI_INTEGER, MPI_MAX, this%comm, ierr)
-  end function max_int
-
-  !> Broadcast a deferred-length string from rank 0 to all ranks.
-  subroutine bcast_string(this, s)
-    class(env_t), intent(in) :: this
-    character(len=:), allocatable, intent(inout) :: s
-    integer :: n, ierr
-    n = 0
-    if (this%rank == 0) n = len(s)
-    call MPI_Bcast(n, 1, MPI_INTEGER, 0, this%comm, ierr)
-    if (this%rank /= 0) then
-      if (allocated(s)) deallocate(s)
-      allocate(character(len=n) :: s)
-    end if
-    if (n > 0) call MPI_Bcast(s, n, MPI_CHARACTER, 0, this%comm, ierr)
-  end subroutine bcast_string
 
   !> Collective error agreement: if any rank of the environment holds an error, every rank
   !> returns the error of the lowest failing rank (message and code broadcast from it). When
@@ -304,6 +232,29 @@ contains
     call MPI_Bcast(x, n_of(shape(x)), MPI_DOUBLE_PRECISION, r, this%comm, ierr)
     call check_mpi(ierr, "MPI_Bcast of " // str(n_of(shape(x))) // " real(s) from rank " // str(r), error)
   end subroutine bcast_real
+
+  subroutine bcast_text(this, s, error, root)
+    class(env_t), intent(in) :: this
+    character(len=:), allocatable, intent(inout) :: s
+    type(error_t), allocatable, intent(out) :: error
+    integer, intent(in), optional :: root
+    integer :: ierr, r, n
+    r = 0
+    if (present(root)) r = root
+    if (this%rank == r .and. .not. allocated(s)) s = ""
+    n = 0
+    if (this%rank == r) n = len(s)
+    call MPI_Bcast(n, 1, MPI_INTEGER, r, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Bcast of a string's length from rank " // str(r), error)
+    if (allocated(error)) return
+    if (this%rank /= r) then
+      if (allocated(s)) deallocate(s)
+      allocate(character(len=n) :: s)
+    end if
+    if (n == 0) return
+    call MPI_Bcast(s, n, MPI_CHARACTER, r, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Bcast of " // str(n) // " character(s) from rank " // str(r), error)
+  end subroutine bcast_text
 
   subroutine allreduce_int(this, x, op, error)
     class(env_t), intent(in) :: this
@@ -538,7 +489,7 @@ contains
   ! ---- end of the checked collectives
 
   ! ==================================================================================
-  ! Measures, text gathers, shared counters and MPI-IO block files (snapshot stage).
+  ! Measures, text gathers and shared counters (snapshot stage).
   ! ==================================================================================
 
   !> Mean wall time of a one-integer MPI_Allreduce over `reps` repetitions (s), rank 0's value
@@ -594,12 +545,16 @@ contains
     if (index(s, new_line('a')) > 0) s = s(1:index(s, new_line('a')) - 1)
   end function library_version
 
-  !> Create the window of n_slots counters on rank 0, all zero.
-  subroutine counter_init(this, env, n_slots, error)
+  !> Create the window of n_slots counters on rank 0, all zero. With barrier = .false. (default
+  !> .true.) the ranks do not wait for rank 0 to have zeroed them (nor agree on an error): the
+  !> caller must then make every rank receive a message from rank 0, sent after this call,
+  !> before any rank's first fetch_add (and must agree on errors itself).
+  subroutine counter_init(this, env, n_slots, error, barrier)
     class(shared_counter_t), intent(inout) :: this
     type(env_t), intent(in) :: env
     integer, intent(in) :: n_slots
     type(error_t), allocatable, intent(out) :: error
+    logical, intent(in), optional :: barrier
     integer(kind=MPI_ADDRESS_KIND) :: bytes
     type(c_ptr) :: base
     integer :: ierr
@@ -618,6 +573,9 @@ contains
       call check_mpi(ierr, "MPI_Win_unlock (counter init)", error)
     end if
     ! the agreement is also the barrier: no rank takes a ticket before rank 0 has zeroed them
+    if (present(barrier)) then
+      if (.not. barrier) return
+    end if
     call env%agree_error(error)
   end subroutine counter_init
 
@@ -635,17 +593,22 @@ contains
     one = inc
     res = 0
     old = -1
-    call MPI_Win_lock(MPI_LOCK_SHARED, 0, 0, this%win, ierr)
-    call check_mpi(ierr, "MPI_Win_lock (shared counter)", error)
-    if (allocated(error)) return
+    ! one passive-target epoch for all of this rank's operations (no lock and unlock each time)
+    if (.not. this%epoch) then
+      call MPI_Win_lock_all(0, this%win, ierr)
+      call check_mpi(ierr, "MPI_Win_lock_all (shared counter)", error)
+      if (allocated(error)) return
+      this%epoch = .true.
+    end if
     if (inc == 0) then
       call MPI_Fetch_and_op(one, res, MPI_INTEGER8, 0, int(slot - 1, MPI_ADDRESS_KIND), MPI_NO_OP, this%win, ierr)
     else
       call MPI_Fetch_and_op(one, res, MPI_INTEGER8, 0, int(slot - 1, MPI_ADDRESS_KIND), MPI_SUM, this%win, ierr)
     end if
     call check_mpi(ierr, "MPI_Fetch_and_op (shared counter " // str(slot) // ")", error)
-    call MPI_Win_unlock(0, this%win, ierr)
-    call check_mpi(ierr, "MPI_Win_unlock (shared counter)", error)
+    if (allocated(error)) return
+    call MPI_Win_flush(0, this%win, ierr)
+    call check_mpi(ierr, "MPI_Win_flush (shared counter)", error)
     if (allocated(error)) return
     old = res(1)
     this%n_calls = this%n_calls + 1
@@ -656,57 +619,12 @@ contains
   subroutine counter_free(this)
     class(shared_counter_t), intent(inout) :: this
     integer :: ierr
+    if (this%epoch) call MPI_Win_unlock_all(this%win, ierr)
+    this%epoch = .false.
     if (this%win /= MPI_WIN_NULL) call MPI_Win_free(this%win, ierr)
     this%win = MPI_WIN_NULL
     this%slots => null()
   end subroutine counter_free
 
-  !> Open an existing file for writing on every rank of env (MPI-IO).
-  subroutine pfile_open(this, env, path, error)
-    class(par_file_t), intent(inout) :: this
-    type(env_t), intent(in) :: env
-    character(len=*), intent(in) :: path
-    type(error_t), allocatable, intent(out) :: error
-    integer :: ierr
-    this%path = path
-    this%comm = env%comm
-    call MPI_File_open(env%comm, path, MPI_MODE_WRONLY, MPI_INFO_NULL, this%fh, ierr)
-    call check_mpi(ierr, "MPI_File_open of '" // path // "' for writing", error)
-  end subroutine pfile_open
-
-  !> Write nbytes bytes of buf at byte offset `offset` of the file (independent: not
-  !> collective; blocks of different ranks must not overlap).
-  subroutine pfile_write_at(this, offset, buf, nbytes, error)
-    class(par_file_t), intent(inout) :: this
-    integer(i8), intent(in) :: offset, nbytes
-    type(*), intent(in), contiguous :: buf(..)
-    type(error_t), allocatable, intent(out) :: error
-    type(MPI_Status) :: st
-    integer :: ierr, got
-    if (nbytes <= 0) return
-    if (nbytes > huge(1)) then
-      call set_error(error, "env: write of " // str(nbytes) // " bytes to '" // this%path // &
-        "' exceeds one MPI count"); return
-    end if
-    call MPI_File_write_at(this%fh, int(offset, MPI_OFFSET_KIND), buf, int(nbytes), MPI_BYTE, st, ierr)
-    call check_mpi(ierr, "MPI_File_write_at of " // str(nbytes) // " bytes at offset " // str(offset) // &
-      " of '" // this%path // "'", error)
-    if (allocated(error)) return
-    call MPI_Get_count(st, MPI_BYTE, got, ierr)
-    if (ierr == MPI_SUCCESS .and. got /= nbytes) call set_error(error, "env: MPI_File_write_at wrote " // &
-      str(got) // " of " // str(nbytes) // " bytes at offset " // str(offset) // " of '" // this%path // &
-      "' (disk full?)")
-  end subroutine pfile_write_at
-
-  !> Close the file (collective); the data are visible to any later open.
-  subroutine pfile_close(this, error)
-    class(par_file_t), intent(inout) :: this
-    type(error_t), allocatable, intent(out) :: error
-    integer :: ierr
-    if (this%fh == MPI_FILE_NULL) return
-    call MPI_File_close(this%fh, ierr)
-    call check_mpi(ierr, "MPI_File_close of '" // this%path // "'", error)
-    this%fh = MPI_FILE_NULL
-  end subroutine pfile_close
 end module cr_env
 

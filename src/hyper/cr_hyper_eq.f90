@@ -140,7 +140,8 @@ contains
         h = h + matmul(y, transpose(y))
       end do
       yy = reshape(h, [p3 * p3])
-      call env%sum_real_array(yy)
+      call env%allreduce(yy, 'sum', error)
+      if (allocated(error)) return
       h = reshape(yy, [p3, p3]) * kmat
       if (any(.not. abs(h) <= huge(1.0_wp))) call set_error(error, "the row Gramian is not finite")
     end subroutine row_gramian

@@ -1,12 +1,29 @@
-!> File-system helpers (POSIX rename/remove through the C library) for atomic output.
+!> File-system helpers (POSIX rename/remove through the C library) for atomic output, and the
+!> block file `block_file_t` (POSIX pwrite of byte blocks at explicit offsets).
 module cr_fsys
   use, intrinsic :: iso_c_binding, only: c_int, c_char, c_null_char, c_ptr, c_long, c_f_pointer, &
-    c_associated, c_size_t
+    c_associated, c_size_t, c_loc, c_intptr_t, c_null_ptr
+  use cr_kinds, only: i8
+  use cr_error, only: error_t, set_error
+  use cr_strings, only: str
   implicit none
   private
   public :: rename_file, remove_file, file_exists, make_dir, remove_dir, file_size, truncate_file, &
     clear_errno, errno_text, io_fault_text, discard_fd, reserve_space, errno_name, truncate_to, &
-    real_path, is_directory, dir_writable, dir_of, write_whole_file, same_file
+    real_path, is_directory, dir_writable, dir_of, write_whole_file, same_file, block_file_t
+
+  !> An existing file opened by one process for writing byte blocks at explicit offsets (POSIX
+  !> open, pwrite, close: unbuffered, nothing collective). Several processes (e.g. the MPI ranks
+  !> writing their samples into the snapshot database) may each open the same file and write
+  !> disjoint blocks; a block is on the file when write_at returns, and visible to any later open.
+  type :: block_file_t
+    integer(c_int) :: fd = -1
+    character(len=:), allocatable :: path
+  contains
+    procedure :: open => bf_open
+    procedure :: write_at => bf_write_at
+    procedure :: close => bf_close
+  end type block_file_t
 
   interface
     integer(c_int) function c_rename(old, new) bind(c, name="rename")
@@ -80,6 +97,13 @@ module cr_fsys
       import :: c_int
       integer(c_int), value :: fd
     end function c_close
+    integer(c_long) function c_pwrite(fd, buf, n, offset) bind(c, name="pwrite")
+      import :: c_int, c_long, c_size_t, c_ptr
+      integer(c_int), value :: fd
+      type(c_ptr), value :: buf
+      integer(c_size_t), value :: n
+      integer(c_long), value :: offset
+    end function c_pwrite
   end interface
 
 contains
@@ -338,4 +362,71 @@ contains
     inquire(file=path, exist=ex, size=file_size)
     if (.not. ex) file_size = -1
   end function file_size
+
+  !> Open the existing file `path` for block writes (this process only).
+  subroutine bf_open(this, path, error)
+    class(block_file_t), intent(inout) :: this
+    character(len=*), intent(in) :: path
+    type(error_t), allocatable, intent(out) :: error
+    integer(c_int), parameter :: O_WRONLY = 1
+    this%path = path
+    call clear_errno()
+    this%fd = c_open(path // c_null_char, O_WRONLY)
+    if (this%fd < 0) call set_error(error, "cannot open '" // path // "' for writing: " // errno_text())
+  end subroutine bf_open
+
+  !> Write nbytes bytes of buf at byte offset `offset` of the file (blocks written by several
+  !> processes must not overlap). A failure (e.g. no space left) is an error naming the sizes
+  !> and the system's reason.
+  subroutine bf_write_at(this, offset, buf, nbytes, error)
+    class(block_file_t), intent(inout) :: this
+    integer(i8), intent(in) :: offset, nbytes
+    type(*), intent(in), target :: buf(*)
+    type(error_t), allocatable, intent(out) :: error
+    integer(c_long) :: got
+    integer(c_intptr_t) :: base
+    integer(c_int), pointer :: e
+    integer(i8) :: done
+    integer :: tries
+    if (nbytes <= 0) return
+    if (this%fd < 0) then
+      call set_error(error, "write to '" // this%path // "': the file is not open"); return
+    end if
+    call c_f_pointer(c_errno_location(), e)
+    base = transfer(c_loc(buf), base)
+    done = 0
+    tries = 0
+    ! the rest of a short write is written again (a full disk then says so); a write interrupted
+    ! before it wrote anything (EINTR) is repeated
+    do while (done < nbytes)
+      e = 0
+      got = c_pwrite(this%fd, transfer(base + int(done, c_intptr_t), c_null_ptr), int(nbytes - done, c_size_t), &
+        int(offset + done, c_long))
+      if (got < 0 .and. e == 4 .and. tries < 100) then
+        tries = tries + 1
+        cycle
+      end if
+      if (got <= 0) then
+        if (got == 0 .and. e == 0) then
+          call set_error(error, "write of " // str(nbytes) // " bytes at offset " // str(offset) // " of '" // &
+            this%path // "' wrote only " // str(done) // " bytes (disk full?)")
+        else
+          call set_error(error, "write of " // str(nbytes) // " bytes at offset " // str(offset) // " of '" // &
+            this%path // "' failed: " // errno_text())
+        end if
+        return
+      end if
+      done = done + int(got, i8)
+    end do
+  end subroutine bf_write_at
+
+  !> Close the file (a failure, e.g. a write the system could only report now, is an error).
+  subroutine bf_close(this, error)
+    class(block_file_t), intent(inout) :: this
+    type(error_t), allocatable, intent(out) :: error
+    if (this%fd < 0) return
+    call clear_errno()
+    if (c_close(this%fd) /= 0) call set_error(error, "closing '" // this%path // "' failed: " // errno_text())
+    this%fd = -1
+  end subroutine bf_close
 end module cr_fsys

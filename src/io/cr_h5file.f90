@@ -955,8 +955,8 @@ contains
 
   !> Serial handle only: create a contiguous dataset whose storage is allocated now (no fill
   !> values written) and return the byte offset of its first element in the file, so that the
-  !> ranks of a parallel writer can fill their blocks with plain MPI-IO writes (env's
-  !> par_file_t) after this handle is closed: elements in Fortran order, native byte order.
+  !> ranks of a parallel writer can fill their blocks with plain block writes (cr_fsys's
+  !> block_file_t): elements in Fortran order, native byte order.
   subroutine create_placed(this, name, global_dims, kind, offset, error)
     class(h5file_t), intent(inout) :: this
     character(len=*), intent(in) :: name

@@ -112,25 +112,31 @@ contains
     !> number of columns of every rank [env%size]
     integer, allocatable, intent(out), optional :: counts(:)
     integer, allocatable :: cnt(:)
-    integer :: n_dof
+    integer :: n_dof, mm(2)
     call env%allgather(size(s_local, 2), cnt, error)
     if (allocated(error)) return
     n_snap = sum(cnt)
     offset = sum(cnt(1:env%rank))
     n_dof = size(s_local, 1)
-    if (env%max_int(n_dof) /= -env%max_int(-n_dof)) then
+    mm = [n_dof, -n_dof]
+    call env%allreduce(mm, 'max', error)
+    if (allocated(error)) return
+    if (mm(1) /= -mm(2)) then
       call set_error(error, "pod: the snapshots have different lengths on different ranks")
       return
     end if
     if (present(counts)) call move_alloc(cnt, counts)
   end subroutine snapshot_layout
 
-  !> ||S||_F^2 summed over ranks.
-  real(wp) function frobenius2(env, s_local)
+  !> ||S||_F^2 summed over ranks (every rank receives it).
+  subroutine frobenius2(env, s_local, f2, error)
     type(env_t), intent(in) :: env
     real(wp), contiguous, intent(in) :: s_local(:, :)
-    frobenius2 = env%sum_real(sum(s_local**2))
-  end function frobenius2
+    real(wp), intent(out) :: f2
+    type(error_t), allocatable, intent(out) :: error
+    f2 = sum(s_local**2)
+    call env%allreduce(f2, 'sum', error)
+  end subroutine frobenius2
 
   !> Check the truncation arguments (same on all ranks).
   subroutine check_truncation(eps, n_modes, error)
@@ -243,7 +249,8 @@ contains
     result%method = "tsqr"
     result%n_dof = n_dof
     result%n_snap = n_snap
-    result%total_energy = frobenius2(env, s_local)
+    call frobenius2(env, s_local, result%total_energy, error)
+    if (allocated(error)) return
     st = transpose(s_local)
     call right_svd(env, st, sigma, w, error)
     if (allocated(error)) return
@@ -296,7 +303,8 @@ contains
     result%method = "snapshots"
     result%n_dof = n_dof
     result%n_snap = n_snap
-    result%total_energy = frobenius2(env, s_local)
+    call frobenius2(env, s_local, result%total_energy, error)
+    if (allocated(error)) return
     tol = sqrt(real(max(n_dof, n_snap), wp) * epsilon(1.0_wp))
     k = min(n_dof, n_snap)
     if (n_dof <= n_snap) then
@@ -527,7 +535,8 @@ contains
     result%method = "rsvd-" // sketch
     result%n_dof = n_dof
     result%n_snap = n_snap
-    result%total_energy = frobenius2(env, s_local)
+    call frobenius2(env, s_local, result%total_energy, error)
+    if (allocated(error)) return
     l = min(k + oversampling, n_dof, n_snap)
 
     ! range finder
@@ -609,7 +618,8 @@ contains
     result%method = "scalapack"
     result%n_dof = n_dof
     result%n_snap = n_snap
-    result%total_energy = frobenius2(env, s_local)
+    call frobenius2(env, s_local, result%total_energy, error)
+    if (allocated(error)) return
     nb = 32
     if (present(block)) nb = max(1, block)
     kmin = min(n_dof, n_snap)

@@ -40,14 +40,17 @@ contains
     logical :: want_q, leaf_q, failed
     real(wp), allocatable :: leaf(:, :), tau(:), rb(:, :), stacked(:, :), c(:, :), cab(:, :)
     type(merge_t) :: merges(32)
-    integer :: parent, m_up
+    integer :: parent, m_up, nn(2)
     type(error_t), allocatable :: e_mpi
 
     n = size(a_local, 2)
     n_r = size(a_local, 1)
     want_q = present(q_local)
     failed = .false.
-    if (env%max_int(n) /= -env%max_int(-n)) then
+    nn = [n, -n]
+    call env%allreduce(nn, 'max', error)
+    if (allocated(error)) return
+    if (nn(1) /= -nn(2)) then
       call set_error(error, "tsqr: the number of columns differs between ranks")
       return
     end if

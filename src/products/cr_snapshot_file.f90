@@ -6,7 +6,8 @@
 !> This module owns the schema's name, version, units, the sample and metadata types, the
 !> writer `snap_writer_t` (begin: rank 0 lays the file out serially, every fixed-size dataset's
 !> storage placed; put: a rank writes one of its samples' blocks at their byte offsets with
-!> MPI-IO as soon as it has the sample; finish: the contact dictionary, the multipliers, the
+!> its own block writes (cr_fsys's block_file_t, nothing collective) as soon as it has the
+!> sample; finish: the contact dictionary, the multipliers, the
 !> checksums and complete = 1; a fixed, small number of collectives whatever the number of
 !> samples and datasets), `probe_snap_database` (is a file under the name a complete database
 !> of this configuration?) and the readers `read_snap_header` and `read_snap_block`. Readers
@@ -18,7 +19,7 @@ module cr_snapshot_file
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
-  use cr_env, only: env_t, par_file_t
+  use cr_env, only: env_t
   use cr_h5file, only: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64
   use cr_digest, only: digest_t, digest_of, digest_add, check_digest, check_digest_parts, digest_allreduce, &
     put_digest, DIGEST_ALGORITHM
@@ -26,7 +27,7 @@ module cr_snapshot_file
   use cr_sort, only: argsort_i8, bsearch_i8
   use cr_scene, only: scene_t
   use cr_fom_file, only: write_scene
-  use cr_fsys, only: rename_file, remove_file
+  use cr_fsys, only: rename_file, remove_file, block_file_t
   implicit none
   private
   public :: SNAP_SCHEMA, SNAP_SCHEMA_VERSION, SNAP_VERSIONS_READ, SNAP_UNITS, db_meta_t, snap_header_t, &
@@ -80,6 +81,10 @@ module cr_snapshot_file
     !> counts, contact dictionary and checksum sums; serial layout by rank 0 (begin and finish);
     !> the ranks' multiplier block writes; completion (complete = 1, rename)
     real(wp) :: t_put = 0, t_dict = 0, t_layout = 0, t_write = 0, t_seal = 0
+    !> this rank's time in finish on its own samples' multipliers (their unique contacts for the
+    !> dictionary, CSR places and dictionary indices, checksum parts, block writes), no waiting
+    !> in it
+    real(wp) :: t_blocks = 0
     !> contacts in the dictionary, stored multipliers, data bytes written by all ranks
     integer :: n_dict = 0
     integer(i8) :: nnz = 0, bytes = 0
@@ -125,7 +130,10 @@ module cr_snapshot_file
     integer(i8), private :: place(17, 2) = -1
     !> this rank's checksum parts [17, 2]
     type(digest_t), private :: dg(17, 2)
-    type(par_file_t), private :: pf
+    type(block_file_t), private :: pf
+    !> why this rank cannot write (its file did not open, or a failure before begin): its puts
+    !> fail with it
+    character(len=:), allocatable, private :: fault
     logical, private :: active = .false.
     !> the multipliers of the samples put by this rank and their global numbers [nl]
     integer, private :: nl = 0
@@ -250,8 +258,12 @@ contains
   !> Collective: create `<path>.partial`. Rank 0 lays it out serially: root attributes, initial
   !> positions, scene, and every dataset whose size the study fixes (all but the contact
   !> dictionary and the multipliers) with its storage placed; the byte offsets are broadcast and
-  !> every rank opens the file for its block writes (MPI-IO).
-  subroutine writer_begin(this, env, path, meta, q0, scene, error)
+  !> every rank opens the file for its own block writes (block_file_t: POSIX pwrite, not
+  !> collective). `prior`: a failure of this rank
+  !> just before begin that the others may not know of (e.g. rank 0 zeroing a counter); it is
+  !> shared like a failure of the layout (rank 0's in the broadcast, any other's in the
+  !> agreement that ends begin), and begin then fails on every rank.
+  subroutine writer_begin(this, env, path, meta, q0, scene, error, prior)
     class(snap_writer_t), intent(inout) :: this
     type(env_t), intent(in) :: env
     character(len=*), intent(in) :: path
@@ -261,8 +273,11 @@ contains
     !> the reference scene (group /scene; its vertex layout is that of every sample's scene)
     type(scene_t), intent(in) :: scene
     type(error_t), allocatable, intent(out) :: error
+    type(error_t), allocatable, intent(inout), optional :: prior
+    type(error_t), allocatable :: e2
     character(len=:), allocatable :: m
-    integer :: is
+    logical :: failed
+    integer :: st
     real(wp) :: t0
     t0 = env%wtime()
     this%env = env
@@ -275,13 +290,30 @@ contains
     this%nl = 0
     allocate(this%lam(16), this%gl(16))
     m = ""
-    if (env%is_root()) call lay_out(m)
+    failed = .false.
+    if (present(prior)) failed = allocated(prior)
+    if (env%is_root()) then
+      if (failed) then
+        m = prior%message
+      else
+        call lay_out(m)
+      end if
+    end if
     call share_places(this, m, error)
-    if (allocated(error)) return
-    call this%pf%open(env, path // ".partial", error)
-    call env%agree_error(error)
     if (allocated(error)) then
-      call this%discard(); return
+      ! (rank 0 may have created the file)
+      if (env%is_root() .and. .not. failed) st = remove_file(path // ".partial")
+      return
+    end if
+    ! each rank opens the file for its own block writes (nothing collective): a failure here, or
+    ! a prior one of a rank other than 0, makes that rank's puts fail, and the run ends with it
+    ! at its next agreement (after the resumed samples, or at the end of the sample loop)
+    if (allocated(this%fault)) deallocate(this%fault)
+    call this%pf%open(path // ".partial", e2)
+    if (failed) then
+      this%fault = prior%message
+    else if (allocated(e2)) then
+      this%fault = "database '" // path // "': " // e2%message
     end if
     this%active = .true.
     this%stats%t_layout = env%wtime() - t0
@@ -367,7 +399,8 @@ contains
     if (allocated(error)) return
     this%place = reshape(buf(2:), [17, 2])
     if (buf(1) == 0) return
-    call this%env%bcast_string(m)
+    call this%env%bcast(m, error)
+    if (allocated(error)) return
     if (index(m, "database '") /= 1) m = "database '" // this%path // "': " // m
     call set_error(error, m)
   end subroutine share_places
@@ -405,6 +438,9 @@ contains
     t0 = this%env%wtime()
     if (.not. this%active) then
       call set_error(error, "database '" // this%path // "': put before begin or after finish"); return
+    end if
+    if (allocated(this%fault)) then
+      call set_error(error, this%fault); return
     end if
     m = ""
     call check_shapes(this, s, m)
@@ -473,11 +509,14 @@ contains
   end subroutine writer_put
 
   !> Collective: every sample of the study must have been put by exactly one rank. Places the
-  !> multipliers (one MPI_Allreduce of the per-sample counts; the contact dictionary, the sorted
-  !> union of the ranks' keys, by MPI_Allgatherv), adds the checksum parts (one MPI_Allreduce),
-  !> has rank 0 add the dictionary, the multiplier datasets and every checksum serially, the
-  !> ranks write their multiplier blocks, and rank 0 sets complete = 1 and renames the file.
-  !> On failure the temporary is removed.
+  !> multipliers (one MPI_Allreduce of the per-sample counts and every rank's number of
+  !> contacts; the contact dictionary, the sorted union of the ranks' keys, by one
+  !> MPI_Allgatherv), adds the checksum parts (one MPI_Allreduce), has rank 0 add the
+  !> dictionary, the multiplier datasets, every checksum and complete = 1 serially (one
+  !> broadcast of the places), the ranks write their multiplier blocks through the file handle
+  !> of begin and close it, and rank 0 renames the file once every rank's blocks are in (one
+  !> agreement, one broadcast): the temporary name is the commit. On failure the temporary is
+  !> removed.
   subroutine writer_finish(this, error)
     class(snap_writer_t), intent(inout) :: this
     type(error_t), allocatable, intent(out) :: error
@@ -487,9 +526,9 @@ contains
       integer, allocatable :: li(:)
     end type csr_t
     type(csr_t), allocatable :: csr(:)
-    integer(i8), allocatable :: cnt(:), dkey(:)
+    integer(i8), allocatable :: cnt(:), dkey(:), pack4(:, :)
     integer, allocatable :: dia(:), dib(:), dob(:)
-    integer :: ntot, g, is, j, ns
+    integer :: ntot, g, is, j, ns, p
     integer(i8) :: o(17), at(17)
     character(len=:), allocatable :: m
     real(wp) :: t0, t1
@@ -499,26 +538,23 @@ contains
     associate (env => this%env)
     ns = this%ns
     ntot = sum(this%nset)
-    call this%pf%close(e2)
-    ! counts: held (exactly once) and multipliers of every sample, data bytes and failed ranks
-    allocate(cnt(2 * ntot + 2))
+    p = env%size
+    ! this rank's contacts (unique keys and identities) for the dictionary
+    t1 = env%wtime()
+    call local_contacts(this%lam(1:this%nl), pack4)
+    this%stats%t_blocks = env%wtime() - t1
+    ! one reduction: held (exactly once) and multipliers of every sample, data bytes, every
+    ! rank's contact entries [P]
+    allocate(cnt(2 * ntot + 1 + p))
     cnt = 0
     do j = 1, this%nl
       cnt(2 * this%gl(j) - 1) = 1
       cnt(2 * this%gl(j)) = size(this%lam(j)%value)
     end do
     cnt(2 * ntot + 1) = this%stats%bytes
-    if (allocated(e2)) cnt(2 * ntot + 2) = 1
+    cnt(2 * ntot + 2 + env%rank) = size(pack4, kind=i8)
     call env%allreduce(cnt, 'sum', error)
     if (allocated(error)) goto 9
-    if (cnt(2 * ntot + 2) > 0) then
-      if (allocated(e2)) then
-        call move_alloc(e2, error)
-      else
-        call set_error(error, "closing the file failed on another rank")
-      end if
-      goto 9
-    end if
     this%stats%bytes = cnt(2 * ntot + 1)
     do g = 1, ntot
       if (cnt(2 * g - 1) /= 1) then
@@ -537,12 +573,17 @@ contains
       call set_error(error, str(maxval(this%total)) // " multipliers in one set exceed the 32-bit dataset sizes")
       goto 9
     end if
+    if (sum(cnt(2 * ntot + 2:)) > huge(1)) then
+      call set_error(error, str(sum(cnt(2 * ntot + 2:)) / 4) // " contact entries exceed the 32-bit MPI counts")
+      goto 9
+    end if
     this%stats%nnz = sum(this%total)
-    call build_dictionary(env, this%lam(1:this%nl), dkey, dia, dib, dob, error)
+    call build_dictionary(env, pack4, int(cnt(2 * ntot + 2:)), dkey, dia, dib, dob, error)
     if (allocated(error)) goto 9
     this%stats%n_dict = size(dkey)
     ! checksum parts of the multipliers, then of everything, summed over the ranks
     ! each sample's global CSR offsets and dictionary indices (computed once, written below)
+    t1 = env%wtime()
     allocate(csr(this%nl))
     do j = 1, this%nl
       call global_csr(this%lam(j), this%gl(j), csr(j)%off8, csr(j)%li)
@@ -557,47 +598,51 @@ contains
         this%dg(5, is) = digest_add(this%dg(5, is), digest_of([0_i8], 0_i8))
       end do
     end if
+    this%stats%t_blocks = this%stats%t_blocks + (env%wtime() - t1)
     dg1 = reshape(this%dg, [34])
-    call digest_allreduce(env, dg1)
+    call digest_allreduce(env, dg1, error)
+    if (allocated(error)) goto 9
     this%dg = reshape(dg1, [17, 2])
     this%stats%t_dict = env%wtime() - t0
-    ! rank 0: dictionary, multiplier datasets, checksums
+    ! rank 0: dictionary, multiplier datasets, checksums, complete = 1
     t1 = env%wtime()
     m = ""
     if (env%is_root()) call add_rest(m)
     call share_places(this, m, error)
     if (allocated(error)) goto 9
     this%stats%t_layout = this%stats%t_layout + (env%wtime() - t1)
-    ! the ranks' multiplier blocks
+    ! the ranks' multiplier blocks, then the file handle of begin is closed
     t1 = env%wtime()
-    call this%pf%open(env, this%path // ".partial", error)
-    if (.not. allocated(error)) then
-      if (env%is_root()) then
-        do is = 1, 2
-          if (.not. allocated(error)) call this%pf%write_at(this%place(5, is), [0_i8], 8_i8, error)
-        end do
-      end if
-      do j = 1, this%nl
-        if (allocated(error)) exit
-        is = findloc(SNAP_SET_NAMES, this%lam(j)%set, dim=1)
-        o = elem_offsets(this, this%lam(j), this%base(this%gl(j)))
-        at = this%place(:, is) + o * ESZ
-        call this%pf%write_at(at(5), csr(j)%off8, 8_i8 * ns, error)
-        if (.not. allocated(error) .and. size(csr(j)%li) > 0) &
-          call this%pf%write_at(at(6), csr(j)%li, 4_i8 * size(csr(j)%li), error)
-        if (.not. allocated(error) .and. size(csr(j)%li) > 0) &
-          call this%pf%write_at(at(7), this%lam(j)%value, 8_i8 * size(csr(j)%li), error)
+    if (allocated(this%fault)) call set_error(error, this%fault)
+    if (env%is_root()) then
+      do is = 1, 2
+        if (.not. allocated(error)) call this%pf%write_at(this%place(5, is), [0_i8], 8_i8, error)
       end do
-      call this%pf%close(e2)
-      if (allocated(e2) .and. .not. allocated(error)) call move_alloc(e2, error)
     end if
+    do j = 1, this%nl
+      if (allocated(error)) exit
+      is = findloc(SNAP_SET_NAMES, this%lam(j)%set, dim=1)
+      o = elem_offsets(this, this%lam(j), this%base(this%gl(j)))
+      at = this%place(:, is) + o * ESZ
+      call this%pf%write_at(at(5), csr(j)%off8, 8_i8 * ns, error)
+      if (.not. allocated(error) .and. size(csr(j)%li) > 0) &
+        call this%pf%write_at(at(6), csr(j)%li, 4_i8 * size(csr(j)%li), error)
+      if (.not. allocated(error) .and. size(csr(j)%li) > 0) &
+        call this%pf%write_at(at(7), this%lam(j)%value, 8_i8 * size(csr(j)%li), error)
+    end do
+    this%stats%t_blocks = this%stats%t_blocks + (env%wtime() - t1)
+    call this%pf%close(e2)
+    if (allocated(e2) .and. .not. allocated(error)) call move_alloc(e2, error)
+    this%stats%t_write = env%wtime() - t1
     call env%agree_error(error)
     if (allocated(error)) goto 9
-    this%stats%t_write = env%wtime() - t1
-    ! complete = 1 last, then the final name
+    ! every block is in: the final name
     t1 = env%wtime()
     m = ""
-    if (env%is_root()) call seal(m)
+    if (env%is_root()) then
+      if (rename_file(this%path // ".partial", this%path) /= 0) &
+        m = "rename '" // this%path // ".partial' -> '" // this%path // "' failed"
+    end if
     call share_places(this, m, error)
     this%stats%t_seal = env%wtime() - t1
     end associate
@@ -610,7 +655,7 @@ contains
 
   contains
 
-    !> Rank 0: contact dictionary, multiplier datasets and every checksum, serially.
+    !> Rank 0: contact dictionary, multiplier datasets, every checksum and complete = 1, serially.
     subroutine add_rest(m)
       character(len=:), allocatable, intent(inout) :: m
       type(h5file_t) :: h5
@@ -645,6 +690,8 @@ contains
             call put_digest(h5, g // "/" // trim(DS(q2)), this%dg(q2, iss), e); if (allocated(e)) exit ops
           end do
         end do
+        ! (the file keeps its temporary name until every rank's multiplier blocks are in)
+        call h5%write_attr("/", "complete", 1, e)
       end block ops
       call h5%close(e3)
       if (allocated(e)) then
@@ -653,26 +700,6 @@ contains
         m = e3%message
       end if
     end subroutine add_rest
-
-    !> Rank 0: complete = 1 in the closed temporary, then the rename; '' or a message.
-    subroutine seal(m)
-      character(len=:), allocatable, intent(inout) :: m
-      type(h5file_t) :: hs
-      type(error_t), allocatable :: e, e3
-      call hs%open(this%path // ".partial", e, readwrite=.true.)
-      if (allocated(e)) then
-        m = e%message; return
-      end if
-      call hs%write_attr("/", "complete", 1, e)
-      call hs%close(e3)
-      if (allocated(e)) then
-        m = e%message
-      else if (allocated(e3)) then
-        m = e3%message
-      else if (rename_file(this%path // ".partial", this%path) /= 0) then
-        m = "rename '" // this%path // ".partial' -> '" // this%path // "' failed"
-      end if
-    end subroutine seal
 
     !> The sample's global CSR offsets [ns] and dictionary indices [nnz].
     subroutine global_csr(l, g, o8, ix)
@@ -689,7 +716,7 @@ contains
     end subroutine global_csr
   end subroutine writer_finish
 
-  !> Collective: give up a database being written (after begin): the MPI-IO handle is closed and
+  !> Collective: give up a database being written (after begin): each rank's file is closed and
   !> rank 0 removes the temporary. Nothing under the final name is touched.
   subroutine writer_discard(this)
     class(snap_writer_t), intent(inout) :: this
@@ -698,7 +725,9 @@ contains
     if (.not. allocated(this%path)) return
     call this%pf%close(e)
     this%active = .false.
-    call this%env%barrier()
+    ! every rank has closed the file before rank 0 removes it (a failed barrier is not reported:
+    ! the run has failed already)
+    call this%env%sync(e)
     if (this%env%is_root()) st = remove_file(this%path // ".partial")
   end subroutine writer_discard
 
@@ -768,16 +797,13 @@ contains
       4_i8 * (3 * ns + 1 + size(s%value))
   end function sample_bytes
 
-  !> Collective: sorted union over all ranks of the contact keys of the samples (with the
-  !> identities of each contact).
-  subroutine build_dictionary(env, samples, dkey, dia, dib, dob, error)
-    type(env_t), intent(in) :: env
+  !> This rank's contacts: the unique keys of its samples with each contact's identities,
+  !> sorted by key, packed as [key, ia, ib, ob] per contact [4, n].
+  subroutine local_contacts(samples, pack4)
     type(snap_sample_t), intent(in) :: samples(:)
-    integer(i8), allocatable, intent(out) :: dkey(:)
-    integer, allocatable, intent(out) :: dia(:), dib(:), dob(:)
-    type(error_t), allocatable, intent(out) :: error
-    integer(i8), allocatable :: keys(:), allk(:), pack4(:,:)
-    integer, allocatable :: ids(:,:), idx(:), counts(:), displs(:)
+    integer(i8), allocatable, intent(out) :: pack4(:,:)
+    integer(i8), allocatable :: keys(:)
+    integer, allocatable :: ids(:,:)
     integer :: n, j, m
     n = 0
     do j = 1, size(samples)
@@ -791,53 +817,67 @@ contains
         m = size(s%key)
         keys(n + 1:n + m) = s%key
         ids(1, n + 1:n + m) = s%ia; ids(2, n + 1:n + m) = s%ib; ids(3, n + 1:n + m) = s%ob
-        call unique(keys(n + 1:n + m), ids(:, n + 1:n + m), m)
+        call unique_contacts(keys(n + 1:n + m), ids(:, n + 1:n + m), m)
         n = n + m
       end associate
     end do
-    call unique(keys, ids, n)
-    ! keys and identities in one exchange: [key, ia, ib, ob] per contact
+    call unique_contacts(keys, ids, n)
     allocate(pack4(4, n))
     pack4(1, :) = keys(1:n)
     pack4(2:4, :) = int(ids(:, 1:n), i8)
-    call env%block_counts(4 * n, counts, displs, error)
-    if (allocated(error)) return
+  end subroutine local_contacts
+
+  !> Collective: the contact dictionary, sorted union over all ranks of their local_contacts
+  !> (`counts`: every rank's number of entries of pack4 [P], e.g. from a reduction).
+  subroutine build_dictionary(env, pack4, counts, dkey, dia, dib, dob, error)
+    type(env_t), intent(in) :: env
+    integer(i8), intent(in) :: pack4(:,:)
+    integer, intent(in) :: counts(:)
+    integer(i8), allocatable, intent(out) :: dkey(:)
+    integer, allocatable, intent(out) :: dia(:), dib(:), dob(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer(i8), allocatable :: allk(:), all4(:,:)
+    integer, allocatable :: ids(:,:), displs(:)
+    integer :: m, q
+    allocate(displs(size(counts)))
+    displs(1) = 0
+    do q = 2, size(counts)
+      displs(q) = displs(q - 1) + counts(q - 1)
+    end do
     allocate(allk(sum(counts)))
     call env%allgatherv(pack4, allk, counts, displs, error)
     if (allocated(error)) return
     m = size(allk) / 4
-    deallocate(ids, pack4)
-    pack4 = reshape(allk, [4, m])
-    allk = pack4(1, :)
-    ids = int(pack4(2:4, :))
-    call unique(allk, ids, m)
+    all4 = reshape(allk, [4, m])
+    allk = all4(1, :)
+    ids = int(all4(2:4, :))
+    call unique_contacts(allk, ids, m)
     dkey = allk(1:m)
     dia = ids(1, 1:m); dib = ids(2, 1:m); dob = ids(3, 1:m)
-
-  contains
-
-    !> Sort keys(1:n) ascending, drop duplicates; n becomes the number of unique keys.
-    subroutine unique(keys, ids, n)
-      integer(i8), intent(inout) :: keys(:)
-      integer, intent(inout) :: ids(:,:)
-      integer, intent(inout) :: n
-      integer :: a, u
-      if (allocated(idx)) deallocate(idx)
-      allocate(idx(n))
-      call argsort_i8(keys(1:n), idx)
-      keys(1:n) = keys(idx)
-      ids(:, 1:n) = ids(:, idx)
-      u = 0
-      do a = 1, n
-        if (u > 0) then
-          if (keys(a) == keys(u)) cycle
-        end if
-        u = u + 1
-        keys(u) = keys(a); ids(:, u) = ids(:, a)
-      end do
-      n = u
-    end subroutine unique
   end subroutine build_dictionary
+
+  !> Sort keys(1:n) ascending (ids [3, n] along), drop duplicates; n becomes the number of
+  !> unique keys.
+  subroutine unique_contacts(keys, ids, n)
+    integer(i8), intent(inout) :: keys(:)
+    integer, intent(inout) :: ids(:,:)
+    integer, intent(inout) :: n
+    integer, allocatable :: idx(:)
+    integer :: a, u
+    allocate(idx(n))
+    call argsort_i8(keys(1:n), idx)
+    keys(1:n) = keys(idx)
+    ids(:, 1:n) = ids(:, idx)
+    u = 0
+    do a = 1, n
+      if (u > 0) then
+        if (keys(a) == keys(u)) cycle
+      end if
+      u = u + 1
+      keys(u) = keys(a); ids(:, u) = ids(:, a)
+    end do
+    n = u
+  end subroutine unique_contacts
 
   ! ------------------------------------------------------------------ read
 
@@ -932,11 +972,11 @@ contains
     type(error_t), allocatable, intent(out) :: error
     type(env_t), intent(in), optional :: env
     type(h5file_t) :: h5
-    type(error_t), allocatable :: e2
+    type(error_t), allocatable :: e2, e3
     character(len=:), allocatable :: path, g, bad
     integer(i8), allocatable :: off(:), d(:)
     integer(i8) :: ns8, nt8, base, nnz_all
-    integer :: nt, nd, c, n
+    integer :: nt, nd, c, n, flag(1)
     nnz_all = 0
     path = hdr%path
     nt = hdr%n_steps; nd = hdr%n_dof
@@ -1016,8 +1056,14 @@ contains
     end if
     end block checks
     if (present(env)) then
-      if (env%any_true(allocated(error)) .and. .not. allocated(error)) call set_error(error, "'" // path // &
-        "': another rank found a corrupt block of set " // name, 2)
+      flag = merge(1, 0, allocated(error))
+      call env%allreduce(flag, 'max', e3)
+      if (allocated(e3)) then
+        if (allocated(error)) deallocate(error)
+        call move_alloc(e3, error)
+      else if (flag(1) > 0 .and. .not. allocated(error)) then
+        call set_error(error, "'" // path // "': another rank found a corrupt block of set " // name, 2)
+      end if
     end if
     if (allocated(error)) goto 9
     ! checksums: in parallel every rank's block is a part of the whole; serially only a whole set

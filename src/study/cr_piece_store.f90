@@ -38,6 +38,9 @@ module cr_piece_store
     type(path_t), allocatable :: path(:)
     !> pieces moved to quarantine by this scan
     integer :: n_quarantined = 0
+    !> (rank 0) the directory did not exist before this scan: no piece, and no temporary of a
+    !> killed run, can be in it
+    logical :: fresh = .false.
   contains
     procedure :: path_of
   end type piece_index_t
@@ -139,7 +142,8 @@ contains
     type(error_t), allocatable, intent(out) :: error
     character(len=:), allocatable :: fatal, bad_msg, h, path, all_msg, m
     character(len=8), allocatable :: hsets(:)
-    integer, allocatable :: hidx(:), bad(:), claimed(:)
+    integer, allocatable :: hidx(:), bad(:), claimed(:), lens(:), buf(:)
+    integer :: head(2)
     type(sample_result_t), allocatable :: res(:)
     type(error_t), allocatable :: e
     type(path_t), allocatable :: tmp(:)
@@ -153,11 +157,15 @@ contains
     fatal = ""
     ! 1. headers, on rank 0
     if (env%is_root()) then
-      if (make_dir(dir) /= 0) fatal = "cannot create the directory '" // dir // "' for the pieces"
+      ! (the directory is created with the first piece: a study too short to write one never
+      ! has one)
+      idx%fresh = .not. file_exists(dir // "/.")
+      if (idx%fresh .and. file_exists(dir)) fatal = "'" // dir // "' exists and is not a directory: " // &
+        "it cannot hold the pieces of '" // dir(1:len(dir) - 7) // "'"
       allocate(claimed(idx%n_tot))
       claimed = 0
       do g = 1, idx%n_tot
-        if (len(fatal) > 0) exit
+        if (len(fatal) > 0 .or. idx%fresh) exit
         if (idx%piece_of(g) > 0) cycle
         call set_of_sample(sets, g, is, k)
         path = piece_path(dir, sets(is)%name, k)
@@ -204,30 +212,47 @@ contains
         end do
       end do
     end if
-    call env%bcast_string(fatal)
-    if (len(fatal) > 0) then
-      call set_error(error, fatal, 2); return
-    end if
-    ! share the index
-    n = idx%n_pieces
-    call env%bcast(n, error)
+    ! share the outcome: [message length, pieces found] (a fresh study ends here: one broadcast)
+    head = [len(fatal), idx%n_pieces]
+    call env%bcast(head, error)
     if (allocated(error)) return
+    if (head(1) > 0) then
+      call env%bcast(fatal, error)
+      if (.not. allocated(error)) call set_error(error, fatal, 2)
+      return
+    end if
+    n = head(2)
+    if (n == 0) return
+    ! ... and the index: [piece_of, slot_of, bad, path lengths], then the paths in one text
+    if (.not. allocated(bad_msg)) bad_msg = ""
+    call resize_bad(n)
+    allocate(lens(n))
+    lens = 0
+    all_msg = ""
+    if (env%is_root()) then
+      do p = 1, n
+        lens(p) = len(idx%path(p)%s)
+        all_msg = all_msg // idx%path(p)%s
+      end do
+    end if
+    buf = [idx%piece_of, idx%slot_of, bad, lens]
+    call env%bcast(buf, error)
+    if (.not. allocated(error)) call env%bcast(all_msg, error)
+    if (allocated(error)) return
+    j = 2 * idx%n_tot
+    idx%piece_of = buf(1:idx%n_tot); idx%slot_of = buf(idx%n_tot + 1:j)
+    bad = buf(j + 1:j + n); lens = buf(j + n + 1:j + 2 * n)
     if (.not. env%is_root()) then
       deallocate(idx%path); allocate(idx%path(n))
       idx%n_pieces = n
+      k = 0
+      do p = 1, n
+        idx%path(p)%s = all_msg(k + 1:k + lens(p))
+        k = k + lens(p)
+      end do
     end if
-    do p = 1, n
-      if (.not. env%is_root()) idx%path(p)%s = ""
-      call env%bcast_string(idx%path(p)%s)
-    end do
-    call env%bcast(idx%piece_of, error)
-    if (.not. allocated(error)) call env%bcast(idx%slot_of, error)
-    if (allocated(error)) return
-    if (.not. allocated(bad_msg)) bad_msg = ""
-    call resize_bad(n)
+    all_msg = ""
     ! 2. full verification of the pieces with good headers, round-robin over the ranks
-    call env%bcast(bad, error)
-    if (allocated(error)) return
     do p = 1, n
       if (bad(p) /= 0 .or. mod(p - 1, env%size) /= env%rank) cycle
       call read_piece(idx%path(p)%s, res, e)
@@ -287,7 +312,8 @@ contains
       end do
       warnings = all_msg // warnings
     end if
-    call env%bcast_string(m)
+    call env%bcast(m, error)
+    if (allocated(error)) return
     if (len(m) > 0) then
       call set_error(error, m, 2); return
     end if
@@ -426,6 +452,9 @@ contains
     if (this%n == 0) return
     call set_of_sample(sets, this%g(1), is, k)
     t0 = this%env%wtime()
+    if (make_dir(this%dir) /= 0) then
+      call set_error(error, "cannot create the directory '" // this%dir // "' for the pieces"); return
+    end if
     call write_piece(piece_path(this%dir, sets(is)%name, k), this%hash, this%res(1:this%n), error)
     if (allocated(error)) return
     this%t_write = this%t_write + (this%env%wtime() - t0)

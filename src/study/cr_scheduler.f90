@@ -1,7 +1,8 @@
 !> Dynamic assignment of tasks (samples) to ranks: a shared counter in an MPI one-sided window
 !> held by rank 0 (env's shared_counter_t). Each rank takes the next ticket with a fetch-and-add
 !> (passive target, no idle master: rank 0 computes too), so ranks that draw cheap samples
-!> simply take more. A second counter records completed tasks, for global progress reports.
+!> simply take more. One counter operation per task: the ticket number also tells how many
+!> tasks have been handed out (progress reports count started tasks).
 !>
 !> On one node Open MPI uses shared memory for the window (no progress thread needed); across
 !> nodes the fetch may wait until rank 0 enters MPI (it does after each of its samples).
@@ -20,7 +21,6 @@ module cr_scheduler
   contains
     procedure :: init
     procedure :: next
-    procedure :: mark_done
     procedure :: n_calls
     procedure :: t_calls
     procedure :: free
@@ -28,14 +28,17 @@ module cr_scheduler
 
 contains
 
-  !> Collective: create the counters (tickets, done) on rank 0, both zero.
-  subroutine init(this, env, n_tasks, error)
+  !> Collective: create the ticket counter on rank 0, zero. With barrier = .false. (default
+  !> .true.) the ranks do not wait for rank 0 to have zeroed it: the caller must have every rank
+  !> receive a message from rank 0 sent after init (e.g. a broadcast) before the first `next`.
+  subroutine init(this, env, n_tasks, error, barrier)
     class(scheduler_t), intent(inout) :: this
     type(env_t), intent(in) :: env
     integer, intent(in) :: n_tasks
     type(error_t), allocatable, intent(out) :: error
+    logical, intent(in), optional :: barrier
     this%n_tasks = n_tasks
-    call this%counter%init(env, 2, error)
+    call this%counter%init(env, 1, error, barrier)
   end subroutine init
 
   !> The next task (1..n_tasks) for this rank, or 0 when every task has been taken.
@@ -48,13 +51,6 @@ contains
     if (allocated(error)) return
     if (t <= this%n_tasks) next = int(t)
   end function next
-
-  !> Record one completed task; returns the global number completed so far.
-  integer function mark_done(this, error) result(n)
-    class(scheduler_t), intent(inout) :: this
-    type(error_t), allocatable, intent(out) :: error
-    n = int(this%counter%fetch_add(2, 1_i8, error) + 1)
-  end function mark_done
 
   !> This rank's counter operations so far.
   integer function n_calls(this)

@@ -33,6 +33,11 @@ module cr_study_run
 
   !> exit status of a run stopped by --stop-after
   integer, parameter :: EXIT_STOPPED = 3
+  !> phase boundaries recorded by every rank (the summary's `phase_marks`, a timeline per rank)
+  integer, parameter :: N_MARKS = 14
+  character(len=*), parameter :: MARK_NAMES = "setup_local,probe_shared,pieces_scanned,counter_created," // &
+    "database_begun,loop_start,last_ticket,last_piece_written,loop_end_reduced,counter_freed," // &
+    "database_finished,pieces_removed,directory_removed,end"
   character(len=*), parameter :: CROWDROM_VERSION = "crowdrom 0.1.0"
 
   !> Options of a run (command line).
@@ -55,8 +60,9 @@ module cr_study_run
     !> samples computed and busy time (samples and their pieces, s) of each rank [P]
     integer, allocatable :: nsamp(:)
     real(wp), allocatable :: busy(:)
-    !> sum of the busy times; wall times: total, setup, sample loop, assembly; assembly start
-    real(wp) :: sum_time = 0, t_total = 0, t_setup = 0, t_compute = 0, t_asm = 0, t_asm_start = 0
+    !> sum of the busy times (and of those in the sample loop); wall times: total (the longest
+    !> rank's), setup, sample loop, assembly; assembly start
+    real(wp) :: sum_time = 0, sum_loop = 0, t_total = 0, t_setup = 0, t_compute = 0, t_asm = 0, t_asm_start = 0
     !> rank 0's time putting the samples of earlier runs' pieces into the database (setup, s)
     real(wp) :: t_put_resumed = 0
     !> the database writer's figures (its put time is this rank's; part of the busy time)
@@ -67,6 +73,11 @@ module cr_study_run
     !> pieces written, their bytes and write time (summed), collective latency (s)
     real(wp) :: counter(2) = 0, pieces_out(3) = 0, t_coll = 0
     real(wp) :: batch_seconds = 2
+    !> when each rank passed each phase boundary (s since its start of the run) [N_MARKS, P]
+    real(wp), allocatable :: marks(:, :)
+    !> each rank's time on its samples' multiplier blocks in the end of the database (part of its
+    !> busy time) [P]
+    real(wp), allocatable :: end_blocks(:)
     !> totals over the database
     integer :: nonconverged_steps = 0, nonconverged_samples = 0
     real(wp) :: kkt_max = 0, time_max = 0
@@ -98,13 +109,16 @@ contains
     type(sample_result_t), allocatable :: held(:)
     type(db_meta_t) :: meta
     type(snap_writer_t) :: writer
+    type(error_t), allocatable :: e2
     real(wp), allocatable :: q0(:), redu(:)
     integer :: ci(2), nv
     real(wp) :: cr(2)
     integer, allocatable :: done(:), todo(:)
     character(len=:), allocatable :: dir, msg
-    integer :: status, g, k, is, t, n_mine, ndone, j, maj, mnr, rel, ierr
+    integer :: status, g, k, is, t, n_mine, j, maj, mnr, rel, ierr, p
     real(wp) :: t0, t_start, t_loop, t_sample, busy_mine
+    real(wp) :: mk(N_MARKS)
+    logical :: quarantined
 
     t_start = env%wtime()
     this%db = trim(study%database)
@@ -112,11 +126,9 @@ contains
     this%batch_seconds = opts%batch_seconds
     call log%stage_begin("crowd_snapshots: setup")
     call log%info(config_echo(cfg) // study_echo(study))
-    ! the reference model: scene and the common initial positions (placed once, on rank 0)
+    ! the reference model: scene and the common initial positions (rank 0's are broadcast)
+    mk = 0
     call fom_ref%init(cfg, error)
-    if (allocated(error)) return
-    q0 = fom_ref%q
-    call env%bcast(q0, error)
     if (allocated(error)) return
     call space%init(study, fom_ref%n_agents)
     call generate_samples(study, space, sets(1), sets(2), error)
@@ -129,14 +141,22 @@ contains
       str(sets(1)%n) // " training + " // str(sets(2)%n) // " validation samples on " // str(env%size) // &
       " ranks; config_hash " // this%hash)
 
-    ! an existing database: done already, or refused
+    mk(1) = env%wtime() - t_start
+
+    ! an existing database: done already, or refused; rank 0's answer and initial positions in
+    ! one broadcast
     status = 0; msg = ""
     if (env%is_root()) call probe_snap_database(this%db, this%hash, status, msg)
-    call env%bcast(status, error)
+    q0 = [real(status, wp), fom_ref%q]
+    call env%bcast(q0, error)
     if (allocated(error)) return
-    if (status == 2) call env%bcast_string(msg)
+    status = nint(q0(1))
+    q0 = q0(2:)
+    mk(2) = env%wtime() - t_start
     if (status == 2) then
-      call set_error(error, msg, 2); return
+      call env%bcast(msg, error)
+      if (.not. allocated(error)) call set_error(error, msg, 2)
+      return
     end if
     if (status == 1) then
       this%no_op = .true.
@@ -150,6 +170,7 @@ contains
     call scan_pieces(env, dir, this%hash, sets, 2 * fom_ref%n_agents, cfg%time%n_steps, opts%quarantine, pieces, &
       held, msg, error)
     if (allocated(error)) return
+    mk(3) = env%wtime() - t_start
     if (len(msg) > 0) call log%warn(msg // "the samples of the " // str(pieces%n_quarantined) // &
       " bad piece(s) are recomputed")
     allocate(done(this%n_tot))
@@ -164,8 +185,14 @@ contains
     call fill_meta()
     nv = size(scene_vertex_list(fom_ref%scene))
     ci = 0; cr = 0
-    call writer%begin(env, this%db, meta, q0, fom_ref%scene, error)
-    if (allocated(error)) return
+    ! the ticket counter first: begin's broadcast from rank 0 (after rank 0 has zeroed it) is then
+    ! the barrier before the first ticket, and begin shares a failure of the counter
+    call sched%init(env, this%n_run, e2, barrier=.false.)
+    mk(4) = env%wtime() - t_start
+    call writer%begin(env, this%db, meta, q0, fom_ref%scene, error, prior=e2)
+    if (allocated(error)) then
+      call sched%free(); return
+    end if
     msg = ""
     do j = 1, size(held)
       call put(held(j), error)
@@ -180,18 +207,16 @@ contains
     ! (every rank knows whether there were earlier pieces)
     if (pieces%n_pieces > 0) call env%agree_error(error)
     if (allocated(error)) then
-      call writer%discard(); return
+      call sched%free(); call writer%discard(); return
     end if
+    mk(5) = env%wtime() - t_start
     call log%stage_end()
 
     ! the samples, dynamically assigned
     call log%stage_begin("crowd_snapshots: " // str(this%n_run) // " full-order runs on " // str(env%size) // " ranks")
-    call sched%init(env, this%n_run, error)
-    if (allocated(error)) then
-      call writer%discard(); return
-    end if
     call log%progress_start()
     t_loop = env%wtime()
+    mk(6) = t_loop - t_start
     call batch%init(env, dir, this%hash, opts%batch_seconds)
     msg = ""
     n_mine = 0; busy_mine = 0; this%sum_time = 0
@@ -200,7 +225,10 @@ contains
       if (allocated(error)) then
         msg = "rank " // str(env%rank) // ": " // error%message; deallocate(error); exit
       end if
-      if (t == 0) exit
+      if (t == 0) then
+        mk(7) = env%wtime() - t_start
+        exit
+      end if
       g = todo(t)
       call set_of_sample(sets, g, is, k)
       t0 = env%wtime()
@@ -223,13 +251,14 @@ contains
       t_sample = env%wtime() - t0
       busy_mine = busy_mine + t_sample
       n_mine = n_mine + 1
-      ndone = sched%mark_done(error)
-      if (allocated(error)) then
-        msg = "rank " // str(env%rank) // ": " // error%message; deallocate(error); exit
-      end if
-      if (env%is_root()) call log%progress("samples", this%n_prev + ndone, this%n_tot)
+      ! (ticket t: t - 1 samples were handed out before this one)
+      if (env%is_root()) call log%progress("samples started", this%n_prev + t, this%n_tot)
     end do
-    if (len(msg) == 0) then
+    ! the samples of the last, unfinished time slice go into a piece only when the run stops
+    ! before the database is finished (--stop-after); otherwise they are in the database a few
+    ! moments later, and a run killed in between loses at most that one slice of work per
+    ! rank, as it could in any slice (a piece written only to be deleted is not written)
+    if (len(msg) == 0 .and. this%n_run < size(todo)) then
       t0 = env%wtime()
       call batch%flush(sets, error)
       busy_mine = busy_mine + (env%wtime() - t0)
@@ -237,36 +266,45 @@ contains
         msg = "rank " // str(env%rank) // ": " // error%message; deallocate(error)
       end if
     end if
+    mk(8) = env%wtime() - t_start
     if (len(msg) > 0) call set_error(error, msg)
-    call env%agree_error(error)
-    ! (the agreement is the end of the loop on every rank)
-    this%t_compute = env%wtime() - t_loop
     this%counter = [real(sched%n_calls(), wp), sched%t_calls()]
     this%pieces_out = [real(batch%n_pieces, wp), real(batch%bytes_written, wp), batch%t_write]
+    ! the end of the loop on every rank: one reduction of every rank's figures and failure flag
+    ! (per-rank slots [P] for busy time, samples, largest KKT residual and sample time, failure;
+    ! then sums); the message of a failure is agreed only when there is one
+    p = env%size
+    allocate(redu(5 * p + 8))
+    redu = 0
+    redu(env%rank + 1) = busy_mine
+    redu(p + env%rank + 1) = n_mine
+    redu(2 * p + env%rank + 1) = cr(1)
+    redu(3 * p + env%rank + 1) = cr(2)
+    redu(4 * p + env%rank + 1) = merge(1, 0, allocated(error))
+    redu(5 * p + 1:) = [this%counter, this%pieces_out, writer%stats%t_put - this%t_put_resumed, real(ci, wp)]
+    call env%allreduce(redu, 'sum', e2)
+    if (allocated(e2)) then
+      if (allocated(error)) deallocate(error)
+      call move_alloc(e2, error)
+    else if (any(redu(4 * p + 1:5 * p) > 0)) then
+      call env%agree_error(error)
+    end if
+    mk(9) = env%wtime() - t_start
+    this%t_compute = env%wtime() - t_loop
     call sched%free()
     if (allocated(error)) then
       call writer%discard(); return
     end if
-    ! every rank's figures in two reductions: per-rank slots and sums, then maxima
-    allocate(redu(2 * env%size + 8))
-    redu = 0
-    redu(env%rank + 1) = busy_mine
-    redu(env%size + env%rank + 1) = n_mine
-    redu(2 * env%size + 1:) = [this%counter, this%pieces_out, writer%stats%t_put - this%t_put_resumed, &
-      real(ci, wp)]
-    call env%allreduce(redu, 'sum', error)
-    if (.not. allocated(error)) call env%allreduce(cr, 'max', error)
-    if (allocated(error)) then
-      call writer%discard(); return
-    end if
-    this%busy = redu(1:env%size)
-    this%nsamp = nint(redu(env%size + 1:2 * env%size))
+    this%busy = redu(1:p)
+    this%nsamp = nint(redu(p + 1:2 * p))
     this%sum_time = sum(this%busy)
-    associate (r => redu(2 * env%size + 1:))
+    this%sum_loop = this%sum_time
+    this%kkt_max = maxval(redu(2 * p + 1:3 * p)); this%time_max = maxval(redu(3 * p + 1:4 * p))
+    associate (r => redu(5 * p + 1:))
       this%counter = r(1:2); this%pieces_out = r(3:5); this%t_put_all = r(6)
       this%nonconverged_steps = nint(r(7)); this%nonconverged_samples = nint(r(8))
     end associate
-    this%kkt_max = cr(1); this%time_max = cr(2)
+    mk(10) = env%wtime() - t_start
     this%t_setup = t_loop - t_start
     call log%info("   samples " // str(this%n_prev + this%n_run) // " of " // str(this%n_tot) // " complete")
     call log%stage_end()
@@ -285,8 +323,11 @@ contains
     call writer%finish(error)
     this%wstats = writer%stats
     if (allocated(error)) return
-    ! the database is committed: the pieces can go (each rank its own, rank 0 those of earlier
-    ! runs and the temporaries of pieces a killed run did not finish)
+    mk(11) = env%wtime() - t_start
+    ! the database is committed (every rank knows it from finish's last broadcast): the pieces
+    ! can go (each rank its own, rank 0 those of earlier runs and the temporaries of pieces a
+    ! killed run did not finish); then every rank tries to remove the directory, so the last one
+    ! to finish removes it (no rank waits for another)
     j = 1
     do while (j < size(batch%written))
       call set_of_sample(sets, batch%written(j + 1), is, k)
@@ -297,25 +338,56 @@ contains
       do g = 1, pieces%n_pieces
         ierr = remove_file(pieces%path_of(g))
       end do
-      do g = 1, this%n_tot
-        call set_of_sample(sets, g, is, k)
-        ierr = remove_file(piece_path(dir, sets(is)%name, k) // ".partial")
-      end do
-    end if
-    call env%barrier()
-    if (env%is_root()) then
-      if (file_exists(dir // "/quarantine/.")) then
-        call log%info("   bad pieces kept in '" // dir // "/quarantine' (inspect, then remove them)")
-      else if (remove_dir(dir) /= 0) then
-        call log%warn("could not remove '" // dir // "' (foreign files in it?)")
+      if (.not. pieces%fresh) then
+        do g = 1, this%n_tot
+          call set_of_sample(sets, g, is, k)
+          ierr = remove_file(piece_path(dir, sets(is)%name, k) // ".partial")
+        end do
       end if
     end if
+    mk(12) = env%wtime() - t_start
+    ! (the directory exists only if a piece was ever written: a rank that removed nothing here,
+    ! and rank 0 of a study whose directory did not exist, need not look)
+    quarantined = .false.
+    if (batch%n_pieces > 0 .or. (env%is_root() .and. .not. pieces%fresh)) then
+      quarantined = file_exists(dir // "/quarantine/.")
+      if (.not. quarantined) ierr = remove_dir(dir)
+    end if
+    mk(13) = env%wtime() - t_start
     this%t_asm = env%wtime() - t0
     call log%stage_end()
     this%t_total = env%wtime() - t_start
+    mk(14) = this%t_total
     if (env%is_root()) this%bytes = file_size(this%db)
-    ! a diagnostic for the scaling model, after the run's clock has stopped
+    ! figures, after the run's clock has stopped: the scaling model's collective latency, every
+    ! rank's phase marks and its busy time at the end (its samples' multiplier blocks)
     this%t_coll = env%collective_latency(20, error)
+    if (allocated(error)) return
+    deallocate(redu)
+    allocate(redu((N_MARKS + 1) * p))
+    redu = 0
+    redu(env%rank * (N_MARKS + 1) + 1:(env%rank + 1) * (N_MARKS + 1)) = [mk, writer%stats%t_blocks]
+    call env%allreduce(redu, 'sum', error)
+    if (allocated(error)) return
+    this%marks = reshape(redu, [N_MARKS + 1, p])
+    this%end_blocks = this%marks(N_MARKS + 1, :)
+    this%marks = this%marks(1:N_MARKS, :)
+    this%busy = this%busy + this%end_blocks
+    this%sum_time = sum(this%busy)
+    ! the run ends when its last rank ends: rank 0's time to the first broadcast (where the ranks
+    ! meet: before it a rank may wait for a partner still in the driver's input checks), then
+    ! the longest rank's time after it (each on its own clock)
+    this%t_total = this%marks(2, 1) + maxval(this%marks(N_MARKS, :) - this%marks(2, :))
+    ! the sample loop: from its start to its agreed end, the longest rank's
+    this%t_compute = maxval(this%marks(9, :) - this%marks(6, :))
+    ! (every rank has passed its removal now)
+    if (env%is_root()) then
+      if (file_exists(dir // "/quarantine/.")) then
+        call log%info("   bad pieces kept in '" // dir // "/quarantine' (inspect, then remove them)")
+      else if (file_exists(dir // "/.")) then
+        call log%warn("could not remove '" // dir // "' (foreign files in it?)")
+      end if
+    end if
 
   contains
 
@@ -369,7 +441,7 @@ contains
     integer, intent(in) :: p
     real(wp), intent(out) :: eff_loop, eff_total, balance
     eff_loop = 0; eff_total = 0; balance = 1
-    if (this%t_compute > 0) eff_loop = this%sum_time / (p * this%t_compute)
+    if (this%t_compute > 0) eff_loop = this%sum_loop / (p * this%t_compute)
     if (this%t_total > 0) eff_total = this%sum_time / (p * this%t_total)
     if (maxval(this%busy) > 0) balance = sum(this%busy) / p / maxval(this%busy)
   end subroutine efficiencies
@@ -438,6 +510,7 @@ contains
     call js%add("time_per_sample_max", this%time_max)
     call js%add("samples_per_rank", this%nsamp)
     call js%add("busy_time_per_rank", this%busy)
+    if (allocated(this%end_blocks)) call js%add("end_block_time_per_rank", this%end_blocks)
     call js%add("load_balance", balance)
     call js%add("parallel_efficiency", eff_total)
     call js%add("parallel_efficiency_sample_loop", eff_loop)
@@ -462,6 +535,8 @@ contains
     call js%add("assembly_seal_time", this%wstats%t_seal)
     call js%add("assembly_bytes_written", real(this%wstats%bytes, wp))
     call js%add("batch_seconds", this%batch_seconds)
+    call js%add("phase_names", MARK_NAMES)
+    if (allocated(this%marks)) call js%add("phase_marks", reshape(this%marks, [size(this%marks)]))
     call js%add("nonconverged_steps", this%nonconverged_steps)
     call js%add("nonconverged_samples", this%nonconverged_samples)
     call js%add("largest_kkt_residual", this%kkt_max)
