@@ -2,7 +2,7 @@
 !> agreement with the dense active_set solver on random and jammed scenes, degenerate active
 !> sets, factor drift over long sequences of updates, and the new options' bad input.
 program test_sparse_as
-  use cr_kinds, only: wp
+  use cr_kinds, only: wp, i8
   use cr_error, only: error_t
   use cr_assert, only: check, test_summary
   use cr_test_scenes, only: seed_random, lattice_scene, hex_scene
@@ -20,6 +20,7 @@ program test_sparse_as
   call test_drift()
   call test_analysed_set()
   call test_step_back()
+  call test_reuse()
   call test_options()
   call test_summary()
 
@@ -264,7 +265,7 @@ contains
     call sa%solve(cs, v, ua, la, sta, err)
     s%name = 'sparse_active_set'; s%dense_rows = 0
     call sp%init(s, err); call spall%init(s, err)
-    sp%w_margin = 0.0_wp; spall%w_margin = -1.0_wp
+    sp%w_margin = 0.0_wp; sp%a_margin = 0.0_wp; spall%w_margin = -1.0_wp
     l0 = 0; lall = 0
     call sp%solve(cs, v, u0, l0, st, err)
     call spall%solve(cs, v, uall, lall, stall, err)
@@ -278,7 +279,7 @@ contains
     call check(maxval(abs(u0 - uall)) <= 10.0_wp * s%tol * maxval(abs(v)), "analysed set: same u as all rows")
     ! the same through the primal-dual sweeps (used on large problems): W enlarged there too
     call sp%free(); call sp%init(s, err)
-    sp%w_margin = 0.0_wp; sp%pdas_rows = 0
+    sp%w_margin = 0.0_wp; sp%a_margin = 0.0_wp; sp%pdas_rows = 0
     l0 = 0
     call sp%solve(cs, v, u0, l0, st, err)
     call check(.not. allocated(err) .and. st%kkt <= s%tol .and. st%n_fallback == 0 .and. sp%n_reanalyse > 0, &
@@ -361,6 +362,114 @@ contains
     call check(nproj > 0, "step back: projected searches ran")
     call check(nrows > nproj, "step back: some projected search froze several rows")
   end subroutine test_step_back
+
+  !> Analysis reused across solves by contact identity (reuse_analysis) and the warm start by
+  !> the step back (warm_search): along a trajectory whose contacts appear and disappear (agents
+  !> pulled into a jam, rows rebuilt every step, warm started by identity), every combination
+  !> solves each step to scaled KKT <= tol on the sparse path with the same u as active_set to
+  !> 10 tol |v| (as in compare); with reuse most steps keep the previous analysis, and some
+  !> must analyse afresh (new rows among those that may become active).
+  subroutine test_reuse()
+    integer, parameter :: na = 100, nsteps = 40
+    type(contact_set_t) :: cs
+    type(sparse_as_solver_t) :: sp
+    class(projection_solver_t), allocatable :: sa
+    type(projection_settings_t) :: s
+    type(solve_stats_t) :: st, sta
+    type(error_t), allocatable :: err
+    type(chol_t) :: ch
+    real(wp) :: q(2, na), q0(2, na), v(2 * na), u(2 * na), ua(2 * na), c(2), d(2), dist, du, hh
+    real(wp), allocatable :: l(:), la(:), lprev(:)
+    integer(i8), allocatable :: kprev(:)
+    integer :: i, j, k, step, nfail, var, p
+    logical :: reuse(3) = [.true., .false., .true.], warm(3) = [.true., .true., .false.]
+    character(len=16) :: tag
+    hh = 0.005_wp
+    do j = 1, 10
+      do i = 1, 10
+        q0(:, i + 10 * (j - 1)) = [i, j] * (2.0_wp * rad + 0.03_wp) + 0.01_wp * [sin(1.0_wp * i * j), cos(3.0_wp * i + j)]
+      end do
+    end do
+    c = sum(q0, dim=2) / na
+    s = projection_settings_t(); s%name = 'active_set'
+    call make_projection_solver(s, sa, err)
+    do var = 1, 3
+      write(tag, '(a,i0)') "reuse var ", var
+      s = projection_settings_t(); s%name = 'sparse_active_set'; s%dense_rows = 0
+      call sp%init(s, err)
+      sp%reuse_analysis = reuse(var); sp%warm_search = warm(var)
+      q = q0; du = 0; nfail = 0
+      allocate(lprev(0), kprev(0))
+      do step = 1, nsteps
+        ! candidate rows: pairs closer than 3 h |v|max (the FOM's cutoff), so rows come and go
+        call cs%init(na, hh, 8 * na)
+        do i = 1, na
+          d = q(:, i) - c
+          v(2*i - 1:2*i) = -4.0_wp * d / max(norm2(d), 1.0e-3_wp) + 0.5_wp * [cos(0.3_wp * step + i), &
+            sin(0.7_wp * step - i)]
+        end do
+        do i = 1, na
+          do j = i + 1, na
+            dist = norm2(q(:, i) - q(:, j))
+            if (dist - 2.0_wp * rad < 3.0_wp * hh * 4.5_wp) call cs%add(i, j, 0, (q(:, i) - q(:, j)) / dist, &
+              dist - 2.0_wp * rad)
+          end do
+        end do
+        allocate(l(cs%n), la(cs%n))
+        l = 0
+        do k = 1, cs%n
+          do p = 1, size(kprev)
+            if (kprev(p) == cs%key(k)) l(k) = lprev(p)
+          end do
+        end do
+        la = l
+        call sp%solve(cs, v, u, l, st, err)
+        call sa%solve(cs, v, ua, la, sta, err)
+        if (allocated(err) .or. .not. (st%converged .and. st%kkt <= s%tol) .or. st%n_fallback > 0) nfail = nfail + 1
+        du = max(du, maxval(abs(u - ua)) / maxval(abs(v)))
+        deallocate(lprev, kprev)
+        allocate(lprev(cs%n), kprev(cs%n))
+        lprev = l; kprev = cs%key([(k, k = 1, cs%n)])
+        q = q + hh * reshape(u, [2, na])
+        deallocate(l, la)
+      end do
+      deallocate(lprev, kprev)
+      print '(2x,a,": analyses ",i0," reused ",i0," re-analyses ",i0,", largest |u - u_active_set| ",es9.2)', &
+        trim(tag), sp%n_analyse, sp%n_reuse, sp%n_reanalyse, du
+      call check(nfail == 0, trim(tag) // ": every step converged on the sparse path")
+      call check(du <= 10.0_wp * s%tol, trim(tag) // ": agrees with active_set on every step")
+      if (reuse(var)) then
+        call check(sp%n_reuse > nsteps / 2, trim(tag) // ": most steps reuse the analysis")
+        call check(sp%n_analyse > 1, trim(tag) // ": new rows force fresh analyses")
+      else
+        call check(sp%n_reuse == 0, trim(tag) // ": no reuse when off")
+      end if
+      call sp%free()
+    end do
+    ! the shim refuses values outside the analysed pattern and two rows on one slot
+    call ch%analyze(3, [1, 2, 4, 5], [1, 1, 2, 3], [2.0_wp, 1.0_wp, 2.0_wp, 2.0_wp], err)
+    call check(.not. allocated(err), "shim: analysis of a 3 x 3 matrix")
+    call ch%set_values([1, 2, 4, 6], [1, 1, 2, 1, 3], [2.0_wp, 1.0_wp, 2.0_wp, 1.0_wp, 2.0_wp], err)
+    call check(allocated(err), "shim: values outside the analysed pattern refused")
+    if (allocated(err)) call check(index(err%message, "outside the analysed pattern") > 0, "shim: message says so")
+    call ch%set_values([1, 2, 3, 4], [1, 2, 3], [2.0_wp, 2.0_wp, 2.0_wp], err)
+    call check(.not. allocated(err), "shim: values on a part of the analysed pattern accepted")
+    call ch%set_rows([2, 0, 2], err)
+    call check(allocated(err), "shim: two rows on one slot refused")
+    call ch%set_rows([3, 0, 1, 2], err)
+    call check(.not. allocated(err), "shim: rows mapped to slots")
+    call ch%factor([.true., .false., .true., .true.], err)
+    call check(.not. allocated(err), "shim: factor through the row map")
+    block
+      real(wp) :: x(4)
+      call ch%solve([4.0_wp, 7.0_wp, 2.0_wp, 2.0_wp], x, err)
+      ! slots: row 1 -> 3, row 3 -> 1, row 4 -> 2; M on slots = 2 I (off-diagonals were set to
+      ! zero pattern), row 2 has no slot (identity)
+      call check(.not. allocated(err) .and. maxval(abs(x - [2.0_wp, 7.0_wp, 1.0_wp, 1.0_wp])) <= &
+        4.0_wp * epsilon(1.0_wp), "shim: solve through the row map")
+    end block
+    call ch%free()
+  end subroutine test_reuse
 
   !> The new options: bad values give an error naming them.
   subroutine test_options()

@@ -25,6 +25,15 @@ module cr_cholmod
     !> from this dimension on, the Schur pivot test visits only the elimination-tree reach of
     !> the new row (below, a scan from its first position is cheaper)
     integer :: reach_min = 16384
+    !> the caller's rows and their slots in the analysed matrix: the caller numbers its rows
+    !> 1..nrow, the factor knows M [n, n] on slots; map(i) is row i's slot, 0 when the row has
+    !> none (such a row can never be active: identity, refused by factor and rowadd). After
+    !> analyze the map is the identity (nrow = n); set_rows changes it (reused analysis).
+    integer :: nrow = 0
+    integer, allocatable :: map(:)
+    !> slot-space work arrays [n]
+    real(wp), allocatable, private :: xs(:)
+    integer(c_int), allocatable, private :: as(:)
   contains
     procedure :: init => chol_init
     procedure :: free => chol_free
@@ -40,6 +49,8 @@ module cr_cholmod
     procedure :: symbolic_nnz => chol_symbolic_nnz
     procedure :: perm => chol_perm
     procedure :: n_pattern => chol_n_pattern
+    procedure :: set_rows => chol_set_rows
+    procedure :: set_values => chol_set_values
   end type chol_t
 
   interface
@@ -130,6 +141,19 @@ module cr_cholmod
       import :: c_ptr, c_long
       type(c_ptr), value :: h
     end function c_n_pattern
+    integer(c_int) function c_set_rows(h, nrow, map) bind(C, name='cr_chol_set_rows')
+      import :: c_ptr, c_int
+      type(c_ptr), value :: h
+      integer(c_int), value :: nrow
+      integer(c_int), intent(in) :: map(*)
+    end function c_set_rows
+    integer(c_int) function c_set_values(h, n, colptr, rowind, val) bind(C, name='cr_chol_set_values')
+      import :: c_ptr, c_int, c_double
+      type(c_ptr), value :: h
+      integer(c_int), value :: n
+      integer(c_int), intent(in) :: colptr(*), rowind(*)
+      real(c_double), intent(in) :: val(*)
+    end function c_set_values
     integer(c_long) function c_factor_nnz(h) bind(C, name='cr_chol_factor_nnz')
       import :: c_ptr, c_long
       type(c_ptr), value :: h
@@ -184,7 +208,7 @@ contains
     logical, intent(in), optional :: inset(:)
     integer(c_int) :: rc
     integer(c_int), allocatable :: ins(:)
-    integer :: nz
+    integer :: nz, i
     call this%init(error)
     if (allocated(error)) return
     nz = colptr(n + 1) - 1
@@ -202,15 +226,92 @@ contains
       call shim_error(this, "analyze", rc, error); return
     end if
     this%n = n
+    this%nrow = n
+    if (allocated(this%map)) then
+      if (size(this%map) < n) deallocate(this%map)
+    end if
+    if (.not. allocated(this%map)) allocate(this%map(max(n, 16)))
+    this%map(1:n) = [(i, i = 1, n)]
+    if (allocated(this%xs)) then
+      if (size(this%xs) < n) deallocate(this%xs, this%as)
+    end if
+    if (.not. allocated(this%xs)) allocate(this%xs(max(n, 16)), this%as(max(n, 16)))
   end subroutine chol_analyze
 
-  !> Numeric factorisation of M on the rows with active(i), identity elsewhere.
+  !> The caller's rows from now on: map [nrow], map(i) the slot of row i in the analysed
+  !> matrix or 0 (no slot: never active). Slots must be distinct; the factor must be rebuilt
+  !> (factor) before it is used again.
+  subroutine chol_set_rows(this, map, error)
+    class(chol_t), intent(inout) :: this
+    integer, intent(in) :: map(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer :: nr, i
+    integer(c_int) :: rc
+    nr = size(map)
+    if (.not. c_associated(this%h) .or. this%n == 0) then
+      call set_error(error, "cholmod set_rows: no analysis"); return
+    end if
+    if (any(map < 0 .or. map > this%n)) then
+      call set_error(error, "cholmod set_rows: a slot outside 0.." // str(this%n)); return
+    end if
+    this%as(1:this%n) = 0_c_int
+    do i = 1, nr
+      if (map(i) == 0) cycle
+      if (this%as(map(i)) /= 0) then
+        call set_error(error, "cholmod set_rows: rows " // str(int(this%as(map(i)))) // " and " // str(i) // &
+          " share slot " // str(map(i))); return
+      end if
+      this%as(map(i)) = int(i, c_int)
+    end do
+    if (allocated(this%map)) then
+      if (size(this%map) < nr) deallocate(this%map)
+    end if
+    if (.not. allocated(this%map)) allocate(this%map(max(nr, 16)))
+    this%map(1:nr) = map
+    this%nrow = nr
+    rc = c_set_rows(this%h, int(nr, c_int), int(map - 1, c_int))
+    if (rc /= 0) call shim_error(this, "set_rows", rc, error)
+  end subroutine chol_set_rows
+
+  !> New values of M on the stored analysis (same dimension; upper triangle, compressed
+  !> columns, 1-based, rows sorted within each column). Its pattern must lie inside the
+  !> analysed one (the caller's invariant: the same slots keep the same neighbours); the
+  !> current factor is discarded.
+  subroutine chol_set_values(this, colptr, rowind, val, error)
+    class(chol_t), intent(inout) :: this
+    !> column starts [n + 1], row indices and values [colptr(n+1) - 1]
+    integer, intent(in) :: colptr(:), rowind(:)
+    real(wp), intent(in) :: val(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer(c_int) :: rc
+    integer :: nz
+    if (.not. c_associated(this%h) .or. this%n == 0) then
+      call set_error(error, "cholmod set_values: no analysis to reuse"); return
+    end if
+    nz = colptr(this%n + 1) - 1
+    rc = c_set_values(this%h, int(this%n, c_int), int(colptr(1:this%n + 1) - 1, c_int), &
+      int(rowind(1:max(nz, 1)) - 1, c_int), val)
+    if (rc /= 0) call shim_error(this, "set_values", rc, error)
+  end subroutine chol_set_values
+
+  !> Numeric factorisation of M on the rows with active(i) [nrow], identity elsewhere.
   subroutine chol_factor(this, active, error)
     class(chol_t), intent(inout) :: this
     logical, intent(in) :: active(:)
     type(error_t), allocatable, intent(out) :: error
     integer(c_int) :: rc
-    rc = c_factor(this%h, merge(1_c_int, 0_c_int, active(1:this%n)))
+    integer :: i, k
+    this%as(1:this%n) = 0_c_int
+    do i = 1, this%nrow
+      if (.not. active(i)) cycle
+      k = this%map(i)
+      if (k == 0) then
+        call set_error(error, "cholmod factor: row " // str(i) // " is active but outside the analysed set")
+        return
+      end if
+      this%as(k) = 1_c_int
+    end do
+    rc = c_factor(this%h, this%as)
     if (rc /= 0) then
       call shim_error(this, "factor", rc, error); return
     end if
@@ -218,14 +319,21 @@ contains
     this%n_since = 0
   end subroutine chol_factor
 
-  !> Pivots D(i,i) of the current factor (1 on inactive rows) [n].
+  !> Pivots D(i,i) of the current factor (1 on inactive rows) [nrow].
   subroutine chol_pivots(this, d, error)
     class(chol_t), intent(inout) :: this
     real(wp), intent(out) :: d(:)
     type(error_t), allocatable, intent(out) :: error
     integer(c_int) :: rc
-    rc = c_pivots(this%h, d)
-    if (rc /= 0) call shim_error(this, "pivots", rc, error)
+    integer :: i
+    rc = c_pivots(this%h, this%xs)
+    if (rc /= 0) then
+      call shim_error(this, "pivots", rc, error); return
+    end if
+    do i = 1, this%nrow
+      d(i) = 1.0_wp
+      if (this%map(i) > 0) d(i) = this%xs(this%map(i))
+    end do
   end subroutine chol_pivots
 
   !> Make row t active: idx, val [nz] are its entries in M (entries on inactive rows other
@@ -238,7 +346,19 @@ contains
     real(wp), intent(out) :: pivot
     type(error_t), allocatable, intent(out) :: error
     integer(c_int) :: rc
-    rc = c_rowadd(this%h, int(t - 1, c_int), int(size(idx), c_int), int(idx - 1, c_int), val, pivot)
+    integer(c_int) :: ic(size(idx))
+    real(wp) :: vc(size(idx))
+    integer :: q, nz
+    if (this%map(t) == 0) then
+      call set_error(error, "cholmod rowadd: row " // str(t) // " is outside the analysed set"); return
+    end if
+    ! rows without a slot are inactive: their entries are dropped (as every inactive row's)
+    nz = 0
+    do q = 1, size(idx)
+      if (this%map(idx(q)) == 0) cycle
+      nz = nz + 1; ic(nz) = int(this%map(idx(q)) - 1, c_int); vc(nz) = val(q)
+    end do
+    rc = c_rowadd(this%h, int(this%map(t) - 1, c_int), int(nz, c_int), ic, vc, pivot)
     if (rc /= 0) then
       call shim_error(this, "rowadd", rc, error); return
     end if
@@ -252,7 +372,10 @@ contains
     integer, intent(in) :: t
     type(error_t), allocatable, intent(out) :: error
     integer(c_int) :: rc
-    rc = c_rowdel(this%h, int(t - 1, c_int))
+    if (this%map(t) == 0) then
+      call set_error(error, "cholmod rowdel: row " // str(t) // " has no slot (never active)"); return
+    end if
+    rc = c_rowdel(this%h, int(this%map(t) - 1, c_int))
     if (rc /= 0) then
       call shim_error(this, "rowdel", rc, error); return
     end if
@@ -260,7 +383,7 @@ contains
     this%n_since = this%n_since + 1
   end subroutine chol_rowdel
 
-  !> x = A^{-1} b with the current factor [n].
+  !> x = A^{-1} b with the current factor [nrow] (identity on rows without a slot).
   subroutine chol_solve(this, b, x, error)
     class(chol_t), intent(inout) :: this
     real(wp), intent(in) :: b(:)
@@ -281,7 +404,18 @@ contains
     real(wp), intent(out) :: s
     type(error_t), allocatable, intent(out) :: error
     integer(c_int) :: rc
-    rc = c_schur(this%h, int(t - 1, c_int), int(size(idx), c_int), int(idx - 1, c_int), val, &
+    integer(c_int) :: ic(size(idx))
+    real(wp) :: vc(size(idx))
+    integer :: q, nz
+    if (this%map(t) == 0) then
+      call set_error(error, "cholmod schur: row " // str(t) // " is outside the analysed set"); return
+    end if
+    nz = 0
+    do q = 1, size(idx)
+      if (this%map(idx(q)) == 0) cycle
+      nz = nz + 1; ic(nz) = int(this%map(idx(q)) - 1, c_int); vc(nz) = val(q)
+    end do
+    rc = c_schur(this%h, int(this%map(t) - 1, c_int), int(nz, c_int), ic, vc, &
       int(this%reach_min, c_int), s)
     if (rc /= 0) call shim_error(this, "schur", rc, error)
   end subroutine chol_schur

@@ -20,6 +20,7 @@ typedef struct {
   int started;
   int n;
   cholmod_sparse *m;      /* full matrix M, upper, stype = 1 */
+  cholmod_sparse *m0;     /* M as analysed (its pattern bounds later values) */
   cholmod_factor *sym;    /* symbolic analysis of M */
   cholmod_factor *l;      /* numeric LDL' factor of the active matrix */
   cholmod_sparse *r;      /* rowadd column [n, 1] */
@@ -33,6 +34,12 @@ typedef struct {
   int *mk, *stk;          /* marks (zero between calls) and a stack of the Schur test [n] */
   cholmod_sparse *rpat;   /* pattern of a row of L handed to cholmod_rowdel [n, 1] */
   long n_pattern;         /* row deletions done with a known row pattern */
+  int nrow;               /* the caller's rows (cr_chol_set_rows; n after an analysis) */
+  int *rowof;             /* caller's row at each factor position, -1 for none [n] */
+  int *noslot, nnoslot;   /* the caller's rows without a slot [nrow] */
+  int *apos, napos;       /* active factor positions, ascending [n] (the solve visits only
+                           * these; the others are identity rows and, in the work vector
+                           * xw, stay zero) */
   char msg[256];
 } cr_chol_t;
 
@@ -43,7 +50,9 @@ static int fail(cr_chol_t *h, int code, const char *what) {
 
 static void release(cr_chol_t *h) {
   if (!h->started) return;
-  if (h->m) cholmod_free_sparse(&h->m, &h->c);
+  if (h->m && h->m != h->m0) cholmod_free_sparse(&h->m, &h->c);
+  h->m = NULL;
+  if (h->m0) cholmod_free_sparse(&h->m0, &h->c);
   if (h->sym) cholmod_free_factor(&h->sym, &h->c);
   if (h->l) cholmod_free_factor(&h->l, &h->c);
   if (h->r) cholmod_free_sparse(&h->r, &h->c);
@@ -57,6 +66,10 @@ static void release(cr_chol_t *h) {
   free(h->parent); h->parent = NULL;
   free(h->mk); h->mk = NULL;
   free(h->stk); h->stk = NULL;
+  free(h->rowof); h->rowof = NULL;
+  free(h->apos); h->apos = NULL; h->napos = 0;
+  free(h->noslot); h->noslot = NULL;
+  h->nnoslot = 0; h->nrow = 0;
   h->n = 0;
 }
 
@@ -147,6 +160,7 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
   memcpy(h->m->p, colptr, (size_t)(n + 1) * sizeof(int));
   memcpy(h->m->i, rowind, (size_t)nz * sizeof(int));
   memcpy(h->m->x, val, (size_t)nz * sizeof(double));
+  h->m0 = h->m;
   if (perm) {
     h->c.nmethods = 1; h->c.method[0].ordering = CHOLMOD_GIVEN; h->c.postorder = 0;
     h->sym = cholmod_analyze_p(h->m, (int *)perm, NULL, 0, &h->c);
@@ -166,9 +180,71 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
   for (j = 0; j < n; j++) ip[p[j]] = j;
   h->r = cholmod_allocate_sparse(n, 1, n > 0 ? n : 1, 1, 1, 0, CHOLMOD_REAL, &h->c);
   if (!h->r) return fail(h, 6, "allocate (work space)");
-  h->xw = malloc((size_t)(n > 0 ? n : 1) * sizeof(double));
-  if (!h->xw) { snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5; }
+  h->xw = calloc((size_t)(n > 0 ? n : 1), sizeof(double));
+  h->rowof = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
+  h->apos = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
+  h->napos = 0;
+  if (!h->xw || !h->rowof || !h->apos) { snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5; }
+  for (j = 0; j < n; j++) h->rowof[j] = p[j];
+  h->nrow = n; h->nnoslot = 0;
   return permuted_etree(h);
+}
+
+/* New values of M [n, n] on the stored analysis (upper triangle, compressed columns, 0-based,
+ * rows sorted within each column): the caller guarantees that the pattern lies inside the
+ * analysed one (it reuses an analysis for rows whose neighbours in M cannot change), since
+ * the row deletions rely on it (row subtrees of the analysed pattern). Each entry is looked
+ * up in the analysed pattern (P M P', short columns); one outside it is an error, never a
+ * wrong factor. The current numeric factor is discarded. */
+int cr_chol_set_values(void *hp, int n, const int *colptr, const int *rowind, const double *val) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  int nz = colptr[n], j, q, p, *pp, *pi;
+  if (!h->sym || !h->m0 || n != h->n) {
+    snprintf(h->msg, sizeof h->msg, "cr_chol_set_values: dimension %d, analysed %d", n, h->n);
+    return 29;
+  }
+  /* the analysed M (h->m0, kept from the analysis) column by column: mark its rows, test */
+  pp = (int *)h->m0->p; pi = (int *)h->m0->i;
+  for (j = 0; j < n; j++) {
+    for (p = pp[j]; p < pp[j + 1]; p++) h->mk[pi[p]] = 1;
+    for (q = colptr[j]; q < colptr[j + 1]; q++)
+      if (!h->mk[rowind[q]]) break;
+    for (p = pp[j]; p < pp[j + 1]; p++) h->mk[pi[p]] = 0;
+    if (q < colptr[j + 1]) {
+      snprintf(h->msg, sizeof h->msg, "cr_chol_set_values: entry (%d, %d) outside the analysed pattern",
+               rowind[q] + 1, j + 1);
+      return 30;
+    }
+  }
+  if (h->l) cholmod_free_factor(&h->l, &h->c);
+  if (h->m != h->m0) cholmod_free_sparse(&h->m, &h->c);
+  h->m = cholmod_allocate_sparse(n, n, nz > 0 ? nz : 1, 1, 1, 1, CHOLMOD_REAL, &h->c);
+  if (!h->m) return fail(h, 31, "allocate_sparse (M values)");
+  memcpy(h->m->p, colptr, (size_t)(n + 1) * sizeof(int));
+  memcpy(h->m->i, rowind, (size_t)nz * sizeof(int));
+  memcpy(h->m->x, val, (size_t)nz * sizeof(double));
+  memset(h->active, 0, (size_t)n * sizeof(int));
+  h->napos = 0;
+  return 0;
+}
+
+/* The caller's rows from now on: map [nrow] (0-based slot of each row, -1 for none; slots
+ * distinct, checked by the caller). Only the solve uses it here (the other calls get slots). */
+int cr_chol_set_rows(void *hp, int nrow, const int *map) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  int i, k;
+  if (!h->sym) { snprintf(h->msg, sizeof h->msg, "cr_chol_set_rows before cr_chol_analyze"); return 32; }
+  free(h->noslot);
+  h->noslot = malloc((size_t)(nrow > 0 ? nrow : 1) * sizeof(int));
+  if (!h->noslot) { snprintf(h->msg, sizeof h->msg, "out of memory (nrow = %d)", nrow); return 5; }
+  for (k = 0; k < h->n; k++) h->rowof[k] = -1;
+  h->nnoslot = 0;
+  for (i = 0; i < nrow; i++) {
+    if (map[i] < 0) { h->noslot[h->nnoslot++] = i; continue; }
+    h->rowof[h->iperm[map[i]]] = i;
+  }
+  h->nrow = nrow;
+  return 0;
 }
 
 /* Predicted entries of the factor of the whole M (sum of the symbolic column counts). */
@@ -228,6 +304,13 @@ int cr_chol_factor(void *hp, const int *active) {
   /* CHOLMOD_NOT_POSDEF / DSMALL are warnings: the caller inspects the pivots (cr_chol_pivots) */
   if (!k || h->c.status < CHOLMOD_OK) return fail(h, 10, "factorize");
   if (h->l->is_super || h->l->is_ll) { snprintf(h->msg, sizeof h->msg, "CHOLMOD returned a supernodal or LL' factor"); return 11; }
+  {
+    int *pp = (int *)h->l->Perm;
+    h->napos = 0;
+    for (k = 0; k < n; k++)
+      if (active[pp[k]]) h->apos[h->napos++] = k;
+    memset(h->xw, 0, (size_t)n * sizeof(double));
+  }
   return 0;
 }
 
@@ -262,6 +345,12 @@ int cr_chol_rowadd(void *hp, int t, int nz, const int *idx, const double *val, d
   if (!cholmod_rowadd((size_t)k, h->r, h->l, &h->c) || h->c.status < CHOLMOD_OK)
     return fail(h, 15, "rowadd");
   h->active[t] = 1;
+  {
+    int lo = 0, hi = h->napos;
+    while (lo < hi) { int mid = (lo + hi) / 2; if (h->apos[mid] < k) lo = mid + 1; else hi = mid; }
+    memmove(h->apos + lo + 1, h->apos + lo, (size_t)(h->napos - lo) * sizeof(int));
+    h->apos[lo] = k; h->napos++;
+  }
   lp = (int *)h->l->p;
   *pivot = ((double *)h->l->x)[lp[k]];
   return 0;
@@ -364,39 +453,56 @@ int cr_chol_rowdel(void *hp, int t) {
     return fail(h, 18, "rowdel");
   h->n_pattern++;
   h->active[t] = 0;
+  {
+    int lo = 0, hi = h->napos;
+    while (lo < hi) { int mid = (lo + hi) / 2; if (h->apos[mid] < k) lo = mid + 1; else hi = mid; }
+    if (lo < h->napos && h->apos[lo] == k) {
+      memmove(h->apos + lo, h->apos + lo + 1, (size_t)(h->napos - lo - 1) * sizeof(int));
+      h->napos--;
+    }
+    h->xw[k] = 0.0;
+  }
   return 0;
 }
 
-/* x = A^{-1} b (b, x [n]; may alias): x = P' L^{-T} D^{-1} L^{-1} P b on the factor's arrays
- * (simplicial LDL', unit diagonal stored first in each column). The same arithmetic as
+/* x = A^{-1} b in the caller's rows (b, x [nrow]; may alias; identity on the rows without a
+ * slot): x = P' L^{-T} D^{-1} L^{-1} P b on the factor's arrays (simplicial LDL', unit
+ * diagonal stored first in each column; P maps factor positions to the caller's rows and
+ * slots without a row get zero). The same arithmetic as
  * cholmod_solve2 without its per-call set-up, which dominated the cost for the small factors
  * of the active-set iterations; a zero or NaN pivot gives a NaN solution, which the caller's
  * KKT check turns into a failed (never silent) solve. */
 int cr_chol_solve(void *hp, const double *b, double *x) {
   cr_chol_t *h = (cr_chol_t *)hp;
-  int n, j, p, *lp, *li, *lnz, *perm;
+  int i, j, p, na, *lp, *li, *lnz, *ap, *rowof;
   double *lx, *y, yj;
   if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_solve without a factor"); return 19; }
   if (h->l->is_super || h->l->is_ll || h->l->xtype != CHOLMOD_REAL) {
     snprintf(h->msg, sizeof h->msg, "cr_chol_solve: factor is not a real simplicial LDL'");
     return 20;
   }
-  n = h->n; y = h->xw;
+  y = h->xw; na = h->napos; ap = h->apos; rowof = h->rowof;
   lp = (int *)h->l->p; li = (int *)h->l->i; lnz = (int *)h->l->nz; lx = (double *)h->l->x;
-  perm = (int *)h->l->Perm;
-  for (j = 0; j < n; j++) y[j] = b[perm[j]];
-  for (j = 0; j < n; j++) {            /* L y = P b */
+  /* identity rows (inactive slots, rows without a slot): x = b */
+  if (x != b) memcpy(x, b, (size_t)h->nrow * sizeof(double));
+  /* the active positions only: the columns of L there reach no other position (A has no
+   * entry between active and inactive rows; entries that a row deletion left in a pattern
+   * are zeros and meet the zeros kept in y at inactive positions) */
+  for (i = 0; i < na; i++) { j = ap[i]; y[j] = b[rowof[j]]; }
+  for (i = 0; i < na; i++) {            /* L y = P b */
+    j = ap[i];
     yj = y[j];
     if (yj == 0.0) continue;
     for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) y[li[p]] -= lx[p] * yj;
   }
-  for (j = 0; j < n; j++) y[j] /= lx[lp[j]];  /* D */
-  for (j = n - 1; j >= 0; j--) {      /* L' x = y */
+  for (i = 0; i < na; i++) { j = ap[i]; y[j] /= lx[lp[j]]; }  /* D */
+  for (i = na - 1; i >= 0; i--) {       /* L' x = y */
+    j = ap[i];
     yj = y[j];
     for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) yj -= lx[p] * y[li[p]];
     y[j] = yj;
   }
-  for (j = 0; j < n; j++) x[perm[j]] = y[j];
+  for (i = 0; i < na; i++) { j = ap[i]; x[rowof[j]] = y[j]; }
   return 0;
 }
 

@@ -12,10 +12,18 @@
 !> again, counted in n_reanalyse); the factor holds M on the passive set P and the identity
 !> elsewhere. Row deletions hand CHOLMOD the row's pattern (its row subtree in the elimination
 !> tree of the analysed matrix) instead of letting it scan the factor.
+!> - Analysis reused across solves (reuse_analysis): the analysed matrix is indexed by slots
+!>   named by the rows' contact identities; M's pattern between two rows depends only on their
+!>   identities (they share an agent), so while every row that may become active (warm-start
+!>   rows, rows violated at u = v) has a slot, later solves refactorise on the same analysis
+!>   with new values (rows without a slot stay out; a violated one enlarges W as above).
 !> - Exact warm start: multipliers on entry that already meet the KKT test are returned with no
 !>   analysis and no factorisation (the FOM's re-solves after a cutoff enlargement).
 !> - Warm start: P = {rows with lambda > 0 on entry} (the FOM matches rows across steps by their
-!>   contact identity), factorised once; rows with non-positive minimiser leave.
+!>   contact identity), factorised once; lambda then moves from the warm multipliers towards
+!>   the minimiser on P by the step back below (warm_search; rows leave only where f still
+!>   falls with them at zero), or, without warm_search, every row with a non-positive
+!>   minimiser leaves.
 !> - Outer iteration (block Lawson-Hanson): the violated rows V whose slack is below add_frac
 !>   times the most negative one enter at once (few: row additions of the factor; many: one
 !>   numeric refactorisation); after the first dependent block every violated row enters. Then
@@ -39,7 +47,8 @@
 !> - After settings%refresh_every row modifications the factor is rebuilt; with check_drift the
 !>   backward error of a solve with the updated factor is measured first (stats%factor_drift).
 module cr_sparse_as
-  use cr_kinds, only: wp
+  use cr_kinds, only: wp, i8
+  use cr_sort, only: argsort_i8, bsearch_i8
   use cr_grow, only: igrow => grow_int, rgrow => grow_real, lgrow => grow_logical
   use cr_error, only: error_t, prefix_error
   use cr_strings, only: str
@@ -88,6 +97,10 @@ module cr_sparse_as
     !> congested100000 (one global threshold holds back the many separate jams) every violated
     !> row entering is 10-20% cheaper
     real(wp) :: add_frac = 0.5_wp
+    !> warm start by the step back from the warm multipliers (projected search towards the
+    !> minimiser on the warm passive set) instead of dropping every row whose minimiser is
+    !> not positive
+    logical :: warm_search = .true.
     integer :: add_frac_rows = 10000
     !> projected searches done and rows they froze (left P) since init
     integer :: n_proj = 0, n_proj_rows = 0
@@ -103,9 +116,11 @@ module cr_sparse_as
     integer, allocatable :: viol(:), rem(:)
     !> rows of each agent (CSR) [n_agents + 1], [2 m]
     integer, allocatable :: astart(:), arows(:)
-    !> M = B B^T, full symmetric CSC [m + 1], [nnz] and its upper triangle
-    integer, allocatable :: fp(:), fi(:), up(:), ui(:), mark(:)
-    real(wp), allocatable :: fv(:), uv(:)
+    !> M = B B^T, full symmetric CSC [m + 1], [nnz], position of each diagonal entry [m] (the
+    !> upper triangle of column j is fp(j):fd(j)), entries of the upper triangle
+    integer, allocatable :: fp(:), fi(:), fd(:)
+    real(wp), allocatable :: fv(:)
+    integer :: nzu = 0
     !> velocities [2 n_agents]
     real(wp), allocatable :: uu(:)
     !> solves whose warm start already met the KKT test (no analysis, no factorisation)
@@ -119,6 +134,25 @@ module cr_sparse_as
     !> upper triangle of M restricted to W (and the diagonal) [m + 1], [nnz]
     integer, allocatable :: wptr(:), wi(:)
     real(wp), allocatable :: wv(:)
+    !> reuse the analysis of an earlier solve (reuse_analysis): the analysed matrix is indexed
+    !> by slots, one per row analysed, named by the row's contact identity (key). M's pattern
+    !> between two rows depends only on their identities (they share an agent), so a later
+    !> solve whose rows that can become active all have a slot factorises on the same
+    !> analysis (rows without one stay inactive; slots without a row are identity rows).
+    !> The analysis is redone when a row that may become active has no slot, or when fewer
+    !> than reuse_fill of the slots hold a row. A fresh analysis takes the rows whose slack at
+    !> u = v is below a_margin (>= w_margin) times the velocity scale, so that it lasts.
+    logical :: reuse_analysis = .true.
+    real(wp) :: a_margin = 2.0_wp, reuse_fill = 0.5_wp, r_margin = 0.0_wp
+    !> analyses done (fresh) and reused since the last free
+    integer :: n_analyse = 0, n_reuse = 0
+    !> slots of the current analysis: number, sorted keys [ns], slot of each sorted key [ns]
+    integer :: ns = 0
+    logical :: keys_ok = .false.
+    integer(i8), allocatable :: skey(:)
+    integer, allocatable :: sslot(:)
+    !> slot of each row [m] (0: none), slot-space work [ns + 1]
+    integer, allocatable :: rslot(:), scnt(:), smark(:)
   contains
     procedure :: solve => sparse_as_solve
     procedure :: free => sparse_as_free
@@ -265,7 +299,7 @@ contains
     if (warm_is_optimal()) return
     call assemble()
     nfac0 = this%chol%n_factor; nmod0 = this%chol%n_modify
-    call order_and_analyze()
+    call order_and_analyze(.false.)
     if (allocated(error)) then
       call fallback(error%message); return
     end if
@@ -414,7 +448,7 @@ contains
       this%l0(1:m) = lambda(1:m)
       call lgrow(this%act, m); call lgrow(this%refused, m); call lgrow(this%newact, m)
       call lgrow(this%inw, m)
-      call igrow(this%viol, m); call igrow(this%rem, m); call igrow(this%mark, m)
+      call igrow(this%viol, m); call igrow(this%rem, m)
       call rgrow(this%uu, 2 * na)
       if (allocated(this%c)) then
         if (size(this%c, 2) < m) deallocate(this%c)
@@ -447,10 +481,11 @@ contains
       end do
     end subroutine prepare
 
-    !> M = B B^T (normalised rows): full CSC (fp, fi, fv) and upper triangle (up, ui, uv).
+    !> M = B B^T (normalised rows): full CSC (fp, fi, fv), rows sorted in each column, the
+    !> diagonal of column j at fd(j) (so its upper triangle is fp(j):fd(j)).
     subroutine assemble()
-      integer :: a, i, l, q, nz, nzu, jj, s0, p1, p2, ag(2)
-      real(wp) :: sj, sl, val
+      integer :: a, b, l, nz, p1, p2, e1, e2
+      real(wp) :: dot, val
       call igrow(this%astart, na + 1)
       this%astart(1:na + 1) = 0
       do j = 1, m
@@ -479,79 +514,194 @@ contains
         if (cs%ib(j) > 0) nz = nz + this%astart(cs%ib(j) + 1) - this%astart(cs%ib(j))
       end do
       call igrow(this%fi, nz); call rgrow(this%fv, nz)
-      call igrow(this%ui, nz); call rgrow(this%uv, nz)
-      call igrow(this%up, m + 1)
-      this%mark(1:m) = 0
-      nz = 0; nzu = 0
+      call igrow(this%fd, m)
+      ! column j: merge of the rows of its two agents (each list sorted by row), a row met in
+      ! both (the same pair twice) summed: sorted columns without marks or sorting
+      nz = 0; this%nzu = 0
       do j = 1, m
         this%fp(j) = nz + 1
-        s0 = nz
-        ag = [cs%ia(j), cs%ib(j)]
-        do i = 1, 2
-          a = ag(i)
-          if (a == 0) cycle
-          sj = merge(1.0_wp, -1.0_wp, i == 1)
-          do q = this%astart(a), this%astart(a + 1) - 1
-            l = this%arows(q)
-            sl = merge(1.0_wp, -1.0_wp, cs%ia(l) == a)
-            val = sj * sl * (this%c(1, j) * this%c(1, l) + this%c(2, j) * this%c(2, l))
-            if (this%mark(l) > s0) then
-              this%fv(this%mark(l)) = this%fv(this%mark(l)) + val
-            else
-              nz = nz + 1
-              this%fi(nz) = l; this%fv(nz) = val
-              this%mark(l) = nz
+        a = cs%ia(j); b = cs%ib(j)
+        p1 = this%astart(a); e1 = this%astart(a + 1) - 1
+        if (b > 0) then
+          p2 = this%astart(b); e2 = this%astart(b + 1) - 1
+        else
+          p2 = 1; e2 = 0
+        end if
+        do while (p1 <= e1 .or. p2 <= e2)
+          if (p2 > e2) then
+            l = this%arows(p1)
+          else if (p1 > e1) then
+            l = this%arows(p2)
+          else
+            l = min(this%arows(p1), this%arows(p2))
+          end if
+          dot = this%c(1, j) * this%c(1, l) + this%c(2, j) * this%c(2, l)
+          val = 0.0_wp
+          if (p1 <= e1) then
+            if (this%arows(p1) == l) then
+              val = merge(dot, -dot, cs%ia(l) == a); p1 = p1 + 1
             end if
-          end do
+          end if
+          if (p2 <= e2) then
+            if (this%arows(p2) == l) then
+              val = val - merge(dot, -dot, cs%ia(l) == b); p2 = p2 + 1
+            end if
+          end if
+          nz = nz + 1
+          this%fi(nz) = l; this%fv(nz) = val
+          if (l == j) this%fd(j) = nz
         end do
-        ! sort the column by row index (insertion sort: columns are short)
-        do p1 = s0 + 2, nz
-          l = this%fi(p1); val = this%fv(p1)
-          p2 = p1 - 1
-          do while (p2 > s0)
-            if (this%fi(p2) <= l) exit
-            this%fi(p2 + 1) = this%fi(p2); this%fv(p2 + 1) = this%fv(p2)
-            p2 = p2 - 1
-          end do
-          this%fi(p2 + 1) = l; this%fv(p2 + 1) = val
-        end do
-        do jj = s0 + 1, nz
-          this%mark(this%fi(jj)) = 0
-        end do
-        this%up(j) = nzu + 1
-        do jj = s0 + 1, nz
-          if (this%fi(jj) > j) exit
-          nzu = nzu + 1
-          this%ui(nzu) = this%fi(jj); this%uv(nzu) = this%fv(jj)
-        end do
+        this%nzu = this%nzu + this%fd(j) - this%fp(j) + 1
       end do
       this%fp(m + 1) = nz + 1
-      this%up(m + 1) = nzu + 1
     end subroutine assemble
 
-    !> Analyse M restricted to the rows of W (AMD ordering; the other rows are isolated: only
-    !> their diagonal), so that the ordering and the symbolic factor are those of the rows that
-    !> can become active. The factor is only ever asked for rows of W (the shim refuses the
-    !> others). Reusing the previous call's ordering (carried over by contact identity,
-    !> CHOLMOD_GIVEN) was measured and is not cheaper: the symbolic analysis costs about as
-    !> much as AMD on these graphs.
-    subroutine order_and_analyze()
-      integer :: jj, q, nzw
-      call igrow(this%wptr, m + 1); call igrow(this%wi, this%up(m + 1) - 1)
-      call rgrow(this%wv, this%up(m + 1) - 1)
+    !> Analyse M restricted to the rows of W (AMD ordering), in slot space: slot k is the k-th
+    !> row of W, the other rows have no slot (they never enter the factor). Without fresh and
+    !> with reuse_analysis, the previous analysis is kept when every row of W has a slot in it
+    !> (reuse_slots); a fresh analysis widens W to the a_margin rows first (unless fresh: the
+    !> enlargement of a solve, which sets W itself). Reusing the previous call's ordering by
+    !> contact identity with a fresh symbolic analysis (CHOLMOD_GIVEN) was measured and is not
+    !> cheaper: the symbolic analysis costs about as much as AMD on these graphs.
+    subroutine order_and_analyze(fresh)
+      logical, intent(in) :: fresh
+      integer :: jj, q, nzw, k
+      integer, allocatable :: idx(:)
+      integer(i8), allocatable :: keys(:)
+      if (.not. fresh .and. this%reuse_analysis) then
+        if (reuse_slots()) return
+        if (allocated(error)) return
+      end if
+      if (.not. fresh .and. this%a_margin > this%w_margin .and. this%w_margin >= 0.0_wp) then
+        do jj = 1, m
+          if (this%cc(jj) > -this%a_margin * sv) this%inw(jj) = .true.
+        end do
+      end if
+      call igrow(this%rslot, m)
+      k = 0
+      do jj = 1, m
+        this%rslot(jj) = 0
+        if (this%inw(jj)) then
+          k = k + 1; this%rslot(jj) = k
+        end if
+      end do
+      this%ns = k
+      ! slot numbers grow with the row number: sorted columns stay sorted
+      call igrow(this%wptr, k + 1); call igrow(this%wi, max(this%nzu, 1))
+      call rgrow(this%wv, max(this%nzu, 1))
       nzw = 0
       do jj = 1, m
-        this%wptr(jj) = nzw + 1
-        do q = this%up(jj), this%up(jj + 1) - 1
-          if (this%ui(q) == jj .or. (this%inw(jj) .and. this%inw(this%ui(q)))) then
+        if (.not. this%inw(jj)) cycle
+        this%wptr(this%rslot(jj)) = nzw + 1
+        do q = this%fp(jj), this%fd(jj)
+          if (this%inw(this%fi(q))) then
             nzw = nzw + 1
-            this%wi(nzw) = this%ui(q); this%wv(nzw) = this%uv(q)
+            this%wi(nzw) = this%rslot(this%fi(q)); this%wv(nzw) = this%fv(q)
           end if
         end do
       end do
-      this%wptr(m + 1) = nzw + 1
-      call this%chol%analyze(m, this%wptr, this%wi, this%wv, error, inset=this%inw(1:m))
+      this%wptr(k + 1) = nzw + 1
+      call this%chol%analyze(k, this%wptr, this%wi, this%wv, error)
+      if (allocated(error)) return
+      call this%chol%set_rows(this%rslot(1:m), error)
+      if (allocated(error)) return
+      this%n_analyse = this%n_analyse + 1
+      ! the slots' identities, sorted, for the next solves
+      allocate(keys(k), idx(k))
+      k = 0
+      do jj = 1, m
+        if (this%inw(jj)) then
+          k = k + 1; keys(k) = cs%key(jj)
+        end if
+      end do
+      call argsort_i8(keys, idx)
+      if (allocated(this%skey)) deallocate(this%skey, this%sslot)
+      allocate(this%skey(k), this%sslot(k))
+      this%skey = keys(idx); this%sslot = idx
+      this%keys_ok = .true.
+      do q = 2, k
+        if (this%skey(q) == this%skey(q - 1)) this%keys_ok = .false.
+      end do
     end subroutine order_and_analyze
+
+    !> The previous analysis serves this solve when every row of W has a slot (found by its
+    !> contact identity), no two rows share one, and at least reuse_fill of the slots hold a
+    !> row. Then W becomes every row with a slot, M is handed over in slot space (same
+    !> pattern as analysed or a part of it) and ok is true.
+    logical function reuse_slots() result(ok)
+      integer :: jj, q, k, a, b, nzs, nin, p1, p2, l
+      real(wp) :: val
+      ok = .false.
+      if (.not. this%keys_ok .or. this%ns == 0) return
+      call igrow(this%rslot, m); call igrow(this%scnt, this%ns + 1); call igrow(this%smark, this%ns)
+      this%smark(1:this%ns) = 0
+      nin = 0
+      do jj = 1, m
+        k = bsearch_i8(this%skey, cs%key(jj))
+        if (k > 0) then
+          k = this%sslot(k)
+          if (this%smark(k) /= 0) return
+          this%smark(k) = jj; nin = nin + 1
+        else if (this%lam(jj) > 0.0_wp .or. this%cc(jj) > -this%r_margin * sv) then
+          return
+        end if
+        this%rslot(jj) = k
+      end do
+      if (real(nin, wp) < this%reuse_fill * real(this%ns, wp)) return
+      ! upper triangle of M in slot space: count the entries of each slot column, place them,
+      ! sort each column by slot (short columns)
+      this%scnt(1:this%ns + 1) = 0
+      do jj = 1, m
+        if (this%rslot(jj) == 0) cycle
+        do q = this%fp(jj), this%fd(jj)
+          a = this%rslot(this%fi(q))
+          if (a == 0) cycle
+          b = max(a, this%rslot(jj))
+          this%scnt(b + 1) = this%scnt(b + 1) + 1
+        end do
+      end do
+      this%scnt(1) = 1
+      do k = 1, this%ns
+        this%scnt(k + 1) = this%scnt(k + 1) + this%scnt(k)
+      end do
+      nzs = this%scnt(this%ns + 1) - 1
+      call igrow(this%wptr, this%ns + 1); call igrow(this%wi, max(nzs, 1)); call rgrow(this%wv, max(nzs, 1))
+      this%wptr(1:this%ns + 1) = this%scnt(1:this%ns + 1)
+      do jj = 1, m
+        if (this%rslot(jj) == 0) cycle
+        do q = this%fp(jj), this%fd(jj)
+          a = this%rslot(this%fi(q))
+          if (a == 0) cycle
+          b = max(a, this%rslot(jj)); a = min(a, this%rslot(jj))
+          this%wi(this%scnt(b)) = a; this%wv(this%scnt(b)) = this%fv(q)
+          this%scnt(b) = this%scnt(b) + 1
+        end do
+      end do
+      do k = 1, this%ns
+        do p1 = this%wptr(k) + 1, this%wptr(k + 1) - 1
+          l = this%wi(p1); val = this%wv(p1)
+          p2 = p1 - 1
+          do while (p2 >= this%wptr(k))
+            if (this%wi(p2) <= l) exit
+            this%wi(p2 + 1) = this%wi(p2); this%wv(p2 + 1) = this%wv(p2)
+            p2 = p2 - 1
+          end do
+          this%wi(p2 + 1) = l; this%wv(p2 + 1) = val
+        end do
+      end do
+      call this%chol%set_values(this%wptr, this%wi, this%wv, error)
+      if (allocated(error)) then
+        ! not the pattern analysed: analyse afresh (counted as a fresh analysis)
+        deallocate(error); this%keys_ok = .false.; return
+      end if
+      call this%chol%set_rows(this%rslot(1:m), error)
+      if (allocated(error)) return
+      do jj = 1, m
+        this%inw(jj) = this%rslot(jj) > 0
+      end do
+      this%n_reuse = this%n_reuse + 1
+      ok = .true.
+    end function reuse_slots
 
     !> Rows viol(1:n) must be able to enter: if some lie outside W, W takes them and every row
     !> whose current slack is below the margin, M is analysed again and P refactorised. The
@@ -568,7 +718,7 @@ contains
         if (this%slack(q) < wmarg * sv) this%inw(q) = .true.
       end do
       this%n_reanalyse = this%n_reanalyse + 1
-      call order_and_analyze(); if (allocated(error)) return
+      call order_and_analyze(.true.); if (allocated(error)) return
       call this%chol%factor(this%act(1:m), error)
     end subroutine enlarge_w
 
@@ -581,13 +731,21 @@ contains
       integer, parameter :: n_refine = 3
       real(wp) :: pivot, tau, xmax, r, r_ref
       why = ""
+      it = 0
+      itmax = min(this%settings%max_iter, 10 * m + 100)
       ! ---- warm start: factor the guessed passive set, drop dependent rows, then rows whose
       ! minimiser is not positive
       do j = 1, m
         this%act(j) = this%lam(j) > 0.0_wp
       end do
       k = count(this%act(1:m))
-      if (k > 0) then
+      if (k > 0 .and. this%warm_search) then
+        ! from the warm multipliers (feasible, positive on P) by the step back: rows leave P
+        ! only where f still falls with them at zero (monotone from here on)
+        call factor_independent(bad); if (allocated(error)) return
+        call step_back(); if (allocated(error)) return
+        if (len(why) > 0) return
+      else if (k > 0) then
         call factor_independent(bad); if (allocated(error)) return
         do
           call solve_p(); if (allocated(error)) return
@@ -613,7 +771,6 @@ contains
       ! enter and all rows with a non-positive minimiser leave at once. Not monotone, so at
       ! most pdas_max sweeps; a dependent pivot ends them. The block Lawson-Hanson loop below
       ! then finishes from lambda = z > 0 on P (usually with nothing left to do).
-      it = 0
       sweeps: do ntry = 1, merge(this%pdas_max, 0, m >= this%pdas_rows)
         ! lambda = z on P (signs unrestricted), then the slacks it gives
         call solve_p(); if (allocated(error)) return
@@ -706,7 +863,6 @@ contains
 
       ! ---- main loop (block Lawson-Hanson)
       frac = merge(this%add_frac, 0.0_wp, m < this%add_frac_rows)
-      itmax = min(this%settings%max_iter, 10 * m + 100)
       n_ref = 0; r_ref = huge(1.0_wp)
       outer: do
         if (this%chol%n_since >= this%settings%refresh_every) then
@@ -1154,9 +1310,7 @@ contains
     !> uu = v - B_P^T lambda_P, slack = d - B uu (normalised rows).
     subroutine slacks()
       call velocities()
-      do j = 1, m
-        this%slack(j) = row_slack(j)
-      end do
+      call row_slacks(m, cs%ia, cs%ib, this%c, this%dd, this%uu, this%slack)
     end subroutine slacks
 
     !> d_j - b_j . uu for row jj (normalised).
@@ -1170,22 +1324,53 @@ contains
     end function row_slack
 
     subroutine velocities()
-      integer :: a, b, jj
-      this%uu(1:2 * na) = v
-      do jj = 1, m
-        if (.not. this%act(jj)) cycle
-        if (this%lam(jj) == 0.0_wp) cycle
-        a = cs%ia(jj); b = cs%ib(jj)
-        this%uu(2*a - 1:2*a) = this%uu(2*a - 1:2*a) - this%lam(jj) * this%c(:, jj)
-        if (b > 0) this%uu(2*b - 1:2*b) = this%uu(2*b - 1:2*b) + this%lam(jj) * this%c(:, jj)
-      end do
+      call active_velocities(m, cs%ia, cs%ib, this%c, this%lam, this%act, v, this%uu)
     end subroutine velocities
 
   end subroutine sparse_core
 
+  !> uu = v - sum over active rows of lam_j b_j (normalised rows c [2, m], agents ia, ib [m];
+  !> uu, v [2 n_agents]).
+  pure subroutine active_velocities(m, ia, ib, c, lam, act, v, uu)
+    integer, intent(in) :: m, ia(:), ib(:)
+    real(wp), intent(in) :: c(:, :), lam(:), v(:)
+    logical, intent(in) :: act(:)
+    real(wp), intent(inout) :: uu(:)
+    integer :: j, a, b
+    real(wp) :: c1, c2
+    uu(1:size(v)) = v
+    do j = 1, m
+      if (.not. act(j)) cycle
+      if (lam(j) == 0.0_wp) cycle
+      c1 = lam(j) * c(1, j); c2 = lam(j) * c(2, j)
+      a = 2 * ia(j); b = 2 * ib(j)
+      uu(a - 1) = uu(a - 1) - c1; uu(a) = uu(a) - c2
+      if (b > 0) then
+        uu(b - 1) = uu(b - 1) + c1; uu(b) = uu(b) + c2
+      end if
+    end do
+  end subroutine active_velocities
+
+  !> slack_j = d_j - b_j . uu for every row [m] (normalised rows, as active_velocities).
+  pure subroutine row_slacks(m, ia, ib, c, dd, uu, slack)
+    integer, intent(in) :: m, ia(:), ib(:)
+    real(wp), intent(in) :: c(:, :), dd(:), uu(:)
+    real(wp), intent(inout) :: slack(:)
+    integer :: j, a, b
+    real(wp) :: r
+    do j = 1, m
+      a = 2 * ia(j); b = 2 * ib(j)
+      r = c(1, j) * uu(a - 1) + c(2, j) * uu(a)
+      if (b > 0) r = r - c(1, j) * uu(b - 1) - c(2, j) * uu(b)
+      slack(j) = dd(j) - r
+    end do
+  end subroutine row_slacks
+
   subroutine sparse_as_free(this)
     class(sparse_as_solver_t), intent(inout) :: this
     call this%chol%free()
+    this%keys_ok = .false.; this%ns = 0
+    this%n_analyse = 0; this%n_reuse = 0
     if (this%dense_ready) call this%dense%free()
     this%dense_ready = .false.
   end subroutine sparse_as_free
