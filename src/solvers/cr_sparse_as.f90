@@ -99,8 +99,11 @@ module cr_sparse_as
     real(wp) :: add_frac = 0.5_wp
     !> warm start by the step back from the warm multipliers (projected search towards the
     !> minimiser on the warm passive set) instead of dropping every row whose minimiser is
-    !> not positive
+    !> not positive, on problems with fewer than warm_search_rows rows. Measured (README,
+    !> fourth pass): 22% fewer row updates on congested150; on congested10000 1.7% more
+    !> instructions than without
     logical :: warm_search = .true.
+    integer :: warm_search_rows = 10000
     integer :: add_frac_rows = 10000
     !> projected searches done and rows they froze (left P) since init
     integer :: n_proj = 0, n_proj_rows = 0
@@ -141,7 +144,11 @@ module cr_sparse_as
     !> analysis (rows without one stay inactive; slots without a row are identity rows).
     !> The analysis is redone when a row that may become active has no slot, or when fewer
     !> than reuse_fill of the slots hold a row. A fresh analysis takes the rows whose slack at
-    !> u = v is below a_margin (>= w_margin) times the velocity scale, so that it lasts.
+    !> u = v is below a_margin (>= w_margin) times the velocity scale, so that it lasts. The
+    !> rows that may become active: warm-start rows and rows whose slack at u = v is below
+    !> r_margin times the velocity scale (0: the violated ones; a row violated later without a
+    !> slot enlarges W as before). Measured on congested150 (README, fourth pass): r_margin 0
+    !> and a_margin 2 take the fewest instructions.
     logical :: reuse_analysis = .true.
     real(wp) :: a_margin = 2.0_wp, reuse_fill = 0.5_wp, r_margin = 0.0_wp
     !> analyses done (fresh) and reused since the last free
@@ -558,8 +565,8 @@ contains
 
     !> Analyse M restricted to the rows of W (AMD ordering), in slot space: slot k is the k-th
     !> row of W, the other rows have no slot (they never enter the factor). Without fresh and
-    !> with reuse_analysis, the previous analysis is kept when every row of W has a slot in it
-    !> (reuse_slots); a fresh analysis widens W to the a_margin rows first (unless fresh: the
+    !> with reuse_analysis, the previous analysis is kept when every row that may become active
+    !> has a slot in it (reuse_slots); a fresh analysis widens W to the a_margin rows first (unless fresh: the
     !> enlargement of a solve, which sets W itself). Reusing the previous call's ordering by
     !> contact identity with a fresh symbolic analysis (CHOLMOD_GIVEN) was measured and is not
     !> cheaper: the symbolic analysis costs about as much as AMD on these graphs.
@@ -624,9 +631,9 @@ contains
       end do
     end subroutine order_and_analyze
 
-    !> The previous analysis serves this solve when every row of W has a slot (found by its
-    !> contact identity), no two rows share one, and at least reuse_fill of the slots hold a
-    !> row. Then W becomes every row with a slot, M is handed over in slot space (same
+    !> The previous analysis serves this solve when every row that may become active (warm
+    !> start, slack at u = v below r_margin velocity scales) has a slot (found by its contact
+    !> identity), no two rows share one, and at least reuse_fill of the slots hold a row. Then W becomes every row with a slot, M is handed over in slot space (same
     !> pattern as analysed or a part of it) and ok is true.
     logical function reuse_slots() result(ok)
       integer :: jj, q, k, a, b, nzs, nin, p1, p2, l
@@ -739,7 +746,7 @@ contains
         this%act(j) = this%lam(j) > 0.0_wp
       end do
       k = count(this%act(1:m))
-      if (k > 0 .and. this%warm_search) then
+      if (k > 0 .and. this%warm_search .and. m < this%warm_search_rows) then
         ! from the warm multipliers (feasible, positive on P) by the step back: rows leave P
         ! only where f still falls with them at zero (monotone from here on)
         call factor_independent(bad); if (allocated(error)) return
