@@ -57,12 +57,13 @@ module cr_position_projection
 
   !> What one projection did.
   type :: pproj_stats_t
-    !> overlapping rows of q_in; agents that moved; agents free in the last solve
+    !> overlapping rows of q_in; agents that moved; agents whose motion the rows changed
+    !> (largest over the solves)
     integer :: n_overlaps = 0, n_moved = 0, n_free = 0
     !> candidate rows (last contact set) and rows of the last local problem
     integer :: n_rows = 0, n_local_rows = 0
-    !> solves, solver iterations (summed), growths of the free set, cutoff restarts,
-    !> refinement projections
+    !> solves, solver iterations (summed), growths of the free set (always 0: every agent is
+    !> free), re-solves with more rows or wider reaches, refinement projections
     integer :: solves = 0, iterations = 0, grows = 0, restarts = 0, refines = 0
     !> the refinement stopped on its tolerance (not on refine_max or a failed solve)
     logical :: refined = .true.
