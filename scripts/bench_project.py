@@ -70,7 +70,7 @@ def make_database(workdir, steps, bindir):
     return db
 
 
-def perturb(q, radius, smooth, noise, seed, extent):
+def perturb(q, smooth, noise, seed):
     """ML-like positions [n_conf, n_dof] from the full-order trajectory q [n_conf, n_dof]: a
     smooth field of amplitude `smooth` (6 modes per component, wavelengths 3-10 m, phases
     drifting over the trajectory) and a per-agent AR(1) error (correlation 0.95 per step) of
@@ -113,20 +113,23 @@ def main(argv=None):
     ap.add_argument("--json", default=None, help="also write the figures as JSON")
     ap.add_argument("--per-config", action="store_true", help="print one line per configuration")
     args = ap.parse_args(argv)
+    if args.configs < 1 or args.steps < 1 or args.refine < 0 or args.smooth < 0 or args.noise < 0:
+        ap.error("--configs and --steps must be >= 1, --refine, --smooth and --noise >= 0")
     os.makedirs(args.workdir, exist_ok=True)
     workdir = os.path.abspath(args.workdir)
     db = make_database(workdir, args.steps, args.bindir)
     import h5py
     with h5py.File(db, "r") as f:
-        meta = cio.read_database_meta(f)
         tr = cio.read_database_set(f, "train", velocities=False)
     q = tr["positions"][0]                                           # [N_T + 1, n_dof]
     n_conf = min(args.configs, q.shape[0])
-    radius = meta["agent_radius"]
-    qml = perturb(q[:n_conf], radius, args.smooth, args.noise, args.seed, None)
+    qml = perturb(q[:n_conf], args.smooth, args.noise, args.seed)
     exe = args.exe or os.path.join(args.bindir, "crowd_project")
     t0 = time.time()
-    r = cio.run_projection(exe, db, tr["params"][:1], qml[None], workdir, refine_max=args.refine)
+    try:
+        r = cio.run_projection(exe, db, tr["params"][:1], qml[None], workdir, refine_max=args.refine)
+    except (cio.InputError, RuntimeError) as e:
+        sys.exit(f"error: {e}")
     wall = time.time() - t0
     t = r["time"][0]
     fig = {
