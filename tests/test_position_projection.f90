@@ -46,6 +46,7 @@ program test_position_projection
     call test_wall(trim(solvers(k)))
     call test_feasible(trim(solvers(k)))
     call test_random(trim(solvers(k)))
+    call test_far_movers(trim(solvers(k)))
     call test_bad_input(trim(solvers(k)))
     call pp%free(); call pp0%free()
   end do
@@ -103,7 +104,7 @@ contains
     call check_close(qp(2), rad, settings%tol * d + 16 * epsilon(1.0_wp), name // " wall: pushed out by d")
     ! agent 1 overlapping the left wall, resting on the bottom one; agent 2 almost touching
     ! agent 1 on the right (gap 1e-12, not an overlap), resting on the wall: agent 1 pushes
-    ! agent 2 along (it is freed because the row between them is active)
+    ! agent 2 along (the row between them is active)
     q3(1:2) = [rad - d, rad]
     q3(3:4) = [3 * rad - d + 1.0e-12_wp, rad]
     call pp%project(scene, rad, q3, qp3, st, error)
@@ -112,7 +113,7 @@ contains
     call check_close(qp3(1), rad, settings%tol * d + 16 * epsilon(1.0_wp), name // " wall corner: out of the wall")
     call check_close(qp3(3), 3 * rad, settings%tol * d + 16 * epsilon(1.0_wp), &
       name // " wall corner: the neighbour made way")
-    call check(st%grows >= 1, name // " wall corner: the free set grew")
+    call check(st%n_free == 2, name // " wall corner: both agents moved by the rows")
   end subroutine test_wall
 
   !> (3) no overlap: the same positions bit for bit, no solve.
@@ -202,6 +203,55 @@ contains
     call check(ok_ref, name // " random: refined projection without overlap and closer to the input")
     call check(ok_seq, name // " random: from a start without overlap: no overlap, closer to the input")
   end subroutine test_random
+
+  !> (4b) far movers (the ML positions of a jam): from a start without overlap, every agent of a
+  !> lattice jittered into its neighbours, one agent of the lattice sent 0.3 m through the
+  !> crowd and one agent alone in the hall sent 0.8 m down into the bottom wall (its wall row
+  !> is only within its own reach, not within the others'): no overlap, the same result as the
+  !> projection over every row within 2.1 x the farthest move (the bound of two KKT points,
+  !> velocity scale max |w|), with fewer candidate rows; the lone agent stops on the wall.
+  subroutine test_far_movers(name)
+    character(len=*), intent(in) :: name
+    real(wp), allocatable :: q0(:), qs(:), qin(:), qp(:), r(:), u_full(:), w(:)
+    type(pproj_stats_t) :: st
+    type(solve_stats_t) :: fst
+    integer :: na, n_rows
+    real(wp) :: s, bound
+    call seed_random(77)
+    call lattice(14, 11, 4.0e-3_wp, 2.0e-3_wp, q0)
+    na = size(q0) / 2 + 1
+    allocate(qs(2 * na), qin(2 * na), qp(2 * na), r(2 * na), u_full(2 * na))
+    qs(1:2 * na - 2) = q0
+    qs(2 * na - 1:2 * na) = [1.0_wp, 0.6_wp]
+    call random_number(r)
+    qin = qs + 0.01_wp * (r - 0.5_wp)
+    qin(2 * 5) = qin(2 * 5) + 0.3_wp
+    qin(2 * na - 1:2 * na) = [1.0_wp, 0.6_wp - 0.8_wp]
+    call check(min_true_gap(scene, rad, qs) > 0, name // " far movers: the start has no overlap")
+    call pp0%project(scene, rad, qin, qp, st, error, q_start=qs)
+    call check(.not. allocated(error), name // " far movers: no error")
+    if (allocated(error)) then
+      deallocate(error); return
+    end if
+    w = qin - qs
+    s = maxval(abs(w))
+    call check(min_true_gap(scene, rad, qp) >= -(settings%tol * s + 16 * epsilon(1.0_wp) * scene%length), &
+      name // " far movers: no overlap")
+    call full_projection(scene, settings, qs, rad, 1.0_wp, 2.1_wp * 0.8_wp * sqrt(2.0_wp) + 1.0e-3_wp, w, u_full, &
+      fst, n_rows, error)
+    call check(.not. allocated(error), name // " far movers: reference solved")
+    if (allocated(error)) then
+      deallocate(error); return
+    end if
+    bound = s * (settings%tol + sqrt(2 * n_rows * settings%tol)) + 16 * epsilon(1.0_wp) * scene%length
+    call check(fst%kkt <= settings%tol .and. maxval(abs(qp - qs - u_full)) <= bound, &
+      name // " far movers: equals the projection over every row within the farthest move")
+    call check(st%n_rows < n_rows, name // " far movers: fewer candidate rows than one cutoff for all")
+    call check_close(qp(2 * na), rad, s * settings%tol + 16 * epsilon(1.0_wp) * scene%length, &
+      name // " far movers: the lone agent stops on the wall")
+    print '(a, 2(a, i0), a, es9.2)', name, ": far movers: candidate rows ", st%n_rows, " (one cutoff: ", &
+      n_rows, "), largest difference ", maxval(abs(qp - qs - u_full))
+  end subroutine test_far_movers
 
   !> (5) bad input: an error, not a stop.
   subroutine test_bad_input(name)
