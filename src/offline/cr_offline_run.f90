@@ -22,6 +22,7 @@ module cr_offline_run
   use cr_sparse_cone, only: sparse_cone_t
   use cr_supremizer, only: pga_result_t, pga_enrich
   use cr_infsup_table, only: infsup_table
+  use cr_pga_cache, only: pga_cache_t
   use cr_rom_file, only: rom_file_t, rom_tables_t, write_rom_file
   use cr_rom_pairs, only: rom_pair_t, build_pair, hyper_summary
   implicit none
@@ -45,6 +46,8 @@ module cr_offline_run
     type(cone_result_t) :: cone, other
     type(sparse_cone_t) :: scone
     type(pga_result_t) :: pga
+    !> every enrichment (N, R) computed so far: the main one, the inf-sup table's, the pairs'
+    type(pga_cache_t) :: pga_cache
     !> timings and tables stored in the ROM file
     type(rom_tables_t) :: tab
     !> the prepared reduced models (&pairs)
@@ -244,6 +247,7 @@ contains
         call env%agree_error(error)
         if (allocated(error)) return
         this%tab%t_pga = env%wtime() - t0
+        call this%pga_cache%add(this%n_pod, this%scone%r, this%v, pga)
         call log%info("   added " // str(pga%n_added) // " supremizers; largest projection error " // &
           str(pga%err(1)) // " -> " // str(pga%err(pga%n_added + 1)))
         if (allocated(pga%note)) call log%warn("PGA: " // pga%note)
@@ -266,7 +270,7 @@ contains
     real(wp) :: t0
     call log%stage_begin("crowd_offline: reduced inf-sup table")
     t0 = env%wtime()
-    call infsup_table(env, log, this%ocfg, this%data, this%pod, this%scone, this%tab, error)
+    call infsup_table(env, log, this%ocfg, this%data, this%pod, this%scone, this%pga_cache, this%tab, error)
     call env%agree_error(error)
     if (allocated(error)) return
     this%tab%t_infsup = env%wtime() - t0
@@ -298,7 +302,7 @@ contains
     real(wp), intent(in) :: phi(:,:)
     type(error_t), allocatable, intent(out) :: error
     integer, allocatable :: nn(:), rr(:)
-    integer :: k
+    integer :: k, hit
     character(len=:), allocatable :: line
     associate(ocfg => this%ocfg, scone => this%scone, pairs => this%pairs)
       call log%progress_start()
@@ -319,8 +323,19 @@ contains
             " exceeds the " // str(scone%r) // " cone vectors built (&cone r_max / delta)", 2); return
         end if
         call log%progress("pair", k, size(nn))
-        if (nn(k) == size(phi, 2) .and. rr(k) == scone%r) then
-          ! the full enrichment is already computed
+        hit = 0
+        if (ocfg%pga .and. rr(k) > 0) hit = this%pga_cache%find(nn(k), rr(k))
+        if (hit > 0) then
+          ! this enrichment is already computed (the main one, the inf-sup table's or a pair's)
+          associate(e => this%pga_cache%entries(hit))
+            call build_pair(env, this%data, phi, nn(k), scone, rr(k), .false., ocfg%pga_delta, ocfg%pga_max_add, &
+              ocfg%hyper, ocfg%hyper_m_factor, ocfg%eq_tol, this%pairs(k), error, v_given=e%v)
+            if (allocated(error)) return
+            this%pairs(k)%n_pga = e%res%n_added
+            this%pairs(k)%pga_err = e%res%err
+          end associate
+        else if (nn(k) == size(phi, 2) .and. rr(k) == scone%r) then
+          ! the full enrichment is already computed (or PGA is off: the POD modes alone)
           call build_pair(env, this%data, phi, nn(k), scone, rr(k), .false., ocfg%pga_delta, ocfg%pga_max_add, &
             ocfg%hyper, ocfg%hyper_m_factor, ocfg%eq_tol, this%pairs(k), error, v_given=this%v)
           if (allocated(error)) return
@@ -330,6 +345,8 @@ contains
           call build_pair(env, this%data, phi, nn(k), scone, rr(k), ocfg%pga, ocfg%pga_delta, ocfg%pga_max_add, &
             ocfg%hyper, ocfg%hyper_m_factor, ocfg%eq_tol, this%pairs(k), error)
           if (allocated(error)) return
+          if (ocfg%pga .and. rr(k) > 0) call this%pga_cache%add(nn(k), rr(k), this%pairs(k)%v, &
+            pga_result_t(n_added=this%pairs(k)%n_pga, err=this%pairs(k)%pga_err))
         end if
         line = "   pair " // str(k) // ": N = " // str(nn(k)) // ", R = " // str(rr(k)) // ", supremizers " // &
           str(this%pairs(k)%n_pga) // " (basis " // str(size(this%pairs(k)%v, 2)) // ")"
@@ -415,6 +432,7 @@ contains
     type(rom_tables_t) :: t0
     this%data = d0; this%pod = p0; this%cone = c0; this%other = c0; this%scone = s0; this%pga = g0
     this%tab = t0
+    call this%pga_cache%free()
     this%n_pod = 0
     if (allocated(this%v)) deallocate(this%v)
     if (allocated(this%pairs)) deallocate(this%pairs)
