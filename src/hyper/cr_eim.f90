@@ -24,7 +24,7 @@ module cr_eim
   use cr_pod, only: pod_result_t, pod_tsqr, snapshot_layout
   implicit none
   private
-  public :: eim_t, eim_build, deim_indices, eim_interp_matrix
+  public :: eim_t, eim_build, eim_prefix, deim_indices, eim_interp_matrix
 
   !> An EIM approximation of one non-affine term, replicated on every rank.
   type :: eim_t
@@ -143,6 +143,39 @@ contains
       end if
     end if
   end subroutine eim_build
+
+  !> The EIM eim_build would give for m_max modes, taken from one built for more (full, built
+  !> by eim_build with m_full >= m_max requested modes): the POD modes, the nested DEIM indices
+  !> and the training error history of the first k modes do not depend on how many modes were
+  !> requested, so this is bitwise eim_build's result (singular values, note included) without
+  !> a second TSQR and SVD. Errors (code 2): m_max < 0 or m_max > m_full.
+  subroutine eim_prefix(full, m_full, m_max, eim, error)
+    type(eim_t), intent(in) :: full
+    !> the number of modes requested when full was built
+    integer, intent(in) :: m_full
+    integer, intent(in) :: m_max
+    type(eim_t), intent(out) :: eim
+    type(error_t), allocatable, intent(out) :: error
+    integer :: m
+    if (m_max < 0 .or. m_max > m_full) then
+      call set_error(error, "eim_prefix: m = " // str(m_max) // " modes requested from an EIM built for " // &
+        & str(m_full), 2)
+      return
+    end if
+    eim%p = full%p
+    eim%sigma = full%sigma
+    m = min(full%m, m_max)
+    eim%m = m
+    if (full%m == 0) then
+      ! no snapshot, or all zero: the same note whatever was requested
+      if (allocated(full%note)) eim%note = full%note
+    else if (m < m_max) then
+      eim%note = "m reduced from " // str(m_max) // " to the numerical rank " // str(m)
+    end if
+    eim%basis = full%basis(:, 1:m)
+    eim%idx = full%idx(1:m)
+    eim%err = full%err(1:m)
+  end subroutine eim_prefix
 
   !> Greedy DEIM indices of a basis u [p, m] (orthonormal columns expected): idx(1) is the
   !> entry of largest magnitude of u(:, 1); idx(k) that of the residual of u(:, k) after

@@ -9,7 +9,7 @@
 !> is collective, times itself into `tab` and returns the same error on every rank.
 module cr_offline_run
   use cr_kinds, only: wp
-  use cr_error, only: error_t, set_error
+  use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
   use cr_env, only: env_t
   use cr_logger, only: logger_t
@@ -24,7 +24,9 @@ module cr_offline_run
   use cr_infsup_table, only: infsup_table
   use cr_pga_cache, only: pga_cache_t
   use cr_rom_file, only: rom_file_t, rom_tables_t, write_rom_file
-  use cr_rom_pairs, only: rom_pair_t, build_pair, hyper_summary
+  use cr_rom_pairs, only: rom_pair_t, build_pair, hyper_summary, cone_prefix
+  use cr_hyper_method, only: points_cap
+  use cr_eim, only: eim_t, eim_build
   implicit none
   private
   public :: offline_run_t
@@ -301,8 +303,13 @@ contains
     !> the POD modes kept [n_dof, n_pod]
     real(wp), intent(in) :: phi(:,:)
     type(error_t), allocatable, intent(out) :: error
-    integer, allocatable :: nn(:), rr(:)
-    integer :: k, hit
+    integer, allocatable :: nn(:), rr(:), nb(:), hit(:)
+    real(wp), allocatable :: t_pga(:), vk(:,:)
+    type(eim_t), target :: s1_shared
+    type(error_t), allocatable :: s1_error
+    type(pga_result_t) :: res
+    integer :: k, m_s1
+    real(wp) :: t0
     character(len=:), allocatable :: line
     associate(ocfg => this%ocfg, scone => this%scone, pairs => this%pairs)
       call log%progress_start()
@@ -312,7 +319,10 @@ contains
         nn = [size(phi, 2)]; rr = [scone%r]
       end if
       if (allocated(this%pairs)) deallocate(this%pairs)
-      allocate(this%pairs(size(nn)))
+      allocate(this%pairs(size(nn)), nb(size(nn)), hit(size(nn)), t_pga(size(nn)))
+      ! the bases first: every enrichment not yet computed (the main one's and the inf-sup
+      ! table's are reused), so that the EIM of s1 can be built once for the largest basis
+      t_pga = 0
       do k = 1, size(nn)
         if (nn(k) > size(phi, 2)) then
           call set_error(error, this%input // ": &pairs: n(" // str(k) // ") = " // str(nn(k)) // &
@@ -322,32 +332,63 @@ contains
           call set_error(error, this%input // ": &pairs: r(" // str(k) // ") = " // str(rr(k)) // &
             " exceeds the " // str(scone%r) // " cone vectors built (&cone r_max / delta)", 2); return
         end if
+        hit(k) = 0
+        nb(k) = nn(k)
+        if (ocfg%pga .and. rr(k) > 0) then
+          hit(k) = this%pga_cache%find(nn(k), rr(k))
+          if (hit(k) == 0) then
+            t0 = env%wtime()
+            vk = phi(:, 1:nn(k))
+            call pga_enrich(env, this%data%scenes, this%data%scene_of, this%data%radius, this%data%dt, &
+              this%data%dict_ia, this%data%dict_ib, this%data%dict_ob, cone_prefix(scone, rr(k)), this%data%q, &
+              this%data%lam%col_offset, vk, ocfg%pga_delta, ocfg%pga_max_add, res, error)
+            if (allocated(error)) then
+              call prefix_error(error, "PGA of pair (" // str(nn(k)) // ", " // str(rr(k)) // ")"); return
+            end if
+            call this%pga_cache%add(nn(k), rr(k), vk, res)
+            hit(k) = this%pga_cache%find(nn(k), rr(k))
+            t_pga(k) = env%wtime() - t0
+          end if
+          nb(k) = size(this%pga_cache%entries(hit(k))%v, 2)
+        end if
+      end do
+      ! s1 = v(q) does not depend on the pair: one EIM for the most points any pair keeps,
+      ! each pair takes its prefix (bitwise the EIM it would build); if that build fails, each
+      ! pair builds its own (and reports its own error)
+      m_s1 = 0
+      if (ocfg%hyper .and. this%data%n_dof > 0) then
+        do k = 1, size(nn)
+          m_s1 = max(m_s1, points_cap(nb(k), rr(k), ocfg%hyper_m_factor, 1, this%data%n_dof))
+        end do
+        call eim_build(env, this%data%v, m_s1, s1_shared, s1_error)
+        if (allocated(s1_error)) m_s1 = 0
+      end if
+      do k = 1, size(nn)
         call log%progress("pair", k, size(nn))
-        hit = 0
-        if (ocfg%pga .and. rr(k) > 0) hit = this%pga_cache%find(nn(k), rr(k))
-        if (hit > 0) then
-          ! this enrichment is already computed (the main one, the inf-sup table's or a pair's)
-          associate(e => this%pga_cache%entries(hit))
+        if (hit(k) > 0) then
+          associate(e => this%pga_cache%entries(hit(k)))
             call build_pair(env, this%data, phi, nn(k), scone, rr(k), .false., ocfg%pga_delta, ocfg%pga_max_add, &
-              ocfg%hyper, ocfg%hyper_m_factor, ocfg%eq_tol, this%pairs(k), error, v_given=e%v)
+              ocfg%hyper, ocfg%hyper_m_factor, ocfg%eq_tol, this%pairs(k), error, v_given=e%v, &
+              s1_shared=s1_shared, s1_shared_m=m_s1)
             if (allocated(error)) return
             this%pairs(k)%n_pga = e%res%n_added
             this%pairs(k)%pga_err = e%res%err
           end associate
         else if (nn(k) == size(phi, 2) .and. rr(k) == scone%r) then
-          ! the full enrichment is already computed (or PGA is off: the POD modes alone)
+          ! no PGA here (off, or an empty cone): the main basis, the POD modes alone
           call build_pair(env, this%data, phi, nn(k), scone, rr(k), .false., ocfg%pga_delta, ocfg%pga_max_add, &
-            ocfg%hyper, ocfg%hyper_m_factor, ocfg%eq_tol, this%pairs(k), error, v_given=this%v)
+            ocfg%hyper, ocfg%hyper_m_factor, ocfg%eq_tol, this%pairs(k), error, v_given=this%v, &
+            s1_shared=s1_shared, s1_shared_m=m_s1)
           if (allocated(error)) return
           this%pairs(k)%n_pga = size(this%v, 2) - size(phi, 2)
           this%pairs(k)%pga_err = this%pga%err
         else
-          call build_pair(env, this%data, phi, nn(k), scone, rr(k), ocfg%pga, ocfg%pga_delta, ocfg%pga_max_add, &
-            ocfg%hyper, ocfg%hyper_m_factor, ocfg%eq_tol, this%pairs(k), error)
+          call build_pair(env, this%data, phi, nn(k), scone, rr(k), .false., ocfg%pga_delta, ocfg%pga_max_add, &
+            ocfg%hyper, ocfg%hyper_m_factor, ocfg%eq_tol, this%pairs(k), error, &
+            s1_shared=s1_shared, s1_shared_m=m_s1)
           if (allocated(error)) return
-          if (ocfg%pga .and. rr(k) > 0) call this%pga_cache%add(nn(k), rr(k), this%pairs(k)%v, &
-            pga_result_t(n_added=this%pairs(k)%n_pga, err=this%pairs(k)%pga_err))
         end if
+        this%pairs(k)%t_pga = t_pga(k)
         line = "   pair " // str(k) // ": N = " // str(nn(k)) // ", R = " // str(rr(k)) // ", supremizers " // &
           str(this%pairs(k)%n_pga) // " (basis " // str(size(this%pairs(k)%v, 2)) // ")"
         call log%info(line // hyper_summary(this%pairs(k)))
