@@ -127,8 +127,9 @@ contains
   end subroutine test_pga
 
   !> Snapshots that differ from the first by 1e-5 ... 1e-10: the residuals of their supremizers
-  !> decay gradually through the exact phase (relative residual < 1e-5), where the choice is
-  !> lazy; every choice is checked against an eager recomputation.
+  !> decay gradually through the exact phase (relative residual < 1e-5), where the residuals
+  !> are recomputed (through the projected support rows, or candidate by candidate); every
+  !> choice is checked against an eager recomputation, and the two routes against each other.
   subroutine test_pga_graded()
     real(wp) :: qg(nd, nsnap), dq(nd)
     real(wp), allocatable :: v(:,:), vr(:,:), vc(:,:)
@@ -188,7 +189,7 @@ contains
 
   !> Every choice of a PGA run (basis v = v0 followed by the added vectors) is the candidate
   !> with the largest exact relative residual against the basis before it: an eager
-  !> recomputation of every candidate at every step (the lazy choice of the exact phase must
+  !> recomputation of every candidate at every step (the choice of the exact phase must
   !> agree), checked while that maximum is above the round-off level.
   subroutine check_choices(v, res, qq, tag)
     real(wp), intent(in) :: v(:,:), qq(:,:)
