@@ -127,14 +127,16 @@ contains
   end subroutine test_pga
 
   !> Snapshots that differ from the first by 1e-5 ... 1e-10: the residuals of their supremizers
-  !> decay gradually through the exact phase (relative residual < 1e-5), where the choice is
-  !> lazy; every choice is checked against an eager recomputation.
+  !> decay gradually through the exact phase (relative residual < 1e-5), where the residuals
+  !> are recomputed (through the projected support rows, or candidate by candidate); every
+  !> choice is checked against an eager recomputation, and the two routes against each other.
   subroutine test_pga_graded()
     real(wp) :: qg(nd, nsnap), dq(nd)
-    real(wp), allocatable :: v(:,:)
-    type(pga_result_t) :: res
+    real(wp), allocatable :: v(:,:), vr(:,:), vc(:,:)
+    type(pga_result_t) :: res, resr, resc
     type(error_t), allocatable :: err
     type(rng_t) :: rng
+    type(sparse_cone_t) :: dense
     integer :: k, i
     call rng%seed(7)
     do k = 1, nsnap
@@ -149,11 +151,45 @@ contains
     call check(.not. allocated(err), "graded pga runs")
     call check(count(res%err(1:res%n_added) < 1.0e-5_wp) >= 2, "graded pga: several additions in the exact phase")
     call check_choices(v, res, qg, "graded")
+    ! the exact phase through the projected support rows and candidate by candidate: the same
+    ! choices, residuals equal to rounding (both are accurate to a few eps |s|)
+    vr = v0
+    call pga_enrich(solo, [scene], [(1, k = 1, nsnap)], rad, h, dia, dib, dob, cone, qg, 0_i8, vr, &
+      1.0e-11_wp, 100, resr, err, exact_route='rows')
+    vc = v0
+    call pga_enrich(solo, [scene], [(1, k = 1, nsnap)], rad, h, dia, dib, dob, cone, qg, 0_i8, vc, &
+      1.0e-11_wp, 100, resc, err, exact_route='candidates')
+    call check(.not. allocated(err), "graded pga, candidate route runs")
+    call check(resr%n_added == resc%n_added, "exact routes: same number of additions")
+    if (resr%n_added == resc%n_added) then
+      call check(all(resr%chosen == resc%chosen), "exact routes: same choices")
+      call check(maxval(abs(resr%err - resc%err)) <= 1.0e3_wp * epsilon(1.0_wp), &
+        "exact routes: relative residuals equal to rounding")
+      call check(maxval(abs(vr - vc)) <= 1.0e-6_wp, "exact routes: same basis")
+    end if
+    ! dense cone vectors (mCPG-like, several rows each): both routes agree too
+    call dense%from_dense(reshape([(0.1_wp + mod(7 * i, 5), i = 1, 9 * 3)], [9, 3]))
+    vr = v0
+    call pga_enrich(solo, [scene], [(1, k = 1, nsnap)], rad, h, dia, dib, dob, dense, qg, 0_i8, vr, &
+      1.0e-11_wp, 100, resr, err, exact_route='rows')
+    vc = v0
+    call pga_enrich(solo, [scene], [(1, k = 1, nsnap)], rad, h, dia, dib, dob, dense, qg, 0_i8, vc, &
+      1.0e-11_wp, 100, resc, err, exact_route='candidates')
+    call check(resr%n_added == resc%n_added .and. resr%n_added > 0, "dense cone, exact routes: same number of additions")
+    if (resr%n_added == resc%n_added) then
+      call check(all(resr%chosen == resc%chosen), "dense cone, exact routes: same choices")
+      call check(maxval(abs(resr%err - resc%err)) <= 1.0e3_wp * epsilon(1.0_wp), &
+        "dense cone, exact routes: relative residuals equal to rounding")
+    end if
+    call pga_enrich(solo, [scene], [(1, k = 1, nsnap)], rad, h, dia, dib, dob, dense, qg, 0_i8, vc, &
+      1.0e-11_wp, 100, resc, err, exact_route='fastest')
+    call check(allocated(err), "an unknown exact route is refused")
+    if (allocated(err)) call check(index(err%message, "rows") > 0, "the refusal lists the known routes")
   end subroutine test_pga_graded
 
   !> Every choice of a PGA run (basis v = v0 followed by the added vectors) is the candidate
   !> with the largest exact relative residual against the basis before it: an eager
-  !> recomputation of every candidate at every step (the lazy choice of the exact phase must
+  !> recomputation of every candidate at every step (the choice of the exact phase must
   !> agree), checked while that maximum is above the round-off level.
   subroutine check_choices(v, res, qq, tag)
     real(wp), intent(in) :: v(:,:), qq(:,:)

@@ -7,9 +7,10 @@ program test_hyper
   use cr_kinds, only: wp
   use cr_env, only: env_t
   use cr_error, only: error_t
+  use cr_strings, only: str
   use cr_random, only: rng_t
   use cr_distribution, only: block_range
-  use cr_eim, only: eim_t, eim_build, deim_indices, eim_interp_matrix
+  use cr_eim, only: eim_t, eim_build, eim_prefix, deim_indices, eim_interp_matrix
   use cr_eq, only: eq_t, eq_gramian, eq_build
   use cr_assert, only: check, check_close, test_summary
   implicit none
@@ -26,6 +27,7 @@ program test_hyper
   call test_eim_in_span()
   call test_eim_full_rank()
   call test_eim_degenerate()
+  call test_eim_prefix()
   call test_deim_and_interp_matrix()
   call test_gramian()
   call test_eq_all_candidates()
@@ -275,6 +277,61 @@ contains
     call eim_direct(eim, 3, s, err, err_idx)
     call check_close(err, 0.0_wp, 1.0e-12_wp, "eim 3 snapshots: exact reconstruction")
   end subroutine test_eim_degenerate
+
+  !> eim_prefix: the EIM built for more modes, cut to m, is bitwise the EIM built for m (modes,
+  !> nested indices, error history, singular values, note), including m above the numerical
+  !> rank and all-zero snapshots; m above the modes requested is refused.
+  subroutine test_eim_prefix()
+    integer, parameter :: p = 30, ns = 40
+    real(wp), allocatable :: s(:, :)
+    type(eim_t) :: full, cut, direct
+    type(error_t), allocatable :: e
+    integer :: m
+    s = randn(p, ns, 11)
+    call eim_build(env, local_cols(s), 20, full, e)
+    call check(.not. allocated(e), "eim prefix: full build")
+    if (allocated(e)) return
+    do m = 1, 20, 6
+      call eim_build(env, local_cols(s), m, direct, e)
+      if (.not. allocated(e)) call eim_prefix(full, 20, m, cut, e)
+      call check(.not. allocated(e), "eim prefix m = " // str(m) // ": builds")
+      if (allocated(e)) return
+      call check(same_eim(cut, direct), "eim prefix m = " // str(m) // ": bitwise the direct build")
+    end do
+    ! rank 6: m = 10 is clamped with the note of a direct build
+    s = matmul(randn(p, 6, 12), randn(6, ns, 13))
+    call eim_build(env, local_cols(s), 15, full, e)
+    if (.not. allocated(e)) call eim_build(env, local_cols(s), 10, direct, e)
+    if (.not. allocated(e)) call eim_prefix(full, 15, 10, cut, e)
+    call check(.not. allocated(e), "eim prefix, rank 6: builds")
+    if (allocated(e)) return
+    call check(same_eim(cut, direct) .and. allocated(cut%note), "eim prefix, rank 6: clamped, same note")
+    if (allocated(cut%note) .and. allocated(direct%note)) &
+      call check(cut%note == direct%note, "eim prefix, rank 6: note '" // cut%note // "'")
+    s = 0.0_wp
+    call eim_build(env, local_cols(s), 5, full, e)
+    if (.not. allocated(e)) call eim_build(env, local_cols(s), 3, direct, e)
+    if (.not. allocated(e)) call eim_prefix(full, 5, 3, cut, e)
+    call check(.not. allocated(e), "eim prefix, zero snapshots: builds")
+    if (allocated(e)) return
+    call check(same_eim(cut, direct) .and. cut%m == 0, "eim prefix, zero snapshots: m = 0, same note")
+    call eim_prefix(full, 5, 6, cut, e)
+    call check(allocated(e), "eim prefix: more modes than built is refused")
+    if (allocated(e)) call check(e%code == 2, "eim prefix: input error code 2")
+  end subroutine test_eim_prefix
+
+  !> Every component of two EIMs bitwise equal.
+  logical function same_eim(a, b)
+    type(eim_t), intent(in) :: a, b
+    same_eim = a%p == b%p .and. a%m == b%m .and. allocated(a%note) .eqv. allocated(b%note)
+    if (.not. same_eim) return
+    same_eim = all(shape(a%basis) == shape(b%basis)) .and. size(a%idx) == size(b%idx) .and. &
+      size(a%err) == size(b%err) .and. size(a%sigma) == size(b%sigma)
+    if (.not. same_eim) return
+    same_eim = all(a%basis == b%basis) .and. all(a%idx == b%idx) .and. all(a%err == b%err) .and. &
+      all(a%sigma == b%sigma)
+    if (same_eim .and. allocated(a%note)) same_eim = a%note == b%note
+  end function same_eim
 
   !> DEIM on a permuted identity, bad bases, singular and out-of-range interpolation matrices.
   subroutine test_deim_and_interp_matrix()

@@ -24,7 +24,7 @@ module cr_eim
   use cr_pod, only: pod_result_t, pod_tsqr, snapshot_layout
   implicit none
   private
-  public :: eim_t, eim_build, deim_indices, eim_interp_matrix
+  public :: eim_t, eim_build, eim_prefix, deim_indices, eim_interp_matrix
 
   !> An EIM approximation of one non-affine term, replicated on every rank.
   type :: eim_t
@@ -73,7 +73,7 @@ contains
     type(pod_result_t) :: pod
     integer, parameter :: NB = 32
     real(wp), allocatable :: rho(:, :), r(:, :), err_local(:), snorm(:)
-    real(wp) :: alpha
+    real(wp) :: alpha, est
     integer :: p, m, n_snap, offset, i, j, j0, k, nb_here
 
     p = size(s_local, 1)
@@ -130,7 +130,11 @@ contains
           alpha = r(i, j) / rho(i, k)
           if (alpha /= 0.0_wp) r(:, j) = r(:, j) - alpha * rho(:, k)
           r(i, j) = 0.0_wp
-          err_local(k) = max(err_local(k), norm2(r(:, j)) / snorm(j))
+          ! norm2 (scaled, slow) only where it can raise the maximum: the plain sum of squares
+          ! is within p eps of it, far inside the margin, so the maximum is bitwise the same
+          est = sqrt(sum_squares(r(:, j))) / snorm(j)
+          if (.not. (est < (1.0_wp - 1.0e-8_wp) * err_local(k))) &
+            err_local(k) = max(err_local(k), norm2(r(:, j)) / snorm(j))
         end do
       end do
     end do
@@ -143,6 +147,59 @@ contains
       end if
     end if
   end subroutine eim_build
+
+  !> Sum of squares of x in four interleaved partial sums: a fast estimate of norm2(x)**2,
+  !> accurate to size(x) eps in relative terms. Below 1e-250 (where squares of the entries may
+  !> have underflowed) it returns huge(), so that the caller falls back to norm2; overflow gives
+  !> +Inf and NaN stays NaN, which also send the caller to norm2.
+  pure real(wp) function sum_squares(x) result(t)
+    real(wp), intent(in) :: x(:)
+    real(wp) :: a(4)
+    integer :: n, i
+    n = size(x)
+    a = 0.0_wp
+    do i = 1, n - 3, 4
+      a = a + x(i:i+3)**2
+    end do
+    do i = 4 * (n / 4) + 1, n
+      a(1) = a(1) + x(i)**2
+    end do
+    t = (a(1) + a(2)) + (a(3) + a(4))
+    if (t < 1.0e-250_wp) t = huge(1.0_wp)
+  end function sum_squares
+
+  !> The EIM eim_build would give for m_max modes, taken from one built for more (full, built
+  !> by eim_build with m_full >= m_max requested modes): the POD modes, the nested DEIM indices
+  !> and the training error history of the first k modes do not depend on how many modes were
+  !> requested, so this is bitwise eim_build's result (singular values, note included) without
+  !> a second TSQR and SVD. Errors (code 2): m_max < 0 or m_max > m_full.
+  subroutine eim_prefix(full, m_full, m_max, eim, error)
+    type(eim_t), intent(in) :: full
+    !> the number of modes requested when full was built
+    integer, intent(in) :: m_full
+    integer, intent(in) :: m_max
+    type(eim_t), intent(out) :: eim
+    type(error_t), allocatable, intent(out) :: error
+    integer :: m
+    if (m_max < 0 .or. m_max > m_full) then
+      call set_error(error, "eim_prefix: m = " // str(m_max) // " modes requested from an EIM built for " // &
+        & str(m_full), 2)
+      return
+    end if
+    eim%p = full%p
+    eim%sigma = full%sigma
+    m = min(full%m, m_max)
+    eim%m = m
+    if (full%m == 0) then
+      ! no snapshot, or all zero: the same note whatever was requested
+      if (allocated(full%note)) eim%note = full%note
+    else if (m < m_max) then
+      eim%note = "m reduced from " // str(m_max) // " to the numerical rank " // str(m)
+    end if
+    eim%basis = full%basis(:, 1:m)
+    eim%idx = full%idx(1:m)
+    eim%err = full%err(1:m)
+  end subroutine eim_prefix
 
   !> Greedy DEIM indices of a basis u [p, m] (orthonormal columns expected): idx(1) is the
   !> entry of largest magnitude of u(:, 1); idx(k) that of the residual of u(:, k) after

@@ -16,7 +16,7 @@ module cr_hyper_eim
   use cr_eim, only: eim_t, eim_build, eim_interp_matrix
   use cr_hyper_terms, only: hyper_terms_t
   use cr_hyper_method, only: hyper_method_t, hyper_train_t, choose_points, default_points, max_points, &
-    write_term_attrs, read_term_attrs, TERM_NAMES
+    s1_eim, write_term_attrs, read_term_attrs, TERM_NAMES
   use cr_reduced_base, only: reduced_ops_t, eval_ctx_t, ensure, agent_desired, mark_agents
   use cr_contact_eval, only: eval_contact
   use cr_product_check, only: need_finite, need_range, need_size, product_error
@@ -72,7 +72,7 @@ contains
       m_max = max_points(train, k, train%terms%p(k))
       select case (k)
       case (1)
-        call eim_build(env, train%s1, m_max, this%eim(k), error)
+        call s1_eim(env, train, m_max, this%eim(k), error)
       case (2)
         call eim_build(env, train%s2, m_max, this%eim(k), error)
       case (3)

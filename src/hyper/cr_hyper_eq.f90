@@ -23,11 +23,11 @@ module cr_hyper_eq
   use cr_strings, only: str
   use cr_env, only: env_t
   use cr_h5file, only: h5file_t
-  use cr_eim, only: eim_t, eim_build
+  use cr_eim, only: eim_t
   use cr_eq, only: eq_t, eq_gramian, eq_build
   use cr_hyper_terms, only: hyper_terms_t
   use cr_hyper_method, only: hyper_method_t, hyper_train_t, choose_points, default_points, max_points, &
-    write_term_attrs, read_term_attrs, TERM_NAMES
+    s1_eim, write_term_attrs, read_term_attrs, TERM_NAMES
   use cr_hyper_eim, only: write_eim_group, read_eim_group
   use cr_reduced_base, only: reduced_ops_t, eval_ctx_t, gram_setup, add_row, add_pair, ensure, &
     agent_desired, mark_agents, unique_map
@@ -116,7 +116,7 @@ contains
     ! the DEIM of the desired velocity ('eq_deim')
     if (train%terms%p(1) > 0) then
       m_max = max_points(train, 1, train%terms%p(1))
-      call eim_build(env, train%s1, m_max, this%vdeim, error)
+      call s1_eim(env, train, m_max, this%vdeim, error)
       if (allocated(error)) then
         call prefix_error(error, "DEIM of the desired velocity"); return
       end if

@@ -26,10 +26,11 @@ module cr_hyper_method
   use cr_hyper_terms, only: hyper_terms_t
   use cr_reduced_base, only: reduced_ops_t
   use cr_product_check, only: product_error
+  use cr_eim, only: eim_t, eim_build, eim_prefix
   implicit none
   private
   public :: hyper_train_t, hyper_method_t, hyper_slot_t, choose_points, default_points, max_points, &
-    write_term_attrs, read_term_attrs, TERM_NAMES
+    points_cap, s1_eim, write_term_attrs, read_term_attrs, TERM_NAMES
 
   !> the three hyper-reduced terms s1 = v(q), s2 = B(q), s3 = d(q)
   character(len=2), parameter :: TERM_NAMES(3) = ['s1', 's2', 's3']
@@ -52,6 +53,11 @@ module cr_hyper_method
     real(wp) :: radius = 0, dt = 0
     !> at most m_factor times the paper's default points (2 nb, R, 2 R); EQ tolerance
     real(wp) :: m_factor = 1, eq_tol = 0
+    !> optional: the EIM of s1 built once for every pair (s1 = v(q) does not depend on the
+    !> pair), requesting s1_shared_m >= this pair's points; `s1_eim` takes its prefix, which is
+    !> bitwise what a new build would give (valid during the build only)
+    type(eim_t), pointer :: s1_shared => null()
+    integer :: s1_shared_m = 0
   end type hyper_train_t
 
   !> A hyper-reduction method (see the module header). The defaults of build_data, write, read
@@ -184,10 +190,34 @@ contains
   pure integer function max_points(train, k, n_cand) result(m_max)
     type(hyper_train_t), intent(in) :: train
     integer, intent(in) :: k, n_cand
-    integer :: mdef(3)
-    mdef = default_points(size(train%v, 2), train%r)
-    m_max = min(n_cand, max(1, ceiling(train%m_factor * mdef(k))))
+    m_max = points_cap(size(train%v, 2), train%r, train%m_factor, k, n_cand)
   end function max_points
+
+  !> max_points for a basis of nb vectors and R cone vectors (before the training set exists).
+  pure integer function points_cap(nb, r, m_factor, k, n_cand) result(m_max)
+    integer, intent(in) :: nb, r, k, n_cand
+    real(wp), intent(in) :: m_factor
+    integer :: mdef(3)
+    mdef = default_points(nb, r)
+    m_max = min(n_cand, max(1, ceiling(m_factor * mdef(k))))
+  end function points_cap
+
+  !> The EIM of s1 with m_max modes (collective): the prefix of the shared one when the
+  !> training set carries one built for enough modes, else built from train%s1.
+  subroutine s1_eim(env, train, m_max, eim, error)
+    type(env_t), intent(in) :: env
+    type(hyper_train_t), intent(in) :: train
+    integer, intent(in) :: m_max
+    type(eim_t), intent(out) :: eim
+    type(error_t), allocatable, intent(out) :: error
+    if (associated(train%s1_shared)) then
+      if (m_max <= train%s1_shared_m) then
+        call eim_prefix(train%s1_shared, train%s1_shared_m, m_max, eim, error)
+        return
+      end if
+    end if
+    call eim_build(env, train%s1, m_max, eim, error)
+  end subroutine s1_eim
 
   !> Create the group t of one term and write its attributes: p (candidates), m (points) and
   !> the note when allocated.

@@ -1,7 +1,8 @@
 !> The reduced inf-sup table of crowd_offline: gamma(N, R) brackets (see cr_infsup) for a
 !> grid of (N, R) at training configurations spread over the training columns (each rank
 !> evaluates the sampled columns it holds), without and with supremizer enrichment (PGA of
-!> the first N POD modes for the first R cone vectors).
+!> the first N POD modes for the first R cone vectors; an enrichment already in the run's
+!> cache, cr_pga_cache, is reused, and each new one is added to it).
 module cr_infsup_table
   use cr_kinds, only: wp
   use cr_error, only: error_t, prefix_error
@@ -13,6 +14,7 @@ module cr_infsup_table
   use cr_pod, only: pod_result_t
   use cr_sparse_cone, only: sparse_cone_t
   use cr_supremizer, only: pga_result_t, pga_enrich
+  use cr_pga_cache, only: pga_cache_t
   use cr_infsup, only: infsup_t, reduced_infsup
   use cr_rom_file, only: rom_tables_t
   implicit none
@@ -23,20 +25,22 @@ contains
 
   !> Reduced inf-sup constants for the (N, R) grid of &offline at infsup_samples training
   !> configurations (spread over the training columns), without and with supremizers.
-  subroutine infsup_table(env, log, ocfg, data, pod, scone, tab, error)
+  !> cache: the enrichments computed so far (used, and completed with the grid's).
+  subroutine infsup_table(env, log, ocfg, data, pod, scone, cache, tab, error)
     type(env_t), intent(in) :: env
     type(logger_t), intent(inout) :: log
     type(offline_cfg_t), intent(in) :: ocfg
     type(offline_data_t), intent(in) :: data
     type(pod_result_t), intent(in) :: pod
     type(sparse_cone_t), intent(in) :: scone
+    type(pga_cache_t), intent(inout) :: cache
     type(rom_tables_t), intent(inout) :: tab
     type(error_t), allocatable, intent(out) :: error
     integer, allocatable :: ns(:), rs(:)
     type(sparse_cone_t) :: sub
     type(pga_result_t) :: pres
     real(wp), allocatable :: vv(:,:), acc(:)
-    integer :: a, b, m, npair, ncols, stride
+    integer :: a, b, m, npair, ncols, stride, hit
     real(wp) :: lo(4), hi(4)
     ns = pack(ocfg%infsup_n, ocfg%infsup_n > 0)
     rs = pack(ocfg%infsup_r, ocfg%infsup_r > 0)
@@ -63,10 +67,16 @@ contains
         vv = pod%phi(:, 1:ns(a))
         call sweep(ocfg, data, sub, vv, stride, ncols, acc(1:4), error)
         if (allocated(error)) return
-        vv = pod%phi(:, 1:ns(a))
-        call pga_enrich(env, data%scenes, data%scene_of, data%radius, data%dt, data%dict_ia, data%dict_ib, &
-          data%dict_ob, sub, data%q, data%lam%col_offset, vv, ocfg%pga_delta, ocfg%pga_max_add, pres, error)
-        if (allocated(error)) return
+        hit = cache%find(ns(a), rs(b))
+        if (hit > 0) then
+          vv = cache%entries(hit)%v
+        else
+          vv = pod%phi(:, 1:ns(a))
+          call pga_enrich(env, data%scenes, data%scene_of, data%radius, data%dt, data%dict_ia, data%dict_ib, &
+            data%dict_ob, sub, data%q, data%lam%col_offset, vv, ocfg%pga_delta, ocfg%pga_max_add, pres, error)
+          if (allocated(error)) return
+          call cache%add(ns(a), rs(b), vv, pres)
+        end if
         tab%is_n_pga(m) = size(vv, 2)
         call sweep(ocfg, data, sub, vv, stride, ncols, acc(5:8), error)
         if (allocated(error)) return

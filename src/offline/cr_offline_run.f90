@@ -9,7 +9,7 @@
 !> is collective, times itself into `tab` and returns the same error on every rank.
 module cr_offline_run
   use cr_kinds, only: wp
-  use cr_error, only: error_t, set_error
+  use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
   use cr_env, only: env_t
   use cr_logger, only: logger_t
@@ -22,8 +22,11 @@ module cr_offline_run
   use cr_sparse_cone, only: sparse_cone_t
   use cr_supremizer, only: pga_result_t, pga_enrich
   use cr_infsup_table, only: infsup_table
+  use cr_pga_cache, only: pga_cache_t
   use cr_rom_file, only: rom_file_t, rom_tables_t, write_rom_file
-  use cr_rom_pairs, only: rom_pair_t, build_pair, hyper_summary
+  use cr_rom_pairs, only: rom_pair_t, build_pair, hyper_summary, cone_prefix
+  use cr_hyper_method, only: points_cap
+  use cr_eim, only: eim_t, eim_build
   implicit none
   private
   public :: offline_run_t
@@ -45,6 +48,8 @@ module cr_offline_run
     type(cone_result_t) :: cone, other
     type(sparse_cone_t) :: scone
     type(pga_result_t) :: pga
+    !> every enrichment (N, R) computed so far: the main one, the inf-sup table's, the pairs'
+    type(pga_cache_t) :: pga_cache
     !> timings and tables stored in the ROM file
     type(rom_tables_t) :: tab
     !> the prepared reduced models (&pairs)
@@ -244,6 +249,7 @@ contains
         call env%agree_error(error)
         if (allocated(error)) return
         this%tab%t_pga = env%wtime() - t0
+        call this%pga_cache%add(this%n_pod, this%scone%r, this%v, pga)
         call log%info("   added " // str(pga%n_added) // " supremizers; largest projection error " // &
           str(pga%err(1)) // " -> " // str(pga%err(pga%n_added + 1)))
         if (allocated(pga%note)) call log%warn("PGA: " // pga%note)
@@ -266,7 +272,7 @@ contains
     real(wp) :: t0
     call log%stage_begin("crowd_offline: reduced inf-sup table")
     t0 = env%wtime()
-    call infsup_table(env, log, this%ocfg, this%data, this%pod, this%scone, this%tab, error)
+    call infsup_table(env, log, this%ocfg, this%data, this%pod, this%scone, this%pga_cache, this%tab, error)
     call env%agree_error(error)
     if (allocated(error)) return
     this%tab%t_infsup = env%wtime() - t0
@@ -297,8 +303,13 @@ contains
     !> the POD modes kept [n_dof, n_pod]
     real(wp), intent(in) :: phi(:,:)
     type(error_t), allocatable, intent(out) :: error
-    integer, allocatable :: nn(:), rr(:)
-    integer :: k
+    integer, allocatable :: nn(:), rr(:), nb(:), hit(:)
+    real(wp), allocatable :: t_pga(:), vk(:,:)
+    type(eim_t), target :: s1_shared
+    type(error_t), allocatable :: s1_error
+    type(pga_result_t) :: res
+    integer :: k, m_s1
+    real(wp) :: t0
     character(len=:), allocatable :: line
     associate(ocfg => this%ocfg, scone => this%scone, pairs => this%pairs)
       call log%progress_start()
@@ -308,7 +319,10 @@ contains
         nn = [size(phi, 2)]; rr = [scone%r]
       end if
       if (allocated(this%pairs)) deallocate(this%pairs)
-      allocate(this%pairs(size(nn)))
+      allocate(this%pairs(size(nn)), nb(size(nn)), hit(size(nn)), t_pga(size(nn)))
+      ! the bases first: every enrichment not yet computed (the main one's and the inf-sup
+      ! table's are reused), so that the EIM of s1 can be built once for the largest basis
+      t_pga = 0
       do k = 1, size(nn)
         if (nn(k) > size(phi, 2)) then
           call set_error(error, this%input // ": &pairs: n(" // str(k) // ") = " // str(nn(k)) // &
@@ -318,19 +332,63 @@ contains
           call set_error(error, this%input // ": &pairs: r(" // str(k) // ") = " // str(rr(k)) // &
             " exceeds the " // str(scone%r) // " cone vectors built (&cone r_max / delta)", 2); return
         end if
+        hit(k) = 0
+        nb(k) = nn(k)
+        if (ocfg%pga .and. rr(k) > 0) then
+          hit(k) = this%pga_cache%find(nn(k), rr(k))
+          if (hit(k) == 0) then
+            t0 = env%wtime()
+            vk = phi(:, 1:nn(k))
+            call pga_enrich(env, this%data%scenes, this%data%scene_of, this%data%radius, this%data%dt, &
+              this%data%dict_ia, this%data%dict_ib, this%data%dict_ob, cone_prefix(scone, rr(k)), this%data%q, &
+              this%data%lam%col_offset, vk, ocfg%pga_delta, ocfg%pga_max_add, res, error)
+            if (allocated(error)) then
+              call prefix_error(error, "PGA of pair (" // str(nn(k)) // ", " // str(rr(k)) // ")"); return
+            end if
+            call this%pga_cache%add(nn(k), rr(k), vk, res)
+            hit(k) = this%pga_cache%find(nn(k), rr(k))
+            t_pga(k) = env%wtime() - t0
+          end if
+          nb(k) = size(this%pga_cache%entries(hit(k))%v, 2)
+        end if
+      end do
+      ! s1 = v(q) does not depend on the pair: one EIM for the most points any pair keeps,
+      ! each pair takes its prefix (bitwise the EIM it would build); if that build fails, each
+      ! pair builds its own (and reports its own error)
+      m_s1 = 0
+      if (ocfg%hyper .and. this%data%n_dof > 0) then
+        do k = 1, size(nn)
+          m_s1 = max(m_s1, points_cap(nb(k), rr(k), ocfg%hyper_m_factor, 1, this%data%n_dof))
+        end do
+        call eim_build(env, this%data%v, m_s1, s1_shared, s1_error)
+        if (allocated(s1_error)) m_s1 = 0
+      end if
+      do k = 1, size(nn)
         call log%progress("pair", k, size(nn))
-        if (nn(k) == size(phi, 2) .and. rr(k) == scone%r) then
-          ! the full enrichment is already computed
+        if (hit(k) > 0) then
+          associate(e => this%pga_cache%entries(hit(k)))
+            call build_pair(env, this%data, phi, nn(k), scone, rr(k), .false., ocfg%pga_delta, ocfg%pga_max_add, &
+              ocfg%hyper, ocfg%hyper_m_factor, ocfg%eq_tol, this%pairs(k), error, v_given=e%v, &
+              s1_shared=s1_shared, s1_shared_m=m_s1)
+            if (allocated(error)) return
+            this%pairs(k)%n_pga = e%res%n_added
+            this%pairs(k)%pga_err = e%res%err
+          end associate
+        else if (nn(k) == size(phi, 2) .and. rr(k) == scone%r) then
+          ! no PGA here (off, or an empty cone): the main basis, the POD modes alone
           call build_pair(env, this%data, phi, nn(k), scone, rr(k), .false., ocfg%pga_delta, ocfg%pga_max_add, &
-            ocfg%hyper, ocfg%hyper_m_factor, ocfg%eq_tol, this%pairs(k), error, v_given=this%v)
+            ocfg%hyper, ocfg%hyper_m_factor, ocfg%eq_tol, this%pairs(k), error, v_given=this%v, &
+            s1_shared=s1_shared, s1_shared_m=m_s1)
           if (allocated(error)) return
           this%pairs(k)%n_pga = size(this%v, 2) - size(phi, 2)
           this%pairs(k)%pga_err = this%pga%err
         else
-          call build_pair(env, this%data, phi, nn(k), scone, rr(k), ocfg%pga, ocfg%pga_delta, ocfg%pga_max_add, &
-            ocfg%hyper, ocfg%hyper_m_factor, ocfg%eq_tol, this%pairs(k), error)
+          call build_pair(env, this%data, phi, nn(k), scone, rr(k), .false., ocfg%pga_delta, ocfg%pga_max_add, &
+            ocfg%hyper, ocfg%hyper_m_factor, ocfg%eq_tol, this%pairs(k), error, &
+            s1_shared=s1_shared, s1_shared_m=m_s1)
           if (allocated(error)) return
         end if
+        this%pairs(k)%t_pga = t_pga(k)
         line = "   pair " // str(k) // ": N = " // str(nn(k)) // ", R = " // str(rr(k)) // ", supremizers " // &
           str(this%pairs(k)%n_pga) // " (basis " // str(size(this%pairs(k)%v, 2)) // ")"
         call log%info(line // hyper_summary(this%pairs(k)))
@@ -415,6 +473,7 @@ contains
     type(rom_tables_t) :: t0
     this%data = d0; this%pod = p0; this%cone = c0; this%other = c0; this%scone = s0; this%pga = g0
     this%tab = t0
+    call this%pga_cache%free()
     this%n_pod = 0
     if (allocated(this%v)) deallocate(this%v)
     if (allocated(this%pairs)) deallocate(this%pairs)

@@ -16,6 +16,7 @@ module cr_rom_pairs
   use cr_hyper_method, only: hyper_train_t
   use cr_hyper_factory, only: stored_hypers
   use cr_rom_file, only: rom_pair_t
+  use cr_eim, only: eim_t
   implicit none
   private
   public :: rom_pair_t, build_pair, cone_prefix, hyper_summary
@@ -38,7 +39,7 @@ contains
   !> pga: enrich with supremizers (delta, max_add); hyper: EIM and EQ with at most
   !> m_factor times the paper's default points, EQ tolerance eq_tol.
   subroutine build_pair(env, data, phi, n, cone, r, pga, pga_delta, pga_max_add, hyper, m_factor, eq_tol, &
-      pair, error, v_given)
+      pair, error, v_given, s1_shared, s1_shared_m)
     type(env_t), intent(in) :: env
     type(offline_data_t), intent(in) :: data
     real(wp), intent(in) :: phi(:,:)
@@ -51,6 +52,9 @@ contains
     type(error_t), allocatable, intent(out) :: error
     !> an already enriched basis [n_dof, >= n] for this pair (PGA is then skipped)
     real(wp), intent(in), optional :: v_given(:,:)
+    !> the EIM of s1 shared by the pairs, built requesting s1_shared_m modes (0: none)
+    type(eim_t), intent(in), target, optional :: s1_shared
+    integer, intent(in), optional :: s1_shared_m
     type(sparse_cone_t) :: cr
     type(pga_result_t) :: res
     real(wp) :: t0
@@ -83,18 +87,26 @@ contains
     call pair%terms%init(cr, r, data%dict_ia, data%dict_ib, data%dict_ob, data%n_dof, error)
     if (allocated(error)) return
     pair%hyper = hyper
-    if (hyper) call build_hyper(env, data, m_factor, eq_tol, pair, error)
+    if (hyper) then
+      if (present(s1_shared) .and. present(s1_shared_m)) then
+        call build_hyper(env, data, m_factor, eq_tol, pair, error, s1_shared, s1_shared_m)
+      else
+        call build_hyper(env, data, m_factor, eq_tol, pair, error)
+      end if
+    end if
   end subroutine build_pair
 
   !> Every stored hyper-reduction method of the factory for `pair` (collective): the
   !> candidate snapshots of s1, s2, s3 at this rank's training configurations, then each
   !> method's own build.
-  subroutine build_hyper(env, data, m_factor, eq_tol, pair, error)
+  subroutine build_hyper(env, data, m_factor, eq_tol, pair, error, s1_shared, s1_shared_m)
     type(env_t), intent(in) :: env
     type(offline_data_t), intent(in), target :: data
     real(wp), intent(in) :: m_factor, eq_tol
     type(rom_pair_t), intent(inout) :: pair
     type(error_t), allocatable, intent(out) :: error
+    type(eim_t), intent(in), target, optional :: s1_shared
+    integer, intent(in), optional :: s1_shared_m
     type(hyper_train_t) :: train
     integer :: c, k, nloc
     real(wp) :: t0
@@ -110,6 +122,12 @@ contains
     train%dt = data%dt
     train%m_factor = m_factor
     train%eq_tol = eq_tol
+    if (present(s1_shared) .and. present(s1_shared_m)) then
+      if (s1_shared_m > 0) then
+        train%s1_shared => s1_shared
+        train%s1_shared_m = s1_shared_m
+      end if
+    end if
     allocate(train%s1(pair%terms%p(1), nloc), train%s2(pair%terms%p(2), nloc), train%s3(pair%terms%p(3), nloc))
     do c = 1, nloc
       call pair%terms%snapshot(data%scenes(data%scene_of(c)), data%q(:, c), data%v(:, c), data%radius, &

@@ -11,6 +11,16 @@
 !> candidate's residual is recomputed explicitly (s - V (V^T s), orthogonalised twice), so
 !> small thresholds such as delta = 1e-8 are decided on exact residuals.
 !>
+!> The exact residuals are formed per support row, not per candidate: a candidate is
+!> s = sum_l (-h psi_{r,l}) M_l g_l(q), where M_l [n_dof, 2] puts a normal g on the dofs of
+!> the row's agents (+g on agent a, -g on agent b), so (I - V V^T) s is the same combination
+!> of W_l = (I - V V^T) M_l. W_l is projected (twice Gram-Schmidt) once per support row and
+!> basis, and each candidate costs O(nnz(psi_r) n_dof) instead of O(n_dof N): for a gIS cone
+!> (one row per cone vector) about 2 N times less. The result differs from the per-candidate
+!> projection only by rounding (both are accurate to a few eps |s|). When the rows would
+!> cost more than the candidates (dense mCPG vectors), or W would not fit in
+!> PGA_ROWS_MAX_BYTES, the candidates are projected one by one as before.
+!>
 !> Stops also, with a note, when the basis spans the whole velocity space (N = n_dof) or
 !> when the largest exact relative residual is at the round-off level (<= ROUNDOFF_FLOOR):
 !> such a candidate lies in the span, and orthonormalising it would add a direction made of
@@ -29,6 +39,8 @@ module cr_supremizer
 
   !> relative residual below which a candidate counts as lying in the span of the basis
   real(wp), parameter :: ROUNDOFF_FLOOR = 1.0e-12_wp
+  !> largest memory of the projected rows W [n_dof, 2, n_support] of the exact phase (bytes)
+  real(wp), parameter :: PGA_ROWS_MAX_BYTES = 512.0_wp * 2.0_wp**20
 
   !> History of an enrichment.
   type :: pga_result_t
@@ -69,7 +81,7 @@ contains
   !> scenes(scene_of(k)) is the scene of local configuration k (studies that vary the exit
   !> width have one scene per sample).
   subroutine pga_enrich(env, scenes, scene_of, radius, h, dict_ia, dict_ib, dict_ob, cone, q_local, col_offset, &
-      v, delta, max_add, res, error)
+      v, delta, max_add, res, error, exact_route)
     type(env_t), intent(in) :: env
     type(scene_t), intent(in) :: scenes(:)
     integer, intent(in) :: scene_of(:)
@@ -83,6 +95,9 @@ contains
     integer, intent(in) :: max_add
     type(pga_result_t), intent(out) :: res
     type(error_t), allocatable, intent(out) :: error
+    !> how the exact phase projects: 'auto' (default: the cheaper), 'rows' (through the
+    !> projected support rows W_l) or 'candidates' (one candidate at a time); for tests
+    character(len=*), intent(in), optional :: exact_route
     integer, allocatable :: sup(:), pos(:)
     real(wp), allocatable :: gq(:,:,:), nrm2(:,:), res2(:,:), t(:), s(:), vn(:,:), hist(:)
     integer(i8), allocatable :: chosen(:)
@@ -96,6 +111,11 @@ contains
     end if
     if (size(q_local, 1) /= nd) then
       call set_error(error, "pga: positions have " // str(size(q_local, 1)) // " rows, basis has " // str(nd)); return
+    end if
+    if (present(exact_route)) then
+      if (exact_route /= 'auto' .and. exact_route /= 'rows' .and. exact_route /= 'candidates') then
+        call set_error(error, "pga: exact_route = '" // exact_route // "' (known: auto, rows, candidates)", 2); return
+      end if
     end if
     if (delta < 0 .or. max_add < 0) then
       call set_error(error, "pga: delta must be >= 0 and max_add >= 0", 2); return
@@ -217,20 +237,60 @@ contains
       end do
     end subroutine subtract_projection
 
-    !> Exact squared residuals of every local candidate.
+    !> Exact squared residuals of every local candidate: through the projected rows W_l when
+    !> that is cheaper (see the module's header), else candidate by candidate.
     subroutine recompute_all()
-      integer :: kk, r2, m
-      real(wp), allocatable :: w(:)
+      integer :: kk, r2, m, jj, p, a, b, nb
+      real(wp), allocatable :: w(:), wl(:,:,:)
+      real(wp) :: cost_rows, cost_cand, c
+      logical :: use_rows
       allocate(w(nd))
-      do kk = 1, nl
-        do r2 = 1, cone%r
-          call supremizer(scenes(scene_of(kk)), radius, h, dict_ia, dict_ib, dict_ob, cone, r2, q_local(:, kk), w)
+      nb = size(v, 2)
+      ! multiply-adds: rows: 2 ns projections of 4 nd nb + per candidate 2 nd per non-zero;
+      ! candidates: 4 nd nb each
+      cost_rows = 8.0_wp * ns * nd * nb + 2.0_wp * nd * real(nl, wp) * size(cone%idx)
+      cost_cand = 4.0_wp * nd * nb * real(nl, wp) * cone%r
+      use_rows = cost_rows < cost_cand .and. 16.0_wp * nd * ns <= PGA_ROWS_MAX_BYTES
+      if (present(exact_route)) then
+        if (exact_route == 'rows') use_rows = .true.
+        if (exact_route == 'candidates') use_rows = .false.
+      end if
+      if (use_rows) then
+        ! W_l = (I - V V^T) M_l for every support row, twice Gram-Schmidt
+        allocate(wl(nd, 2, ns))
+        wl = 0
+        do jj = 1, ns
+          a = dict_ia(sup(jj)); b = dict_ib(sup(jj))
+          wl(2*a-1, 1, jj) = 1; wl(2*a, 2, jj) = 1
+          if (b > 0) then
+            wl(2*b-1, 1, jj) = -1; wl(2*b, 2, jj) = -1
+          end if
           do m = 1, 2
-            w = w - matmul(v, matmul(w, v))
+            wl(:, :, jj) = wl(:, :, jj) - matmul(v, matmul(transpose(v), wl(:, :, jj)))
           end do
-          res2(r2, kk) = sum(w**2)
         end do
-      end do
+        do r2 = 1, cone%r
+          do kk = 1, nl
+            w = 0
+            do p = cone%ptr(r2) + 1, cone%ptr(r2 + 1)
+              jj = pos(cone%idx(p))
+              c = -h * cone%val(p)
+              w = w + (c * gq(1, jj, kk)) * wl(:, 1, jj) + (c * gq(2, jj, kk)) * wl(:, 2, jj)
+            end do
+            res2(r2, kk) = sum(w**2)
+          end do
+        end do
+      else
+        do kk = 1, nl
+          do r2 = 1, cone%r
+            call supremizer(scenes(scene_of(kk)), radius, h, dict_ia, dict_ib, dict_ob, cone, r2, q_local(:, kk), w)
+            do m = 1, 2
+              w = w - matmul(v, matmul(w, v))
+            end do
+            res2(r2, kk) = sum(w**2)
+          end do
+        end do
+      end if
     end subroutine recompute_all
 
     !> Global (max relative squared residual, candidate id), ties to the lowest id.
