@@ -160,6 +160,9 @@ module cr_snapshot_file
     integer, private :: nl = 0
     type(snap_sample_t), allocatable, private :: lam(:)
     integer, allocatable, private :: gl(:)
+    !> this rank's contacts [4, n] (end_local) and whether end_local has run
+    integer(i8), allocatable, private :: pack4(:,:)
+    logical, private :: local_done = .false.
     !> multipliers per set and each sample's position in its set's CSR arrays (finish)
     integer(i8), private :: total(2) = 0
     integer(i8), allocatable, private :: base(:)
@@ -168,6 +171,7 @@ module cr_snapshot_file
     procedure :: put => writer_put
     procedure :: poll => writer_poll
     procedure :: wait_places => writer_wait_places
+    procedure :: end_local => writer_end_local
     procedure :: finish => writer_finish
     procedure :: discard => writer_discard
   end type snap_writer_t
@@ -313,6 +317,7 @@ contains
     this%nl = 0
     this%nq = 0
     this%placed = .false.
+    this%local_done = .false.
     allocate(this%lam(16), this%gl(16), this%queue(4))
     if (allocated(this%fault)) deallocate(this%fault)
     m = ""
@@ -647,6 +652,37 @@ contains
     this%stats%bytes = this%stats%bytes + sample_bytes(this, s)
   end subroutine write_sample
 
+  !> Not collective, the first part of finish (a caller may run it before some synchronisation
+  !> of its own, e.g. while other ranks still compute): wait for the places, write the samples
+  !> held meanwhile, and find this rank's contacts for the dictionary. `error` on entry: this
+  !> rank's failure before (then only the broadcast of the places is completed); on return:
+  !> that failure or a new one, which finish then shares.
+  subroutine writer_end_local(this, error)
+    class(snap_writer_t), intent(inout) :: this
+    type(error_t), allocatable, intent(inout) :: error
+    type(error_t), allocatable :: e2
+    real(wp) :: t1, tw
+    this%local_done = .true.
+    if (allocated(this%pack4)) deallocate(this%pack4)
+    if (allocated(error)) then
+      call this%pend%wait(e2)
+    else
+      call settle(this, .true., error, tw)
+      this%stats%t_held = this%stats%t_held + tw
+      this%stats%t_put = this%stats%t_put + tw
+      if (.not. allocated(error) .and. .not. this%placed) call set_error(error, "places not received")
+    end if
+    this%stats%marks(1) = this%env%wtime()
+    ! this rank's contacts (unique keys and identities) for the dictionary
+    t1 = this%env%wtime()
+    if (allocated(error)) then
+      allocate(this%pack4(4, 0))
+    else
+      call local_contacts(this%lam(1:this%nl), this%pack4)
+    end if
+    this%stats%t_blocks = this%env%wtime() - t1
+  end subroutine writer_end_local
+
   !> Collective: every sample of the study must have been put by exactly one rank. `error` on
   !> entry: this rank's failure before finish (e.g. in its sample loop); if any rank has one,
   !> every rank returns the lowest failing rank's (agreed) and the database is discarded.
@@ -682,30 +718,18 @@ contains
     type(error_t), allocatable :: e2
     logical :: failed
     t0 = this%env%wtime()
-    this%stats%marks = t0
+    this%stats%marks(2:) = t0
     associate (env => this%env)
     ns = this%ns
     ntot = sum(this%nset)
     p = env%size
     ne = 0
     if (present(extra)) ne = size(extra)
-    ! the places (every rank completes the broadcast) and the samples held meanwhile
+    ! the places, the samples held meanwhile and this rank's contacts (if the caller has not
+    ! asked for them before)
+    if (.not. this%local_done) call this%end_local(error)
     failed = allocated(error)
-    if (failed) then
-      call this%pend%wait(e2)
-    else
-      call settle(this, .true., error, tw)
-      this%stats%t_held = this%stats%t_held + tw
-      this%stats%t_put = this%stats%t_put + tw
-      if (.not. allocated(error) .and. .not. this%placed) call set_error(error, "places not received")
-      failed = allocated(error)
-    end if
-    this%stats%marks(1) = env%wtime()
-    ! this rank's contacts (unique keys and identities) for the dictionary
-    t1 = env%wtime()
-    if (.not. failed) call local_contacts(this%lam(1:this%nl), pack4)
-    if (failed) allocate(pack4(4, 0))
-    this%stats%t_blocks = env%wtime() - t1
+    call move_alloc(this%pack4, pack4)
     ! the end reduction: [failed, (held, multipliers) per sample, data bytes, contact entries per
     ! rank [P], checksum parts [2, 17, 2] (those of the multipliers are still 0), extra]; every
     ! value is an integer below 2^53 (exact in real(wp)) but extra's

@@ -36,11 +36,12 @@ module cr_study_run
   !> phase boundaries recorded by every rank (the summary's `phase_marks`, a timeline per rank)
   integer, parameter :: N_MARKS = 18
   character(len=*), parameter :: MARK_NAMES = "setup_local,counter_created,probe_shared,pieces_scanned," // &
-    "database_begun,loop_start,last_ticket,last_piece_written,places_settled,end_reduced,dictionary_shared," // &
-    "blocks_written,agreed,database_finished,counter_freed,pieces_removed,directory_removed,end"
-  !> the marks where the ranks first meet (the counter's creation) and where the sample loop ends
-  !> (the end reduction)
-  integer, parameter :: MARK_MEET = 2, MARK_LOOP0 = 6, MARK_LOOP_END = 10, MARK_FINISHED = 14
+    "database_begun,loop_start,last_ticket,last_piece_written,places_settled,counter_freed,end_reduced," // &
+    "dictionary_shared,blocks_written,agreed,database_finished,pieces_removed,directory_removed,end"
+  !> the marks where the ranks first meet (the counter's creation), where a rank's sample loop
+  !> starts and where it ends (its last sample done and the samples it held written; the wait
+  !> for the other ranks' last samples comes after, at the counter's release)
+  integer, parameter :: MARK_MEET = 2, MARK_LOOP0 = 6, MARK_LOOP_END = 9
   character(len=*), parameter :: CROWDROM_VERSION = "crowdrom 0.1.0"
 
   !> Options of a run (command line).
@@ -68,6 +69,8 @@ module cr_study_run
     real(wp) :: sum_time = 0, sum_loop = 0, t_total = 0, t_setup = 0, t_compute = 0, t_asm = 0, t_asm_start = 0
     !> rank 0's time putting the samples of earlier runs' pieces into the database (setup, s)
     real(wp) :: t_put_resumed = 0
+    !> rank 0's HDF5 layout of the database in begin (its serial work in the setup, s)
+    real(wp) :: t_layout = 0
     !> the database writer's figures (its put time is this rank's; part of the busy time)
     type(snap_write_stats_t) :: wstats
     !> sum over ranks of the time spent putting computed samples into the database (s)
@@ -137,7 +140,7 @@ contains
     dir = this%db // ".pieces"
     this%batch_seconds = opts%batch_seconds
     call log%stage_begin("crowd_snapshots: setup")
-    call log%info(config_echo(cfg) // study_echo(study))
+    if (env%is_root()) call log%info(config_echo(cfg) // study_echo(study))
     ! the reference model: scene and the common initial positions (rank 0's are broadcast)
     mk = 0
     call fom_ref%init(cfg, error)
@@ -224,6 +227,7 @@ contains
     if (allocated(error)) then
       call sched%free(); return
     end if
+    this%t_layout = writer%stats%t_serial
     msg = ""
     ! (the samples of earlier pieces: every rank waits for the places first)
     if (size(held) > 0) call writer%wait_places(error)
@@ -326,9 +330,9 @@ contains
     stopping = this%n_run < size(todo)
     if (stopping) then
       call stop_reduction(error)
-      mk(9:14) = env%wtime() - t_start
+      mk(9) = env%wtime() - t_start
       call sched%free()
-      mk(15) = env%wtime() - t_start
+      mk(10:15) = env%wtime() - t_start
       this%t_compute = env%wtime() - t_loop
       if (allocated(error)) then
         call writer%discard(); return
@@ -355,12 +359,15 @@ contains
     end if
     call log%stage_end()
     call log%stage_begin("crowd_snapshots: finishing '" // this%db // "'")
+    ! this rank's part of the end first (the places, its contacts), then the counter's release,
+    ! where the ranks leaving the loop early wait for the others, then the collective end
+    call writer%end_local(error)
+    mk(9) = writer%stats%marks(1) - t_start
+    call sched%free()
+    mk(10) = env%wtime() - t_start
     call writer%finish(error, redu)
     this%wstats = writer%stats
-    mk(9:13) = writer%stats%marks(1:5) - t_start
-    mk(14) = env%wtime() - t_start
-    call sched%free()
-    mk(15) = env%wtime() - t_start
+    mk(11:15) = writer%stats%marks(2:6) - t_start
     if (allocated(error)) return
     call take_figures()
     ! the database is committed (every rank knows it from finish's last broadcast): the pieces
@@ -422,7 +429,7 @@ contains
     ! counter's creation: before it a rank may wait for a partner still in the driver's input
     ! checks), then the longest rank's time after it (each on its own clock)
     this%t_total = this%marks(MARK_MEET, 1) + maxval(this%marks(N_MARKS, :) - this%marks(MARK_MEET, :))
-    ! the sample loop: from its start to the end reduction, the longest rank's
+    ! the sample loop: from its start to its last sample (held samples written), the longest rank's
     this%t_compute = maxval(this%marks(MARK_LOOP_END, :) - this%marks(MARK_LOOP0, :))
     ! (every rank has passed its removal now)
     if (env%is_root()) then
@@ -488,17 +495,20 @@ contains
       end associate
     end subroutine take_figures
 
+    !> The database's metadata (its texts only on rank 0, which writes them).
     subroutine fill_meta()
-      meta%config_text = config_echo(cfg) // study_echo(study)
-      meta%input_text = cfg%text
       meta%hash = this%hash
-      meta%param_names = space%component_names()
-      meta%version = CROWDROM_VERSION
-      call h5get_libversion_f(maj, mnr, rel, ierr)
-      meta%hdf5_version = "unknown"
-      if (ierr == 0) meta%hdf5_version = str(maj) // "." // str(mnr) // "." // str(rel)
-      meta%mpi_version = env%library_version()
-      meta%compiler = compiler_version()
+      if (env%is_root()) then
+        meta%config_text = config_echo(cfg) // study_echo(study)
+        meta%input_text = cfg%text
+        meta%param_names = space%component_names()
+        meta%version = CROWDROM_VERSION
+        call h5get_libversion_f(maj, mnr, rel, ierr)
+        meta%hdf5_version = "unknown"
+        if (ierr == 0) meta%hdf5_version = str(maj) // "." // str(mnr) // "." // str(rel)
+        meta%mpi_version = env%library_version()
+        meta%compiler = compiler_version()
+      end if
       meta%n_agents = fom_ref%n_agents
       meta%n_steps = cfg%time%n_steps
       meta%n_expanded = space%n_expanded
@@ -524,10 +534,12 @@ contains
   function summary_text(this) result(text)
     class(study_run_t), intent(in) :: this
     character(len=:), allocatable :: text
-    real(wp) :: eff_loop, eff_total, balance
+    real(wp) :: eff_loop, eff_total, balance, eff_noser
     integer :: r, p
     p = size(this%busy)
     call efficiencies(this, p, eff_loop, eff_total, balance)
+    eff_noser = 0
+    if (this%t_total > 0) eff_noser = this%sum_time_no_serial / (p * this%t_total)
     text = "summary:" // new_line('a') // &
       "  database            " // this%db // " (" // str(real(this%bytes, wp) / 1.0e6_wp, 'f0.2') // " MB)" // &
       new_line('a') // &
@@ -543,7 +555,8 @@ contains
     text = text // &
       "  load balance        " // str(balance, 'f0.3') // " (mean / max busy time)" // new_line('a') // &
       "  busy-time efficiency " // str(eff_loop, 'f0.3') // " (sample loop), " // str(eff_total, 'f0.3') // &
-      " (whole run: sum of busy times / (P x wall))" // new_line('a') // &
+      " (whole run: sum of busy times / (P x wall)), " // str(eff_noser, 'f0.3') // &
+      " without rank 0's serial database work" // new_line('a') // &
       "  overheads           counter " // str(1.0e6_wp * this%counter(2) / max(this%counter(1), 1.0_wp), 'f0.1') // &
       " us per operation, " // str(nint(this%pieces_out(1))) // " pieces (" // &
       str(this%pieces_out(2) / 1.0e6_wp, 'f0.2') // " MB, " // str(this%pieces_out(3), 'f0.3') // " s), collective " // &
@@ -565,10 +578,12 @@ contains
     character(len=*), intent(in) :: path, input
     type(error_t), allocatable, intent(out) :: error
     type(json_writer_t) :: js
-    real(wp) :: eff_loop, eff_total, balance
+    real(wp) :: eff_loop, eff_total, balance, eff_noser
     integer :: p
     p = size(this%busy)
     call efficiencies(this, p, eff_loop, eff_total, balance)
+    eff_noser = 0
+    if (this%t_total > 0) eff_noser = this%sum_time_no_serial / (p * this%t_total)
     call js%add("program", "crowd_snapshots")
     call js%add("input", input)
     call js%add("database", this%db)
@@ -585,6 +600,7 @@ contains
     call js%add("samples_per_rank", this%nsamp)
     call js%add("busy_time_per_rank", this%busy)
     if (allocated(this%end_blocks)) call js%add("end_block_time_per_rank", this%end_blocks)
+    if (allocated(this%serial)) call js%add("serial_database_time_per_rank", this%serial)
     call js%add("load_balance", balance)
     call js%add("parallel_efficiency", eff_total)
     call js%add("parallel_efficiency_sample_loop", eff_loop)
@@ -593,7 +609,9 @@ contains
     call js%add("wall_time_assembly", this%t_asm)
     call js%add("busy_time_efficiency", eff_total)
     call js%add("busy_time_efficiency_sample_loop", eff_loop)
+    call js%add("busy_time_efficiency_without_serial", eff_noser)
     call js%add("wall_time_setup", this%t_setup)
+    call js%add("database_layout_time", this%t_layout)
     call js%add("assembly_start", this%t_asm_start)
     call js%add("counter_operations", nint(this%counter(1)))
     call js%add("counter_latency_mean", this%counter(2) / max(this%counter(1), 1.0_wp))
