@@ -445,6 +445,12 @@ contains
     end if
     if (allocated(this%fault)) return
     call this%pf%open(this%path // ".partial", e)
+    ! (rank 0: the first offset of each set's CSR arrays, always 0, written now rather than at
+    ! the end)
+    if (.not. allocated(e) .and. this%env%is_root()) then
+      if (this%place(5, 1) >= 0) call this%pf%write_at(this%place(5, 1), [0_i8], 8_i8, e)
+      if (.not. allocated(e) .and. this%place(5, 2) >= 0) call this%pf%write_at(this%place(5, 2), [0_i8], 8_i8, e)
+    end if
     if (allocated(e)) this%fault = "database '" // this%path // "': " // e%message
   end subroutine take_places
 
@@ -891,12 +897,6 @@ contains
     end if
     ! the ranks' multiplier blocks, then the file handle of begin is closed
     t1 = env%wtime()
-    if (env%is_root()) then
-      do is = 1, 2
-        if (.not. allocated(error) .and. this%place(5, is) >= 0) &
-          call this%pf%write_at(this%place(5, is), [0_i8], 8_i8, error)
-      end do
-    end if
     do j = 1, this%nl
       if (allocated(error)) exit
       is = findloc(SNAP_SET_NAMES, this%lam(j)%set, dim=1)
