@@ -700,10 +700,11 @@ contains
   !> the study sizes, extra]; rank 0 places lambda_index and lambda_value (HDF5) while the
   !> others compute their CSR offsets and checksum parts; [one MPI_Allgatherv: the contacts,
   !> and rank 0's status and places first]: the dictionary, the sorted union of the contacts;
-  !> each rank's dictionary indices and the multipliers' checksum parts [one MPI_Reduce to rank
-  !> 0]; rank 0 adds the dictionary, every checksum and complete = 1 and closes the file while
-  !> the ranks write their multiplier blocks; [agreement: every block is in]; rank 0 renames
-  !> the file (the commit) [one broadcast of its status]. On failure the temporary is removed.
+  !> each rank's dictionary indices, the multipliers' checksum parts and its multiplier blocks;
+  !> [one MPI_Reduce to rank 0: every rank's blocks are in (or it failed), with the checksum
+  !> parts]; rank 0 then adds the dictionary, every checksum and complete = 1, closes the file
+  !> and renames it (the commit) [one broadcast of its status; on failure an agreement on the
+  !> failing rank's message]. On failure the temporary is removed.
   subroutine writer_finish(this, error, extra)
     class(snap_writer_t), intent(inout) :: this
     type(error_t), allocatable, intent(inout) :: error
@@ -719,6 +720,7 @@ contains
     real(wp), allocatable :: red(:), dl(:)
     integer :: ntot, g, is, j, ns, p, ne, q, k, nc, head, mm
     integer(i8) :: o(17), at(17), lplace(2, 2)
+    integer :: stat1(1)
     character(len=:), allocatable :: m
     real(wp) :: t0, t1, tw
     type(error_t), allocatable :: e2
@@ -868,7 +870,8 @@ contains
       o = elem_offsets(this, this%lam(j), this%base(this%gl(j)))
       this%dg(6, is) = digest_add(this%dg(6, is), digest_of(csr(j)%li, o(6)))
     end do
-    allocate(dl(12))
+    allocate(dl(13))
+    dl = 0
     k = 0
     do is = 1, 2
       do q = 1, 3
@@ -878,23 +881,6 @@ contains
     end do
     this%stats%t_blocks = this%stats%t_blocks + (env%wtime() - t1)
     this%stats%t_dict = env%wtime() - t0
-    call env%reduce_sum_root(dl, error)
-    if (allocated(error)) goto 8
-    ! rank 0: dictionary, every checksum, complete = 1, the file closed
-    if (env%is_root()) then
-      t1 = env%wtime()
-      k = 0
-      do is = 1, 2
-        do q = 1, 3
-          this%dg(LAMBDA_DS(q), is) = digest_add(digest_t(nint(dl(k + 1), i8), nint(dl(k + 2), i8)), digest_t())
-          k = k + 2
-        end do
-      end do
-      call add_rest(m)
-      if (len(m) > 0) call set_error(error, m)
-      this%stats%t_serial = this%stats%t_serial + (env%wtime() - t1)
-      this%stats%t_layout = this%stats%t_layout + (env%wtime() - t1)
-    end if
     ! the ranks' multiplier blocks, then the file handle of begin is closed
     t1 = env%wtime()
     do j = 1, this%nl
@@ -908,23 +894,51 @@ contains
       if (.not. allocated(error) .and. size(csr(j)%li) > 0) &
         call this%pf%write_at(at(7), this%lam(j)%value, 8_i8 * size(csr(j)%li), error)
     end do
-    this%stats%t_blocks = this%stats%t_blocks + (env%wtime() - t1)
-8   call this%pf%close(e2)
+    call this%pf%close(e2)
     if (allocated(e2) .and. .not. allocated(error)) call move_alloc(e2, error)
+    this%stats%t_blocks = this%stats%t_blocks + (env%wtime() - t1)
     this%stats%t_write = env%wtime() - t1
     this%stats%marks(4) = env%wtime()
-    call env%agree_error(error)
+    ! every rank's report to rank 0 (MPI_Reduce: a rank other than 0 does not wait for it): its
+    ! blocks are in, or it failed, with the multipliers' checksum parts [failed, 2, 3, 2]
+    dl(13) = merge(1, 0, allocated(error))
+    call env%reduce_sum_root(dl, e2)
+    if (allocated(e2) .and. .not. allocated(error)) call move_alloc(e2, error)
     this%stats%marks(5) = env%wtime()
-    if (allocated(error)) goto 9
-    ! every block is in: the final name
+    ! rank 0, once every rank's blocks are in: dictionary, every checksum, complete = 1, the file
+    ! closed and renamed (the commit); its status to every rank (one broadcast: 0 committed, 1
+    ! some rank failed, whose message every rank then agrees on)
     t1 = env%wtime()
-    m = ""
+    stat1 = 0
     if (env%is_root()) then
-      if (rename_file(this%path // ".partial", this%path) /= 0) &
-        m = "rename '" // this%path // ".partial' -> '" // this%path // "' failed"
+      if (.not. allocated(error) .and. nint(dl(13)) == 0) then
+        k = 0
+        do is = 1, 2
+          do q = 1, 3
+            this%dg(LAMBDA_DS(q), is) = digest_add(digest_t(nint(dl(k + 1), i8), nint(dl(k + 2), i8)), digest_t())
+            k = k + 2
+          end do
+        end do
+        m = ""
+        call add_rest(m)
+        if (len(m) == 0) then
+          if (rename_file(this%path // ".partial", this%path) /= 0) &
+            m = "rename '" // this%path // ".partial' -> '" // this%path // "' failed"
+        end if
+        if (len(m) > 0) call set_error(error, m)
+      end if
       this%stats%t_serial = this%stats%t_serial + (env%wtime() - t1)
+      this%stats%t_layout = this%stats%t_layout + (env%wtime() - t1)
+      stat1 = merge(1, 0, allocated(error) .or. nint(dl(13)) > 0)
     end if
-    call share_status(this, m, error)
+    call env%bcast(stat1, e2)
+    if (allocated(e2)) then
+      if (allocated(error)) deallocate(error)
+      call move_alloc(e2, error)
+    else if (stat1(1) /= 0) then
+      call env%agree_error(error)
+      if (.not. allocated(error)) call set_error(error, "a rank failed to finish the database")
+    end if
     this%stats%t_seal = env%wtime() - t1
     this%stats%marks(6) = env%wtime()
     end associate
