@@ -57,11 +57,11 @@ import crowdrom_io as cio  # noqa: E402
 # broadcast); the places of the database follow by a nonblocking broadcast while the ranks
 # compute (not counted); end: one reduction (every rank's figures, the writer's counts and
 # checksum parts), the dictionary with the places of the multiplier datasets (MPI_Allgatherv),
-# the multipliers' checksums (MPI_Reduce to rank 0), agreement after the blocks, and the
-# rename's status. The heavy one (the counter window,
+# every rank's report that its blocks are in, with the multipliers' checksums (MPI_Reduce to
+# rank 0), and the commit's status (one broadcast). The heavy one (the counter window,
 # created and freed) is measured by crowd_snapbench as a pair and counted apart.
 N_SETUP = 2
-N_END = 5
+N_END = 4
 
 
 def sample_times(db):
