@@ -37,7 +37,7 @@ module cr_study_run
   integer, parameter :: N_MARKS = 18
   character(len=*), parameter :: MARK_NAMES = "setup_local,counter_created,probe_shared,pieces_scanned," // &
     "database_begun,loop_start,last_ticket,last_piece_written,places_settled,counter_freed,end_reduced," // &
-    "dictionary_shared,blocks_written,agreed,database_finished,pieces_removed,directory_removed,end"
+    "dictionary_shared,blocks_written,reported,database_finished,pieces_removed,directory_removed,end"
   !> the marks where the ranks first meet (the counter's creation), where a rank's sample loop
   !> starts and where it ends (its last sample done and the samples it held written; the wait
   !> for the other ranks' last samples comes after, at the counter's release)
