@@ -19,7 +19,9 @@ Model of the wall time at P ranks:
   rank's own samples' multipliers (unique contacts, CSR places, checksum parts, block writes:
   `end_block_time_per_rank`, divided by P), plus N_SETUP and N_END light collective operations
   of cost c(P) each, the counter window's creation (setup) and release (end) at their measured
-  costs at P ranks.
+  costs at P ranks. Rank 0's HDF5 layout of the database (`database_layout_time` of the 1-rank
+  run) is not in T_setup: the other ranks start their samples meanwhile, so rank 0 enters the
+  simulated loop that much later.
 * Machine speed f: the 1-rank run's work other than the model runs (handling, pieces, serial
   setup and end) is scaled by f = mean per-sample time of the run / mean per-sample time of the
   1-rank run (both from the databases): on a shared machine the ranks of a P-rank run each get a
@@ -52,12 +54,14 @@ import crowdrom_io as cio  # noqa: E402
 # light collective operations outside the sample loop (src/study/cr_study_run.f90 and the
 # writer of src/products/cr_snapshot_file.f90, a fresh run):
 # setup: initial positions with the database probe (one broadcast), the pieces found (one
-# broadcast), the places of the database (one broadcast); end: the loop-end reduction of every
-# rank's figures, the writer's counts, dictionary (MPI_Allgatherv), checksum sums, places,
-# agreement after the blocks, and the rename's status. The heavy one (the counter window,
+# broadcast); the places of the database follow by a nonblocking broadcast while the ranks
+# compute (not counted); end: one reduction (every rank's figures, the writer's counts and
+# checksum parts), the dictionary with the places of the multiplier datasets (MPI_Allgatherv),
+# every rank's report that its blocks are in, with the multipliers' checksums (MPI_Reduce to
+# rank 0), and the commit's status (one broadcast). The heavy one (the counter window,
 # created and freed) is measured by crowd_snapbench as a pair and counted apart.
-N_SETUP = 3
-N_END = 7
+N_SETUP = 2
+N_END = 4
 
 
 def sample_times(db):
@@ -76,10 +80,12 @@ def inputs_from_run(summary, db=None):
     # parts, database blocks): busy time in the loop minus model runs and piece writes, per sample
     handling = None
     if t is not None and s["samples_computed"] == len(t):
-        handling = max(sum(s["busy_time_per_rank"]) - sum(s.get("end_block_time_per_rank", [0.0])) - float(np.sum(t))
+        handling = max(sum(s["busy_time_per_rank"]) - sum(s.get("end_block_time_per_rank", [0.0]))
+                       - sum(s.get("serial_database_time_per_rank", [0.0])) - float(np.sum(t))
                        - s["piece_write_time"], 0.0) / max(len(t), 1)
     return dict(
         handling=handling, ranks=s["ranks"], n=n, times=t, setup=s["wall_time_setup"],
+        layout=s.get("database_layout_time", 0.0),
         mean_time=float(np.mean(t)) if t is not None and len(t) else None,
         latency=s["counter_latency_mean"], slice=s.get("batch_seconds", 2.0),
         bytes_per_sample=s["piece_bytes_written"] / max(s["samples_computed"], 1),
@@ -100,12 +106,15 @@ def bench_inputs(path):
                 window_free=b.get("window_free_cost", 0.0))
 
 
-def simulate_loop(times, p, latency, slice_s, bytes_per_sample, write_per_byte, occupancy=None, put=0.0):
+def simulate_loop(times, p, latency, slice_s, bytes_per_sample, write_per_byte, occupancy=None, put=0.0,
+                  start0=0.0):
     """Wall time of the sample loop: dynamic schedule, events in time order. A ticket costs the
     rank `latency` and occupies the counter for `occupancy` (default: min(latency, 2 us); the
-    counter serves one operation at a time); putting a sample into the database costs `put`."""
+    counter serves one operation at a time); putting a sample into the database costs `put`.
+    Rank 0 starts at `start0` (its layout of the database), the others at 0."""
     occ = min(latency, 2e-6) if occupancy is None else occupancy
     clock = [0.0] * p          # each rank's time
+    clock[0] = start0
     batch_start = [None] * p   # start of the rank's open piece
     batch_bytes = [0.0] * p
     counter_free = 0.0
@@ -150,10 +159,11 @@ def model_wall(p, inp, one, bench, speed=None):
     # the 1-rank run's per-sample handling, its database blocks at the bandwidth of p ranks
     put = (f * max((one.get("handling") or 0.0) - one["db_bytes_per_sample"] / b1["bandwidth"], 0.0)
            + one["db_bytes_per_sample"] / b["bandwidth"])
+    layout = f * min(one.get("layout", 0.0), one["setup"])
     loop = simulate_loop(inp["times"], p, b["latency"], one["slice"], one["bytes_per_sample"],
-                         f * one["write_per_byte"], put=put)
+                         f * one["write_per_byte"], put=put, start0=layout)
     par = min(one.get("end_parallel", 0.0), one["end"])
-    setup = (f * one["setup"] + N_SETUP * (b["collective"] - b1["collective"])
+    setup = (f * one["setup"] - layout + N_SETUP * (b["collective"] - b1["collective"])
              + b.get("window_create", 0.0) - b1.get("window_create", 0.0))
     end = (f * (one["end"] - par + par / p) + N_END * (b["collective"] - b1["collective"])
            + b.get("window_free", 0.0) - b1.get("window_free", 0.0))

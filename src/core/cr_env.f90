@@ -11,7 +11,7 @@ module cr_env
   implicit none
   private
   public :: env_t, agree_error_on
-  public :: shared_counter_t
+  public :: shared_counter_t, pending_bcast_t
 
   !> MPI environment: private duplicate communicator, rank, size.
   type :: env_t
@@ -79,6 +79,20 @@ module cr_env
     procedure :: fetch_add => counter_fetch_add
     procedure :: free => counter_free
   end type shared_counter_t
+
+  !> A broadcast of 64-bit integers from rank 0 in progress (MPI_Ibcast): every rank sets `x`
+  !> (the same size; rank 0 its data), calls start, and may go on working; `x` holds rank 0's
+  !> data once test has said done or wait has returned. Must not be copied while in progress.
+  type :: pending_bcast_t
+    integer(i8), allocatable :: x(:)
+    type(MPI_Request), private :: req = MPI_REQUEST_NULL
+    !> started and not yet completed on this rank
+    logical :: active = .false.
+  contains
+    procedure :: start => pending_start
+    procedure :: test => pending_test
+    procedure :: wait => pending_wait
+  end type pending_bcast_t
 
 
 contains
@@ -625,6 +639,49 @@ contains
     this%win = MPI_WIN_NULL
     this%slots => null()
   end subroutine counter_free
+
+  !> Start the broadcast of `this%x` from rank 0 over env (collective, nonblocking).
+  subroutine pending_start(this, env, error)
+    class(pending_bcast_t), intent(inout), target :: this
+    type(env_t), intent(in) :: env
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    if (.not. allocated(this%x)) allocate(this%x(0))
+    call MPI_Ibcast(this%x, size(this%x), MPI_INTEGER8, 0, env%comm, this%req, ierr)
+    call check_mpi(ierr, "MPI_Ibcast of " // str(size(this%x)) // " 64-bit integer(s) from rank 0", error)
+    this%active = .not. allocated(error)
+  end subroutine pending_start
+
+  !> done = the broadcast has completed on this rank (x holds rank 0's data); not collective.
+  subroutine pending_test(this, done, error)
+    class(pending_bcast_t), intent(inout), target :: this
+    logical, intent(out) :: done
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    done = .not. this%active
+    if (done) return
+    call MPI_Test(this%req, done, MPI_STATUS_IGNORE, ierr)
+    call check_mpi(ierr, "MPI_Test (broadcast from rank 0)", error)
+    if (allocated(error)) then
+      done = .false.; return
+    end if
+    if (done) then
+      this%active = .false.
+      if (MPI_ASYNC_PROTECTS_NONBLOCKING .eqv. .false.) call MPI_F_sync_reg(this%x)
+    end if
+  end subroutine pending_test
+
+  !> Wait until the broadcast has completed on this rank; not collective.
+  subroutine pending_wait(this, error)
+    class(pending_bcast_t), intent(inout), target :: this
+    type(error_t), allocatable, intent(out) :: error
+    integer :: ierr
+    if (.not. this%active) return
+    call MPI_Wait(this%req, MPI_STATUS_IGNORE, ierr)
+    this%active = .false.
+    call check_mpi(ierr, "MPI_Wait (broadcast from rank 0)", error)
+    if (MPI_ASYNC_PROTECTS_NONBLOCKING .eqv. .false.) call MPI_F_sync_reg(this%x)
+  end subroutine pending_wait
 
 end module cr_env
 

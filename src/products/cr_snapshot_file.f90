@@ -19,7 +19,7 @@ module cr_snapshot_file
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
-  use cr_env, only: env_t
+  use cr_env, only: env_t, pending_bcast_t
   use cr_h5file, only: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64
   use cr_digest, only: digest_t, digest_of, digest_add, check_digest, check_digest_parts, digest_allreduce, &
     put_digest, DIGEST_ALGORITHM
@@ -85,6 +85,14 @@ module cr_snapshot_file
     !> dictionary, CSR places and dictionary indices, checksum parts, block writes), no waiting
     !> in it
     real(wp) :: t_blocks = 0
+    !> this rank's serial work on the database that no other rank does (rank 0: the HDF5 layout
+    !> of begin; in finish the multiplier datasets, dictionary, checksums, complete = 1, the
+    !> close and the rename; 0 on the other ranks), and its time writing the samples it held while
+    !> the places were in transit (outside put: in poll and finish)
+    real(wp) :: t_serial = 0, t_held = 0
+    !> when this rank passed the steps of finish (env%wtime): places settled, end reduction,
+    !> dictionary shared, own blocks (and rank 0's HDF5 work) done, agreement, renamed
+    real(wp) :: marks(6) = 0
     !> contacts in the dictionary, stored multipliers, data bytes written by all ranks
     integer :: n_dict = 0
     integer(i8) :: nnz = 0, bytes = 0
@@ -101,7 +109,10 @@ module cr_snapshot_file
     cr_h5_real, cr_h5_real, cr_h5_real, cr_h5_int, cr_h5_int, cr_h5_int, cr_h5_real, cr_h5_int, cr_h5_real, &
     cr_h5_real, cr_h5_real]
   integer, parameter :: DRANK(17) = [2, 2, 2, 2, 1, 1, 1, 2, 2, 2, 2, 2, 1, 1, 1, 2, 2]
+  !> the multiplier datasets (their checksums need every sample's place in the CSR arrays) and
+  !> those of them placed only in finish (their sizes are the numbers of multipliers)
   integer, parameter :: LAMBDA_DS(3) = [5, 6, 7]
+  integer, parameter :: LATE_DS(2) = [6, 7]
 
   !> Root metadata of a database (what the writer is given).
   type :: db_meta_t
@@ -131,6 +142,16 @@ module cr_snapshot_file
     !> this rank's checksum parts [17, 2]
     type(digest_t), private :: dg(17, 2)
     type(block_file_t), private :: pf
+    !> rank 0: the file's HDF5 handle, open from begin to finish (metadata only: the data go by
+    !> block writes)
+    type(h5file_t), private :: h5
+    !> the places and rank 0's layout status in transit (nonblocking broadcast: [status, place])
+    type(pending_bcast_t), private :: pend
+    !> this rank has the places (rank 0 from its layout, the others once pend has arrived)
+    logical, private :: placed = .false.
+    !> samples put before the places arrived, written when they do [nq]
+    integer, private :: nq = 0
+    type(snap_sample_t), allocatable, private :: queue(:)
     !> why this rank cannot write (its file did not open, or a failure before begin): its puts
     !> fail with it
     character(len=:), allocatable, private :: fault
@@ -139,12 +160,18 @@ module cr_snapshot_file
     integer, private :: nl = 0
     type(snap_sample_t), allocatable, private :: lam(:)
     integer, allocatable, private :: gl(:)
+    !> this rank's contacts [4, n] (end_local) and whether end_local has run
+    integer(i8), allocatable, private :: pack4(:,:)
+    logical, private :: local_done = .false.
     !> multipliers per set and each sample's position in its set's CSR arrays (finish)
     integer(i8), private :: total(2) = 0
     integer(i8), allocatable, private :: base(:)
   contains
     procedure :: begin => writer_begin
     procedure :: put => writer_put
+    procedure :: poll => writer_poll
+    procedure :: wait_places => writer_wait_places
+    procedure :: end_local => writer_end_local
     procedure :: finish => writer_finish
     procedure :: discard => writer_discard
   end type snap_writer_t
@@ -257,12 +284,14 @@ contains
 
   !> Collective: create `<path>.partial`. Rank 0 lays it out serially: root attributes, initial
   !> positions, scene, and every dataset whose size the study fixes (all but the contact
-  !> dictionary and the multipliers) with its storage placed; the byte offsets are broadcast and
-  !> every rank opens the file for its own block writes (block_file_t: POSIX pwrite, not
-  !> collective). `prior`: a failure of this rank
-  !> just before begin that the others may not know of (e.g. rank 0 zeroing a counter); it is
-  !> shared like a failure of the layout (rank 0's in the broadcast, any other's in the
-  !> agreement that ends begin), and begin then fails on every rank.
+  !> dictionary, lambda_index and lambda_value) with its storage placed, and keeps the file open
+  !> for finish. The byte offsets go out by a nonblocking broadcast: begin returns at once on
+  !> the other ranks, which compute samples meanwhile; their puts keep the samples until the
+  !> places have arrived (put, poll), then each rank opens the file for its own block writes
+  !> (block_file_t: POSIX pwrite, not collective). A failed layout is not returned here: every
+  !> rank's puts and finish fail with it (rank 0's message, agreed in finish). `prior`: a
+  !> failure of this rank just before begin (e.g. rank 0 zeroing a counter): its puts fail with
+  !> it likewise.
   subroutine writer_begin(this, env, path, meta, q0, scene, error, prior)
     class(snap_writer_t), intent(inout) :: this
     type(env_t), intent(in) :: env
@@ -274,10 +303,8 @@ contains
     type(scene_t), intent(in) :: scene
     type(error_t), allocatable, intent(out) :: error
     type(error_t), allocatable, intent(inout), optional :: prior
-    type(error_t), allocatable :: e2
     character(len=:), allocatable :: m
     logical :: failed
-    integer :: st
     real(wp) :: t0
     t0 = env%wtime()
     this%env = env
@@ -288,49 +315,53 @@ contains
     this%nv = size(scene_vertex_list(scene))
     this%place = -1
     this%nl = 0
-    allocate(this%lam(16), this%gl(16))
+    this%nq = 0
+    this%placed = .false.
+    this%local_done = .false.
+    allocate(this%lam(16), this%gl(16), this%queue(4))
+    if (allocated(this%fault)) deallocate(this%fault)
     m = ""
     failed = .false.
     if (present(prior)) failed = allocated(prior)
+    if (failed) this%fault = prior%message
     if (env%is_root()) then
-      if (failed) then
-        m = prior%message
-      else
-        call lay_out(m)
+      if (.not. failed) call lay_out(m)
+      if (len(m) > 0) this%fault = m
+      if (allocated(this%fault)) then
+        if (index(this%fault, "database '") /= 1) this%fault = "database '" // path // "': " // this%fault
       end if
+      this%stats%t_serial = env%wtime() - t0
     end if
-    call share_places(this, m, error)
+    ! [status, places]: status 0, or rank 0 has no database to offer
+    allocate(this%pend%x(35))
+    this%pend%x = 0
+    if (env%is_root()) then
+      this%pend%x(1) = merge(1, 0, allocated(this%fault))
+      this%pend%x(2:) = reshape(this%place, [34])
+    end if
+    call this%pend%start(env, error)
     if (allocated(error)) then
-      ! (rank 0 may have created the file)
-      if (env%is_root() .and. .not. failed) st = remove_file(path // ".partial")
+      if (env%is_root()) call this%h5%abort()
       return
     end if
-    ! each rank opens the file for its own block writes (nothing collective): a failure here, or
-    ! a prior one of a rank other than 0, makes that rank's puts fail, and the run ends with it
-    ! at its next agreement (after the resumed samples, or at the end of the sample loop)
-    if (allocated(this%fault)) deallocate(this%fault)
-    call this%pf%open(path // ".partial", e2)
-    if (failed) then
-      this%fault = prior%message
-    else if (allocated(e2)) then
-      this%fault = "database '" // path // "': " // e2%message
-    end if
     this%active = .true.
+    if (env%is_root()) call take_places(this)
     this%stats%t_layout = env%wtime() - t0
 
   contains
 
+    !> Rank 0: create the file and lay it out (this%h5 stays open).
     subroutine lay_out(m)
       character(len=:), allocatable, intent(inout) :: m
-      type(h5file_t) :: h5
-      type(error_t), allocatable :: e, e3
+      type(error_t), allocatable :: e
       integer :: iss, q2, n
       integer :: dims(2, 17)
       character(len=:), allocatable :: g
-      call h5%create(path, e)
+      call this%h5%create(path, e)
       if (allocated(e)) then
         m = e%message; return
       end if
+      associate (h5 => this%h5)
       ops: block
         call write_root(h5, e); if (allocated(e)) exit ops
         call h5%write("initial_positions", q0, e); if (allocated(e)) exit ops
@@ -344,19 +375,17 @@ contains
           call h5%write_attr(g, "n_samples", n, e); if (allocated(e)) exit ops
           call set_dims(this, iss, dims)
           do q2 = 1, 17
-            if (any(q2 == LAMBDA_DS)) cycle
+            if (any(q2 == LATE_DS)) cycle
             call h5%create_placed(g // "/" // trim(DS(q2)), dims(1:DRANK(q2), q2), KIND_OF(q2), this%place(q2, iss), e)
             if (allocated(e)) exit ops
           end do
         end do
       end block ops
+      end associate
       if (allocated(e)) then
         m = e%message
-        call h5%abort()
-        return
+        call this%h5%abort()
       end if
-      call h5%close(e3)
-      if (allocated(e3)) m = e3%message
     end subroutine lay_out
 
     !> Root attributes (complete = 1 comes last, in finish).
@@ -386,24 +415,108 @@ contains
     end subroutine write_root
   end subroutine writer_begin
 
-  !> Collective: rank 0's status (m: '' or its message) and the places of the datasets, in one
-  !> broadcast (the message follows only on failure).
-  subroutine share_places(this, m, error)
+  !> Collective: rank 0's status (m: '' or its message), one broadcast (the message follows
+  !> only on failure); every rank returns the failure.
+  subroutine share_status(this, m, error)
     type(snap_writer_t), intent(inout) :: this
     character(len=:), allocatable, intent(inout) :: m
     type(error_t), allocatable, intent(out) :: error
-    integer(i8) :: buf(35)
-    buf(1) = len(m)
-    buf(2:) = reshape(this%place, [34])
-    call this%env%bcast(buf, error)
+    integer :: n(1)
+    n = len(m)
+    call this%env%bcast(n, error)
     if (allocated(error)) return
-    this%place = reshape(buf(2:), [17, 2])
-    if (buf(1) == 0) return
+    if (n(1) == 0) return
     call this%env%bcast(m, error)
     if (allocated(error)) return
     if (index(m, "database '") /= 1) m = "database '" // this%path // "': " // m
     call set_error(error, m)
-  end subroutine share_places
+  end subroutine share_status
+
+  !> The places have arrived on this rank (rank 0: its own): take them, open the file for this
+  !> rank's block writes (a rank that cannot open it keeps the reason as its fault).
+  subroutine take_places(this)
+    type(snap_writer_t), intent(inout) :: this
+    type(error_t), allocatable :: e
+    this%placed = .true.
+    if (.not. this%env%is_root()) then
+      this%place = reshape(this%pend%x(2:), [17, 2])
+      if (this%pend%x(1) /= 0 .and. .not. allocated(this%fault)) &
+        this%fault = "database '" // this%path // "': rank 0 could not lay it out"
+    end if
+    if (allocated(this%fault)) return
+    call this%pf%open(this%path // ".partial", e)
+    ! (rank 0: the first offset of each set's CSR arrays, always 0, written now rather than at
+    ! the end)
+    if (.not. allocated(e) .and. this%env%is_root()) then
+      if (this%place(5, 1) >= 0) call this%pf%write_at(this%place(5, 1), [0_i8], 8_i8, e)
+      if (.not. allocated(e) .and. this%place(5, 2) >= 0) call this%pf%write_at(this%place(5, 2), [0_i8], 8_i8, e)
+    end if
+    if (allocated(e)) this%fault = "database '" // this%path // "': " // e%message
+  end subroutine take_places
+
+  !> Not collective: once the places have arrived (wait: until they do), write the samples put
+  !> before (t_written: the time writing them, s) and complete this rank's part of the broadcast.
+  !> Returns this rank's fault (rank 0's failed layout, or a file this rank could not open).
+  subroutine settle(this, wait, error, t_written)
+    type(snap_writer_t), intent(inout) :: this
+    logical, intent(in) :: wait
+    type(error_t), allocatable, intent(out) :: error
+    real(wp), intent(out) :: t_written
+    logical :: done
+    integer :: j
+    real(wp) :: t0
+    t_written = 0
+    if (this%pend%active) then
+      if (wait) then
+        call this%pend%wait(error)
+        done = .true.
+      else
+        call this%pend%test(done, error)
+      end if
+      if (allocated(error)) then
+        if (.not. allocated(this%fault)) this%fault = "database '" // this%path // "': " // error%message
+        return
+      end if
+      if (done .and. .not. this%placed) call take_places(this)
+    end if
+    if (allocated(this%fault)) then
+      call set_error(error, this%fault); return
+    end if
+    if (.not. this%placed .or. this%nq == 0) return
+    t0 = this%env%wtime()
+    do j = 1, this%nq
+      call write_sample(this, this%queue(j), error)
+      if (allocated(error)) exit
+    end do
+    deallocate(this%queue)
+    allocate(this%queue(4))
+    this%nq = 0
+    t_written = this%env%wtime() - t0
+  end subroutine settle
+
+  !> Not collective, cheap: if the places have arrived, write the samples this rank put before
+  !> (their time counts in stats%t_held); returns this rank's fault, e.g. rank 0's failed
+  !> layout, so that a sample loop can stop before its next sample.
+  subroutine writer_poll(this, error)
+    class(snap_writer_t), intent(inout) :: this
+    type(error_t), allocatable, intent(out) :: error
+    real(wp) :: tw
+    if (.not. this%active) return
+    call settle(this, .false., error, tw)
+    this%stats%t_held = this%stats%t_held + tw
+    this%stats%t_put = this%stats%t_put + tw
+  end subroutine writer_poll
+
+  !> Not collective: wait for the places (e.g. before putting the samples of earlier pieces).
+  subroutine writer_wait_places(this, error)
+    class(snap_writer_t), intent(inout) :: this
+    type(error_t), allocatable, intent(out) :: error
+    real(wp) :: tw
+    if (.not. this%active) return
+    call settle(this, .true., error, tw)
+    this%stats%t_held = this%stats%t_held + tw
+    this%stats%t_put = this%stats%t_put + tw
+  end subroutine writer_wait_places
 
   !> Global dims of the datasets of set is [2, 17] (second entry unused for 1D datasets).
   subroutine set_dims(this, is, dims)
@@ -423,30 +536,68 @@ contains
   end subroutine set_dims
 
   !> Write one sample (this rank's; not collective): its blocks of every dataset but the
-  !> multipliers go to their places now, their checksum parts are added; the multipliers are
-  !> kept (compact) until finish places them. The sample's scene_v / scene_exit must be set.
+  !> multipliers go to their places, their checksum parts are added; the multipliers are kept
+  !> (compact) until finish places them. Before the places have arrived from rank 0 the sample
+  !> is kept whole and written when they do (a later put, poll or finish). The sample's
+  !> scene_v / scene_exit must be set.
   subroutine writer_put(this, s, error)
     class(snap_writer_t), intent(inout) :: this
     type(snap_sample_t), intent(in) :: s
     type(error_t), allocatable, intent(out) :: error
-    type(snap_sample_t), allocatable :: l2(:)
-    integer, allocatable :: g2(:)
-    integer(i8) :: o(17), at(17)
-    integer :: is, q, nd, ns, ne, nv
+    type(snap_sample_t), allocatable :: q2(:)
     character(len=:), allocatable :: m
-    real(wp) :: t0
+    real(wp) :: t0, tw
+    integer :: j
     t0 = this%env%wtime()
     if (.not. this%active) then
       call set_error(error, "database '" // this%path // "': put before begin or after finish"); return
-    end if
-    if (allocated(this%fault)) then
-      call set_error(error, this%fault); return
     end if
     m = ""
     call check_shapes(this, s, m)
     if (len(m) > 0) then
       call set_error(error, "database '" // this%path // "': " // m); return
     end if
+    call settle(this, .false., error, tw)
+    if (allocated(error)) return
+    if (this%placed) then
+      call write_sample(this, s, error)
+    else
+      if (this%nq == size(this%queue)) then
+        allocate(q2(2 * this%nq))
+        do j = 1, this%nq
+          call move_sample(this%queue(j), q2(j))
+        end do
+        call move_alloc(q2, this%queue)
+      end if
+      this%nq = this%nq + 1
+      this%queue(this%nq) = s
+    end if
+    this%stats%t_put = this%stats%t_put + (this%env%wtime() - t0)
+  end subroutine writer_put
+
+  !> Move every component of a sample (no copy of its arrays).
+  subroutine move_sample(a, b)
+    type(snap_sample_t), intent(inout) :: a
+    type(snap_sample_t), intent(out) :: b
+    b%set = a%set; b%index = a%index; b%time = a%time; b%start = a%start; b%rank = a%rank
+    b%scene_exit = a%scene_exit
+    call move_alloc(a%mu, b%mu); call move_alloc(a%q, b%q); call move_alloc(a%u, b%u); call move_alloc(a%v, b%v)
+    call move_alloc(a%kkt, b%kkt); call move_alloc(a%min_gap, b%min_gap)
+    call move_alloc(a%iterations, b%iterations); call move_alloc(a%converged, b%converged)
+    call move_alloc(a%n_active, b%n_active); call move_alloc(a%offset, b%offset); call move_alloc(a%key, b%key)
+    call move_alloc(a%ia, b%ia); call move_alloc(a%ib, b%ib); call move_alloc(a%ob, b%ob)
+    call move_alloc(a%value, b%value); call move_alloc(a%scene_v, b%scene_v)
+  end subroutine move_sample
+
+  !> The blocks of one checked sample at their places, its checksum parts, its multipliers kept.
+  subroutine write_sample(this, s, error)
+    type(snap_writer_t), intent(inout) :: this
+    type(snap_sample_t), intent(in) :: s
+    type(error_t), allocatable, intent(out) :: error
+    type(snap_sample_t), allocatable :: l2(:)
+    integer, allocatable :: g2(:)
+    integer(i8) :: o(17), at(17)
+    integer :: is, q, nd, ns, ne, nv
     nd = this%nd; ns = this%ns; ne = this%ne; nv = this%nv
     is = findloc(SNAP_SET_NAMES, s%set, dim=1)
     o = elem_offsets(this, s, 0_i8)
@@ -505,60 +656,123 @@ contains
     end associate
     this%gl(this%nl) = gnum(this, s)
     this%stats%bytes = this%stats%bytes + sample_bytes(this, s)
-    this%stats%t_put = this%stats%t_put + (this%env%wtime() - t0)
-  end subroutine writer_put
+  end subroutine write_sample
 
-  !> Collective: every sample of the study must have been put by exactly one rank. Places the
-  !> multipliers (one MPI_Allreduce of the per-sample counts and every rank's number of
-  !> contacts; the contact dictionary, the sorted union of the ranks' keys, by one
-  !> MPI_Allgatherv), adds the checksum parts (one MPI_Allreduce), has rank 0 add the
-  !> dictionary, the multiplier datasets, every checksum and complete = 1 serially (one
-  !> broadcast of the places), the ranks write their multiplier blocks through the file handle
-  !> of begin and close it, and rank 0 renames the file once every rank's blocks are in (one
-  !> agreement, one broadcast): the temporary name is the commit. On failure the temporary is
-  !> removed.
-  subroutine writer_finish(this, error)
+  !> Not collective, the first part of finish (a caller may run it before some synchronisation
+  !> of its own, e.g. while other ranks still compute): wait for the places, write the samples
+  !> held meanwhile, and find this rank's contacts for the dictionary. `error` on entry: this
+  !> rank's failure before (then only the broadcast of the places is completed); on return:
+  !> that failure or a new one, which finish then shares.
+  subroutine writer_end_local(this, error)
     class(snap_writer_t), intent(inout) :: this
-    type(error_t), allocatable, intent(out) :: error
+    type(error_t), allocatable, intent(inout) :: error
+    type(error_t), allocatable :: e2
+    real(wp) :: t1, tw
+    this%local_done = .true.
+    if (allocated(this%pack4)) deallocate(this%pack4)
+    if (allocated(error)) then
+      call this%pend%wait(e2)
+    else
+      call settle(this, .true., error, tw)
+      this%stats%t_held = this%stats%t_held + tw
+      this%stats%t_put = this%stats%t_put + tw
+      if (.not. allocated(error) .and. .not. this%placed) call set_error(error, "places not received")
+    end if
+    this%stats%marks(1) = this%env%wtime()
+    ! this rank's contacts (unique keys and identities) for the dictionary
+    t1 = this%env%wtime()
+    if (allocated(error)) then
+      allocate(this%pack4(4, 0))
+    else
+      call local_contacts(this%lam(1:this%nl), this%pack4)
+    end if
+    this%stats%t_blocks = this%env%wtime() - t1
+  end subroutine writer_end_local
+
+  !> Collective: every sample of the study must have been put by exactly one rank. `error` on
+  !> entry: this rank's failure before finish (e.g. in its sample loop); if any rank has one,
+  !> every rank returns the lowest failing rank's (agreed) and the database is discarded.
+  !> `extra`: the caller's figures, summed over the ranks in finish's first reduction.
+  !>
+  !> Steps (collectives in brackets): the places are awaited and the samples held meanwhile
+  !> written; this rank's contacts; [one MPI_Allreduce: failures, each sample's holder and
+  !> number of multipliers, every rank's number of contacts, the checksum parts of the datasets
+  !> the study sizes, extra]; rank 0 places lambda_index and lambda_value (HDF5) while the
+  !> others compute their CSR offsets and checksum parts; [one MPI_Allgatherv: the contacts,
+  !> and rank 0's status and places first]: the dictionary, the sorted union of the contacts;
+  !> each rank's dictionary indices, the multipliers' checksum parts and its multiplier blocks;
+  !> [one MPI_Reduce to rank 0: every rank's blocks are in (or it failed), with the checksum
+  !> parts]; rank 0 then adds the dictionary, every checksum and complete = 1, closes the file
+  !> and renames it (the commit) [one broadcast of its status; on failure an agreement on the
+  !> failing rank's message]. On failure the temporary is removed.
+  subroutine writer_finish(this, error, extra)
+    class(snap_writer_t), intent(inout) :: this
+    type(error_t), allocatable, intent(inout) :: error
+    real(wp), intent(inout), optional :: extra(:)
     !> one sample's multipliers in the set's CSR arrays: offsets [ns], dictionary indices [nnz]
     type :: csr_t
       integer(i8), allocatable :: off8(:)
       integer, allocatable :: li(:)
     end type csr_t
     type(csr_t), allocatable :: csr(:)
-    integer(i8), allocatable :: cnt(:), dkey(:), pack4(:, :)
-    integer, allocatable :: dia(:), dib(:), dob(:)
-    integer :: ntot, g, is, j, ns, p
-    integer(i8) :: o(17), at(17)
+    integer(i8), allocatable :: dkey(:), pack4(:, :), sendb(:), allk(:), all4(:, :)
+    integer, allocatable :: dia(:), dib(:), dob(:), counts(:), displs(:), ids(:, :)
+    real(wp), allocatable :: red(:), dl(:)
+    integer :: ntot, g, is, j, ns, p, ne, q, k, nc, head, mm
+    integer(i8) :: o(17), at(17), lplace(2, 2)
+    integer :: stat1(1)
     character(len=:), allocatable :: m
-    real(wp) :: t0, t1
+    real(wp) :: t0, t1, tw
     type(error_t), allocatable :: e2
-    type(digest_t) :: dg1(34)
+    logical :: failed
     t0 = this%env%wtime()
+    this%stats%marks(2:) = t0
     associate (env => this%env)
     ns = this%ns
     ntot = sum(this%nset)
     p = env%size
-    ! this rank's contacts (unique keys and identities) for the dictionary
-    t1 = env%wtime()
-    call local_contacts(this%lam(1:this%nl), pack4)
-    this%stats%t_blocks = env%wtime() - t1
-    ! one reduction: held (exactly once) and multipliers of every sample, data bytes, every
-    ! rank's contact entries [P]
-    allocate(cnt(2 * ntot + 1 + p))
-    cnt = 0
+    ne = 0
+    if (present(extra)) ne = size(extra)
+    ! the places, the samples held meanwhile and this rank's contacts (if the caller has not
+    ! asked for them before)
+    if (.not. this%local_done) call this%end_local(error)
+    failed = allocated(error)
+    call move_alloc(this%pack4, pack4)
+    ! the end reduction: [failed, (held, multipliers) per sample, data bytes, contact entries per
+    ! rank [P], checksum parts [2, 17, 2] (those of the multipliers are still 0), extra]; every
+    ! value is an integer below 2^53 (exact in real(wp)) but extra's
+    allocate(red(1 + 2 * ntot + 1 + p + 68 + ne))
+    red = 0
+    red(1) = merge(1, 0, failed)
     do j = 1, this%nl
-      cnt(2 * this%gl(j) - 1) = 1
-      cnt(2 * this%gl(j)) = size(this%lam(j)%value)
+      red(1 + 2 * this%gl(j) - 1) = 1
+      red(1 + 2 * this%gl(j)) = size(this%lam(j)%value)
     end do
-    cnt(2 * ntot + 1) = this%stats%bytes
-    cnt(2 * ntot + 2 + env%rank) = size(pack4, kind=i8)
-    call env%allreduce(cnt, 'sum', error)
-    if (allocated(error)) goto 9
-    this%stats%bytes = cnt(2 * ntot + 1)
+    red(2 + 2 * ntot) = real(this%stats%bytes, wp)
+    red(3 + 2 * ntot + env%rank) = size(pack4)
+    k = 2 + 2 * ntot + p
+    do is = 1, 2
+      do q = 1, 17
+        red(k + 1) = real(this%dg(q, is)%s1, wp); red(k + 2) = real(this%dg(q, is)%s2, wp)
+        k = k + 2
+      end do
+    end do
+    if (ne > 0) red(k + 1:) = extra
+    call env%allreduce(red, 'sum', e2)
+    this%stats%marks(2) = env%wtime()
+    if (allocated(e2)) then
+      if (allocated(error)) deallocate(error)
+      call move_alloc(e2, error)
+      goto 9
+    end if
+    if (ne > 0) extra = red(k + 1:)
+    if (red(1) > 0) then
+      call env%agree_error(error); goto 9
+    end if
+    this%stats%bytes = nint(red(2 + 2 * ntot), i8)
     do g = 1, ntot
-      if (cnt(2 * g - 1) /= 1) then
-        call set_error(error, "sample " // str(g) // " of the study was written by " // str(cnt(2 * g - 1)) // &
+      if (nint(red(2 * g)) /= 1) then
+        call set_error(error, "sample " // str(g) // " of the study was written by " // str(nint(red(2 * g))) // &
           " ranks (expected exactly one)"); goto 9
       end if
     end do
@@ -567,30 +781,42 @@ contains
     do g = 1, ntot
       is = merge(1, 2, g <= this%nset(1))
       this%base(g) = this%total(is)
-      this%total(is) = this%total(is) + cnt(2 * g)
+      this%total(is) = this%total(is) + nint(red(1 + 2 * g), i8)
     end do
     if (any(this%total > huge(1))) then
       call set_error(error, str(maxval(this%total)) // " multipliers in one set exceed the 32-bit dataset sizes")
       goto 9
     end if
-    if (sum(cnt(2 * ntot + 2:)) > huge(1)) then
-      call set_error(error, str(sum(cnt(2 * ntot + 2:)) / 4) // " contact entries exceed the 32-bit MPI counts")
+    counts = nint(red(3 + 2 * ntot:2 + 2 * ntot + p))
+    if (sum(real(counts, wp)) + 5 > huge(1)) then
+      call set_error(error, str(sum(int(counts, i8)) / 4) // " contact entries exceed the 32-bit MPI counts")
       goto 9
     end if
     this%stats%nnz = sum(this%total)
-    call build_dictionary(env, pack4, int(cnt(2 * ntot + 2:)), dkey, dia, dib, dob, error)
-    if (allocated(error)) goto 9
-    this%stats%n_dict = size(dkey)
-    ! checksum parts of the multipliers, then of everything, summed over the ranks
-    ! each sample's global CSR offsets and dictionary indices (computed once, written below)
+    k = 2 + 2 * ntot + p
+    do is = 1, 2
+      do q = 1, 17
+        this%dg(q, is) = digest_add(digest_t(nint(red(k + 1), i8), nint(red(k + 2), i8)), digest_t())
+        k = k + 2
+      end do
+      this%dg(LAMBDA_DS, is) = digest_t()
+    end do
+    ! rank 0 places the multiplier datasets; every rank meanwhile computes the global CSR offsets
+    ! of its samples and the checksum parts of the offsets and values
+    m = ""
+    lplace = -1
+    if (env%is_root()) then
+      t1 = env%wtime()
+      call place_multipliers(m)
+      this%stats%t_serial = this%stats%t_serial + (env%wtime() - t1)
+    end if
     t1 = env%wtime()
     allocate(csr(this%nl))
     do j = 1, this%nl
-      call global_csr(this%lam(j), this%gl(j), csr(j)%off8, csr(j)%li)
       is = findloc(SNAP_SET_NAMES, this%lam(j)%set, dim=1)
+      csr(j)%off8 = this%base(this%gl(j)) + this%lam(j)%offset(2:ns + 1)
       o = elem_offsets(this, this%lam(j), this%base(this%gl(j)))
       this%dg(5, is) = digest_add(this%dg(5, is), digest_of(csr(j)%off8, o(5)))
-      this%dg(6, is) = digest_add(this%dg(6, is), digest_of(csr(j)%li, o(6)))
       this%dg(7, is) = digest_add(this%dg(7, is), digest_of(this%lam(j)%value, o(7)))
     end do
     if (env%is_root()) then
@@ -599,26 +825,64 @@ contains
       end do
     end if
     this%stats%t_blocks = this%stats%t_blocks + (env%wtime() - t1)
-    dg1 = reshape(this%dg, [34])
-    call digest_allreduce(env, dg1, error)
+    ! the contacts of every rank, rank 0's status and places first: [len(m), places [2, 2]]
+    head = 5
+    counts(1) = counts(1) + head
+    allocate(displs(p))
+    displs(1) = 0
+    do q = 2, p
+      displs(q) = displs(q - 1) + counts(q - 1)
+    end do
+    nc = size(pack4)
+    if (env%is_root()) then
+      sendb = [int(len(m), i8), reshape(lplace, [4]), reshape(pack4, [nc])]
+    else
+      sendb = reshape(pack4, [nc])
+    end if
+    allocate(allk(sum(counts)))
+    call env%allgatherv(sendb, allk, counts, displs, error)
+    this%stats%marks(3) = env%wtime()
     if (allocated(error)) goto 9
-    this%dg = reshape(dg1, [17, 2])
-    this%stats%t_dict = env%wtime() - t0
-    ! rank 0: dictionary, multiplier datasets, checksums, complete = 1
+    if (allk(1) /= 0) then
+      call share_status(this, m, error); goto 9
+    end if
+    do is = 1, 2
+      this%place(LATE_DS, is) = allk(2 + 2 * (is - 1):3 + 2 * (is - 1))
+    end do
+    mm = (size(allk) - head) / 4
+    all4 = reshape(allk(head + 1:), [4, mm])
+    dkey = all4(1, :)
+    ids = int(all4(2:4, :))
+    deallocate(all4, allk)
+    call unique_contacts(dkey, ids, mm)
+    dkey = dkey(1:mm)
+    dia = ids(1, 1:mm); dib = ids(2, 1:mm); dob = ids(3, 1:mm)
+    this%stats%n_dict = mm
+    ! each rank's dictionary indices and their checksum parts; the multipliers' checksums summed
+    ! on rank 0
     t1 = env%wtime()
-    m = ""
-    if (env%is_root()) call add_rest(m)
-    call share_places(this, m, error)
-    if (allocated(error)) goto 9
-    this%stats%t_layout = this%stats%t_layout + (env%wtime() - t1)
+    do j = 1, this%nl
+      is = findloc(SNAP_SET_NAMES, this%lam(j)%set, dim=1)
+      allocate(csr(j)%li(size(this%lam(j)%key)))
+      do k = 1, size(this%lam(j)%key)
+        csr(j)%li(k) = bsearch_i8(dkey, this%lam(j)%key(k))
+      end do
+      o = elem_offsets(this, this%lam(j), this%base(this%gl(j)))
+      this%dg(6, is) = digest_add(this%dg(6, is), digest_of(csr(j)%li, o(6)))
+    end do
+    allocate(dl(13))
+    dl = 0
+    k = 0
+    do is = 1, 2
+      do q = 1, 3
+        dl(k + 1) = real(this%dg(LAMBDA_DS(q), is)%s1, wp); dl(k + 2) = real(this%dg(LAMBDA_DS(q), is)%s2, wp)
+        k = k + 2
+      end do
+    end do
+    this%stats%t_blocks = this%stats%t_blocks + (env%wtime() - t1)
+    this%stats%t_dict = env%wtime() - t0
     ! the ranks' multiplier blocks, then the file handle of begin is closed
     t1 = env%wtime()
-    if (allocated(this%fault)) call set_error(error, this%fault)
-    if (env%is_root()) then
-      do is = 1, 2
-        if (.not. allocated(error)) call this%pf%write_at(this%place(5, is), [0_i8], 8_i8, error)
-      end do
-    end if
     do j = 1, this%nl
       if (allocated(error)) exit
       is = findloc(SNAP_SET_NAMES, this%lam(j)%set, dim=1)
@@ -630,21 +894,53 @@ contains
       if (.not. allocated(error) .and. size(csr(j)%li) > 0) &
         call this%pf%write_at(at(7), this%lam(j)%value, 8_i8 * size(csr(j)%li), error)
     end do
-    this%stats%t_blocks = this%stats%t_blocks + (env%wtime() - t1)
     call this%pf%close(e2)
     if (allocated(e2) .and. .not. allocated(error)) call move_alloc(e2, error)
+    this%stats%t_blocks = this%stats%t_blocks + (env%wtime() - t1)
     this%stats%t_write = env%wtime() - t1
-    call env%agree_error(error)
-    if (allocated(error)) goto 9
-    ! every block is in: the final name
+    this%stats%marks(4) = env%wtime()
+    ! every rank's report to rank 0 (MPI_Reduce: a rank other than 0 does not wait for it): its
+    ! blocks are in, or it failed, with the multipliers' checksum parts [failed, 2, 3, 2]
+    dl(13) = merge(1, 0, allocated(error))
+    call env%reduce_sum_root(dl, e2)
+    if (allocated(e2) .and. .not. allocated(error)) call move_alloc(e2, error)
+    this%stats%marks(5) = env%wtime()
+    ! rank 0, once every rank's blocks are in: dictionary, every checksum, complete = 1, the file
+    ! closed and renamed (the commit); its status to every rank (one broadcast: 0 committed, 1
+    ! some rank failed, whose message every rank then agrees on)
     t1 = env%wtime()
-    m = ""
+    stat1 = 0
     if (env%is_root()) then
-      if (rename_file(this%path // ".partial", this%path) /= 0) &
-        m = "rename '" // this%path // ".partial' -> '" // this%path // "' failed"
+      if (.not. allocated(error) .and. nint(dl(13)) == 0) then
+        k = 0
+        do is = 1, 2
+          do q = 1, 3
+            this%dg(LAMBDA_DS(q), is) = digest_add(digest_t(nint(dl(k + 1), i8), nint(dl(k + 2), i8)), digest_t())
+            k = k + 2
+          end do
+        end do
+        m = ""
+        call add_rest(m)
+        if (len(m) == 0) then
+          if (rename_file(this%path // ".partial", this%path) /= 0) &
+            m = "rename '" // this%path // ".partial' -> '" // this%path // "' failed"
+        end if
+        if (len(m) > 0) call set_error(error, m)
+      end if
+      this%stats%t_serial = this%stats%t_serial + (env%wtime() - t1)
+      this%stats%t_layout = this%stats%t_layout + (env%wtime() - t1)
+      stat1 = merge(1, 0, allocated(error) .or. nint(dl(13)) > 0)
     end if
-    call share_places(this, m, error)
+    call env%bcast(stat1, e2)
+    if (allocated(e2)) then
+      if (allocated(error)) deallocate(error)
+      call move_alloc(e2, error)
+    else if (stat1(1) /= 0) then
+      call env%agree_error(error)
+      if (.not. allocated(error)) call set_error(error, "a rank failed to finish the database")
+    end if
     this%stats%t_seal = env%wtime() - t1
+    this%stats%marks(6) = env%wtime()
     end associate
 9   this%active = .false.
     if (allocated(error)) then
@@ -655,17 +951,35 @@ contains
 
   contains
 
-    !> Rank 0: contact dictionary, multiplier datasets, every checksum and complete = 1, serially.
-    subroutine add_rest(m)
+    !> Rank 0: create lambda_index and lambda_value of both sets (their places in lplace [2, 2]).
+    subroutine place_multipliers(m)
       character(len=:), allocatable, intent(inout) :: m
-      type(h5file_t) :: h5
-      type(error_t), allocatable :: e, e3
+      type(error_t), allocatable :: e
       integer :: iss, q2, dims(2, 17)
       character(len=:), allocatable :: g
-      call h5%open(this%path // ".partial", e, readwrite=.true.)
-      if (allocated(e)) then
-        m = e%message; return
+      if (.not. this%h5%is_open()) then
+        m = "the file is not open on rank 0"; return
       end if
+      do iss = 1, 2
+        g = trim(SNAP_SET_NAMES(iss))
+        call set_dims(this, iss, dims)
+        do q2 = 1, 2
+          call this%h5%create_placed(g // "/" // trim(DS(LATE_DS(q2))), dims(1:1, LATE_DS(q2)), KIND_OF(LATE_DS(q2)), &
+            lplace(q2, iss), e)
+          if (allocated(e)) then
+            m = e%message; return
+          end if
+        end do
+      end do
+    end subroutine place_multipliers
+
+    !> Rank 0: contact dictionary, every checksum and complete = 1, serially; the file closed.
+    subroutine add_rest(m)
+      character(len=:), allocatable, intent(inout) :: m
+      type(error_t), allocatable :: e, e3
+      integer :: iss, q2
+      character(len=:), allocatable :: g
+      associate (h5 => this%h5)
       ops: block
         call h5%make_group("contacts", e); if (allocated(e)) exit ops
         call h5%write("contacts/key", dkey, e); if (allocated(e)) exit ops
@@ -681,50 +995,39 @@ contains
           "contacts (ob = obstacle index), ob = 0 for agent pairs", e); if (allocated(e)) exit ops
         do iss = 1, 2
           g = trim(SNAP_SET_NAMES(iss))
-          call set_dims(this, iss, dims)
           do q2 = 1, 17
-            if (any(q2 == LAMBDA_DS)) then
-              call h5%create_placed(g // "/" // trim(DS(q2)), dims(1:1, q2), KIND_OF(q2), this%place(q2, iss), e)
-              if (allocated(e)) exit ops
-            end if
             call put_digest(h5, g // "/" // trim(DS(q2)), this%dg(q2, iss), e); if (allocated(e)) exit ops
           end do
         end do
         ! (the file keeps its temporary name until every rank's multiplier blocks are in)
         call h5%write_attr("/", "complete", 1, e)
       end block ops
-      call h5%close(e3)
       if (allocated(e)) then
         m = e%message
-      else if (allocated(e3)) then
-        m = e3%message
+        call h5%abort()
+        return
       end if
+      call h5%close(e3)
+      if (allocated(e3)) m = e3%message
+      end associate
     end subroutine add_rest
-
-    !> The sample's global CSR offsets [ns] and dictionary indices [nnz].
-    subroutine global_csr(l, g, o8, ix)
-      type(snap_sample_t), intent(in) :: l
-      integer, intent(in) :: g
-      integer(i8), allocatable, intent(out) :: o8(:)
-      integer, allocatable, intent(out) :: ix(:)
-      integer :: c
-      o8 = this%base(g) + l%offset(2:ns + 1)
-      allocate(ix(size(l%key)))
-      do c = 1, size(l%key)
-        ix(c) = bsearch_i8(dkey, l%key(c))
-      end do
-    end subroutine global_csr
   end subroutine writer_finish
 
-  !> Collective: give up a database being written (after begin): each rank's file is closed and
-  !> rank 0 removes the temporary. Nothing under the final name is touched.
+  !> Collective: give up a database being written (after begin): each rank completes the
+  !> broadcast of the places and closes its file, and rank 0 removes the temporary. Nothing
+  !> under the final name is touched.
   subroutine writer_discard(this)
     class(snap_writer_t), intent(inout) :: this
     type(error_t), allocatable :: e
     integer :: st
     if (.not. allocated(this%path)) return
+    call this%pend%wait(e)
+    if (allocated(e)) deallocate(e)
     call this%pf%close(e)
+    if (allocated(e)) deallocate(e)
+    if (this%h5%is_open()) call this%h5%abort()
     this%active = .false.
+    this%nq = 0
     ! every rank has closed the file before rank 0 removes it (a failed barrier is not reported:
     ! the run has failed already)
     call this%env%sync(e)
@@ -826,35 +1129,6 @@ contains
     pack4(1, :) = keys(1:n)
     pack4(2:4, :) = int(ids(:, 1:n), i8)
   end subroutine local_contacts
-
-  !> Collective: the contact dictionary, sorted union over all ranks of their local_contacts
-  !> (`counts`: every rank's number of entries of pack4 [P], e.g. from a reduction).
-  subroutine build_dictionary(env, pack4, counts, dkey, dia, dib, dob, error)
-    type(env_t), intent(in) :: env
-    integer(i8), intent(in) :: pack4(:,:)
-    integer, intent(in) :: counts(:)
-    integer(i8), allocatable, intent(out) :: dkey(:)
-    integer, allocatable, intent(out) :: dia(:), dib(:), dob(:)
-    type(error_t), allocatable, intent(out) :: error
-    integer(i8), allocatable :: allk(:), all4(:,:)
-    integer, allocatable :: ids(:,:), displs(:)
-    integer :: m, q
-    allocate(displs(size(counts)))
-    displs(1) = 0
-    do q = 2, size(counts)
-      displs(q) = displs(q - 1) + counts(q - 1)
-    end do
-    allocate(allk(sum(counts)))
-    call env%allgatherv(pack4, allk, counts, displs, error)
-    if (allocated(error)) return
-    m = size(allk) / 4
-    all4 = reshape(allk, [4, m])
-    allk = all4(1, :)
-    ids = int(all4(2:4, :))
-    call unique_contacts(allk, ids, m)
-    dkey = allk(1:m)
-    dia = ids(1, 1:m); dib = ids(2, 1:m); dob = ids(3, 1:m)
-  end subroutine build_dictionary
 
   !> Sort keys(1:n) ascending (ids [3, n] along), drop duplicates; n becomes the number of
   !> unique keys.

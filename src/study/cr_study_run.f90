@@ -34,10 +34,14 @@ module cr_study_run
   !> exit status of a run stopped by --stop-after
   integer, parameter :: EXIT_STOPPED = 3
   !> phase boundaries recorded by every rank (the summary's `phase_marks`, a timeline per rank)
-  integer, parameter :: N_MARKS = 14
-  character(len=*), parameter :: MARK_NAMES = "setup_local,probe_shared,pieces_scanned,counter_created," // &
-    "database_begun,loop_start,last_ticket,last_piece_written,loop_end_reduced,counter_freed," // &
-    "database_finished,pieces_removed,directory_removed,end"
+  integer, parameter :: N_MARKS = 18
+  character(len=*), parameter :: MARK_NAMES = "setup_local,counter_created,probe_shared,pieces_scanned," // &
+    "database_begun,loop_start,last_ticket,last_piece_written,places_settled,counter_freed,end_reduced," // &
+    "dictionary_shared,blocks_written,reported,database_finished,pieces_removed,directory_removed,end"
+  !> the marks where the ranks first meet (the counter's creation), where a rank's sample loop
+  !> starts and where it ends (its last sample done and the samples it held written; the wait
+  !> for the other ranks' last samples comes after, at the counter's release)
+  integer, parameter :: MARK_MEET = 2, MARK_LOOP0 = 6, MARK_LOOP_END = 9
   character(len=*), parameter :: CROWDROM_VERSION = "crowdrom 0.1.0"
 
   !> Options of a run (command line).
@@ -65,6 +69,8 @@ module cr_study_run
     real(wp) :: sum_time = 0, sum_loop = 0, t_total = 0, t_setup = 0, t_compute = 0, t_asm = 0, t_asm_start = 0
     !> rank 0's time putting the samples of earlier runs' pieces into the database (setup, s)
     real(wp) :: t_put_resumed = 0
+    !> rank 0's HDF5 layout of the database in begin (its serial work in the setup, s)
+    real(wp) :: t_layout = 0
     !> the database writer's figures (its put time is this rank's; part of the busy time)
     type(snap_write_stats_t) :: wstats
     !> sum over ranks of the time spent putting computed samples into the database (s)
@@ -75,9 +81,17 @@ module cr_study_run
     real(wp) :: batch_seconds = 2
     !> when each rank passed each phase boundary (s since its start of the run) [N_MARKS, P]
     real(wp), allocatable :: marks(:, :)
-    !> each rank's time on its samples' multiplier blocks in the end of the database (part of its
-    !> busy time) [P]
+    !> each rank's time on its samples' multiplier blocks in the end of the database (and on
+    !> samples it held while the places were in transit), part of its busy time [P]
     real(wp), allocatable :: end_blocks(:)
+    !> each rank's serial work on the database that no other rank does (rank 0: the HDF5 layout,
+    !> the multiplier datasets, dictionary, checksums, close and rename), part of its busy time
+    !> (work, not waiting: the other ranks meanwhile compute samples or wait, and their waiting
+    !> is not busy) [P]
+    real(wp), allocatable :: serial(:)
+    !> sum of the busy times without the serial database work (the definition before it was
+    !> counted: samples, pieces, blocks)
+    real(wp) :: sum_time_no_serial = 0
     !> totals over the database
     integer :: nonconverged_steps = 0, nonconverged_samples = 0
     real(wp) :: kkt_max = 0, time_max = 0
@@ -116,7 +130,8 @@ contains
     integer, allocatable :: done(:), todo(:)
     character(len=:), allocatable :: dir, msg
     integer :: status, g, k, is, t, n_mine, j, maj, mnr, rel, ierr, p
-    real(wp) :: t0, t_start, t_loop, t_sample, busy_mine
+    real(wp) :: t0, t_start, t_loop, t_sample, busy_mine, t_held0
+    logical :: stopping
     real(wp) :: mk(N_MARKS)
     logical :: quarantined
 
@@ -125,7 +140,7 @@ contains
     dir = this%db // ".pieces"
     this%batch_seconds = opts%batch_seconds
     call log%stage_begin("crowd_snapshots: setup")
-    call log%info(config_echo(cfg) // study_echo(study))
+    if (env%is_root()) call log%info(config_echo(cfg) // study_echo(study))
     ! the reference model: scene and the common initial positions (rank 0's are broadcast)
     mk = 0
     call fom_ref%init(cfg, error)
@@ -143,23 +158,39 @@ contains
 
     mk(1) = env%wtime() - t_start
 
-    ! an existing database: done already, or refused; rank 0's answer and initial positions in
-    ! one broadcast
+    ! the ticket counter first: its creation is where the ranks first meet (a rank still in the
+    ! driver's input checks is waited for here); rank 0 zeroes it before the broadcast below,
+    ! which is then the barrier before any rank's first ticket (the number of tickets is set
+    ! once the pieces are known)
+    call sched%init(env, 0, e2, barrier=.false.)
+    mk(2) = env%wtime() - t_start
+    ! an existing database: done already, or refused; rank 0's answer (or its failure to zero
+    ! the counter) and initial positions in one broadcast
     status = 0; msg = ""
-    if (env%is_root()) call probe_snap_database(this%db, this%hash, status, msg)
+    if (env%is_root()) then
+      if (allocated(e2)) then
+        status = 3; msg = e2%message
+      else
+        call probe_snap_database(this%db, this%hash, status, msg)
+      end if
+    end if
     q0 = [real(status, wp), fom_ref%q]
     call env%bcast(q0, error)
-    if (allocated(error)) return
+    if (allocated(error)) then
+      call sched%free(); return
+    end if
     status = nint(q0(1))
     q0 = q0(2:)
-    mk(2) = env%wtime() - t_start
-    if (status == 2) then
+    mk(3) = env%wtime() - t_start
+    if (status >= 2) then
       call env%bcast(msg, error)
-      if (.not. allocated(error)) call set_error(error, msg, 2)
+      if (.not. allocated(error)) call set_error(error, msg, merge(2, 1, status == 2))
+      call sched%free()
       return
     end if
     if (status == 1) then
       this%no_op = .true.
+      call sched%free()
       call log%info("database '" // this%db // "' is already complete for this configuration: nothing to do")
       call log%stage_end()
       return
@@ -169,8 +200,10 @@ contains
     ! the samples of the good ones stay with the rank that verified them
     call scan_pieces(env, dir, this%hash, sets, 2 * fom_ref%n_agents, cfg%time%n_steps, opts%quarantine, pieces, &
       held, msg, error)
-    if (allocated(error)) return
-    mk(3) = env%wtime() - t_start
+    if (allocated(error)) then
+      call sched%free(); return
+    end if
+    mk(4) = env%wtime() - t_start
     if (len(msg) > 0) call log%warn(msg // "the samples of the " // str(pieces%n_quarantined) // &
       " bad piece(s) are recomputed")
     allocate(done(this%n_tot))
@@ -185,18 +218,22 @@ contains
     call fill_meta()
     nv = size(scene_vertex_list(fom_ref%scene))
     ci = 0; cr = 0
-    ! the ticket counter first: begin's broadcast from rank 0 (after rank 0 has zeroed it) is then
-    ! the barrier before the first ticket, and begin shares a failure of the counter
-    call sched%init(env, this%n_run, e2, barrier=.false.)
-    mk(4) = env%wtime() - t_start
+    sched%n_tasks = this%n_run
+    ! the database: rank 0 lays it out while the other ranks start on their samples (the places
+    ! follow by a nonblocking broadcast; a failure of the layout, or of the counter on a rank
+    ! other than 0, makes that rank's puts fail, and every rank learns it in finish)
+    if (env%is_root() .and. allocated(e2)) deallocate(e2)
     call writer%begin(env, this%db, meta, q0, fom_ref%scene, error, prior=e2)
     if (allocated(error)) then
       call sched%free(); return
     end if
+    this%t_layout = writer%stats%t_serial
     msg = ""
+    ! (the samples of earlier pieces: every rank waits for the places first)
+    if (size(held) > 0) call writer%wait_places(error)
     do j = 1, size(held)
-      call put(held(j), error)
       if (allocated(error)) exit
+      call put(held(j), error)
     end do
     deallocate(held)
     if (allocated(error)) then
@@ -221,6 +258,11 @@ contains
     msg = ""
     n_mine = 0; busy_mine = 0; this%sum_time = 0
     do
+      ! (places arrived: samples held meanwhile written; rank 0's failed layout stops the loop)
+      call writer%poll(error)
+      if (allocated(error)) then
+        msg = error%message; deallocate(error); exit
+      end if
       t = sched%next(error)
       if (allocated(error)) then
         msg = "rank " // str(env%rank) // ": " // error%message; deallocate(error); exit
@@ -270,45 +312,35 @@ contains
     if (len(msg) > 0) call set_error(error, msg)
     this%counter = [real(sched%n_calls(), wp), sched%t_calls()]
     this%pieces_out = [real(batch%n_pieces, wp), real(batch%bytes_written, wp), batch%t_write]
-    ! the end of the loop on every rank: one reduction of every rank's figures and failure flag
-    ! (per-rank slots [P] for busy time, samples, largest KKT residual and sample time, failure;
-    ! then sums); the message of a failure is agreed only when there is one
+    ! samples held while the places were in transit and written by poll: busy, in the loop
+    busy_mine = busy_mine + writer%stats%t_held
+    t_held0 = writer%stats%t_held
+    ! every rank's figures at the end of the loop (per-rank slots [P] for busy time, samples,
+    ! largest KKT residual and sample time; then sums), summed over the ranks in the end
+    ! reduction of the database (finish), or, when the run stops before the database, in one
+    ! reduction of their own with every rank's failure flag
     p = env%size
-    allocate(redu(5 * p + 8))
+    allocate(redu(4 * p + 8))
     redu = 0
     redu(env%rank + 1) = busy_mine
     redu(p + env%rank + 1) = n_mine
     redu(2 * p + env%rank + 1) = cr(1)
     redu(3 * p + env%rank + 1) = cr(2)
-    redu(4 * p + env%rank + 1) = merge(1, 0, allocated(error))
-    redu(5 * p + 1:) = [this%counter, this%pieces_out, writer%stats%t_put - this%t_put_resumed, real(ci, wp)]
-    call env%allreduce(redu, 'sum', e2)
-    if (allocated(e2)) then
-      if (allocated(error)) deallocate(error)
-      call move_alloc(e2, error)
-    else if (any(redu(4 * p + 1:5 * p) > 0)) then
-      call env%agree_error(error)
-    end if
-    mk(9) = env%wtime() - t_start
-    this%t_compute = env%wtime() - t_loop
-    call sched%free()
-    if (allocated(error)) then
-      call writer%discard(); return
-    end if
-    this%busy = redu(1:p)
-    this%nsamp = nint(redu(p + 1:2 * p))
-    this%sum_time = sum(this%busy)
-    this%sum_loop = this%sum_time
-    this%kkt_max = maxval(redu(2 * p + 1:3 * p)); this%time_max = maxval(redu(3 * p + 1:4 * p))
-    associate (r => redu(5 * p + 1:))
-      this%counter = r(1:2); this%pieces_out = r(3:5); this%t_put_all = r(6)
-      this%nonconverged_steps = nint(r(7)); this%nonconverged_samples = nint(r(8))
-    end associate
-    mk(10) = env%wtime() - t_start
-    this%t_setup = t_loop - t_start
-    call log%info("   samples " // str(this%n_prev + this%n_run) // " of " // str(this%n_tot) // " complete")
-    call log%stage_end()
-    if (this%n_run < size(todo)) then
+    redu(4 * p + 1:) = [this%counter, this%pieces_out, writer%stats%t_put - this%t_put_resumed, real(ci, wp)]
+    stopping = this%n_run < size(todo)
+    if (stopping) then
+      call stop_reduction(error)
+      mk(9) = env%wtime() - t_start
+      call sched%free()
+      mk(10:15) = env%wtime() - t_start
+      this%t_compute = env%wtime() - t_loop
+      if (allocated(error)) then
+        call writer%discard(); return
+      end if
+      call take_figures()
+      this%t_setup = t_loop - t_start
+      call log%info("   samples " // str(this%n_prev + this%n_run) // " of " // str(this%n_tot) // " complete")
+      call log%stage_end()
       call writer%discard()
       call set_error(error, "stopped after " // str(this%n_run) // " samples as requested by --stop-after (" // &
         str(this%n_prev + this%n_run) // " of " // str(this%n_tot) // " complete, database not assembled): " // &
@@ -316,14 +348,28 @@ contains
       return
     end if
 
-    ! the database: multipliers, checksums, complete = 1
-    call log%stage_begin("crowd_snapshots: finishing '" // this%db // "'")
+    ! the database: the end reduction (with the loop's figures), the multipliers, checksums,
+    ! complete = 1 and the commit
     t0 = env%wtime()
     this%t_asm_start = t0 - t_start
-    call writer%finish(error)
+    this%t_compute = t0 - t_loop
+    this%t_setup = t_loop - t_start
+    if (.not. allocated(error)) then
+      call log%info("   samples " // str(this%n_prev + this%n_run) // " of " // str(this%n_tot) // " computed")
+    end if
+    call log%stage_end()
+    call log%stage_begin("crowd_snapshots: finishing '" // this%db // "'")
+    ! this rank's part of the end first (the places, its contacts), then the counter's release,
+    ! where the ranks leaving the loop early wait for the others, then the collective end
+    call writer%end_local(error)
+    mk(9) = writer%stats%marks(1) - t_start
+    call sched%free()
+    mk(10) = env%wtime() - t_start
+    call writer%finish(error, redu)
     this%wstats = writer%stats
+    mk(11:15) = writer%stats%marks(2:6) - t_start
     if (allocated(error)) return
-    mk(11) = env%wtime() - t_start
+    call take_figures()
     ! the database is committed (every rank knows it from finish's last broadcast): the pieces
     ! can go (each rank its own, rank 0 those of earlier runs and the temporaries of pieces a
     ! killed run did not finish); then every rank tries to remove the directory, so the last one
@@ -345,7 +391,7 @@ contains
         end do
       end if
     end if
-    mk(12) = env%wtime() - t_start
+    mk(16) = env%wtime() - t_start
     ! (the directory exists only if a piece was ever written: a rank that removed nothing here,
     ! and rank 0 of a study whose directory did not exist, need not look)
     quarantined = .false.
@@ -353,33 +399,38 @@ contains
       quarantined = file_exists(dir // "/quarantine/.")
       if (.not. quarantined) ierr = remove_dir(dir)
     end if
-    mk(13) = env%wtime() - t_start
+    mk(17) = env%wtime() - t_start
     this%t_asm = env%wtime() - t0
     call log%stage_end()
     this%t_total = env%wtime() - t_start
-    mk(14) = this%t_total
+    mk(18) = this%t_total
     if (env%is_root()) this%bytes = file_size(this%db)
     ! figures, after the run's clock has stopped: the scaling model's collective latency, every
-    ! rank's phase marks and its busy time at the end (its samples' multiplier blocks)
+    ! rank's phase marks and its busy time at the end (its samples' multiplier blocks and the
+    ! samples it held while the places were in transit) and its serial database work
     this%t_coll = env%collective_latency(20, error)
     if (allocated(error)) return
     deallocate(redu)
-    allocate(redu((N_MARKS + 1) * p))
+    allocate(redu((N_MARKS + 2) * p))
     redu = 0
-    redu(env%rank * (N_MARKS + 1) + 1:(env%rank + 1) * (N_MARKS + 1)) = [mk, writer%stats%t_blocks]
+    redu(env%rank * (N_MARKS + 2) + 1:(env%rank + 1) * (N_MARKS + 2)) = [mk, &
+      writer%stats%t_blocks + (writer%stats%t_held - t_held0), writer%stats%t_serial]
     call env%allreduce(redu, 'sum', error)
     if (allocated(error)) return
-    this%marks = reshape(redu, [N_MARKS + 1, p])
+    this%marks = reshape(redu, [N_MARKS + 2, p])
     this%end_blocks = this%marks(N_MARKS + 1, :)
+    this%serial = this%marks(N_MARKS + 2, :)
     this%marks = this%marks(1:N_MARKS, :)
     this%busy = this%busy + this%end_blocks
+    this%sum_time_no_serial = sum(this%busy)
+    this%busy = this%busy + this%serial
     this%sum_time = sum(this%busy)
-    ! the run ends when its last rank ends: rank 0's time to the first broadcast (where the ranks
-    ! meet: before it a rank may wait for a partner still in the driver's input checks), then
-    ! the longest rank's time after it (each on its own clock)
-    this%t_total = this%marks(2, 1) + maxval(this%marks(N_MARKS, :) - this%marks(2, :))
-    ! the sample loop: from its start to its agreed end, the longest rank's
-    this%t_compute = maxval(this%marks(9, :) - this%marks(6, :))
+    ! the run ends when its last rank ends: rank 0's time to where the ranks first meet (the
+    ! counter's creation: before it a rank may wait for a partner still in the driver's input
+    ! checks), then the longest rank's time after it (each on its own clock)
+    this%t_total = this%marks(MARK_MEET, 1) + maxval(this%marks(N_MARKS, :) - this%marks(MARK_MEET, :))
+    ! the sample loop: from its start to its last sample (held samples written), the longest rank's
+    this%t_compute = maxval(this%marks(MARK_LOOP_END, :) - this%marks(MARK_LOOP0, :))
     ! (every rank has passed its removal now)
     if (env%is_root()) then
       if (file_exists(dir // "/quarantine/.")) then
@@ -414,17 +465,50 @@ contains
       call writer%put(r, error)
     end subroutine put
 
+    !> --stop-after: the loop's figures and every rank's failure flag in one reduction (the
+    !> message of a failure is agreed only when there is one).
+    subroutine stop_reduction(error)
+      type(error_t), allocatable, intent(inout) :: error
+      real(wp), allocatable :: r2(:)
+      type(error_t), allocatable :: e3
+      r2 = [redu, real(merge(1, 0, allocated(error)), wp)]
+      call env%allreduce(r2, 'sum', e3)
+      if (allocated(e3)) then
+        if (allocated(error)) deallocate(error)
+        call move_alloc(e3, error)
+        return
+      end if
+      redu = r2(1:size(redu))
+      if (r2(size(r2)) > 0) call env%agree_error(error)
+    end subroutine stop_reduction
+
+    !> The figures of the loop from the summed redu.
+    subroutine take_figures()
+      this%busy = redu(1:p)
+      this%nsamp = nint(redu(p + 1:2 * p))
+      this%sum_time = sum(this%busy)
+      this%sum_loop = this%sum_time
+      this%kkt_max = maxval(redu(2 * p + 1:3 * p)); this%time_max = maxval(redu(3 * p + 1:4 * p))
+      associate (r => redu(4 * p + 1:))
+        this%counter = r(1:2); this%pieces_out = r(3:5); this%t_put_all = r(6)
+        this%nonconverged_steps = nint(r(7)); this%nonconverged_samples = nint(r(8))
+      end associate
+    end subroutine take_figures
+
+    !> The database's metadata (its texts only on rank 0, which writes them).
     subroutine fill_meta()
-      meta%config_text = config_echo(cfg) // study_echo(study)
-      meta%input_text = cfg%text
       meta%hash = this%hash
-      meta%param_names = space%component_names()
-      meta%version = CROWDROM_VERSION
-      call h5get_libversion_f(maj, mnr, rel, ierr)
-      meta%hdf5_version = "unknown"
-      if (ierr == 0) meta%hdf5_version = str(maj) // "." // str(mnr) // "." // str(rel)
-      meta%mpi_version = env%library_version()
-      meta%compiler = compiler_version()
+      if (env%is_root()) then
+        meta%config_text = config_echo(cfg) // study_echo(study)
+        meta%input_text = cfg%text
+        meta%param_names = space%component_names()
+        meta%version = CROWDROM_VERSION
+        call h5get_libversion_f(maj, mnr, rel, ierr)
+        meta%hdf5_version = "unknown"
+        if (ierr == 0) meta%hdf5_version = str(maj) // "." // str(mnr) // "." // str(rel)
+        meta%mpi_version = env%library_version()
+        meta%compiler = compiler_version()
+      end if
       meta%n_agents = fom_ref%n_agents
       meta%n_steps = cfg%time%n_steps
       meta%n_expanded = space%n_expanded
@@ -450,10 +534,12 @@ contains
   function summary_text(this) result(text)
     class(study_run_t), intent(in) :: this
     character(len=:), allocatable :: text
-    real(wp) :: eff_loop, eff_total, balance
+    real(wp) :: eff_loop, eff_total, balance, eff_noser
     integer :: r, p
     p = size(this%busy)
     call efficiencies(this, p, eff_loop, eff_total, balance)
+    eff_noser = 0
+    if (this%t_total > 0) eff_noser = this%sum_time_no_serial / (p * this%t_total)
     text = "summary:" // new_line('a') // &
       "  database            " // this%db // " (" // str(real(this%bytes, wp) / 1.0e6_wp, 'f0.2') // " MB)" // &
       new_line('a') // &
@@ -469,7 +555,8 @@ contains
     text = text // &
       "  load balance        " // str(balance, 'f0.3') // " (mean / max busy time)" // new_line('a') // &
       "  busy-time efficiency " // str(eff_loop, 'f0.3') // " (sample loop), " // str(eff_total, 'f0.3') // &
-      " (whole run: sum of busy times / (P x wall))" // new_line('a') // &
+      " (whole run: sum of busy times / (P x wall)), " // str(eff_noser, 'f0.3') // &
+      " without rank 0's serial database work" // new_line('a') // &
       "  overheads           counter " // str(1.0e6_wp * this%counter(2) / max(this%counter(1), 1.0_wp), 'f0.1') // &
       " us per operation, " // str(nint(this%pieces_out(1))) // " pieces (" // &
       str(this%pieces_out(2) / 1.0e6_wp, 'f0.2') // " MB, " // str(this%pieces_out(3), 'f0.3') // " s), collective " // &
@@ -491,10 +578,12 @@ contains
     character(len=*), intent(in) :: path, input
     type(error_t), allocatable, intent(out) :: error
     type(json_writer_t) :: js
-    real(wp) :: eff_loop, eff_total, balance
+    real(wp) :: eff_loop, eff_total, balance, eff_noser
     integer :: p
     p = size(this%busy)
     call efficiencies(this, p, eff_loop, eff_total, balance)
+    eff_noser = 0
+    if (this%t_total > 0) eff_noser = this%sum_time_no_serial / (p * this%t_total)
     call js%add("program", "crowd_snapshots")
     call js%add("input", input)
     call js%add("database", this%db)
@@ -511,6 +600,7 @@ contains
     call js%add("samples_per_rank", this%nsamp)
     call js%add("busy_time_per_rank", this%busy)
     if (allocated(this%end_blocks)) call js%add("end_block_time_per_rank", this%end_blocks)
+    if (allocated(this%serial)) call js%add("serial_database_time_per_rank", this%serial)
     call js%add("load_balance", balance)
     call js%add("parallel_efficiency", eff_total)
     call js%add("parallel_efficiency_sample_loop", eff_loop)
@@ -519,7 +609,9 @@ contains
     call js%add("wall_time_assembly", this%t_asm)
     call js%add("busy_time_efficiency", eff_total)
     call js%add("busy_time_efficiency_sample_loop", eff_loop)
+    call js%add("busy_time_efficiency_without_serial", eff_noser)
     call js%add("wall_time_setup", this%t_setup)
+    call js%add("database_layout_time", this%t_layout)
     call js%add("assembly_start", this%t_asm_start)
     call js%add("counter_operations", nint(this%counter(1)))
     call js%add("counter_latency_mean", this%counter(2) / max(this%counter(1), 1.0_wp))
