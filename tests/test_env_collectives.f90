@@ -1,13 +1,13 @@
 !> env_t's variable-size gathers of integers (block_counts, allgatherv), text gather, measures,
-!> shared counter (the snapshot stage's MPI goes through them; the other collectives are checked
-!> by test_env_checked), and the block file the ranks write the snapshot database with
+!> shared counter, nonblocking broadcast from rank 0 (the snapshot stage's MPI goes through
+!> them; the other collectives are checked by test_env_checked), and the block file the ranks write the snapshot database with
 !> (cr_fsys's block_file_t: every rank opens the same file and writes its own blocks). Run at 1
 !> and 2 ranks: every result is checked against what it must be.
 program test_env_collectives
   use mpi_f08, only: MPI_Init, MPI_Finalize, MPI_COMM_WORLD
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t
-  use cr_env, only: env_t, shared_counter_t
+  use cr_env, only: env_t, shared_counter_t, pending_bcast_t
   use cr_fsys, only: block_file_t
   use cr_strings, only: str
   use cr_assert, only: check, test_summary
@@ -24,6 +24,8 @@ program test_env_collectives
   character(len=:), allocatable :: text
   character(len=*), parameter :: path = "test_env_collectives.bin"
   integer(i8), allocatable :: back(:)
+  type(pending_bcast_t) :: pb
+  logical :: done
 
   call MPI_Init(ierr)
   call env%init(MPI_COMM_WORLD, error)
@@ -119,6 +121,28 @@ program test_env_collectives
   call pf%write_at(0_i8, [1_i8], 8_i8, error)
   call check(allocated(error), "a write to a file that is not open fails")
   if (allocated(error)) deallocate(error)
+
+  ! nonblocking broadcast from rank 0 (pending_bcast_t): every rank gets rank 0's data once
+  ! test has said done or wait has returned; a broadcast of nothing completes too
+  allocate(pb%x(3))
+  pb%x = -1_i8
+  if (r == 0) pb%x = [11_i8, 10_i8**12, -7_i8]
+  call pb%start(env, error)
+  call check(.not. allocated(error) .and. pb%active, "pending broadcast: started")
+  done = .false.
+  do k = 1, 100000
+    call pb%test(done, error)
+    if (done .or. allocated(error)) exit
+  end do
+  if (.not. done .and. .not. allocated(error)) call pb%wait(error)
+  call check(.not. allocated(error) .and. .not. pb%active, "pending broadcast: completed")
+  call check(all(pb%x == [11_i8, 10_i8**12, -7_i8]), "pending broadcast: rank 0's data on every rank")
+  call pb%wait(error)
+  call check(.not. allocated(error), "pending broadcast: wait after completion is a no-op")
+  deallocate(pb%x)
+  call pb%start(env, error)
+  call pb%wait(error)
+  call check(.not. allocated(error) .and. size(pb%x) == 0 .and. .not. pb%active, "pending broadcast of nothing")
 
   call test_summary(r)
   call env%free()
