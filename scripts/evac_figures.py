@@ -22,7 +22,8 @@ Figures (PNG):
                       mean more samples would not improve the bases
 Table (markdown, ``<outdir>/evac_table.md``, also printed): per validation setting the per-step
 and per-query speedups against the exact full model, E_avg, E_disp, t50 / t90 errors,
-overlaps, agents not out, mobility, diverged samples; ML rows from --ml.
+overlaps, agents not out, mobility, diverged samples; ML rows from --ml (the corrected positions,
+and the same after the exact position projection when --ml has them).
 
 Exit codes: 0 success, 2 an input is missing, unreadable or of the wrong schema.
 """
@@ -143,6 +144,17 @@ def read_ml(path, is_out, n_steps):
                         "E_avg": float(cio.attr(g, "best_E_avg", float)),
                         "speedup_exact": cio.dataset(g, "speedup_exact").ravel(),
                         "n_values": cio.dataset(f, "n_values").ravel()}
+            if "best/projected_positions" in g:
+                # the same trajectories after the exact position projection (crowd_project)
+                qp = cio.dataset(g, "best/projected_positions")
+                if qp.shape != (n_s * (n_steps + 1), q.shape[2]):
+                    raise InputError(f"'{path}': {reg}/best/projected_positions has shape {qp.shape}, "
+                                     f"positions {(n_s * (n_steps + 1), q.shape[2])}")
+                proj = {"evac": is_out(qp.reshape(n_s, n_steps + 1, -1)).sum(axis=2)}
+                for name in ("E_avg_proj", "overlap_agents_proj", "overlap_walls_proj", "mobility_proj",
+                             "speedup_exact_proj", "t_query", "speedup_query_exact"):
+                    proj[name] = cio.dataset(g, name).ravel() if name in g else None
+                res[reg]["projected"] = proj
     return params, res
 
 
@@ -172,6 +184,9 @@ def fig_curves(meta, runs, settings, samples, ml, out, dpi):
                     label=f"ROM ({s['n']}, {s['r']}) {s['hyper']}/{mode(s)}")
         for reg, r in ml.items():
             ax.plot(t, 100 * r["evac"][i] / na, "--", lw=1.5, label=f"ML-corrected ({reg}, n = {r['best_n']})")
+            if "projected" in r:
+                ax.plot(t, 100 * r["projected"]["evac"][i] / na, "-.", lw=1.5,
+                        label=f"ML-corrected + exact projection ({reg}, n = {r['best_n']})")
         for p in (50, 90):
             ax.axhline(p, color="0.6", lw=0.8, ls=":")
         mu = ", ".join(f"{n} = {v:.3g}" for n, v in zip(names, first["params"][i]))
@@ -311,8 +326,9 @@ def ml_times(curves, fom, n_agents, h, frac):
 
 
 def table_lines(rows, ml, fom=None, n_agents=0, h=0.0):
-    """The table's lines; ML rows get the evacuation-time errors of their (unprojected)
-    positions when the full model's validation curves ``fom`` are given."""
+    """The table's lines; ML rows get the evacuation-time errors of their positions when the full
+    model's validation curves ``fom`` are given: unprojected, and after the exact position
+    projection when the ML output has it (one more row)."""
     def t(r, k):
         n = int(r[k + "_n"])
         s = "%.2e (%d)" % (float(r[k + "_err"]), n) if n > 0 else "n/a"
@@ -338,6 +354,17 @@ def table_lines(rows, ml, fom=None, n_agents=0, h=0.0):
         t90 = ml_times(m["evac"], fom, n_agents, h, 0.9) if fom is not None else ""
         out.append(f"| ML {reg} (n = {m['best_n']}) | | | | | {m['E_avg']:.2e} | | {t50} | {t90} | "
                    f"not projected | | | | | {sp[k]:.1f} | | |")
+        pr = m.get("projected")
+        if pr is not None and k >= 0:
+            def v(name, fmt="%.2e"):
+                a = pr[name]
+                return _f(a[k], fmt) if a is not None and a.size > k else "n/a"
+            t50 = ml_times(pr["evac"], fom, n_agents, h, 0.5) if fom is not None else ""
+            t90 = ml_times(pr["evac"], fom, n_agents, h, 0.9) if fom is not None else ""
+            out.append(f"| ML {reg} (n = {m['best_n']}) + exact projection | | | | | {v('E_avg_proj')} | | {t50} | "
+                       f"{t90} | {v('overlap_agents_proj')} / {v('overlap_walls_proj')} | | "
+                       f"{v('mobility_proj', '%.3f')} | | | {v('speedup_exact_proj', '%.1f')} | {v('t_query')} | "
+                       f"{v('speedup_query_exact', '%.1f')} |")
     return out
 
 

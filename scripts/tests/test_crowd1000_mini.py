@@ -116,4 +116,12 @@ def test_crowd1000_mini_pipeline(tmp_path):
     assert "speedup/query" in table and table.count("| valid") == 0
     assert len([ln for ln in table.splitlines() if "| cone |" in ln or "| online |" in ln]) == 4
     assert len([ln for ln in table.splitlines() if "| cone+local |" in ln]) == 1
+    # the ML row (corrected positions, overlaps not removed) and the same after the exact
+    # position projection: no overlap beyond the projection's bound (tolerance 1e-10 x depth)
+    ml = [ln for ln in table.splitlines() if ln.startswith("| ML random_forest (n = 20)")]
+    assert len(ml) == 2 and "not projected" in ml[0] and "+ exact projection" in ml[1]
+    cells = [c.strip() for c in ml[1].strip("|").split("|")]
+    over = [float(x) for x in cells[9].split("/")]
+    assert all(0 <= x <= 1e-10 for x in over), cells[9]
+    assert cells[7] != "" and float(cells[16]) > 0, ml[1]
     assert "=== run_study [crowd1000_mini] stage 6 of 6" in p.stdout
