@@ -108,10 +108,14 @@ contains
       call set_error(error, "env: MPI_Comm_dup failed"); return
     end if
     call MPI_Comm_rank(this%comm, this%rank, ierr)
+    call check_mpi(ierr, "MPI_Comm_rank", error)
+    if (allocated(error)) return
     call MPI_Comm_size(this%comm, this%size, ierr)
+    call check_mpi(ierr, "MPI_Comm_size", error)
   end subroutine init
 
-  !> Release the duplicated communicator.
+  !> Release the duplicated communicator. Like every `free` of the code, it cannot fail for the
+  !> caller: a failing MPI_Comm_free (the handle is not used again) leaves nothing to recover.
   subroutine free(this)
     class(env_t), intent(inout) :: this
     integer :: ierr
@@ -141,27 +145,47 @@ contains
     type(error_t), allocatable, intent(inout) :: error
     integer :: who, n_failed, rank, nranks, ierr, meta(2)
     character(len=:), allocatable :: msg
+    ! a failed MPI call here cannot be agreed on: the rank keeps its own error, or this one
+    type(error_t), allocatable :: mpi_error
     if (comm == MPI_COMM_NULL) return
     call MPI_Comm_size(comm, nranks, ierr)
+    call check_mpi(ierr, "MPI_Comm_size (error agreement)", mpi_error)
+    if (failed()) return
     if (nranks == 1) return
     call MPI_Comm_rank(comm, rank, ierr)
+    call check_mpi(ierr, "MPI_Comm_rank (error agreement)", mpi_error)
+    if (failed()) return
     who = huge(1)
     if (allocated(error)) who = rank
     call MPI_Allreduce(MPI_IN_PLACE, who, 1, MPI_INTEGER, MPI_MIN, comm, ierr)
+    call check_mpi(ierr, "MPI_Allreduce (error agreement: failing rank)", mpi_error)
+    if (failed()) return
     if (who == huge(1)) return
     n_failed = merge(1, 0, allocated(error))
     call MPI_Allreduce(MPI_IN_PLACE, n_failed, 1, MPI_INTEGER, MPI_SUM, comm, ierr)
+    call check_mpi(ierr, "MPI_Allreduce (error agreement: number of failing ranks)", mpi_error)
+    if (failed()) return
     meta = 0
     if (rank == who) then
       msg = error%message
       meta = [len(msg), error%code]
     end if
     call MPI_Bcast(meta, 2, MPI_INTEGER, who, comm, ierr)
+    call check_mpi(ierr, "MPI_Bcast (error agreement: message length)", mpi_error)
+    if (failed()) return
     if (rank /= who) allocate(character(len=meta(1)) :: msg)
     if (meta(1) > 0) call MPI_Bcast(msg, meta(1), MPI_CHARACTER, who, comm, ierr)
+    call check_mpi(ierr, "MPI_Bcast (error agreement: message)", mpi_error)
+    if (failed()) return
     if (n_failed < nranks) msg = "rank " // str(who) // " of " // str(nranks) // ": " // msg
     if (allocated(error)) deallocate(error)
     call set_error(error, msg, meta(2))
+  contains
+    !> The agreement's own MPI call failed: keep this rank's error if it has one, else report it.
+    logical function failed()
+      failed = allocated(mpi_error)
+      if (failed .and. .not. allocated(error)) call move_alloc(mpi_error, error)
+    end function failed
   end subroutine agree_error_on
 
 
