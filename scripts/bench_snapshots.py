@@ -3,7 +3,8 @@
 ranks (4 oversubscribed on this 2-core machine) with the Release build; prints Markdown tables
 (efficiencies, load balance, overheads), measures the machine's inputs of the scaling model with
 the micro-benchmark crowd_snapbench at each rank count, validates the model
-(scripts/snapshot_model.py) against the measured wall times (no constant fitted on them), predicts the 1 000-agent study on 16, 128 and 1 024 ranks and
+(scripts/snapshot_model.py) against the measured wall times (no constant fitted on them; the
+counter latency of each run's own summary, crowd_snapbench's reported beside it), predicts the 1 000-agent study on 16, 128 and 1 024 ranks and
 draws the timeline of each 2-rank run.
 
 Usage: .venv/bin/python scripts/bench_snapshots.py [--ranks 1 2 4] [--studies hall20 congested150]
@@ -150,22 +151,30 @@ def main():
         # model validation, round by round: the machine's inputs from crowd_snapbench right after
         # the round, the 1-rank run of the same round
         if 1 in a.ranks:
-            model_txt.append("\n%s, model (inputs: each run's per-sample times, the same round's 1-rank run, "
-                             "crowd_snapbench at P ranks right after the round):\n" % study)
+            model_txt.append("\n%s, model (inputs: each run's per-sample times and counter latency L, the same "
+                             "round's 1-rank run, crowd_snapbench at P ranks right after the round for c, W and "
+                             "the window; last columns: the same model with crowd_snapbench's L):\n" % study)
             model_txt.append("| round | ranks | measured wall (s) | model (s) | error | loop measured / model (s) "
-                             "| end measured / model (s) |")
-            model_txt.append("|---|---|---|---|---|---|---|")
+                             "| end measured / model (s) | L run / snapbench (us) | model, L of snapbench (s) "
+                             "| error |")
+            model_txt.append("|---|---|---|---|---|---|---|---|---|---|")
             errs = {p: [] for p in a.ranks}
+            errs_b = {p: [] for p in a.ranks}
             for k, (rr, bench) in enumerate(rounds):
-                res = snapshot_model.validate([rr[p] for p in a.ranks], bench)
+                res = snapshot_model.validate([rr[p] for p in a.ranks], bench, latency="run")
                 for r in res:
                     errs[r["ranks"]].append(r["error"])
-                    model_txt.append("| %d | %d | %.3f | %.3f | %+.1f%% | %.3f / %.3f | %.3f / %.3f |" % (
-                        k, r["ranks"], r["measured"], r["model"], 100 * r["error"], r["loop_measured"],
-                        r["loop_model"], r["asm_measured"], r["asm_model"]))
+                    errs_b[r["ranks"]].append(r["error_bench"])
+                    model_txt.append("| %d | %d | %.3f | %.3f | %+.1f%% | %.3f / %.3f | %.3f / %.3f | %.1f / %.1f "
+                                     "| %.3f | %+.1f%% |" % (
+                                         k, r["ranks"], r["measured"], r["model"], 100 * r["error"],
+                                         r["loop_measured"], r["loop_model"], r["asm_measured"], r["asm_model"],
+                                         1e6 * r["latency_run"], 1e6 * r["latency_bench"], r["model_bench"],
+                                         100 * r["error_bench"]))
             model_txt.append("")
-            model_txt.append("median error: " + ", ".join("%d ranks %+.1f%%" % (p, 100 * sorted(e)[(len(e) - 1) // 2])
-                                                          for p, e in errs.items()))
+            for name, ee in (("L of the run", errs), ("L of snapbench", errs_b)):
+                model_txt.append("largest |error|, %s: " % name + ", ".join(
+                    "%d ranks %+.1f%%" % (p, 100 * max(e, key=abs)) for p, e in ee.items()))
             for f in rounds[-1][1]:
                 model_txt.append("    " + open(f).read().strip())
         if 2 in runs and a.keep:

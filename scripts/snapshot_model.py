@@ -27,16 +27,22 @@ Model of the wall time at P ranks:
   1-rank run (both from the databases): on a shared machine the ranks of a P-rank run each get a
   share of a core, for all their work, not only for the model runs.
 
-Inputs, none fitted on the run a row predicts: the run's database (per-sample times
-`stats/time`, the work and how fast this machine did it in that run), the 1-rank run's summary
-and database (setup and end-of-database times, per-sample handling, piece bytes and write time,
-bytes per sample, mean per-sample time) and the micro-benchmark `crowd_snapbench` at P ranks
-(counter latency L, cost c of a collective and of a window created and freed for ranks arriving
-from computation, per-rank block-write bandwidth W). `validate` rebuilds T(P) of
-measured runs; `predict` extrapolates to an assumed cluster.
+Inputs, none fitted (no constant is adjusted to make a row agree):
+* from the run a row predicts: its database's per-sample times (`stats/time`, the work and how
+  fast this machine did it in that run) and, by default (`--latency run`), its summary's counter
+  latency L(P) (`counter_latency_mean`: the mean wait of every fetch-and-add of every rank in
+  that run); with `--latency bench`, L(P) is crowd_snapbench's instead (both models are reported);
+* from the same round's 1-rank run: setup and end-of-database times, per-sample handling, piece
+  bytes and write time, bytes per sample, mean per-sample time;
+* from the micro-benchmark `crowd_snapbench` at P ranks: cost c of a collective and of a window
+  created and freed for ranks arriving from computation, per-rank block-write bandwidth W (and
+  its own L(P), the only source of L for a run that has not been made).
+`validate` rebuilds T(P) of measured runs; `predict` extrapolates to an assumed cluster, whose
+L(P) is an assumption stated there (one RDMA atomic), not a measured run's.
 
 Usage:
     snapshot_model.py validate --runs RUN.json:DB.h5 ... --bench BENCH_P1.json BENCH_P2.json ...
+                               [--latency run|bench]
     snapshot_model.py predict  --db congested150.h5 --summary congested150_np1.json
                                [--agents 1000] [--ranks 16 128 1024]
 """
@@ -170,9 +176,16 @@ def model_wall(p, inp, one, bench, speed=None):
     return setup + loop + end, loop, end
 
 
-def validate(runs, bench_files):
+def validate(runs, bench_files, latency="run"):
     """Model vs measured wall time of each run (runs: (summary, database) pairs, one at 1 rank;
-    bench_files: crowd_snapbench JSON at each rank count of the runs)."""
+    bench_files: crowd_snapbench JSON at each rank count of the runs).
+
+    latency = "run": the counter latency L(P) is the one the run itself measured (its summary's
+    `counter_latency_mean`, every ticket of every rank), an input of the same kind as its
+    per-sample times; "bench": crowd_snapbench's at P ranks. Each row carries both models
+    (`model` with the chosen L, `model_bench` / `model_run` with each)."""
+    if latency not in ("run", "bench"):
+        raise SystemExit("snapshot_model: --latency must be 'run' or 'bench'")
     ins = [inputs_from_run(s, d) for s, d in runs]
     one = next((i for i in ins if i["ranks"] == 1), None)
     if one is None:
@@ -185,10 +198,19 @@ def validate(runs, bench_files):
     for inp in ins:
         if inp["ranks"] not in bench or 1 not in bench:
             raise SystemExit("snapshot_model: no crowd_snapbench figures at %d (and 1) ranks" % inp["ranks"])
-        wall, loop, end = model_wall(inp["ranks"], inp, one, bench)
-        rows.append(dict(ranks=inp["ranks"], measured=inp["wall"], model=wall, loop_measured=inp["loop"],
+        p = inp["ranks"]
+        wall_b, loop_b, end_b = model_wall(p, inp, one, bench)
+        # the same model with the run's own counter latency in place of crowd_snapbench's
+        own = dict(bench)
+        own[p] = dict(bench[p], latency=inp["latency"])
+        wall_r, loop_r, end_r = model_wall(p, inp, one, own)
+        wall, loop, end = (wall_r, loop_r, end_r) if latency == "run" else (wall_b, loop_b, end_b)
+        rows.append(dict(ranks=p, measured=inp["wall"], model=wall, loop_measured=inp["loop"],
                          loop_model=loop, asm_measured=inp["end"], asm_model=end,
-                         error=(wall - inp["wall"]) / inp["wall"]))
+                         error=(wall - inp["wall"]) / inp["wall"], latency_source=latency,
+                         latency_run=inp["latency"], latency_bench=bench[p]["latency"],
+                         model_run=wall_r, error_run=(wall_r - inp["wall"]) / inp["wall"],
+                         model_bench=wall_b, error_bench=(wall_b - inp["wall"]) / inp["wall"]))
     return rows
 
 
@@ -233,6 +255,8 @@ def main():
     v = sub.add_parser("validate")
     v.add_argument("--runs", nargs="+", required=True, help="SUMMARY.json:DATABASE.h5 of each run")
     v.add_argument("--bench", nargs="+", required=True, help="crowd_snapbench JSON at each rank count")
+    v.add_argument("--latency", choices=("run", "bench"), default="run",
+                   help="counter latency L(P): the run's own (its summary) or crowd_snapbench's (default: run)")
     pr = sub.add_parser("predict")
     pr.add_argument("--db", required=True)
     pr.add_argument("--summary", required=True)
@@ -243,13 +267,17 @@ def main():
     try:
         if a.cmd == "validate":
             runs = [tuple(r.split(":", 1)) for r in a.runs]
-            rows = validate(runs, a.bench)
-            print("| ranks | measured wall (s) | model (s) | error | loop measured / model (s) | end measured / model (s) |")
-            print("|---|---|---|---|---|---|")
+            rows = validate(runs, a.bench, latency=a.latency)
+            print("| ranks | measured wall (s) | model (s), L of the %s | error | loop measured / model (s) "
+                  "| end measured / model (s) | L run / snapbench (us) | model, L of the run (s) | error "
+                  "| model, L of snapbench (s) | error |" % a.latency)
+            print("|---|---|---|---|---|---|---|---|---|---|---|")
             for r in rows:
-                print("| %d | %.3f | %.3f | %+.1f%% | %.3f / %.3f | %.3f / %.3f |" % (
-                    r["ranks"], r["measured"], r["model"], 100 * r["error"], r["loop_measured"], r["loop_model"],
-                    r["asm_measured"], r["asm_model"]))
+                print("| %d | %.3f | %.3f | %+.1f%% | %.3f / %.3f | %.3f / %.3f | %.1f / %.1f | %.3f | %+.1f%% "
+                      "| %.3f | %+.1f%% |" % (
+                          r["ranks"], r["measured"], r["model"], 100 * r["error"], r["loop_measured"], r["loop_model"],
+                          r["asm_measured"], r["asm_model"], 1e6 * r["latency_run"], 1e6 * r["latency_bench"],
+                          r["model_run"], 100 * r["error_run"], r["model_bench"], 100 * r["error_bench"]))
         else:
             rows = predict(a.db, a.summary, agents=a.agents, ranks=a.ranks, n_samples=a.samples)
             print("| ranks | samples | wall (s) | loop (s) | assembly (s) | efficiency | loop efficiency | counter busy |")

@@ -70,6 +70,17 @@ def test_validate_and_predict(tiny_run):
         assert np.isfinite(r["model"]) and r["model"] > 0
         # the model's loop cannot be shorter than the work of the busiest rank allows
         assert r["loop_model"] >= 0
+    # the counter latency of each row is the run's own (its summary), crowd_snapbench's is kept
+    # beside it, and choosing it gives the other model
+    for r, (js, _) in zip(rows, runs):
+        assert r["latency_source"] == "run"
+        assert r["latency_run"] == json.load(open(js))["counter_latency_mean"]
+        assert r["model"] == r["model_run"] and np.isfinite(r["model_bench"])
+    rows_b = sm.validate(runs, bench, latency="bench")
+    for r, rb in zip(rows, rows_b):
+        assert rb["model"] == rb["model_bench"] == r["model_bench"] and rb["model_run"] == r["model_run"]
+    with pytest.raises(SystemExit):
+        sm.validate(runs, bench, latency="guess")
     pred = sm.predict(runs[0][1], runs[0][0], ranks=(1, 4, 64))
     eff = [r["efficiency"] for r in pred]
     assert all(0 < e <= 1 for e in eff)
