@@ -48,7 +48,7 @@ module cr_position_projection
   use cr_strings, only: str
   use cr_scene, only: scene_t
   use cr_contact_set, only: contact_set_t
-  use cr_neighbours, only: build_contacts, cell_list_t
+  use cr_neighbours, only: build_contacts, cell_list_t, pair_contact
   use cr_projection, only: projection_settings_t, solve_stats_t
   use cr_local_projection, only: local_projection_t, max_agent_norm, lin_gap
   implicit none
@@ -368,7 +368,7 @@ contains
     type(scene_t), intent(in) :: scene
     real(wp), intent(in) :: radius, p(:), rho(:), rho_min
     integer :: na, a, b, l, ia, ib
-    real(wp) :: c0, dx, dy, dist, gap, g(2)
+    real(wp) :: c0, dx, dy, gap, g(2)
     logical, allocatable :: far(:)
     na = size(rho)
     c0 = 2 * rho_min
@@ -382,12 +382,9 @@ contains
         if (far(b) .and. b < a) cycle   ! a pair of two far movers once
         dx = p(2*a-1) - p(2*b-1); dy = p(2*a) - p(2*b)
         if (abs(dx) > rho(a) + rho(b) + 2 * radius .or. abs(dy) > rho(a) + rho(b) + 2 * radius) cycle
-        dist = sqrt(dx * dx + dy * dy)
-        gap = dist - 2 * radius
-        if (gap <= c0 .or. gap > rho(a) + rho(b)) cycle
         ia = min(a, b); ib = max(a, b)
-        g = [1.0_wp, 0.0_wp]
-        if (dist > 0) g = [p(2*ia-1) - p(2*ib-1), p(2*ia) - p(2*ib)] / dist
+        call pair_contact(p(2*ia-1) - p(2*ib-1), p(2*ia) - p(2*ib), radius, g, gap)
+        if (gap <= c0 .or. gap > rho(a) + rho(b)) cycle
         call this%cs_all%add(ia, ib, 0, g, gap)
       end do
     end do

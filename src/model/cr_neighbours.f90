@@ -18,7 +18,7 @@ module cr_neighbours
   use cr_scene, only: scene_t
   implicit none
   private
-  public :: cell_list_t, build_contacts, grid_size, cell_index
+  public :: cell_list_t, build_contacts, grid_size, cell_index, pair_contact
 
   !> Linked-cell structure (reused across steps to avoid reallocation).
   type :: cell_list_t
@@ -88,15 +88,8 @@ contains
             if (j > i) then
               dx = q(2*i-1) - q(2*j-1); dy = q(2*i) - q(2*j)
               if (abs(dx) <= reach .and. abs(dy) <= reach) then
-                dist = sqrt(dx * dx + dy * dy)
-                if (dist - 2 * radius <= cutoff) then
-                  if (dist > 0) then
-                    g = [dx, dy] / dist
-                  else
-                    g = [1.0_wp, 0.0_wp]   ! coincident centres: any unit normal
-                  end if
-                  call cs%add(i, j, 0, g, dist - 2 * radius)
-                end if
+                call pair_contact(dx, dy, radius, g, gap)
+                if (gap <= cutoff) call cs%add(i, j, 0, g, gap)
               end if
             end if
             j = cells%next(j)
@@ -126,6 +119,21 @@ contains
         cell_index(q(2*a-1), cells%x0, cells%side, cells%nx) + 1
     end function cell_of
   end subroutine build_contacts
+
+  !> The contact of two disks of radius `radius` whose centres differ by (dx, dy) = q_i - q_j:
+  !> unit normal g (from j towards i; any unit normal for coincident centres) and gap.
+  pure subroutine pair_contact(dx, dy, radius, g, gap)
+    real(wp), intent(in) :: dx, dy, radius
+    real(wp), intent(out) :: g(2), gap
+    real(wp) :: dist
+    dist = sqrt(dx * dx + dy * dy)
+    if (dist > 0) then
+      g = [dx, dy] / dist
+    else
+      g = [1.0_wp, 0.0_wp]   ! coincident centres: any unit normal
+    end if
+    gap = dist - 2 * radius
+  end subroutine pair_contact
 
   !> Cell side >= side0 and grid nx x ny (nx ny <= max_cells) covering a box of half-extent
   !> half_ext [2] (finite, >= 0). Real arithmetic throughout; nx, ny <= max_cells.

@@ -500,23 +500,27 @@ contains
   subroutine writer_poll(this, error)
     class(snap_writer_t), intent(inout) :: this
     type(error_t), allocatable, intent(out) :: error
-    real(wp) :: tw
-    if (.not. this%active) return
-    call settle(this, .false., error, tw)
-    this%stats%t_held = this%stats%t_held + tw
-    this%stats%t_put = this%stats%t_put + tw
+    call settle_held(this, .false., error)
   end subroutine writer_poll
 
   !> Not collective: wait for the places (e.g. before putting the samples of earlier pieces).
   subroutine writer_wait_places(this, error)
     class(snap_writer_t), intent(inout) :: this
     type(error_t), allocatable, intent(out) :: error
+    call settle_held(this, .true., error)
+  end subroutine writer_wait_places
+
+  !> settle outside put (poll, wait_places): the time writing held samples counts in t_held.
+  subroutine settle_held(this, wait, error)
+    type(snap_writer_t), intent(inout) :: this
+    logical, intent(in) :: wait
+    type(error_t), allocatable, intent(out) :: error
     real(wp) :: tw
     if (.not. this%active) return
-    call settle(this, .true., error, tw)
+    call settle(this, wait, error, tw)
     this%stats%t_held = this%stats%t_held + tw
     this%stats%t_put = this%stats%t_put + tw
-  end subroutine writer_wait_places
+  end subroutine settle_held
 
   !> Global dims of the datasets of set is [2, 17] (second entry unused for 1D datasets).
   subroutine set_dims(this, is, dims)
@@ -722,7 +726,7 @@ contains
     integer(i8) :: o(17), at(17), lplace(2, 2)
     integer :: stat1(1)
     character(len=:), allocatable :: m
-    real(wp) :: t0, t1, tw
+    real(wp) :: t0, t1
     type(error_t), allocatable :: e2
     logical :: failed
     t0 = this%env%wtime()

@@ -348,16 +348,11 @@ contains
     integer(c_int) :: rc
     integer(c_int) :: ic(size(idx))
     real(wp) :: vc(size(idx))
-    integer :: q, nz
+    integer :: nz
     if (this%map(t) == 0) then
       call set_error(error, "cholmod rowadd: row " // str(t) // " is outside the analysed set"); return
     end if
-    ! rows without a slot are inactive: their entries are dropped (as every inactive row's)
-    nz = 0
-    do q = 1, size(idx)
-      if (this%map(idx(q)) == 0) cycle
-      nz = nz + 1; ic(nz) = int(this%map(idx(q)) - 1, c_int); vc(nz) = val(q)
-    end do
+    call to_slots(this, idx, val, ic, vc, nz)
     rc = c_rowadd(this%h, int(this%map(t) - 1, c_int), int(nz, c_int), ic, vc, pivot)
     if (rc /= 0) then
       call shim_error(this, "rowadd", rc, error); return
@@ -383,6 +378,24 @@ contains
     this%n_since = this%n_since + 1
   end subroutine chol_rowdel
 
+  !> The entries (idx, val) of a row of M in the caller's numbering as 0-based slots (ic, vc
+  !> [nz]): rows without a slot are inactive, so their entries are dropped (as every inactive
+  !> row's).
+  subroutine to_slots(this, idx, val, ic, vc, nz)
+    type(chol_t), intent(in) :: this
+    integer, intent(in) :: idx(:)
+    real(wp), intent(in) :: val(:)
+    integer(c_int), intent(out) :: ic(:)
+    real(wp), intent(out) :: vc(:)
+    integer, intent(out) :: nz
+    integer :: q
+    nz = 0
+    do q = 1, size(idx)
+      if (this%map(idx(q)) == 0) cycle
+      nz = nz + 1; ic(nz) = int(this%map(idx(q)) - 1, c_int); vc(nz) = val(q)
+    end do
+  end subroutine to_slots
+
   !> x = A^{-1} b with the current factor [nrow] (identity on rows without a slot).
   subroutine chol_solve(this, b, x, error)
     class(chol_t), intent(inout) :: this
@@ -406,15 +419,11 @@ contains
     integer(c_int) :: rc
     integer(c_int) :: ic(size(idx))
     real(wp) :: vc(size(idx))
-    integer :: q, nz
+    integer :: nz
     if (this%map(t) == 0) then
       call set_error(error, "cholmod schur: row " // str(t) // " is outside the analysed set"); return
     end if
-    nz = 0
-    do q = 1, size(idx)
-      if (this%map(idx(q)) == 0) cycle
-      nz = nz + 1; ic(nz) = int(this%map(idx(q)) - 1, c_int); vc(nz) = val(q)
-    end do
+    call to_slots(this, idx, val, ic, vc, nz)
     rc = c_schur(this%h, int(this%map(t) - 1, c_int), int(nz, c_int), ic, vc, &
       int(this%reach_min, c_int), s)
     if (rc /= 0) call shim_error(this, "schur", rc, error)

@@ -1323,11 +1323,7 @@ contains
     !> d_j - b_j . uu for row jj (normalised).
     real(wp) function row_slack(jj) result(r)
       integer, intent(in) :: jj
-      integer :: a, b
-      a = cs%ia(jj); b = cs%ib(jj)
-      r = this%c(1, jj) * this%uu(2*a - 1) + this%c(2, jj) * this%uu(2*a)
-      if (b > 0) r = r - this%c(1, jj) * this%uu(2*b - 1) - this%c(2, jj) * this%uu(2*b)
-      r = this%dd(jj) - r
+      r = slack_of(jj, cs%ia, cs%ib, this%c, this%dd, this%uu)
     end function row_slack
 
     subroutine velocities()
@@ -1363,15 +1359,22 @@ contains
     integer, intent(in) :: m, ia(:), ib(:)
     real(wp), intent(in) :: c(:, :), dd(:), uu(:)
     real(wp), intent(inout) :: slack(:)
-    integer :: j, a, b
-    real(wp) :: r
+    integer :: j
     do j = 1, m
-      a = 2 * ia(j); b = 2 * ib(j)
-      r = c(1, j) * uu(a - 1) + c(2, j) * uu(a)
-      if (b > 0) r = r - c(1, j) * uu(b - 1) - c(2, j) * uu(b)
-      slack(j) = dd(j) - r
+      slack(j) = slack_of(j, ia, ib, c, dd, uu)
     end do
   end subroutine row_slacks
+
+  !> d_j - b_j . uu of row j (normalised rows, as active_velocities).
+  pure real(wp) function slack_of(j, ia, ib, c, dd, uu) result(r)
+    integer, intent(in) :: j, ia(:), ib(:)
+    real(wp), intent(in) :: c(:, :), dd(:), uu(:)
+    integer :: a, b
+    a = 2 * ia(j); b = 2 * ib(j)
+    r = c(1, j) * uu(a - 1) + c(2, j) * uu(a)
+    if (b > 0) r = r - c(1, j) * uu(b - 1) - c(2, j) * uu(b)
+    r = dd(j) - r
+  end function slack_of
 
   subroutine sparse_as_free(this)
     class(sparse_as_solver_t), intent(inout) :: this
