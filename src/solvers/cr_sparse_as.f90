@@ -110,8 +110,19 @@ module cr_sparse_as
     !> projected search: M d, gradient, breakpoints [m], their order [m]
     real(wp), allocatable :: md(:), gd(:), tbk(:), tl(:)
     integer, allocatable :: ord(:)
-    !> rows: normalised coefficients [2, m], norms, rhs, B v - d, multipliers, slacks, minimiser
-    real(wp), allocatable :: c(:,:), rn(:), dd(:), cc(:), lam(:), slack(:), z(:), rhs(:), piv(:)
+    !> rows: norms, rhs, B v - d, multipliers, slacks, minimiser [m]
+    real(wp), allocatable :: rn(:), dd(:), cc(:), lam(:), slack(:), z(:), rhs(:), piv(:)
+    !> rows by components (tight loops): normalised coefficients c1, c2 [m], positions ka, kb
+    !> [m] of the x velocity of the row's agents in uu (kb of a wall row: the slot 2 n_agents + 1
+    !> of uu, kept at zero); the passive set P as a list of rows in increasing order,
+    !> alist(1:nact), kept equal to the mask act
+    real(wp), allocatable :: c1(:), c2(:)
+    integer, allocatable :: ka(:), kb(:), alist(:)
+    !> right-hand side of the solves on P [m], zero between them
+    real(wp), allocatable :: bz(:)
+    integer :: nact = 0
+    !> coefficients of each agent's rows signed for that agent (+ as ia, - as ib) [2 m]
+    real(wp), allocatable :: ae1(:), ae2(:)
     real(wp), allocatable :: w(:)
     !> multipliers on entry (original units), for the safe path [m]
     real(wp), allocatable :: l0(:)
@@ -124,7 +135,7 @@ module cr_sparse_as
     integer, allocatable :: fp(:), fi(:), fd(:)
     real(wp), allocatable :: fv(:)
     integer :: nzu = 0
-    !> velocities [2 n_agents]
+    !> velocities [2 n_agents + 2] (the last two: the zero slot of wall rows)
     real(wp), allocatable :: uu(:)
     !> solves whose warm start already met the KKT test (no analysis, no factorisation)
     integer :: n_warm_exact = 0
@@ -334,14 +345,18 @@ contains
     logical function warm_is_optimal() result(ok)
       ok = .false.
       if (.not. this%settings%warm_start) return
-      if (.not. any(this%lam(1:m) > 0.0_wp)) return
-      this%act(1:m) = this%lam(1:m) > 0.0_wp
-      call velocities()
-      this%act(1:m) = .false.
-      ! cheap screen first (new time steps fail it at once): a violated row
+      ! u of the warm multipliers: the rows with lam > 0 as the list of P (P itself is empty)
+      this%nact = 0
       do j = 1, m
-        if (row_slack(j) < -thr) return
+        if (this%lam(j) > 0.0_wp) then
+          this%nact = this%nact + 1; this%alist(this%nact) = j
+        end if
       end do
+      if (this%nact == 0) return
+      call velocities()
+      this%nact = 0
+      ! cheap screen first (new time steps fail it at once): a violated row
+      if (first_violated(m, this%ka, this%kb, this%c1, this%c2, this%dd, this%uu, thr) > 0) return
       u = this%uu(1:2 * na)
       do j = 1, m
         lambda(j) = max(lambda(j), 0.0_wp)
@@ -446,6 +461,7 @@ contains
     !> Normalised rows, B v - d, scale, thresholds; work arrays sized.
     subroutine prepare()
       integer :: a, b
+      real(wp) :: x1, x2
       call rgrow(this%rn, m); call rgrow(this%dd, m); call rgrow(this%cc, m)
       call rgrow(this%lam, m); call rgrow(this%slack, m); call rgrow(this%z, m)
       call rgrow(this%rhs, m); call rgrow(this%piv, m); call rgrow(this%w, m)
@@ -456,24 +472,32 @@ contains
       call lgrow(this%act, m); call lgrow(this%refused, m); call lgrow(this%newact, m)
       call lgrow(this%inw, m)
       call igrow(this%viol, m); call igrow(this%rem, m)
-      call rgrow(this%uu, 2 * na)
-      if (allocated(this%c)) then
-        if (size(this%c, 2) < m) deallocate(this%c)
-      end if
-      if (.not. allocated(this%c)) allocate(this%c(2, max(m, 16)))
+      call rgrow(this%uu, 2 * na + 2)
+      call rgrow(this%c1, m); call rgrow(this%c2, m)
+      call igrow(this%ka, m); call igrow(this%kb, m); call igrow(this%alist, m)
+      call rgrow(this%bz, m)
+      this%bz(1:m) = 0.0_wp
+      this%nact = 0
       tolv = max(1.0e-3_wp * this%settings%tol, 256.0_wp * epsilon(1.0_wp))
       sv = tiny(1.0_wp) * 1.0e10_wp
       if (size(v) > 0) sv = max(sv, maxval(abs(v)))
       do j = 1, m
-        this%c(:, j) = -cs%h * cs%g(:, j)
-        this%rn(j) = norm2(this%c(:, j))
+        x1 = -cs%h * cs%g(1, j); x2 = -cs%h * cs%g(2, j)
+        this%rn(j) = norm2([x1, x2])
         if (cs%ib(j) > 0) this%rn(j) = this%rn(j) * sqrt(2.0_wp)
-        this%c(:, j) = this%c(:, j) / this%rn(j)
+        x1 = x1 / this%rn(j); x2 = x2 / this%rn(j)
+        this%c1(j) = x1; this%c2(j) = x2
         this%dd(j) = cs%gap(j) / this%rn(j)
         sv = max(sv, -this%dd(j))
         a = cs%ia(j); b = cs%ib(j)
-        this%cc(j) = this%c(1, j) * v(2*a - 1) + this%c(2, j) * v(2*a)
-        if (b > 0) this%cc(j) = this%cc(j) - this%c(1, j) * v(2*b - 1) - this%c(2, j) * v(2*b)
+        this%ka(j) = 2 * a - 1
+        this%cc(j) = x1 * v(2*a - 1) + x2 * v(2*a)
+        if (b > 0) then
+          this%kb(j) = 2 * b - 1
+          this%cc(j) = this%cc(j) - x1 * v(2*b - 1) - x2 * v(2*b)
+        else
+          this%kb(j) = 2 * na + 1
+        end if
         this%cc(j) = this%cc(j) - this%dd(j)
         this%lam(j) = 0.0_wp
         if (this%settings%warm_start .and. lambda(j) > 0.0_wp) this%lam(j) = lambda(j) * this%rn(j)
@@ -491,8 +515,8 @@ contains
     !> M = B B^T (normalised rows): full CSC (fp, fi, fv), rows sorted in each column, the
     !> diagonal of column j at fd(j) (so its upper triangle is fp(j):fd(j)).
     subroutine assemble()
-      integer :: a, b, l, nz, p1, p2, e1, e2
-      real(wp) :: dot, val
+      integer :: a, b, l, nz, p1, p2, e1, e2, r1, r2
+      real(wp) :: x1, x2
       call igrow(this%astart, na + 1)
       this%astart(1:na + 1) = 0
       do j = 1, m
@@ -504,14 +528,19 @@ contains
         this%astart(a + 1) = this%astart(a + 1) + this%astart(a)
       end do
       call igrow(this%arows, this%astart(na + 1))
-      ! fill pointers live in fp (size na + 1 at least)
+      call rgrow(this%ae1, this%astart(na + 1)); call rgrow(this%ae2, this%astart(na + 1))
+      ! fill pointers live in fp (size na + 1 at least); each agent's rows with their
+      ! coefficients signed for the agent, so that M(j, l) = sum over shared agents of the
+      ! products of signed coefficients
       call igrow(this%fp, max(m, na) + 1)
       this%fp(1:na) = this%astart(1:na)
       do j = 1, m
-        a = cs%ia(j); this%arows(this%fp(a)) = j; this%fp(a) = this%fp(a) + 1
+        a = cs%ia(j); p1 = this%fp(a); this%fp(a) = p1 + 1
+        this%arows(p1) = j; this%ae1(p1) = this%c1(j); this%ae2(p1) = this%c2(j)
         a = cs%ib(j)
         if (a > 0) then
-          this%arows(this%fp(a)) = j; this%fp(a) = this%fp(a) + 1
+          p1 = this%fp(a); this%fp(a) = p1 + 1
+          this%arows(p1) = j; this%ae1(p1) = -this%c1(j); this%ae2(p1) = -this%c2(j)
         end if
       end do
       ! upper bound of the entries: sum over rows of the rows of their agents
@@ -522,42 +551,45 @@ contains
       end do
       call igrow(this%fi, nz); call rgrow(this%fv, nz)
       call igrow(this%fd, m)
-      ! column j: merge of the rows of its two agents (each list sorted by row), a row met in
+      ! column j (signed + for its first agent a, - for its second b): the rows of a (a wall
+      ! row), or the merge of the rows of a and of b (each list sorted by row), a row met in
       ! both (the same pair twice) summed: sorted columns without marks or sorting
       nz = 0; this%nzu = 0
       do j = 1, m
         this%fp(j) = nz + 1
         a = cs%ia(j); b = cs%ib(j)
+        x1 = this%c1(j); x2 = this%c2(j)
         p1 = this%astart(a); e1 = this%astart(a + 1) - 1
-        if (b > 0) then
-          p2 = this%astart(b); e2 = this%astart(b + 1) - 1
-        else
-          p2 = 1; e2 = 0
-        end if
-        do while (p1 <= e1 .or. p2 <= e2)
-          if (p2 > e2) then
+        if (b == 0) then
+          do p1 = p1, e1
             l = this%arows(p1)
-          else if (p1 > e1) then
-            l = this%arows(p2)
-          else
-            l = min(this%arows(p1), this%arows(p2))
-          end if
-          dot = this%c(1, j) * this%c(1, l) + this%c(2, j) * this%c(2, l)
-          val = 0.0_wp
-          if (p1 <= e1) then
-            if (this%arows(p1) == l) then
-              val = merge(dot, -dot, cs%ia(l) == a); p1 = p1 + 1
+            nz = nz + 1
+            this%fi(nz) = l; this%fv(nz) = x1 * this%ae1(p1) + x2 * this%ae2(p1)
+            if (l == j) this%fd(j) = nz
+          end do
+        else
+          p2 = this%astart(b); e2 = this%astart(b + 1) - 1
+          do
+            r1 = huge(1); r2 = huge(1)
+            if (p1 <= e1) r1 = this%arows(p1)
+            if (p2 <= e2) r2 = this%arows(p2)
+            nz = nz + 1
+            if (r1 < r2) then
+              this%fi(nz) = r1; this%fv(nz) = x1 * this%ae1(p1) + x2 * this%ae2(p1)
+              p1 = p1 + 1
+            else if (r2 < r1) then
+              this%fi(nz) = r2; this%fv(nz) = -(x1 * this%ae1(p2) + x2 * this%ae2(p2))
+              p2 = p2 + 1
+            else if (r1 == huge(1)) then
+              nz = nz - 1; exit
+            else
+              this%fi(nz) = r1
+              this%fv(nz) = (x1 * this%ae1(p1) + x2 * this%ae2(p1)) - (x1 * this%ae1(p2) + x2 * this%ae2(p2))
+              if (r1 == j) this%fd(j) = nz
+              p1 = p1 + 1; p2 = p2 + 1
             end if
-          end if
-          if (p2 <= e2) then
-            if (this%arows(p2) == l) then
-              val = val - merge(dot, -dot, cs%ia(l) == b); p2 = p2 + 1
-            end if
-          end if
-          nz = nz + 1
-          this%fi(nz) = l; this%fv(nz) = val
-          if (l == j) this%fd(j) = nz
-        end do
+          end do
+        end if
         this%nzu = this%nzu + this%fd(j) - this%fp(j) + 1
       end do
       this%fp(m + 1) = nz + 1
@@ -737,7 +769,10 @@ contains
       real(wp) :: frac
       integer, parameter :: n_refine = 3
       real(wp) :: pivot, tau, xmax, r, r_ref
+      !> some row may be refused (refused(1:m) not all false)
+      logical :: any_ref
       why = ""
+      any_ref = .true.
       it = 0
       itmax = min(this%settings%max_iter, 10 * m + 100)
       ! ---- warm start: factor the guessed passive set, drop dependent rows, then rows whose
@@ -745,34 +780,24 @@ contains
       do j = 1, m
         this%act(j) = this%lam(j) > 0.0_wp
       end do
-      k = count(this%act(1:m))
+      call list_from_mask()
+      k = this%nact
       if (k > 0 .and. this%warm_search .and. m < this%warm_search_rows) then
         ! from the warm multipliers (feasible, positive on P) by the step back: rows leave P
         ! only where f still falls with them at zero (monotone from here on)
         call factor_independent(bad); if (allocated(error)) return
-        call step_back(); if (allocated(error)) return
+        call list_prune()
+        call step_back(.false.); if (allocated(error)) return
         if (len(why) > 0) return
       else if (k > 0) then
         call factor_independent(bad); if (allocated(error)) return
-        do
-          call solve_p(); if (allocated(error)) return
-          nv = 0
-          do j = 1, m
-            if (this%act(j) .and. this%z(j) <= 0.0_wp) then
-              nv = nv + 1; this%viol(nv) = j
-            end if
-          end do
-          if (nv == 0) exit
-          call remove_rows(nv); if (allocated(error)) return
-        end do
-        do j = 1, m
-          this%lam(j) = merge(this%z(j), 0.0_wp, this%act(j))
-        end do
+        call list_prune()
+        call drop_nonpositive(); if (allocated(error)) return
       else
         this%lam(1:m) = 0.0_wp
         call this%chol%factor(this%act(1:m), error); if (allocated(error)) return
       end if
-      this%refused(1:m) = .false.
+      this%refused(1:m) = .false.; any_ref = .false.
 
       ! ---- primal-dual active-set sweeps (semismooth Newton on the dual): all violated rows
       ! enter and all rows with a non-positive minimiser leave at once. Not monotone, so at
@@ -780,10 +805,9 @@ contains
       ! then finishes from lambda = z > 0 on P (usually with nothing left to do).
       sweeps: do ntry = 1, merge(this%pdas_max, 0, m >= this%pdas_rows)
         ! lambda = z on P (signs unrestricted), then the slacks it gives
+        call list_from_mask()
         call solve_p(); if (allocated(error)) return
-        do j = 1, m
-          this%lam(j) = merge(this%z(j), 0.0_wp, this%act(j))
-        end do
+        call lam_from_z()
         call slacks()
         nv = 0; nrem = 0
         do j = 1, m
@@ -801,7 +825,7 @@ contains
         end if
         it = it + 1
         stats%iterations = stats%iterations + 1
-        k = count(this%act(1:m))
+        k = this%nact
         this%newact(1:m) = this%act(1:m)
         this%newact(this%viol(1:nv)) = .true.
         this%newact(this%rem(1:nrem)) = .false.
@@ -853,20 +877,8 @@ contains
         end if
       end do sweeps
       ! back to the invariant of the monotone loop: lambda = z > 0 on P
-      do
-        call solve_p(); if (allocated(error)) return
-        nv = 0
-        do j = 1, m
-          if (this%act(j) .and. this%z(j) <= 0.0_wp) then
-            nv = nv + 1; this%viol(nv) = j
-          end if
-        end do
-        if (nv == 0) exit
-        call remove_rows(nv); if (allocated(error)) return
-      end do
-      do j = 1, m
-        this%lam(j) = merge(this%z(j), 0.0_wp, this%act(j))
-      end do
+      call list_from_mask()
+      call drop_nonpositive(); if (allocated(error)) return
 
       ! ---- main loop (block Lawson-Hanson)
       frac = merge(this%add_frac, 0.0_wp, m < this%add_frac_rows)
@@ -875,19 +887,16 @@ contains
         if (this%chol%n_since >= this%settings%refresh_every) then
           call refresh(); if (allocated(error)) return
         end if
-        call slacks()
-        nv = 0
-        do j = 1, m
-          if (this%act(j) .or. this%refused(j)) cycle
-          if (this%slack(j) < -thr) then
-            nv = nv + 1; this%viol(nv) = j
-          end if
-        end do
+        call velocities()
+        call slacks_violated(m, this%ka, this%kb, this%c1, this%c2, this%dd, this%uu, thr, &
+          this%act, this%refused, this%slack, nv, this%viol)
         if (nv == 0) then
           ! rows refused as dependent but still violated: exchange them in
           do j = 1, m
-            if (this%refused(j) .and. .not. this%act(j) .and. this%slack(j) < -thr) then
-              nv = nv + 1; this%viol(nv) = j
+            if (this%slack(j) < -thr) then
+              if (this%refused(j) .and. .not. this%act(j)) then
+                nv = nv + 1; this%viol(nv) = j
+              end if
             end if
           end do
         end if
@@ -911,24 +920,31 @@ contains
         end if
         exch = nv > 0 .and. all(this%refused(this%viol(1:nv)))
         if (nv == 0) then
-          k = count(this%act(1:m))
+          k = this%nact
           if (k == 0) exit outer
           ! iterative refinement on P (at most n_refine steps while the slacks on P shrink)
           r = 0.0_wp
-          do j = 1, m
-            if (this%act(j)) r = max(r, abs(this%slack(j)))
+          do q = 1, k
+            r = max(r, abs(this%slack(this%alist(q))))
           end do
           if (n_ref >= n_refine .or. r <= 1.0e-2_wp * thr .or. r >= 0.5_wp * r_ref) exit outer
           n_ref = n_ref + 1; r_ref = r
-          this%rhs(1:m) = merge(this%slack(1:m), 0.0_wp, this%act(1:m))
-          call this%chol%solve(this%rhs(1:m), this%z(1:m), error); if (allocated(error)) return
+          do q = 1, k
+            j = this%alist(q); this%bz(j) = this%slack(j)
+          end do
+          call this%chol%solve(this%bz(1:m), this%z(1:m), error)
+          do q = 1, k
+            this%bz(this%alist(q)) = 0.0_wp
+          end do
+          if (allocated(error)) return
           ok = .true.
-          do j = 1, m
-            if (this%act(j) .and. .not. (this%lam(j) - this%z(j) > 0.0_wp)) ok = .false.
+          do q = 1, k
+            j = this%alist(q)
+            if (.not. (this%lam(j) - this%z(j) > 0.0_wp)) ok = .false.
           end do
           if (.not. ok) exit outer
-          do j = 1, m
-            if (this%act(j)) this%lam(j) = this%lam(j) - this%z(j)
+          do q = 1, k
+            j = this%alist(q); this%lam(j) = this%lam(j) - this%z(j)
           end do
           cycle outer
         end if
@@ -939,7 +955,7 @@ contains
         end if
         it = it + 1
         stats%iterations = stats%iterations + 1
-        k = count(this%act(1:m))
+        k = this%nact
         nadd = 0
         if (exch) then
           continue
@@ -958,6 +974,7 @@ contains
             call this%chol%factor(this%act(1:m), error); if (allocated(error)) return
           else
             this%act(1:m) = this%newact(1:m)
+            call list_from_mask()
             nadd = nv
           end if
         end if
@@ -966,9 +983,10 @@ contains
             t = this%viol(q)
             call add_row(t, pivot); if (allocated(error)) return
             if (this%act(t)) then
+              call list_insert(t)
               nadd = nadd + 1
             else
-              this%refused(t) = .true.
+              this%refused(t) = .true.; any_ref = .true.
             end if
           end do
         end if
@@ -989,17 +1007,19 @@ contains
           ! alpha = M_P^{-1} B_P b_t (this%w, left by add_row)
           call add_row(t, pivot, precheck=.true., alpha=.true.); if (allocated(error)) return
           if (this%act(t)) then
-            call step_back(); if (allocated(error)) return
+            call list_insert(t)
+            call step_back(.false.); if (allocated(error)) return
             if (len(why) > 0) return
             cycle outer
           end if
           xmax = 0.0_wp
-          do j = 1, m
-            if (this%act(j)) xmax = max(xmax, abs(this%w(j)))
+          do q = 1, this%nact
+            xmax = max(xmax, abs(this%w(this%alist(q))))
           end do
           tau = huge(1.0_wp); pmin = 0
-          do j = 1, m
-            if (this%act(j) .and. this%w(j) > 1.0e-12_wp * xmax) then
+          do q = 1, this%nact
+            j = this%alist(q)
+            if (this%w(j) > 1.0e-12_wp * xmax) then
               r = this%lam(j) / this%w(j)
               if (r < tau) then
                 tau = r; pmin = j
@@ -1010,46 +1030,57 @@ contains
             why = "constraints infeasible (Farkas certificate)"
             return
           end if
-          do j = 1, m
-            if (this%act(j)) this%lam(j) = max(0.0_wp, this%lam(j) - tau * this%w(j))
+          do q = 1, this%nact
+            j = this%alist(q); this%lam(j) = max(0.0_wp, this%lam(j) - tau * this%w(j))
           end do
           this%lam(pmin) = 0.0_wp
           call this%chol%rowdel(pmin, error); if (allocated(error)) return
           this%act(pmin) = .false.
+          call list_prune()
           call add_row(t, pivot, 1.0e3_wp * epsilon(1.0_wp), precheck=.true.)
           if (allocated(error)) return
           if (this%act(t)) then
+            call list_insert(t)
             this%lam(t) = tau
           else
-            this%refused(t) = .true.
+            this%refused(t) = .true.; any_ref = .true.
             this%lam(t) = 0.0_wp
           end if
           nv = 0
-          do j = 1, m
-            if (this%act(j) .and. this%lam(j) <= 0.0_wp) then
+          do q = 1, this%nact
+            j = this%alist(q)
+            if (this%lam(j) <= 0.0_wp) then
               nv = nv + 1; this%viol(nv) = j
             end if
           end do
           if (nv > 0) then
             call remove_rows(nv); if (allocated(error)) return
           end if
+          call step_back(.false.); if (allocated(error)) return
         else
-          this%refused(1:m) = .false.
+          if (any_ref) this%refused(1:m) = .false.
+          any_ref = .false.
+          ! lambda has not moved since the slacks above (entering rows have lambda = 0)
+          call step_back(.true.); if (allocated(error)) return
         end if
-        call step_back(); if (allocated(error)) return
         if (len(why) > 0) return
       end do outer
     end subroutine run
 
     !> Move lambda towards the minimiser z on P until z > 0 (rows reaching zero leave P).
-    subroutine step_back()
+    !> fresh: uu and the slacks are those of lambda on entry (no need to compute them again).
+    subroutine step_back(fresh)
+      logical, intent(in) :: fresh
       real(wp) :: alpha, r, lmax
-      integer :: jj
+      integer :: jj, q
+      logical :: have_u
+      have_u = fresh
       do
         call solve_p(); if (allocated(error)) return
         alpha = 1.0_wp
-        do jj = 1, m
-          if (this%act(jj) .and. this%z(jj) <= 0.0_wp) then
+        do q = 1, this%nact
+          jj = this%alist(q)
+          if (this%z(jj) <= 0.0_wp) then
             ! a row at zero (lambda = 0, e.g. entered with z = 0) blocks at once: alpha = 0
             r = 0.0_wp
             if (this%lam(jj) > 0.0_wp) r = this%lam(jj) / (this%lam(jj) - this%z(jj))
@@ -1057,8 +1088,8 @@ contains
           end if
         end do
         if (alpha >= 1.0_wp) then
-          do jj = 1, m
-            if (this%act(jj)) this%lam(jj) = this%z(jj)
+          do q = 1, this%nact
+            jj = this%alist(q); this%lam(jj) = this%z(jj)
           end do
           return
         end if
@@ -1069,30 +1100,32 @@ contains
         it = it + 1
         stats%iterations = stats%iterations + 1
         if (this%proj_search) then
-          call projected_step(); if (allocated(error)) return
+          call projected_step(have_u); if (allocated(error)) return
+          have_u = .false.
           if (nv > 0) then
             call remove_rows(nv); if (allocated(error)) return
             cycle
           end if
         end if
         lmax = 0.0_wp
-        do jj = 1, m
-          if (this%act(jj)) then
-            this%lam(jj) = this%lam(jj) + alpha * (this%z(jj) - this%lam(jj))
-            lmax = max(lmax, this%lam(jj))
-          end if
+        do q = 1, this%nact
+          jj = this%alist(q)
+          this%lam(jj) = this%lam(jj) + alpha * (this%z(jj) - this%lam(jj))
+          lmax = max(lmax, this%lam(jj))
         end do
         nv = 0
-        do jj = 1, m
-          if (this%act(jj) .and. this%z(jj) <= 0.0_wp .and. this%lam(jj) <= 64.0_wp * epsilon(1.0_wp) * lmax) then
+        do q = 1, this%nact
+          jj = this%alist(q)
+          if (this%z(jj) <= 0.0_wp .and. this%lam(jj) <= 64.0_wp * epsilon(1.0_wp) * lmax) then
             this%lam(jj) = 0.0_wp
             nv = nv + 1; this%viol(nv) = jj
           end if
         end do
         if (nv == 0) then
           ! round-off: take out the row that defined alpha
-          do jj = 1, m
-            if (this%act(jj) .and. this%z(jj) <= 0.0_wp) then
+          do q = 1, this%nact
+            jj = this%alist(q)
+            if (this%z(jj) <= 0.0_wp) then
               if (this%lam(jj) <= 0.0_wp .or. nv == 0) then
                 if (nv == 0) then
                   nv = 1; this%viol(1) = jj
@@ -1116,18 +1149,31 @@ contains
     !> j of M). lambda becomes lambda(t*), the frozen rows are returned in viol(1:nv) (they
     !> leave P). f(lambda(t*)) <= f at the first breakpoint (the classical step), so the
     !> method stays monotone and finite. nv = 0 (round-off: no descent) leaves lambda as is.
-    subroutine projected_step()
-      integer :: jj, q, nb, kb, p1, p2, l, i
-      real(wp) :: sl, qq, ta, tn, ts, dj, lmax
+    !> have_u: this%slack already holds the slacks at lambda.
+    subroutine projected_step(have_u)
+      logical, intent(in) :: have_u
+      integer :: jj, q, nb, kb, p1, p2, l, i, a, b
+      real(wp) :: sl, qq, ta, tn, ts, dj, lmax, r
       ! d = z - lambda on P (in this%w); the gradient g = M lambda - c on P is the slack of the
       ! rows at u(lambda), and M d = M_P z - M_P lambda = -g on P (z solves M_P z = c_P)
-      call velocities()
+      if (.not. have_u) then
+        call velocities()
+        do q = 1, this%nact
+          ! the slack of row jj (as in all_slacks)
+          jj = this%alist(q)
+          a = this%ka(jj); b = this%kb(jj)
+          r = this%c1(jj) * this%uu(a) + this%c2(jj) * this%uu(a + 1)
+          r = r - this%c1(jj) * this%uu(b) - this%c2(jj) * this%uu(b + 1)
+          this%slack(jj) = this%dd(jj) - r
+        end do
+      end if
       sl = 0.0_wp; nb = 0
-      do jj = 1, m
-        if (.not. this%act(jj)) cycle
+      do q = 1, this%nact
+        jj = this%alist(q)
         this%w(jj) = this%z(jj) - this%lam(jj)
-        this%gd(jj) = row_slack(jj); this%md(jj) = -this%gd(jj); this%tl(jj) = 0.0_wp
-        sl = sl + this%gd(jj) * this%w(jj)
+        r = this%slack(jj)
+        this%gd(jj) = r; this%md(jj) = -r; this%tl(jj) = 0.0_wp
+        sl = sl + r * this%w(jj)
         if (this%z(jj) <= 0.0_wp) then
           nb = nb + 1; this%ord(nb) = jj
           if (this%lam(jj) > 0.0_wp) then
@@ -1187,18 +1233,18 @@ contains
       if (kb == 0) return
       ! lambda(t*): frozen rows (and rows that reach zero at t* by round-off) leave
       lmax = 0.0_wp
-      do jj = 1, m
-        if (this%act(jj)) then
-          this%lam(jj) = max(0.0_wp, this%lam(jj) + ts * this%w(jj))
-          lmax = max(lmax, this%lam(jj))
-        end if
+      do q = 1, this%nact
+        jj = this%alist(q)
+        this%lam(jj) = max(0.0_wp, this%lam(jj) + ts * this%w(jj))
+        lmax = max(lmax, this%lam(jj))
       end do
       do q = 1, kb
         this%lam(this%ord(q)) = 0.0_wp
       end do
       this%n_proj = this%n_proj + 1
-      do jj = 1, m
-        if (this%act(jj) .and. this%z(jj) <= 0.0_wp .and. this%lam(jj) <= 64.0_wp * epsilon(1.0_wp) * lmax) then
+      do q = 1, this%nact
+        jj = this%alist(q)
+        if (this%z(jj) <= 0.0_wp .and. this%lam(jj) <= 64.0_wp * epsilon(1.0_wp) * lmax) then
           this%lam(jj) = 0.0_wp
           nv = nv + 1; this%viol(nv) = jj
         end if
@@ -1210,17 +1256,85 @@ contains
     subroutine remove_rows(n)
       integer, intent(in) :: n
       integer :: q
-      if (n > max(this%bulk_min, count(this%act(1:m)) / this%bulk_div)) then
+      if (n > max(this%bulk_min, this%nact / this%bulk_div)) then
         this%act(this%viol(1:n)) = .false.
+        call list_prune()
         call this%chol%factor(this%act(1:m), error)
       else
         do q = 1, n
-          call this%chol%rowdel(this%viol(q), error); if (allocated(error)) return
+          call this%chol%rowdel(this%viol(q), error); if (allocated(error)) exit
           this%act(this%viol(q)) = .false.
         end do
+        call list_prune()
+        if (allocated(error)) return
       end if
       this%lam(this%viol(1:n)) = 0.0_wp
     end subroutine remove_rows
+
+    !> The minimiser z on P; rows with z <= 0 leave P until none is left, then lambda = z on P
+    !> (zero elsewhere).
+    subroutine drop_nonpositive()
+      integer :: q, jj
+      do
+        call solve_p(); if (allocated(error)) return
+        nv = 0
+        do q = 1, this%nact
+          jj = this%alist(q)
+          if (this%z(jj) <= 0.0_wp) then
+            nv = nv + 1; this%viol(nv) = jj
+          end if
+        end do
+        if (nv == 0) exit
+        call remove_rows(nv); if (allocated(error)) return
+      end do
+      call lam_from_z()
+    end subroutine drop_nonpositive
+
+    !> lambda = z on P, zero elsewhere.
+    subroutine lam_from_z()
+      integer :: q, jj
+      this%lam(1:m) = 0.0_wp
+      do q = 1, this%nact
+        jj = this%alist(q); this%lam(jj) = this%z(jj)
+      end do
+    end subroutine lam_from_z
+
+    !> The list of P (alist, nact) from the mask act.
+    subroutine list_from_mask()
+      integer :: jj
+      this%nact = 0
+      do jj = 1, m
+        if (this%act(jj)) then
+          this%nact = this%nact + 1; this%alist(this%nact) = jj
+        end if
+      end do
+    end subroutine list_from_mask
+
+    !> Rows whose mask went off (removals, dependent rows) leave the list of P.
+    subroutine list_prune()
+      integer :: q, n
+      n = 0
+      do q = 1, this%nact
+        if (this%act(this%alist(q))) then
+          n = n + 1; this%alist(n) = this%alist(q)
+        end if
+      end do
+      this%nact = n
+    end subroutine list_prune
+
+    !> Row tt entered P (mask on): into the list, in order.
+    subroutine list_insert(tt)
+      integer, intent(in) :: tt
+      integer :: q
+      q = this%nact
+      do while (q > 0)
+        if (this%alist(q) < tt) exit
+        this%alist(q + 1) = this%alist(q)
+        q = q - 1
+      end do
+      this%alist(q + 1) = tt
+      this%nact = this%nact + 1
+    end subroutine list_insert
 
     !> Row tt enters the factor unless dependent on P: pivot = 1 - w^T M_P^{-1} w (w = M(P, tt),
     !> alpha = M_P^{-1} w left in this%w) is checked before the addition (a near-zero pivot would
@@ -1283,8 +1397,14 @@ contains
 
     !> z = (B_P B_P^T)^{-1} (B v - d)_P (zero off P).
     subroutine solve_p()
-      this%rhs(1:m) = merge(this%cc(1:m), 0.0_wp, this%act(1:m))
-      call this%chol%solve(this%rhs(1:m), this%z(1:m), error)
+      integer :: q, jj
+      do q = 1, this%nact
+        jj = this%alist(q); this%bz(jj) = this%cc(jj)
+      end do
+      call this%chol%solve(this%bz(1:m), this%z(1:m), error)
+      do q = 1, this%nact
+        this%bz(this%alist(q)) = 0.0_wp
+      end do
     end subroutine solve_p
 
     !> Refactorise P afresh. With check_drift, first measure the backward error of a solve with
@@ -1317,64 +1437,96 @@ contains
     !> uu = v - B_P^T lambda_P, slack = d - B uu (normalised rows).
     subroutine slacks()
       call velocities()
-      call row_slacks(m, cs%ia, cs%ib, this%c, this%dd, this%uu, this%slack)
+      call all_slacks(m, this%ka, this%kb, this%c1, this%c2, this%dd, this%uu, this%slack)
     end subroutine slacks
 
-    !> d_j - b_j . uu for row jj (normalised).
-    real(wp) function row_slack(jj) result(r)
-      integer, intent(in) :: jj
-      r = slack_of(jj, cs%ia, cs%ib, this%c, this%dd, this%uu)
-    end function row_slack
-
+    !> uu = v - B_P^T lambda_P (normalised rows).
     subroutine velocities()
-      call active_velocities(m, cs%ia, cs%ib, this%c, this%lam, this%act, v, this%uu)
+      call active_velocities(this%nact, this%alist, this%ka, this%kb, this%c1, this%c2, &
+        this%lam, 2 * na, v, this%uu)
     end subroutine velocities
 
   end subroutine sparse_core
 
-  !> uu = v - sum over active rows of lam_j b_j (normalised rows c [2, m], agents ia, ib [m];
-  !> uu, v [2 n_agents]).
-  pure subroutine active_velocities(m, ia, ib, c, lam, act, v, uu)
-    integer, intent(in) :: m, ia(:), ib(:)
-    real(wp), intent(in) :: c(:, :), lam(:), v(:)
-    logical, intent(in) :: act(:)
-    real(wp), intent(inout) :: uu(:)
-    integer :: j, a, b
-    real(wp) :: c1, c2
-    uu(1:size(v)) = v
-    do j = 1, m
-      if (.not. act(j)) cycle
+  !> uu = v - sum over the rows j of P (list alist(1:nact), in increasing order) of lam_j b_j
+  !> (normalised rows by components c1, c2, velocity positions ka, kb of their agents: see
+  !> sparse_as_solver_t); uu [n + 2], v [n], uu(n + 1:n + 2) (wall rows' second agent) zero.
+  pure subroutine active_velocities(nact, alist, ka, kb, c1, c2, lam, n, v, uu)
+    integer, intent(in) :: nact, n
+    integer, intent(in) :: alist(*), ka(*), kb(*)
+    real(wp), intent(in) :: c1(*), c2(*), lam(*), v(n)
+    real(wp), intent(inout) :: uu(n + 2)
+    integer :: q, j, a, b
+    real(wp) :: t1, t2
+    uu(1:n) = v
+    do q = 1, nact
+      j = alist(q)
       if (lam(j) == 0.0_wp) cycle
-      c1 = lam(j) * c(1, j); c2 = lam(j) * c(2, j)
-      a = 2 * ia(j); b = 2 * ib(j)
-      uu(a - 1) = uu(a - 1) - c1; uu(a) = uu(a) - c2
-      if (b > 0) then
-        uu(b - 1) = uu(b - 1) + c1; uu(b) = uu(b) + c2
-      end if
+      t1 = lam(j) * c1(j); t2 = lam(j) * c2(j)
+      a = ka(j); b = kb(j)
+      uu(a) = uu(a) - t1; uu(a + 1) = uu(a + 1) - t2
+      uu(b) = uu(b) + t1; uu(b + 1) = uu(b + 1) + t2
     end do
+    uu(n + 1:n + 2) = 0.0_wp
   end subroutine active_velocities
 
-  !> slack_j = d_j - b_j . uu for every row [m] (normalised rows, as active_velocities).
-  pure subroutine row_slacks(m, ia, ib, c, dd, uu, slack)
-    integer, intent(in) :: m, ia(:), ib(:)
-    real(wp), intent(in) :: c(:, :), dd(:), uu(:)
-    real(wp), intent(inout) :: slack(:)
+  !> slack_j = d_j - b_j . uu for every row [m] (as active_velocities).
+  pure subroutine all_slacks(m, ka, kb, c1, c2, dd, uu, slack)
+    integer, intent(in) :: m
+    integer, intent(in) :: ka(m), kb(m)
+    real(wp), intent(in) :: c1(m), c2(m), dd(m), uu(*)
+    real(wp), intent(inout) :: slack(m)
     integer :: j
+    real(wp) :: r
     do j = 1, m
-      slack(j) = slack_of(j, ia, ib, c, dd, uu)
+      r = c1(j) * uu(ka(j)) + c2(j) * uu(ka(j) + 1)
+      r = r - c1(j) * uu(kb(j)) - c2(j) * uu(kb(j) + 1)
+      slack(j) = dd(j) - r
     end do
-  end subroutine row_slacks
+  end subroutine all_slacks
 
-  !> d_j - b_j . uu of row j (normalised rows, as active_velocities).
-  pure real(wp) function slack_of(j, ia, ib, c, dd, uu) result(r)
-    integer, intent(in) :: j, ia(:), ib(:)
-    real(wp), intent(in) :: c(:, :), dd(:), uu(:)
-    integer :: a, b
-    a = 2 * ia(j); b = 2 * ib(j)
-    r = c(1, j) * uu(a - 1) + c(2, j) * uu(a)
-    if (b > 0) r = r - c(1, j) * uu(b - 1) - c(2, j) * uu(b)
-    r = dd(j) - r
-  end function slack_of
+  !> slack_j = d_j - b_j . uu for every row [m] (as all_slacks), and the rows violated
+  !> (slack_j < -thr) outside P (act) and not refused, in increasing order: viol(1:nv).
+  pure subroutine slacks_violated(m, ka, kb, c1, c2, dd, uu, thr, act, refused, slack, nv, viol)
+    integer, intent(in) :: m
+    integer, intent(in) :: ka(m), kb(m)
+    real(wp), intent(in) :: c1(m), c2(m), dd(m), uu(*), thr
+    logical, intent(in) :: act(m), refused(m)
+    real(wp), intent(inout) :: slack(m)
+    integer, intent(out) :: nv
+    integer, intent(inout) :: viol(*)
+    integer :: j
+    real(wp) :: r
+    nv = 0
+    do j = 1, m
+      r = c1(j) * uu(ka(j)) + c2(j) * uu(ka(j) + 1)
+      r = r - c1(j) * uu(kb(j)) - c2(j) * uu(kb(j) + 1)
+      r = dd(j) - r
+      slack(j) = r
+      if (r < -thr) then
+        if (.not. (act(j) .or. refused(j))) then
+          nv = nv + 1; viol(nv) = j
+        end if
+      end if
+    end do
+  end subroutine slacks_violated
+
+  !> The first row j with slack_j < -thr (as all_slacks), 0 if none.
+  pure integer function first_violated(m, ka, kb, c1, c2, dd, uu, thr) result(jv)
+    integer, intent(in) :: m
+    integer, intent(in) :: ka(m), kb(m)
+    real(wp), intent(in) :: c1(m), c2(m), dd(m), uu(*), thr
+    integer :: j
+    real(wp) :: r
+    jv = 0
+    do j = 1, m
+      r = c1(j) * uu(ka(j)) + c2(j) * uu(ka(j) + 1)
+      r = r - c1(j) * uu(kb(j)) - c2(j) * uu(kb(j) + 1)
+      if (dd(j) - r < -thr) then
+        jv = j; return
+      end if
+    end do
+  end function first_violated
 
   subroutine sparse_as_free(this)
     class(sparse_as_solver_t), intent(inout) :: this
