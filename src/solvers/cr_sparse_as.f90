@@ -118,8 +118,8 @@ module cr_sparse_as
     !> alist(1:nact), kept equal to the mask act
     real(wp), allocatable :: c1(:), c2(:)
     integer, allocatable :: ka(:), kb(:), alist(:)
-    !> right-hand side of the solves on P [m], zero between them
-    real(wp), allocatable :: bz(:)
+    !> right-hand side of the solves on P: B v - d on P (alist), zero elsewhere [m]
+    real(wp), allocatable :: bp(:)
     integer :: nact = 0
     !> coefficients of each agent's rows signed for that agent (+ as ia, - as ib) [2 m]
     real(wp), allocatable :: ae1(:), ae2(:)
@@ -475,8 +475,8 @@ contains
       call rgrow(this%uu, 2 * na + 2)
       call rgrow(this%c1, m); call rgrow(this%c2, m)
       call igrow(this%ka, m); call igrow(this%kb, m); call igrow(this%alist, m)
-      call rgrow(this%bz, m)
-      this%bz(1:m) = 0.0_wp
+      call rgrow(this%bp, m)
+      this%bp(1:m) = 0.0_wp
       this%nact = 0
       tolv = max(1.0e-3_wp * this%settings%tol, 256.0_wp * epsilon(1.0_wp))
       sv = tiny(1.0_wp) * 1.0e10_wp
@@ -515,10 +515,11 @@ contains
     !> M = B B^T (normalised rows): full CSC (fp, fi, fv), rows sorted in each column, the
     !> diagonal of column j at fd(j) (so its upper triangle is fp(j):fd(j)).
     subroutine assemble()
-      integer :: a, b, l, nz, p1, p2, e1, e2, r1, r2
+      integer :: a, b, l, nz, p1, p2, e1, r1, r2
       real(wp) :: x1, x2
+      ! each agent's rows (CSR astart, arows), each list closed by a sentinel row huge(1)
       call igrow(this%astart, na + 1)
-      this%astart(1:na + 1) = 0
+      this%astart(1:na + 1) = 1
       do j = 1, m
         this%astart(cs%ia(j) + 1) = this%astart(cs%ia(j) + 1) + 1
         if (cs%ib(j) > 0) this%astart(cs%ib(j) + 1) = this%astart(cs%ib(j) + 1) + 1
@@ -543,11 +544,14 @@ contains
           this%arows(p1) = j; this%ae1(p1) = -this%c1(j); this%ae2(p1) = -this%c2(j)
         end if
       end do
+      do a = 1, na
+        this%arows(this%astart(a + 1) - 1) = huge(1)
+      end do
       ! upper bound of the entries: sum over rows of the rows of their agents
       nz = 0
       do j = 1, m
-        nz = nz + this%astart(cs%ia(j) + 1) - this%astart(cs%ia(j))
-        if (cs%ib(j) > 0) nz = nz + this%astart(cs%ib(j) + 1) - this%astart(cs%ib(j))
+        nz = nz + this%astart(cs%ia(j) + 1) - this%astart(cs%ia(j)) - 1
+        if (cs%ib(j) > 0) nz = nz + this%astart(cs%ib(j) + 1) - this%astart(cs%ib(j)) - 1
       end do
       call igrow(this%fi, nz); call rgrow(this%fv, nz)
       call igrow(this%fd, m)
@@ -559,8 +563,9 @@ contains
         this%fp(j) = nz + 1
         a = cs%ia(j); b = cs%ib(j)
         x1 = this%c1(j); x2 = this%c2(j)
-        p1 = this%astart(a); e1 = this%astart(a + 1) - 1
+        p1 = this%astart(a)
         if (b == 0) then
+          e1 = this%astart(a + 1) - 2
           do p1 = p1, e1
             l = this%arows(p1)
             nz = nz + 1
@@ -568,25 +573,24 @@ contains
             if (l == j) this%fd(j) = nz
           end do
         else
-          p2 = this%astart(b); e2 = this%astart(b + 1) - 1
+          p2 = this%astart(b)
+          r1 = this%arows(p1); r2 = this%arows(p2)
           do
-            r1 = huge(1); r2 = huge(1)
-            if (p1 <= e1) r1 = this%arows(p1)
-            if (p2 <= e2) r2 = this%arows(p2)
             nz = nz + 1
             if (r1 < r2) then
               this%fi(nz) = r1; this%fv(nz) = x1 * this%ae1(p1) + x2 * this%ae2(p1)
-              p1 = p1 + 1
+              p1 = p1 + 1; r1 = this%arows(p1)
             else if (r2 < r1) then
               this%fi(nz) = r2; this%fv(nz) = -(x1 * this%ae1(p2) + x2 * this%ae2(p2))
-              p2 = p2 + 1
+              p2 = p2 + 1; r2 = this%arows(p2)
             else if (r1 == huge(1)) then
               nz = nz - 1; exit
             else
               this%fi(nz) = r1
               this%fv(nz) = (x1 * this%ae1(p1) + x2 * this%ae2(p1)) - (x1 * this%ae1(p2) + x2 * this%ae2(p2))
               if (r1 == j) this%fd(j) = nz
-              p1 = p1 + 1; p2 = p2 + 1
+              p1 = p1 + 1; r1 = this%arows(p1)
+              p2 = p2 + 1; r2 = this%arows(p2)
             end if
           end do
         end if
@@ -929,14 +933,11 @@ contains
           end do
           if (n_ref >= n_refine .or. r <= 1.0e-2_wp * thr .or. r >= 0.5_wp * r_ref) exit outer
           n_ref = n_ref + 1; r_ref = r
+          this%rhs(1:m) = 0.0_wp
           do q = 1, k
-            j = this%alist(q); this%bz(j) = this%slack(j)
+            j = this%alist(q); this%rhs(j) = this%slack(j)
           end do
-          call this%chol%solve(this%bz(1:m), this%z(1:m), error)
-          do q = 1, k
-            this%bz(this%alist(q)) = 0.0_wp
-          end do
-          if (allocated(error)) return
+          call this%chol%solve(this%rhs(1:m), this%z(1:m), error); if (allocated(error)) return
           ok = .true.
           do q = 1, k
             j = this%alist(q)
@@ -1299,24 +1300,30 @@ contains
       end do
     end subroutine lam_from_z
 
-    !> The list of P (alist, nact) from the mask act.
+    !> The list of P (alist, nact) and the right-hand side bp from the mask act.
     subroutine list_from_mask()
       integer :: jj
       this%nact = 0
       do jj = 1, m
         if (this%act(jj)) then
           this%nact = this%nact + 1; this%alist(this%nact) = jj
+          this%bp(jj) = this%cc(jj)
+        else
+          this%bp(jj) = 0.0_wp
         end if
       end do
     end subroutine list_from_mask
 
     !> Rows whose mask went off (removals, dependent rows) leave the list of P.
     subroutine list_prune()
-      integer :: q, n
+      integer :: q, n, jj
       n = 0
       do q = 1, this%nact
-        if (this%act(this%alist(q))) then
-          n = n + 1; this%alist(n) = this%alist(q)
+        jj = this%alist(q)
+        if (this%act(jj)) then
+          n = n + 1; this%alist(n) = jj
+        else
+          this%bp(jj) = 0.0_wp
         end if
       end do
       this%nact = n
@@ -1325,15 +1332,22 @@ contains
     !> Row tt entered P (mask on): into the list, in order.
     subroutine list_insert(tt)
       integer, intent(in) :: tt
-      integer :: q
-      q = this%nact
-      do while (q > 0)
-        if (this%alist(q) < tt) exit
-        this%alist(q + 1) = this%alist(q)
-        q = q - 1
+      integer :: lo, hi, mid, n
+      this%bp(tt) = this%cc(tt)
+      ! the first position whose row exceeds tt (binary search), then shift the tail
+      n = this%nact
+      lo = 1; hi = n + 1
+      do while (lo < hi)
+        mid = (lo + hi) / 2
+        if (this%alist(mid) < tt) then
+          lo = mid + 1
+        else
+          hi = mid
+        end if
       end do
-      this%alist(q + 1) = tt
-      this%nact = this%nact + 1
+      if (lo <= n) this%alist(lo + 1:n + 1) = this%alist(lo:n)
+      this%alist(lo) = tt
+      this%nact = n + 1
     end subroutine list_insert
 
     !> Row tt enters the factor unless dependent on P: pivot = 1 - w^T M_P^{-1} w (w = M(P, tt),
@@ -1397,14 +1411,7 @@ contains
 
     !> z = (B_P B_P^T)^{-1} (B v - d)_P (zero off P).
     subroutine solve_p()
-      integer :: q, jj
-      do q = 1, this%nact
-        jj = this%alist(q); this%bz(jj) = this%cc(jj)
-      end do
-      call this%chol%solve(this%bz(1:m), this%z(1:m), error)
-      do q = 1, this%nact
-        this%bz(this%alist(q)) = 0.0_wp
-      end do
+      call this%chol%solve(this%bp(1:m), this%z(1:m), error)
     end subroutine solve_p
 
     !> Refactorise P afresh. With check_drift, first measure the backward error of a solve with
