@@ -110,6 +110,9 @@ module cr_sparse_as
     !> projected search: M d, gradient, breakpoints [m], their order [m]
     real(wp), allocatable :: md(:), gd(:), tbk(:), tl(:)
     integer, allocatable :: ord(:)
+    !> projected search: md, gd, tl of row j are set in search number pstamp(j) [m]
+    integer, allocatable :: pstamp(:)
+    integer :: npsearch = 0
     !> rows: norms, rhs, B v - d, multipliers, slacks, minimiser [m]
     real(wp), allocatable :: rn(:), dd(:), cc(:), lam(:), slack(:), z(:), rhs(:), piv(:)
     !> rows by components (tight loops): normalised coefficients c1, c2 [m], positions ka, kb
@@ -467,7 +470,8 @@ contains
       call rgrow(this%rhs, m); call rgrow(this%piv, m); call rgrow(this%w, m)
       call rgrow(this%l0, m)
       call rgrow(this%md, m); call rgrow(this%gd, m); call rgrow(this%tbk, m); call rgrow(this%tl, m)
-      call igrow(this%ord, m)
+      call igrow(this%ord, m); call igrow(this%pstamp, m)
+      this%pstamp(1:m) = 0; this%npsearch = 0
       this%l0(1:m) = lambda(1:m)
       call lgrow(this%act, m); call lgrow(this%refused, m); call lgrow(this%newact, m)
       call lgrow(this%inw, m)
@@ -1037,7 +1041,7 @@ contains
           this%lam(pmin) = 0.0_wp
           call this%chol%rowdel(pmin, error); if (allocated(error)) return
           this%act(pmin) = .false.
-          call list_prune()
+          call list_delete(pmin)
           call add_row(t, pivot, 1.0e3_wp * epsilon(1.0_wp), precheck=.true.)
           if (allocated(error)) return
           if (this%act(t)) then
@@ -1153,7 +1157,7 @@ contains
     !> have_u: this%slack already holds the slacks at lambda.
     subroutine projected_step(have_u)
       logical, intent(in) :: have_u
-      integer :: jj, q, nb, kb, p1, p2, l, i, a, b
+      integer :: jj, q, nb, kb, p1, p2, l, i, a, b, ps
       real(wp) :: sl, qq, ta, tn, ts, dj, lmax, r
       ! d = z - lambda on P (in this%w); the gradient g = M lambda - c on P is the slack of the
       ! rows at u(lambda), and M d = M_P z - M_P lambda = -g on P (z solves M_P z = c_P)
@@ -1168,13 +1172,14 @@ contains
           this%slack(jj) = this%dd(jj) - r
         end do
       end if
+      ! gd = slack, md = -slack, tl = 0 on P, set when a row is first met in the walk (ps)
+      this%npsearch = this%npsearch + 1
+      ps = this%npsearch
       sl = 0.0_wp; nb = 0
       do q = 1, this%nact
         jj = this%alist(q)
         this%w(jj) = this%z(jj) - this%lam(jj)
-        r = this%slack(jj)
-        this%gd(jj) = r; this%md(jj) = -r; this%tl(jj) = 0.0_wp
-        sl = sl + r * this%w(jj)
+        sl = sl + this%slack(jj) * this%w(jj)
         if (this%z(jj) <= 0.0_wp) then
           nb = nb + 1; this%ord(nb) = jj
           if (this%lam(jj) > 0.0_wp) then
@@ -1214,6 +1219,10 @@ contains
         sl = sl + (tn - ta) * qq
         kb = kb + 1
         l = this%ord(kb)
+        if (this%pstamp(l) /= ps) then
+          this%gd(l) = this%slack(l); this%md(l) = -this%slack(l); this%tl(l) = 0.0_wp
+          this%pstamp(l) = ps
+        end if
         dj = this%w(l)
         sl = sl - dj * (this%gd(l) + (tn - this%tl(l)) * this%md(l))
         ! q' = (d - dj e_l)' M (d - dj e_l) = q - 2 dj (M d)_l + dj^2 M_ll, then M d -= dj M(:, l)
@@ -1222,6 +1231,10 @@ contains
           i = this%fi(q)
           if (i == l) qq = qq + dj * dj * this%fv(q)
           if (this%act(i)) then
+            if (this%pstamp(i) /= ps) then
+              this%gd(i) = this%slack(i); this%md(i) = -this%slack(i); this%tl(i) = 0.0_wp
+              this%pstamp(i) = ps
+            end if
             this%gd(i) = this%gd(i) + (tn - this%tl(i)) * this%md(i)
             this%tl(i) = tn
             this%md(i) = this%md(i) - dj * this%fv(q)
@@ -1263,11 +1276,10 @@ contains
         call this%chol%factor(this%act(1:m), error)
       else
         do q = 1, n
-          call this%chol%rowdel(this%viol(q), error); if (allocated(error)) exit
+          call this%chol%rowdel(this%viol(q), error); if (allocated(error)) return
           this%act(this%viol(q)) = .false.
+          call list_delete(this%viol(q))
         end do
-        call list_prune()
-        if (allocated(error)) return
       end if
       this%lam(this%viol(1:n)) = 0.0_wp
     end subroutine remove_rows
@@ -1328,6 +1340,27 @@ contains
       end do
       this%nact = n
     end subroutine list_prune
+
+    !> Row tt left P (mask off): out of the list.
+    subroutine list_delete(tt)
+      integer, intent(in) :: tt
+      integer :: lo, hi, mid, n
+      this%bp(tt) = 0.0_wp
+      n = this%nact
+      lo = 1; hi = n + 1
+      do while (lo < hi)
+        mid = (lo + hi) / 2
+        if (this%alist(mid) < tt) then
+          lo = mid + 1
+        else
+          hi = mid
+        end if
+      end do
+      if (lo > n) return
+      if (this%alist(lo) /= tt) return
+      this%alist(lo:n - 1) = this%alist(lo + 1:n)
+      this%nact = n - 1
+    end subroutine list_delete
 
     !> Row tt entered P (mask on): into the list, in order.
     subroutine list_insert(tt)
@@ -1468,7 +1501,6 @@ contains
     uu(1:n) = v
     do q = 1, nact
       j = alist(q)
-      if (lam(j) == 0.0_wp) cycle
       t1 = lam(j) * c1(j); t2 = lam(j) * c2(j)
       a = ka(j); b = kb(j)
       uu(a) = uu(a) - t1; uu(a + 1) = uu(a + 1) - t2
