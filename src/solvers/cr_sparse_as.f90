@@ -898,7 +898,7 @@ contains
         call velocities()
         call slacks_violated(m, this%ka, this%kb, this%c1, this%c2, this%dd, this%uu, thr, &
           this%act, this%refused, this%slack, nv, this%viol)
-        if (nv == 0) then
+        if (nv == 0 .and. any_ref) then
           ! rows refused as dependent but still violated: exchange them in
           do j = 1, m
             if (this%slack(j) < -thr) then
@@ -1499,6 +1499,7 @@ contains
     integer :: q, j, a, b
     real(wp) :: t1, t2
     uu(1:n) = v
+    uu(n + 1:n + 2) = 0.0_wp
     do q = 1, nact
       j = alist(q)
       t1 = lam(j) * c1(j); t2 = lam(j) * c2(j)
