@@ -984,16 +984,17 @@ contains
           end if
         end if
         if (nadd == 0 .and. .not. exch) then
+          ! the rows that entered join the list of P together after the loop (rem: scratch)
           do q = 1, nv
             t = this%viol(q)
             call add_row(t, pivot); if (allocated(error)) return
             if (this%act(t)) then
-              call list_insert(t)
-              nadd = nadd + 1
+              nadd = nadd + 1; this%rem(nadd) = t
             else
               this%refused(t) = .true.; any_ref = .true.
             end if
           end do
+          call list_merge(nadd, this%rem)
         end if
         if (nadd == 0 .and. .not. exch .and. nv < nv_all) then
           ! the most violated rows are dependent on P: from here on every violated row enters
@@ -1278,8 +1279,9 @@ contains
         do q = 1, n
           call this%chol%rowdel(this%viol(q), error); if (allocated(error)) return
           this%act(this%viol(q)) = .false.
-          call list_delete(this%viol(q))
+          if (n <= 4) call list_delete(this%viol(q))
         end do
+        if (n > 4) call list_prune()
       end if
       this%lam(this%viol(1:n)) = 0.0_wp
     end subroutine remove_rows
@@ -1340,6 +1342,36 @@ contains
       end do
       this%nact = n
     end subroutine list_prune
+
+    !> Rows rows(1:n) entered P (masks on): into the list, in order (a few one by one, more
+    !> by one merge from the back when rows is increasing).
+    subroutine list_merge(n, rows)
+      integer, intent(in) :: n, rows(:)
+      integer :: q, i, k
+      logical :: one_by_one
+      one_by_one = n <= 8
+      do q = 2, n
+        if (rows(q) <= rows(q - 1)) one_by_one = .true.
+      end do
+      if (one_by_one) then
+        do k = 1, n
+          call list_insert(rows(k))
+        end do
+        return
+      end if
+      i = this%nact; k = n
+      do q = this%nact + n, 1, -1
+        if (k == 0) exit
+        if (i > 0) then
+          if (this%alist(i) > rows(k)) then
+            this%alist(q) = this%alist(i); i = i - 1
+            cycle
+          end if
+        end if
+        this%alist(q) = rows(k); this%bp(rows(k)) = this%cc(rows(k)); k = k - 1
+      end do
+      this%nact = this%nact + n
+    end subroutine list_merge
 
     !> Row tt left P (mask off): out of the list.
     subroutine list_delete(tt)
