@@ -215,14 +215,18 @@ contains
         if (a /= b) this%parent(max(a, b)) = min(a, b)
       end if
     end do
+    ! every agent points at its cluster's root from here on (find(x) = parent(x))
+    do i = 1, na
+      this%parent(i) = find(i)
+    end do
     this%crows(1:na) = 0
     do j = 1, m
-      a = find(cs%ia(j))
+      a = this%parent(cs%ia(j))
       this%crows(a) = this%crows(a) + 1
     end do
     ns = 0
     do j = 1, m
-      if (this%crows(find(cs%ia(j))) <= this%settings%dense_rows) ns = ns + 1
+      if (this%crows(this%parent(cs%ia(j))) <= this%settings%dense_rows) ns = ns + 1
     end do
     if (ns == 0 .or. ns == m) then
       ! one kind only: no copies
@@ -237,7 +241,7 @@ contains
       this%u_small(2 * na), this%u_large(2 * na))
     ns = 0; nl = 0
     do j = 1, m
-      to_dense = this%crows(find(cs%ia(j))) <= this%settings%dense_rows
+      to_dense = this%crows(this%parent(cs%ia(j))) <= this%settings%dense_rows
       if (to_dense) then
         call this%cs_small%add(cs%ia(j), cs%ib(j), cs%ob(j), cs%g(:, j), cs%gap(j))
         ns = ns + 1; this%map_small(ns) = j; this%l_small(ns) = lambda(j)
@@ -267,7 +271,7 @@ contains
     ! the two sets of clusters share no agent: each solver leaves the other's agents at v
     u = this%u_large
     do i = 1, na
-      if (this%crows(find(i)) > 0 .and. this%crows(find(i)) <= this%settings%dense_rows) &
+      if (this%crows(this%parent(i)) > 0 .and. this%crows(this%parent(i)) <= this%settings%dense_rows) &
         u(2*i - 1:2*i) = this%u_small(2*i - 1:2*i)
     end do
     lambda(this%map_small) = this%l_small
@@ -885,7 +889,7 @@ contains
         end if
       end do sweeps
       ! back to the invariant of the monotone loop: lambda = z > 0 on P
-      call list_from_mask()
+      if (m >= this%pdas_rows .and. this%pdas_max > 0) call list_from_mask()
       call drop_nonpositive(); if (allocated(error)) return
 
       ! ---- main loop (block Lawson-Hanson)
