@@ -16,39 +16,55 @@
 !>
 !> Usage: mpirun -np P crowd_snapbench [FILE] [mb] [block] ; prints one JSON line (rank 0).
 program crowd_snapbench
-  use mpi_f08, only: MPI_Init, MPI_Finalize, MPI_COMM_WORLD
   use cr_kinds, only: wp, i8
   use cr_env, only: env_t, shared_counter_t
+  use cr_logger, only: logger_t
+  use cr_cli, only: cli_t
+  use cr_program, only: program_start, program_finish
   use cr_fsys, only: block_file_t
-  use cr_error, only: error_t
+  use cr_error, only: error_t, set_error
   use cr_strings, only: str
   use cr_random, only: rng_t
   implicit none
   type(env_t) :: env
+  type(logger_t) :: log
+  type(cli_t) :: cli
   type(error_t), allocatable :: error
   type(shared_counter_t) :: counter
   type(block_file_t) :: pf
   type(rng_t) :: rng
   character(len=256) :: arg
   character(len=:), allocatable :: path
-  integer :: ierr, k, reps, u, nblk, ios, j
+  integer :: k, reps, u, nblk, ios, j, code
+  logical :: existed, created
   integer, parameter :: reps_h = 10
   integer(i8) :: t, bytes, block
   real(wp) :: t0, t_counter, t_coll, spent, work, x, y, t_write, wmax, mb, t_win(2)
   real(wp), allocatable :: buf(:), r(:)
 
-  call MPI_Init(ierr)
-  call env%init(MPI_COMM_WORLD, error)
+  ! MPI, the environment and the logger as in every driver; the arguments are its own
+  call program_start("crowd_snapbench", env, log, cli, error, own_arguments=.true.)
   path = "snapbench.tmp"; mb = 20; block = 65536
   if (command_argument_count() >= 1) then
     call get_command_argument(1, arg); path = trim(arg)
   end if
-  if (command_argument_count() >= 2) then
-    call get_command_argument(2, arg); read(arg, *) mb
+  if (command_argument_count() >= 2 .and. .not. allocated(error)) then
+    call get_command_argument(2, arg); read(arg, *, iostat=ios) mb
+    if (ios /= 0 .or. .not. (mb > 0)) call set_error(error, "crowd_snapbench: argument 2 (mb) must be a " // &
+      "positive number of megabytes, got '" // trim(arg) // "'", 2)
   end if
-  if (command_argument_count() >= 3) then
-    call get_command_argument(3, arg); read(arg, *) block
+  if (command_argument_count() >= 3 .and. .not. allocated(error)) then
+    call get_command_argument(3, arg); read(arg, *, iostat=ios) block
+    if (ios /= 0 .or. block < 8 .or. mod(block, 8_i8) /= 0) call set_error(error, "crowd_snapbench: " // &
+      "argument 3 (block) must be a positive multiple of 8 bytes, got '" // trim(arg) // "'", 2)
   end if
+  ! the scratch file is created and deleted here: an existing file is never overwritten
+  if (.not. allocated(error)) then
+    inquire(file=path, exist=existed)
+    if (existed) call set_error(error, "crowd_snapbench: scratch file '" // path // &
+      "' exists already (refusing to overwrite it; give another path as argument 1)", 2)
+  end if
+  created = .false.
   ! shared counter: 50 tickets per rank, each after 0.5..1.5 x `work` s of computation (as in
   ! the sample loop: rank 0, which holds the counters, is computing too)
   reps = 30; work = 2.0e-3_wp; spent = 0
@@ -91,9 +107,15 @@ program crowd_snapbench
     nblk = int(max(bytes / block, 1_i8))
     allocate(buf(block / 8)); buf = real(env%rank, wp)
     if (env%is_root()) then
-      open(newunit=u, file=path, status='replace', action='write'); close(u)
+      open(newunit=u, file=path, status='new', action='write', iostat=ios)
+      if (ios == 0) then
+        close(u); created = .true.
+      else
+        call set_error(error, "crowd_snapbench: cannot create scratch file '" // path // "'", 3)
+      end if
     end if
-    call env%sync(error)
+    call env%agree_error(error)
+    if (.not. allocated(error)) call env%sync(error)
     if (.not. allocated(error)) call pf%open(path, error)
     t0 = env%wtime()
     do k = 1, nblk
@@ -135,12 +157,10 @@ program crowd_snapbench
     if (.not. allocated(error)) call env%allreduce(t_win, 'sum', error)
     t_win = t_win / env%size
   end if
-  if (env%is_root()) then
+  if (env%is_root() .and. created) then
     open(newunit=u, file=path, status='old', iostat=ios); if (ios == 0) close(u, status='delete')
   end if
-  if (allocated(error)) then
-    if (env%is_root()) print '(a)', "error: crowd_snapbench: " // error%message
-  else if (env%is_root()) then
+  if (.not. allocated(error) .and. env%is_root()) then
     print '(a)', '{"ranks": ' // str(env%size) // ', "counter_latency": ' // str(t_counter) // &
       ', "collective_cost": ' // str(t_coll) // ', "write_block_bytes": ' // str(block) // &
       ', "write_bytes_per_rank": ' // str(real(nblk, wp) * block) // &
@@ -148,6 +168,6 @@ program crowd_snapbench
       ', "write_bandwidth_aggregate": ' // str(real(nblk, wp) * block * env%size / max(wmax, 1.0e-9_wp)) // &
       ', "window_create_cost": ' // str(t_win(1)) // ', "window_free_cost": ' // str(t_win(2)) // '}'
   end if
-  call env%free()
-  call MPI_Finalize(ierr)
+  code = program_finish(env, log, error)
+  if (code /= 0) stop code, quiet=.true.
 end program crowd_snapbench

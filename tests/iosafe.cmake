@@ -75,3 +75,10 @@ add_test(NAME offline_mismatch
   COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/offline_mismatch.sh $<TARGET_FILE_DIR:crowd_fom>
     ${CMAKE_CURRENT_SOURCE_DIR}/inputs/snap_tiny.nml)
 set_tests_properties(offline_mismatch PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}")
+# crowd_snapbench (through cr_program): bad sizes, and a scratch path that exists is never overwritten
+cr_refused(snapbench_args_mb "argument 2 \\(mb\\) must be a positive number of megabytes, got 'abc'"
+  $<TARGET_FILE:crowd_snapbench> scratch.tmp abc)
+cr_refused(snapbench_args_block "argument 3 \\(block\\) must be a positive multiple of 8 bytes, got '12'"
+  $<TARGET_FILE:crowd_snapbench> scratch.tmp 1 12)
+cr_refused(snapbench_existing_scratch "scratch file '.*CMakeLists.txt' exists already"
+  $<TARGET_FILE:crowd_snapbench> ${CMAKE_CURRENT_SOURCE_DIR}/CMakeLists.txt 1)
