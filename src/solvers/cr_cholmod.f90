@@ -274,7 +274,7 @@ contains
   end subroutine chol_set_rows
 
   !> New values of M on the stored analysis (same dimension; upper triangle, compressed
-  !> columns, 1-based, rows sorted within each column). Its pattern must lie inside the
+  !> columns, 1-based, rows in any order within a column). Its pattern must lie inside the
   !> analysed one (the caller's invariant: the same slots keep the same neighbours); the
   !> current factor is discarded.
   subroutine chol_set_values(this, colptr, rowind, val, error)

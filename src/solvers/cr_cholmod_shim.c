@@ -37,6 +37,9 @@ typedef struct {
   int nrow;               /* the caller's rows (cr_chol_set_rows; n after an analysis) */
   int *rowof;             /* caller's row at each factor position, -1 for none [n] */
   int *noslot, nnoslot;   /* the caller's rows without a slot [nrow] */
+  int *rs, *tk;           /* row starts [n + 1] and columns [nnz(M) + n] of the active
+                           * matrix by rows, while cr_chol_factor builds it */
+  double *tx;             /* its values [nnz(M) + n] */
   int *apos, napos;       /* active factor positions, ascending [n] (the solve visits only
                            * these; the others are identity rows and, in the work vector
                            * xw, stay zero) */
@@ -68,6 +71,9 @@ static void release(cr_chol_t *h) {
   free(h->stk); h->stk = NULL;
   free(h->rowof); h->rowof = NULL;
   free(h->apos); h->apos = NULL; h->napos = 0;
+  free(h->rs); h->rs = NULL;
+  free(h->tk); h->tk = NULL;
+  free(h->tx); h->tx = NULL;
   free(h->noslot); h->noslot = NULL;
   h->nnoslot = 0; h->nrow = 0;
   h->n = 0;
@@ -184,45 +190,61 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
   h->rowof = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
   h->apos = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
   h->napos = 0;
-  if (!h->xw || !h->rowof || !h->apos) { snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5; }
+  h->rs = malloc((size_t)(n + 1) * sizeof(int));
+  h->tk = malloc((size_t)(nz + n + 1) * sizeof(int));
+  h->tx = malloc((size_t)(nz + n + 1) * sizeof(double));
+  if (!h->xw || !h->rowof || !h->apos || !h->rs || !h->tk || !h->tx) {
+    snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5;
+  }
   for (j = 0; j < n; j++) h->rowof[j] = p[j];
   h->nrow = n; h->nnoslot = 0;
   return permuted_etree(h);
 }
 
-/* New values of M [n, n] on the stored analysis (upper triangle, compressed columns, 0-based,
- * rows sorted within each column): the caller guarantees that the pattern lies inside the
- * analysed one (it reuses an analysis for rows whose neighbours in M cannot change), since
- * the row deletions rely on it (row subtrees of the analysed pattern). Each entry is looked
- * up in the analysed pattern (P M P', short columns); one outside it is an error, never a
- * wrong factor. The current numeric factor is discarded. */
+/* New values of M [n, n] on the stored analysis (upper triangle, compressed columns, 0-based;
+ * the rows within a column in any order: only cr_chol_factor reads them, and it orders them):
+ * the caller guarantees that the pattern lies inside the analysed one (it reuses an analysis
+ * for rows whose neighbours in M cannot change), since the row deletions rely on it (row
+ * subtrees of the analysed pattern). Each entry is looked up in the analysed pattern (a stamp
+ * per row of the column); one outside it is an error, never a wrong factor. The current
+ * numeric factor is discarded. */
 int cr_chol_set_values(void *hp, int n, const int *colptr, const int *rowind, const double *val) {
   cr_chol_t *h = (cr_chol_t *)hp;
-  int nz = colptr[n], j, q, p, *pp, *pi;
+  int nz = colptr[n], j, q, p, *pp, *pi, *st;
   if (!h->sym || !h->m0 || n != h->n) {
     snprintf(h->msg, sizeof h->msg, "cr_chol_set_values: dimension %d, analysed %d", n, h->n);
     return 29;
   }
-  /* the analysed M (h->m0, kept from the analysis) column by column: mark its rows, test */
   pp = (int *)h->m0->p; pi = (int *)h->m0->i;
+  /* the analysed M (h->m0, kept from the analysis) column by column: stamp its rows with the
+   * column, test */
+  st = h->rs;
+  for (j = 0; j < n; j++) st[j] = -1;
   for (j = 0; j < n; j++) {
-    for (p = pp[j]; p < pp[j + 1]; p++) h->mk[pi[p]] = 1;
+    for (p = pp[j]; p < pp[j + 1]; p++) st[pi[p]] = j;
     for (q = colptr[j]; q < colptr[j + 1]; q++)
-      if (!h->mk[rowind[q]]) break;
-    for (p = pp[j]; p < pp[j + 1]; p++) h->mk[pi[p]] = 0;
+      if (rowind[q] < 0 || rowind[q] >= n || st[rowind[q]] != j) break;
     if (q < colptr[j + 1]) {
       snprintf(h->msg, sizeof h->msg, "cr_chol_set_values: entry (%d, %d) outside the analysed pattern",
                rowind[q] + 1, j + 1);
       return 30;
     }
   }
+  if (nz > pp[n]) {
+    snprintf(h->msg, sizeof h->msg, "cr_chol_set_values: %d entries, more than the %d of the analysed pattern "
+             "(repeated entries)", nz, pp[n]);
+    return 30;
+  }
   if (h->l) cholmod_free_factor(&h->l, &h->c);
-  if (h->m != h->m0) cholmod_free_sparse(&h->m, &h->c);
-  h->m = cholmod_allocate_sparse(n, n, nz > 0 ? nz : 1, 1, 1, 1, CHOLMOD_REAL, &h->c);
-  if (!h->m) return fail(h, 31, "allocate_sparse (M values)");
+  if (h->m == h->m0) {
+    /* the values' own matrix, as large as the analysed one (the pattern lies inside it) */
+    h->m = cholmod_allocate_sparse(n, n, pp[n] > 0 ? pp[n] : 1, 0, 1, 1, CHOLMOD_REAL, &h->c);
+    if (!h->m) { h->m = h->m0; return fail(h, 31, "allocate_sparse (M values)"); }
+  }
   memcpy(h->m->p, colptr, (size_t)(n + 1) * sizeof(int));
   memcpy(h->m->i, rowind, (size_t)nz * sizeof(int));
   memcpy(h->m->x, val, (size_t)nz * sizeof(double));
+  h->m->sorted = 0;
   memset(h->active, 0, (size_t)n * sizeof(int));
   h->napos = 0;
   return 0;
@@ -267,13 +289,15 @@ int cr_chol_perm(void *hp, int *perm) {
 }
 
 /* Factorise A = M on the rows with active[i] != 0, identity elsewhere (numeric refactorisation
- * on the stored analysis; the previous factor is discarded). */
+ * on the stored analysis; the previous factor is discarded). A is built directly in factor
+ * order (upper triangle of P A P', the form cholmod_rowfac works on), so that CHOLMOD does not
+ * permute and transpose it twice as cholmod_factorize would; the arithmetic is the same. */
 int cr_chol_factor(void *hp, const int *active) {
   cr_chol_t *h = (cr_chol_t *)hp;
-  int n = h->n, j, k, q, nz = 0;
-  int *mp = (int *)h->m->p, *mi = (int *)h->m->i;
-  double *mx = (double *)h->m->x;
-  cholmod_sparse *a;
+  int n = h->n, j, k, q, a, b, i, *pa, *ia;
+  int *mp = (int *)h->m->p, *mi = (int *)h->m->i, *ip = h->iperm, *cnt;
+  double *mx = (double *)h->m->x, *xa, beta[2] = {0.0, 0.0};
+  cholmod_sparse *A;
   if (!h->sym) { snprintf(h->msg, sizeof h->msg, "cr_chol_factor before cr_chol_analyze"); return 7; }
   for (j = 0; j < n; j++)
     if (active[j] && !h->inset[j]) {
@@ -281,29 +305,55 @@ int cr_chol_factor(void *hp, const int *active) {
       return 26;
     }
   memcpy(h->active, active, (size_t)n * sizeof(int));
-  a = cholmod_allocate_sparse(n, n, mp[n] + n + 1, 1, 1, 1, CHOLMOD_REAL, &h->c);
-  if (!a) return fail(h, 8, "allocate_sparse (active matrix)");
-  {
-    int *ap = (int *)a->p, *ai = (int *)a->i;
-    double *ax = (double *)a->x;
-    for (j = 0; j < n; j++) {
-      ap[j] = nz;
-      if (!active[j]) { ai[nz] = j; ax[nz] = 1.0; nz++; continue; }
-      for (q = mp[j]; q < mp[j + 1]; q++) {
-        k = mi[q];
-        if (k <= j && active[k]) { ai[nz] = k; ax[nz] = mx[q]; nz++; }
-      }
+  A = cholmod_allocate_sparse(n, n, mp[n] + n + 1, 0, 1, 1, CHOLMOD_REAL, &h->c);
+  if (!A) return fail(h, 8, "allocate_sparse (active matrix)");
+  pa = (int *)A->p; ia = (int *)A->i; xa = (double *)A->x;
+  /* the entries (a, k), a <= k factor positions, bucketed by a (tk, tx), then moved to
+   * column k in increasing a: sorted columns, as the transposes of cholmod_factorize give */
+  cnt = h->stk;   /* work [n]; the Schur test's stack is free between calls */
+  for (k = 0; k <= n; k++) h->rs[k] = 0;
+  for (j = 0; j < n; j++) {
+    if (!active[j]) { h->rs[ip[j] + 1]++; continue; }
+    for (q = mp[j]; q < mp[j + 1]; q++) {
+      i = mi[q];
+      if (i > j || !active[i]) continue;
+      a = ip[i]; b = ip[j];
+      h->rs[(a < b ? a : b) + 1]++;
     }
-    ap[n] = nz;
   }
+  for (k = 0; k < n; k++) { h->rs[k + 1] += h->rs[k]; cnt[k] = h->rs[k]; }
+  for (j = 0; j < n; j++) {
+    if (!active[j]) { k = ip[j]; h->tk[cnt[k]] = k; h->tx[cnt[k]] = 1.0; cnt[k]++; continue; }
+    for (q = mp[j]; q < mp[j + 1]; q++) {
+      i = mi[q];
+      if (i > j || !active[i]) continue;
+      a = ip[i]; b = ip[j];
+      if (a > b) { k = a; a = b; } else k = b;
+      h->tk[cnt[a]] = k; h->tx[cnt[a]] = mx[q]; cnt[a]++;
+    }
+  }
+  /* column counts, starts, then the entries in increasing row a */
+  for (k = 0; k < n; k++) cnt[k] = 0;
+  for (q = 0; q < h->rs[n]; q++) cnt[h->tk[q]]++;
+  pa[0] = 0;
+  for (k = 0; k < n; k++) { pa[k + 1] = pa[k] + cnt[k]; cnt[k] = pa[k]; }
+  for (a = 0; a < n; a++)
+    for (q = h->rs[a]; q < h->rs[a + 1]; q++) {
+      k = h->tk[q];
+      ia[cnt[k]] = a; xa[cnt[k]] = h->tx[q]; cnt[k]++;
+    }
+  for (k = 0; k < n; k++) cnt[k] = 0;
+  A->sorted = 1;
   if (h->l) cholmod_free_factor(&h->l, &h->c);
   h->l = cholmod_copy_factor(h->sym, &h->c);
-  if (!h->l) { cholmod_free_sparse(&a, &h->c); return fail(h, 9, "copy_factor"); }
-  k = cholmod_factorize(a, h->l, &h->c);
-  cholmod_free_sparse(&a, &h->c);
+  if (!h->l) { cholmod_free_sparse(&A, &h->c); return fail(h, 9, "copy_factor"); }
+  k = cholmod_rowfac(A, NULL, beta, 0, (size_t)n, h->l, &h->c);
+  cholmod_free_sparse(&A, &h->c);
   /* CHOLMOD_NOT_POSDEF / DSMALL are warnings: the caller inspects the pivots (cr_chol_pivots) */
-  if (!k || h->c.status < CHOLMOD_OK) return fail(h, 10, "factorize");
-  if (h->l->is_super || h->l->is_ll) { snprintf(h->msg, sizeof h->msg, "CHOLMOD returned a supernodal or LL' factor"); return 11; }
+  if (!k || h->c.status < CHOLMOD_OK) return fail(h, 10, "rowfac");
+  if (h->l->is_super || h->l->is_ll || h->l->xtype != CHOLMOD_REAL) {
+    snprintf(h->msg, sizeof h->msg, "CHOLMOD returned a supernodal, LL' or non-real factor"); return 11;
+  }
   {
     int *pp = (int *)h->l->Perm;
     h->napos = 0;
