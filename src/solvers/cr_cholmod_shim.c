@@ -540,19 +540,32 @@ int cr_chol_solve(void *hp, const double *b, double *x) {
    * are zeros and meet the zeros kept in y at inactive positions) */
   for (i = 0; i < na; i++) { j = ap[i]; y[j] = b[rowof[j]]; }
   for (i = 0; i < na; i++) {            /* L y = P b */
+    const int *ip, *ie;
+    const double *xp;
     j = ap[i];
     yj = y[j];
     if (yj == 0.0) continue;
-    for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) y[li[p]] -= lx[p] * yj;
+    ip = li + lp[j] + 1; ie = li + lp[j] + lnz[j]; xp = lx + lp[j] + 1;
+    for (; ip + 1 < ie; ip += 2, xp += 2) {
+      y[ip[0]] -= xp[0] * yj;
+      y[ip[1]] -= xp[1] * yj;
+    }
+    if (ip < ie) y[ip[0]] -= xp[0] * yj;
   }
-  for (i = 0; i < na; i++) { j = ap[i]; y[j] /= lx[lp[j]]; }  /* D */
-  for (i = na - 1; i >= 0; i--) {       /* L' x = y */
+  for (i = na - 1; i >= 0; i--) {       /* L' x = D^{-1} y, the result scattered to x */
+    const int *ip, *ie;
+    const double *xp;
     j = ap[i];
-    yj = y[j];
-    for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) yj -= lx[p] * y[li[p]];
+    yj = y[j] / lx[lp[j]];
+    ip = li + lp[j] + 1; ie = li + lp[j] + lnz[j]; xp = lx + lp[j] + 1;
+    for (; ip + 1 < ie; ip += 2, xp += 2) {
+      yj -= xp[0] * y[ip[0]];
+      yj -= xp[1] * y[ip[1]];
+    }
+    if (ip < ie) yj -= xp[0] * y[ip[0]];
     y[j] = yj;
+    x[rowof[j]] = yj;
   }
-  for (i = 0; i < na; i++) { j = ap[i]; x[rowof[j]] = y[j]; }
   return 0;
 }
 
