@@ -437,12 +437,19 @@ int cr_chol_schur(void *hp, int t, int nz, const int *idx, const double *val, in
       y[p] += val[q];
       if (p < jmin) jmin = p;
     }
-    for (j = jmin; j < h->n; j++) {
-      yj = y[j];
-      if (yj == 0.0) continue;
-      y[j] = 0.0;
-      acc += yj * yj / lx[lp[j]];
-      for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) y[li[p]] -= lx[p] * yj;
+    /* the active positions from jmin on (the columns there reach no inactive position but
+     * by the zeros a row deletion leaves, as in cr_chol_solve) */
+    {
+      int lo = 0, hi = h->napos, i;
+      while (lo < hi) { int mid = (lo + hi) / 2; if (h->apos[mid] < jmin) lo = mid + 1; else hi = mid; }
+      for (i = lo; i < h->napos; i++) {
+        j = h->apos[i];
+        yj = y[j];
+        if (yj == 0.0) continue;
+        y[j] = 0.0;
+        acc += yj * yj / lx[lp[j]];
+        for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) y[li[p]] -= lx[p] * yj;
+      }
     }
     *s = acc;
     return 0;
