@@ -19,8 +19,12 @@ typedef struct {
   cholmod_common c;
   int started;
   int n;
-  cholmod_sparse *m;      /* full matrix M, upper, stype = 1 */
-  cholmod_sparse *m0;     /* M as analysed (its pattern bounds later values) */
+  cholmod_sparse *m;      /* M as analysed, upper, stype = 1 (its pattern bounds later values) */
+  double *v;              /* current values of M on the analysed pattern (m's layout; zero
+                           * where cr_chol_set_values gave no entry) [nnz(m)] */
+  int *sp, *si, *ss;      /* upper triangle of P M P' by columns, rows increasing: column
+                           * starts [n + 1], rows (factor positions) and the entry of m each
+                           * comes from [nnz(m)] */
   cholmod_factor *sym;    /* symbolic analysis of M */
   cholmod_factor *l;      /* numeric LDL' factor of the active matrix */
   cholmod_sparse *r;      /* rowadd column [n, 1] */
@@ -37,9 +41,7 @@ typedef struct {
   int nrow;               /* the caller's rows (cr_chol_set_rows; n after an analysis) */
   int *rowof;             /* caller's row at each factor position, -1 for none [n] */
   int *noslot, nnoslot;   /* the caller's rows without a slot [nrow] */
-  int *rs, *tk;           /* row starts [n + 1] and columns [nnz(M) + n] of the active
-                           * matrix by rows, while cr_chol_factor builds it */
-  double *tx;             /* its values [nnz(M) + n] */
+  int *rs;                /* work [n + 1] */
   int *apos, napos;       /* active factor positions, ascending [n] (the solve visits only
                            * these; the others are identity rows and, in the work vector
                            * xw, stay zero) */
@@ -53,9 +55,11 @@ static int fail(cr_chol_t *h, int code, const char *what) {
 
 static void release(cr_chol_t *h) {
   if (!h->started) return;
-  if (h->m && h->m != h->m0) cholmod_free_sparse(&h->m, &h->c);
-  h->m = NULL;
-  if (h->m0) cholmod_free_sparse(&h->m0, &h->c);
+  if (h->m) cholmod_free_sparse(&h->m, &h->c);
+  free(h->v); h->v = NULL;
+  free(h->sp); h->sp = NULL;
+  free(h->si); h->si = NULL;
+  free(h->ss); h->ss = NULL;
   if (h->sym) cholmod_free_factor(&h->sym, &h->c);
   if (h->l) cholmod_free_factor(&h->l, &h->c);
   if (h->r) cholmod_free_sparse(&h->r, &h->c);
@@ -72,8 +76,6 @@ static void release(cr_chol_t *h) {
   free(h->rowof); h->rowof = NULL;
   free(h->apos); h->apos = NULL; h->napos = 0;
   free(h->rs); h->rs = NULL;
-  free(h->tk); h->tk = NULL;
-  free(h->tx); h->tx = NULL;
   free(h->noslot); h->noslot = NULL;
   h->nnoslot = 0; h->nrow = 0;
   h->n = 0;
@@ -116,37 +118,74 @@ void cr_chol_message(void *hp, char *buf, int len) {
  * the same ordering, so its pattern, even after row additions and deletions, lies inside the
  * symbolic factor of P M P': the row subtree of row k of that tree (cholmod_row_subtree) is an
  * upper bound of the pattern of row k of L, which lets cholmod_rowdel skip its O(nnz(L)) scan. */
+static int sorted_upper(cr_chol_t *h);
+
 static int permuted_etree(cr_chol_t *h) {
-  int n = h->n, j, q, a, b, *mp = (int *)h->m->p, *mi = (int *)h->m->i, *cp, *ci, *cnt;
+  int n = h->n, rc, *mp = (int *)h->m->p;
   h->pm = cholmod_allocate_sparse(n, n, mp[n] > 0 ? mp[n] : 1, 1, 1, 1, CHOLMOD_PATTERN, &h->c);
   h->parent = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
   h->mk = calloc((size_t)(n > 0 ? n : 1), sizeof(int));
   h->stk = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
   h->rpat = cholmod_allocate_sparse(n, 1, n > 0 ? n : 1, 0, 1, 0, CHOLMOD_PATTERN, &h->c);
-  cnt = calloc((size_t)n + 1, sizeof(int));
-  if (!h->pm || !h->parent || !h->rpat || !cnt || !h->mk || !h->stk) {
-    free(cnt);
+  if (!h->pm || !h->parent || !h->rpat || !h->mk || !h->stk) {
     snprintf(h->msg, sizeof h->msg, "out of memory (elimination tree, n = %d)", n);
     return 23;
   }
-  cp = (int *)h->pm->p; ci = (int *)h->pm->i;
-  /* counting sort of the entries (i <= j of M) into column max(pi, pj) of P M P' */
-  for (j = 0; j < n; j++)
-    for (q = mp[j]; q < mp[j + 1]; q++) {
-      a = h->iperm[mi[q]]; b = h->iperm[j];
-      cnt[a > b ? a : b]++;
-    }
-  cp[0] = 0;
-  for (j = 0; j < n; j++) { cp[j + 1] = cp[j] + cnt[j]; cnt[j] = cp[j]; }
-  for (j = 0; j < n; j++)
-    for (q = mp[j]; q < mp[j + 1]; q++) {
-      a = h->iperm[mi[q]]; b = h->iperm[j];
-      if (a > b) ci[cnt[a]++] = b; else ci[cnt[b]++] = a;
-    }
-  free(cnt);
-  h->pm->sorted = 0;
+  /* the pattern of P M P' is that of the sorted upper triangle */
+  rc = sorted_upper(h);
+  if (rc != 0) return rc;
+  memcpy(h->pm->p, h->sp, (size_t)(n + 1) * sizeof(int));
+  memcpy(h->pm->i, h->si, (size_t)h->sp[n] * sizeof(int));
+  h->pm->sorted = 1;
   if (!cholmod_etree(h->pm, h->parent, &h->c) || h->c.status < CHOLMOD_OK)
     return fail(h, 24, "etree");
+  return 0;
+}
+
+/* The upper triangle of P M P' by columns with the rows of each column increasing (sp, si)
+ * and the entry of M each comes from (ss): the entries (a, k), a <= k factor positions, are
+ * bucketed by a, then moved to column k in increasing a (entries below the diagonal of M are
+ * ignored, as CHOLMOD does for a symmetric-upper matrix). cr_chol_factor gathers the active
+ * matrix from it in one pass, in the form cholmod_rowfac takes. */
+static int sorted_upper(cr_chol_t *h) {
+  int n = h->n, j, q, a, b, k, e, *mp = (int *)h->m->p, *mi = (int *)h->m->i, *ip = h->iperm;
+  int *rs = h->rs, *cnt = h->stk, *tk, *tq;
+  for (k = 0; k <= n; k++) rs[k] = 0;
+  for (j = 0; j < n; j++)
+    for (q = mp[j]; q < mp[j + 1]; q++) {
+      if (mi[q] > j) continue;
+      a = ip[mi[q]]; b = ip[j];
+      rs[(a < b ? a : b) + 1]++;
+    }
+  for (k = 0; k < n; k++) { rs[k + 1] += rs[k]; cnt[k] = rs[k]; }
+  e = rs[n];
+  tk = malloc((size_t)(e > 0 ? e : 1) * sizeof(int));
+  tq = malloc((size_t)(e > 0 ? e : 1) * sizeof(int));
+  if (!tk || !tq) {
+    free(tk); free(tq);
+    snprintf(h->msg, sizeof h->msg, "out of memory (sorted upper triangle, n = %d)", n);
+    return 5;
+  }
+  /* by rows: the column of each entry (tk) and the entry of M (tq) */
+  for (j = 0; j < n; j++)
+    for (q = mp[j]; q < mp[j + 1]; q++) {
+      if (mi[q] > j) continue;
+      a = ip[mi[q]]; b = ip[j];
+      if (a > b) { k = a; a = b; } else k = b;
+      tk[cnt[a]] = k; tq[cnt[a]] = q; cnt[a]++;
+    }
+  /* by columns, rows increasing */
+  for (k = 0; k < n; k++) cnt[k] = 0;
+  for (q = 0; q < e; q++) cnt[tk[q]]++;
+  h->sp[0] = 0;
+  for (k = 0; k < n; k++) { h->sp[k + 1] = h->sp[k] + cnt[k]; cnt[k] = h->sp[k]; }
+  for (a = 0; a < n; a++)
+    for (q = rs[a]; q < rs[a + 1]; q++) {
+      k = tk[q];
+      h->si[cnt[k]] = a; h->ss[cnt[k]] = tq[q]; cnt[k]++;
+    }
+  for (k = 0; k < n; k++) cnt[k] = 0;
+  free(tk); free(tq);
   return 0;
 }
 
@@ -166,7 +205,6 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
   memcpy(h->m->p, colptr, (size_t)(n + 1) * sizeof(int));
   memcpy(h->m->i, rowind, (size_t)nz * sizeof(int));
   memcpy(h->m->x, val, (size_t)nz * sizeof(double));
-  h->m0 = h->m;
   if (perm) {
     h->c.nmethods = 1; h->c.method[0].ordering = CHOLMOD_GIVEN; h->c.postorder = 0;
     h->sym = cholmod_analyze_p(h->m, (int *)perm, NULL, 0, &h->c);
@@ -191,11 +229,14 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
   h->apos = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
   h->napos = 0;
   h->rs = malloc((size_t)(n + 1) * sizeof(int));
-  h->tk = malloc((size_t)(nz + n + 1) * sizeof(int));
-  h->tx = malloc((size_t)(nz + n + 1) * sizeof(double));
-  if (!h->xw || !h->rowof || !h->apos || !h->rs || !h->tk || !h->tx) {
+  h->v = malloc((size_t)(nz > 0 ? nz : 1) * sizeof(double));
+  h->sp = malloc((size_t)(n + 1) * sizeof(int));
+  h->si = malloc((size_t)(nz > 0 ? nz : 1) * sizeof(int));
+  h->ss = malloc((size_t)(nz > 0 ? nz : 1) * sizeof(int));
+  if (!h->xw || !h->rowof || !h->apos || !h->rs || !h->v || !h->sp || !h->si || !h->ss) {
     snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5;
   }
+  memcpy(h->v, val, (size_t)nz * sizeof(double));
   for (j = 0; j < n; j++) h->rowof[j] = p[j];
   h->nrow = n; h->nnoslot = 0;
   return permuted_etree(h);
@@ -210,20 +251,25 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
  * numeric factor is discarded. */
 int cr_chol_set_values(void *hp, int n, const int *colptr, const int *rowind, const double *val) {
   cr_chol_t *h = (cr_chol_t *)hp;
-  int nz = colptr[n], j, q, p, *pp, *pi, *st;
-  if (!h->sym || !h->m0 || n != h->n) {
+  int nz = colptr[n], j, q, p, r, *pp, *pi, *st;
+  if (!h->sym || !h->m || n != h->n) {
     snprintf(h->msg, sizeof h->msg, "cr_chol_set_values: dimension %d, analysed %d", n, h->n);
     return 29;
   }
-  pp = (int *)h->m0->p; pi = (int *)h->m0->i;
-  /* the analysed M (h->m0, kept from the analysis) column by column: stamp its rows with the
-   * column, test */
+  pp = (int *)h->m->p; pi = (int *)h->m->i;
+  /* the analysed M column by column: each row of the column stamped with its entry, each
+   * given entry looked up (an entry of another column, or none, is outside the pattern) and
+   * its value placed; entries not given are zero */
   st = h->rs;
   for (j = 0; j < n; j++) st[j] = -1;
+  memset(h->v, 0, (size_t)pp[n] * sizeof(double));
   for (j = 0; j < n; j++) {
-    for (p = pp[j]; p < pp[j + 1]; p++) st[pi[p]] = j;
-    for (q = colptr[j]; q < colptr[j + 1]; q++)
-      if (rowind[q] < 0 || rowind[q] >= n || st[rowind[q]] != j) break;
+    for (p = pp[j]; p < pp[j + 1]; p++) st[pi[p]] = p;
+    for (q = colptr[j]; q < colptr[j + 1]; q++) {
+      r = rowind[q];
+      if (r < 0 || r >= n || st[r] < pp[j]) break;
+      h->v[st[r]] = val[q];
+    }
     if (q < colptr[j + 1]) {
       snprintf(h->msg, sizeof h->msg, "cr_chol_set_values: entry (%d, %d) outside the analysed pattern",
                rowind[q] + 1, j + 1);
@@ -236,15 +282,6 @@ int cr_chol_set_values(void *hp, int n, const int *colptr, const int *rowind, co
     return 30;
   }
   if (h->l) cholmod_free_factor(&h->l, &h->c);
-  if (h->m == h->m0) {
-    /* the values' own matrix, as large as the analysed one (the pattern lies inside it) */
-    h->m = cholmod_allocate_sparse(n, n, pp[n] > 0 ? pp[n] : 1, 0, 1, 1, CHOLMOD_REAL, &h->c);
-    if (!h->m) { h->m = h->m0; return fail(h, 31, "allocate_sparse (M values)"); }
-  }
-  memcpy(h->m->p, colptr, (size_t)(n + 1) * sizeof(int));
-  memcpy(h->m->i, rowind, (size_t)nz * sizeof(int));
-  memcpy(h->m->x, val, (size_t)nz * sizeof(double));
-  h->m->sorted = 0;
   memset(h->active, 0, (size_t)n * sizeof(int));
   h->napos = 0;
   return 0;
@@ -294,9 +331,8 @@ int cr_chol_perm(void *hp, int *perm) {
  * permute and transpose it twice as cholmod_factorize would; the arithmetic is the same. */
 int cr_chol_factor(void *hp, const int *active) {
   cr_chol_t *h = (cr_chol_t *)hp;
-  int n = h->n, j, k, q, a, b, i, *pa, *ia;
-  int *mp = (int *)h->m->p, *mi = (int *)h->m->i, *ip = h->iperm, *cnt;
-  double *mx = (double *)h->m->x, *xa, beta[2] = {0.0, 0.0};
+  int n = h->n, j, k, e, a, nz = 0, *pa, *ia, *actp, *pp;
+  double *xa, beta[2] = {0.0, 0.0};
   cholmod_sparse *A;
   if (!h->sym) { snprintf(h->msg, sizeof h->msg, "cr_chol_factor before cr_chol_analyze"); return 7; }
   for (j = 0; j < n; j++)
@@ -305,45 +341,23 @@ int cr_chol_factor(void *hp, const int *active) {
       return 26;
     }
   memcpy(h->active, active, (size_t)n * sizeof(int));
-  A = cholmod_allocate_sparse(n, n, mp[n] + n + 1, 0, 1, 1, CHOLMOD_REAL, &h->c);
+  A = cholmod_allocate_sparse(n, n, h->sp[n] + n + 1, 1, 1, 1, CHOLMOD_REAL, &h->c);
   if (!A) return fail(h, 8, "allocate_sparse (active matrix)");
   pa = (int *)A->p; ia = (int *)A->i; xa = (double *)A->x;
-  /* the entries (a, k), a <= k factor positions, bucketed by a (tk, tx), then moved to
-   * column k in increasing a: sorted columns, as the transposes of cholmod_factorize give */
-  cnt = h->stk;   /* work [n]; the Schur test's stack is free between calls */
-  for (k = 0; k <= n; k++) h->rs[k] = 0;
-  for (j = 0; j < n; j++) {
-    if (!active[j]) { h->rs[ip[j] + 1]++; continue; }
-    for (q = mp[j]; q < mp[j + 1]; q++) {
-      i = mi[q];
-      if (i > j || !active[i]) continue;
-      a = ip[i]; b = ip[j];
-      h->rs[(a < b ? a : b) + 1]++;
+  pp = (int *)h->sym->Perm;
+  actp = h->rs;   /* active flag of each factor position */
+  for (k = 0; k < n; k++) actp[k] = active[pp[k]] != 0;
+  /* column k of the upper triangle of P A P': the active entries, rows increasing; an
+   * inactive position is an identity column */
+  for (k = 0; k < n; k++) {
+    pa[k] = nz;
+    if (!actp[k]) { ia[nz] = k; xa[nz] = 1.0; nz++; continue; }
+    for (e = h->sp[k]; e < h->sp[k + 1]; e++) {
+      a = h->si[e];
+      if (actp[a]) { ia[nz] = a; xa[nz] = h->v[h->ss[e]]; nz++; }
     }
   }
-  for (k = 0; k < n; k++) { h->rs[k + 1] += h->rs[k]; cnt[k] = h->rs[k]; }
-  for (j = 0; j < n; j++) {
-    if (!active[j]) { k = ip[j]; h->tk[cnt[k]] = k; h->tx[cnt[k]] = 1.0; cnt[k]++; continue; }
-    for (q = mp[j]; q < mp[j + 1]; q++) {
-      i = mi[q];
-      if (i > j || !active[i]) continue;
-      a = ip[i]; b = ip[j];
-      if (a > b) { k = a; a = b; } else k = b;
-      h->tk[cnt[a]] = k; h->tx[cnt[a]] = mx[q]; cnt[a]++;
-    }
-  }
-  /* column counts, starts, then the entries in increasing row a */
-  for (k = 0; k < n; k++) cnt[k] = 0;
-  for (q = 0; q < h->rs[n]; q++) cnt[h->tk[q]]++;
-  pa[0] = 0;
-  for (k = 0; k < n; k++) { pa[k + 1] = pa[k] + cnt[k]; cnt[k] = pa[k]; }
-  for (a = 0; a < n; a++)
-    for (q = h->rs[a]; q < h->rs[a + 1]; q++) {
-      k = h->tk[q];
-      ia[cnt[k]] = a; xa[cnt[k]] = h->tx[q]; cnt[k]++;
-    }
-  for (k = 0; k < n; k++) cnt[k] = 0;
-  A->sorted = 1;
+  pa[n] = nz;
   if (h->l) cholmod_free_factor(&h->l, &h->c);
   h->l = cholmod_copy_factor(h->sym, &h->c);
   if (!h->l) { cholmod_free_sparse(&A, &h->c); return fail(h, 9, "copy_factor"); }
@@ -354,13 +368,10 @@ int cr_chol_factor(void *hp, const int *active) {
   if (h->l->is_super || h->l->is_ll || h->l->xtype != CHOLMOD_REAL) {
     snprintf(h->msg, sizeof h->msg, "CHOLMOD returned a supernodal, LL' or non-real factor"); return 11;
   }
-  {
-    int *pp = (int *)h->l->Perm;
-    h->napos = 0;
-    for (k = 0; k < n; k++)
-      if (active[pp[k]]) h->apos[h->napos++] = k;
-    memset(h->xw, 0, (size_t)n * sizeof(double));
-  }
+  h->napos = 0;
+  for (k = 0; k < n; k++)
+    if (actp[k]) h->apos[h->napos++] = k;
+  memset(h->xw, 0, (size_t)n * sizeof(double));
   return 0;
 }
 
