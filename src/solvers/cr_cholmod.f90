@@ -51,6 +51,7 @@ module cr_cholmod
     procedure :: n_pattern => chol_n_pattern
     procedure :: set_rows => chol_set_rows
     procedure :: set_values => chol_set_values
+    procedure :: set_analysed_values => chol_set_analysed_values
   end type chol_t
 
   interface
@@ -154,6 +155,12 @@ module cr_cholmod
       integer(c_int), intent(in) :: colptr(*), rowind(*)
       real(c_double), intent(in) :: val(*)
     end function c_set_values
+    integer(c_int) function c_set_analysed_values(h, nz, val) bind(C, name='cr_chol_set_analysed_values')
+      import :: c_ptr, c_int, c_double
+      type(c_ptr), value :: h
+      integer(c_int), value :: nz
+      real(c_double), intent(in) :: val(*)
+    end function c_set_analysed_values
     integer(c_long) function c_factor_nnz(h) bind(C, name='cr_chol_factor_nnz')
       import :: c_ptr, c_long
       type(c_ptr), value :: h
@@ -293,6 +300,21 @@ contains
       int(rowind(1:max(nz, 1)) - 1, c_int), val)
     if (rc /= 0) call shim_error(this, "set_values", rc, error)
   end subroutine chol_set_values
+
+  !> New values of M on the stored analysis, given on the analysed pattern itself: val [nnz]
+  !> in the order of the entries handed to analyze (zero for an entry absent now). The
+  !> current factor is discarded.
+  subroutine chol_set_analysed_values(this, val, error)
+    class(chol_t), intent(inout) :: this
+    real(wp), intent(in) :: val(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer(c_int) :: rc
+    if (.not. c_associated(this%h) .or. this%n == 0) then
+      call set_error(error, "cholmod set_analysed_values: no analysis to reuse"); return
+    end if
+    rc = c_set_analysed_values(this%h, int(size(val), c_int), val)
+    if (rc /= 0) call shim_error(this, "set_analysed_values", rc, error)
+  end subroutine chol_set_analysed_values
 
   !> Numeric factorisation of M on the rows with active(i) [nrow], identity elsewhere.
   subroutine chol_factor(this, active, error)

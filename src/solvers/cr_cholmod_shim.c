@@ -287,6 +287,24 @@ int cr_chol_set_values(void *hp, int n, const int *colptr, const int *rowind, co
   return 0;
 }
 
+/* New values of M on the stored analysis, on the analysed pattern itself: val [nz], nz the
+ * entries handed to cr_chol_analyze, in their order (zero where the caller has no entry now).
+ * The current numeric factor is discarded. */
+int cr_chol_set_analysed_values(void *hp, int nz, const double *val) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  if (!h->sym || !h->m) { snprintf(h->msg, sizeof h->msg, "cr_chol_set_analysed_values before cr_chol_analyze"); return 33; }
+  if (nz != ((int *)h->m->p)[h->n]) {
+    snprintf(h->msg, sizeof h->msg, "cr_chol_set_analysed_values: %d values, %d analysed entries", nz,
+             ((int *)h->m->p)[h->n]);
+    return 34;
+  }
+  memcpy(h->v, val, (size_t)nz * sizeof(double));
+  if (h->l) cholmod_free_factor(&h->l, &h->c);
+  memset(h->active, 0, (size_t)h->n * sizeof(int));
+  h->napos = 0;
+  return 0;
+}
+
 /* The caller's rows from now on: map [nrow] (0-based slot of each row, -1 for none; slots
  * distinct, checked by the caller). Only the solve uses it here (the other calls get slots). */
 int cr_chol_set_rows(void *hp, int nrow, const int *map) {

@@ -136,7 +136,8 @@ module cr_sparse_as
     real(wp) :: w_margin = 1.0_wp
     integer :: n_reanalyse = 0
     logical, allocatable :: inw(:)
-    !> upper triangle of M restricted to W (and the diagonal) [m + 1], [nnz]
+    !> upper triangle of M restricted to W (and the diagonal) in slot space, as analysed
+    !> (reuse_slots puts later values on this pattern) [ns + 1], [nnz]
     integer, allocatable :: wptr(:), wi(:)
     real(wp), allocatable :: wv(:)
     !> reuse the analysis of an earlier solve (reuse_analysis): the analysed matrix is indexed
@@ -161,8 +162,8 @@ module cr_sparse_as
     logical :: keys_ok = .false.
     integer(i8), allocatable :: hkey(:)
     integer, allocatable :: hslot(:)
-    !> slot of each row [m] (0: none), slot-space work [ns + 1]
-    integer, allocatable :: rslot(:), scnt(:), smark(:)
+    !> slot of each row [m] (0: none), row of each slot [ns] (reuse_slots)
+    integer, allocatable :: rslot(:), smark(:)
   contains
     procedure :: solve => sparse_as_solve
     procedure :: free => sparse_as_free
@@ -645,10 +646,10 @@ contains
     !> identity), no two rows share one, and at least reuse_fill of the slots hold a row. Then W becomes every row with a slot, M is handed over in slot space (same
     !> pattern as analysed or a part of it) and ok is true.
     logical function reuse_slots() result(ok)
-      integer :: jj, q, k, a, b, nzs, nin
+      integer :: jj, q, k, a, b, nzs, nin, p
       ok = .false.
       if (.not. this%keys_ok .or. this%ns == 0) return
-      call igrow(this%rslot, m); call igrow(this%scnt, this%ns + 1); call igrow(this%smark, this%ns)
+      call igrow(this%rslot, m); call igrow(this%smark, this%ns)
       this%smark(1:this%ns) = 0
       nin = 0
       do jj = 1, m
@@ -662,40 +663,33 @@ contains
         this%rslot(jj) = k
       end do
       if (real(nin, wp) < this%reuse_fill * real(this%ns, wp)) return
-      ! upper triangle of M in slot space: count the entries of each slot column, place them
-      ! (rows unsorted within a column: set_values takes them so; the factorisation orders them)
-      this%scnt(1:this%ns + 1) = 0
-      do jj = 1, m
-        if (this%rslot(jj) == 0) cycle
-        do q = this%fp(jj), this%fd(jj)
-          a = this%rslot(this%fi(q))
-          if (a == 0) cycle
-          b = max(a, this%rslot(jj))
-          this%scnt(b + 1) = this%scnt(b + 1) + 1
-        end do
-      end do
-      this%scnt(1) = 1
-      do k = 1, this%ns
-        this%scnt(k + 1) = this%scnt(k + 1) + this%scnt(k)
-      end do
-      nzs = this%scnt(this%ns + 1) - 1
-      call igrow(this%wptr, this%ns + 1); call igrow(this%wi, max(nzs, 1)); call rgrow(this%wv, max(nzs, 1))
-      this%wptr(1:this%ns + 1) = this%scnt(1:this%ns + 1)
+      ! the values of M on the analysed pattern (wptr, wi: upper triangle in slot space, rows
+      ! increasing in each column, kept from the analysis): each entry found in its column
+      ! (short); one outside the pattern (never expected: the same slots keep the same
+      ! neighbours) means no reuse
+      nzs = this%wptr(this%ns + 1) - 1
+      this%wv(1:nzs) = 0.0_wp
       do jj = 1, m
         if (this%rslot(jj) == 0) cycle
         do q = this%fp(jj), this%fd(jj)
           a = this%rslot(this%fi(q))
           if (a == 0) cycle
           b = max(a, this%rslot(jj)); a = min(a, this%rslot(jj))
-          this%wi(this%scnt(b)) = a; this%wv(this%scnt(b)) = this%fv(q)
-          this%scnt(b) = this%scnt(b) + 1
+          p = this%wptr(b)
+          do while (p < this%wptr(b + 1))
+            if (this%wi(p) >= a) exit
+            p = p + 1
+          end do
+          if (p == this%wptr(b + 1)) then
+            this%keys_ok = .false.; return
+          else if (this%wi(p) /= a) then
+            this%keys_ok = .false.; return
+          end if
+          this%wv(p) = this%fv(q)
         end do
       end do
-      call this%chol%set_values(this%wptr, this%wi, this%wv, error)
-      if (allocated(error)) then
-        ! not the pattern analysed: analyse afresh (counted as a fresh analysis)
-        deallocate(error); this%keys_ok = .false.; return
-      end if
+      call this%chol%set_analysed_values(this%wv(1:nzs), error)
+      if (allocated(error)) return
       call this%chol%set_rows(this%rslot(1:m), error)
       if (allocated(error)) return
       do jj = 1, m
