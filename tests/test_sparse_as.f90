@@ -241,6 +241,9 @@ contains
     call check(sp%chol%n_pattern() > nsteps, "drift: row deletions given the row pattern (row subtree)")
     print '(2x,a,i0)', "drift: additions without the Schur pre-test (an agent in no active row): ", sp%n_free
     call check(sp%n_free > 0, "drift: rows with a free agent enter without the pre-test")
+    print '(2x,a,i0)', "drift: Schur tests whose factor reach missed a fill (done by the scan): ", &
+      sp%chol%n_schur_scan()
+    call check(sp%chol%n_schur_scan() == 0, "drift: the elimination tree of the factor bounds every Schur solve")
     call check(drift <= sqrt(epsilon(1.0_wp)), "drift: backward error of updated factors <= sqrt(eps)")
     call check(du <= 10.0_wp * s%tol, "drift: agrees with active_set on every step")
   end subroutine test_drift

@@ -23,8 +23,9 @@ module cr_cholmod
     !> row modifications since the last numeric factorisation
     integer :: n_since = 0
     !> from this dimension on, the Schur pivot test visits only the elimination-tree reach of
-    !> the new row (below, a scan from its first position is cheaper)
-    integer :: reach_min = 16384
+    !> the new row in the current factor (below, a scan of the active positions from its first
+    !> one is cheaper)
+    integer :: reach_min = 2048
     !> the caller's rows and their slots in the analysed matrix: the caller numbers its rows
     !> 1..nrow, the factor knows M [n, n] on slots; map(i) is row i's slot, 0 when the row has
     !> none (such a row can never be active: identity, refused by factor and rowadd). After
@@ -49,6 +50,7 @@ module cr_cholmod
     procedure :: symbolic_nnz => chol_symbolic_nnz
     procedure :: perm => chol_perm
     procedure :: n_pattern => chol_n_pattern
+    procedure :: n_schur_scan => chol_n_schur_scan
     procedure :: set_rows => chol_set_rows
     procedure :: set_values => chol_set_values
     procedure :: set_analysed_values => chol_set_analysed_values
@@ -142,6 +144,10 @@ module cr_cholmod
       import :: c_ptr, c_long
       type(c_ptr), value :: h
     end function c_n_pattern
+    integer(c_long) function c_n_schur_scan(h) bind(C, name='cr_chol_n_schur_scan')
+      import :: c_ptr, c_long
+      type(c_ptr), value :: h
+    end function c_n_schur_scan
     integer(c_int) function c_set_rows(h, nrow, map) bind(C, name='cr_chol_set_rows')
       import :: c_ptr, c_int
       type(c_ptr), value :: h
@@ -485,6 +491,14 @@ contains
     k = 0
     if (c_associated(this%h)) k = int(c_n_pattern(this%h))
   end function chol_n_pattern
+
+  !> Schur pivot tests through the elimination-tree reach (n >= reach_min) whose reach missed
+  !> a fill of the factor (never expected; then done by the scan) since init.
+  integer function chol_n_schur_scan(this) result(k)
+    class(chol_t), intent(in) :: this
+    k = 0
+    if (c_associated(this%h)) k = int(c_n_schur_scan(this%h))
+  end function chol_n_schur_scan
 
   !> Stored entries of the current factor.
   integer function chol_factor_nnz(this) result(nnz)

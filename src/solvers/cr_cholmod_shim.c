@@ -38,6 +38,7 @@ typedef struct {
   int *mk, *stk;          /* marks (zero between calls) and a stack of the Schur test [n] */
   cholmod_sparse *rpat;   /* pattern of a row of L handed to cholmod_rowdel [n, 1] */
   long n_pattern;         /* row deletions done with a known row pattern */
+  long n_schur_scan;      /* Schur tests whose reach missed a fill (done by the scan) */
   int nrow;               /* the caller's rows (cr_chol_set_rows; n after an analysis) */
   int *rowof;             /* caller's row at each factor position, -1 for none [n] */
   int *noslot, nnoslot;   /* the caller's rows without a slot [nrow] */
@@ -437,61 +438,65 @@ int cr_chol_rowadd(void *hp, int t, int nz, const int *idx, const double *val, d
 
 /* s = w' A^{-1} w for the column w = (idx[q], val[q]), q < nz, restricted to the active rows
  * other than t: the part of M(t,t) that the active rows explain (the pivot row t would get is
- * M(t,t) - s). One sparse forward solve y = L^{-1} P w, s = sum y_j^2 / D(j,j), over the
- * reach of w only: the union of the paths from w's nonzeros to the root of the elimination
- * tree of P M P' (a superset of the pattern of y, since the factor's pattern lies inside the
- * symbolic factor of P M P'), visited in increasing order, when n >= reach_min; below, a
- * scan of the positions from the first nonzero on (cheaper on small factors, where the paths
- * to the root cover much of the tree). A fill outside the reach would mean the assumption is
- * broken: an error, never a wrong pivot. */
-static int cmp_int(const void *a, const void *b) {
-  int x = *(const int *)a, y = *(const int *)b;
-  return (x > y) - (x < y);
-}
-
-int cr_chol_schur(void *hp, int t, int nz, const int *idx, const double *val, int reach_min,
-                  double *s) {
-  cr_chol_t *h = (cr_chol_t *)hp;
-  int q, k, j, p, jmin, top = 0, bad = 0, *lp, *li, *lnz, *mk, *stk;
-  double *lx, *y = h->yw, yj, acc = 0.0;
-  if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_schur without a factor"); return 21; }
-  lp = (int *)h->l->p; li = (int *)h->l->i; lnz = (int *)h->l->nz; lx = (double *)h->l->x;
-  mk = h->mk; stk = h->stk;
-  if (h->n < reach_min) {
-    jmin = h->n;
-    for (q = 0; q < nz; q++) {
-      k = idx[q];
-      if (k == t || !h->active[k]) continue;
-      p = h->iperm[k];
-      y[p] += val[q];
-      if (p < jmin) jmin = p;
-    }
-    /* the active positions from jmin on (the columns there reach no inactive position but
-     * by the zeros a row deletion leaves, as in cr_chol_solve) */
-    {
-      int lo = 0, hi = h->napos, i;
-      while (lo < hi) { int mid = (lo + hi) / 2; if (h->apos[mid] < jmin) lo = mid + 1; else hi = mid; }
-      for (i = lo; i < h->napos; i++) {
-        j = h->apos[i];
-        yj = y[j];
-        if (yj == 0.0) continue;
-        y[j] = 0.0;
-        acc += yj * yj / lx[lp[j]];
-        for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) y[li[p]] -= lx[p] * yj;
-      }
-    }
-    *s = acc;
-    return 0;
-  }
+ * M(t,t) - s). One sparse forward solve y = L^{-1} P w, s = sum y_j^2 / D(j,j). Below
+ * reach_min positions: a scan of the active positions from the first nonzero of w on.
+ * From reach_min on: over the reach of w only, the union of the paths from w's nonzeros to
+ * the root of the elimination tree of the current factor (the parent of column j is its
+ * first off-diagonal row, as cholmod_rowadd itself takes it), in topological order (the
+ * paths stacked depth first, no sort). A fill outside the reach (never expected) means the
+ * tree did not bound the pattern: the scan is done instead, never a wrong pivot. */
+static double schur_scan(cr_chol_t *h, int t, int nz, const int *idx, const double *val) {
+  int q, k, j, p, i, jmin = h->n, lo, hi, *lp = (int *)h->l->p, *li = (int *)h->l->i;
+  int *lnz = (int *)h->l->nz;
+  double *lx = (double *)h->l->x, *y = h->yw, yj, acc = 0.0;
   for (q = 0; q < nz; q++) {
     k = idx[q];
     if (k == t || !h->active[k]) continue;
     p = h->iperm[k];
     y[p] += val[q];
-    for (j = p; j >= 0 && !mk[j]; j = h->parent[j]) { mk[j] = 1; stk[top++] = j; }
+    if (p < jmin) jmin = p;
   }
-  qsort(stk, (size_t)top, sizeof(int), cmp_int);
-  for (q = 0; q < top; q++) {
+  /* the active positions from jmin on (the columns there reach no inactive position but by
+   * the zeros a row deletion leaves, as in cr_chol_solve) */
+  lo = 0; hi = h->napos;
+  while (lo < hi) { int mid = (lo + hi) / 2; if (h->apos[mid] < jmin) lo = mid + 1; else hi = mid; }
+  for (i = lo; i < h->napos; i++) {
+    j = h->apos[i];
+    yj = y[j];
+    if (yj == 0.0) continue;
+    y[j] = 0.0;
+    acc += yj * yj / lx[lp[j]];
+    for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) y[li[p]] -= lx[p] * yj;
+  }
+  return acc;
+}
+
+int cr_chol_schur(void *hp, int t, int nz, const int *idx, const double *val, int reach_min,
+                  double *s) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  int q, k, j, p, n, len, top, bad = 0, *lp, *li, *lnz, *mk, *stk;
+  double *lx, *y, yj, acc = 0.0;
+  if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_schur without a factor"); return 21; }
+  if (h->n < reach_min) {
+    *s = schur_scan(h, t, nz, idx, val);
+    return 0;
+  }
+  n = h->n; y = h->yw;
+  lp = (int *)h->l->p; li = (int *)h->l->i; lnz = (int *)h->l->nz; lx = (double *)h->l->x;
+  mk = h->mk; stk = h->stk;
+  /* each path is collected at the bottom of stk, then moved to the stack at its top */
+  top = n;
+  for (q = 0; q < nz; q++) {
+    k = idx[q];
+    if (k == t || !h->active[k]) continue;
+    p = h->iperm[k];
+    y[p] += val[q];
+    for (len = 0, j = p; j >= 0 && !mk[j]; j = lnz[j] > 1 ? li[lp[j] + 1] : -1) {
+      mk[j] = 1; stk[len++] = j;
+    }
+    while (len > 0) stk[--top] = stk[--len];
+  }
+  for (q = top; q < n; q++) {
     j = stk[q];
     yj = y[j];
     if (yj == 0.0) continue;
@@ -502,12 +507,12 @@ int cr_chol_schur(void *hp, int t, int nz, const int *idx, const double *val, in
       y[li[p]] -= lx[p] * yj;
     }
   }
-  for (q = 0; q < top; q++) { mk[stk[q]] = 0; y[stk[q]] = 0.0; }
+  for (q = top; q < n; q++) { mk[stk[q]] = 0; y[stk[q]] = 0.0; }
   if (bad) {
-    /* clear the work vector completely before reporting */
-    memset(y, 0, (size_t)h->n * sizeof(double));
-    snprintf(h->msg, sizeof h->msg, "cr_chol_schur: factor pattern outside the elimination-tree reach");
-    return 28;
+    memset(y, 0, (size_t)n * sizeof(double));
+    h->n_schur_scan++;
+    *s = schur_scan(h, t, nz, idx, val);
+    return 0;
   }
   *s = acc;
   return 0;
@@ -603,6 +608,12 @@ int cr_chol_solve(void *hp, const double *b, double *x) {
     x[rowof[j]] = yj;
   }
   return 0;
+}
+
+/* Schur tests whose elimination-tree reach missed a fill (then done by the scan). */
+long cr_chol_n_schur_scan(void *hp) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  return h->n_schur_scan;
 }
 
 /* Row deletions done with a known row pattern since the handle was created. */
