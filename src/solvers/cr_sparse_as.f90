@@ -596,6 +596,8 @@ contains
         end if
       end do
       this%ns = k
+      ! no reuse of this analysis until it is complete
+      this%keys_ok = .false.
       ! slot numbers grow with the row number: sorted columns stay sorted
       call igrow(this%wptr, k + 1); call igrow(this%wi, max(this%nzu, 1))
       call rgrow(this%wv, max(this%nzu, 1))
@@ -689,7 +691,10 @@ contains
         end do
       end do
       call this%chol%set_analysed_values(this%wv(1:nzs), error)
-      if (allocated(error)) return
+      if (allocated(error)) then
+        ! the analysis does not match (never expected): analyse afresh
+        deallocate(error); this%keys_ok = .false.; return
+      end if
       call this%chol%set_rows(this%rslot(1:m), error)
       if (allocated(error)) return
       do jj = 1, m
