@@ -195,8 +195,9 @@ contains
     s = projection_settings_t(); s%name = 'sparse_active_set'; s%dense_rows = 0; s%refresh_every = 7
     call sp%init(s, err)
     sp%check_drift = .true.
-    ! the Schur pivot tests through the elimination-tree reach (the path of large problems)
-    sp%chol%reach_min = 0
+    ! the Schur pivot tests through the elimination-tree reach and factorisations from the
+    ! packed identity (the paths of large problems)
+    sp%chol%reach_min = 0; sp%chol%pack_min = 0
     s%name = 'active_set'
     call make_projection_solver(s, sa, err)
     drift = 0; du = 0; nmod = 0; nfail = 0; nprev = 0

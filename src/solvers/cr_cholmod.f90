@@ -26,6 +26,10 @@ module cr_cholmod
     !> the new row in the current factor (below, a scan of the active positions from its first
     !> one is cheaper)
     integer :: reach_min = 2048
+    !> from this dimension on, a numeric factorisation starts from the packed identity and
+    !> its columns grow as they fill (as cholmod_factorize does); below, each column gets the
+    !> analysed count plus room at once (no column moves, more memory)
+    integer :: pack_min = 16384
     !> the caller's rows and their slots in the analysed matrix: the caller numbers its rows
     !> 1..nrow, the factor knows M [n, n] on slots; map(i) is row i's slot, 0 when the row has
     !> none (such a row can never be active: identity, refused by factor and rowadd). After
@@ -89,10 +93,11 @@ module cr_cholmod
       integer(c_int), intent(in) :: perm(*)
       integer(c_int), intent(in) :: inset(*)
     end function c_analyze_perm
-    integer(c_int) function c_factor(h, active) bind(C, name='cr_chol_factor')
+    integer(c_int) function c_factor(h, active, pack_min) bind(C, name='cr_chol_factor')
       import :: c_ptr, c_int
       type(c_ptr), value :: h
       integer(c_int), intent(in) :: active(*)
+      integer(c_int), value :: pack_min
     end function c_factor
     integer(c_int) function c_pivots(h, d) bind(C, name='cr_chol_pivots')
       import :: c_ptr, c_int, c_double
@@ -339,7 +344,7 @@ contains
       end if
       this%as(k) = 1_c_int
     end do
-    rc = c_factor(this%h, this%as)
+    rc = c_factor(this%h, this%as, int(this%pack_min, c_int))
     if (rc /= 0) then
       call shim_error(this, "factor", rc, error); return
     end if

@@ -19,12 +19,10 @@ typedef struct {
   cholmod_common c;
   int started;
   int n;
-  cholmod_sparse *m;      /* M as analysed, upper, stype = 1 (its pattern bounds later values) */
+  cholmod_sparse *m;      /* pattern of M as analysed, upper, stype = 1 (it bounds later values) */
   double *v;              /* current values of M on the analysed pattern (m's layout; zero
                            * where cr_chol_set_values gave no entry) [nnz(m)] */
-  int *sp, *si, *ss;      /* upper triangle of P M P' by columns, rows increasing: column
-                           * starts [n + 1], rows (factor positions) and the entry of m each
-                           * comes from [nnz(m)] */
+  int *ss;                /* the entry of m each entry of pm comes from [nnz(m)] */
   cholmod_factor *sym;    /* symbolic analysis of M */
   cholmod_factor *l;      /* numeric LDL' factor of the active matrix */
   cholmod_sparse *r;      /* rowadd column [n, 1] */
@@ -33,7 +31,8 @@ typedef struct {
   int *inset;             /* rows of the analysed set W: the only rows that may be active [n] */
   double *yw;             /* zero work vector of the Schur-complement test [n] */
   double *xw;             /* work vector of the solve, factor order [n] */
-  cholmod_sparse *pm;     /* pattern of P M P' (upper, factor order), for the row subtrees */
+  cholmod_sparse *pm;     /* pattern of P M P' (upper, factor order, rows increasing in each
+                           * column), for the row subtrees and the factorisation */
   int *parent;            /* elimination tree of P M P' [n] */
   int *mk, *stk;          /* marks (zero between calls) and a stack of the Schur test [n] */
   cholmod_sparse *rpat;   /* pattern of a row of L handed to cholmod_rowdel [n, 1] */
@@ -58,8 +57,6 @@ static void release(cr_chol_t *h) {
   if (!h->started) return;
   if (h->m) cholmod_free_sparse(&h->m, &h->c);
   free(h->v); h->v = NULL;
-  free(h->sp); h->sp = NULL;
-  free(h->si); h->si = NULL;
   free(h->ss); h->ss = NULL;
   if (h->sym) cholmod_free_factor(&h->sym, &h->c);
   if (h->l) cholmod_free_factor(&h->l, &h->c);
@@ -135,22 +132,20 @@ static int permuted_etree(cr_chol_t *h) {
   /* the pattern of P M P' is that of the sorted upper triangle */
   rc = sorted_upper(h);
   if (rc != 0) return rc;
-  memcpy(h->pm->p, h->sp, (size_t)(n + 1) * sizeof(int));
-  memcpy(h->pm->i, h->si, (size_t)h->sp[n] * sizeof(int));
   h->pm->sorted = 1;
   if (!cholmod_etree(h->pm, h->parent, &h->c) || h->c.status < CHOLMOD_OK)
     return fail(h, 24, "etree");
   return 0;
 }
 
-/* The upper triangle of P M P' by columns with the rows of each column increasing (sp, si)
- * and the entry of M each comes from (ss): the entries (a, k), a <= k factor positions, are
+/* The upper triangle of P M P' by columns with the rows of each column increasing (pm, also
+ * the pattern of the elimination tree) and the entry of M each comes from (ss): the entries (a, k), a <= k factor positions, are
  * bucketed by a, then moved to column k in increasing a (entries below the diagonal of M are
  * ignored, as CHOLMOD does for a symmetric-upper matrix). cr_chol_factor gathers the active
  * matrix from it in one pass, in the form cholmod_rowfac takes. */
 static int sorted_upper(cr_chol_t *h) {
   int n = h->n, j, q, a, b, k, e, *mp = (int *)h->m->p, *mi = (int *)h->m->i, *ip = h->iperm;
-  int *rs = h->rs, *cnt = h->stk, *tk, *tq;
+  int *rs = h->rs, *cnt = h->stk, *tk, *tq, *sp = (int *)h->pm->p, *si = (int *)h->pm->i;
   for (k = 0; k <= n; k++) rs[k] = 0;
   for (j = 0; j < n; j++)
     for (q = mp[j]; q < mp[j + 1]; q++) {
@@ -178,12 +173,12 @@ static int sorted_upper(cr_chol_t *h) {
   /* by columns, rows increasing */
   for (k = 0; k < n; k++) cnt[k] = 0;
   for (q = 0; q < e; q++) cnt[tk[q]]++;
-  h->sp[0] = 0;
-  for (k = 0; k < n; k++) { h->sp[k + 1] = h->sp[k] + cnt[k]; cnt[k] = h->sp[k]; }
+  sp[0] = 0;
+  for (k = 0; k < n; k++) { sp[k + 1] = sp[k] + cnt[k]; cnt[k] = sp[k]; }
   for (a = 0; a < n; a++)
     for (q = rs[a]; q < rs[a + 1]; q++) {
       k = tk[q];
-      h->si[cnt[k]] = a; h->ss[cnt[k]] = tq[q]; cnt[k]++;
+      si[cnt[k]] = a; h->ss[cnt[k]] = tq[q]; cnt[k]++;
     }
   for (k = 0; k < n; k++) cnt[k] = 0;
   free(tk); free(tq);
@@ -201,11 +196,10 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
   int nz = colptr[n], j, *p, *ip;
   release(h);
   h->n = n;
-  h->m = cholmod_allocate_sparse(n, n, nz > 0 ? nz : 1, 1, 1, 1, CHOLMOD_REAL, &h->c);
+  h->m = cholmod_allocate_sparse(n, n, nz > 0 ? nz : 1, 1, 1, 1, CHOLMOD_PATTERN, &h->c);
   if (!h->m) return fail(h, 3, "allocate_sparse (M)");
   memcpy(h->m->p, colptr, (size_t)(n + 1) * sizeof(int));
   memcpy(h->m->i, rowind, (size_t)nz * sizeof(int));
-  memcpy(h->m->x, val, (size_t)nz * sizeof(double));
   if (perm) {
     h->c.nmethods = 1; h->c.method[0].ordering = CHOLMOD_GIVEN; h->c.postorder = 0;
     h->sym = cholmod_analyze_p(h->m, (int *)perm, NULL, 0, &h->c);
@@ -230,17 +224,19 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
   h->apos = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
   h->napos = 0;
   h->rs = malloc((size_t)(n + 1) * sizeof(int));
-  h->v = malloc((size_t)(nz > 0 ? nz : 1) * sizeof(double));
-  h->sp = malloc((size_t)(n + 1) * sizeof(int));
-  h->si = malloc((size_t)(nz > 0 ? nz : 1) * sizeof(int));
   h->ss = malloc((size_t)(nz > 0 ? nz : 1) * sizeof(int));
-  if (!h->xw || !h->rowof || !h->apos || !h->rs || !h->v || !h->sp || !h->si || !h->ss) {
+  if (!h->xw || !h->rowof || !h->apos || !h->rs || !h->ss) {
     snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5;
   }
-  memcpy(h->v, val, (size_t)nz * sizeof(double));
   for (j = 0; j < n; j++) h->rowof[j] = p[j];
   h->nrow = n; h->nnoslot = 0;
-  return permuted_etree(h);
+  j = permuted_etree(h);
+  if (j != 0) return j;
+  /* the values, after the work of the pattern is freed (a lower peak of memory) */
+  h->v = malloc((size_t)(nz > 0 ? nz : 1) * sizeof(double));
+  if (!h->v) { snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5; }
+  memcpy(h->v, val, (size_t)nz * sizeof(double));
+  return 0;
 }
 
 /* New values of M [n, n] on the stored analysis (upper triangle, compressed columns, 0-based;
@@ -348,9 +344,9 @@ int cr_chol_perm(void *hp, int *perm) {
  * on the stored analysis; the previous factor is discarded). A is built directly in factor
  * order (upper triangle of P A P', the form cholmod_rowfac works on), so that CHOLMOD does not
  * permute and transpose it twice as cholmod_factorize would; the arithmetic is the same. */
-int cr_chol_factor(void *hp, const int *active) {
+int cr_chol_factor(void *hp, const int *active, int pack_min) {
   cr_chol_t *h = (cr_chol_t *)hp;
-  int n = h->n, j, k, e, a, nz = 0, *pa, *ia, *actp, *pp;
+  int n = h->n, j, k, e, a, nz = 0, *pa, *ia, *actp, *pp, *sp, *si;
   double *xa, beta[2] = {0.0, 0.0};
   cholmod_sparse *A;
   if (!h->sym) { snprintf(h->msg, sizeof h->msg, "cr_chol_factor before cr_chol_analyze"); return 7; }
@@ -360,19 +356,23 @@ int cr_chol_factor(void *hp, const int *active) {
       return 26;
     }
   memcpy(h->active, active, (size_t)n * sizeof(int));
-  A = cholmod_allocate_sparse(n, n, h->sp[n] + n + 1, 1, 1, 1, CHOLMOD_REAL, &h->c);
-  if (!A) return fail(h, 8, "allocate_sparse (active matrix)");
-  pa = (int *)A->p; ia = (int *)A->i; xa = (double *)A->x;
+  sp = (int *)h->pm->p; si = (int *)h->pm->i;
   pp = (int *)h->sym->Perm;
   actp = h->rs;   /* active flag of each factor position */
   for (k = 0; k < n; k++) actp[k] = active[pp[k]] != 0;
+  /* room: the analysed columns of the active positions, one entry for each other one */
+  for (k = 0; k < n; k++) nz += actp[k] ? sp[k + 1] - sp[k] : 1;
+  A = cholmod_allocate_sparse(n, n, nz + 1, 1, 1, 1, CHOLMOD_REAL, &h->c);
+  if (!A) return fail(h, 8, "allocate_sparse (active matrix)");
+  pa = (int *)A->p; ia = (int *)A->i; xa = (double *)A->x;
+  nz = 0;
   /* column k of the upper triangle of P A P': the active entries, rows increasing; an
    * inactive position is an identity column */
   for (k = 0; k < n; k++) {
     pa[k] = nz;
     if (!actp[k]) { ia[nz] = k; xa[nz] = 1.0; nz++; continue; }
-    for (e = h->sp[k]; e < h->sp[k + 1]; e++) {
-      a = h->si[e];
+    for (e = sp[k]; e < sp[k + 1]; e++) {
+      a = si[e];
       if (actp[a]) { ia[nz] = a; xa[nz] = h->v[h->ss[e]]; nz++; }
     }
   }
@@ -380,6 +380,14 @@ int cr_chol_factor(void *hp, const int *active) {
   if (h->l) cholmod_free_factor(&h->l, &h->c);
   h->l = cholmod_copy_factor(h->sym, &h->c);
   if (!h->l) { cholmod_free_sparse(&A, &h->c); return fail(h, 9, "copy_factor"); }
+  /* from pack_min positions on, the factor starts as the packed identity (as in
+   * cholmod_factorize) and its columns grow as rowfac fills them; below, rowfac gives each
+   * column the analysed count plus room at once (no column moves; at 10^5 agents that took
+   * about twice the memory of the factor, and page faults at every factorisation) */
+  if (n >= pack_min && (!cholmod_change_factor(CHOLMOD_REAL, 0, 0, 1, 1, h->l, &h->c) ||
+                        h->c.status < CHOLMOD_OK)) {
+    cholmod_free_sparse(&A, &h->c); return fail(h, 9, "change_factor");
+  }
   k = cholmod_rowfac(A, NULL, beta, 0, (size_t)n, h->l, &h->c);
   cholmod_free_sparse(&A, &h->c);
   /* CHOLMOD_NOT_POSDEF / DSMALL are warnings: the caller inspects the pivots (cr_chol_pivots) */
