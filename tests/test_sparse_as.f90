@@ -195,8 +195,9 @@ contains
     s = projection_settings_t(); s%name = 'sparse_active_set'; s%dense_rows = 0; s%refresh_every = 7
     call sp%init(s, err)
     sp%check_drift = .true.
-    ! the Schur pivot tests through the elimination-tree reach (the path of large problems)
-    sp%chol%reach_min = 0
+    ! the Schur pivot tests through the elimination-tree reach and factorisations from the
+    ! packed identity (the paths of large problems)
+    sp%chol%reach_min = 0; sp%chol%pack_min = 0
     s%name = 'active_set'
     call make_projection_solver(s, sa, err)
     drift = 0; du = 0; nmod = 0; nfail = 0; nprev = 0
@@ -239,6 +240,11 @@ contains
     call check(nfail == 0, "drift: every step converged on the sparse path")
     call check(nmod > 5 * nsteps, "drift: many active-set changes")
     call check(sp%chol%n_pattern() > nsteps, "drift: row deletions given the row pattern (row subtree)")
+    print '(2x,a,i0)', "drift: additions without the Schur pre-test (an agent in no active row): ", sp%n_free
+    call check(sp%n_free > 0, "drift: rows with a free agent enter without the pre-test")
+    print '(2x,a,i0)', "drift: Schur tests whose factor reach missed a fill (done by the scan): ", &
+      sp%chol%n_schur_scan()
+    call check(sp%chol%n_schur_scan() == 0, "drift: the elimination tree of the factor bounds every Schur solve")
     call check(drift <= sqrt(epsilon(1.0_wp)), "drift: backward error of updated factors <= sqrt(eps)")
     call check(du <= 10.0_wp * s%tol, "drift: agrees with active_set on every step")
   end subroutine test_drift
@@ -467,6 +473,24 @@ contains
       ! zero pattern), row 2 has no slot (identity)
       call check(.not. allocated(err) .and. maxval(abs(x - [2.0_wp, 7.0_wp, 1.0_wp, 1.0_wp])) <= &
         4.0_wp * epsilon(1.0_wp), "shim: solve through the row map")
+      ! values on the analysed pattern itself (entries (1,1), (1,2), (2,2), (3,3) of the slots):
+      ! a wrong count is refused; slots 1 and 2 coupled, M on slots = [2 1 0; 1 2 0; 0 0 2]
+      call ch%set_analysed_values([2.0_wp, 1.0_wp, 2.0_wp], err)
+      call check(allocated(err), "shim: analysed values of the wrong length refused")
+      if (allocated(err)) call check(index(err%message, "analysed entries") > 0, "shim: message says so (length)")
+      call ch%set_analysed_values([2.0_wp, 1.0_wp, 2.0_wp, 2.0_wp], err)
+      call check(.not. allocated(err), "shim: values on the analysed pattern accepted")
+      call ch%factor([.true., .false., .true., .true.], err)
+      call check(.not. allocated(err), "shim: factor of the analysed values")
+      ! x on slots = [1, 1, 1] for slot right-hand side [3, 3, 2]: rows 3, 4, 1 (row 2: identity)
+      call ch%solve([2.0_wp, 7.0_wp, 3.0_wp, 3.0_wp], x, err)
+      call check(.not. allocated(err) .and. maxval(abs(x - [1.0_wp, 7.0_wp, 1.0_wp, 1.0_wp])) <= &
+        8.0_wp * epsilon(1.0_wp), "shim: solve with coupled slots (factor order, row map)")
+      ! slot 2 alone: slot 1 inactive, M on the active slots 2, 3 = 2 I
+      call ch%factor([.false., .false., .false., .true.], err)
+      call ch%solve([2.0_wp, 7.0_wp, 3.0_wp, 4.0_wp], x, err)
+      call check(.not. allocated(err) .and. maxval(abs(x - [2.0_wp, 7.0_wp, 3.0_wp, 2.0_wp])) <= &
+        4.0_wp * epsilon(1.0_wp), "shim: inactive slots are identity rows in the factor")
     end block
     call ch%free()
   end subroutine test_reuse

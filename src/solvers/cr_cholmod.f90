@@ -23,8 +23,13 @@ module cr_cholmod
     !> row modifications since the last numeric factorisation
     integer :: n_since = 0
     !> from this dimension on, the Schur pivot test visits only the elimination-tree reach of
-    !> the new row (below, a scan from its first position is cheaper)
-    integer :: reach_min = 16384
+    !> the new row in the current factor (below, a scan of the active positions from its first
+    !> one is cheaper)
+    integer :: reach_min = 2048
+    !> from this dimension on, a numeric factorisation starts from the packed identity and
+    !> its columns grow as they fill (as cholmod_factorize does); below, each column gets the
+    !> analysed count plus room at once (no column moves, more memory)
+    integer :: pack_min = 16384
     !> the caller's rows and their slots in the analysed matrix: the caller numbers its rows
     !> 1..nrow, the factor knows M [n, n] on slots; map(i) is row i's slot, 0 when the row has
     !> none (such a row can never be active: identity, refused by factor and rowadd). After
@@ -49,8 +54,10 @@ module cr_cholmod
     procedure :: symbolic_nnz => chol_symbolic_nnz
     procedure :: perm => chol_perm
     procedure :: n_pattern => chol_n_pattern
+    procedure :: n_schur_scan => chol_n_schur_scan
     procedure :: set_rows => chol_set_rows
     procedure :: set_values => chol_set_values
+    procedure :: set_analysed_values => chol_set_analysed_values
   end type chol_t
 
   interface
@@ -86,10 +93,11 @@ module cr_cholmod
       integer(c_int), intent(in) :: perm(*)
       integer(c_int), intent(in) :: inset(*)
     end function c_analyze_perm
-    integer(c_int) function c_factor(h, active) bind(C, name='cr_chol_factor')
+    integer(c_int) function c_factor(h, active, pack_min) bind(C, name='cr_chol_factor')
       import :: c_ptr, c_int
       type(c_ptr), value :: h
       integer(c_int), intent(in) :: active(*)
+      integer(c_int), value :: pack_min
     end function c_factor
     integer(c_int) function c_pivots(h, d) bind(C, name='cr_chol_pivots')
       import :: c_ptr, c_int, c_double
@@ -141,6 +149,10 @@ module cr_cholmod
       import :: c_ptr, c_long
       type(c_ptr), value :: h
     end function c_n_pattern
+    integer(c_long) function c_n_schur_scan(h) bind(C, name='cr_chol_n_schur_scan')
+      import :: c_ptr, c_long
+      type(c_ptr), value :: h
+    end function c_n_schur_scan
     integer(c_int) function c_set_rows(h, nrow, map) bind(C, name='cr_chol_set_rows')
       import :: c_ptr, c_int
       type(c_ptr), value :: h
@@ -154,6 +166,12 @@ module cr_cholmod
       integer(c_int), intent(in) :: colptr(*), rowind(*)
       real(c_double), intent(in) :: val(*)
     end function c_set_values
+    integer(c_int) function c_set_analysed_values(h, nz, val) bind(C, name='cr_chol_set_analysed_values')
+      import :: c_ptr, c_int, c_double
+      type(c_ptr), value :: h
+      integer(c_int), value :: nz
+      real(c_double), intent(in) :: val(*)
+    end function c_set_analysed_values
     integer(c_long) function c_factor_nnz(h) bind(C, name='cr_chol_factor_nnz')
       import :: c_ptr, c_long
       type(c_ptr), value :: h
@@ -274,7 +292,7 @@ contains
   end subroutine chol_set_rows
 
   !> New values of M on the stored analysis (same dimension; upper triangle, compressed
-  !> columns, 1-based, rows sorted within each column). Its pattern must lie inside the
+  !> columns, 1-based, rows in any order within a column). Its pattern must lie inside the
   !> analysed one (the caller's invariant: the same slots keep the same neighbours); the
   !> current factor is discarded.
   subroutine chol_set_values(this, colptr, rowind, val, error)
@@ -294,6 +312,21 @@ contains
     if (rc /= 0) call shim_error(this, "set_values", rc, error)
   end subroutine chol_set_values
 
+  !> New values of M on the stored analysis, given on the analysed pattern itself: val [nnz]
+  !> in the order of the entries handed to analyze (zero for an entry absent now). The
+  !> current factor is discarded.
+  subroutine chol_set_analysed_values(this, val, error)
+    class(chol_t), intent(inout) :: this
+    real(wp), intent(in) :: val(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer(c_int) :: rc
+    if (.not. c_associated(this%h) .or. this%n == 0) then
+      call set_error(error, "cholmod set_analysed_values: no analysis to reuse"); return
+    end if
+    rc = c_set_analysed_values(this%h, int(size(val), c_int), val)
+    if (rc /= 0) call shim_error(this, "set_analysed_values", rc, error)
+  end subroutine chol_set_analysed_values
+
   !> Numeric factorisation of M on the rows with active(i) [nrow], identity elsewhere.
   subroutine chol_factor(this, active, error)
     class(chol_t), intent(inout) :: this
@@ -311,7 +344,7 @@ contains
       end if
       this%as(k) = 1_c_int
     end do
-    rc = c_factor(this%h, this%as)
+    rc = c_factor(this%h, this%as, int(this%pack_min, c_int))
     if (rc /= 0) then
       call shim_error(this, "factor", rc, error); return
     end if
@@ -463,6 +496,14 @@ contains
     k = 0
     if (c_associated(this%h)) k = int(c_n_pattern(this%h))
   end function chol_n_pattern
+
+  !> Schur pivot tests through the elimination-tree reach (n >= reach_min) whose reach missed
+  !> a fill of the factor (never expected; then done by the scan) since init.
+  integer function chol_n_schur_scan(this) result(k)
+    class(chol_t), intent(in) :: this
+    k = 0
+    if (c_associated(this%h)) k = int(c_n_schur_scan(this%h))
+  end function chol_n_schur_scan
 
   !> Stored entries of the current factor.
   integer function chol_factor_nnz(this) result(nnz)

@@ -19,8 +19,10 @@ typedef struct {
   cholmod_common c;
   int started;
   int n;
-  cholmod_sparse *m;      /* full matrix M, upper, stype = 1 */
-  cholmod_sparse *m0;     /* M as analysed (its pattern bounds later values) */
+  cholmod_sparse *m;      /* pattern of M as analysed, upper, stype = 1 (it bounds later values) */
+  double *v;              /* current values of M on the analysed pattern (m's layout; zero
+                           * where cr_chol_set_values gave no entry) [nnz(m)] */
+  int *ss;                /* the entry of m each entry of pm comes from [nnz(m)] */
   cholmod_factor *sym;    /* symbolic analysis of M */
   cholmod_factor *l;      /* numeric LDL' factor of the active matrix */
   cholmod_sparse *r;      /* rowadd column [n, 1] */
@@ -29,14 +31,17 @@ typedef struct {
   int *inset;             /* rows of the analysed set W: the only rows that may be active [n] */
   double *yw;             /* zero work vector of the Schur-complement test [n] */
   double *xw;             /* work vector of the solve, factor order [n] */
-  cholmod_sparse *pm;     /* pattern of P M P' (upper, factor order), for the row subtrees */
+  cholmod_sparse *pm;     /* pattern of P M P' (upper, factor order, rows increasing in each
+                           * column), for the row subtrees and the factorisation */
   int *parent;            /* elimination tree of P M P' [n] */
   int *mk, *stk;          /* marks (zero between calls) and a stack of the Schur test [n] */
   cholmod_sparse *rpat;   /* pattern of a row of L handed to cholmod_rowdel [n, 1] */
   long n_pattern;         /* row deletions done with a known row pattern */
+  long n_schur_scan;      /* Schur tests whose reach missed a fill (done by the scan) */
   int nrow;               /* the caller's rows (cr_chol_set_rows; n after an analysis) */
   int *rowof;             /* caller's row at each factor position, -1 for none [n] */
   int *noslot, nnoslot;   /* the caller's rows without a slot [nrow] */
+  int *rs;                /* work [n + 1] */
   int *apos, napos;       /* active factor positions, ascending [n] (the solve visits only
                            * these; the others are identity rows and, in the work vector
                            * xw, stay zero) */
@@ -50,9 +55,9 @@ static int fail(cr_chol_t *h, int code, const char *what) {
 
 static void release(cr_chol_t *h) {
   if (!h->started) return;
-  if (h->m && h->m != h->m0) cholmod_free_sparse(&h->m, &h->c);
-  h->m = NULL;
-  if (h->m0) cholmod_free_sparse(&h->m0, &h->c);
+  if (h->m) cholmod_free_sparse(&h->m, &h->c);
+  free(h->v); h->v = NULL;
+  free(h->ss); h->ss = NULL;
   if (h->sym) cholmod_free_factor(&h->sym, &h->c);
   if (h->l) cholmod_free_factor(&h->l, &h->c);
   if (h->r) cholmod_free_sparse(&h->r, &h->c);
@@ -68,6 +73,7 @@ static void release(cr_chol_t *h) {
   free(h->stk); h->stk = NULL;
   free(h->rowof); h->rowof = NULL;
   free(h->apos); h->apos = NULL; h->napos = 0;
+  free(h->rs); h->rs = NULL;
   free(h->noslot); h->noslot = NULL;
   h->nnoslot = 0; h->nrow = 0;
   h->n = 0;
@@ -110,37 +116,72 @@ void cr_chol_message(void *hp, char *buf, int len) {
  * the same ordering, so its pattern, even after row additions and deletions, lies inside the
  * symbolic factor of P M P': the row subtree of row k of that tree (cholmod_row_subtree) is an
  * upper bound of the pattern of row k of L, which lets cholmod_rowdel skip its O(nnz(L)) scan. */
+static int sorted_upper(cr_chol_t *h);
+
 static int permuted_etree(cr_chol_t *h) {
-  int n = h->n, j, q, a, b, *mp = (int *)h->m->p, *mi = (int *)h->m->i, *cp, *ci, *cnt;
+  int n = h->n, rc, *mp = (int *)h->m->p;
   h->pm = cholmod_allocate_sparse(n, n, mp[n] > 0 ? mp[n] : 1, 1, 1, 1, CHOLMOD_PATTERN, &h->c);
   h->parent = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
   h->mk = calloc((size_t)(n > 0 ? n : 1), sizeof(int));
   h->stk = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
   h->rpat = cholmod_allocate_sparse(n, 1, n > 0 ? n : 1, 0, 1, 0, CHOLMOD_PATTERN, &h->c);
-  cnt = calloc((size_t)n + 1, sizeof(int));
-  if (!h->pm || !h->parent || !h->rpat || !cnt || !h->mk || !h->stk) {
-    free(cnt);
+  if (!h->pm || !h->parent || !h->rpat || !h->mk || !h->stk) {
     snprintf(h->msg, sizeof h->msg, "out of memory (elimination tree, n = %d)", n);
     return 23;
   }
-  cp = (int *)h->pm->p; ci = (int *)h->pm->i;
-  /* counting sort of the entries (i <= j of M) into column max(pi, pj) of P M P' */
-  for (j = 0; j < n; j++)
-    for (q = mp[j]; q < mp[j + 1]; q++) {
-      a = h->iperm[mi[q]]; b = h->iperm[j];
-      cnt[a > b ? a : b]++;
-    }
-  cp[0] = 0;
-  for (j = 0; j < n; j++) { cp[j + 1] = cp[j] + cnt[j]; cnt[j] = cp[j]; }
-  for (j = 0; j < n; j++)
-    for (q = mp[j]; q < mp[j + 1]; q++) {
-      a = h->iperm[mi[q]]; b = h->iperm[j];
-      if (a > b) ci[cnt[a]++] = b; else ci[cnt[b]++] = a;
-    }
-  free(cnt);
-  h->pm->sorted = 0;
+  /* the pattern of P M P' is that of the sorted upper triangle */
+  rc = sorted_upper(h);
+  if (rc != 0) return rc;
+  h->pm->sorted = 1;
   if (!cholmod_etree(h->pm, h->parent, &h->c) || h->c.status < CHOLMOD_OK)
     return fail(h, 24, "etree");
+  return 0;
+}
+
+/* The upper triangle of P M P' by columns with the rows of each column increasing (pm, also
+ * the pattern of the elimination tree) and the entry of M each comes from (ss): the entries (a, k), a <= k factor positions, are
+ * bucketed by a, then moved to column k in increasing a (entries below the diagonal of M are
+ * ignored, as CHOLMOD does for a symmetric-upper matrix). cr_chol_factor gathers the active
+ * matrix from it in one pass, in the form cholmod_rowfac takes. */
+static int sorted_upper(cr_chol_t *h) {
+  int n = h->n, j, q, a, b, k, e, *mp = (int *)h->m->p, *mi = (int *)h->m->i, *ip = h->iperm;
+  int *rs = h->rs, *cnt = h->stk, *tk, *tq, *sp = (int *)h->pm->p, *si = (int *)h->pm->i;
+  for (k = 0; k <= n; k++) rs[k] = 0;
+  for (j = 0; j < n; j++)
+    for (q = mp[j]; q < mp[j + 1]; q++) {
+      if (mi[q] > j) continue;
+      a = ip[mi[q]]; b = ip[j];
+      rs[(a < b ? a : b) + 1]++;
+    }
+  for (k = 0; k < n; k++) { rs[k + 1] += rs[k]; cnt[k] = rs[k]; }
+  e = rs[n];
+  tk = malloc((size_t)(e > 0 ? e : 1) * sizeof(int));
+  tq = malloc((size_t)(e > 0 ? e : 1) * sizeof(int));
+  if (!tk || !tq) {
+    free(tk); free(tq);
+    snprintf(h->msg, sizeof h->msg, "out of memory (sorted upper triangle, n = %d)", n);
+    return 5;
+  }
+  /* by rows: the column of each entry (tk) and the entry of M (tq) */
+  for (j = 0; j < n; j++)
+    for (q = mp[j]; q < mp[j + 1]; q++) {
+      if (mi[q] > j) continue;
+      a = ip[mi[q]]; b = ip[j];
+      if (a > b) { k = a; a = b; } else k = b;
+      tk[cnt[a]] = k; tq[cnt[a]] = q; cnt[a]++;
+    }
+  /* by columns, rows increasing */
+  for (k = 0; k < n; k++) cnt[k] = 0;
+  for (q = 0; q < e; q++) cnt[tk[q]]++;
+  sp[0] = 0;
+  for (k = 0; k < n; k++) { sp[k + 1] = sp[k] + cnt[k]; cnt[k] = sp[k]; }
+  for (a = 0; a < n; a++)
+    for (q = rs[a]; q < rs[a + 1]; q++) {
+      k = tk[q];
+      si[cnt[k]] = a; h->ss[cnt[k]] = tq[q]; cnt[k]++;
+    }
+  for (k = 0; k < n; k++) cnt[k] = 0;
+  free(tk); free(tq);
   return 0;
 }
 
@@ -155,12 +196,10 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
   int nz = colptr[n], j, *p, *ip;
   release(h);
   h->n = n;
-  h->m = cholmod_allocate_sparse(n, n, nz > 0 ? nz : 1, 1, 1, 1, CHOLMOD_REAL, &h->c);
+  h->m = cholmod_allocate_sparse(n, n, nz > 0 ? nz : 1, 1, 1, 1, CHOLMOD_PATTERN, &h->c);
   if (!h->m) return fail(h, 3, "allocate_sparse (M)");
   memcpy(h->m->p, colptr, (size_t)(n + 1) * sizeof(int));
   memcpy(h->m->i, rowind, (size_t)nz * sizeof(int));
-  memcpy(h->m->x, val, (size_t)nz * sizeof(double));
-  h->m0 = h->m;
   if (perm) {
     h->c.nmethods = 1; h->c.method[0].ordering = CHOLMOD_GIVEN; h->c.postorder = 0;
     h->sym = cholmod_analyze_p(h->m, (int *)perm, NULL, 0, &h->c);
@@ -184,46 +223,81 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
   h->rowof = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
   h->apos = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
   h->napos = 0;
-  if (!h->xw || !h->rowof || !h->apos) { snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5; }
+  h->rs = malloc((size_t)(n + 1) * sizeof(int));
+  h->ss = malloc((size_t)(nz > 0 ? nz : 1) * sizeof(int));
+  if (!h->xw || !h->rowof || !h->apos || !h->rs || !h->ss) {
+    snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5;
+  }
   for (j = 0; j < n; j++) h->rowof[j] = p[j];
   h->nrow = n; h->nnoslot = 0;
-  return permuted_etree(h);
+  j = permuted_etree(h);
+  if (j != 0) return j;
+  /* the values, after the work of the pattern is freed (a lower peak of memory) */
+  h->v = malloc((size_t)(nz > 0 ? nz : 1) * sizeof(double));
+  if (!h->v) { snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5; }
+  memcpy(h->v, val, (size_t)nz * sizeof(double));
+  return 0;
 }
 
-/* New values of M [n, n] on the stored analysis (upper triangle, compressed columns, 0-based,
- * rows sorted within each column): the caller guarantees that the pattern lies inside the
- * analysed one (it reuses an analysis for rows whose neighbours in M cannot change), since
- * the row deletions rely on it (row subtrees of the analysed pattern). Each entry is looked
- * up in the analysed pattern (P M P', short columns); one outside it is an error, never a
- * wrong factor. The current numeric factor is discarded. */
+/* New values of M [n, n] on the stored analysis (upper triangle, compressed columns, 0-based;
+ * the rows within a column in any order: only cr_chol_factor reads them, and it orders them):
+ * the caller guarantees that the pattern lies inside the analysed one (it reuses an analysis
+ * for rows whose neighbours in M cannot change), since the row deletions rely on it (row
+ * subtrees of the analysed pattern). Each entry is looked up in the analysed pattern (a stamp
+ * per row of the column); one outside it is an error, never a wrong factor. The current
+ * numeric factor is discarded. */
 int cr_chol_set_values(void *hp, int n, const int *colptr, const int *rowind, const double *val) {
   cr_chol_t *h = (cr_chol_t *)hp;
-  int nz = colptr[n], j, q, p, *pp, *pi;
-  if (!h->sym || !h->m0 || n != h->n) {
+  int nz = colptr[n], j, q, p, r, *pp, *pi, *st;
+  if (!h->sym || !h->m || n != h->n) {
     snprintf(h->msg, sizeof h->msg, "cr_chol_set_values: dimension %d, analysed %d", n, h->n);
     return 29;
   }
-  /* the analysed M (h->m0, kept from the analysis) column by column: mark its rows, test */
-  pp = (int *)h->m0->p; pi = (int *)h->m0->i;
+  pp = (int *)h->m->p; pi = (int *)h->m->i;
+  /* the analysed M column by column: each row of the column stamped with its entry, each
+   * given entry looked up (an entry of another column, or none, is outside the pattern) and
+   * its value placed; entries not given are zero */
+  st = h->rs;
+  for (j = 0; j < n; j++) st[j] = -1;
+  memset(h->v, 0, (size_t)pp[n] * sizeof(double));
   for (j = 0; j < n; j++) {
-    for (p = pp[j]; p < pp[j + 1]; p++) h->mk[pi[p]] = 1;
-    for (q = colptr[j]; q < colptr[j + 1]; q++)
-      if (!h->mk[rowind[q]]) break;
-    for (p = pp[j]; p < pp[j + 1]; p++) h->mk[pi[p]] = 0;
+    for (p = pp[j]; p < pp[j + 1]; p++) st[pi[p]] = p;
+    for (q = colptr[j]; q < colptr[j + 1]; q++) {
+      r = rowind[q];
+      if (r < 0 || r >= n || st[r] < pp[j]) break;
+      h->v[st[r]] = val[q];
+    }
     if (q < colptr[j + 1]) {
       snprintf(h->msg, sizeof h->msg, "cr_chol_set_values: entry (%d, %d) outside the analysed pattern",
                rowind[q] + 1, j + 1);
       return 30;
     }
   }
+  if (nz > pp[n]) {
+    snprintf(h->msg, sizeof h->msg, "cr_chol_set_values: %d entries, more than the %d of the analysed pattern "
+             "(repeated entries)", nz, pp[n]);
+    return 30;
+  }
   if (h->l) cholmod_free_factor(&h->l, &h->c);
-  if (h->m != h->m0) cholmod_free_sparse(&h->m, &h->c);
-  h->m = cholmod_allocate_sparse(n, n, nz > 0 ? nz : 1, 1, 1, 1, CHOLMOD_REAL, &h->c);
-  if (!h->m) return fail(h, 31, "allocate_sparse (M values)");
-  memcpy(h->m->p, colptr, (size_t)(n + 1) * sizeof(int));
-  memcpy(h->m->i, rowind, (size_t)nz * sizeof(int));
-  memcpy(h->m->x, val, (size_t)nz * sizeof(double));
   memset(h->active, 0, (size_t)n * sizeof(int));
+  h->napos = 0;
+  return 0;
+}
+
+/* New values of M on the stored analysis, on the analysed pattern itself: val [nz], nz the
+ * entries handed to cr_chol_analyze, in their order (zero where the caller has no entry now).
+ * The current numeric factor is discarded. */
+int cr_chol_set_analysed_values(void *hp, int nz, const double *val) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  if (!h->sym || !h->m) { snprintf(h->msg, sizeof h->msg, "cr_chol_set_analysed_values before cr_chol_analyze"); return 33; }
+  if (nz != ((int *)h->m->p)[h->n]) {
+    snprintf(h->msg, sizeof h->msg, "cr_chol_set_analysed_values: %d values, %d analysed entries", nz,
+             ((int *)h->m->p)[h->n]);
+    return 34;
+  }
+  memcpy(h->v, val, (size_t)nz * sizeof(double));
+  if (h->l) cholmod_free_factor(&h->l, &h->c);
+  memset(h->active, 0, (size_t)h->n * sizeof(int));
   h->napos = 0;
   return 0;
 }
@@ -267,13 +341,14 @@ int cr_chol_perm(void *hp, int *perm) {
 }
 
 /* Factorise A = M on the rows with active[i] != 0, identity elsewhere (numeric refactorisation
- * on the stored analysis; the previous factor is discarded). */
-int cr_chol_factor(void *hp, const int *active) {
+ * on the stored analysis; the previous factor is discarded). A is built directly in factor
+ * order (upper triangle of P A P', the form cholmod_rowfac works on), so that CHOLMOD does not
+ * permute and transpose it twice as cholmod_factorize would; the arithmetic is the same. */
+int cr_chol_factor(void *hp, const int *active, int pack_min) {
   cr_chol_t *h = (cr_chol_t *)hp;
-  int n = h->n, j, k, q, nz = 0;
-  int *mp = (int *)h->m->p, *mi = (int *)h->m->i;
-  double *mx = (double *)h->m->x;
-  cholmod_sparse *a;
+  int n = h->n, j, k, e, a, nz = 0, *pa, *ia, *actp, *pp, *sp, *si;
+  double *xa, beta[2] = {0.0, 0.0};
+  cholmod_sparse *A;
   if (!h->sym) { snprintf(h->msg, sizeof h->msg, "cr_chol_factor before cr_chol_analyze"); return 7; }
   for (j = 0; j < n; j++)
     if (active[j] && !h->inset[j]) {
@@ -281,36 +356,49 @@ int cr_chol_factor(void *hp, const int *active) {
       return 26;
     }
   memcpy(h->active, active, (size_t)n * sizeof(int));
-  a = cholmod_allocate_sparse(n, n, mp[n] + n + 1, 1, 1, 1, CHOLMOD_REAL, &h->c);
-  if (!a) return fail(h, 8, "allocate_sparse (active matrix)");
-  {
-    int *ap = (int *)a->p, *ai = (int *)a->i;
-    double *ax = (double *)a->x;
-    for (j = 0; j < n; j++) {
-      ap[j] = nz;
-      if (!active[j]) { ai[nz] = j; ax[nz] = 1.0; nz++; continue; }
-      for (q = mp[j]; q < mp[j + 1]; q++) {
-        k = mi[q];
-        if (k <= j && active[k]) { ai[nz] = k; ax[nz] = mx[q]; nz++; }
-      }
+  sp = (int *)h->pm->p; si = (int *)h->pm->i;
+  pp = (int *)h->sym->Perm;
+  actp = h->rs;   /* active flag of each factor position */
+  for (k = 0; k < n; k++) actp[k] = active[pp[k]] != 0;
+  /* room: the analysed columns of the active positions, one entry for each other one */
+  for (k = 0; k < n; k++) nz += actp[k] ? sp[k + 1] - sp[k] : 1;
+  A = cholmod_allocate_sparse(n, n, nz + 1, 1, 1, 1, CHOLMOD_REAL, &h->c);
+  if (!A) return fail(h, 8, "allocate_sparse (active matrix)");
+  pa = (int *)A->p; ia = (int *)A->i; xa = (double *)A->x;
+  nz = 0;
+  /* column k of the upper triangle of P A P': the active entries, rows increasing; an
+   * inactive position is an identity column */
+  for (k = 0; k < n; k++) {
+    pa[k] = nz;
+    if (!actp[k]) { ia[nz] = k; xa[nz] = 1.0; nz++; continue; }
+    for (e = sp[k]; e < sp[k + 1]; e++) {
+      a = si[e];
+      if (actp[a]) { ia[nz] = a; xa[nz] = h->v[h->ss[e]]; nz++; }
     }
-    ap[n] = nz;
   }
+  pa[n] = nz;
   if (h->l) cholmod_free_factor(&h->l, &h->c);
   h->l = cholmod_copy_factor(h->sym, &h->c);
-  if (!h->l) { cholmod_free_sparse(&a, &h->c); return fail(h, 9, "copy_factor"); }
-  k = cholmod_factorize(a, h->l, &h->c);
-  cholmod_free_sparse(&a, &h->c);
-  /* CHOLMOD_NOT_POSDEF / DSMALL are warnings: the caller inspects the pivots (cr_chol_pivots) */
-  if (!k || h->c.status < CHOLMOD_OK) return fail(h, 10, "factorize");
-  if (h->l->is_super || h->l->is_ll) { snprintf(h->msg, sizeof h->msg, "CHOLMOD returned a supernodal or LL' factor"); return 11; }
-  {
-    int *pp = (int *)h->l->Perm;
-    h->napos = 0;
-    for (k = 0; k < n; k++)
-      if (active[pp[k]]) h->apos[h->napos++] = k;
-    memset(h->xw, 0, (size_t)n * sizeof(double));
+  if (!h->l) { cholmod_free_sparse(&A, &h->c); return fail(h, 9, "copy_factor"); }
+  /* from pack_min positions on, the factor starts as the packed identity (as in
+   * cholmod_factorize) and its columns grow as rowfac fills them; below, rowfac gives each
+   * column the analysed count plus room at once (no column moves; at 10^5 agents that took
+   * about twice the memory of the factor, and page faults at every factorisation) */
+  if (n >= pack_min && (!cholmod_change_factor(CHOLMOD_REAL, 0, 0, 1, 1, h->l, &h->c) ||
+                        h->c.status < CHOLMOD_OK)) {
+    cholmod_free_sparse(&A, &h->c); return fail(h, 9, "change_factor");
   }
+  k = cholmod_rowfac(A, NULL, beta, 0, (size_t)n, h->l, &h->c);
+  cholmod_free_sparse(&A, &h->c);
+  /* CHOLMOD_NOT_POSDEF / DSMALL are warnings: the caller inspects the pivots (cr_chol_pivots) */
+  if (!k || h->c.status < CHOLMOD_OK) return fail(h, 10, "rowfac");
+  if (h->l->is_super || h->l->is_ll || h->l->xtype != CHOLMOD_REAL) {
+    snprintf(h->msg, sizeof h->msg, "CHOLMOD returned a supernodal, LL' or non-real factor"); return 11;
+  }
+  h->napos = 0;
+  for (k = 0; k < n; k++)
+    if (actp[k]) h->apos[h->napos++] = k;
+  memset(h->xw, 0, (size_t)n * sizeof(double));
   return 0;
 }
 
@@ -358,54 +446,65 @@ int cr_chol_rowadd(void *hp, int t, int nz, const int *idx, const double *val, d
 
 /* s = w' A^{-1} w for the column w = (idx[q], val[q]), q < nz, restricted to the active rows
  * other than t: the part of M(t,t) that the active rows explain (the pivot row t would get is
- * M(t,t) - s). One sparse forward solve y = L^{-1} P w, s = sum y_j^2 / D(j,j), over the
- * reach of w only: the union of the paths from w's nonzeros to the root of the elimination
- * tree of P M P' (a superset of the pattern of y, since the factor's pattern lies inside the
- * symbolic factor of P M P'), visited in increasing order, when n >= reach_min; below, a
- * scan of the positions from the first nonzero on (cheaper on small factors, where the paths
- * to the root cover much of the tree). A fill outside the reach would mean the assumption is
- * broken: an error, never a wrong pivot. */
-static int cmp_int(const void *a, const void *b) {
-  int x = *(const int *)a, y = *(const int *)b;
-  return (x > y) - (x < y);
-}
-
-int cr_chol_schur(void *hp, int t, int nz, const int *idx, const double *val, int reach_min,
-                  double *s) {
-  cr_chol_t *h = (cr_chol_t *)hp;
-  int q, k, j, p, jmin, top = 0, bad = 0, *lp, *li, *lnz, *mk, *stk;
-  double *lx, *y = h->yw, yj, acc = 0.0;
-  if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_schur without a factor"); return 21; }
-  lp = (int *)h->l->p; li = (int *)h->l->i; lnz = (int *)h->l->nz; lx = (double *)h->l->x;
-  mk = h->mk; stk = h->stk;
-  if (h->n < reach_min) {
-    jmin = h->n;
-    for (q = 0; q < nz; q++) {
-      k = idx[q];
-      if (k == t || !h->active[k]) continue;
-      p = h->iperm[k];
-      y[p] += val[q];
-      if (p < jmin) jmin = p;
-    }
-    for (j = jmin; j < h->n; j++) {
-      yj = y[j];
-      if (yj == 0.0) continue;
-      y[j] = 0.0;
-      acc += yj * yj / lx[lp[j]];
-      for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) y[li[p]] -= lx[p] * yj;
-    }
-    *s = acc;
-    return 0;
-  }
+ * M(t,t) - s). One sparse forward solve y = L^{-1} P w, s = sum y_j^2 / D(j,j). Below
+ * reach_min positions: a scan of the active positions from the first nonzero of w on.
+ * From reach_min on: over the reach of w only, the union of the paths from w's nonzeros to
+ * the root of the elimination tree of the current factor (the parent of column j is its
+ * first off-diagonal row, as cholmod_rowadd itself takes it), in topological order (the
+ * paths stacked depth first, no sort). A fill outside the reach (never expected) means the
+ * tree did not bound the pattern: the scan is done instead, never a wrong pivot. */
+static double schur_scan(cr_chol_t *h, int t, int nz, const int *idx, const double *val) {
+  int q, k, j, p, i, jmin = h->n, lo, hi, *lp = (int *)h->l->p, *li = (int *)h->l->i;
+  int *lnz = (int *)h->l->nz;
+  double *lx = (double *)h->l->x, *y = h->yw, yj, acc = 0.0;
   for (q = 0; q < nz; q++) {
     k = idx[q];
     if (k == t || !h->active[k]) continue;
     p = h->iperm[k];
     y[p] += val[q];
-    for (j = p; j >= 0 && !mk[j]; j = h->parent[j]) { mk[j] = 1; stk[top++] = j; }
+    if (p < jmin) jmin = p;
   }
-  qsort(stk, (size_t)top, sizeof(int), cmp_int);
-  for (q = 0; q < top; q++) {
+  /* the active positions from jmin on (the columns there reach no inactive position but by
+   * the zeros a row deletion leaves, as in cr_chol_solve) */
+  lo = 0; hi = h->napos;
+  while (lo < hi) { int mid = (lo + hi) / 2; if (h->apos[mid] < jmin) lo = mid + 1; else hi = mid; }
+  for (i = lo; i < h->napos; i++) {
+    j = h->apos[i];
+    yj = y[j];
+    if (yj == 0.0) continue;
+    y[j] = 0.0;
+    acc += yj * yj / lx[lp[j]];
+    for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) y[li[p]] -= lx[p] * yj;
+  }
+  return acc;
+}
+
+int cr_chol_schur(void *hp, int t, int nz, const int *idx, const double *val, int reach_min,
+                  double *s) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  int q, k, j, p, n, len, top, bad = 0, *lp, *li, *lnz, *mk, *stk;
+  double *lx, *y, yj, acc = 0.0;
+  if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_schur without a factor"); return 21; }
+  if (h->n < reach_min) {
+    *s = schur_scan(h, t, nz, idx, val);
+    return 0;
+  }
+  n = h->n; y = h->yw;
+  lp = (int *)h->l->p; li = (int *)h->l->i; lnz = (int *)h->l->nz; lx = (double *)h->l->x;
+  mk = h->mk; stk = h->stk;
+  /* each path is collected at the bottom of stk, then moved to the stack at its top */
+  top = n;
+  for (q = 0; q < nz; q++) {
+    k = idx[q];
+    if (k == t || !h->active[k]) continue;
+    p = h->iperm[k];
+    y[p] += val[q];
+    for (len = 0, j = p; j >= 0 && !mk[j]; j = lnz[j] > 1 ? li[lp[j] + 1] : -1) {
+      mk[j] = 1; stk[len++] = j;
+    }
+    while (len > 0) stk[--top] = stk[--len];
+  }
+  for (q = top; q < n; q++) {
     j = stk[q];
     yj = y[j];
     if (yj == 0.0) continue;
@@ -416,12 +515,12 @@ int cr_chol_schur(void *hp, int t, int nz, const int *idx, const double *val, in
       y[li[p]] -= lx[p] * yj;
     }
   }
-  for (q = 0; q < top; q++) { mk[stk[q]] = 0; y[stk[q]] = 0.0; }
+  for (q = top; q < n; q++) { mk[stk[q]] = 0; y[stk[q]] = 0.0; }
   if (bad) {
-    /* clear the work vector completely before reporting */
-    memset(y, 0, (size_t)h->n * sizeof(double));
-    snprintf(h->msg, sizeof h->msg, "cr_chol_schur: factor pattern outside the elimination-tree reach");
-    return 28;
+    memset(y, 0, (size_t)n * sizeof(double));
+    h->n_schur_scan++;
+    *s = schur_scan(h, t, nz, idx, val);
+    return 0;
   }
   *s = acc;
   return 0;
@@ -490,20 +589,39 @@ int cr_chol_solve(void *hp, const double *b, double *x) {
    * are zeros and meet the zeros kept in y at inactive positions) */
   for (i = 0; i < na; i++) { j = ap[i]; y[j] = b[rowof[j]]; }
   for (i = 0; i < na; i++) {            /* L y = P b */
+    const int *ip, *ie;
+    const double *xp;
     j = ap[i];
     yj = y[j];
     if (yj == 0.0) continue;
-    for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) y[li[p]] -= lx[p] * yj;
+    ip = li + lp[j] + 1; ie = li + lp[j] + lnz[j]; xp = lx + lp[j] + 1;
+    for (; ip + 1 < ie; ip += 2, xp += 2) {
+      y[ip[0]] -= xp[0] * yj;
+      y[ip[1]] -= xp[1] * yj;
+    }
+    if (ip < ie) y[ip[0]] -= xp[0] * yj;
   }
-  for (i = 0; i < na; i++) { j = ap[i]; y[j] /= lx[lp[j]]; }  /* D */
-  for (i = na - 1; i >= 0; i--) {       /* L' x = y */
+  for (i = na - 1; i >= 0; i--) {       /* L' x = D^{-1} y, the result scattered to x */
+    const int *ip, *ie;
+    const double *xp;
     j = ap[i];
-    yj = y[j];
-    for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) yj -= lx[p] * y[li[p]];
+    yj = y[j] / lx[lp[j]];
+    ip = li + lp[j] + 1; ie = li + lp[j] + lnz[j]; xp = lx + lp[j] + 1;
+    for (; ip + 1 < ie; ip += 2, xp += 2) {
+      yj -= xp[0] * y[ip[0]];
+      yj -= xp[1] * y[ip[1]];
+    }
+    if (ip < ie) yj -= xp[0] * y[ip[0]];
     y[j] = yj;
+    x[rowof[j]] = yj;
   }
-  for (i = 0; i < na; i++) { j = ap[i]; x[rowof[j]] = y[j]; }
   return 0;
+}
+
+/* Schur tests whose elimination-tree reach missed a fill (then done by the scan). */
+long cr_chol_n_schur_scan(void *hp) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  return h->n_schur_scan;
 }
 
 /* Row deletions done with a known row pattern since the handle was created. */

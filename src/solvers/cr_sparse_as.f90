@@ -48,7 +48,6 @@
 !>   backward error of a solve with the updated factor is measured first (stats%factor_drift).
 module cr_sparse_as
   use cr_kinds, only: wp, i8
-  use cr_sort, only: argsort_i8, bsearch_i8
   use cr_grow, only: igrow => grow_int, rgrow => grow_real, lgrow => grow_logical
   use cr_error, only: error_t, prefix_error
   use cr_strings, only: str
@@ -142,13 +141,17 @@ module cr_sparse_as
     real(wp), allocatable :: uu(:)
     !> solves whose warm start already met the KKT test (no analysis, no factorisation)
     integer :: n_warm_exact = 0
+    !> row additions whose pre-test was skipped since an agent of the row was in no active
+    !> row (the pivot is then at least half the diagonal) since init
+    integer :: n_free = 0
     !> rows analysed (the set W that can become active): warm-start rows and rows whose slack
     !> at u = v is below w_margin * (velocity scale); a violated row outside W enlarges W
     !> (re-analysis, counted in n_reanalyse). w_margin < 0: every row is analysed.
     real(wp) :: w_margin = 1.0_wp
     integer :: n_reanalyse = 0
     logical, allocatable :: inw(:)
-    !> upper triangle of M restricted to W (and the diagonal) [m + 1], [nnz]
+    !> upper triangle of M restricted to W (and the diagonal) in slot space, as analysed
+    !> (reuse_slots puts later values on this pattern) [ns + 1], [nnz]
     integer, allocatable :: wptr(:), wi(:)
     real(wp), allocatable :: wv(:)
     !> reuse the analysis of an earlier solve (reuse_analysis): the analysed matrix is indexed
@@ -167,13 +170,14 @@ module cr_sparse_as
     real(wp) :: a_margin = 2.0_wp, reuse_fill = 0.5_wp, r_margin = 0.0_wp
     !> analyses done (fresh) and reused since the last free
     integer :: n_analyse = 0, n_reuse = 0
-    !> slots of the current analysis: number, sorted keys [ns], slot of each sorted key [ns]
-    integer :: ns = 0
+    !> slots of the current analysis: number; their keys in an open-addressing hash table
+    !> (linear probing) [0:hmask], with the slot of each entry (0: empty) [0:hmask]
+    integer :: ns = 0, hmask = 0
     logical :: keys_ok = .false.
-    integer(i8), allocatable :: skey(:)
-    integer, allocatable :: sslot(:)
-    !> slot of each row [m] (0: none), slot-space work [ns + 1]
-    integer, allocatable :: rslot(:), scnt(:), smark(:)
+    integer(i8), allocatable :: hkey(:)
+    integer, allocatable :: hslot(:)
+    !> slot of each row [m] (0: none), row of each slot [ns] (reuse_slots)
+    integer, allocatable :: rslot(:), smark(:)
   contains
     procedure :: solve => sparse_as_solve
     procedure :: free => sparse_as_free
@@ -617,8 +621,7 @@ contains
     subroutine order_and_analyze(fresh)
       logical, intent(in) :: fresh
       integer :: jj, q, nzw, k
-      integer, allocatable :: idx(:)
-      integer(i8), allocatable :: keys(:)
+      integer(i8) :: key
       if (.not. fresh .and. this%reuse_analysis) then
         if (reuse_slots()) return
         if (allocated(error)) return
@@ -637,6 +640,8 @@ contains
         end if
       end do
       this%ns = k
+      ! no reuse of this analysis until it is complete
+      this%keys_ok = .false.
       ! slot numbers grow with the row number: sorted columns stay sorted
       call igrow(this%wptr, k + 1); call igrow(this%wi, max(this%nzu, 1))
       call rgrow(this%wv, max(this%nzu, 1))
@@ -657,21 +662,28 @@ contains
       call this%chol%set_rows(this%rslot(1:m), error)
       if (allocated(error)) return
       this%n_analyse = this%n_analyse + 1
-      ! the slots' identities, sorted, for the next solves
-      allocate(keys(k), idx(k))
-      k = 0
-      do jj = 1, m
-        if (this%inw(jj)) then
-          k = k + 1; keys(k) = cs%key(jj)
-        end if
+      ! the slots' identities in a hash table (at most half full), for the next solves
+      q = 16
+      do while (q < 2 * k)
+        q = 2 * q
       end do
-      call argsort_i8(keys, idx)
-      if (allocated(this%skey)) deallocate(this%skey, this%sslot)
-      allocate(this%skey(k), this%sslot(k))
-      this%skey = keys(idx); this%sslot = idx
+      if (allocated(this%hkey)) then
+        if (size(this%hkey) < q) deallocate(this%hkey, this%hslot)
+      end if
+      if (.not. allocated(this%hkey)) allocate(this%hkey(0:q - 1), this%hslot(0:q - 1))
+      this%hmask = q - 1
+      this%hslot(0:q - 1) = 0
       this%keys_ok = .true.
-      do q = 2, k
-        if (this%skey(q) == this%skey(q - 1)) this%keys_ok = .false.
+      do jj = 1, m
+        if (.not. this%inw(jj)) cycle
+        key = cs%key(jj)
+        q = key_hash(key, this%hmask)
+        do while (this%hslot(q) /= 0)
+          ! two rows with one identity: no reuse (never expected of a contact set)
+          if (this%hkey(q) == key) this%keys_ok = .false.
+          q = iand(q + 1, this%hmask)
+        end do
+        this%hkey(q) = key; this%hslot(q) = this%rslot(jj)
       end do
     end subroutine order_and_analyze
 
@@ -680,17 +692,15 @@ contains
     !> identity), no two rows share one, and at least reuse_fill of the slots hold a row. Then W becomes every row with a slot, M is handed over in slot space (same
     !> pattern as analysed or a part of it) and ok is true.
     logical function reuse_slots() result(ok)
-      integer :: jj, q, k, a, b, nzs, nin, p1, p2, l
-      real(wp) :: val
+      integer :: jj, q, k, a, b, nzs, nin, p
       ok = .false.
       if (.not. this%keys_ok .or. this%ns == 0) return
-      call igrow(this%rslot, m); call igrow(this%scnt, this%ns + 1); call igrow(this%smark, this%ns)
+      call igrow(this%rslot, m); call igrow(this%smark, this%ns)
       this%smark(1:this%ns) = 0
       nin = 0
       do jj = 1, m
-        k = bsearch_i8(this%skey, cs%key(jj))
+        k = find_slot(cs%key(jj))
         if (k > 0) then
-          k = this%sslot(k)
           if (this%smark(k) /= 0) return
           this%smark(k) = jj; nin = nin + 1
         else if (this%lam(jj) > 0.0_wp .or. this%cc(jj) > -this%r_margin * sv) then
@@ -699,50 +709,34 @@ contains
         this%rslot(jj) = k
       end do
       if (real(nin, wp) < this%reuse_fill * real(this%ns, wp)) return
-      ! upper triangle of M in slot space: count the entries of each slot column, place them,
-      ! sort each column by slot (short columns)
-      this%scnt(1:this%ns + 1) = 0
-      do jj = 1, m
-        if (this%rslot(jj) == 0) cycle
-        do q = this%fp(jj), this%fd(jj)
-          a = this%rslot(this%fi(q))
-          if (a == 0) cycle
-          b = max(a, this%rslot(jj))
-          this%scnt(b + 1) = this%scnt(b + 1) + 1
-        end do
-      end do
-      this%scnt(1) = 1
-      do k = 1, this%ns
-        this%scnt(k + 1) = this%scnt(k + 1) + this%scnt(k)
-      end do
-      nzs = this%scnt(this%ns + 1) - 1
-      call igrow(this%wptr, this%ns + 1); call igrow(this%wi, max(nzs, 1)); call rgrow(this%wv, max(nzs, 1))
-      this%wptr(1:this%ns + 1) = this%scnt(1:this%ns + 1)
+      ! the values of M on the analysed pattern (wptr, wi: upper triangle in slot space, rows
+      ! increasing in each column, kept from the analysis): each entry found in its column
+      ! (short); one outside the pattern (never expected: the same slots keep the same
+      ! neighbours) means no reuse
+      nzs = this%wptr(this%ns + 1) - 1
+      this%wv(1:nzs) = 0.0_wp
       do jj = 1, m
         if (this%rslot(jj) == 0) cycle
         do q = this%fp(jj), this%fd(jj)
           a = this%rslot(this%fi(q))
           if (a == 0) cycle
           b = max(a, this%rslot(jj)); a = min(a, this%rslot(jj))
-          this%wi(this%scnt(b)) = a; this%wv(this%scnt(b)) = this%fv(q)
-          this%scnt(b) = this%scnt(b) + 1
-        end do
-      end do
-      do k = 1, this%ns
-        do p1 = this%wptr(k) + 1, this%wptr(k + 1) - 1
-          l = this%wi(p1); val = this%wv(p1)
-          p2 = p1 - 1
-          do while (p2 >= this%wptr(k))
-            if (this%wi(p2) <= l) exit
-            this%wi(p2 + 1) = this%wi(p2); this%wv(p2 + 1) = this%wv(p2)
-            p2 = p2 - 1
+          p = this%wptr(b)
+          do while (p < this%wptr(b + 1))
+            if (this%wi(p) >= a) exit
+            p = p + 1
           end do
-          this%wi(p2 + 1) = l; this%wv(p2 + 1) = val
+          if (p == this%wptr(b + 1)) then
+            this%keys_ok = .false.; return
+          else if (this%wi(p) /= a) then
+            this%keys_ok = .false.; return
+          end if
+          this%wv(p) = this%fv(q)
         end do
       end do
-      call this%chol%set_values(this%wptr, this%wi, this%wv, error)
+      call this%chol%set_analysed_values(this%wv(1:nzs), error)
       if (allocated(error)) then
-        ! not the pattern analysed: analyse afresh (counted as a fresh analysis)
+        ! the analysis does not match (never expected): analyse afresh
         deallocate(error); this%keys_ok = .false.; return
       end if
       call this%chol%set_rows(this%rslot(1:m), error)
@@ -753,6 +747,20 @@ contains
       this%n_reuse = this%n_reuse + 1
       ok = .true.
     end function reuse_slots
+
+    !> Slot of the analysis named by contact identity key (0: none).
+    integer function find_slot(key) result(k)
+      integer(i8), intent(in) :: key
+      integer :: q
+      q = key_hash(key, this%hmask)
+      k = 0
+      do while (this%hslot(q) /= 0)
+        if (this%hkey(q) == key) then
+          k = this%hslot(q); return
+        end if
+        q = iand(q + 1, this%hmask)
+      end do
+    end function find_slot
 
     !> Rows viol(1:n) must be able to enter: if some lie outside W, W takes them and every row
     !> whose current slack is below the margin, M is analysed again and P refactorised. The
@@ -1459,6 +1467,11 @@ contains
           do q = q1, q2
             if (this%act(this%fi(q))) s = s + this%fv(q) * this%w(this%fi(q))
           end do
+        else if (free_agent(tt)) then
+          ! an agent of tt in no active row: b_t has a part (norm^2 >= dtt / 2) on that
+          ! agent's velocity outside the span of B_P, so pivot >= dtt / 2 (no test needed)
+          this%n_free = this%n_free + 1
+          s = 0.0_wp
         else
           call this%chol%schur(tt, this%fi(q1:q2), this%fv(q1:q2), s, error)
           if (allocated(error)) return
@@ -1477,6 +1490,27 @@ contains
         call this%chol%factor(this%act(1:m), error)
       end if
     end subroutine add_row
+
+    !> True when an agent of row tt is in no active row (column tt of M lists every row
+    !> sharing an agent with tt): then b_t has a part of norm^2 >= M(tt,tt) / 2 outside the
+    !> span of B_P (on that agent's velocity), so tt cannot depend on P.
+    logical function free_agent(tt) result(free)
+      integer, intent(in) :: tt
+      integer :: a, b, l, p
+      logical :: busy_a, busy_b
+      a = cs%ia(tt); b = cs%ib(tt)
+      busy_a = .false.; busy_b = b <= 0
+      do p = this%fp(tt), this%fp(tt + 1) - 1
+        l = this%fi(p)
+        if (l == tt .or. .not. this%act(l)) cycle
+        if (cs%ia(l) == a .or. cs%ib(l) == a) busy_a = .true.
+        if (b > 0) then
+          if (cs%ia(l) == b .or. cs%ib(l) == b) busy_b = .true.
+        end if
+        if (busy_a .and. busy_b) exit
+      end do
+      free = .not. (busy_a .and. busy_b)
+    end function free_agent
 
     !> z = (B_P B_P^T)^{-1} (B v - d)_P (zero off P).
     subroutine solve_p()
@@ -1603,6 +1637,18 @@ contains
       end if
     end do
   end function first_violated
+
+  !> Position of a contact identity (agent pair or agent-obstacle pair: two 31-bit halves) in
+  !> a hash table of mask + 1 (a power of two) entries; no integer overflow.
+  pure integer function key_hash(key, mask) result(q)
+    integer(i8), intent(in) :: key
+    integer, intent(in) :: mask
+    integer(i8) :: hi, lo, h
+    hi = ishft(key, -32); lo = iand(key, 4294967295_i8)
+    h = ieor(lo * 1000003_i8, hi * 2750159_i8)
+    h = ieor(h, ishft(h, -17))
+    q = int(iand(h, int(mask, i8)))
+  end function key_hash
 
   subroutine sparse_as_free(this)
     class(sparse_as_solver_t), intent(inout) :: this
