@@ -7,7 +7,8 @@ ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$ROOT"
 
 PKGS=(gfortran cmake ninja-build pkg-config libopenmpi-dev openmpi-bin libopenblas-dev liblapack-dev
-      libscalapack-openmpi-dev libhdf5-openmpi-dev hdf5-tools libfftw3-dev libsuitesparse-dev)
+      libscalapack-openmpi-dev libhdf5-openmpi-dev hdf5-tools libfftw3-dev libsuitesparse-dev
+      valgrind)
 missing=()
 for p in "${PKGS[@]}"; do
   dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")
