@@ -32,7 +32,9 @@
 !>   still falls; the rows frozen at zero leave P together), or, without proj_search, to the
 !>   first breakpoint. f falls strictly at every outer iteration (at the start lambda minimises
 !>   f on P, so grad f is zero on P and negative on V, and the directional derivative towards
-!>   z is negative), so no face repeats and the method is finite.
+!>   z is negative), so no face repeats and the method is finite. A row the search brings from
+!>   lambda > 0 to zero but violated at the new point stays in P at zero (keep_violated: it
+!>   would enter again at once; the step back still ends at a minimiser on P with z > 0).
 !> - Linearly dependent rows (jammed crowds): an entering row whose new pivot D(t,t) is below
 !>   dep_tol is taken out again; if every violated row is dependent, the most violated enters by
 !>   exchange (b_t = B_P^T alpha: lambda_P -= tau alpha, lambda_t = tau, the row reaching zero
