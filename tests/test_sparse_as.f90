@@ -310,7 +310,9 @@ contains
   !> that rows enter and leave, every variant solves to scaled KKT <= tol on the sparse path
   !> and gives the same u as active_set to 10 tol |v| (as in compare). The projected searches
   !> must have run and, at least once, frozen several rows in one step (else the test would
-  !> not exercise the walk over breakpoints).
+  !> not exercise the walk over breakpoints). Variant 4 is variant 3 without keep_violated
+  !> (frozen rows violated at the new point leave P as before); with it (variants 2 and 3)
+  !> some row must have been kept at least once.
   subroutine test_step_back()
     type(contact_set_t) :: cs
     real(wp), allocatable :: v(:), ua(:), u(:), la(:), l(:), lw(:)
@@ -319,11 +321,11 @@ contains
     type(projection_settings_t) :: s
     type(solve_stats_t) :: st, sta
     type(error_t), allocatable :: err
-    integer :: sc, var, nproj, nrows
-    logical :: proj(3) = [.false., .true., .true.]
-    real(wp) :: frac(3) = [0.0_wp, 0.0_wp, 0.5_wp]
+    integer :: sc, var, nproj, nrows, nkept
+    logical :: proj(4) = [.false., .true., .true., .true.], keep(4) = [.true., .true., .true., .false.]
+    real(wp) :: frac(4) = [0.0_wp, 0.0_wp, 0.5_wp, 0.5_wp]
     character(len=16) :: tag
-    nproj = 0; nrows = 0
+    nproj = 0; nrows = 0; nkept = 0
     do sc = 1, 3
       select case (sc)
       case (1)
@@ -345,11 +347,12 @@ contains
       lw(1:cs%n:2) = 0.0_wp
       lw = 1.5_wp * lw
       s%name = 'sparse_active_set'; s%dense_rows = 0
-      do var = 1, 3
+      do var = 1, 4
         write(tag, '(a,i0,a,i0)') "scene ", sc, " var ", var
         call sp%init(s, err)
         sp%proj_search = proj(var); sp%add_frac = frac(var); sp%add_frac_rows = huge(1)
-        sp%n_proj = 0; sp%n_proj_rows = 0
+        sp%keep_violated = keep(var)
+        sp%n_proj = 0; sp%n_proj_rows = 0; sp%n_kept = 0
         l = lw
         call sp%solve(cs, v, u, l, st, err)
         call check(.not. allocated(err) .and. st%converged .and. st%kkt <= s%tol .and. &
@@ -360,13 +363,18 @@ contains
         if (proj(var)) then
           nproj = nproj + sp%n_proj; nrows = nrows + sp%n_proj_rows
         end if
-        print '(2x,a,": it ",i0," fac ",i0," mod ",i0," projected searches ",i0," rows frozen ",i0," kkt ",es9.2)', &
-          trim(tag), st%iterations, st%n_factor, st%n_modify, sp%n_proj, sp%n_proj_rows, st%kkt
+        if (.not. (proj(var) .and. keep(var))) call check(sp%n_kept == 0, "step back " // trim(tag) // &
+          ": no row kept")
+        if (proj(var) .and. keep(var)) nkept = nkept + sp%n_kept
+        print '(2x,a,": it ",i0," fac ",i0," mod ",i0," projected searches ",i0," rows frozen ",i0," kept ",i0,&
+          &" kkt ",es9.2)', trim(tag), st%iterations, st%n_factor, st%n_modify, sp%n_proj, sp%n_proj_rows, &
+          sp%n_kept, st%kkt
         call sp%free()
       end do
     end do
     call check(nproj > 0, "step back: projected searches ran")
     call check(nrows > nproj, "step back: some projected search froze several rows")
+    call check(nkept > 0, "step back: some frozen row violated at the new point stayed in P")
   end subroutine test_step_back
 
   !> Analysis reused across solves by contact identity (reuse_analysis) and the warm start by
@@ -374,7 +382,8 @@ contains
   !> pulled into a jam, rows rebuilt every step, warm started by identity), every combination
   !> solves each step to scaled KKT <= tol on the sparse path with the same u as active_set to
   !> 10 tol |v| (as in compare); with reuse most steps keep the previous analysis, and some
-  !> must analyse afresh (new rows among those that may become active).
+  !> must analyse afresh (new rows among those that may become active). Variant 4: variant 1
+  !> without keep_violated.
   subroutine test_reuse()
     integer, parameter :: na = 100, nsteps = 40
     type(contact_set_t) :: cs
@@ -388,7 +397,8 @@ contains
     real(wp), allocatable :: l(:), la(:), lprev(:)
     integer(i8), allocatable :: kprev(:)
     integer :: i, j, k, step, nfail, var, p
-    logical :: reuse(3) = [.true., .false., .true.], warm(3) = [.true., .true., .false.]
+    logical :: reuse(4) = [.true., .false., .true., .true.], warm(4) = [.true., .true., .false., .true.]
+    logical :: keep(4) = [.true., .true., .true., .false.]
     character(len=16) :: tag
     hh = 0.005_wp
     do j = 1, 10
@@ -399,11 +409,12 @@ contains
     c = sum(q0, dim=2) / na
     s = projection_settings_t(); s%name = 'active_set'
     call make_projection_solver(s, sa, err)
-    do var = 1, 3
+    do var = 1, 4
       write(tag, '(a,i0)') "reuse var ", var
       s = projection_settings_t(); s%name = 'sparse_active_set'; s%dense_rows = 0
       call sp%init(s, err)
-      sp%reuse_analysis = reuse(var); sp%warm_search = warm(var)
+      sp%reuse_analysis = reuse(var); sp%warm_search = warm(var); sp%keep_violated = keep(var)
+      sp%n_kept = 0
       q = q0; du = 0; nfail = 0
       allocate(lprev(0), kprev(0))
       do step = 1, nsteps
@@ -440,9 +451,10 @@ contains
         deallocate(l, la)
       end do
       deallocate(lprev, kprev)
-      print '(2x,a,": analyses ",i0," reused ",i0," re-analyses ",i0,", largest |u - u_active_set| ",es9.2)', &
-        trim(tag), sp%n_analyse, sp%n_reuse, sp%n_reanalyse, du
+      print '(2x,a,": analyses ",i0," reused ",i0," re-analyses ",i0,", rows kept ",i0,&
+        &", largest |u - u_active_set| ",es9.2)', trim(tag), sp%n_analyse, sp%n_reuse, sp%n_reanalyse, sp%n_kept, du
       call check(nfail == 0, trim(tag) // ": every step converged on the sparse path")
+      if (.not. keep(var)) call check(sp%n_kept == 0, trim(tag) // ": no row kept when keep_violated is off")
       call check(du <= 10.0_wp * s%tol, trim(tag) // ": agrees with active_set on every step")
       if (reuse(var)) then
         call check(sp%n_reuse > nsteps / 2, trim(tag) // ": most steps reuse the analysis")
