@@ -3,7 +3,7 @@ module cr_sort
   use cr_kinds, only: i8
   implicit none
   private
-  public :: argsort_i8, bsearch_i8
+  public :: argsort_i8, bsearch_i8, lower_bound
 
 contains
 
@@ -65,4 +65,20 @@ contains
       end if
     end do
   end function bsearch_i8
+
+  !> First position of the ascending array `sorted` whose value is >= `key` (size + 1 if none).
+  pure integer function lower_bound(sorted, key) result(lo)
+    integer, intent(in) :: sorted(:)
+    integer, intent(in) :: key
+    integer :: hi, mid
+    lo = 1; hi = size(sorted) + 1
+    do while (lo < hi)
+      mid = (lo + hi) / 2
+      if (sorted(mid) < key) then
+        lo = mid + 1
+      else
+        hi = mid
+      end if
+    end do
+  end function lower_bound
 end module cr_sort

@@ -50,6 +50,7 @@
 !>   backward error of a solve with the updated factor is measured first (stats%factor_drift).
 module cr_sparse_as
   use cr_kinds, only: wp, i8
+  use cr_sort, only: lower_bound
   use cr_grow, only: igrow => grow_int, rgrow => grow_real, lgrow => grow_logical
   use cr_error, only: error_t, prefix_error
   use cr_strings, only: str
@@ -1436,18 +1437,10 @@ contains
     !> Row tt left P (mask off): out of the list.
     subroutine list_delete(tt)
       integer, intent(in) :: tt
-      integer :: lo, hi, mid, n
+      integer :: lo, n
       this%bp(tt) = 0.0_wp
       n = this%nact
-      lo = 1; hi = n + 1
-      do while (lo < hi)
-        mid = (lo + hi) / 2
-        if (this%alist(mid) < tt) then
-          lo = mid + 1
-        else
-          hi = mid
-        end if
-      end do
+      lo = lower_bound(this%alist(1:n), tt)
       if (lo > n) return
       if (this%alist(lo) /= tt) return
       this%alist(lo:n - 1) = this%alist(lo + 1:n)
@@ -1457,19 +1450,11 @@ contains
     !> Row tt entered P (mask on): into the list, in order.
     subroutine list_insert(tt)
       integer, intent(in) :: tt
-      integer :: lo, hi, mid, n
+      integer :: lo, n
       this%bp(tt) = this%cc(tt)
       ! the first position whose row exceeds tt (binary search), then shift the tail
       n = this%nact
-      lo = 1; hi = n + 1
-      do while (lo < hi)
-        mid = (lo + hi) / 2
-        if (this%alist(mid) < tt) then
-          lo = mid + 1
-        else
-          hi = mid
-        end if
-      end do
+      lo = lower_bound(this%alist(1:n), tt)
       if (lo <= n) this%alist(lo + 1:n + 1) = this%alist(lo:n)
       this%alist(lo) = tt
       this%nact = n + 1
