@@ -10,7 +10,7 @@ program test_model
   use cr_contact_set, only: contact_set_t, contact_key
   use cr_desired, only: desired_t
   use cr_random, only: rng_t
-  use cr_sort, only: argsort_i8, bsearch_i8
+  use cr_sort, only: argsort_i8, bsearch_i8, lower_bound
   use cr_shapes, only: obstacle_distance
   implicit none
   type(scene_t) :: scene
@@ -208,5 +208,11 @@ contains
     call check(all(k(idx(1:5)) <= k(idx(2:6))), "argsort ascending")
     call check(idx(2) == 2 .and. idx(3) == 5, "argsort stable")
     call check(bsearch_i8(k(idx), 7_i8) == 5 .and. bsearch_i8(k(idx), 4_i8) == 0, "binary search")
+    ! first position >= key: inside, on a repeated value, before the first, past the last, empty
+    call check(lower_bound([1, 3, 3, 8], 4) == 4, "lower_bound between values")
+    call check(lower_bound([1, 3, 3, 8], 3) == 2, "lower_bound on a repeated value")
+    call check(lower_bound([1, 3, 3, 8], 0) == 1, "lower_bound before the first")
+    call check(lower_bound([1, 3, 3, 8], 9) == 5, "lower_bound past the last")
+    call check(lower_bound([integer ::], 5) == 1, "lower_bound of an empty array")
   end subroutine test_sort
 end program test_model
