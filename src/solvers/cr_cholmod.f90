@@ -56,7 +56,6 @@ module cr_cholmod
     procedure :: n_pattern => chol_n_pattern
     procedure :: n_schur_scan => chol_n_schur_scan
     procedure :: set_rows => chol_set_rows
-    procedure :: set_values => chol_set_values
     procedure :: set_analysed_values => chol_set_analysed_values
   end type chol_t
 
@@ -159,13 +158,6 @@ module cr_cholmod
       integer(c_int), value :: nrow
       integer(c_int), intent(in) :: map(*)
     end function c_set_rows
-    integer(c_int) function c_set_values(h, n, colptr, rowind, val) bind(C, name='cr_chol_set_values')
-      import :: c_ptr, c_int, c_double
-      type(c_ptr), value :: h
-      integer(c_int), value :: n
-      integer(c_int), intent(in) :: colptr(*), rowind(*)
-      real(c_double), intent(in) :: val(*)
-    end function c_set_values
     integer(c_int) function c_set_analysed_values(h, nz, val) bind(C, name='cr_chol_set_analysed_values')
       import :: c_ptr, c_int, c_double
       type(c_ptr), value :: h
@@ -290,27 +282,6 @@ contains
     rc = c_set_rows(this%h, int(nr, c_int), int(map - 1, c_int))
     if (rc /= 0) call shim_error(this, "set_rows", rc, error)
   end subroutine chol_set_rows
-
-  !> New values of M on the stored analysis (same dimension; upper triangle, compressed
-  !> columns, 1-based, rows in any order within a column). Its pattern must lie inside the
-  !> analysed one (the caller's invariant: the same slots keep the same neighbours); the
-  !> current factor is discarded.
-  subroutine chol_set_values(this, colptr, rowind, val, error)
-    class(chol_t), intent(inout) :: this
-    !> column starts [n + 1], row indices and values [colptr(n+1) - 1]
-    integer, intent(in) :: colptr(:), rowind(:)
-    real(wp), intent(in) :: val(:)
-    type(error_t), allocatable, intent(out) :: error
-    integer(c_int) :: rc
-    integer :: nz
-    if (.not. c_associated(this%h) .or. this%n == 0) then
-      call set_error(error, "cholmod set_values: no analysis to reuse"); return
-    end if
-    nz = colptr(this%n + 1) - 1
-    rc = c_set_values(this%h, int(this%n, c_int), int(colptr(1:this%n + 1) - 1, c_int), &
-      int(rowind(1:max(nz, 1)) - 1, c_int), val)
-    if (rc /= 0) call shim_error(this, "set_values", rc, error)
-  end subroutine chol_set_values
 
   !> New values of M on the stored analysis, given on the analysed pattern itself: val [nnz]
   !> in the order of the entries handed to analyze (zero for an entry absent now). The

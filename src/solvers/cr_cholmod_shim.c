@@ -21,7 +21,7 @@ typedef struct {
   int n;
   cholmod_sparse *m;      /* pattern of M as analysed, upper, stype = 1 (it bounds later values) */
   double *v;              /* current values of M on the analysed pattern (m's layout; zero
-                           * where cr_chol_set_values gave no entry) [nnz(m)] */
+                           * where cr_chol_set_analysed_values gave a zero) [nnz(m)] */
   int *ss;                /* the entry of m each entry of pm comes from [nnz(m)] */
   cholmod_factor *sym;    /* symbolic analysis of M */
   cholmod_factor *l;      /* numeric LDL' factor of the active matrix */
@@ -236,51 +236,6 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
   h->v = malloc((size_t)(nz > 0 ? nz : 1) * sizeof(double));
   if (!h->v) { snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5; }
   memcpy(h->v, val, (size_t)nz * sizeof(double));
-  return 0;
-}
-
-/* New values of M [n, n] on the stored analysis (upper triangle, compressed columns, 0-based;
- * the rows within a column in any order: only cr_chol_factor reads them, and it orders them):
- * the caller guarantees that the pattern lies inside the analysed one (it reuses an analysis
- * for rows whose neighbours in M cannot change), since the row deletions rely on it (row
- * subtrees of the analysed pattern). Each entry is looked up in the analysed pattern (a stamp
- * per row of the column); one outside it is an error, never a wrong factor. The current
- * numeric factor is discarded. */
-int cr_chol_set_values(void *hp, int n, const int *colptr, const int *rowind, const double *val) {
-  cr_chol_t *h = (cr_chol_t *)hp;
-  int nz = colptr[n], j, q, p, r, *pp, *pi, *st;
-  if (!h->sym || !h->m || n != h->n) {
-    snprintf(h->msg, sizeof h->msg, "cr_chol_set_values: dimension %d, analysed %d", n, h->n);
-    return 29;
-  }
-  pp = (int *)h->m->p; pi = (int *)h->m->i;
-  /* the analysed M column by column: each row of the column stamped with its entry, each
-   * given entry looked up (an entry of another column, or none, is outside the pattern) and
-   * its value placed; entries not given are zero */
-  st = h->rs;
-  for (j = 0; j < n; j++) st[j] = -1;
-  memset(h->v, 0, (size_t)pp[n] * sizeof(double));
-  for (j = 0; j < n; j++) {
-    for (p = pp[j]; p < pp[j + 1]; p++) st[pi[p]] = p;
-    for (q = colptr[j]; q < colptr[j + 1]; q++) {
-      r = rowind[q];
-      if (r < 0 || r >= n || st[r] < pp[j]) break;
-      h->v[st[r]] = val[q];
-    }
-    if (q < colptr[j + 1]) {
-      snprintf(h->msg, sizeof h->msg, "cr_chol_set_values: entry (%d, %d) outside the analysed pattern",
-               rowind[q] + 1, j + 1);
-      return 30;
-    }
-  }
-  if (nz > pp[n]) {
-    snprintf(h->msg, sizeof h->msg, "cr_chol_set_values: %d entries, more than the %d of the analysed pattern "
-             "(repeated entries)", nz, pp[n]);
-    return 30;
-  }
-  if (h->l) cholmod_free_factor(&h->l, &h->c);
-  memset(h->active, 0, (size_t)n * sizeof(int));
-  h->napos = 0;
   return 0;
 }
 

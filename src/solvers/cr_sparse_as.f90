@@ -1083,13 +1083,7 @@ contains
             this%refused(t) = .true.; any_ref = .true.
             this%lam(t) = 0.0_wp
           end if
-          nv = 0
-          do q = 1, this%nact
-            j = this%alist(q)
-            if (this%lam(j) <= 0.0_wp) then
-              nv = nv + 1; this%viol(nv) = j
-            end if
-          end do
+          call nonpositive_on_p(this%lam)
           if (nv > 0) then
             call remove_rows(nv); if (allocated(error)) return
           end if
@@ -1198,19 +1192,15 @@ contains
     !> row at zero with z <= 0 then leaves at once, never kept again).
     subroutine projected_step(have_u, keep)
       logical, intent(in) :: have_u, keep
-      integer :: jj, q, nb, kb, p1, p2, l, i, a, b, ps
+      integer :: jj, q, nb, kb, p1, p2, l, i, ps
       real(wp) :: sl, qq, ta, tn, ts, dj, lmax, r
       ! d = z - lambda on P (in this%w); the gradient g = M lambda - c on P is the slack of the
       ! rows at u(lambda), and M d = M_P z - M_P lambda = -g on P (z solves M_P z = c_P)
       if (.not. have_u) then
         call velocities()
         do q = 1, this%nact
-          ! the slack of row jj (as in all_slacks)
           jj = this%alist(q)
-          a = this%ka(jj); b = this%kb(jj)
-          r = this%c1(jj) * this%uu(a) + this%c2(jj) * this%uu(a + 1)
-          r = r - this%c1(jj) * this%uu(b) - this%c2(jj) * this%uu(b + 1)
-          this%slack(jj) = this%dd(jj) - r
+          this%slack(jj) = slack_of(jj, this%ka, this%kb, this%c1, this%c2, this%dd, this%uu)
         end do
       end if
       nkept = 0
@@ -1350,21 +1340,27 @@ contains
     !> The minimiser z on P; rows with z <= 0 leave P until none is left, then lambda = z on P
     !> (zero elsewhere).
     subroutine drop_nonpositive()
-      integer :: q, jj
       do
         call solve_p(); if (allocated(error)) return
-        nv = 0
-        do q = 1, this%nact
-          jj = this%alist(q)
-          if (this%z(jj) <= 0.0_wp) then
-            nv = nv + 1; this%viol(nv) = jj
-          end if
-        end do
+        call nonpositive_on_p(this%z)
         if (nv == 0) exit
         call remove_rows(nv); if (allocated(error)) return
       end do
       call lam_from_z()
     end subroutine drop_nonpositive
+
+    !> The rows of P (in list order) where x <= 0: viol(1:nv).
+    subroutine nonpositive_on_p(x)
+      real(wp), intent(in) :: x(:)
+      integer :: q, jj
+      nv = 0
+      do q = 1, this%nact
+        jj = this%alist(q)
+        if (x(jj) <= 0.0_wp) then
+          nv = nv + 1; this%viol(nv) = jj
+        end if
+      end do
+    end subroutine nonpositive_on_p
 
     !> lambda = z on P, zero elsewhere.
     subroutine lam_from_z()
@@ -1602,7 +1598,6 @@ contains
     integer :: q, j, a, b
     real(wp) :: t1, t2
     uu(1:n) = v
-    uu(n + 1:n + 2) = 0.0_wp
     do q = 1, nact
       j = alist(q)
       t1 = lam(j) * c1(j); t2 = lam(j) * c2(j)
@@ -1610,6 +1605,7 @@ contains
       uu(a) = uu(a) - t1; uu(a + 1) = uu(a + 1) - t2
       uu(b) = uu(b) + t1; uu(b + 1) = uu(b + 1) + t2
     end do
+    ! the wall rows' slot took their updates: zero again (only ever read as zero)
     uu(n + 1:n + 2) = 0.0_wp
   end subroutine active_velocities
 
@@ -1620,11 +1616,8 @@ contains
     real(wp), intent(in) :: c1(m), c2(m), dd(m), uu(*)
     real(wp), intent(inout) :: slack(m)
     integer :: j
-    real(wp) :: r
     do j = 1, m
-      r = c1(j) * uu(ka(j)) + c2(j) * uu(ka(j) + 1)
-      r = r - c1(j) * uu(kb(j)) - c2(j) * uu(kb(j) + 1)
-      slack(j) = dd(j) - r
+      slack(j) = slack_of(j, ka, kb, c1, c2, dd, uu)
     end do
   end subroutine all_slacks
 
@@ -1642,9 +1635,7 @@ contains
     real(wp) :: r
     nv = 0
     do j = 1, m
-      r = c1(j) * uu(ka(j)) + c2(j) * uu(ka(j) + 1)
-      r = r - c1(j) * uu(kb(j)) - c2(j) * uu(kb(j) + 1)
-      r = dd(j) - r
+      r = slack_of(j, ka, kb, c1, c2, dd, uu)
       slack(j) = r
       if (r < -thr) then
         if (.not. (act(j) .or. refused(j))) then
@@ -1660,16 +1651,24 @@ contains
     integer, intent(in) :: ka(m), kb(m)
     real(wp), intent(in) :: c1(m), c2(m), dd(m), uu(*), thr
     integer :: j
-    real(wp) :: r
     jv = 0
     do j = 1, m
-      r = c1(j) * uu(ka(j)) + c2(j) * uu(ka(j) + 1)
-      r = r - c1(j) * uu(kb(j)) - c2(j) * uu(kb(j) + 1)
-      if (dd(j) - r < -thr) then
+      if (slack_of(j, ka, kb, c1, c2, dd, uu) < -thr) then
         jv = j; return
       end if
     end do
   end function first_violated
+
+  !> slack_j = d_j - b_j . uu of row j (normalised rows by components c1, c2, velocity
+  !> positions ka, kb of the row's agents; a wall row's kb is uu's zero slot): the one formula
+  !> of the slack kernels.
+  pure real(wp) function slack_of(j, ka, kb, c1, c2, dd, uu) result(r)
+    integer, intent(in) :: j, ka(*), kb(*)
+    real(wp), intent(in) :: c1(*), c2(*), dd(*), uu(*)
+    r = c1(j) * uu(ka(j)) + c2(j) * uu(ka(j) + 1)
+    r = r - c1(j) * uu(kb(j)) - c2(j) * uu(kb(j) + 1)
+    r = dd(j) - r
+  end function slack_of
 
   !> Position of a contact identity (agent pair or agent-obstacle pair: two 31-bit halves) in
   !> a hash table of mask + 1 (a power of two) entries; no integer overflow.
