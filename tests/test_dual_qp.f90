@@ -122,6 +122,16 @@ program test_dual_qp
     write(tag, '(a,i0)') "infeasible ", trial
     call infeasible_case(trim(tag))
   end do
+
+  ! ---- an early exit (overfull warm start, before any sweep) after a solve of another size,
+  ! with a work space holding NaN: the reported violation is that of the returned u
+  do trial = 1, 10
+    n = 3 + mod(trial, 5)
+    m = 2 * n + trial
+    call random_problem(m, n, 0.3_wp)
+    write(tag, '(a,i0)') "early exit ", trial
+    call early_exit_case(trim(tag))
+  end do
   call test_summary()
 
 contains
@@ -261,4 +271,32 @@ contains
     call ldp_solve(b, d, v, ur, lr, lst, error, warm=.false.)
     call check(.not. allocated(error) .and. lst%infeasible, tag // ": LDP flags it too")
   end subroutine infeasible_case
+
+  !> Overfull warm start (more guessed rows than max_active): handed over with u = v, and
+  !> max_violation = max_i (Bm v - d)_i^+ even when the work space holds NaN from before
+  !> (tolerance: the rounding of Bm v - d, m eps (|b_i| |v| + |d_i|)).
+  subroutine early_exit_case(tag)
+    use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
+    character(len=*), intent(in) :: tag
+    real(wp) :: u(size(v)), lam(size(d)), ref, tol
+    type(dual_qp_stats_t) :: st
+    real(wp), allocatable :: bt(:,:)
+    integer :: i
+    bt = transpose(b)
+    ! a solve first, so the work space exists, then NaN in it
+    lam = 0
+    call dqp%solve(bt, d, v, u, lam, st, warm=.false.)
+    dqp%s = ieee_value(1.0_wp, ieee_quiet_nan)
+    dqp%tau = ieee_value(1.0_wp, ieee_quiet_nan)
+    lam = 1
+    call dqp%solve(bt, d, v, u, lam, st, warm=.true., max_active=1)
+    call check(st%overfull .and. .not. st%certified, tag // ": overfull, handed over")
+    call check(all(u == v) .and. all(lam == 0), tag // ": u = v, lambda = 0")
+    ref = 0; tol = 0
+    do i = 1, size(d)
+      ref = max(ref, dot_product(b(i, :), v) - d(i))
+      tol = max(tol, size(d) * epsilon(1.0_wp) * (norm2(b(i, :)) * norm2(v) + abs(d(i))))
+    end do
+    call check(abs(st%max_violation - ref) <= tol, tag // ": max_violation of u = v")
+  end subroutine early_exit_case
 end program test_dual_qp

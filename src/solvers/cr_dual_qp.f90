@@ -42,7 +42,7 @@
 !> v and the warm-start lambda must be finite (the caller checks them).
 module cr_dual_qp
   use cr_kinds, only: wp
-  use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
+  use, intrinsic :: ieee_arithmetic, only: ieee_is_finite, ieee_value, ieee_quiet_nan
   use cr_lapack, only: la_gemv
   implicit none
   private
@@ -90,7 +90,7 @@ module cr_dual_qp
     integer :: adds = 0, drops = 0, sweeps = 0, refinements = 0
     !> size of the final active set
     integer :: n_active = 0
-    !> max_i (Bm u - d)_i^+ of the returned u
+    !> max_i (Bm u - d)_i^+ of the returned u (NaN when the data hold a NaN or Inf)
     real(wp) :: max_violation = 0
   end type dual_qp_stats_t
 
@@ -390,17 +390,26 @@ contains
       clamped = clamped .or. this%lam(j) < 0
       lambda(this%act(j)) = max(this%lam(j), 0.0_wp)
     end do
+    ! the slacks are those of the returned u only after a certified solve: otherwise (an early
+    ! exit, possibly before any sweep, or a clamped multiplier) u and its slacks are recomputed
     if (clamped .or. .not. stats%certified) then
       u = v
       do j = 1, k
         u = u - lambda(this%act(j)) * bt(:, this%act(j))
       end do
+      this%s(1:m) = d
+      call la_gemv('T', -1.0_wp, bt, u, 1.0_wp, this%s(1:m))
     end if
     stats%n_active = k
-    stats%max_violation = 0
-    do i = 1, m
-      stats%max_violation = max(stats%max_violation, -this%s(i))
-    end do
+    if (stats%nonfinite .or. .not. ieee_is_finite(sum(this%s(1:m)))) then
+      stats%nonfinite = .true.
+      stats%max_violation = ieee_value(1.0_wp, ieee_quiet_nan)
+    else
+      stats%max_violation = 0
+      do i = 1, m
+        stats%max_violation = max(stats%max_violation, -this%s(i))
+      end do
+    end if
 
   contains
 
