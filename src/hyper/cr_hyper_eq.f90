@@ -161,7 +161,7 @@ contains
         call write_term_attrs(h5, t, e%p, e%m, e%note, error); if (allocated(error)) return
         if (e%m > 0) then
           call h5%write(t // "/indices", e%idx(1:e%m), error); if (allocated(error)) return
-          call h5%write(t // "/weights", e%w(1:e%m, 1:e%m), error); if (allocated(error)) return
+          call h5%write(t // "/weights", e%w, error); if (allocated(error)) return
           call h5%write(t // "/err", e%err(1:e%m), error); if (allocated(error)) return
         end if
       end associate

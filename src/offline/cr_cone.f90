@@ -68,7 +68,7 @@ contains
     type(env_t), intent(in) :: env
     type(sparse_columns_t), intent(in) :: lam
     integer(i8), intent(in) :: gcol
-    real(wp), intent(out) :: x(:)
+    real(wp), contiguous, intent(out) :: x(:)
     type(error_t), allocatable, intent(out) :: error
     integer :: owner, k
     integer(i8) :: p
