@@ -181,7 +181,9 @@ contains
         if (size(dhat) > 0) traj%max_violation = max(traj%max_violation, maxval(matmul(bhat, alpha) - dhat))
       else if (scfg%name == 'dual') then
         finite = ieee_is_finite(sum(vhat) + sum(dhat))
-        dst%certified = .false.
+        ! no flag of the previous step's solve may speak for this one (a step with non-finite
+        ! data is not solved)
+        dst = dual_qp_stats_t()
         if (finite) then
           lam0 = lam
           ! at most 3/4 Nb active rows: beyond, their Gram is too ill-conditioned to certify
