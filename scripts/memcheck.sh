@@ -6,8 +6,9 @@
 #   scripts/memcheck.sh [-L LABEL_REGEX] [-R NAME_REGEX] [-j N]
 #   scripts/memcheck.sh --wrap DIR
 # Defaults: -L '^unit$' (the serial unit tests; '^(unit|regression|extremes)$' adds the serial
-# programs of the other labels). Only test commands that run a program of build-debug/tests
-# directly are taken, not mpiexec or script-driven tests. Builds build-debug first (Debug).
+# programs of the other labels). Test commands that run a program of build-debug/tests are
+# taken, directly or through mpiexec with at most MEMCHECK_NP ranks (default 1: the MPI tests'
+# 1-rank runs, one valgrind per rank), not script-driven tests. Builds build-debug first (Debug).
 # Each program runs under `valgrind --tool=memcheck --track-origins=yes` with Open MPI's
 # suppressions and scripts/memcheck.supp, XML logs in build-debug/memcheck/;
 # scripts/memcheck_report.py then prints every error whose stack reaches our code (src/,
@@ -20,7 +21,7 @@
 #   python3 scripts/memcheck_report.py . build-debug/memcheck/wrap/*.xml
 # (mpirun then starts one valgrind per rank.) Valgrind sees memory never written since malloc;
 # a read of a stale but defined value (left by an earlier call) is for tests/test_stale_workspace.
-# Environment: MEMCHECK_TIMEOUT (seconds per program, 1800), VALGRIND_OPTS (extra options).
+# Environment: MEMCHECK_TIMEOUT (seconds per program, 1800), MEMCHECK_NP (1), VALGRIND_OPTS.
 set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 BUILD=$ROOT/build-debug
@@ -47,7 +48,7 @@ SUPP=()
 for f in /usr/share/openmpi/openmpi-valgrind.supp "$ROOT/scripts/memcheck.supp"; do
   [ -f "$f" ] && SUPP+=("--suppressions=$f")
 done
-VG=(valgrind --tool=memcheck --track-origins=yes --leak-check=no --num-callers=30 "${SUPP[@]}")
+VG=(valgrind --tool=memcheck --track-origins=yes --leak-check=no --errors-for-leak-kinds=none --num-callers=30 "${SUPP[@]}")
 
 if [ -n "$WRAP" ]; then
   mkdir -p "$WRAP" "$LOGS/wrap"
@@ -66,22 +67,31 @@ rm -rf "$LOGS"/*.xml "$LOGS"/*.out "$LOGS"/summary.txt "$LOGS"/tests.txt; mkdir 
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
 export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1
 
-# the serial test commands: "name<TAB>command" where the command starts with build-debug/tests/
+# the test commands: "name<TAB>command" where the command runs a program of build-debug/tests/,
+# directly or by mpiexec -n N with N <= MEMCHECK_NP
 ctest_args=(-N -V -L "$LABEL")
 [ -n "$NAME" ] && ctest_args+=(-R "$NAME")
-mapfile -t TESTS < <(cd "$BUILD" && ctest "${ctest_args[@]}" | awk -v dir="$BUILD/tests/" '
+mapfile -t TESTS < <(cd "$BUILD" && ctest "${ctest_args[@]}" | awk -v dir="$BUILD/tests/" -v maxnp="${MEMCHECK_NP:-1}" '
   /^[0-9]+: Test command: / { sub(/^[0-9]+: Test command: /, ""); cmd = $0; next }
-  /^ *Test +#[0-9]+: / { name = $3; if (index(cmd, dir) == 1) print name "\t" cmd; cmd = "" }')
+  /^ *Test +#[0-9]+: / {
+    name = $3; ok = index(cmd, dir) == 1
+    if (!ok && index(cmd, dir) > 0 && cmd ~ /^[^ ]*mpiexec/ && match(cmd, /"-(n|np)" "[0-9]+"/)) {
+      np = substr(cmd, RSTART, RLENGTH); gsub(/[^0-9]/, "", np); ok = np + 0 <= maxnp + 0
+    }
+    if (ok) print name "\t" cmd
+    cmd = "" }')
 [ ${#TESTS[@]} -gt 0 ] || { echo "memcheck: no serial test program matches -L '$LABEL' ${NAME:+-R '$NAME'}" >&2; exit 2; }
 
 # run_one <name> <command>: the test under valgrind; prints "name rc seconds"
 run_one() {
   local name=$1 cmd=$2 t0 rc=0
   t0=$(date +%s)
-  # the command is ctest's: the program then its arguments, each quoted
+  # the command is ctest's, each word quoted: [mpiexec and its options] the program, its arguments
   eval "set -- $cmd"
-  (cd "$BUILD/tests" && timeout "${MEMCHECK_TIMEOUT:-1800}" "${VG[@]}" --error-exitcode=3 ${VALGRIND_OPTS:-} \
-      --xml=yes --xml-file="$LOGS/$name.%p.xml" "$@" >"$LOGS/$name.out" 2>&1) || rc=$?
+  local pre=()
+  while [ $# -gt 0 ] && [[ $1 != "$BUILD/tests/"* ]]; do pre+=("$1"); shift; done
+  (cd "$BUILD/tests" && timeout "${MEMCHECK_TIMEOUT:-1800}" "${pre[@]}" "${VG[@]}" --error-exitcode=3 \
+      ${VALGRIND_OPTS:-} --xml=yes --xml-file="$LOGS/$name.%p.xml" "$@" >"$LOGS/$name.out" 2>&1) || rc=$?
   echo "$name rc=$rc $(( $(date +%s) - t0 )) s"
 }
 echo "memcheck: ${#TESTS[@]} program(s), logs in $LOGS"
