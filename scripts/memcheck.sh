@@ -1,12 +1,12 @@
 #!/usr/bin/env bash
-# Valgrind memcheck over the serial test programs of the Debug build: finds reads of
-# uninitialised memory (e.g. a workspace array read before it is written) that the Debug flags
-# cannot see (-finit-real=snan does not cover allocatable arrays, whose bytes are whatever malloc
-# returns). A tool, not part of scripts/test.sh (about 3 min for the unit tests on this machine).
+# Valgrind memcheck over the test programs of the Debug build: finds reads of uninitialised
+# memory (e.g. a workspace array read before it is written) that the Debug flags cannot see
+# (-finit-real=snan does not cover allocatable arrays, whose bytes are whatever malloc returns).
+# A tool, not part of scripts/test.sh (about 5 min for the unit tests with -j 2 on this machine).
 #   scripts/memcheck.sh [-L LABEL_REGEX] [-R NAME_REGEX] [-j N]
 #   scripts/memcheck.sh --wrap DIR
-# Defaults: -L '^unit$' (the serial unit tests; '^(unit|regression|extremes)$' adds the serial
-# programs of the other labels). Test commands that run a program of build-debug/tests are
+# Defaults: -L '^unit$' (the unit tests; '^(unit|regression|extremes)$' adds the programs of the
+# other labels). Test commands that run a program of build-debug/tests are
 # taken, directly or through mpiexec with at most MEMCHECK_NP ranks (default 1: the MPI tests'
 # 1-rank runs, one valgrind per rank), not script-driven tests. Builds build-debug first (Debug).
 # Each program runs under `valgrind --tool=memcheck --track-origins=yes` with Open MPI's
