@@ -100,9 +100,13 @@ printf '%s\n' "${TESTS[@]}" > "$LOGS/tests.txt"
 # one line per test: run them JOBS at a time
 while IFS=$'\t' read -r name cmd; do
   while [ "$(jobs -rp | wc -l)" -ge "$JOBS" ]; do wait -n || true; done
-  run_one "$name" "$cmd" | tee -a "$LOGS/summary.txt" &
+  run_one "$name" "$cmd" </dev/null | tee -a "$LOGS/summary.txt" &
 done < "$LOGS/tests.txt"
 wait
+if [ "$(wc -l < "$LOGS/summary.txt")" -ne ${#TESTS[@]} ]; then
+  echo "memcheck: only $(wc -l < "$LOGS/summary.txt") of ${#TESTS[@]} programs ran"
+  status=1
+fi
 # a test that failed under valgrind (rc 3 is valgrind's: errors, judged below by the report)
 if grep -Ev ' rc=(0|3) ' "$LOGS/summary.txt"; then
   echo "memcheck: the test(s) above failed or timed out under valgrind"
