@@ -23,7 +23,7 @@ program test_hyper_methods
   use cr_hyper_terms, only: hyper_terms_t
   use cr_hyper_method, only: hyper_method_t, hyper_slot_t
   use cr_hyper_factory, only: HYPER_NAMES, new_hyper, stored_hypers
-  use cr_hyper_eq, only: hyper_eq_t
+  use cr_hyper_eq, only: hyper_eq_t, ops_eq_t
   use cr_reduced_base, only: eval_ctx_t, reduced_ops_t
   use cr_rom_file, only: rom_pair_t
   use cr_reduced_ops, only: make_reduced_ops
@@ -93,6 +93,7 @@ contains
     type(sparse_cone_t) :: cone
     type(hyper_terms_t) :: terms
     type(hyper_eq_t) :: he
+    class(hyper_method_t), allocatable :: hm
     class(reduced_ops_t), allocatable :: ops
     type(rng_t) :: rng
     real(wp), allocatable :: s(:,:), v(:,:), tau(:), q(:), vd(:), vh(:), ref(:), bt(:,:), dh(:), sv(:), res(:), &
@@ -182,6 +183,31 @@ contains
       end if
       deallocate(used, sv)
     end do
+    ! terms without points, as the ROM file reader leaves them (m = 0: no indices stored, idx
+    ! never allocated in the method the factory made); make_ops once took the section idx(1:0)
+    ! of the unallocated array, a read of its undefined bounds that only valgrind sees
+    ! (scripts/memcheck.sh runs this program at 1 rank)
+    call new_hyper('eq', hm, error)
+    call check(.not. allocated(error), "eq without points: method")
+    if (allocated(error)) return
+    select type (hm)
+    type is (hyper_eq_t)
+      do k = 1, 3
+        hm%eq(k)%p = terms%p(merge(1, 3, k == 1)); hm%eq(k)%m = 0
+      end do
+    end select
+    call hm%make_ops('eq', v, terms, nb, 0, [0, 0, 0], "test", ops, error)
+    call check(.not. allocated(error), "eq without points: ops")
+    if (allocated(error)) return
+    select type (ops)
+    type is (ops_eq_t)
+      call check(size(ops%idx1) == 0 .and. size(ops%idx2) == 0 .and. size(ops%idx3) == 0 .and. &
+        size(ops%agents) == 0, "eq without points: no point, no agent read")
+    class default
+      call check(.false., "eq without points: ops of type ops_eq_t")
+    end select
+    call ops%assemble(ctx, q, vh, bt, dh)
+    call check(all(vh == 0) .and. size(dh) == 0, "eq without points: vhat = 0, no row")
   end subroutine test_deim_desired
 
   !> Configuration number c: 24 agents uniform in [0.1, 1.2] x [0.1, 0.9] of the default 1.3 x 1

@@ -253,7 +253,7 @@ contains
       if (deim_v) then
         ! the agents of the first m_v DEIM dofs, both components of each (an agent's desired
         ! velocity is one evaluation): least squares on these 2 |A| >= m_v rows
-        call unique_map((this%vdeim%idx(1:m(1)) + 1) / 2, agents, pos)
+        call unique_map((first(this%vdeim%idx, m(1)) + 1) / 2, agents, pos)
         ops%idx1 = [(2 * agents(k) - 1, 2 * agents(k), k = 1, size(agents))]
         allocate(ops%w1(0), ops%s1v(size(ops%idx1)))
         if (m(1) > 0) then
@@ -266,10 +266,10 @@ contains
           allocate(ops%a1m(nb, 0))
         end if
       else
-        ops%idx1 = this%eq(1)%idx(1:m(1)); ops%w1 = weights(1, m(1))
+        ops%idx1 = first(this%eq(1)%idx, m(1)); ops%w1 = weights(1, m(1))
       end if
-      ops%idx2 = this%eq(2)%idx(1:m(2)); ops%w2 = weights(2, m(2))
-      ops%idx3 = this%eq(3)%idx(1:m(3)); ops%w3 = weights(3, m(3))
+      ops%idx2 = first(this%eq(2)%idx, m(2)); ops%w2 = weights(2, m(2))
+      ops%idx3 = first(this%eq(3)%idx, m(3)); ops%w3 = weights(3, m(3))
       allocate(need(n_agents))
       need = .false.
       call mark_agents(need, ops%idx1, ops%idx2, ops%idx3, ops%ia, ops%ib)
@@ -289,6 +289,19 @@ contains
     end select
 
   contains
+
+    !> The first mj selected points; empty when mj = 0 (idx is then not read: a term with no
+    !> point, e.g. R = 0, has no indices in the ROM file and idx stays unallocated)
+    function first(idx, mj) result(sel)
+      integer, allocatable, intent(in) :: idx(:)
+      integer, intent(in) :: mj
+      integer, allocatable :: sel(:)
+      if (mj == 0) then
+        allocate(sel(0))
+      else
+        sel = idx(1:mj)
+      end if
+    end function first
 
     function weights(j, mj) result(w)
       integer, intent(in) :: j, mj

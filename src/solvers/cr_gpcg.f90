@@ -167,7 +167,9 @@ contains
         else
           acg = huge(1.0_wp)
         end if
-        if (acg <= af) then
+        ! (acg = af = huge: a null direction with no bound ahead, the expansion branch below
+        ! reports the dual unbounded; a step of huge length would overflow)
+        if (acg <= af .and. acg < huge(1.0_wp)) then
           lambda(1:n) = lambda(1:n) - acg * this%p(1:n)
           where (this%p(1:n) > 0.0_wp .and. lambda(1:n) < 0.0_wp) lambda(1:n) = 0.0_wp
           this%g(1:n) = this%g(1:n) - acg * this%ap(1:n)
