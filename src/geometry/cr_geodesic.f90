@@ -70,6 +70,11 @@ module cr_geodesic
     !> hall wall): the free part of the box is then convex on that side, so a segment between
     !> free points never meets it and visibility tests skip it
     logical, allocatable :: slab(:)
+    !> the obstacles that are not slabs, in order: the only ones visibility tests look at
+    integer, allocatable :: near_k(:)
+    !> bounding boxes grown by r [2, n_obst]: a point outside cannot be inside the obstacle
+    !> inflated by r
+    real(wp), allocatable :: plo(:,:), phi(:,:)
     !> polygon edges that a segment inside the box can come within r of: obstacle k owns
     !> edges ed_ptr(k) .. ed_ptr(k+1)-1 from ed_a(:, i) to ed_b(:, i)
     integer, allocatable :: ed_ptr(:)
@@ -161,6 +166,9 @@ contains
       call obstacle_bbox(obstacles(k), this%blo(:, k), this%bhi(:, k))
       this%slab(k) = is_slab(k)
     end do
+    this%near_k = pack([(k, k = 1, size(obstacles))], .not. this%slab)
+    this%plo = this%blo - r
+    this%phi = this%bhi + r
     allocate(this%ed_ptr(size(obstacles) + 1), this%ed_a(2, 0), this%ed_b(2, 0))
     this%ed_ptr(1) = 1
     do k = 1, size(obstacles)
@@ -790,6 +798,8 @@ contains
     if (present(s)) s = cand(:, 1)
     if (present(closest)) closest = .false.
     do k = 1, 3
+      ! an endpoint that is the closest point was just found out of sight
+      if (k > 1 .and. cand(1, k) == cand(1, 1) .and. cand(2, k) == cand(2, 1)) cycle
       l = norm2(cand(:, k) - x)
       if (l >= d) cycle
       if (.not. this%visible(x, cand(:, k))) cycle
@@ -806,14 +816,14 @@ contains
   logical function visible(this, a, b)
     class(geodesic_t), intent(in) :: this
     real(wp), intent(in) :: a(2), b(2)
-    integer :: k
+    integer :: kk, k
     real(wp) :: slo(2), shi(2), rr
     visible = .true.
     rr = this%r - this%tol
     slo = min(a, b) - rr
     shi = max(a, b) + rr
-    do k = 1, size(this%obst)
-      if (this%slab(k)) cycle
+    do kk = 1, size(this%near_k)
+      k = this%near_k(kk)
       if (any(this%blo(:, k) > shi) .or. any(this%bhi(:, k) < slo)) cycle
       if (this%obst(k)%kind == OBST_POLYGON) then
         if (edges_blocked(this%ed_a(:, this%ed_ptr(k):this%ed_ptr(k + 1) - 1), &
@@ -908,8 +918,9 @@ contains
     real(wp), intent(out) :: dist, dir(2)
     logical, intent(out) :: ok
     real(wp) :: x(2), shift, d, nrm(2), s(2), l, t(2, 2), tdir(2, 2), th, u, best, cost, arcd
+    real(wp) :: sc(2), e(2), le_best
     integer :: it, k, ic, br, arc, m, nb
-    logical :: moved, closest
+    logical :: moved
     real(wp) :: lb(GEODESIC_MAX_CIRCLES)
     integer :: na
 
@@ -925,7 +936,7 @@ contains
     do it = 1, 4
       moved = .false.
       do k = 1, size(this%obst)
-        if (any(this%blo(:, k) - this%r > x) .or. any(this%bhi(:, k) + this%r < x)) cycle
+        if (any(this%plo(:, k) > x) .or. any(this%phi(:, k) < x)) cycle
         call obstacle_distance(this%obst(k), x, d, nrm)
         if (d < this%r) then
           x = x + (this%r - d) * nrm
@@ -935,19 +946,17 @@ contains
       if (.not. moved) exit
     end do
     shift = norm2(x - p)
-    ! the exit's closest point in sight: straight leg; an endpoint in sight: a candidate
-    l = leg_to_target(this, x, s, closest)
-    if (l <= 0.0_wp) return
-    best = huge(1.0_wp)
-    if (l < huge(1.0_wp)) then
-      best = l
-      dir = (s - x) / l
-      if (closest) then
-        dist = l + shift
-        ok = .true.
-        return
-      end if
+    ! the exit's closest point in sight: the straight leg is the geodesic
+    sc = closest_point_on_segment(x, this%ta, this%tb)
+    if (this%visible(x, sc)) then
+      l = norm2(sc - x)
+      if (l <= 0.0_wp) return
+      dist = l + shift
+      dir = (sc - x) / l
+      ok = .true.
+      return
     end if
+    best = huge(1.0_wp)
     ! around obstacles: first leg tangent to a circle, then along its free arc to a node;
     ! circles in increasing order of a lower bound (tangent length + the circle's smallest node
     ! distance) until the bound reaches the best path found
@@ -998,6 +1007,30 @@ contains
         dir = tdir(:, br)
       end do
     end do
+    ! a straight leg to an endpoint of the target (the nearer one in sight) is the path when
+    ! it is not longer than the best path around obstacles (ties: the leg); endpoints farther
+    ! than that best path need no visibility test. Same result as testing the endpoints first
+    ! and pruning the circles with their length: the circles are visited in the same order
+    ! and a path is kept only when strictly shorter.
+    le_best = huge(1.0_wp)
+    do k = 1, 2
+      if (k == 1) then
+        e = this%ta
+      else
+        e = this%tb
+      end if
+      if (e(1) == sc(1) .and. e(2) == sc(2)) cycle   ! the closest point, out of sight
+      l = norm2(e - x)
+      if (l >= le_best .or. l > best) cycle
+      if (.not. this%visible(x, e)) cycle
+      le_best = l
+      s = e
+    end do
+    if (le_best <= best) then
+      if (le_best <= 0.0_wp) return
+      best = le_best
+      dir = (s - x) / le_best
+    end if
     if (best >= huge(1.0_wp)) return
     dist = best + shift
     ok = .true.
@@ -1014,6 +1047,8 @@ contains
     class(geodesic_t), intent(inout) :: this
     if (allocated(this%obst)) deallocate(this%obst)
     if (allocated(this%blo)) deallocate(this%blo, this%bhi, this%slab)
+    if (allocated(this%near_k)) deallocate(this%near_k)
+    if (allocated(this%plo)) deallocate(this%plo, this%phi)
     if (allocated(this%ed_ptr)) deallocate(this%ed_ptr, this%ed_a, this%ed_b)
     if (allocated(this%cen)) deallocate(this%cen, this%rho)
     if (allocated(this%iv_ptr)) deallocate(this%iv_ptr, this%iv_s, this%iv_e, this%iv_full)

@@ -40,10 +40,13 @@ contains
     logical, intent(in), optional :: active(:)
     integer :: na, i, j, cx, cy, ix, iy, c, k
     real(wp) :: lo(2), hi(2), dx, dy, dist, gap, reach, g(2), nrm(2)
+    !> obstacle bounding boxes grown by radius + cutoff [2, n_obstacles]
+    real(wp) :: olo(2, scene%n_obstacles()), ohi(2, scene%n_obstacles())
     logical :: use_i
     na = size(q) / 2
     call cs%clear()
     if (na == 0) return
+    if (.not. allocated(cs%ia)) call cs%reserve(16)
     ! -- cell grid over the agents' bounding box
     lo = [huge(1.0_wp), huge(1.0_wp)]; hi = -lo
     do i = 1, na
@@ -89,7 +92,7 @@ contains
               dx = q(2*i-1) - q(2*j-1); dy = q(2*i) - q(2*j)
               if (abs(dx) <= reach .and. abs(dy) <= reach) then
                 call pair_contact(dx, dy, radius, g, gap)
-                if (gap <= cutoff) call cs%add(i, j, 0, g, gap)
+                if (gap <= cutoff) call append(i, j, 0, g, gap)
               end if
             end if
             j = cells%next(j)
@@ -98,20 +101,37 @@ contains
       end do
     end do
     ! -- agent-obstacle pairs
+    do k = 1, size(olo, 2)
+      olo(:, k) = scene%lo(:, k) - radius - cutoff
+      ohi(:, k) = scene%hi(:, k) + radius + cutoff
+    end do
     do i = 1, na
       if (present(active)) then
         if (.not. active(i)) cycle
       end if
-      do k = 1, scene%n_obstacles()
-        if (q(2*i-1) < scene%lo(1, k) - radius - cutoff .or. q(2*i-1) > scene%hi(1, k) + radius + cutoff) cycle
-        if (q(2*i) < scene%lo(2, k) - radius - cutoff .or. q(2*i) > scene%hi(2, k) + radius + cutoff) cycle
+      do k = 1, size(olo, 2)
+        if (q(2*i-1) < olo(1, k) .or. q(2*i-1) > ohi(1, k)) cycle
+        if (q(2*i) < olo(2, k) .or. q(2*i) > ohi(2, k)) cycle
         call obstacle_distance(scene%obstacles(k), q(2*i-1:2*i), dist, nrm)
         gap = dist - radius
-        if (gap <= cutoff) call cs%add(i, 0, k, nrm, gap)
+        if (gap <= cutoff) call append(i, 0, k, nrm, gap)
       end do
     end do
 
   contains
+
+    !> cs%add without the call: room is made (doubling) only when the rows are full
+    subroutine append(a, b, o, gg, dd)
+      integer, intent(in) :: a, b, o
+      real(wp), intent(in) :: gg(2), dd
+      integer :: m
+      if (cs%n >= size(cs%ia)) call cs%reserve(2 * size(cs%ia))
+      m = cs%n + 1
+      cs%n = m
+      cs%ia(m) = a; cs%ib(m) = b; cs%ob(m) = o
+      cs%g(1, m) = gg(1); cs%g(2, m) = gg(2)
+      cs%gap(m) = dd
+    end subroutine append
 
     pure integer function cell_of(a)
       integer, intent(in) :: a
