@@ -51,6 +51,8 @@ module cr_geodesic
   !> angular tolerance for a point at the end of a free arc: a point touching an obstacle lies
   !> on its inflated boundary up to round-off eps, and its tangent points move by sqrt(2 eps)
   real(wp), parameter :: atol = 1.0e-7_wp
+  !> relative margin of the "surely blocked" pre-test of a leg (sure_blocked)
+  real(wp), parameter :: sure_margin = 1.0e-6_wp
 
   !> Geodesic distance of one scene and radius to one target segment.
   type :: geodesic_t
@@ -75,6 +77,11 @@ module cr_geodesic
     !> bounding boxes grown by r [2, n_obst]: a point outside cannot be inside the obstacle
     !> inflated by r
     real(wp), allocatable :: plo(:,:), phi(:,:)
+    !> for each target end, the circle (of an obstacle that is not a slab) nearest to it (0 if
+    !> none) and the square of a radius that is surely blocking: a leg passing its centre
+    !> closer than that comes closer than r - tol to its obstacle (see sure_blocked)
+    integer :: end_c(2) = 0
+    real(wp) :: end_r2(2) = 0.0_wp
     !> polygon edges that a segment inside the box can come within r of: obstacle k owns
     !> edges ed_ptr(k) .. ed_ptr(k+1)-1 from ed_a(:, i) to ed_b(:, i)
     integer, allocatable :: ed_ptr(:)
@@ -222,6 +229,7 @@ contains
       end associate
     end do
 
+    call end_circles(this, owner)
     call free_arcs(this, owner, own_s, own_span)
     call collect_nodes(this, b)
     call sort_nodes(this, b)
@@ -824,7 +832,8 @@ contains
     shi = max(a, b) + rr
     do kk = 1, size(this%near_k)
       k = this%near_k(kk)
-      if (any(this%blo(:, k) > shi) .or. any(this%bhi(:, k) < slo)) cycle
+      if (this%blo(1, k) > shi(1) .or. this%blo(2, k) > shi(2) .or. &
+          this%bhi(1, k) < slo(1) .or. this%bhi(2, k) < slo(2)) cycle
       if (this%obst(k)%kind == OBST_POLYGON) then
         if (edges_blocked(this%ed_a(:, this%ed_ptr(k):this%ed_ptr(k + 1) - 1), &
             this%ed_b(:, this%ed_ptr(k):this%ed_ptr(k + 1) - 1), a, b, rr)) then
@@ -842,6 +851,51 @@ contains
       end if
     end do
   end function visible
+
+  !> For each target end, the circle nearest to it whose obstacle is not a slab (an exit corner
+  !> inflated by r passes through the end) and its surely blocking radius (see sure_blocked).
+  subroutine end_circles(this, owner)
+    type(geodesic_t), intent(inout) :: this
+    integer, intent(in) :: owner(:)
+    real(wp) :: e(2), gap, best
+    integer :: k, i
+    this%end_c = 0
+    this%end_r2 = 0.0_wp
+    do k = 1, 2
+      e = merge(this%ta, this%tb, k == 1)
+      best = huge(1.0_wp)
+      do i = 1, this%nc
+        if (this%slab(owner(i))) cycle
+        if (this%rho(i) <= this%tol) cycle
+        gap = norm2(e - this%cen(:, i)) - this%rho(i)
+        if (gap < best) then
+          best = gap
+          this%end_c(k) = i
+        end if
+      end do
+      if (this%end_c(k) > 0) this%end_r2(k) = (this%rho(this%end_c(k)) - this%tol)**2 * (1.0_wp - sure_margin)
+    end do
+  end subroutine end_circles
+
+  !> .true. if the leg [a, b] passes the centre of a target end's circle (end_circles) closer than
+  !> its surely blocking radius: then it comes closer than r - tol to that circle's obstacle (a
+  !> polygon vertex, a disk or a capsule end lies at the centre, rho - r inside the obstacle),
+  !> so `visible` would say .false.; the relative margin sure_margin on the squared distance is
+  !> far above the round-off of either test, so both always agree. A leg not surely blocked
+  !> still needs `visible`.
+  pure logical function sure_blocked(this, a, b) result(blocked)
+    type(geodesic_t), intent(in) :: this
+    real(wp), intent(in) :: a(2), b(2)
+    integer :: k
+    blocked = .false.
+    do k = 1, 2
+      if (this%end_c(k) == 0) cycle
+      if (pseg2(this%cen(:, this%end_c(k)), a, b) < this%end_r2(k)) then
+        blocked = .true.
+        return
+      end if
+    end do
+  end function sure_blocked
 
   !> .true. if the segment [a, b] comes closer than rr to one of the edges [ea(:, i), eb(:, i)].
   !> With both ends outside the polygon this is segment_obstacle_distance < rr: a segment
@@ -936,7 +990,8 @@ contains
     do it = 1, 4
       moved = .false.
       do k = 1, size(this%obst)
-        if (any(this%plo(:, k) > x) .or. any(this%phi(:, k) < x)) cycle
+        if (this%plo(1, k) > x(1) .or. this%plo(2, k) > x(2) .or. &
+            this%phi(1, k) < x(1) .or. this%phi(2, k) < x(2)) cycle
         call obstacle_distance(this%obst(k), x, d, nrm)
         if (d < this%r) then
           x = x + (this%r - d) * nrm
@@ -948,13 +1003,15 @@ contains
     shift = norm2(x - p)
     ! the exit's closest point in sight: the straight leg is the geodesic
     sc = closest_point_on_segment(x, this%ta, this%tb)
-    if (this%visible(x, sc)) then
-      l = norm2(sc - x)
-      if (l <= 0.0_wp) return
-      dist = l + shift
-      dir = (sc - x) / l
-      ok = .true.
-      return
+    if (.not. sure_blocked(this, x, sc)) then
+      if (this%visible(x, sc)) then
+        l = norm2(sc - x)
+        if (l <= 0.0_wp) return
+        dist = l + shift
+        dir = (sc - x) / l
+        ok = .true.
+        return
+      end if
     end if
     best = huge(1.0_wp)
     ! around obstacles: first leg tangent to a circle, then along its free arc to a node;
@@ -1058,6 +1115,8 @@ contains
     if (allocated(this%act)) deallocate(this%act)
     this%nc = 0
     this%nn = 0
+    this%end_c = 0
+    this%end_r2 = 0.0_wp
     this%ready = .false.
   end subroutine free
 end module cr_geodesic

@@ -25,6 +25,10 @@ module cr_neighbours
     integer :: nx = 0, ny = 0
     real(wp) :: x0 = 0, y0 = 0, side = 1
     integer, allocatable :: head(:), next(:)
+    !> cell of each agent (1-based, as head) [n_agents]
+    integer, allocatable :: cell(:)
+    !> cells that meet an obstacle's bounding box grown by radius + cutoff [nx*ny]
+    logical, allocatable :: near(:)
   end type cell_list_t
 
 contains
@@ -63,16 +67,25 @@ contains
       if (size(cells%head) < cells%nx * cells%ny) deallocate(cells%head)
     end if
     if (.not. allocated(cells%head)) allocate(cells%head(cells%nx * cells%ny))
+    if (allocated(cells%near)) then
+      if (size(cells%near) < size(cells%head)) deallocate(cells%near)
+    end if
+    if (.not. allocated(cells%near)) allocate(cells%near(size(cells%head)))
     if (allocated(cells%next)) then
       if (size(cells%next) < na) deallocate(cells%next)
     end if
     if (.not. allocated(cells%next)) allocate(cells%next(na))
+    if (allocated(cells%cell)) then
+      if (size(cells%cell) < na) deallocate(cells%cell)
+    end if
+    if (.not. allocated(cells%cell)) allocate(cells%cell(na))
     cells%head(1:cells%nx * cells%ny) = 0
     do i = na, 1, -1
       if (present(active)) then
         if (.not. active(i)) cycle
       end if
       c = cell_of(i)
+      cells%cell(i) = c
       cells%next(i) = cells%head(c)
       cells%head(c) = i
     end do
@@ -82,8 +95,8 @@ contains
       use_i = .true.
       if (present(active)) use_i = active(i)
       if (.not. use_i) cycle
-      cx = cell_index(q(2*i-1), cells%x0, cells%side, cells%nx)
-      cy = cell_index(q(2*i), cells%y0, cells%side, cells%ny)
+      cx = mod(cells%cell(i) - 1, cells%nx)
+      cy = (cells%cell(i) - 1) / cells%nx
       do iy = max(cy - 1, 0), min(cy + 1, cells%ny - 1)
         do ix = max(cx - 1, 0), min(cx + 1, cells%nx - 1)
           j = cells%head(iy * cells%nx + ix + 1)
@@ -100,14 +113,21 @@ contains
         end do
       end do
     end do
-    ! -- agent-obstacle pairs
+    ! -- agent-obstacle pairs: only agents in a cell that meets a grown obstacle box (cell_index
+    ! is monotone, so an agent inside a box lies in one of the cells from the cell of the box's
+    ! low corner to that of its high corner; agents with a non-finite coordinate test them all)
+    cells%near(1:cells%nx * cells%ny) = .false.
     do k = 1, size(olo, 2)
       olo(:, k) = scene%lo(:, k) - radius - cutoff
       ohi(:, k) = scene%hi(:, k) + radius + cutoff
+      call mark_box(olo(:, k), ohi(:, k))
     end do
     do i = 1, na
       if (present(active)) then
         if (.not. active(i)) cycle
+      end if
+      if (ieee_is_finite(q(2*i-1)) .and. ieee_is_finite(q(2*i))) then
+        if (.not. cells%near(cells%cell(i))) cycle
       end if
       do k = 1, size(olo, 2)
         if (q(2*i-1) < olo(1, k) .or. q(2*i-1) > ohi(1, k)) cycle
@@ -119,6 +139,33 @@ contains
     end do
 
   contains
+
+    !> Mark the cells from the cell of blo to that of bhi (every cell on a side where a corner
+    !> has no finite cell coordinate).
+    subroutine mark_box(blo, bhi)
+      real(wp), intent(in) :: blo(2), bhi(2)
+      integer :: x0, x1, y0, y1, yy
+      x0 = corner_cell(blo(1), cells%x0, cells%nx, 0)
+      x1 = corner_cell(bhi(1), cells%x0, cells%nx, cells%nx - 1)
+      y0 = corner_cell(blo(2), cells%y0, cells%ny, 0)
+      y1 = corner_cell(bhi(2), cells%y0, cells%ny, cells%ny - 1)
+      do yy = y0, y1
+        cells%near(yy * cells%nx + x0 + 1:yy * cells%nx + x1 + 1) = .true.
+      end do
+    end subroutine mark_box
+
+    !> cell_index of a box corner x, or `fallback` when its cell coordinate is not finite
+    pure integer function corner_cell(x, x0, n, fallback) result(c)
+      real(wp), intent(in) :: x, x0
+      integer, intent(in) :: n, fallback
+      real(wp) :: t
+      t = (0.5_wp * x - 0.5_wp * x0) / (0.5_wp * cells%side)
+      if (ieee_is_finite(t)) then
+        c = cell_index(x, x0, cells%side, n)
+      else
+        c = fallback
+      end if
+    end function corner_cell
 
     !> cs%add without the call: room is made (doubling) only when the rows are full
     subroutine append(a, b, o, gg, dd)
