@@ -1083,8 +1083,11 @@ contains
       le_best = l
       s = e
     end do
-    if (le_best <= best) then
-      if (le_best <= 0.0_wp) return
+    if (le_best < huge(1.0_wp) .and. le_best <= best) then
+      if (le_best <= 0.0_wp) then   ! on the target: no direction
+        dir = 0.0_wp
+        return
+      end if
       best = le_best
       dir = (s - x) / le_best
     end if
