@@ -18,7 +18,7 @@ module cr_fom
   use cr_neighbours, only: cell_list_t, build_contacts
   use cr_placement, only: place_agents
   use cr_projection, only: projection_solver_t, solve_stats_t, make_projection_solver
-  use cr_sort, only: argsort_i8, bsearch_i8
+  use cr_key_map, only: key_map_t
   implicit none
   private
   public :: fom_t, step_record_t
@@ -58,9 +58,10 @@ module cr_fom
     real(wp), allocatable :: lambda(:)
     !> agents still in the hall [n_agents]
     logical, allocatable :: inside(:)
-    !> sorted identities and multipliers of the previous step (warm start)
-    integer(i8), allocatable :: prev_keys(:)
-    real(wp), allocatable :: prev_lambda(:)
+    !> multipliers of the previous step's rows by identity (warm start), and the identities
+    !> of the current rows [>= cs%n]
+    type(key_map_t) :: prev
+    integer(i8), allocatable :: keys(:)
     integer :: placement_iterations = 0
   contains
     procedure :: init
@@ -121,7 +122,8 @@ contains
       this%inside(i) = .not. this%scene%is_out(this%q(2*i-1:2*i), this%radius)
     end do
     call this%cs%init(this%n_agents, this%dt, 8 * this%n_agents)
-    allocate(this%lambda(0), this%prev_keys(0), this%prev_lambda(0))
+    allocate(this%lambda(0))
+    call this%prev%init()
   end subroutine init
 
   !> Number of agents that have not left the hall.
@@ -223,31 +225,28 @@ contains
   !> Initial multipliers of the current rows from the previous ones, matched by identity.
   subroutine warm_start_multipliers(this)
     type(fom_t), intent(inout) :: this
-    integer :: l, pos
-    if (allocated(this%lambda)) deallocate(this%lambda)
-    allocate(this%lambda(this%cs%n))
-    this%lambda = 0
-    if (.not. this%warm_start .or. size(this%prev_keys) == 0) return
-    do l = 1, this%cs%n
-      pos = bsearch_i8(this%prev_keys, this%cs%key(l))
-      if (pos > 0) this%lambda(l) = this%prev_lambda(pos)
-    end do
+    integer :: n
+    n = this%cs%n
+    if (allocated(this%lambda)) then
+      if (size(this%lambda) /= n) deallocate(this%lambda)
+    end if
+    if (.not. allocated(this%lambda)) allocate(this%lambda(n))
+    if (allocated(this%keys)) then
+      if (size(this%keys) < n) deallocate(this%keys)
+    end if
+    if (.not. allocated(this%keys)) allocate(this%keys(max(2 * n, 16)))
+    call this%cs%keys_of(this%keys)
+    if (.not. this%warm_start) then
+      this%lambda = 0
+      return
+    end if
+    call this%prev%lookup(this%keys(1:n), this%lambda, 0.0_wp)
   end subroutine warm_start_multipliers
 
-  !> Keep the current multipliers (sorted by identity) for the next warm start.
+  !> Keep the current multipliers by identity for the next warm start.
   subroutine remember_multipliers(this)
     type(fom_t), intent(inout) :: this
-    integer(i8), allocatable :: keys(:)
-    integer, allocatable :: idx(:)
-    integer :: n, l
-    n = this%cs%n
-    allocate(keys(n), idx(n))
-    do l = 1, n
-      keys(l) = this%cs%key(l)
-    end do
-    call argsort_i8(keys, idx)
-    this%prev_keys = keys(idx)
-    this%prev_lambda = this%lambda(idx)
+    call this%prev%fill(this%keys(1:this%cs%n), this%lambda(1:this%cs%n))
   end subroutine remember_multipliers
 
   !> Read n_agents speeds (one per line).

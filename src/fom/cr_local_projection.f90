@@ -12,7 +12,7 @@
 !> agent-obstacle pair; `reset` forgets them).
 module cr_local_projection
   use cr_kinds, only: wp, i8
-  use cr_sort, only: argsort_i8, bsearch_i8
+  use cr_key_map, only: key_map_t
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
   use cr_contact_set, only: contact_set_t
@@ -33,11 +33,9 @@ module cr_local_projection
     type(cell_list_t) :: cells
     !> candidate rows (step cs%h) and the rows of the local problem
     type(contact_set_t) :: cs, cs_loc
-    !> warm start from the previous solve's multipliers: its row identities (sorted) and
-    !> multipliers
+    !> warm start from the previous solve's multipliers, by row identity
     logical :: warm = .false.
-    integer(i8), allocatable :: prev_keys(:)
-    real(wp), allocatable :: prev_lambda(:)
+    type(key_map_t) :: prev
   contains
     procedure :: init
     procedure :: free
@@ -82,15 +80,14 @@ contains
     end if
     call this%cs%free()
     call this%cs_loc%free()
-    call this%reset()
+    call this%prev%free()
     this%cells = cell_list_t()
   end subroutine free
 
   !> Forget the multipliers kept for the warm start (the next solve starts from zero).
   subroutine reset(this)
     class(local_projection_t), intent(inout) :: this
-    if (allocated(this%prev_keys)) deallocate(this%prev_keys)
-    if (allocated(this%prev_lambda)) deallocate(this%prev_lambda)
+    call this%prev%clear()
   end subroutine reset
 
   !> Candidate rows for n_a agents and the step h (kept across calls when they match).
@@ -164,7 +161,7 @@ contains
     logical, intent(out) :: converged
     type(solve_stats_t), intent(out) :: st
     type(error_t), allocatable, intent(out) :: error
-    integer, allocatable :: map(:), back(:), row_of(:), idx(:)
+    integer, allocatable :: map(:), back(:), row_of(:)
     integer(i8), allocatable :: keys(:)
     real(wp), allocatable :: v_loc(:), u_loc(:), lam_loc(:)
     integer :: na, m, i, l, a, b, k
@@ -212,22 +209,12 @@ contains
     allocate(lam_loc(max(this%cs_loc%n, 1)))
     lam_loc = 0
     ! warm start: multipliers of the previous solve's rows with the same identity
-    if (this%warm .and. allocated(this%prev_keys)) then
-      do k = 1, this%cs_loc%n
-        i = bsearch_i8(this%prev_keys, keys(k))
-        if (i > 0) lam_loc(k) = this%prev_lambda(i)
-      end do
-    end if
+    if (this%warm) call this%prev%lookup(keys(1:this%cs_loc%n), lam_loc, 0.0_wp)
     call this%solver%solve(this%cs_loc, v_loc, u_loc, lam_loc, st, error)
     if (allocated(error)) then
       call prefix_error(error, this%name); return
     end if
-    if (this%warm) then
-      allocate(idx(this%cs_loc%n))
-      call argsort_i8(keys(1:this%cs_loc%n), idx)
-      this%prev_keys = keys(idx)
-      this%prev_lambda = lam_loc(idx)
-    end if
+    if (this%warm) call this%prev%fill(keys(1:this%cs_loc%n), lam_loc(1:this%cs_loc%n))
     converged = st%converged .and. st%kkt <= this%solver%settings%tol
     u = w
     do k = 1, m

@@ -43,7 +43,6 @@
 module cr_position_projection
   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
   use cr_kinds, only: wp
-  use cr_sort, only: bsearch_i8
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
   use cr_scene, only: scene_t
@@ -250,7 +249,7 @@ contains
     logical, intent(out) :: ok
     type(pproj_stats_t), intent(inout) :: stats
     type(error_t), allocatable, intent(out) :: error
-    integer :: na, i, l, k, restarts, n_violated
+    integer :: na, i, l, restarts, n_violated
     real(wp) :: depth, rho_min, un, near
     real(wp), allocatable :: lam(:), wn(:), rho(:)
     logical, allocatable :: free_ag(:), kept(:)
@@ -294,11 +293,10 @@ contains
         end do
         ! and the rows active in the previous solve (the warm start's; their multipliers are
         ! the solver's start)
-        if (allocated(lp%prev_keys)) then
+        if (lp%prev%n > 0) then
           do l = 1, cs_all%n
             if (kept(l)) cycle
-            k = bsearch_i8(lp%prev_keys, cs_all%key(l))
-            if (k > 0) kept(l) = lp%prev_lambda(k) > 0
+            kept(l) = lp%prev%get(cs_all%key(l), 0.0_wp) > 0
           end do
         end if
         do

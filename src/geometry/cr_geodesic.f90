@@ -51,6 +51,8 @@ module cr_geodesic
   !> angular tolerance for a point at the end of a free arc: a point touching an obstacle lies
   !> on its inflated boundary up to round-off eps, and its tangent points move by sqrt(2 eps)
   real(wp), parameter :: atol = 1.0e-7_wp
+  !> relative margin of the "surely blocked" pre-test of a leg (sure_blocked)
+  real(wp), parameter :: sure_margin = 1.0e-6_wp
 
   !> Geodesic distance of one scene and radius to one target segment.
   type :: geodesic_t
@@ -70,6 +72,16 @@ module cr_geodesic
     !> hall wall): the free part of the box is then convex on that side, so a segment between
     !> free points never meets it and visibility tests skip it
     logical, allocatable :: slab(:)
+    !> the obstacles that are not slabs, in order: the only ones visibility tests look at
+    integer, allocatable :: near_k(:)
+    !> bounding boxes grown by r [2, n_obst]: a point outside cannot be inside the obstacle
+    !> inflated by r
+    real(wp), allocatable :: plo(:,:), phi(:,:)
+    !> for each target end, the circle (of an obstacle that is not a slab) nearest to it (0 if
+    !> none) and the square of a radius that is surely blocking: a leg passing its centre
+    !> closer than that comes closer than r - tol to its obstacle (see sure_blocked)
+    integer :: end_c(2) = 0
+    real(wp) :: end_r2(2) = 0.0_wp
     !> polygon edges that a segment inside the box can come within r of: obstacle k owns
     !> edges ed_ptr(k) .. ed_ptr(k+1)-1 from ed_a(:, i) to ed_b(:, i)
     integer, allocatable :: ed_ptr(:)
@@ -161,6 +173,9 @@ contains
       call obstacle_bbox(obstacles(k), this%blo(:, k), this%bhi(:, k))
       this%slab(k) = is_slab(k)
     end do
+    this%near_k = pack([(k, k = 1, size(obstacles))], .not. this%slab)
+    this%plo = this%blo - r
+    this%phi = this%bhi + r
     allocate(this%ed_ptr(size(obstacles) + 1), this%ed_a(2, 0), this%ed_b(2, 0))
     this%ed_ptr(1) = 1
     do k = 1, size(obstacles)
@@ -214,6 +229,7 @@ contains
       end associate
     end do
 
+    call end_circles(this, owner)
     call free_arcs(this, owner, own_s, own_span)
     call collect_nodes(this, b)
     call sort_nodes(this, b)
@@ -790,6 +806,8 @@ contains
     if (present(s)) s = cand(:, 1)
     if (present(closest)) closest = .false.
     do k = 1, 3
+      ! an endpoint that is the closest point was just found out of sight
+      if (k > 1 .and. cand(1, k) == cand(1, 1) .and. cand(2, k) == cand(2, 1)) cycle
       l = norm2(cand(:, k) - x)
       if (l >= d) cycle
       if (.not. this%visible(x, cand(:, k))) cycle
@@ -806,15 +824,16 @@ contains
   logical function visible(this, a, b)
     class(geodesic_t), intent(in) :: this
     real(wp), intent(in) :: a(2), b(2)
-    integer :: k
+    integer :: kk, k
     real(wp) :: slo(2), shi(2), rr
     visible = .true.
     rr = this%r - this%tol
     slo = min(a, b) - rr
     shi = max(a, b) + rr
-    do k = 1, size(this%obst)
-      if (this%slab(k)) cycle
-      if (any(this%blo(:, k) > shi) .or. any(this%bhi(:, k) < slo)) cycle
+    do kk = 1, size(this%near_k)
+      k = this%near_k(kk)
+      if (this%blo(1, k) > shi(1) .or. this%blo(2, k) > shi(2) .or. &
+          this%bhi(1, k) < slo(1) .or. this%bhi(2, k) < slo(2)) cycle
       if (this%obst(k)%kind == OBST_POLYGON) then
         if (edges_blocked(this%ed_a(:, this%ed_ptr(k):this%ed_ptr(k + 1) - 1), &
             this%ed_b(:, this%ed_ptr(k):this%ed_ptr(k + 1) - 1), a, b, rr)) then
@@ -832,6 +851,51 @@ contains
       end if
     end do
   end function visible
+
+  !> For each target end, the circle nearest to it whose obstacle is not a slab (an exit corner
+  !> inflated by r passes through the end) and its surely blocking radius (see sure_blocked).
+  subroutine end_circles(this, owner)
+    type(geodesic_t), intent(inout) :: this
+    integer, intent(in) :: owner(:)
+    real(wp) :: e(2), gap, best
+    integer :: k, i
+    this%end_c = 0
+    this%end_r2 = 0.0_wp
+    do k = 1, 2
+      e = merge(this%ta, this%tb, k == 1)
+      best = huge(1.0_wp)
+      do i = 1, this%nc
+        if (this%slab(owner(i))) cycle
+        if (this%rho(i) <= this%tol) cycle
+        gap = norm2(e - this%cen(:, i)) - this%rho(i)
+        if (gap < best) then
+          best = gap
+          this%end_c(k) = i
+        end if
+      end do
+      if (this%end_c(k) > 0) this%end_r2(k) = (this%rho(this%end_c(k)) - this%tol)**2 * (1.0_wp - sure_margin)
+    end do
+  end subroutine end_circles
+
+  !> .true. if the leg [a, b] passes the centre of a target end's circle (end_circles) closer than
+  !> its surely blocking radius: then it comes closer than r - tol to that circle's obstacle (a
+  !> polygon vertex, a disk or a capsule end lies at the centre, rho - r inside the obstacle),
+  !> so `visible` would say .false.; the relative margin sure_margin on the squared distance is
+  !> far above the round-off of either test, so both always agree. A leg not surely blocked
+  !> still needs `visible`.
+  pure logical function sure_blocked(this, a, b) result(blocked)
+    type(geodesic_t), intent(in) :: this
+    real(wp), intent(in) :: a(2), b(2)
+    integer :: k
+    blocked = .false.
+    do k = 1, 2
+      if (this%end_c(k) == 0) cycle
+      if (pseg2(this%cen(:, this%end_c(k)), a, b) < this%end_r2(k)) then
+        blocked = .true.
+        return
+      end if
+    end do
+  end function sure_blocked
 
   !> .true. if the segment [a, b] comes closer than rr to one of the edges [ea(:, i), eb(:, i)].
   !> With both ends outside the polygon this is segment_obstacle_distance < rr: a segment
@@ -908,8 +972,9 @@ contains
     real(wp), intent(out) :: dist, dir(2)
     logical, intent(out) :: ok
     real(wp) :: x(2), shift, d, nrm(2), s(2), l, t(2, 2), tdir(2, 2), th, u, best, cost, arcd
+    real(wp) :: sc(2), e(2), le_best
     integer :: it, k, ic, br, arc, m, nb
-    logical :: moved, closest
+    logical :: moved
     real(wp) :: lb(GEODESIC_MAX_CIRCLES)
     integer :: na
 
@@ -925,7 +990,8 @@ contains
     do it = 1, 4
       moved = .false.
       do k = 1, size(this%obst)
-        if (any(this%blo(:, k) - this%r > x) .or. any(this%bhi(:, k) + this%r < x)) cycle
+        if (this%plo(1, k) > x(1) .or. this%plo(2, k) > x(2) .or. &
+            this%phi(1, k) < x(1) .or. this%phi(2, k) < x(2)) cycle
         call obstacle_distance(this%obst(k), x, d, nrm)
         if (d < this%r) then
           x = x + (this%r - d) * nrm
@@ -935,19 +1001,19 @@ contains
       if (.not. moved) exit
     end do
     shift = norm2(x - p)
-    ! the exit's closest point in sight: straight leg; an endpoint in sight: a candidate
-    l = leg_to_target(this, x, s, closest)
-    if (l <= 0.0_wp) return
-    best = huge(1.0_wp)
-    if (l < huge(1.0_wp)) then
-      best = l
-      dir = (s - x) / l
-      if (closest) then
+    ! the exit's closest point in sight: the straight leg is the geodesic
+    sc = closest_point_on_segment(x, this%ta, this%tb)
+    if (.not. sure_blocked(this, x, sc)) then
+      if (this%visible(x, sc)) then
+        l = norm2(sc - x)
+        if (l <= 0.0_wp) return
         dist = l + shift
+        dir = (sc - x) / l
         ok = .true.
         return
       end if
     end if
+    best = huge(1.0_wp)
     ! around obstacles: first leg tangent to a circle, then along its free arc to a node;
     ! circles in increasing order of a lower bound (tangent length + the circle's smallest node
     ! distance) until the bound reaches the best path found
@@ -998,6 +1064,33 @@ contains
         dir = tdir(:, br)
       end do
     end do
+    ! a straight leg to an endpoint of the target (the nearer one in sight) is the path when
+    ! it is not longer than the best path around obstacles (ties: the leg); endpoints farther
+    ! than that best path need no visibility test. Same result as testing the endpoints first
+    ! and pruning the circles with their length: the circles are visited in the same order
+    ! and a path is kept only when strictly shorter.
+    le_best = huge(1.0_wp)
+    do k = 1, 2
+      if (k == 1) then
+        e = this%ta
+      else
+        e = this%tb
+      end if
+      if (e(1) == sc(1) .and. e(2) == sc(2)) cycle   ! the closest point, out of sight
+      l = norm2(e - x)
+      if (l >= le_best .or. l > best) cycle
+      if (.not. this%visible(x, e)) cycle
+      le_best = l
+      s = e
+    end do
+    if (le_best < huge(1.0_wp) .and. le_best <= best) then
+      if (le_best <= 0.0_wp) then   ! on the target: no direction
+        dir = 0.0_wp
+        return
+      end if
+      best = le_best
+      dir = (s - x) / le_best
+    end if
     if (best >= huge(1.0_wp)) return
     dist = best + shift
     ok = .true.
@@ -1014,6 +1107,8 @@ contains
     class(geodesic_t), intent(inout) :: this
     if (allocated(this%obst)) deallocate(this%obst)
     if (allocated(this%blo)) deallocate(this%blo, this%bhi, this%slab)
+    if (allocated(this%near_k)) deallocate(this%near_k)
+    if (allocated(this%plo)) deallocate(this%plo, this%phi)
     if (allocated(this%ed_ptr)) deallocate(this%ed_ptr, this%ed_a, this%ed_b)
     if (allocated(this%cen)) deallocate(this%cen, this%rho)
     if (allocated(this%iv_ptr)) deallocate(this%iv_ptr, this%iv_s, this%iv_e, this%iv_full)
@@ -1023,6 +1118,8 @@ contains
     if (allocated(this%act)) deallocate(this%act)
     this%nc = 0
     this%nn = 0
+    this%end_c = 0
+    this%end_r2 = 0.0_wp
     this%ready = .false.
   end subroutine free
 end module cr_geodesic

@@ -35,7 +35,9 @@ module cr_contact_set
     procedure :: free
     procedure :: clear
     procedure :: add
+    procedure :: reserve
     procedure :: key
+    procedure :: keys_of
     procedure :: apply_b
     procedure :: apply_bt
     procedure :: lipschitz_bound
@@ -88,6 +90,17 @@ contains
     this%gap(this%n) = gap
   end subroutine add
 
+  !> Room for at least `cap` rows, keeping the rows in use (storage allocated if needed).
+  subroutine reserve(this, cap)
+    class(contact_set_t), intent(inout) :: this
+    integer, intent(in) :: cap
+    if (.not. allocated(this%ia)) then
+      call this%init(this%n_agents, this%h, cap)
+    else if (size(this%ia) < cap) then
+      call grow(this, cap)
+    end if
+  end subroutine reserve
+
   subroutine grow(this, cap)
     type(contact_set_t), intent(inout) :: this
     integer, intent(in) :: cap
@@ -108,6 +121,16 @@ contains
     integer, intent(in) :: l
     key = contact_key(this%ia(l), this%ib(l), this%ob(l))
   end function key
+
+  !> keys(l) = identity of row l for every row [>= n] (see contact_key).
+  pure subroutine keys_of(this, keys)
+    class(contact_set_t), intent(in) :: this
+    integer(i8), intent(out) :: keys(:)
+    integer :: l
+    do l = 1, this%n
+      keys(l) = contact_key(this%ia(l), this%ib(l), this%ob(l))
+    end do
+  end subroutine keys_of
 
   !> Identity of a contact: agent pair (ia < ib) or agent-obstacle pair, as one integer.
   !> Pairs sort before obstacle contacts of the same first agent.

@@ -25,6 +25,10 @@ module cr_neighbours
     integer :: nx = 0, ny = 0
     real(wp) :: x0 = 0, y0 = 0, side = 1
     integer, allocatable :: head(:), next(:)
+    !> cell of each agent (1-based, as head) [n_agents]
+    integer, allocatable :: cell(:)
+    !> cells that meet an obstacle's bounding box grown by radius + cutoff [nx*ny]
+    logical, allocatable :: near(:)
   end type cell_list_t
 
 contains
@@ -40,10 +44,13 @@ contains
     logical, intent(in), optional :: active(:)
     integer :: na, i, j, cx, cy, ix, iy, c, k
     real(wp) :: lo(2), hi(2), dx, dy, dist, gap, reach, g(2), nrm(2)
+    !> obstacle bounding boxes grown by radius + cutoff [2, n_obstacles]
+    real(wp) :: olo(2, scene%n_obstacles()), ohi(2, scene%n_obstacles())
     logical :: use_i
     na = size(q) / 2
     call cs%clear()
     if (na == 0) return
+    if (.not. allocated(cs%ia)) call cs%reserve(16)
     ! -- cell grid over the agents' bounding box
     lo = [huge(1.0_wp), huge(1.0_wp)]; hi = -lo
     do i = 1, na
@@ -60,16 +67,25 @@ contains
       if (size(cells%head) < cells%nx * cells%ny) deallocate(cells%head)
     end if
     if (.not. allocated(cells%head)) allocate(cells%head(cells%nx * cells%ny))
+    if (allocated(cells%near)) then
+      if (size(cells%near) < size(cells%head)) deallocate(cells%near)
+    end if
+    if (.not. allocated(cells%near)) allocate(cells%near(size(cells%head)))
     if (allocated(cells%next)) then
       if (size(cells%next) < na) deallocate(cells%next)
     end if
     if (.not. allocated(cells%next)) allocate(cells%next(na))
+    if (allocated(cells%cell)) then
+      if (size(cells%cell) < na) deallocate(cells%cell)
+    end if
+    if (.not. allocated(cells%cell)) allocate(cells%cell(na))
     cells%head(1:cells%nx * cells%ny) = 0
     do i = na, 1, -1
       if (present(active)) then
         if (.not. active(i)) cycle
       end if
       c = cell_of(i)
+      cells%cell(i) = c
       cells%next(i) = cells%head(c)
       cells%head(c) = i
     end do
@@ -79,8 +95,8 @@ contains
       use_i = .true.
       if (present(active)) use_i = active(i)
       if (.not. use_i) cycle
-      cx = cell_index(q(2*i-1), cells%x0, cells%side, cells%nx)
-      cy = cell_index(q(2*i), cells%y0, cells%side, cells%ny)
+      cx = mod(cells%cell(i) - 1, cells%nx)
+      cy = (cells%cell(i) - 1) / cells%nx
       do iy = max(cy - 1, 0), min(cy + 1, cells%ny - 1)
         do ix = max(cx - 1, 0), min(cx + 1, cells%nx - 1)
           j = cells%head(iy * cells%nx + ix + 1)
@@ -89,7 +105,7 @@ contains
               dx = q(2*i-1) - q(2*j-1); dy = q(2*i) - q(2*j)
               if (abs(dx) <= reach .and. abs(dy) <= reach) then
                 call pair_contact(dx, dy, radius, g, gap)
-                if (gap <= cutoff) call cs%add(i, j, 0, g, gap)
+                if (gap <= cutoff) call append(i, j, 0, g, gap)
               end if
             end if
             j = cells%next(j)
@@ -97,21 +113,72 @@ contains
         end do
       end do
     end do
-    ! -- agent-obstacle pairs
+    ! -- agent-obstacle pairs: only agents in a cell that meets a grown obstacle box (cell_index
+    ! is monotone, so an agent inside a box lies in one of the cells from the cell of the box's
+    ! low corner to that of its high corner; agents with a non-finite coordinate test them all)
+    cells%near(1:cells%nx * cells%ny) = .false.
+    do k = 1, size(olo, 2)
+      olo(:, k) = scene%lo(:, k) - radius - cutoff
+      ohi(:, k) = scene%hi(:, k) + radius + cutoff
+      call mark_box(olo(:, k), ohi(:, k))
+    end do
     do i = 1, na
       if (present(active)) then
         if (.not. active(i)) cycle
       end if
-      do k = 1, scene%n_obstacles()
-        if (q(2*i-1) < scene%lo(1, k) - radius - cutoff .or. q(2*i-1) > scene%hi(1, k) + radius + cutoff) cycle
-        if (q(2*i) < scene%lo(2, k) - radius - cutoff .or. q(2*i) > scene%hi(2, k) + radius + cutoff) cycle
+      if (ieee_is_finite(q(2*i-1)) .and. ieee_is_finite(q(2*i))) then
+        if (.not. cells%near(cells%cell(i))) cycle
+      end if
+      do k = 1, size(olo, 2)
+        if (q(2*i-1) < olo(1, k) .or. q(2*i-1) > ohi(1, k)) cycle
+        if (q(2*i) < olo(2, k) .or. q(2*i) > ohi(2, k)) cycle
         call obstacle_distance(scene%obstacles(k), q(2*i-1:2*i), dist, nrm)
         gap = dist - radius
-        if (gap <= cutoff) call cs%add(i, 0, k, nrm, gap)
+        if (gap <= cutoff) call append(i, 0, k, nrm, gap)
       end do
     end do
 
   contains
+
+    !> Mark the cells from the cell of blo to that of bhi (every cell on a side where a corner
+    !> has no finite cell coordinate).
+    subroutine mark_box(blo, bhi)
+      real(wp), intent(in) :: blo(2), bhi(2)
+      integer :: x0, x1, y0, y1, yy
+      x0 = corner_cell(blo(1), cells%x0, cells%nx, 0)
+      x1 = corner_cell(bhi(1), cells%x0, cells%nx, cells%nx - 1)
+      y0 = corner_cell(blo(2), cells%y0, cells%ny, 0)
+      y1 = corner_cell(bhi(2), cells%y0, cells%ny, cells%ny - 1)
+      do yy = y0, y1
+        cells%near(yy * cells%nx + x0 + 1:yy * cells%nx + x1 + 1) = .true.
+      end do
+    end subroutine mark_box
+
+    !> cell_index of a box corner x, or `fallback` when its cell coordinate is not finite
+    pure integer function corner_cell(x, x0, n, fallback) result(c)
+      real(wp), intent(in) :: x, x0
+      integer, intent(in) :: n, fallback
+      real(wp) :: t
+      t = (0.5_wp * x - 0.5_wp * x0) / (0.5_wp * cells%side)
+      if (ieee_is_finite(t)) then
+        c = cell_index(x, x0, cells%side, n)
+      else
+        c = fallback
+      end if
+    end function corner_cell
+
+    !> cs%add without the call: room is made (doubling) only when the rows are full
+    subroutine append(a, b, o, gg, dd)
+      integer, intent(in) :: a, b, o
+      real(wp), intent(in) :: gg(2), dd
+      integer :: m
+      if (cs%n >= size(cs%ia)) call cs%reserve(2 * size(cs%ia))
+      m = cs%n + 1
+      cs%n = m
+      cs%ia(m) = a; cs%ib(m) = b; cs%ob(m) = o
+      cs%g(1, m) = gg(1); cs%g(2, m) = gg(2)
+      cs%gap(m) = dd
+    end subroutine append
 
     pure integer function cell_of(a)
       integer, intent(in) :: a

@@ -32,7 +32,7 @@ module cr_rom_stepper
   use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t
   use cr_rom_guard, only: rom_guard_t
   use cr_dual_qp, only: dual_qp_t, dual_qp_stats_t
-  use cr_sort, only: argsort_i8, bsearch_i8
+  use cr_key_map, only: key_map_t
   use cr_lapack, only: la_gemv
   use cr_local_correction, only: local_correction_t, local_stats_t
   implicit none
@@ -106,9 +106,10 @@ contains
     real(wp), allocatable :: ur(:), uc(:)
     integer, allocatable :: all_agents(:)
     type(local_stats_t) :: lst
-    real(wp), allocatable :: prev_lam(:), vsub(:,:), qsub(:), q0sub(:), lam0(:)
+    real(wp), allocatable :: vsub(:,:), qsub(:), q0sub(:), lam0(:)
     integer, allocatable :: dofs(:)
-    integer(i8), allocatable :: prev_keys(:)
+    !> positive multipliers of the previous step's rows by identity (warm start)
+    type(key_map_t) :: prev
     type(nnls_work_t) :: work
     type(ldp_stats_t) :: st
     type(dual_qp_t) :: dqp
@@ -127,7 +128,7 @@ contains
     allocate(qsub(size(dofs)))
     allocate(traj%alpha(nb, n_steps), traj%beta(merge(ops%r, 0, ops%fixed_rows), n_steps))
     traj%alpha = 0; traj%beta = 0
-    allocate(acc(nb), vhat(nb), alpha(nb), prev_keys(0), prev_lam(0))
+    allocate(acc(nb), vhat(nb), alpha(nb))
     acc = 0
     q = q0
     carry = present(corr)
@@ -171,7 +172,7 @@ contains
       if (.not. allocated(lam)) then
         allocate(lam(size(dhat))); lam = 0
       end if
-      if (.not. ops%fixed_rows .and. allocated(ops%keys)) call match_rows(ops%keys(1:size(dhat)), lam, prev_keys, prev_lam)
+      if (.not. ops%fixed_rows .and. allocated(ops%keys)) call match_rows(ops%keys(1:size(dhat)), lam, prev)
       if (scfg%name /= 'dual') bhat = transpose(bt)
       if (scfg%name == 'uzawa') then
         lam = 0
@@ -234,7 +235,7 @@ contains
         if (.not. st%nnls%converged) traj%n_capped = traj%n_capped + 1
         if (.not. st%infeasible) traj%max_violation = max(traj%max_violation, st%max_violation)
       end if
-      if (.not. ops%fixed_rows .and. allocated(ops%keys)) call keep_rows(ops%keys(1:size(dhat)), lam, prev_keys, prev_lam)
+      if (.not. ops%fixed_rows .and. allocated(ops%keys)) call prev%fill(ops%keys(1:size(dhat)), lam, keep=lam > 0)
       call system_clock(t3)
       traj%time_positions = traj%time_positions + real(t1 - t0, wp) / real(rate, wp)
       traj%time_assemble = traj%time_assemble + real(t2 - t1, wp) / real(rate, wp)
@@ -298,41 +299,17 @@ contains
   end subroutine run_trajectory
 
   !> Multipliers of the current rows (identities keys [rows]) from the previous step's
-  !> positive ones (sorted identities pkeys, values plam); lam is (re)allocated [rows].
-  subroutine match_rows(keys, lam, pkeys, plam)
+  !> positive ones (prev); lam is (re)allocated [rows].
+  subroutine match_rows(keys, lam, prev)
     integer(i8), intent(in) :: keys(:)
     real(wp), allocatable, intent(inout) :: lam(:)
-    integer(i8), intent(in) :: pkeys(:)
-    real(wp), intent(in) :: plam(:)
-    integer :: l, pos
+    type(key_map_t), intent(in) :: prev
     if (allocated(lam)) then
       if (size(lam) /= size(keys)) deallocate(lam)
     end if
     if (.not. allocated(lam)) allocate(lam(size(keys)))
-    lam = 0
-    if (size(pkeys) == 0) return
-    do l = 1, size(keys)
-      pos = bsearch_i8(pkeys, keys(l))
-      if (pos > 0) lam(l) = plam(pos)
-    end do
+    call prev%lookup(keys, lam, 0.0_wp)
   end subroutine match_rows
-
-  !> Keep the positive multipliers of this step, sorted by identity, for match_rows.
-  subroutine keep_rows(keys, lam, pkeys, plam)
-    integer(i8), intent(in) :: keys(:)
-    real(wp), intent(in) :: lam(:)
-    integer(i8), allocatable, intent(inout) :: pkeys(:)
-    real(wp), allocatable, intent(inout) :: plam(:)
-    integer(i8), allocatable :: k1(:)
-    real(wp), allocatable :: l1(:)
-    integer, allocatable :: idx(:)
-    k1 = pack(keys, lam > 0)
-    l1 = pack(lam, lam > 0)
-    allocate(idx(size(k1)))
-    call argsort_i8(k1, idx)
-    pkeys = k1(idx)
-    plam = l1(idx)
-  end subroutine keep_rows
 
   !> The paper's reduced Uzawa iteration from beta = 0: alpha = vhat - bhat^T beta,
   !> beta = max(0, beta + rho (bhat alpha - dhat)), rho = factor / h^2 as in the full-order
