@@ -35,6 +35,7 @@ program test_hyper
   call test_eq_duplicates()
   call test_eq_first_selection()
   call test_eq_scaling()
+  call test_eq_ties()
   call test_eq_bad_input()
 
   call env1%free()
@@ -361,6 +362,17 @@ contains
     call deim_indices(u, idx, e)
     call check(.not. allocated(e), "deim: permuted identity runs")
     if (.not. allocated(e)) call check(all(idx == perm), "deim: permuted identity -> its positions")
+    ! near-ties (a relative 1e-12 apart, as rounding leaves exact ties of symmetric data) go to
+    ! the lowest index; a relative 1e-6 is a real difference (cr_eim.f90 deim_indices)
+    block
+      real(wp) :: w(4, 1)
+      w(:, 1) = [0.1_wp, 0.6_wp, -0.6_wp * (1.0_wp + 1.0e-12_wp), 0.5_wp]
+      call deim_indices(w, idx, e)
+      if (.not. allocated(e)) call check(idx(1) == 2, "deim: near-tie -> lowest index")
+      w(3, 1) = -0.6_wp * (1.0_wp + 1.0e-6_wp)
+      call deim_indices(w, idx, e)
+      if (.not. allocated(e)) call check(idx(1) == 3, "deim: 1e-6 apart -> largest")
+    end block
 
     u(:, 3) = u(:, 1)
     call deim_indices(u, idx, e)
@@ -697,4 +709,33 @@ contains
     call eq%free()
     call check(eq%m == 0 .and. .not. allocated(eq%idx), "eq free")
   end subroutine test_eq_bad_input
+  !> Near-tied scores go to the lowest index (cr_eq.f90): H = diag(1, 1, 1 + d, 1), c = H 1,
+  !> so the first score of candidate i is sqrt(H_ii). d = 2e-12 (rounding-sized, as symmetric
+  !> data leaves exact ties) picks candidate 1; d = 2e-6 is a real difference: candidate 3.
+  subroutine test_eq_ties()
+    real(wp) :: h(4, 4), d
+    type(eq_t) :: eq
+    type(error_t), allocatable :: e
+    integer :: k, variant
+    logical :: signed
+    do variant = 1, 2
+      signed = variant == 1
+      do k = 1, 2
+        d = merge(2.0e-12_wp, 2.0e-6_wp, k == 1)
+        h = 0.0_wp
+        h(1, 1) = 1.0_wp; h(2, 2) = 1.0_wp; h(3, 3) = 1.0_wp + d; h(4, 4) = 1.0_wp
+        call eq_build(h, signed, 1, 0.0_wp, eq, e)
+        call check(.not. allocated(e), "eq ties: builds")
+        if (allocated(e)) cycle
+        if (k == 1) then
+          call check(eq%idx(1) == 1, "eq ties (" // merge("signed      ", "non-negative", signed) // &
+            & "): near-tie -> lowest index")
+        else
+          call check(eq%idx(1) == 3, "eq ties (" // merge("signed      ", "non-negative", signed) // &
+            & "): 2e-6 apart -> largest")
+        end if
+      end do
+    end do
+  end subroutine test_eq_ties
+
 end program test_hyper
