@@ -12,6 +12,10 @@ module cr_assert
   integer :: n_passed = 0
   integer :: n_failed = 0
   logical :: quiet = .false.
+  !> -1 not yet read, 0 off, 1 on: CROWDROM_TEST_MARGINS=1 prints every check_close as
+  !> "MARGIN: name | |a-b| tol" (how close each passing check is to its tolerance; used to
+  !> compare runs under other BLAS kernels, README "Other CPUs' kernels")
+  integer :: margins = -1
 
 contains
 
@@ -33,6 +37,16 @@ contains
     real(wp), intent(in) :: a, b, tol
     character(len=*), intent(in) :: name
     character(len=200) :: buf
+    character(len=8) :: flag
+    integer :: stat
+    if (margins < 0) then
+      call get_environment_variable("CROWDROM_TEST_MARGINS", flag, status=stat)
+      margins = merge(1, 0, stat == 0 .and. flag == "1")
+    end if
+    if (margins == 1) then
+      write(buf, '(2(a, es12.4))') " | ", abs(a - b), " ", tol
+      write(output_unit, '(a)') "MARGIN: " // name // trim(buf)
+    end if
     if (abs(a - b) <= tol) then
       n_passed = n_passed + 1
     else

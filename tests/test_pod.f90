@@ -17,6 +17,11 @@ program test_pod
   type(error_t), allocatable :: error
   integer :: ierr, i
   real(wp), parameter :: EPSM = epsilon(1.0_wp)
+  !> Orthonormality of computed modes [n_dof, k] from Householder QR / SVD / symmetric
+  !> eigensolvers: ||Phi^T Phi - I||_2 <= 2 p(n) eps with p(n) = c n, c = 4 (Higham, Accuracy
+  !> and Stability, Thm 19.4; LAPACK Users' Guide 4.7/4.9): ORTH_C * n_dof * eps. Derived, not
+  !> measured: the AVX-512 kernels give 17 eps for n_dof = 40 where 1e-14 (45 eps) was asked.
+  real(wp), parameter :: ORTH_C = 8.0_wp * EPSM
 
   call MPI_Init(ierr)
   call env%init(MPI_COMM_WORLD, error)
@@ -28,6 +33,7 @@ program test_pod
   call test_rsvd()
   call test_rank_deficient()
   call test_truncation_and_errors()
+  call test_sign_rule()
 
   call env1%free()
   call MPI_Comm_free(c1, ierr)
@@ -165,7 +171,7 @@ contains
     call check(t%n_modes == nd .and. t%rank == nd, "tsqr: full rank 40")
     err = maxval(abs(t%sigma - sig) / sig)
     call check_close(err, 0.0_wp, 1.0e-12_wp, "tsqr: singular values to 1e-12 relative")
-    call check_close(orth_err(t%phi), 0.0_wp, 1.0e-14_wp, "tsqr: modes orthonormal")
+    call check_close(orth_err(t%phi), 0.0_wp, ORTH_C * nd, "tsqr: modes orthonormal")
     call check_close(mode_diff(t%phi, uref), 0.0_wp, 1.0e-10_wp, "tsqr: modes = dgesvd reference up to sign")
     call check_close(mode_diff(t%phi, u), 0.0_wp, 1.0e-10_wp, "tsqr: modes = generating U up to sign")
     call check(t%energy > 1.0_wp - 1.0e-12_wp, "tsqr: all energy retained")
@@ -223,7 +229,7 @@ contains
     ! numerical rank: sigma_i > max(n_dof, n_snap) eps sigma_1 = 2e-14, so sigma_30 = 1e-14 is out
     call check(.not. allocated(e) .and. t%rank == count(sig > ns * EPSM), &
       & "ill-conditioned (1e14): tsqr keeps every mode above the rank threshold (29)")
-    call check_close(orth_err(t%phi), 0.0_wp, 1.0e-14_wp, "ill-conditioned: tsqr modes orthonormal")
+    call check_close(orth_err(t%phi), 0.0_wp, ORTH_C * nd, "ill-conditioned: tsqr modes orthonormal")
     ! absolute accuracy eps * sigma_1 (scaled by size); relative 1e-12 where sigma >= 1e-3
     call check_close(maxval(abs(t%sigma_all - sig)), 0.0_wp, 100.0_wp * nd * EPSM, &
       & "ill-conditioned: tsqr sigma to c eps sigma_1")
@@ -387,4 +393,41 @@ contains
     call pod_rsvd(env, local_cols(s, .false.), 0, 2, 0, "gaussian", 1, t, e)
     call check(allocated(e), "rsvd k = 0 is an error")
   end subroutine test_truncation_and_errors
+  !> Sign rule with near-ties: an S whose leading mode's two largest entries differ in magnitude by a
+  !> relative 1e-12 (far below sqrt(eps), i.e. a tie to the rule; a mirror-symmetric scene gives
+  !> such pairs, unequal by a few eps in a CPU-dependent order): the lower index is positive for
+  !> every method, whichever entry LAPACK returns larger. A relative 1e-6 difference is genuine:
+  !> the larger entry is positive.
+  subroutine test_sign_rule()
+    real(wp) :: s(3, 2), d
+    type(pod_result_t) :: t
+    type(error_t), allocatable :: e
+    integer :: m, k
+    character(len=9), parameter :: names(3) = [character(len=9) :: "tsqr", "snapshots", "scalapack"]
+    do k = 1, 2
+      d = merge(1.0e-12_wp, 1.0e-6_wp, k == 1)
+      ! orthogonal columns: the modes are the normalised columns, sigma = 3 |s1| and 0.1 |s2|
+      ! (full rank: pdgesvd reports a rank-1 3 x 2 S at 4 ranks as heterogeneous, info = n + 1)
+      s(:, 1) = 3.0_wp * [1.0_wp, -(1.0_wp + d), 0.3_wp]
+      s(:, 2) = 0.1_wp * [1.0_wp + d, 1.0_wp, 0.0_wp]
+      do m = 1, 3
+        select case (m)
+        case (1); call pod_tsqr(env, local_cols(s, .false.), t, e)
+        case (2); call pod_snapshots(env, local_cols(s, .false.), t, e)
+        case (3); call pod_scalapack(env, local_cols(s, .false.), t, e)
+        end select
+        if (allocated(e) .and. env%rank == 0) print "(a)", "sign rule: " // e%message
+        call check(.not. allocated(e), "sign rule: " // trim(names(m)) // " runs")
+        if (allocated(e)) cycle
+        call check(t%n_modes == 2, "sign rule: " // trim(names(m)) // " rank 2")
+        if (t%n_modes /= 2) cycle
+        if (k == 1) then
+          call check(t%phi(1, 1) > 0.0_wp, "sign rule: " // trim(names(m)) // " near-tie -> lowest index positive")
+        else
+          call check(t%phi(2, 1) > 0.0_wp, "sign rule: " // trim(names(m)) // " 1e-6 apart -> largest positive")
+        end if
+      end do
+    end do
+  end subroutine test_sign_rule
+
 end program test_pod

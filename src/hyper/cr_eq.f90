@@ -20,7 +20,9 @@
 !>   (NN)OMP choice; the error decrease from candidate i alone is r_i^2 / H_ii.
 !>   rule "paper": the largest (H^ D r)_i (signed: in magnitude), the literal H(:,i)^T r of
 !>   the paper in the normalised variables; costs one O(p^2) product per selection.
-!>   Non-negative weights only admit a positive score (a descent direction).
+!>   Non-negative weights only admit a positive score (a descent direction). Ties (scores
+!>   within a relative sqrt(eps) of the best) go to the lowest index, so the order does not
+!>   depend on the rounding of the CPU's BLAS kernels or the number of ranks.
 !> * The selected block H^_II = L L^T is kept as an incrementally grown Cholesky factor. A
 !>   candidate whose new pivot L_kk^2 = 1 - |L^{-1} H^_I,i|^2 (the squared sine of the angle
 !>   between g_i and span{g_j, j in I}) is <= dep_tol is numerically dependent on the selected
@@ -261,22 +263,31 @@ contains
       else
         score = rs
       end if
-      ! best admissible candidate that is independent of the selected ones
+      ! best admissible candidate that is independent of the selected ones. Ties: scores
+      ! within a relative sqrt(eps) of the best count as equal and the lowest index wins.
+      ! Symmetric data has candidates whose scores are equal in exact arithmetic; they come out
+      ! a few eps apart in an order set by the BLAS kernels (CPU) and the number of ranks, and
+      ! a strict "largest" then took them in another order on another machine (rom_tiny s2:
+      ! 9 candidates, the same error history, the order different at 1 and 2 ranks and under
+      ! each kernel). sqrt(eps) is far above that rounding and far below real differences.
       pick: do
-        ibest = 0
         best = 0.0_wp
         do i = 1, p
           if (.not. usable(i)) cycle
-          if (signed) then
-            sc = abs(score(i))
-          else
-            sc = score(i)
-          end if
-          if (sc > best) then
-            best = sc
-            ibest = i
-          end if
+          sc = merge(abs(score(i)), score(i), signed)
+          if (sc > best) best = sc
         end do
+        ibest = 0
+        if (best > 0.0_wp) then
+          do i = 1, p
+            if (.not. usable(i)) cycle
+            sc = merge(abs(score(i)), score(i), signed)
+            if (sc >= (1.0_wp - sqrt(epsilon(1.0_wp))) * best) then
+              ibest = i
+              exit
+            end if
+          end do
+        end if
         if (ibest == 0) exit select_loop
         ! new Cholesky row: L(1:k,1:k) col = H^(I, ibest), pivot^2 = H^_ii - |col|^2
         do j = 1, k
