@@ -10,7 +10,7 @@ program test_model
   use cr_contact_set, only: contact_set_t, contact_key
   use cr_desired, only: desired_t
   use cr_random, only: rng_t
-  use cr_sort, only: argsort_i8, bsearch_i8, lower_bound
+  use cr_sort, only: argsort_i8, bsearch_i8, lower_bound, near_max_index
   use cr_shapes, only: obstacle_distance
   implicit none
   type(scene_t) :: scene
@@ -214,5 +214,16 @@ contains
     call check(lower_bound([1, 3, 3, 8], 0) == 1, "lower_bound before the first")
     call check(lower_bound([1, 3, 3, 8], 9) == 5, "lower_bound past the last")
     call check(lower_bound([integer ::], 5) == 1, "lower_bound of an empty array")
+    ! near_max_index: entries a few eps apart tie (lowest index), a real difference does not
+    call check(near_max_index([0.5_wp, 1.0_wp - 4 * epsilon(1.0_wp), 1.0_wp]) == 2, &
+      "near_max_index: a tie to rounding goes to the lowest index")
+    call check(near_max_index([0.5_wp, 1.0_wp - 1.0e-6_wp, 1.0_wp]) == 3, &
+      "near_max_index: a difference far above sqrt(eps) is not a tie")
+    call check(near_max_index([3.0_wp, 1.0_wp, 1.0_wp], mask=[.false., .true., .true.]) == 2, &
+      "near_max_index: masked entries are not candidates")
+    call check(near_max_index([-2.0_wp, -1.0_wp - epsilon(1.0_wp), -1.0_wp]) == 2, &
+      "near_max_index: negative values, relative to |max|")
+    call check(near_max_index([real(wp) ::]) == 0, "near_max_index of an empty array")
+    call check(near_max_index([1.0_wp], mask=[.false.]) == 0, "near_max_index with nothing selected")
   end subroutine test_sort
 end program test_model

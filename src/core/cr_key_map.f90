@@ -84,10 +84,7 @@ contains
       if (present(added)) added = .false.
       return
     end if
-    this%stamp(s) = this%gen
-    this%keys(s) = key
-    this%vals(s) = val
-    this%n = this%n + 1
+    call store(this, s, key, val)
     if (present(added)) added = .true.
   end subroutine put
 
@@ -156,10 +153,7 @@ contains
         nref = nref + 1
         cycle
       end if
-      this%stamp(s) = this%gen
-      this%keys(s) = keys(k)
-      this%vals(s) = vals(k)
-      this%n = this%n + 1
+      call store(this, s, keys(k), vals(k))
     end do
     if (present(n_refused)) n_refused = nref
   end subroutine fill
@@ -198,12 +192,21 @@ contains
     do s = 1, size(k0)
       if (s0(s) /= g0) cycle
       t = find_slot(this, k0(s))
-      this%stamp(t) = this%gen
-      this%keys(t) = k0(s)
-      this%vals(t) = v0(s)
-      this%n = this%n + 1
+      call store(this, t, k0(s), v0(s))
     end do
   end subroutine rehash
+
+  !> Write key -> val into the free slot s (from find_slot) of the current generation.
+  pure subroutine store(this, s, key, val)
+    type(key_map_t), intent(inout) :: this
+    integer, intent(in) :: s
+    integer(i8), intent(in) :: key
+    real(wp), intent(in) :: val
+    this%stamp(s) = this%gen
+    this%keys(s) = key
+    this%vals(s) = val
+    this%n = this%n + 1
+  end subroutine store
 
   !> The slot holding `key`, or the free slot where it would go (the table is never full).
   pure integer function find_slot(this, key) result(s)

@@ -1,9 +1,10 @@
-!> Sorting and searching helpers for contact identities.
+!> Sorting and searching helpers: contact identities, and the largest entry with ties broken
+!> by index (near_max_index).
 module cr_sort
-  use cr_kinds, only: i8
+  use cr_kinds, only: wp, i8
   implicit none
   private
-  public :: argsort_i8, bsearch_i8, lower_bound
+  public :: argsort_i8, bsearch_i8, lower_bound, near_max_index
 
 contains
 
@@ -81,4 +82,33 @@ contains
       end if
     end do
   end function lower_bound
+
+  !> The lowest index i (with mask(i), if given) whose x(i) is within a relative sqrt(eps) of
+  !> the largest such x: values that tie in exact arithmetic but come out a few eps apart, in
+  !> an order set by the CPU's BLAS kernels or the number of ranks, give the same choice on
+  !> every machine (sqrt(eps) ~ 1.5e-8 is far above that rounding and far below genuine
+  !> differences). 0 when no entry is selected by mask.
+  pure integer function near_max_index(x, mask) result(i)
+    real(wp), intent(in) :: x(:)
+    logical, intent(in), optional :: mask(:)
+    real(wp) :: big
+    integer :: k
+    i = 0
+    if (present(mask)) then
+      if (.not. any(mask)) return
+      big = maxval(x, mask=mask)
+    else
+      if (size(x) == 0) return
+      big = maxval(x)
+    end if
+    do k = 1, size(x)
+      if (present(mask)) then
+        if (.not. mask(k)) cycle
+      end if
+      if (x(k) >= big - sqrt(epsilon(1.0_wp)) * abs(big)) then
+        i = k
+        return
+      end if
+    end do
+  end function near_max_index
 end module cr_sort

@@ -22,6 +22,7 @@ module cr_eim
   use cr_strings, only: str
   use cr_lapack, only: la_gesvd
   use cr_pod, only: pod_result_t, pod_tsqr, snapshot_layout
+  use cr_sort, only: near_max_index
   implicit none
   private
   public :: eim_t, eim_build, eim_prefix, deim_indices, eim_interp_matrix
@@ -241,11 +242,7 @@ contains
       ! plain maxloc picked index 15 or 13 (|rho| equal to 2 eps) for the s2 term of the
       ! rom_tiny study at 1 and 2 ranks. sqrt(eps) is far above that rounding and far below
       ! real differences; any entry that large is an equally good DEIM pivot.
-      big = maxval(abs(rho(:, k)))
-      do i = 1, p
-        if (abs(rho(i, k)) >= (1.0_wp - sqrt(epsilon(1.0_wp))) * big) exit
-      end do
-      i = min(i, p)
+      i = max(1, near_max_index(abs(rho(:, k))))
       big = abs(rho(i, k))
       unorm = norm2(u(:, k))
       if (.not. (big > real(p, wp) * epsilon(1.0_wp) * unorm)) then

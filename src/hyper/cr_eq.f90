@@ -48,6 +48,7 @@ module cr_eq
   use cr_lapack, only: la_syrk
   use cr_pod, only: snapshot_layout
   use cr_nnls, only: nnls_solve, nnls_work_t, nnls_stats_t
+  use cr_sort, only: near_max_index
   implicit none
   private
   public :: eq_t, eq_gramian, eq_build
@@ -174,7 +175,7 @@ contains
     logical, allocatable :: usable(:), passive(:)
     integer, allocatable :: idx(:)
     real(wp), allocatable :: wall(:, :), errk(:)
-    real(wp) :: total, dtol, best, sc, dpiv, e2
+    real(wp) :: total, dtol, dpiv, e2
     character(len=:), allocatable :: rl
     integer :: p, k, i, j, ibest, n_refused, n_zero
     logical :: paper
@@ -271,22 +272,14 @@ contains
       ! 9 candidates, the same error history, the order different at 1 and 2 ranks and under
       ! each kernel). sqrt(eps) is far above that rounding and far below real differences.
       pick: do
-        best = 0.0_wp
-        do i = 1, p
-          if (.not. usable(i)) cycle
-          sc = merge(abs(score(i)), score(i), signed)
-          if (sc > best) best = sc
-        end do
-        ibest = 0
-        if (best > 0.0_wp) then
-          do i = 1, p
-            if (.not. usable(i)) cycle
-            sc = merge(abs(score(i)), score(i), signed)
-            if (sc >= (1.0_wp - sqrt(epsilon(1.0_wp))) * best) then
-              ibest = i
-              exit
-            end if
-          end do
+        if (signed) then
+          ibest = near_max_index(abs(score(1:p)), mask=usable(1:p))
+        else
+          ibest = near_max_index(score(1:p), mask=usable(1:p))
+        end if
+        ! only a positive score is a descent direction
+        if (ibest > 0) then
+          if (.not. merge(abs(score(ibest)), score(ibest), signed) > 0.0_wp) ibest = 0
         end if
         if (ibest == 0) exit select_loop
         ! new Cholesky row: L(1:k,1:k) col = H^(I, ibest), pivot^2 = H^_ii - |col|^2

@@ -19,7 +19,7 @@
 !> the numerical rank; never more than the numerical rank
 !> (sigma_i > max(n_dof, n_snap) eps_machine sigma_1, zero matrix: rank 0, no mode).
 !> Sign rule: the entry of largest magnitude of each mode is positive (lowest index on ties,
-!> magnitudes within a relative sqrt(eps) of the largest counting as tied: `sign_entry`).
+!> magnitudes within a relative sqrt(eps) of the largest counting as tied: `near_max_index`).
 !> Results are computed on rank 0 and broadcast: identical on every rank.
 module cr_pod
   ! all of iso_c_binding: fftw3.f03 (included below) names many of its kinds
@@ -27,6 +27,7 @@ module cr_pod
   use cr_kinds, only: wp
   use cr_env, only: env_t
   use cr_error, only: error_t, set_error, prefix_error
+  use cr_sort, only: near_max_index
   use cr_strings, only: str
   use cr_random, only: rng_t
   use cr_lapack, only: la_geqrf, la_orgqr, la_gesvd, la_syevd, la_gemm, la_pdgesvd
@@ -207,7 +208,9 @@ contains
       result%sigma_all = sigma_all
       result%phi = modes(:, 1:nk)
       do j = 1, nk
-        i = sign_entry(result%phi(:, j))
+        ! entries that tie in exact arithmetic (mirror-symmetric data) come out of LAPACK a few
+        ! eps apart in a CPU-dependent order: near_max_index keeps the sign machine-independent
+        i = max(1, near_max_index(abs(result%phi(:, j))))
         if (result%phi(i, j) < 0.0_wp) result%phi(:, j) = -result%phi(:, j)
       end do
     end if
@@ -219,29 +222,6 @@ contains
     result%energy = 0.0_wp
     if (result%total_energy > 0.0_wp) result%energy = min(1.0_wp, sum(result%sigma**2) / result%total_energy)
   end subroutine finish
-
-  !> The entry that fixes a mode's sign: the lowest index among the entries of largest
-  !> magnitude, where magnitudes within a relative sqrt(eps) of the largest count as tied.
-  !> Entries that tie in exact arithmetic (mirror-symmetric data: phi_i = -phi_k) come out of
-  !> LAPACK unequal by a few eps, in an order that depends on the BLAS kernels (CPU); a plain
-  !> maxloc would then flip the mode's sign from one machine to another. sqrt(eps) ~ 1.5e-8 is
-  !> far above that rounding (entries are accurate to ~n eps / relative singular gap) and far
-  !> below genuine differences of magnitude.
-  pure integer function sign_entry(phi) result(i)
-    !> one mode [n_dof]
-    real(wp), intent(in) :: phi(:)
-    real(wp) :: big
-    integer :: k
-    i = 1
-    if (size(phi) == 0) return
-    big = maxval(abs(phi))
-    do k = 1, size(phi)
-      if (abs(phi(k)) >= (1.0_wp - sqrt(epsilon(1.0_wp))) * big) then
-        i = k
-        return
-      end if
-    end do
-  end function sign_entry
 
   !> Make an error collective: every rank fails if one does.
   subroutine sync_error(env, error, where)

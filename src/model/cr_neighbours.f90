@@ -167,7 +167,8 @@ contains
       end if
     end function corner_cell
 
-    !> cs%add without the call: room is made (doubling) only when the rows are full
+    !> cs%add without the call (the call cost 22% of build_contacts on congested150, callgrind):
+    !> room is made (doubling) only when the rows are full
     subroutine append(a, b, o, gg, dd)
       integer, intent(in) :: a, b, o
       real(wp), intent(in) :: gg(2), dd
