@@ -35,8 +35,11 @@ module cr_env
     generic :: allreduce => allreduce_int, allreduce_i8, allreduce_real
     !> in-place sum on rank 0 only
     procedure :: reduce_sum_root
-    !> (value, index) pairs: the largest value over ranks and its index (ties: lowest index)
+    !> (value, index) pairs: the largest value over ranks and its index (exact ties: lowest
+    !> index); selections use allreduce_near_maxloc, which also breaks near ties by index
     procedure :: allreduce_maxloc
+    !> distributed values: the lowest global index within a relative sqrt(eps) of the maximum
+    procedure :: allreduce_near_maxloc
     !> one value from every rank, in rank order
     procedure :: allgather_int, allgather_real
     generic :: allgather => allgather_int, allgather_real
@@ -356,6 +359,79 @@ contains
     call check_mpi(ierr, "MPI_Allreduce (maxloc)", error)
     if (.not. allocated(error)) pair = res
   end subroutine allreduce_maxloc
+
+  !> The rule of cr_sort::near_max_index applied to all ranks' values as one array: x [n_local]
+  !> are this rank's values, x(k) has the global index offset + k (the ranks hold disjoint
+  !> index sets; a rank may hold none), mask [n_local] (optional) selects the entries taking
+  !> part. On return, on every rank, gidx is the lowest global index whose value is within a
+  !> relative sqrt(eps) of the largest selected value over all ranks, and val its value; gidx = 0
+  !> and val = -huge when no rank selects an entry (or every selected value is NaN). The
+  !> threshold is taken from the global maximum, not from each rank's own, so the choice is the
+  !> same at any number of ranks and any split of the indices. Two reductions: the maximum,
+  !> then MPI_MINLOC on (global index, value) over each rank's first candidate.
+  subroutine allreduce_near_maxloc(this, x, offset, val, gidx, error, mask)
+    class(env_t), intent(in) :: this
+    real(wp), intent(in) :: x(:)
+    integer(i8), intent(in) :: offset
+    real(wp), intent(out) :: val
+    integer(i8), intent(out) :: gidx
+    type(error_t), allocatable, intent(out) :: error
+    logical, intent(in), optional :: mask(:)
+    !> global indices must stay below 2^53 to be carried exactly by a double
+    real(wp), parameter :: exact_max = 2.0_wp**53
+    real(wp) :: tol, thr, red(2), pair(2), res(2)
+    integer :: k, ierr
+    val = -huge(1.0_wp); gidx = 0
+    tol = sqrt(epsilon(1.0_wp))
+    ! red = [largest selected value, a bad argument on this rank]: reduced together, so a bad
+    ! argument on one rank is an error on every rank (nobody is left in a collective)
+    red = [-huge(1.0_wp), 0.0_wp]
+    if (present(mask)) then
+      if (size(mask) /= size(x)) red(2) = 1
+    end if
+    if (offset < 0 .or. real(offset, wp) + real(size(x), wp) >= exact_max) red(2) = 1
+    if (red(2) == 0) then
+      do k = 1, size(x)
+        if (selected(k)) then
+          if (x(k) > red(1)) red(1) = x(k)
+        end if
+      end do
+    end if
+    call MPI_Allreduce(MPI_IN_PLACE, red, 2, MPI_DOUBLE_PRECISION, MPI_MAX, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allreduce (max) of the near maxloc", error)
+    if (allocated(error)) return
+    if (red(2) /= 0) then
+      call set_error(error, "near maxloc: a rank passed a mask whose size differs from its values' or global " // &
+        "indices outside 1..2^53 (this rank: " // str(size(x)) // " values from offset " // str(offset) // ")")
+      return
+    end if
+    ! threshold of cr_sort::near_max_index (-huge when big - tol |big| would overflow)
+    thr = -huge(1.0_wp)
+    if (red(1) >= -huge(1.0_wp) / (1 + tol)) thr = red(1) - tol * abs(red(1))
+    ! this rank's first candidate: [global index, value]; none: [2^53, -huge]
+    pair = [exact_max, -huge(1.0_wp)]
+    do k = 1, size(x)
+      if (.not. selected(k)) cycle
+      if (x(k) >= thr) then
+        pair = [real(offset + k, wp), x(k)]
+        exit
+      end if
+    end do
+    call MPI_Allreduce(pair, res, 1, MPI_2DOUBLE_PRECISION, MPI_MINLOC, this%comm, ierr)
+    call check_mpi(ierr, "MPI_Allreduce (minloc) of the near maxloc", error)
+    if (allocated(error)) return
+    if (res(1) < exact_max) then
+      gidx = nint(res(1), i8); val = res(2)
+    end if
+
+  contains
+
+    logical function selected(kk)
+      integer, intent(in) :: kk
+      selected = .true.
+      if (present(mask)) selected = mask(kk)
+    end function selected
+  end subroutine allreduce_near_maxloc
 
   !> all(p) = x of rank p - 1 [this%size], on every rank.
   subroutine allgather_real(this, x, all, error)

@@ -295,6 +295,10 @@ contains
   !> ScaLAPACK SVD of the distributed m x n matrix a (descriptor desca, destroyed):
   !> s [min(m, n)] on every process, left singular vectors in u (descriptor descu,
   !> m x min(m, n)); right singular vectors are not computed.
+  !> info = min(m, n) + 1: the processes' singular values differ. pdgesvd computes them with
+  !> dbdsqr on every process, with that process's rows of U (1-cyclic over all P processes);
+  !> when m < P some processes own no row and dbdsqr takes dqds instead of QR there, which
+  !> rounds differently (for m = 1 even gives a wrong value). Callers keep m >= P (cr_pod).
   subroutine la_pdgesvd(m, n, a, desca, s, u, descu, error)
     integer, intent(in) :: m, n, desca(9), descu(9)
     real(wp), contiguous, intent(inout) :: a(:)
@@ -324,8 +328,8 @@ contains
     call restore_fpe_halting(saved)
     if (info /= 0) then
       if (info == min(m, n) + 1) then
-        call set_error(error, "pdgesvd: the singular values differ between processes (heterogeneous " // &
-          & "arithmetic; " // sizes // ")")
+        call set_error(error, "pdgesvd: the singular values differ between processes (info = min(m, n) + 1: " // &
+          & "heterogeneous arithmetic, or fewer rows than processes; " // sizes // ")")
       else
         call set_error(error, lapack_info_message("pdgesvd", info, sizes))
       end if

@@ -12,7 +12,11 @@
 !>   sigma_i > sqrt(max(n_dof, n_snap) eps_machine) sigma_1. Kept as a baseline.
 !> * `pod_rsvd`: randomized SVD (Halko, Martinsson, Tropp 2011) with a Gaussian or SRFT sketch
 !>   that does not depend on the number of ranks, and re-orthonormalised power iterations.
-!> * `pod_scalapack`: ScaLAPACK pdgesvd on a 2D block-cyclic copy of S (reference).
+!> * `pod_scalapack`: ScaLAPACK pdgesvd on a 2D block-cyclic copy of S (reference). With
+!>   fewer rows than ranks (n_dof < P) pdgesvd's processes compute the singular values by
+!>   different algorithms and disagree (info = min + 1, for one row by 17%): S, which then has
+!>   fewer than P rows, is gathered on rank 0 and its serial LAPACK SVD taken instead (method
+!>   "scalapack-serial").
 !>
 !> Truncation (all methods): `n_modes` fixed N, else `eps`: the smallest N with
 !> 1 - sum_{i<=N} sigma_i^2 / ||S||_F^2 <= eps (eps = 1 gives no mode), else every mode up to
@@ -596,8 +600,44 @@ contains
       & n_modes, n_cap=k)
   end subroutine pod_rsvd
 
+  !> sigma [min(n_dof, n_snap)] and the left singular vectors modes [n_dof, min] of S on rank 0
+  !> (zero-sized elsewhere) by the serial LAPACK SVD of S gathered there, for an S with fewer
+  !> rows than ranks (small: n_dof < P). Collective errors.
+  subroutine serial_root_pod(env, s_local, n_snap, sigma, modes, error)
+    type(env_t), intent(in) :: env
+    !> snapshots, columns distributed over ranks in rank order: [n_dof, n_r]
+    real(wp), contiguous, intent(in) :: s_local(:, :)
+    integer, intent(in) :: n_snap
+    real(wp), allocatable, intent(out) :: sigma(:), modes(:, :)
+    type(error_t), allocatable, intent(out) :: error
+    integer, allocatable :: counts(:), displs(:)
+    real(wp), allocatable :: s(:, :)
+    integer :: n_dof
+    n_dof = size(s_local, 1)
+    call env%block_counts(size(s_local), counts, displs, error)
+    if (.not. allocated(error)) then
+      if (env%rank == ROOT) then
+        allocate(s(n_dof, n_snap))
+      else
+        allocate(s(1, 1))
+      end if
+      call env%gatherv(s_local, s, counts, displs, ROOT, error)
+    end if
+    if (allocated(error)) then
+      call prefix_error(error, "pod_scalapack: gathering S (" // str(n_dof) // " x " // str(n_snap) // ")"); return
+    end if
+    if (env%rank == ROOT) then
+      allocate(sigma(min(n_dof, n_snap)), modes(n_dof, min(n_dof, n_snap)))
+      call la_gesvd(s, sigma, error, u=modes)
+    else
+      allocate(sigma(0), modes(n_dof, 0))
+    end if
+    call sync_error(env, error, "pod_scalapack (serial SVD of S, " // str(n_dof) // " x " // str(n_snap) // ")")
+  end subroutine serial_root_pod
+
   !> Reference POD by ScaLAPACK pdgesvd: S is copied into a 2D block-cyclic layout
-  !> (block nb x nb, near-square grid over env%comm) with one MPI_Alltoallv.
+  !> (block nb x nb, near-square grid over env%comm) with one MPI_Alltoallv. With n_dof <
+  !> env%size, the serial SVD of the gathered S instead (module header; serial_root_pod).
   subroutine pod_scalapack(env, s_local, result, error, eps, n_modes, block)
     type(env_t), intent(in) :: env
     !> snapshots, columns distributed over ranks: [n_dof, n_r]
@@ -630,6 +670,13 @@ contains
     if (kmin == 0) then
       allocate(sigma(0), modes(n_dof, 0))
       call finish(env, result, sigma, modes, 1.0_wp, error, eps, n_modes)
+      return
+    end if
+    if (n_dof < env%size) then
+      result%method = "scalapack-serial"
+      call serial_root_pod(env, s_local, n_snap, sigma, modes, error)
+      if (allocated(error)) return
+      call finish(env, result, sigma, modes, real(max(n_dof, n_snap), wp) * epsilon(1.0_wp), error, eps, n_modes)
       return
     end if
     call grid%init(env, error)

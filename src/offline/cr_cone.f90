@@ -4,14 +4,17 @@
 !>
 !> Snapshots are sparse vectors of R^{n_dict} (n_dict = size of the global contact
 !> dictionary), stored per rank as compressed columns (sparse_columns_t) of a contiguous block
-!> of global snapshot columns. Every selection is a global reduction with a deterministic
-!> tie-break (largest value, then lowest global column), so the result does not depend on
-!> the number of ranks.
+!> of global snapshot columns. Every selection follows the project's near-tie rule
+!> (cr_sort::near_max_index: values within a relative sqrt(eps) of the largest count as tied,
+!> the lowest index wins), the snapshot choice as a global reduction (env_t's
+!> allreduce_near_maxloc), so the result does not depend on the number of ranks or on the
+!> last bits of the residuals.
 module cr_cone
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
   use cr_env, only: env_t
+  use cr_sort, only: near_max_index
   !> the result of a cone construction is the cone record of the ROM file
   use cr_rom_file, only: cone_result_t => rom_cone_t
   use cr_nnls, only: nnls_solve, nnls_stats_t, ldp_solve, ldp_stats_t, nnls_work_t
@@ -40,7 +43,8 @@ contains
 
   ! ------------------------------------------------------------------ helpers
 
-  !> Global argmax of `val` over the local columns; ties go to the lowest global column.
+  !> Global argmax of `val` [n_cols] over the local columns, near ties (relative sqrt(eps)) to
+  !> the lowest global column; vmax = -huge and gcol = 0 when no rank has a column.
   subroutine global_argmax(env, lam, val, vmax, gcol, error)
     type(env_t), intent(in) :: env
     type(sparse_columns_t), intent(in) :: lam
@@ -48,19 +52,8 @@ contains
     real(wp), intent(out) :: vmax
     integer(i8), intent(out) :: gcol
     type(error_t), allocatable, intent(out) :: error
-    real(wp) :: pair(2)
-    integer :: k
-    pair = [-huge(1.0_wp), huge(1.0_wp)]
-    if (lam%n_cols > 0) then
-      k = maxloc(val(1:lam%n_cols), dim=1)
-      pair = [val(k), real(lam%col_offset + k, wp)]
-    end if
-    call env%allreduce_maxloc(pair, error)
-    if (allocated(error)) then
-      call prefix_error(error, "cone"); return
-    end if
-    vmax = pair(1)
-    gcol = nint(pair(2), i8)
+    call env%allreduce_near_maxloc(val(1:lam%n_cols), lam%col_offset, vmax, gcol, error)
+    if (allocated(error)) call prefix_error(error, "cone")
   end subroutine global_argmax
 
   !> The dense copy [n_rows] of global column `gcol`, on every rank.
@@ -158,7 +151,8 @@ contains
   ! ------------------------------------------------------------------ gIS
 
   !> Greedy index selection (Algorithm 2): psi_r = e_{i_r}, i_r the largest coordinate of
-  !> the worst-approximated snapshot not yet selected. The projection onto the cone of
+  !> the worst-approximated snapshot not yet selected (both choices by the near-tie rule: the
+  !> lowest snapshot, the lowest coordinate, within a relative sqrt(eps) of the largest). The projection onto the cone of
   !> selected canonical vectors keeps the selected coordinates (they are >= 0), so the
   !> squared residual of each snapshot is updated by subtracting the new coordinate squared.
   !> Stops when e_r <= delta, r = r_max, or the worst snapshot has no uncovered coordinate.
@@ -178,7 +172,7 @@ contains
     integer(i8), allocatable :: sig(:)
     logical, allocatable :: chosen(:)
     real(wp), allocatable :: tval(:)
-    real(wp) :: n1, worst, t0, best
+    real(wp) :: n1, worst, t0
     integer(i8) :: gcol
     integer :: r, i, k, nnz, p
     t0 = env%wtime()
@@ -228,13 +222,8 @@ contains
     do while (r < r_max)
       if (sqrt(max(worst, 0.0_wp)) / n1 <= delta .and. r > 0) exit
       call fetch_column(env, lam, gcol, col, error); if (allocated(error)) return
-      ! largest coordinate not yet selected (ties: lowest index)
-      best = 0; i = 0
-      do k = 1, lam%n_rows
-        if (.not. chosen(k) .and. col(k) > best) then
-          best = col(k); i = k
-        end if
-      end do
+      ! largest positive coordinate not yet selected (near ties: lowest index)
+      i = near_max_index(col(1:lam%n_rows), mask=.not. chosen(1:lam%n_rows) .and. col(1:lam%n_rows) > 0)
       if (i == 0) then
         res%note = "the worst-approximated snapshot has no uncovered positive coordinate"
         exit

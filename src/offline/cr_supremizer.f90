@@ -104,7 +104,7 @@ contains
     logical :: exact
     integer :: nd, nl, ns, k, j, r, added, owner, rr
     integer(i8) :: gid
-    real(wp) :: gap, pair(2), best(2), err
+    real(wp) :: gap, best(2), err
     nd = size(v, 1); nl = size(q_local, 2)
     if (size(scene_of) /= nl) then
       call set_error(error, "pga: scene_of has " // str(size(scene_of)) // " entries, expected " // str(nl)); return
@@ -293,23 +293,22 @@ contains
       end if
     end subroutine recompute_all
 
-    !> Global (max relative squared residual, candidate id), ties to the lowest id.
+    !> Global (max relative squared residual, candidate id) over the candidates with a non-zero
+    !> supremizer; near ties (relative sqrt(eps), the rule of cr_sort::near_max_index) go to the
+    !> lowest id, so the choice does not depend on the number of ranks. (-huge, 0) when no rank
+    !> has a candidate. Candidate (r2, kk) has the id (col_offset + kk - 1) * cone%r + r2.
     subroutine argmax(out, error)
       real(wp), intent(out) :: out(2)
       type(error_t), allocatable, intent(out) :: error
-      integer :: kk, r2
-      real(wp) :: rel
-      pair = [-1.0_wp, huge(1.0_wp)]
-      do kk = 1, nl
-        do r2 = 1, cone%r
-          if (.not. (nrm2(r2, kk) > 0)) cycle
-          rel = max(res2(r2, kk), 0.0_wp) / nrm2(r2, kk)
-          if (rel > pair(1)) pair = [rel, real((col_offset + kk - 1) * cone%r + r2, wp)]
-        end do
-      end do
-      call env%allreduce_maxloc(pair, error)
+      real(wp), allocatable :: rel(:,:)
+      integer(i8) :: gid_best
+      allocate(rel(cone%r, nl))
+      rel = 0
+      where (nrm2(:, 1:nl) > 0) rel = max(res2(:, 1:nl), 0.0_wp) / nrm2(:, 1:nl)
+      call env%allreduce_near_maxloc(reshape(rel, [cone%r * nl]), col_offset * cone%r, out(1), gid_best, error, &
+        mask=reshape(nrm2(:, 1:nl) > 0, [cone%r * nl]))
       if (allocated(error)) call prefix_error(error, "pga: the largest projection error")
-      out = pair
+      out(2) = real(gid_best, wp)
     end subroutine argmax
   end subroutine pga_enrich
 end module cr_supremizer
