@@ -592,14 +592,16 @@ def completes_or_refuses(check, regex):
     return f
 
 
-def off_case(name, expected, study, offline, check, full_study=None, full_offline=None, **kw):
-    """crowd_snapshots then crowd_offline on study (base file) + &offline text."""
+def off_case(name, expected, study, offline, check, full_study=None, full_offline=None,
+             before=(("crowd_snapshots", 1),), **kw):
+    """crowd_snapshots (at 1 rank unless before says otherwise) then crowd_offline on study
+    (base file) + &offline text."""
     common = "database = 'db.h5', rom_file = 'rom.h5', infsup_samples = 4"
     groups = {"small": {"offline": common + ", " + offline}}
     groups["full"] = dict(full_study or {})
     groups["full"]["offline"] = common + ", " + (full_offline or offline)
     return Case(name, "offline", expected, "crowd_offline", study, groups, check, parse=parse_offline,
-                before=[("crowd_snapshots", 1)], **kw)
+                before=list(before), **kw)
 
 
 # full-size offline study: the hall20 scene, l_exit and each agent's speed within +-10%
@@ -823,6 +825,10 @@ def all_cases():
     add(off_case("offline_no_contact", "completes: no multiplier is ever non-zero: empty cone (said so, no "
                  "division by zero), PGA skipped", "study_sparse.nml", "cone_compare = .true.",
                  offline_completes(empty_cone), full_study=column_full, files={"positions.txt": column}))
+    add(off_case("offline_no_contact_2ranks", "completes at 2 ranks (snapshots and offline): the empty "
+                 "multiplier datasets are read collectively without a transfer; empty cone",
+                 "study_sparse.nml", "cone_compare = .true.", offline_completes(empty_cone), full_study=column_full,
+                 files={"positions.txt": column}, np=2, before=[("crowd_snapshots", 2)]))
     add(off_case("offline_pod_energy_0", "completes: every mode up to the numerical rank, retained energy 1",
                  "study_tiny.nml", "pod_energy = 0.0", offline_completes(energy0), full_study=HALL20_STUDY))
     add(off_case("offline_pod_energy_1", "completes: no POD mode (warning), the basis is made of supremizers "

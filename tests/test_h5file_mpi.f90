@@ -26,6 +26,8 @@ program test_h5file_mpi
   real(wp), allocatable :: a(:,:), whole(:,:), mine(:,:), theirs(:,:), v(:)
   character(len=32) :: fname
   character(len=:), allocatable :: s
+  integer :: ie(0), ione(1)
+  real(wp) :: re(n_rows, 0)
 
   call MPI_Init(ierr)
   call env%init(MPI_COMM_WORLD, error)
@@ -66,6 +68,12 @@ program test_h5file_mpi
   call f%write("config", "&output path='x' /", error)
   call f%write_attr("/", "n_ranks_written", env%size, error)
   call check(.not. allocated(error), "attribute in parallel")
+  ! empty datasets (a study without contacts): zero-sized blocks on every rank
+  call f%create_dataset("empty/idx", [0], cr_h5_int, error)
+  if (.not. allocated(error)) call f%create_dataset("empty/val", [n_rows, 0], cr_h5_real, error)
+  if (.not. allocated(error)) call f%write_block("empty/idx", ie, 0, error)
+  if (.not. allocated(error)) call f%write_block("empty/val", re, 0, error)
+  call check(.not. allocated(error), "write_block on empty datasets")
   call f%create_extendible("traj/step", [integer ::], cr_h5_int, error)
   do j = 1, 3
     call f%append("traj/step", 10 * j + env%rank, error)
@@ -112,6 +120,11 @@ program test_h5file_mpi
   call f%read_block("basis/phi", theirs, poff, error)
   call check(.not. allocated(error), "read_block")
   call check(all(theirs == a(:, poff+1:poff+pn)), "neighbour block exact")
+  call f%read_block("empty/idx", ie, 0, error)
+  if (.not. allocated(error)) call f%read_block("empty/val", re, 0, error)
+  call check(.not. allocated(error), "read_block on empty datasets")
+  call f%read_block("empty/idx", ione, 0, error)
+  call check(allocated(error), "read_block of one entry from an empty dataset fails on every rank")
   call f%read("basis/owner", iall, error)
   do r = 0, env%size - 1
     do j = sum(counts(0:r-1)) + 1, sum(counts(0:r))

@@ -1511,6 +1511,9 @@ contains
     end if
     call sync_error(this, error)
     if (allocated(error)) return
+    ! an empty dataset (the same dims on every rank: file metadata) has nothing to transfer, and
+    ! a collective MPI-IO transfer on it fails (e.g. a study without contacts at 2 ranks)
+    if (product(d) == 0) return
     if (is_write) then
       call ensure_space(this, 8_i8 * product(int(dd, i8)), op, name, error)
       if (allocated(error)) return
