@@ -1,8 +1,8 @@
 !> The full-order writer's buffer of output states (cr_fom_file): one run of a small crowd
 !> with contacts is written by several writers at once, holding 1 state (every state goes to
-!> the file at once, as before the buffer), 3 and 4 states (12 outputs: a multiple of 3 but
-!> not of 4, so the last flush is a partial one at close), more states than the run has, and
-!> the default budget; with and without multipliers. Each file must hold exactly the states
+!> the file at once, as before the buffer), 3 and 5 states (12 output states: a multiple of 3,
+!> so close finds the buffer empty, but not of 5, so the last flush is a partial one at close),
+!> more states than the run has, and the default budget; with and without multipliers. Each file must hold exactly the states
 !> recorded in memory during the run (steps, times, positions, velocities, desired velocities,
 !> inside flags, active multipliers and their offsets), and the files must be equal.
 !> Then the atomic-output guarantees with states still in the buffer: abort leaves neither the
@@ -23,7 +23,7 @@ program test_fom_buffer
   integer, parameter :: NT = 11
   !> writers: buffer sizes (0: the default budget) and whether they store multipliers
   integer, parameter :: NW = 6
-  integer, parameter :: BUF(NW) = [1, 3, 4, 1000, 0, 4]
+  integer, parameter :: BUF(NW) = [1, 3, 5, 1000, 0, 5]
   logical, parameter :: MULT(NW) = [.true., .true., .true., .true., .true., .false.]
   type(env_t) :: self
   type(error_t), allocatable :: error

@@ -28,8 +28,7 @@ module cr_fom_file
   use cr_product_check, only: check_schema, need_finite, need_range, need_dims, product_error
   implicit none
   private
-  public :: fom_writer_t, fom_file_t, read_fom_file, write_scene, FOM_SCHEMA, FOM_SCHEMA_VERSION, FOM_VERSIONS_READ, &
-    BUFFER_BYTES
+  public :: fom_writer_t, fom_file_t, read_fom_file, write_scene, FOM_SCHEMA, FOM_SCHEMA_VERSION, FOM_VERSIONS_READ
 
   character(len=*), parameter :: FOM_SCHEMA = "crowdrom-fom"
   integer, parameter :: FOM_SCHEMA_VERSION = 1
@@ -117,11 +116,11 @@ contains
       this%kcap = int(max(1_i8, min(BUFFER_BYTES / this%state_bytes, int(n_target, i8) + 1)))
     end if
     call free_buffer(this)
+    call this%h5%create(path, error)
+    if (allocated(error)) return
     allocate(this%b_step(this%kcap), this%b_time(this%kcap), this%b_off(this%kcap + 1), &
       this%b_q(2 * na, this%kcap), this%b_u(2 * na, this%kcap), this%b_v(2 * na, this%kcap), &
       this%b_inside(na, this%kcap))
-    call this%h5%create(path, error)
-    if (allocated(error)) return
     call attrs(error); if (allocated(error)) goto 9
     call write_scene(this%h5, fom%scene, error); if (allocated(error)) goto 9
     call this%h5%make_group("agents", error); if (allocated(error)) goto 9
