@@ -8,9 +8,18 @@
 !> previous result. Trajectories are streamed (extendible datasets); per-step statistics
 !> are written at the end. Multipliers are stored sparse: identity (ia, ib, ob) + value
 !> of every row with lambda > 0, with offsets per output step.
+!>
+!> Output states are buffered: `write_step` copies the state into memory, and the buffer goes
+!> to the file as one hyperslab per dataset when it holds `buffer_steps` states (default: as
+!> many as fit BUFFER_BYTES, at most the run's output count), when its multipliers bring it
+!> past BUFFER_BYTES, and at `close` (before the statistics and the commit). Appending one
+!> state per dataset and step cost about as much as the solver (HDF5 opens, extends, selects
+!> and writes a tiny hyperslab each time); the file is the same. A failure (a flush that
+!> fails, a run that stops) ends with `abort`: the temporary, with whatever was flushed, is
+!> deleted and the final name is untouched, exactly as without the buffer.
 module cr_fom_file
   use cr_kinds, only: wp, i8
-  use cr_error, only: error_t, prefix_error
+  use cr_error, only: error_t, prefix_error, set_error
   use cr_config, only: config_t, config_echo
   use cr_fom, only: fom_t, step_record_t
   use cr_scene, only: scene_t
@@ -25,6 +34,10 @@ module cr_fom_file
   integer, parameter :: FOM_SCHEMA_VERSION = 1
   !> versions the reader accepts
   integer, parameter :: FOM_VERSIONS_READ(1) = [1]
+  !> memory budget of the writer's buffer of output states (bytes)
+  integer(i8), parameter :: BUFFER_BYTES = 4194304_i8
+  !> bytes of one buffered multiplier (ia, ib, ob, lambda)
+  integer(i8), parameter :: CONTACT_BYTES = 3 * 4 + 8
 
   !> A full-order run as read back (n_out output states, nnz stored multipliers).
   type :: fom_file_t
@@ -48,33 +61,66 @@ module cr_fom_file
     real(wp), allocatable :: kkt(:), min_gap(:)
   end type fom_file_t
 
-  !> Streaming writer of one run.
+  !> Streaming writer of one run (open, write_step per output state, close or abort), with a
+  !> buffer of output states in memory (see the module header).
   type :: fom_writer_t
     type(h5file_t) :: h5
     logical :: store_multipliers = .true.
+    !> multipliers and output states written so far (buffered ones included)
     integer(i8) :: nnz = 0
     integer :: n_out = 0
+    !> capacity of the buffer (output states), states in it, offsets in it (the initial 0 of
+    !> traj/contacts/offset waits in it too), multipliers in it
+    integer :: kcap = 0, nbuf = 0, noff = 0, nc = 0
+    !> bytes of one buffered state without its multipliers
+    integer(i8) :: state_bytes = 0
+    !> buffered steps and times [kcap]; offsets [kcap + 1]
+    integer, allocatable :: b_step(:)
+    real(wp), allocatable :: b_time(:)
+    integer(i8), allocatable :: b_off(:)
+    !> buffered positions, velocities, desired velocities [2 n_agents, kcap]; inside flags [n_agents, kcap]
+    real(wp), allocatable :: b_q(:,:), b_u(:,:), b_v(:,:)
+    integer, allocatable :: b_inside(:,:)
+    !> buffered multipliers: identities and values [>= nc]
+    integer, allocatable :: b_ia(:), b_ib(:), b_ob(:)
+    real(wp), allocatable :: b_lam(:)
   contains
     procedure :: open => writer_open
     procedure :: write_step
+    procedure :: flush => writer_flush
     procedure :: close => writer_close
     procedure :: abort => writer_abort
   end type fom_writer_t
 
 contains
 
-  !> Create the file (temporary name), write metadata, scene and the initial state.
-  subroutine writer_open(this, path, cfg, fom, error)
+  !> Create the file (temporary name), write metadata and scene, buffer the initial state.
+  subroutine writer_open(this, path, cfg, fom, error, buffer_steps)
     class(fom_writer_t), intent(inout) :: this
     character(len=*), intent(in) :: path
     type(config_t), intent(in) :: cfg
     type(fom_t), intent(in) :: fom
     type(error_t), allocatable, intent(out) :: error
-    integer :: na
+    !> output states held in memory before they go to the file (>= 1; default: as many as
+    !> fit BUFFER_BYTES, at most the number of steps + 1)
+    integer, intent(in), optional :: buffer_steps
+    integer :: na, n_target
     na = fom%n_agents
     this%store_multipliers = cfg%output%store_multipliers
+    this%state_bytes = 4 + 8 + 8 + int(na, i8) * (3 * 2 * 8 + 4)
+    if (present(buffer_steps)) then
+      this%kcap = max(1, buffer_steps)
+    else
+      n_target = cfg%time%n_steps
+      if (cfg%time%until_empty) n_target = cfg%time%max_steps
+      this%kcap = int(max(1_i8, min(BUFFER_BYTES / this%state_bytes, int(n_target, i8) + 1)))
+    end if
+    call free_buffer(this)
     call this%h5%create(path, error)
     if (allocated(error)) return
+    allocate(this%b_step(this%kcap), this%b_time(this%kcap), this%b_off(this%kcap + 1), &
+      this%b_q(2 * na, this%kcap), this%b_u(2 * na, this%kcap), this%b_v(2 * na, this%kcap), &
+      this%b_inside(na, this%kcap))
     call attrs(error); if (allocated(error)) goto 9
     call write_scene(this%h5, fom%scene, error); if (allocated(error)) goto 9
     call this%h5%make_group("agents", error); if (allocated(error)) goto 9
@@ -93,12 +139,13 @@ contains
     call this%h5%create_extendible("traj/contacts/ob", [integer ::], cr_h5_int, error); if (allocated(error)) goto 9
     call this%h5%create_extendible("traj/contacts/lambda", [integer ::], cr_h5_real, error); if (allocated(error)) goto 9
     this%nnz = 0
-    call this%h5%append("traj/contacts/offset", this%nnz, error); if (allocated(error)) goto 9
     this%n_out = 0
+    this%noff = 1
+    this%b_off(1) = 0
     call this%write_step(fom, error)
 9   if (allocated(error)) then
       call prefix_error(error, "output")
-      call this%h5%abort()
+      call this%abort()
     end if
 
   contains
@@ -119,50 +166,148 @@ contains
     end subroutine attrs
   end subroutine writer_open
 
-  !> Append the current state (positions, velocities, inside flags, active multipliers).
+  !> Append the current state (positions, velocities, inside flags, active multipliers): copy
+  !> it into the buffer, which goes to the file when full. On an error the caller aborts.
   subroutine write_step(this, fom, error)
     class(fom_writer_t), intent(inout) :: this
     type(fom_t), intent(in) :: fom
     type(error_t), allocatable, intent(out) :: error
-    integer, allocatable :: ia(:), ib(:), ob(:), inside(:)
-    real(wp), allocatable :: lam(:)
-    integer :: n, l, k
-    call this%h5%append("traj/step", fom%step, error); if (allocated(error)) return
-    call this%h5%append("traj/time", fom%step * fom%dt, error); if (allocated(error)) return
-    call this%h5%append("traj/positions", fom%q, error); if (allocated(error)) return
-    call this%h5%append("traj/velocities", fom%u, error); if (allocated(error)) return
-    call this%h5%append("traj/desired", fom%v, error); if (allocated(error)) return
-    allocate(inside(fom%n_agents))
-    inside = merge(1, 0, fom%inside)
-    call this%h5%append("traj/inside", inside, error); if (allocated(error)) return
+    integer :: n, l, k, j
+    if (.not. this%h5%is_open() .or. .not. allocated(this%b_q)) then
+      call set_error(error, "output: write_step: the writer is not open"); return
+    end if
+    if (size(fom%q) /= size(this%b_q, 1) .or. size(fom%u) /= size(this%b_u, 1) .or. &
+        size(fom%v) /= size(this%b_v, 1) .or. size(fom%inside) /= size(this%b_inside, 1)) then
+      call set_error(error, "output: write_step: state of " // str(size(fom%inside)) // &
+        " agents in a file of " // str(size(this%b_inside, 1))); return
+    end if
+    if (this%nbuf >= this%kcap) then
+      ! only after a failed flush (the caller should have aborted): try again
+      call this%flush(error); if (allocated(error)) return
+    end if
+    j = this%nbuf + 1
+    this%b_step(j) = fom%step
+    this%b_time(j) = fom%step * fom%dt
+    this%b_q(:, j) = fom%q
+    this%b_u(:, j) = fom%u
+    this%b_v(:, j) = fom%v
+    this%b_inside(:, j) = merge(1, 0, fom%inside)
     n = 0
     if (this%store_multipliers .and. fom%step > 0) n = count(fom%lambda(1:fom%cs%n) > 0)
     if (n > 0) then
-      allocate(ia(n), ib(n), ob(n), lam(n))
-      k = 0
+      call reserve_contacts(this, this%nc + n)
+      k = this%nc
       do l = 1, fom%cs%n
         if (fom%lambda(l) > 0) then
           k = k + 1
-          ia(k) = fom%cs%ia(l); ib(k) = fom%cs%ib(l); ob(k) = fom%cs%ob(l); lam(k) = fom%lambda(l)
+          this%b_ia(k) = fom%cs%ia(l); this%b_ib(k) = fom%cs%ib(l); this%b_ob(k) = fom%cs%ob(l)
+          this%b_lam(k) = fom%lambda(l)
         end if
       end do
-      call this%h5%append("traj/contacts/ia", ia, error); if (allocated(error)) return
-      call this%h5%append("traj/contacts/ib", ib, error); if (allocated(error)) return
-      call this%h5%append("traj/contacts/ob", ob, error); if (allocated(error)) return
-      call this%h5%append("traj/contacts/lambda", lam, error); if (allocated(error)) return
+      this%nc = k
     end if
     this%nnz = this%nnz + n
-    call this%h5%append("traj/contacts/offset", this%nnz, error); if (allocated(error)) return
+    this%noff = this%noff + 1
+    this%b_off(this%noff) = this%nnz
+    this%nbuf = j
     this%n_out = this%n_out + 1
+    if (this%nbuf >= this%kcap .or. this%nbuf * this%state_bytes + this%nc * CONTACT_BYTES >= BUFFER_BYTES) &
+      call this%flush(error)
   end subroutine write_step
 
-  !> Write the per-step statistics and commit the file under its final name.
+  !> Write the buffered output states to the file (one hyperslab per dataset) and empty the
+  !> buffer. On an error the file holds part of them: the caller aborts.
+  subroutine writer_flush(this, error)
+    class(fom_writer_t), intent(inout) :: this
+    type(error_t), allocatable, intent(out) :: error
+    integer :: m
+    m = this%nbuf
+    if (m > 0) then
+      call this%h5%append("traj/step", this%b_step(1:m), error); if (allocated(error)) return
+      call this%h5%append("traj/time", this%b_time(1:m), error); if (allocated(error)) return
+      call this%h5%append("traj/positions", this%b_q(:, 1:m), error); if (allocated(error)) return
+      call this%h5%append("traj/velocities", this%b_u(:, 1:m), error); if (allocated(error)) return
+      call this%h5%append("traj/desired", this%b_v(:, 1:m), error); if (allocated(error)) return
+      call this%h5%append("traj/inside", this%b_inside(:, 1:m), error); if (allocated(error)) return
+    end if
+    if (this%nc > 0) then
+      call this%h5%append("traj/contacts/ia", this%b_ia(1:this%nc), error); if (allocated(error)) return
+      call this%h5%append("traj/contacts/ib", this%b_ib(1:this%nc), error); if (allocated(error)) return
+      call this%h5%append("traj/contacts/ob", this%b_ob(1:this%nc), error); if (allocated(error)) return
+      call this%h5%append("traj/contacts/lambda", this%b_lam(1:this%nc), error); if (allocated(error)) return
+    end if
+    if (this%noff > 0) then
+      call this%h5%append("traj/contacts/offset", this%b_off(1:this%noff), error); if (allocated(error)) return
+    end if
+    this%nbuf = 0; this%nc = 0; this%noff = 0
+  end subroutine writer_flush
+
+  !> Room for n buffered multipliers (contents kept; grows by half at least).
+  subroutine reserve_contacts(this, n)
+    class(fom_writer_t), intent(inout) :: this
+    integer, intent(in) :: n
+    integer :: cap
+    if (allocated(this%b_ia)) then
+      if (size(this%b_ia) >= n) return
+    end if
+    cap = max(n, 1024)
+    if (allocated(this%b_ia)) cap = max(n, size(this%b_ia) + size(this%b_ia) / 2)
+    call grow_kept_int(this%b_ia, cap, this%nc)
+    call grow_kept_int(this%b_ib, cap, this%nc)
+    call grow_kept_int(this%b_ob, cap, this%nc)
+    call grow_kept_real(this%b_lam, cap, this%nc)
+  end subroutine reserve_contacts
+
+  !> a [cap] keeping its first n entries
+  subroutine grow_kept_int(a, cap, n)
+    integer, allocatable, intent(inout) :: a(:)
+    integer, intent(in) :: cap, n
+    integer, allocatable :: t(:)
+    allocate(t(cap))
+    if (n > 0) t(1:n) = a(1:n)
+    call move_alloc(t, a)
+  end subroutine grow_kept_int
+
+  !> a [cap] keeping its first n entries
+  subroutine grow_kept_real(a, cap, n)
+    real(wp), allocatable, intent(inout) :: a(:)
+    integer, intent(in) :: cap, n
+    real(wp), allocatable :: t(:)
+    allocate(t(cap))
+    if (n > 0) t(1:n) = a(1:n)
+    call move_alloc(t, a)
+  end subroutine grow_kept_real
+
+  !> Release the buffer.
+  subroutine free_buffer(this)
+    class(fom_writer_t), intent(inout) :: this
+    if (allocated(this%b_step)) deallocate(this%b_step)
+    if (allocated(this%b_time)) deallocate(this%b_time)
+    if (allocated(this%b_off)) deallocate(this%b_off)
+    if (allocated(this%b_q)) deallocate(this%b_q)
+    if (allocated(this%b_u)) deallocate(this%b_u)
+    if (allocated(this%b_v)) deallocate(this%b_v)
+    if (allocated(this%b_inside)) deallocate(this%b_inside)
+    if (allocated(this%b_ia)) deallocate(this%b_ia)
+    if (allocated(this%b_ib)) deallocate(this%b_ib)
+    if (allocated(this%b_ob)) deallocate(this%b_ob)
+    if (allocated(this%b_lam)) deallocate(this%b_lam)
+    this%nbuf = 0; this%noff = 0; this%nc = 0
+  end subroutine free_buffer
+
+  !> Write the buffered states and the per-step statistics and commit the file under its
+  !> final name (on an error: abort).
   subroutine writer_close(this, recs, error)
     class(fom_writer_t), intent(inout) :: this
     type(step_record_t), intent(in) :: recs(:)
     type(error_t), allocatable, intent(out) :: error
     integer, allocatable :: iv(:)
     real(wp), allocatable :: rv(:)
+    if (.not. this%h5%is_open()) then
+      call set_error(error, "output: close: the writer is not open"); return
+    end if
+    call this%flush(error); if (allocated(error)) goto 9
+    call free_buffer(this)
     call this%h5%make_group("stats", error); if (allocated(error)) goto 9
     iv = recs%step
     call this%h5%write("stats/step", iv, error); if (allocated(error)) goto 9
@@ -197,13 +342,14 @@ contains
     call this%h5%commit(error)
 9   if (allocated(error)) then
       call prefix_error(error, "output")
-      call this%h5%abort()
+      call this%abort()
     end if
   end subroutine writer_close
 
-  !> Close and delete the temporary file (the final name is untouched).
+  !> Drop the buffer, close and delete the temporary file (the final name is untouched).
   subroutine writer_abort(this)
     class(fom_writer_t), intent(inout) :: this
+    call free_buffer(this)
     call this%h5%abort()
   end subroutine writer_abort
 
