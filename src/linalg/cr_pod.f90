@@ -300,12 +300,11 @@ contains
     real(wp), intent(in), optional :: eps
     integer, intent(in), optional :: n_modes
     integer :: n_snap, offset, n_dof, i, k
-    integer, allocatable :: counts(:), displs(:)
     real(wp), allocatable :: c(:, :), lam(:), sigma(:), modes(:, :), s(:, :), v(:, :)
     real(wp) :: tol
     call check_truncation(eps, n_modes, error)
     if (allocated(error)) return
-    call snapshot_layout(env, s_local, n_snap, offset, error, counts)
+    call snapshot_layout(env, s_local, n_snap, offset, error)
     if (allocated(error)) return
     n_dof = size(s_local, 1)
     result%method = "snapshots"
@@ -331,18 +330,7 @@ contains
       end if
     else
       ! n_snap < n_dof: gather S on rank 0, G = S^T S, modes S v_i / sigma_i
-      allocate(displs(env%size))
-      counts = counts * n_dof
-      displs = 0
-      do i = 2, env%size
-        displs(i) = displs(i - 1) + counts(i - 1)
-      end do
-      if (env%rank == ROOT) then
-        allocate(s(n_dof, n_snap))
-      else
-        allocate(s(1, 1))
-      end if
-      call env%gatherv(s_local, s, counts, displs, ROOT, error)
+      call gather_root(env, s_local, n_snap, s, error)
       if (env%rank == ROOT .and. .not. allocated(error)) then
         allocate(c(n_snap, n_snap), lam(n_snap))
         call la_gemm('T', 'N', 1.0_wp, s, s, 0.0_wp, c, error)
@@ -600,6 +588,24 @@ contains
       & n_modes, n_cap=k)
   end subroutine pod_rsvd
 
+  !> S [n_dof, n_snap] gathered on rank 0 from its columns distributed in rank order
+  !> (s_local [n_dof, n_r]); s is [1, 1] on the other ranks. Collective; errors are this rank's.
+  subroutine gather_root(env, s_local, n_snap, s, error)
+    type(env_t), intent(in) :: env
+    real(wp), contiguous, intent(in) :: s_local(:, :)
+    integer, intent(in) :: n_snap
+    real(wp), allocatable, intent(out) :: s(:, :)
+    type(error_t), allocatable, intent(out) :: error
+    integer, allocatable :: counts(:), displs(:)
+    if (env%rank == ROOT) then
+      allocate(s(size(s_local, 1), n_snap))
+    else
+      allocate(s(1, 1))
+    end if
+    call env%block_counts(size(s_local), counts, displs, error)
+    if (.not. allocated(error)) call env%gatherv(s_local, s, counts, displs, ROOT, error)
+  end subroutine gather_root
+
   !> sigma [min(n_dof, n_snap)] and the left singular vectors modes [n_dof, min] of S on rank 0
   !> (zero-sized elsewhere) by the serial LAPACK SVD of S gathered there, for an S with fewer
   !> rows than ranks (small: n_dof < P). Collective errors.
@@ -610,19 +616,10 @@ contains
     integer, intent(in) :: n_snap
     real(wp), allocatable, intent(out) :: sigma(:), modes(:, :)
     type(error_t), allocatable, intent(out) :: error
-    integer, allocatable :: counts(:), displs(:)
     real(wp), allocatable :: s(:, :)
     integer :: n_dof
     n_dof = size(s_local, 1)
-    call env%block_counts(size(s_local), counts, displs, error)
-    if (.not. allocated(error)) then
-      if (env%rank == ROOT) then
-        allocate(s(n_dof, n_snap))
-      else
-        allocate(s(1, 1))
-      end if
-      call env%gatherv(s_local, s, counts, displs, ROOT, error)
-    end if
+    call gather_root(env, s_local, n_snap, s, error)
     if (allocated(error)) then
       call prefix_error(error, "pod_scalapack: gathering S (" // str(n_dof) // " x " // str(n_snap) // ")"); return
     end if
