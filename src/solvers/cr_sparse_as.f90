@@ -192,6 +192,8 @@ module cr_sparse_as
     integer, allocatable :: hslot(:)
     !> slot of each row [m] (0: none), row of each slot [ns] (reuse_slots)
     integer, allocatable :: rslot(:), smark(:)
+    !> reuse_slots: position in wi of each row of the slot column at hand, and that column [ns]
+    integer, allocatable :: spos(:), scol(:)
   contains
     procedure :: solve => sparse_as_solve
     procedure :: free => sparse_as_free
@@ -726,28 +728,28 @@ contains
       end do
       if (real(nin, wp) < this%reuse_fill * real(this%ns, wp)) return
       ! the values of M on the analysed pattern (wptr, wi: upper triangle in slot space, rows
-      ! increasing in each column, kept from the analysis): each entry found in its column
-      ! (short); one outside the pattern (never expected: the same slots keep the same
-      ! neighbours) means no reuse
+      ! increasing in each column, kept from the analysis): slot column b = rslot(jj) takes
+      ! the entries of the whole column jj of M whose row has a slot a <= b, each found
+      ! through the positions of column b's rows scattered first (M is assembled exactly
+      ! symmetric, so the values are those of the row-space upper triangle); an entry outside
+      ! the pattern (never expected: the same slots keep the same neighbours) means no reuse
       nzs = this%wptr(this%ns + 1) - 1
       this%wv(1:nzs) = 0.0_wp
+      call igrow(this%spos, this%ns); call igrow(this%scol, this%ns)
+      this%scol(1:this%ns) = 0
       do jj = 1, m
-        if (this%rslot(jj) == 0) cycle
-        do q = this%fp(jj), this%fd(jj)
+        b = this%rslot(jj)
+        if (b == 0) cycle
+        do p = this%wptr(b), this%wptr(b + 1) - 1
+          this%spos(this%wi(p)) = p; this%scol(this%wi(p)) = b
+        end do
+        do q = this%fp(jj), this%fp(jj + 1) - 1
           a = this%rslot(this%fi(q))
-          if (a == 0) cycle
-          b = max(a, this%rslot(jj)); a = min(a, this%rslot(jj))
-          p = this%wptr(b)
-          do while (p < this%wptr(b + 1))
-            if (this%wi(p) >= a) exit
-            p = p + 1
-          end do
-          if (p == this%wptr(b + 1)) then
-            this%keys_ok = .false.; return
-          else if (this%wi(p) /= a) then
+          if (a == 0 .or. a > b) cycle
+          if (this%scol(a) /= b) then
             this%keys_ok = .false.; return
           end if
-          this%wv(p) = this%fv(q)
+          this%wv(this%spos(a)) = this%fv(q)
         end do
       end do
       call this%chol%set_analysed_values(this%wv(1:nzs), error)
