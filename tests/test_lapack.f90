@@ -70,6 +70,12 @@ program test_lapack
   call la_syevd(a(1:3, 1:2), w, e)
   call check(allocated(e), "syevd: non-square is an error")
 
+  ! the SVD with vectors (divide and conquer) on sizes above dgesdd's small-matrix switch (25),
+  ! tall and wide, u only, vt only, both: U S VT = A, orthonormal factors, and the same values
+  ! as the values-only call, all within the backward-error bound p eps ||A|| (p = 4 m n)
+  call svd_shapes(60, 40)
+  call svd_shapes(40, 60)
+
   ! info translation
   call check(lapack_info_message("dgeqrf", -7, "m = 4, n = 3") == &
     & "dgeqrf: argument 7 had an illegal value (m = 4, n = 3)", "info < 0: illegal argument")
@@ -79,6 +85,50 @@ program test_lapack
     & "dsyevd info > 0")
   call test_summary()
 contains
+  subroutine svd_shapes(m, n)
+    integer, intent(in) :: m, n
+    real(wp), allocatable :: a0(:, :), x(:, :), uu(:, :), vv(:, :), u1(:, :), v1(:, :), sv(:), s0(:)
+    real(wp) :: p, nrm
+    integer :: k, i, jj
+    character(len=16) :: tag
+    k = min(m, n)
+    write(tag, '(i0, " x ", i0)') m, n
+    allocate(a0(m, n))
+    ! a fixed, well-spread test matrix (no random stream: the same on every machine)
+    do jj = 1, n
+      do i = 1, m
+        a0(i, jj) = sin(real(i * jj, wp) + 0.3_wp * i) + merge(2.0_wp, 0.0_wp, i == jj)
+      end do
+    end do
+    nrm = norm2(a0)
+    p = 4.0_wp * m * n * epsilon(1.0_wp)
+    allocate(sv(k), s0(k), uu(m, k), vv(k, n), u1(m, k), v1(k, n))
+    x = a0
+    call la_gesvd(x, s0, e)
+    call check(.not. allocated(e), "gesvd values only runs (" // trim(tag) // ")")
+    x = a0
+    call la_gesvd(x, sv, e, u=uu, vt=vv)
+    call check(.not. allocated(e), "gesvd with u and vt runs (" // trim(tag) // ")")
+    call check_close(maxval(abs(sv - s0)), 0.0_wp, 2.0_wp * p * nrm, "same values as the values-only call (" // &
+      & trim(tag) // ")")
+    call check(all(sv(1:k-1) >= sv(2:k)), "values descending (" // trim(tag) // ")")
+    call check_close(maxval(abs(matmul(transpose(uu), uu) - identity(k))), 0.0_wp, p, "U^T U = I (" // trim(tag) // ")")
+    call check_close(maxval(abs(matmul(vv, transpose(vv)) - identity(k))), 0.0_wp, p, "V^T V = I (" // trim(tag) // ")")
+    do jj = 1, k
+      u1(:, jj) = sv(jj) * uu(:, jj)
+    end do
+    call check_close(maxval(abs(matmul(u1, vv) - a0)), 0.0_wp, p * nrm, "U S VT = A (" // trim(tag) // ")")
+    ! one factor only: the same factor as with both (the same computation)
+    x = a0
+    call la_gesvd(x, sv, e, u=u1)
+    call check(.not. allocated(e), "gesvd with u only runs (" // trim(tag) // ")")
+    call check(all(u1 == uu), "u only = u of the call with both (" // trim(tag) // ")")
+    x = a0
+    call la_gesvd(x, sv, e, vt=v1)
+    call check(.not. allocated(e), "gesvd with vt only runs (" // trim(tag) // ")")
+    call check(all(v1 == vv), "vt only = vt of the call with both (" // trim(tag) // ")")
+  end subroutine svd_shapes
+
   pure function identity(n) result(id)
     integer, intent(in) :: n
     real(wp) :: id(n, n)
