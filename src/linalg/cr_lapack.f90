@@ -235,32 +235,28 @@ contains
     !> dgesdd('S') into u / vt (or temporaries); a copy of a is kept in a0 for the fallback.
     subroutine divide_and_conquer(inf)
       integer, intent(out) :: inf
-      real(wp), allocatable :: tu(:, :), tvt(:, :), wk(:)
+      real(wp), allocatable, target :: tu(:, :), tvt(:, :)
+      real(wp), allocatable :: wk(:)
+      real(wp), pointer :: du(:, :), dvt(:, :)
       integer, allocatable :: iwork(:)
       real(wp) :: q(1)
-      integer :: lw
       a0 = a
-      if (.not. present(u)) allocate(tu(m, k))
-      if (.not. present(vt)) allocate(tvt(k, n))
+      if (present(u)) then
+        du => u
+      else
+        allocate(tu(m, k)); du => tu
+      end if
+      if (present(vt)) then
+        dvt => vt
+      else
+        allocate(tvt(k, n)); dvt => tvt
+      end if
       allocate(iwork(8 * k))
       call pause_fpe_halting(saved)
-      if (present(u) .and. present(vt)) then
-        call dgesdd('S', m, n, a, m, s, u, m, vt, k, q, -1, iwork, inf)
-      else if (present(u)) then
-        call dgesdd('S', m, n, a, m, s, u, m, tvt, k, q, -1, iwork, inf)
-      else
-        call dgesdd('S', m, n, a, m, s, tu, m, vt, k, q, -1, iwork, inf)
-      end if
+      call dgesdd('S', m, n, a, m, s, du, m, dvt, k, q, -1, iwork, inf)
       if (inf == 0) then
-        lw = max(1, nint(q(1)))
-        allocate(wk(lw))
-        if (present(u) .and. present(vt)) then
-          call dgesdd('S', m, n, a, m, s, u, m, vt, k, wk, lw, iwork, inf)
-        else if (present(u)) then
-          call dgesdd('S', m, n, a, m, s, u, m, tvt, k, wk, lw, iwork, inf)
-        else
-          call dgesdd('S', m, n, a, m, s, tu, m, vt, k, wk, lw, iwork, inf)
-        end if
+        allocate(wk(max(1, nint(q(1)))))
+        call dgesdd('S', m, n, a, m, s, du, m, dvt, k, wk, size(wk), iwork, inf)
       end if
       call restore_fpe_halting(saved)
     end subroutine divide_and_conquer
