@@ -25,6 +25,7 @@ module cr_fom_file
   use cr_scene, only: scene_t
   use cr_h5file, only: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64
   use cr_strings, only: str
+  use cr_grow, only: grow_kept_int, grow_kept_real
   use cr_product_check, only: check_schema, need_finite, need_range, need_dims, product_error
   implicit none
   private
@@ -257,26 +258,6 @@ contains
     call grow_kept_int(this%b_ob, cap, this%nc)
     call grow_kept_real(this%b_lam, cap, this%nc)
   end subroutine reserve_contacts
-
-  !> a [cap] keeping its first n entries
-  subroutine grow_kept_int(a, cap, n)
-    integer, allocatable, intent(inout) :: a(:)
-    integer, intent(in) :: cap, n
-    integer, allocatable :: t(:)
-    allocate(t(cap))
-    if (n > 0) t(1:n) = a(1:n)
-    call move_alloc(t, a)
-  end subroutine grow_kept_int
-
-  !> a [cap] keeping its first n entries
-  subroutine grow_kept_real(a, cap, n)
-    real(wp), allocatable, intent(inout) :: a(:)
-    integer, intent(in) :: cap, n
-    real(wp), allocatable :: t(:)
-    allocate(t(cap))
-    if (n > 0) t(1:n) = a(1:n)
-    call move_alloc(t, a)
-  end subroutine grow_kept_real
 
   !> Release the buffer.
   subroutine free_buffer(this)
