@@ -1,5 +1,5 @@
 !> The checked collectives and messages of env_t (the block used by the library modules):
-!> broadcasts, in-place reductions, reduction to rank 0, maxloc pairs, gathers, all-to-all
+!> broadcasts, in-place reductions, reduction to rank 0, gathers, all-to-all
 !> exchanges and point-to-point messages give exact results (integers, or reals that are
 !> small integers) at any number of ranks, return no error, and an unknown reduction is an
 !> error. Run at 1, 2 and 3 ranks.
@@ -15,7 +15,7 @@ program test_env_checked
   integer :: ierr, p, n, r, last, i
   integer :: iv(3), ia(2)
   integer(i8) :: lv(2)
-  real(wp) :: rv(2, 2), pair(2), x
+  real(wp) :: rv(2, 2), x
   real(wp), allocatable :: mine(:), gath(:), sendbuf(:), recvbuf(:), gr(:), empty(:)
   character(len=:), allocatable :: text
   integer, allocatable :: counts(:), displs(:), got(:), sc(:), rc(:), sd(:), rd(:)
@@ -80,16 +80,6 @@ program test_env_checked
   call env%reduce_sum_root(rv, error)
   call check(.not. allocated(error), "reduce_sum_root: no error")
   if (r == 0) call check(all(rv == real(p * (p + 1) / 2, wp)), "reduce_sum_root: sum on rank 0")
-
-  ! maxloc: the largest value wins, ties go to the lowest index
-  pair = [real(mod(r, 2), wp), real(10 + r, wp)]
-  call env%allreduce_maxloc(pair, error)
-  call check(.not. allocated(error), "maxloc: no error")
-  if (p == 1) then
-    call check(all(pair == [0.0_wp, 10.0_wp]), "maxloc on one rank")
-  else
-    call check(all(pair == [1.0_wp, 11.0_wp]), "maxloc: largest value, lowest index among ties")
-  end if
 
   ! allgather of one integer per rank
   call env%allgather(10 * r, got, error)

@@ -35,9 +35,6 @@ module cr_env
     generic :: allreduce => allreduce_int, allreduce_i8, allreduce_real
     !> in-place sum on rank 0 only
     procedure :: reduce_sum_root
-    !> (value, index) pairs: the largest value over ranks and its index (exact ties: lowest
-    !> index); selections use allreduce_near_maxloc, which also breaks near ties by index
-    procedure :: allreduce_maxloc
     !> distributed values: the lowest global index within a relative sqrt(eps) of the maximum
     procedure :: allreduce_near_maxloc
     !> one value from every rank, in rank order
@@ -346,19 +343,6 @@ contains
     end if
     call check_mpi(ierr, "MPI_Reduce (sum to rank 0) of " // str(n_of(shape(x))) // " real(s)", error)
   end subroutine reduce_sum_root
-
-  !> pair = [value, index] on entry; on return on every rank the pair with the largest value
-  !> (ties: the lowest index), as MPI_MAXLOC on MPI_2DOUBLE_PRECISION.
-  subroutine allreduce_maxloc(this, pair, error)
-    class(env_t), intent(in) :: this
-    real(wp), intent(inout) :: pair(2)
-    type(error_t), allocatable, intent(out) :: error
-    real(wp) :: res(2)
-    integer :: ierr
-    call MPI_Allreduce(pair, res, 1, MPI_2DOUBLE_PRECISION, MPI_MAXLOC, this%comm, ierr)
-    call check_mpi(ierr, "MPI_Allreduce (maxloc)", error)
-    if (.not. allocated(error)) pair = res
-  end subroutine allreduce_maxloc
 
   !> The rule of cr_sort::near_max_index applied to all ranks' values as one array: x [n_local]
   !> are this rank's values, x(k) has the global index offset + k (the ranks hold disjoint

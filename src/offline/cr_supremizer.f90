@@ -300,13 +300,22 @@ contains
     subroutine argmax(out, error)
       real(wp), intent(out) :: out(2)
       type(error_t), allocatable, intent(out) :: error
-      real(wp), allocatable :: rel(:,:)
+      real(wp), allocatable :: rel(:)
+      logical, allocatable :: has(:)
       integer(i8) :: gid_best
-      allocate(rel(cone%r, nl))
-      rel = 0
-      where (nrm2(:, 1:nl) > 0) rel = max(res2(:, 1:nl), 0.0_wp) / nrm2(:, 1:nl)
-      call env%allreduce_near_maxloc(reshape(rel, [cone%r * nl]), col_offset * cone%r, out(1), gid_best, error, &
-        mask=reshape(nrm2(:, 1:nl) > 0, [cone%r * nl]))
+      integer :: kk, r2, j
+      ! candidate (r2, kk) at position (kk - 1) R + r2: its local id
+      allocate(rel(cone%r * nl), has(cone%r * nl))
+      j = 0
+      do kk = 1, nl
+        do r2 = 1, cone%r
+          j = j + 1
+          has(j) = nrm2(r2, kk) > 0
+          rel(j) = 0
+          if (has(j)) rel(j) = max(res2(r2, kk), 0.0_wp) / nrm2(r2, kk)
+        end do
+      end do
+      call env%allreduce_near_maxloc(rel, col_offset * cone%r, out(1), gid_best, error, mask=has)
       if (allocated(error)) call prefix_error(error, "pga: the largest projection error")
       out(2) = real(gid_best, wp)
     end subroutine argmax
