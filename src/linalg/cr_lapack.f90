@@ -171,8 +171,8 @@ contains
 
   !> Thin SVD a = U diag(s) VT of a [m, n] (destroyed); s [min(m, n)] descending;
   !> optional u [m, min(m, n)] and vt [min(m, n), n]. With vectors: LAPACK's divide and
-  !> conquer dgesdd (the same backward-stable bidiagonalisation; about 15x faster than dgesvd's
-  !> QR iteration on a 2 000 x 2 000 matrix here, where reference dbdsqr's rotations dominate),
+  !> conquer dgesdd (the same backward-stable bidiagonalisation; dgesvd's QR iteration spends
+  !> its time in reference dbdsqr's rotations: TSQR POD of 2 000 x 8 400, 20.1 -> 2.9 s),
   !> computing both U and VT (a temporary for the one not asked for); if dgesdd does not
   !> converge (info > 0, rare), dgesvd on a copy of a kept for it. Values only: dgesvd.
   subroutine la_gesvd(a, s, error, u, vt)
