@@ -1,4 +1,5 @@
-!> Unit tests of the model layer: neighbour search against brute force, gap gradients
+!> Unit tests of the model layer: neighbour search against brute force (one cutoff, per-agent
+!> margins, the check for rows left out), gap gradients
 !> against finite differences, the aiming rule, the random generator, sorting.
 program test_model
   use cr_kinds, only: wp, i8
@@ -6,7 +7,7 @@ program test_model
   use cr_assert, only: check, check_close, test_summary
   use cr_config, only: scene_cfg_t, obstacles_cfg_t, desired_cfg_t
   use cr_scene, only: scene_t
-  use cr_neighbours, only: cell_list_t, build_contacts, grid_size, cell_index
+  use cr_neighbours, only: cell_list_t, build_contacts, rows_missing, grid_size, cell_index
   use cr_contact_set, only: contact_set_t, contact_key
   use cr_desired, only: desired_t
   use cr_random, only: rng_t
@@ -23,6 +24,7 @@ program test_model
   call check(.not. allocated(error), "scene builds")
   call check(scene%n_walls == 5 .and. scene%n_interior() == 1, "5 walls + 1 disk")
   call test_neighbours()
+  call test_margins()
   call test_far_positions()
   call test_gap_gradient()
   call test_aiming()
@@ -82,6 +84,105 @@ contains
       deallocate(q, found, brute, idx)
     end do
   end subroutine test_neighbours
+
+  !> Per-agent margins: the cell list keeps exactly the brute-force rows (pairs with gap <=
+  !> m_a + m_b, agent-obstacle pairs with gap <= 2 m_a); rows_missing is true exactly when
+  !> brute force finds a row left out that a need vector reaches (pairs: gap <= n_a + n_b,
+  !> obstacles: gap <= n_a), including needs far beyond the cell side.
+  subroutine test_margins()
+    type(rng_t) :: rng
+    type(cell_list_t) :: cells
+    type(contact_set_t) :: cs
+    real(wp), allocatable :: q(:), mg(:), nd(:)
+    integer(i8), allocatable :: found(:), brute(:)
+    integer, allocatable :: idx(:)
+    real(wp) :: dist, nrm(2), r, gap, scale
+    integer :: na, i, j, k, nb, trial, nmiss, nagree
+    logical :: same, miss, want
+    character(len=2) :: tag
+    r = 0.03_wp
+    nmiss = 0; nagree = 0
+    do trial = 1, 24
+      write(tag, '(i2.2)') trial
+      na = 10 + 5 * mod(trial, 8)
+      call rng%seed(100 + trial)
+      allocate(q(2 * na), mg(na), nd(na))
+      do i = 1, na
+        q(2*i-1) = -0.1_wp + 1.3_wp * rng%uniform()
+        q(2*i) = -0.1_wp + 1.2_wp * rng%uniform()
+        mg(i) = 0.03_wp * rng%uniform()
+      end do
+      if (mod(trial, 3) == 0) mg(1) = 0.0_wp
+      call cs%init(na, 0.1_wp)
+      call build_contacts(scene, q, r, 2 * maxval(mg), cells, cs, margin=mg)
+      allocate(found(cs%n), brute(na * na + na * scene%n_obstacles()))
+      do k = 1, cs%n
+        found(k) = cs%key(k)
+      end do
+      nb = 0
+      do i = 1, na
+        do j = i + 1, na
+          if (norm2(q(2*i-1:2*i) - q(2*j-1:2*j)) - 2 * r <= mg(i) + mg(j)) then
+            nb = nb + 1; brute(nb) = contact_key(i, j, 0)
+          end if
+        end do
+        do k = 1, scene%n_obstacles()
+          call obstacle_distance(scene%obstacles(k), q(2*i-1:2*i), dist, nrm)
+          if (dist - r <= 2 * mg(i)) then
+            nb = nb + 1; brute(nb) = contact_key(i, 0, k)
+          end if
+        end do
+      end do
+      allocate(idx(max(cs%n, nb)))
+      call argsort_i8(found, idx(1:cs%n)); found = found(idx(1:cs%n))
+      call argsort_i8(brute(1:nb), idx(1:nb)); brute(1:nb) = brute(idx(1:nb))
+      same = cs%n == nb
+      if (same) same = all(found == brute(1:nb))
+      call check(same, "margins: cell list equals brute force (trial " // tag // ")")
+      ! needs: most agents within their margin, a few beyond (up to 20 cell sides)
+      scale = merge(0.5_wp, 0.05_wp, mod(trial, 4) == 0)
+      do i = 1, na
+        nd(i) = mg(i) * rng%uniform()
+        if (rng%uniform() < 0.15_wp) nd(i) = mg(i) + scale * rng%uniform()
+      end do
+      want = .false.
+      do i = 1, na
+        do j = 1, na
+          if (j == i) cycle
+          gap = norm2(q(2*i-1:2*i) - q(2*j-1:2*j)) - 2 * r
+          if (gap <= nd(i) + nd(j) .and. gap > mg(i) + mg(j)) want = .true.
+        end do
+        do k = 1, scene%n_obstacles()
+          call obstacle_distance(scene%obstacles(k), q(2*i-1:2*i), dist, nrm)
+          gap = dist - r
+          if (gap <= nd(i) .and. gap > 2 * mg(i)) want = .true.
+        end do
+      end do
+      miss = rows_missing(scene, q, r, cells, mg, nd)
+      call check(miss .eqv. want, "rows_missing equals brute force (trial " // tag // ")")
+      if (want) nmiss = nmiss + 1
+      if (miss .eqv. want) nagree = nagree + 1
+      ! needs within the margins: nothing can be missing
+      call check(.not. rows_missing(scene, q, r, cells, mg, min(nd, mg)), &
+        "rows_missing false when every need is within its margin (trial " // tag // ")")
+      deallocate(q, mg, nd, found, brute, idx)
+    end do
+    ! a pair several cells apart reached by two fast agents (the search must widen beyond the
+    ! neighbouring cells): gap 0.24 between the agents, walls and disk at gaps >= 0.22
+    allocate(q(4), mg(2), nd(2))
+    q = [0.25_wp, 0.35_wp, 0.25_wp, 0.65_wp]
+    mg = [0.001_wp, 0.001_wp]
+    call cs%init(2, 0.1_wp)
+    call build_contacts(scene, q, r, 2 * maxval(mg), cells, cs, margin=mg)
+    call check(cs%n == 0 .and. 0.3_wp > 3 * cells%side, "margins: pair many cells apart, no row kept")
+    nd = [0.13_wp, 0.13_wp]
+    call check(rows_missing(scene, q, r, cells, mg, nd), "rows_missing finds a pair several cells away")
+    nd = [0.11_wp, 0.11_wp]
+    call check(.not. rows_missing(scene, q, r, cells, mg, nd), "rows_missing false when the needs fall short")
+    deallocate(q, mg, nd)
+    ! the trials above must exercise both answers
+    call check(nmiss >= 3 .and. nmiss <= 21, "rows_missing trials include rows missing and none missing")
+  end subroutine test_margins
 
   !> Positions far outside the hall (a diverged reduced trajectory: 1e9 m, 1e300 m, +-huge)
   !> neither overflow the cell indices nor lose the near pairs: the cell list still equals

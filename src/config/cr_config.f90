@@ -85,8 +85,10 @@ module cr_config
 
   !> &contacts: candidate contact selection.
   type :: contacts_cfg_t
-    !> candidate rows have gap <= cutoff_factor * 2 h max|v_i|; an a-posteriori check adds
-    !> any row the solution could violate, so any value >= 1 is safe (larger: fewer re-solves)
+    !> candidate rows: agent pairs with gap <= m_a + m_b, agent-obstacle pairs with gap <= 2 m_a,
+    !> where m_i = cutoff_factor * h * (a bound of agent i's speed in the step: max|v| on the first
+    !> step, then min(max|v|, |u_i| + 0.5 |v_i|)); an a-posteriori check adds any row the solution
+    !> could violate, so any value >= 1 is safe (larger: fewer re-solves, more rows)
     real(wp) :: cutoff_factor = 1.5_wp
   end type contacts_cfg_t
 

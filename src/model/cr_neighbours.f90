@@ -18,7 +18,7 @@ module cr_neighbours
   use cr_scene, only: scene_t
   implicit none
   private
-  public :: cell_list_t, build_contacts, grid_size, cell_index, pair_contact
+  public :: cell_list_t, build_contacts, rows_missing, grid_size, cell_index, pair_contact
 
   !> Linked-cell structure (reused across steps to avoid reallocation).
   type :: cell_list_t
@@ -35,19 +35,23 @@ contains
 
   !> Fill `cs` (cleared first) with every agent pair and agent-obstacle pair whose gap is
   !> <= cutoff, at positions q [2*n_agents]. Agents with active(i) = .false. are skipped.
-  subroutine build_contacts(scene, q, radius, cutoff, cells, cs, active)
+  !> With margin [n_agents] (cutoff >= 2 maxval(margin)), a pair (a, b) is kept when its gap
+  !> is <= margin(a) + margin(b) and an agent-obstacle pair when it is <= 2 margin(a) instead.
+  subroutine build_contacts(scene, q, radius, cutoff, cells, cs, active, margin)
     type(scene_t), intent(in) :: scene
     real(wp), intent(in) :: q(:)
     real(wp), intent(in) :: radius, cutoff
     type(cell_list_t), intent(inout) :: cells
     type(contact_set_t), intent(inout) :: cs
     logical, intent(in), optional :: active(:)
+    real(wp), intent(in), optional :: margin(:)
     integer :: na, i, j, cx, cy, ix, iy, c, k
-    real(wp) :: lo(2), hi(2), dx, dy, dist, gap, reach, g(2), nrm(2)
+    real(wp) :: lo(2), hi(2), dx, dy, dist, gap, reach, g(2), nrm(2), mi
     !> obstacle bounding boxes grown by radius + cutoff [2, n_obstacles]
     real(wp) :: olo(2, scene%n_obstacles()), ohi(2, scene%n_obstacles())
-    logical :: use_i
+    logical :: use_i, per_agent
     na = size(q) / 2
+    per_agent = present(margin)
     call cs%clear()
     if (na == 0) return
     if (.not. allocated(cs%ia)) call cs%reserve(16)
@@ -97,6 +101,8 @@ contains
       if (.not. use_i) cycle
       cx = mod(cells%cell(i) - 1, cells%nx)
       cy = (cells%cell(i) - 1) / cells%nx
+      mi = cutoff
+      if (per_agent) mi = margin(i)
       do iy = max(cy - 1, 0), min(cy + 1, cells%ny - 1)
         do ix = max(cx - 1, 0), min(cx + 1, cells%nx - 1)
           j = cells%head(iy * cells%nx + ix + 1)
@@ -105,7 +111,11 @@ contains
               dx = q(2*i-1) - q(2*j-1); dy = q(2*i) - q(2*j)
               if (abs(dx) <= reach .and. abs(dy) <= reach) then
                 call pair_contact(dx, dy, radius, g, gap)
-                if (gap <= cutoff) call append(i, j, 0, g, gap)
+                if (per_agent) then
+                  if (gap <= mi + margin(j)) call append(i, j, 0, g, gap)
+                else
+                  if (gap <= cutoff) call append(i, j, 0, g, gap)
+                end if
               end if
             end if
             j = cells%next(j)
@@ -129,12 +139,14 @@ contains
       if (ieee_is_finite(q(2*i-1)) .and. ieee_is_finite(q(2*i))) then
         if (.not. cells%near(cells%cell(i))) cycle
       end if
+      mi = cutoff
+      if (per_agent) mi = 2 * margin(i)
       do k = 1, size(olo, 2)
         if (q(2*i-1) < olo(1, k) .or. q(2*i-1) > ohi(1, k)) cycle
         if (q(2*i) < olo(2, k) .or. q(2*i) > ohi(2, k)) cycle
         call obstacle_distance(scene%obstacles(k), q(2*i-1:2*i), dist, nrm)
         gap = dist - radius
-        if (gap <= cutoff) call append(i, 0, k, nrm, gap)
+        if (gap <= mi) call append(i, 0, k, nrm, gap)
       end do
     end do
 
@@ -187,6 +199,61 @@ contains
         cell_index(q(2*a-1), cells%x0, cells%side, cells%nx) + 1
     end function cell_of
   end subroutine build_contacts
+
+  !> Whether a pair the contact set built by build_contacts(..., margin) left out could be
+  !> needed: an agent pair (a, b) with gap <= need(a) + need(b) but > margin(a) + margin(b),
+  !> or an agent-obstacle pair with gap <= need(a) but > 2 margin(a). need [n_agents] bounds
+  !> how far each agent can close a gap in the step (h |u_a|). Only agents with need > margin
+  !> can be in such a pair; their neighbours are searched in `cells` as built by that call
+  !> (same positions q), over as many cells as the reach needs.
+  logical function rows_missing(scene, q, radius, cells, margin, need) result(miss)
+    type(scene_t), intent(in) :: scene
+    real(wp), intent(in) :: q(:), radius, margin(:), need(:)
+    type(cell_list_t), intent(in) :: cells
+    integer :: na, i, j, k, cx, cy, ix, iy, w
+    real(wp) :: nmax, reach, dx, dy, g(2), gap, dist, nrm(2)
+    miss = .false.
+    na = size(q) / 2
+    if (na == 0) return
+    nmax = maxval(need(1:na))
+    do i = 1, na
+      if (.not. (need(i) > margin(i))) cycle
+      ! agent pairs: every agent whose centre is within the reach, in the cells around i's
+      reach = 2 * radius + need(i) + nmax
+      w = 1
+      if (reach > cells%side) w = min(max(cells%nx, cells%ny), ceiling(reach / cells%side))
+      cx = mod(cells%cell(i) - 1, cells%nx)
+      cy = (cells%cell(i) - 1) / cells%nx
+      do iy = max(cy - w, 0), min(cy + w, cells%ny - 1)
+        do ix = max(cx - w, 0), min(cx + w, cells%nx - 1)
+          j = cells%head(iy * cells%nx + ix + 1)
+          do while (j > 0)
+            if (j /= i) then
+              dx = q(2*i-1) - q(2*j-1); dy = q(2*i) - q(2*j)
+              if (abs(dx) <= reach .and. abs(dy) <= reach) then
+                call pair_contact(dx, dy, radius, g, gap)
+                if (gap <= need(i) + need(j) .and. gap > margin(i) + margin(j)) then
+                  miss = .true.; return
+                end if
+              end if
+            end if
+            j = cells%next(j)
+          end do
+        end do
+      end do
+      ! agent-obstacle pairs
+      if (.not. (need(i) > 2 * margin(i))) cycle
+      do k = 1, scene%n_obstacles()
+        if (q(2*i-1) < scene%lo(1, k) - radius - need(i) .or. q(2*i-1) > scene%hi(1, k) + radius + need(i)) cycle
+        if (q(2*i) < scene%lo(2, k) - radius - need(i) .or. q(2*i) > scene%hi(2, k) + radius + need(i)) cycle
+        call obstacle_distance(scene%obstacles(k), q(2*i-1:2*i), dist, nrm)
+        gap = dist - radius
+        if (gap <= need(i) .and. gap > 2 * margin(i)) then
+          miss = .true.; return
+        end if
+      end do
+    end do
+  end function rows_missing
 
   !> The contact of two disks of radius `radius` whose centres differ by (dx, dy) = q_i - q_j:
   !> unit normal g (from j towards i; any unit normal for coincident centres) and gap.
