@@ -40,11 +40,9 @@ contains
     type(cell_list_t) :: cells
     type(contact_set_t) :: cs
     real(wp), allocatable :: q(:)
-    integer(i8), allocatable :: found(:), brute(:)
-    integer, allocatable :: idx(:)
+    integer(i8), allocatable :: brute(:)
     real(wp) :: cutoff, dist, nrm(2), r
     integer :: na, i, j, k, nb, trial
-    logical :: same
     r = 0.03_wp
     do trial = 1, 4
       na = 40 * trial
@@ -57,10 +55,7 @@ contains
       cutoff = 0.02_wp * trial
       call cs%init(na, 0.1_wp)
       call build_contacts(scene, q, r, cutoff, cells, cs)
-      allocate(found(cs%n), brute(na * na + na * scene%n_obstacles()))
-      do k = 1, cs%n
-        found(k) = cs%key(k)
-      end do
+      allocate(brute(na * na + na * scene%n_obstacles()))
       nb = 0
       do i = 1, na
         do j = i + 1, na
@@ -75,13 +70,8 @@ contains
           end if
         end do
       end do
-      allocate(idx(max(cs%n, nb)))
-      call argsort_i8(found, idx(1:cs%n)); found = found(idx(1:cs%n))
-      call argsort_i8(brute(1:nb), idx(1:nb)); brute(1:nb) = brute(idx(1:nb))
-      same = cs%n == nb
-      if (same) same = all(found == brute(1:nb))
-      call check(same, "cell list equals brute force (trial " // char(48 + trial) // ")")
-      deallocate(q, found, brute, idx)
+      call check(same_rows(cs, brute(1:nb)), "cell list equals brute force (trial " // char(48 + trial) // ")")
+      deallocate(q, brute)
     end do
   end subroutine test_neighbours
 
@@ -94,11 +84,10 @@ contains
     type(cell_list_t) :: cells
     type(contact_set_t) :: cs
     real(wp), allocatable :: q(:), mg(:), nd(:)
-    integer(i8), allocatable :: found(:), brute(:)
-    integer, allocatable :: idx(:)
+    integer(i8), allocatable :: brute(:)
     real(wp) :: dist, nrm(2), r, gap, scale
     integer :: na, i, j, k, nb, trial, nmiss, nagree
-    logical :: same, miss, want
+    logical :: miss, want
     character(len=2) :: tag
     r = 0.03_wp
     nmiss = 0; nagree = 0
@@ -115,10 +104,7 @@ contains
       if (mod(trial, 3) == 0) mg(1) = 0.0_wp
       call cs%init(na, 0.1_wp)
       call build_contacts(scene, q, r, 2 * maxval(mg), cells, cs, margin=mg)
-      allocate(found(cs%n), brute(na * na + na * scene%n_obstacles()))
-      do k = 1, cs%n
-        found(k) = cs%key(k)
-      end do
+      allocate(brute(na * na + na * scene%n_obstacles()))
       nb = 0
       do i = 1, na
         do j = i + 1, na
@@ -133,12 +119,7 @@ contains
           end if
         end do
       end do
-      allocate(idx(max(cs%n, nb)))
-      call argsort_i8(found, idx(1:cs%n)); found = found(idx(1:cs%n))
-      call argsort_i8(brute(1:nb), idx(1:nb)); brute(1:nb) = brute(idx(1:nb))
-      same = cs%n == nb
-      if (same) same = all(found == brute(1:nb))
-      call check(same, "margins: cell list equals brute force (trial " // tag // ")")
+      call check(same_rows(cs, brute(1:nb)), "margins: cell list equals brute force (trial " // tag // ")")
       ! needs: most agents within their margin, a few beyond (up to 20 cell sides)
       scale = merge(0.5_wp, 0.05_wp, mod(trial, 4) == 0)
       do i = 1, na
@@ -165,7 +146,7 @@ contains
       ! needs within the margins: nothing can be missing
       call check(.not. rows_missing(scene, q, r, cells, mg, min(nd, mg)), &
         "rows_missing false when every need is within its margin (trial " // tag // ")")
-      deallocate(q, mg, nd, found, brute, idx)
+      deallocate(q, mg, nd, brute)
     end do
     ! a pair several cells apart reached by two fast agents (the search must widen beyond the
     ! neighbouring cells): gap 0.24 between the agents, walls and disk at gaps >= 0.22
@@ -183,6 +164,22 @@ contains
     ! the trials above must exercise both answers
     call check(nmiss >= 3 .and. nmiss <= 21, "rows_missing trials include rows missing and none missing")
   end subroutine test_margins
+
+  !> The rows of cs are exactly the contact identities `want` (any order).
+  logical function same_rows(cs, want) result(same)
+    type(contact_set_t), intent(in) :: cs
+    integer(i8), intent(in) :: want(:)
+    integer(i8) :: found(cs%n), w(size(want))
+    integer :: idx(max(cs%n, size(want))), k
+    same = cs%n == size(want)
+    if (.not. same) return
+    do k = 1, cs%n
+      found(k) = cs%key(k)
+    end do
+    call argsort_i8(found, idx(1:cs%n)); found = found(idx(1:cs%n))
+    call argsort_i8(want, idx(1:size(want))); w = want(idx(1:size(want)))
+    same = all(found == w)
+  end function same_rows
 
   !> Positions far outside the hall (a diverged reduced trajectory: 1e9 m, 1e300 m, +-huge)
   !> neither overflow the cell indices nor lose the near pairs: the cell list still equals
