@@ -9,6 +9,7 @@ program test_cone
   use cr_strings, only: str
   use cr_assert, only: check, check_close, test_summary
   use cr_cone, only: sparse_columns_t, cone_result_t, gis_build, mcpg_build
+  use cr_test_columns, only: distribute
   implicit none
   type(env_t) :: env
   type(error_t), allocatable :: error
@@ -26,30 +27,6 @@ program test_cone
 
 contains
 
-  !> Distribute the dense columns x [n, m] by contiguous blocks.
-  subroutine distribute(x, lam)
-    real(wp), intent(in) :: x(:,:)
-    type(sparse_columns_t), intent(out) :: lam
-    integer :: m, per, rem, c0, nc, k, i, nnz
-    m = size(x, 2)
-    per = m / env%size; rem = mod(m, env%size)
-    nc = per; if (env%rank < rem) nc = nc + 1
-    c0 = env%rank * per + min(env%rank, rem)
-    lam%n_rows = size(x, 1); lam%n_cols = nc; lam%col_offset = c0
-    allocate(lam%ptr(nc + 1))
-    nnz = count(x(:, c0 + 1:c0 + nc) /= 0)
-    allocate(lam%idx(nnz), lam%val(nnz))
-    lam%ptr(1) = 0; nnz = 0
-    do k = 1, nc
-      do i = 1, size(x, 1)
-        if (x(i, c0 + k) /= 0) then
-          nnz = nnz + 1; lam%idx(nnz) = i; lam%val(nnz) = x(i, c0 + k)
-        end if
-      end do
-      lam%ptr(k + 1) = nnz
-    end do
-  end subroutine distribute
-
   !> Scaled canonical vectors: gIS picks them by decreasing magnitude, error 0 at the end.
   subroutine test_gis_canonical()
     real(wp) :: x(6, 7)
@@ -58,7 +35,7 @@ contains
     type(error_t), allocatable :: err
     x = 0
     x(3, 1) = 2; x(1, 2) = 5; x(6, 3) = 1; x(3, 4) = 4; x(2, 5) = 3; x(1, 6) = 0.5_wp
-    call distribute(x, lam)
+    call distribute(env, x, lam)
     call gis_build(env, lam, 0.0_wp, 10, res, err)
     call check(.not. allocated(err), "gis canonical runs")
     call check(res%r == 4, "gis canonical: 4 indices")
@@ -78,7 +55,7 @@ contains
     type(error_t), allocatable :: err
     ! |col1| = sqrt(10), |col2| = sqrt(13), |col3| = sqrt(8)
     x(:, 1) = [3, 1, 0, 0]; x(:, 2) = [0, 2, 3, 0]; x(:, 3) = [2, 0, 0, 2]
-    call distribute(x, lam)
+    call distribute(env, x, lam)
     call gis_build(env, lam, 0.0_wp, 2, res, err)
     call check(.not. allocated(err) .and. res%r == 2, "gis known: 2 steps")
     ! step 1: sigma = 2, i = 3 -> residuals^2: 10, 4, 8 -> sigma = 1, i = 1 -> 1, 4, 4
@@ -98,7 +75,7 @@ contains
     type(error_t), allocatable :: err
     x(:, 1) = [1, 1, 0, 0]; x(:, 2) = [0, 0, 1, 1]; x(:, 3) = [3, 3, 3, 3]
     x(:, 4) = [2, 2, 1, 1]; x(:, 5) = [0.5_wp, 0.5_wp, 0.0_wp, 0.0_wp]; x(:, 6) = [1, 1, 2, 2]
-    call distribute(x, lam)
+    call distribute(env, x, lam)
     call mcpg_build(env, lam, 1.0e-12_wp, 10, res, err)
     call check(.not. allocated(err), "mcpg runs")
     if (allocated(err)) print '(a)', err%message
@@ -117,7 +94,7 @@ contains
     type(cone_result_t) :: res
     type(error_t), allocatable :: err
     x = 0
-    call distribute(x, lam)
+    call distribute(env, x, lam)
     call gis_build(env, lam, 1e-4_wp, 10, res, err)
     call check(.not. allocated(err) .and. res%r == 0 .and. allocated(res%note), "gis: empty cone, no error")
     call mcpg_build(env, lam, 1e-4_wp, 10, res, err)
@@ -158,7 +135,7 @@ contains
         x(:, k) = matmul(g, w)
       end do
       x(:, 1:ngen) = g
-      call distribute(x, lam)
+      call distribute(env, x, lam)
       call mcpg_build(env, lam, 0.0_wp, 30, res, err)
       call check(.not. allocated(err), name // ": runs")
       if (allocated(err)) cycle

@@ -9,7 +9,7 @@ program test_hyper
   use cr_error, only: error_t
   use cr_strings, only: str
   use cr_random, only: rng_t
-  use cr_distribution, only: block_range
+  use cr_test_columns, only: local_cols
   use cr_eim, only: eim_t, eim_build, eim_prefix, deim_indices, eim_interp_matrix
   use cr_eq, only: eq_t, eq_gramian, eq_build
   use cr_assert, only: check, check_close, test_summary
@@ -62,15 +62,6 @@ contains
       end do
     end do
   end function randn
-
-  !> This rank's block of columns of s.
-  function local_cols(s) result(sl)
-    real(wp), intent(in) :: s(:, :)
-    real(wp), allocatable :: sl(:, :)
-    integer :: off, cnt
-    call block_range(size(s, 2), env%size, env%rank, off, cnt)
-    sl = s(:, off + 1:off + cnt)
-  end function local_cols
 
   logical function finite(x)
     real(wp), intent(in) :: x(:)
@@ -186,7 +177,7 @@ contains
     real(wp) :: err, err_idx, worst
     integer :: k
     s = matmul(randn(p, r, 1), randn(r, ns, 2))
-    call eim_build(env, local_cols(s), r, eim, e)
+    call eim_build(env, local_cols(env, s), r, eim, e)
     call check(.not. allocated(e), "eim in span: builds")
     if (allocated(e)) return
     call check(eim%m == r .and. eim%p == p, "eim in span: m = 6, p = 40")
@@ -208,7 +199,7 @@ contains
     end do
     call check_close(worst, 0.0_wp, 1.0e-10_wp, "eim in span: err(k) = direct error for every k")
 
-    call eim_build(env, local_cols(s), 10, eim, e)
+    call eim_build(env, local_cols(env, s), 10, eim, e)
     call check(.not. allocated(e), "eim clamp: builds")
     if (.not. allocated(e)) then
       call check(eim%m == r, "eim clamp: m reduced to the numerical rank 6")
@@ -217,7 +208,7 @@ contains
         & "eim clamp: note names both m")
     end if
 
-    call eim_build(env, local_cols(s), p + 1, eim, e)
+    call eim_build(env, local_cols(env, s), p + 1, eim, e)
     call check(allocated(e), "eim m > p: error")
     if (allocated(e)) then
       call check(e%code == 2, "eim m > p: input error code 2")
@@ -246,7 +237,7 @@ contains
     integer :: k
     s = randn(p, ns, 3)
     s(5, :) = 10.0_wp * s(5, :)
-    call eim_build(env, local_cols(s), m, eim, e)
+    call eim_build(env, local_cols(env, s), m, eim, e)
     call check(.not. allocated(e), "eim full rank: builds")
     if (allocated(e)) return
     call check(eim%m == m .and. distinct(eim%idx), "eim full rank: m = 12, distinct indices")
@@ -271,7 +262,7 @@ contains
     real(wp) :: err, err_idx
     allocate(s(10, 7))
     s = 0.0_wp
-    call eim_build(env, local_cols(s), 4, eim, e)
+    call eim_build(env, local_cols(env, s), 4, eim, e)
     call check(.not. allocated(e), "eim zero snapshots: no error")
     if (.not. allocated(e)) then
       call check(eim%m == 0 .and. size(eim%idx) == 0 .and. size(eim%err) == 0, "eim zero snapshots: m = 0")
@@ -282,7 +273,7 @@ contains
     call check(eim%m == 0 .and. .not. allocated(eim%basis), "eim free")
 
     s = randn(10, 3, 4)
-    call eim_build(env, local_cols(s), 5, eim, e)
+    call eim_build(env, local_cols(env, s), 5, eim, e)
     call check(.not. allocated(e), "eim 3 snapshots: builds (some rank may hold none)")
     if (allocated(e)) return
     call check(eim%m == 3 .and. allocated(eim%note), "eim 3 snapshots: m clamped to 3 with a note")
@@ -300,11 +291,11 @@ contains
     type(error_t), allocatable :: e
     integer :: m
     s = randn(p, ns, 11)
-    call eim_build(env, local_cols(s), 20, full, e)
+    call eim_build(env, local_cols(env, s), 20, full, e)
     call check(.not. allocated(e), "eim prefix: full build")
     if (allocated(e)) return
     do m = 1, 20, 6
-      call eim_build(env, local_cols(s), m, direct, e)
+      call eim_build(env, local_cols(env, s), m, direct, e)
       if (.not. allocated(e)) call eim_prefix(full, 20, m, cut, e)
       call check(.not. allocated(e), "eim prefix m = " // str(m) // ": builds")
       if (allocated(e)) return
@@ -312,8 +303,8 @@ contains
     end do
     ! rank 6: m = 10 is clamped with the note of a direct build
     s = matmul(randn(p, 6, 12), randn(6, ns, 13))
-    call eim_build(env, local_cols(s), 15, full, e)
-    if (.not. allocated(e)) call eim_build(env, local_cols(s), 10, direct, e)
+    call eim_build(env, local_cols(env, s), 15, full, e)
+    if (.not. allocated(e)) call eim_build(env, local_cols(env, s), 10, direct, e)
     if (.not. allocated(e)) call eim_prefix(full, 15, 10, cut, e)
     call check(.not. allocated(e), "eim prefix, rank 6: builds")
     if (allocated(e)) return
@@ -321,8 +312,8 @@ contains
     if (allocated(cut%note) .and. allocated(direct%note)) &
       call check(cut%note == direct%note, "eim prefix, rank 6: note '" // cut%note // "'")
     s = 0.0_wp
-    call eim_build(env, local_cols(s), 5, full, e)
-    if (.not. allocated(e)) call eim_build(env, local_cols(s), 3, direct, e)
+    call eim_build(env, local_cols(env, s), 5, full, e)
+    if (.not. allocated(e)) call eim_build(env, local_cols(env, s), 3, direct, e)
     if (.not. allocated(e)) call eim_prefix(full, 5, 3, cut, e)
     call check(.not. allocated(e), "eim prefix, zero snapshots: builds")
     if (allocated(e)) return
@@ -430,7 +421,7 @@ contains
       s = randn(9, ns, 10 + it)
       f = randn(4, 9, 20 + it)
       kmat = kernel(f)
-      call eq_gramian(env, local_cols(s), kmat, h, e)
+      call eq_gramian(env, local_cols(env, s), kmat, h, e)
       call check(.not. allocated(e), "gramian: runs")
       if (allocated(e)) return
       href = matmul(s, transpose(s)) * kmat
@@ -449,7 +440,7 @@ contains
       end if
     end do
     h1 = kmat(1:8, 1:8)
-    call eq_gramian(env, local_cols(s), h1, h, e)
+    call eq_gramian(env, local_cols(env, s), h1, h, e)
     call check(allocated(e), "gramian: kernel of the wrong size is an error")
     if (allocated(e)) call check(e%code == 2, "gramian: wrong kernel, code 2")
   end subroutine test_gramian
@@ -466,7 +457,7 @@ contains
     character(len=:), allocatable :: name, rule
     s = randn(p, ns, 31)
     f = randn(q, p, 32)
-    call eq_gramian(env, local_cols(s), kernel(f), h, e)
+    call eq_gramian(env, local_cols(env, s), kernel(f), h, e)
     call check(.not. allocated(e), "eq all: gramian")
     if (allocated(e)) return
     do variant = 1, 4
@@ -495,7 +486,7 @@ contains
     type(error_t), allocatable :: e
     s = matmul(randn(p, r, 41), randn(r, ns, 42))
     f = randn(q, p, 43)
-    call eq_gramian(env, local_cols(s), kernel(f), h, e)
+    call eq_gramian(env, local_cols(env, s), kernel(f), h, e)
     call check(.not. allocated(e), "eq compressible: gramian")
     if (allocated(e)) return
 
@@ -553,7 +544,7 @@ contains
       end if
       name = "eq " // merge("near-duplicate", "duplicate     ", near) // " (" // &
         & merge("signed      ", "non-negative", signed) // ")"
-      call eq_gramian(env, local_cols(s), kernel(f), h, e)
+      call eq_gramian(env, local_cols(env, s), kernel(f), h, e)
       call check(.not. allocated(e), name // ": gramian")
       if (allocated(e)) return
       call eq_build(h, signed, p, 0.0_wp, eq, e)
@@ -583,7 +574,7 @@ contains
     ! vector: the best normalised correlation (negative), but not the largest raw one
     s(4, :) = 0.01_wp * sum(s, dim=1) / real(p, wp)
     f(:, 4) = -3.0_wp * sum(f, dim=2) / real(p, wp)
-    call eq_gramian(env, local_cols(s), kernel(f), h, e)
+    call eq_gramian(env, local_cols(env, s), kernel(f), h, e)
     call check(.not. allocated(e), "eq first selection: gramian")
     if (allocated(e)) return
     c = sum(h, dim=2)
@@ -621,7 +612,7 @@ contains
       s(i, 16:30) = 0.25_wp + 0.01_wp * pap((i - 2) * 15 + 1:(i - 1) * 15)
     end do
     f = 1.0_wp
-    call eq_gramian(env, local_cols(s), kernel(f), h, e)
+    call eq_gramian(env, local_cols(env, s), kernel(f), h, e)
     call check(.not. allocated(e), "eq rules differ: gramian")
     if (allocated(e)) return
     do i = 1, 2
@@ -645,7 +636,7 @@ contains
     do i = 1, p
       s(i, :) = s(i, :) * 10.0_wp**(mod(5 * i, 13) - 6)
     end do
-    call eq_gramian(env, local_cols(s), kernel(f), h, e)
+    call eq_gramian(env, local_cols(env, s), kernel(f), h, e)
     call check(.not. allocated(e), "eq scaling: gramian")
     if (allocated(e)) return
     do variant = 1, 2
@@ -665,7 +656,7 @@ contains
     type(eq_t) :: eq
     type(error_t), allocatable :: e
     s = randn(5, 8, 71)
-    call eq_gramian(env, local_cols(s), kernel(randn(2, 5, 72)), h, e)
+    call eq_gramian(env, local_cols(env, s), kernel(randn(2, 5, 72)), h, e)
     call eq_build(h, .true., 6, 0.0_wp, eq, e)
     call check(allocated(e), "eq m > p: error")
     if (allocated(e)) then
@@ -681,7 +672,7 @@ contains
     call check(allocated(e), "eq non-square Gramian: error")
 
     s = 0.0_wp
-    call eq_gramian(env, local_cols(s), kernel(randn(2, 5, 72)), h, e)
+    call eq_gramian(env, local_cols(env, s), kernel(randn(2, 5, 72)), h, e)
     call check(.not. allocated(e), "eq zero snapshots: gramian")
     call eq_build(h, .false., 3, 0.0_wp, eq, e)
     call check(.not. allocated(e), "eq zero snapshots: no error")
@@ -697,7 +688,7 @@ contains
     s(2, :) = 3.0_wp * s(1, :)
     f = reshape([1.0_wp, 0.7_wp, 0.2_wp, 1.0_wp, 0.7_wp, 0.2_wp], [3, 2])
     f(:, 2) = -f(:, 1) / 3.0_wp
-    call eq_gramian(env, local_cols(s), kernel(f), h, e)
+    call eq_gramian(env, local_cols(env, s), kernel(f), h, e)
     call check(.not. allocated(e), "eq cancelling target: gramian")
     call eq_build(h, .true., 2, 0.0_wp, eq, e)
     call check(.not. allocated(e), "eq cancelling target: no error")

@@ -160,6 +160,10 @@ contains
     call check(rows_missing(scene, q, r, cells, mg, nd), "rows_missing finds a pair several cells away")
     nd = [0.11_wp, 0.11_wp]
     call check(.not. rows_missing(scene, q, r, cells, mg, nd), "rows_missing false when the needs fall short")
+    nd = [huge(1.0_wp), 0.0_wp]
+    call check(rows_missing(scene, q, r, cells, mg, nd), "rows_missing with a huge need (no overflow)")
+    nd = [huge(1.0_wp), huge(1.0_wp)]
+    call check(rows_missing(scene, q, r, cells, mg, nd), "rows_missing with two huge needs (no overflow)")
     deallocate(q, mg, nd)
     ! the trials above must exercise both answers
     call check(nmiss >= 3 .and. nmiss <= 21, "rows_missing trials include rows missing and none missing")

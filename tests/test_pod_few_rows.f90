@@ -13,7 +13,7 @@ program test_pod_few_rows
   use cr_strings, only: str
   use cr_assert, only: check, check_close, test_summary
   use cr_pod, only: pod_result_t, pod_tsqr, pod_scalapack
-  use cr_distribution, only: block_range
+  use cr_test_columns, only: local_cols
   use cr_lapack, only: la_geqrf, la_orgqr
   implicit none
   type(env_t) :: env
@@ -61,15 +61,6 @@ contains
     s = matmul(u, transpose(v))
   end function make_s
 
-  !> This rank's block of columns.
-  function local_cols(s) result(sl)
-    real(wp), intent(in) :: s(:, :)
-    real(wp), allocatable :: sl(:, :)
-    integer :: off, cnt
-    call block_range(size(s, 2), env%size, env%rank, off, cnt)
-    sl = s(:, off + 1:off + cnt)
-  end function local_cols
-
   !> m = 1..5 rows (at 4 ranks: 1..3 fewer than the ranks, 4 and 5 not), n = 2, 3, 5
   !> snapshots, rank 1..min(m, n, 3) with sigma 3, 1, 0.3 (gaps >= 0.7); the reported case is
   !> the rank-1 3 x 2.
@@ -88,7 +79,7 @@ contains
         do r = 1, min(m, n, 3)
           name = str(m) // " x " // str(n) // " rank " // str(r) // " at " // str(env%size) // " ranks"
           s = make_s(m, n, sig_all(1:r), 10 * m + n)
-          call pod_scalapack(env, local_cols(s), sc, e)
+          call pod_scalapack(env, local_cols(env, s), sc, e)
           call check(.not. allocated(e), "scalapack " // name // ": runs")
           if (allocated(e)) then
             if (env%rank == 0) print "(a)", "  " // e%message
@@ -99,7 +90,7 @@ contains
           else
             call check(sc%method == "scalapack", name // ": pdgesvd")
           end if
-          call pod_tsqr(env, local_cols(s), ts, e)
+          call pod_tsqr(env, local_cols(env, s), ts, e)
           call check(.not. allocated(e), "tsqr " // name // ": runs")
           if (allocated(e)) cycle
           ! both backward stable: singular values to c max(m, n) eps sigma_1 (c = 100 as in

@@ -12,6 +12,8 @@ program test_ties
   use cr_strings, only: str
   use cr_assert, only: check, test_summary
   use cr_cone, only: sparse_columns_t, cone_result_t, gis_build, mcpg_build
+  use cr_distribution, only: block_range
+  use cr_test_columns, only: distribute
   implicit none
   type(env_t) :: env
   type(error_t), allocatable :: error
@@ -38,13 +40,11 @@ contains
     integer, intent(in) :: n
     character(len=*), intent(in) :: how
     integer, intent(out) :: c0, nc
-    integer :: p, r, per, rem
+    integer :: p, r, per
     p = env%size; r = env%rank
     select case (how)
     case ('block')
-      per = n / p; rem = mod(n, p)
-      nc = per; if (r < rem) nc = nc + 1
-      c0 = r * per + min(r, rem)
+      call block_range(n, p, r, c0, nc)
     case ('back')
       if (p == 1) then
         c0 = 0; nc = n
@@ -186,27 +186,6 @@ contains
     call check(allocated(err), "a negative offset is an error")
   end subroutine test_near_maxloc_errors
 
-  !> Dense columns x [n, m] distributed by contiguous blocks (as test_cone does).
-  subroutine distribute(x, lam)
-    real(wp), intent(in) :: x(:,:)
-    type(sparse_columns_t), intent(out) :: lam
-    integer :: c0, nc, k, i, nnz
-    call split(size(x, 2), 'block', c0, nc)
-    lam%n_rows = size(x, 1); lam%n_cols = nc; lam%col_offset = c0
-    allocate(lam%ptr(nc + 1))
-    nnz = count(x(:, c0 + 1:c0 + nc) /= 0)
-    allocate(lam%idx(nnz), lam%val(nnz))
-    lam%ptr(1) = 0; nnz = 0
-    do k = 1, nc
-      do i = 1, size(x, 1)
-        if (x(i, c0 + k) /= 0) then
-          nnz = nnz + 1; lam%idx(nnz) = i; lam%val(nnz) = x(i, c0 + k)
-        end if
-      end do
-      lam%ptr(k + 1) = nnz
-    end do
-  end subroutine distribute
-
   !> gIS with tied snapshots and tied coordinates. Snapshots 2 and 4 have norms within the
   !> tolerance (4 slightly larger): snapshot 2 is chosen first at every rank count. Its
   !> coordinates 5 and 2 tie within the tolerance (5 slightly larger): coordinate 2 is chosen.
@@ -224,7 +203,7 @@ contains
     x(3, 3) = 1
     x(1, 4) = a * (1 + 0.5_wp * tol); x(6, 4) = a * (1 + 0.5_wp * tol)
     x(4, 5) = 2
-    call distribute(x, lam)
+    call distribute(env, x, lam)
     call gis_build(env, lam, 0.0_wp, 1, res, err)
     call check(.not. allocated(err) .and. res%r == 1, "gis near ties: one step")
     if (res%r == 1) then
@@ -235,7 +214,7 @@ contains
     end if
     ! outside the tolerance: snapshot 4 is larger, and its coordinate 6 beats coordinate 1
     x(1, 4) = a * (1 + 4 * tol); x(6, 4) = a * (1 + 12 * tol)
-    call distribute(x, lam)
+    call distribute(env, x, lam)
     call gis_build(env, lam, 0.0_wp, 1, res, err)
     call check(.not. allocated(err) .and. res%r == 1, "gis separated: one step")
     if (res%r == 1) then
@@ -247,7 +226,7 @@ contains
     x = 0
     x(:, 1) = [2, 0, 0, 0, 0, 2]; x(:, 2) = [0, 2, 2, 0, 0, 0]; x(:, 3) = [0, 0, 0, 2, 2, 0]
     x(:, 4) = [0, 2, 2, 0, 0, 0]; x(:, 5) = [2, 0, 0, 0, 0, 2]
-    call distribute(x, lam)
+    call distribute(env, x, lam)
     call gis_build(env, lam, 0.0_wp, 6, res, err)
     call check(.not. allocated(err) .and. res%r == 6, "gis exact ties: six steps")
     if (res%r == 6) then
@@ -267,7 +246,7 @@ contains
     type(error_t), allocatable :: err
     x(:, 1) = [1, 0, 0]; x(:, 2) = [0, 2, 0]
     x(:, 3) = [0, 0, 1]; x(:, 4) = [0.0_wp, 0.0_wp, 2 * (1 + 0.25_wp * tol)]
-    call distribute(x, lam)
+    call distribute(env, x, lam)
     call mcpg_build(env, lam, 0.0_wp, 1, res, err)
     call check(.not. allocated(err) .and. res%r == 1, "mcpg near tie: one vector")
     if (res%r == 1) call check(res%sigma(1) == 2_i8, "mcpg near tie: snapshot 2 at " // str(env%size) // &

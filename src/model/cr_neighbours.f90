@@ -211,17 +211,20 @@ contains
     real(wp), intent(in) :: q(:), radius, margin(:), need(:)
     type(cell_list_t), intent(in) :: cells
     integer :: na, i, j, k, cx, cy, ix, iy, w
-    real(wp) :: nmax, reach, dx, dy, g(2), gap, dist, nrm(2)
+    real(wp) :: nmax, ext, reach, dx, dy, g(2), gap, dist, nrm(2)
     miss = .false.
     na = size(q) / 2
     if (na == 0) return
     nmax = maxval(need(1:na))
+    ext = (cells%nx + cells%ny) * cells%side
     do i = 1, na
       if (.not. (need(i) > margin(i))) cycle
       ! agent pairs: every agent whose centre is within the reach, in the cells around i's
-      reach = 2 * radius + need(i) + nmax
+      ! (each need capped at the grid's extent, beyond which no neighbour lies: a huge need,
+      ! as of a diverged velocity, overflows neither the reach nor the cell count)
+      reach = 2 * radius + min(need(i), ext) + min(nmax, ext)
       w = 1
-      if (reach > cells%side) w = min(max(cells%nx, cells%ny), ceiling(reach / cells%side))
+      if (reach > cells%side) w = int(min(real(max(cells%nx, cells%ny), wp), reach / cells%side + 1))
       cx = mod(cells%cell(i) - 1, cells%nx)
       cy = (cells%cell(i) - 1) / cells%nx
       do iy = max(cy - w, 0), min(cy + w, cells%ny - 1)
@@ -232,7 +235,7 @@ contains
               dx = q(2*i-1) - q(2*j-1); dy = q(2*i) - q(2*j)
               if (abs(dx) <= reach .and. abs(dy) <= reach) then
                 call pair_contact(dx, dy, radius, g, gap)
-                if (gap <= need(i) + need(j) .and. gap > margin(i) + margin(j)) then
+                if (gap <= min(need(i), ext) + min(need(j), ext) .and. gap > margin(i) + margin(j)) then
                   miss = .true.; return
                 end if
               end if
