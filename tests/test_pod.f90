@@ -6,10 +6,10 @@ program test_pod
   use cr_kinds, only: wp
   use cr_env, only: env_t
   use cr_error, only: error_t
-  use cr_random, only: rng_t
-  use cr_lapack, only: la_geqrf, la_orgqr, la_gesvd
+  use cr_lapack, only: la_gesvd
   use cr_distribution, only: block_range
   use cr_pod, only: pod_result_t, pod_tsqr, pod_snapshots, pod_rsvd, pod_scalapack
+  use cr_test_columns, only: make_s
   use cr_assert, only: check, check_close, check_rel, test_summary
   implicit none
   type(env_t) :: env, env1
@@ -42,39 +42,6 @@ program test_pod
   call MPI_Finalize(ierr)
 
 contains
-
-  !> Random orthonormal [n, r] (replicated), from the stream (seed, column).
-  function random_orthonormal(n, r, seed) result(q)
-    integer, intent(in) :: n, r, seed
-    real(wp), allocatable :: q(:, :), tau(:)
-    type(rng_t) :: rng
-    type(error_t), allocatable :: err
-    integer :: i, j
-    allocate(q(n, r), tau(r))
-    do j = 1, r
-      call rng%seed(seed, j)
-      do i = 1, n
-        q(i, j) = rng%normal()
-      end do
-    end do
-    call la_geqrf(q, tau, err)
-    call la_orgqr(q, tau, err)
-  end function random_orthonormal
-
-  !> S = U diag(sigma) V^T [n_dof, n_snap] (replicated), left singular vectors in u.
-  subroutine make_s(n_dof, n_snap, sigma, seed, s, u)
-    integer, intent(in) :: n_dof, n_snap, seed
-    real(wp), intent(in) :: sigma(:)
-    real(wp), allocatable, intent(out) :: s(:, :), u(:, :)
-    real(wp), allocatable :: v(:, :)
-    integer :: j
-    u = random_orthonormal(n_dof, size(sigma), seed)
-    v = random_orthonormal(n_snap, size(sigma), seed + 1000)
-    do j = 1, size(sigma)
-      v(:, j) = sigma(j) * v(:, j)
-    end do
-    s = matmul(u, transpose(v))
-  end subroutine make_s
 
   !> This rank's columns of s: balanced blocks, or rank 1 empty if `hole`.
   function local_cols(s, hole) result(sl)

@@ -13,8 +13,7 @@ program test_pod_few_rows
   use cr_strings, only: str
   use cr_assert, only: check, check_close, test_summary
   use cr_pod, only: pod_result_t, pod_tsqr, pod_scalapack
-  use cr_test_columns, only: local_cols
-  use cr_lapack, only: la_geqrf, la_orgqr
+  use cr_test_columns, only: local_cols, make_s
   implicit none
   type(env_t) :: env
   type(error_t), allocatable :: error
@@ -31,43 +30,13 @@ program test_pod_few_rows
 
 contains
 
-  !> Orthonormal [n, k] from the QR of a fixed full-rank matrix.
-  function orthonormal(n, k, seed) result(q)
-    integer, intent(in) :: n, k, seed
-    real(wp), allocatable :: q(:, :), tau(:)
-    type(error_t), allocatable :: err
-    integer :: i, j
-    allocate(q(n, k), tau(k))
-    do j = 1, k
-      do i = 1, n
-        q(i, j) = sin(real(7 * i + 13 * j + 31 * seed, wp)) + merge(2.0_wp, 0.0_wp, i == j)
-      end do
-    end do
-    call la_geqrf(q, tau, err)
-    call la_orgqr(q, tau, err)
-  end function orthonormal
-
-  !> S = U diag(sig) V^T [m, n], rank size(sig).
-  function make_s(m, n, sig, seed) result(s)
-    integer, intent(in) :: m, n, seed
-    real(wp), intent(in) :: sig(:)
-    real(wp), allocatable :: s(:, :), u(:, :), v(:, :)
-    integer :: j
-    u = orthonormal(m, size(sig), seed)
-    v = orthonormal(n, size(sig), seed + 100)
-    do j = 1, size(sig)
-      u(:, j) = sig(j) * u(:, j)
-    end do
-    s = matmul(u, transpose(v))
-  end function make_s
-
   !> m = 1..5 rows (at 4 ranks: 1..3 fewer than the ranks, 4 and 5 not), n = 2, 3, 5
   !> snapshots, rank 1..min(m, n, 3) with sigma 3, 1, 0.3 (gaps >= 0.7); the reported case is
   !> the rank-1 3 x 2.
   subroutine test_few_rows()
     real(wp), parameter :: sig_all(3) = [3.0_wp, 1.0_wp, 0.3_wp]
     integer, parameter :: ns(3) = [2, 3, 5]
-    real(wp), allocatable :: s(:, :)
+    real(wp), allocatable :: s(:, :), u(:, :)
     type(pod_result_t) :: sc, ts
     type(error_t), allocatable :: e
     character(len=:), allocatable :: name
@@ -78,7 +47,7 @@ contains
         n = ns(k)
         do r = 1, min(m, n, 3)
           name = str(m) // " x " // str(n) // " rank " // str(r) // " at " // str(env%size) // " ranks"
-          s = make_s(m, n, sig_all(1:r), 10 * m + n)
+          call make_s(m, n, sig_all(1:r), 10 * m + n, s, u)
           call pod_scalapack(env, local_cols(env, s), sc, e)
           call check(.not. allocated(e), "scalapack " // name // ": runs")
           if (allocated(e)) then
