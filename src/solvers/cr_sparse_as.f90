@@ -913,7 +913,7 @@ contains
           do q = 1, k
             r = max(r, abs(this%slack(this%alist(q))))
           end do
-          if (n_ref >= n_refine .or. r <= thr .or. r >= 0.5_wp * r_ref) exit outer
+          if (n_ref >= n_refine .or. r <= 1.0e-2_wp * thr .or. r >= 0.5_wp * r_ref) exit outer
           n_ref = n_ref + 1; r_ref = r
           this%rhs(1:m) = 0.0_wp
           do q = 1, k
