@@ -429,7 +429,13 @@ static double schur_scan(cr_chol_t *h, int t, int nz, const int *idx, const doub
     if (yj == 0.0) continue;
     y[j] = 0.0;
     acc += yj * yj / lx[lp[j]];
-    for (p = lp[j] + 1; p < lp[j] + lnz[j]; p++) y[li[p]] -= lx[p] * yj;
+    {
+      const int *ip = li + lp[j] + 1;
+      const double *xp = lx + lp[j] + 1;
+      int c = lnz[j] - 1;
+#pragma GCC unroll 4
+      for (p = 0; p < c; p++) y[ip[p]] -= xp[p] * yj;
+    }
   }
   return acc;
 }
@@ -544,29 +550,25 @@ int cr_chol_solve(void *hp, const double *b, double *x) {
    * are zeros and meet the zeros kept in y at inactive positions) */
   for (i = 0; i < na; i++) { j = ap[i]; y[j] = b[rowof[j]]; }
   for (i = 0; i < na; i++) {            /* L y = P b */
-    const int *ip, *ie;
+    const int *ip;
     const double *xp;
+    int c;
     j = ap[i];
     yj = y[j];
     if (yj == 0.0) continue;
-    ip = li + lp[j] + 1; ie = li + lp[j] + lnz[j]; xp = lx + lp[j] + 1;
-    for (; ip + 1 < ie; ip += 2, xp += 2) {
-      y[ip[0]] -= xp[0] * yj;
-      y[ip[1]] -= xp[1] * yj;
-    }
-    if (ip < ie) y[ip[0]] -= xp[0] * yj;
+    ip = li + lp[j] + 1; xp = lx + lp[j] + 1; c = lnz[j] - 1;
+#pragma GCC unroll 4
+    for (p = 0; p < c; p++) y[ip[p]] -= xp[p] * yj;
   }
   for (i = na - 1; i >= 0; i--) {       /* L' x = D^{-1} y, the result scattered to x */
-    const int *ip, *ie;
+    const int *ip;
     const double *xp;
+    int c;
     j = ap[i];
     yj = y[j] / lx[lp[j]];
-    ip = li + lp[j] + 1; ie = li + lp[j] + lnz[j]; xp = lx + lp[j] + 1;
-    for (; ip + 1 < ie; ip += 2, xp += 2) {
-      yj -= xp[0] * y[ip[0]];
-      yj -= xp[1] * y[ip[1]];
-    }
-    if (ip < ie) yj -= xp[0] * y[ip[0]];
+    ip = li + lp[j] + 1; xp = lx + lp[j] + 1; c = lnz[j] - 1;
+#pragma GCC unroll 4
+    for (p = 0; p < c; p++) yj -= xp[p] * y[ip[p]];
     y[j] = yj;
     x[rowof[j]] = yj;
   }

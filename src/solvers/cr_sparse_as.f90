@@ -545,8 +545,7 @@ contains
     !> M = B B^T (normalised rows): full CSC (fp, fi, fv), rows sorted in each column, the
     !> diagonal of column j at fd(j) (so its upper triangle is fp(j):fd(j)).
     subroutine assemble()
-      integer :: a, b, l, nz, p1, p2, e1, r1, r2
-      real(wp) :: x1, x2
+      integer :: a, nz, p1
       ! each agent's rows (CSR astart, arows), each list closed by a sentinel row huge(1)
       call igrow(this%astart, na + 1)
       this%astart(1:na + 1) = 1
@@ -585,47 +584,8 @@ contains
       end do
       call igrow(this%fi, nz); call rgrow(this%fv, nz)
       call igrow(this%fd, m)
-      ! column j (signed + for its first agent a, - for its second b): the rows of a (a wall
-      ! row), or the merge of the rows of a and of b (each list sorted by row), a row met in
-      ! both (the same pair twice) summed: sorted columns without marks or sorting
-      nz = 0; this%nzu = 0
-      do j = 1, m
-        this%fp(j) = nz + 1
-        a = cs%ia(j); b = cs%ib(j)
-        x1 = this%c1(j); x2 = this%c2(j)
-        p1 = this%astart(a)
-        if (b == 0) then
-          e1 = this%astart(a + 1) - 2
-          do p1 = p1, e1
-            l = this%arows(p1)
-            nz = nz + 1
-            this%fi(nz) = l; this%fv(nz) = x1 * this%ae1(p1) + x2 * this%ae2(p1)
-            if (l == j) this%fd(j) = nz
-          end do
-        else
-          p2 = this%astart(b)
-          r1 = this%arows(p1); r2 = this%arows(p2)
-          do
-            nz = nz + 1
-            if (r1 < r2) then
-              this%fi(nz) = r1; this%fv(nz) = x1 * this%ae1(p1) + x2 * this%ae2(p1)
-              p1 = p1 + 1; r1 = this%arows(p1)
-            else if (r2 < r1) then
-              this%fi(nz) = r2; this%fv(nz) = -(x1 * this%ae1(p2) + x2 * this%ae2(p2))
-              p2 = p2 + 1; r2 = this%arows(p2)
-            else if (r1 == huge(1)) then
-              nz = nz - 1; exit
-            else
-              this%fi(nz) = r1
-              this%fv(nz) = (x1 * this%ae1(p1) + x2 * this%ae2(p1)) - (x1 * this%ae1(p2) + x2 * this%ae2(p2))
-              if (r1 == j) this%fd(j) = nz
-              p1 = p1 + 1; r1 = this%arows(p1)
-              p2 = p2 + 1; r2 = this%arows(p2)
-            end if
-          end do
-        end if
-        this%nzu = this%nzu + this%fd(j) - this%fp(j) + 1
-      end do
+      call assemble_columns(m, cs%ia, cs%ib, this%c1, this%c2, this%astart, this%arows, &
+        this%ae1, this%ae2, this%fp, this%fi, this%fv, this%fd, nz, this%nzu)
       this%fp(m + 1) = nz + 1
     end subroutine assemble
 
@@ -710,7 +670,7 @@ contains
     !> identity), no two rows share one, and at least reuse_fill of the slots hold a row. Then W becomes every row with a slot, M is handed over in slot space (same
     !> pattern as analysed or a part of it) and ok is true.
     logical function reuse_slots() result(ok)
-      integer :: jj, q, k, a, b, nzs, nin, p
+      integer :: jj, k, nzs, nin
       ok = .false.
       if (.not. this%keys_ok .or. this%ns == 0) return
       call igrow(this%rslot, m); call igrow(this%smark, this%ns)
@@ -727,31 +687,16 @@ contains
         this%rslot(jj) = k
       end do
       if (real(nin, wp) < this%reuse_fill * real(this%ns, wp)) return
-      ! the values of M on the analysed pattern (wptr, wi: upper triangle in slot space, rows
-      ! increasing in each column, kept from the analysis): slot column b = rslot(jj) takes
-      ! the entries of the whole column jj of M whose row has a slot a <= b, each found
-      ! through the positions of column b's rows scattered first (M is assembled exactly
+      ! the values of M on the analysed pattern (slot_values; M is assembled exactly
       ! symmetric, so the values are those of the row-space upper triangle); an entry outside
       ! the pattern (never expected: the same slots keep the same neighbours) means no reuse
       nzs = this%wptr(this%ns + 1) - 1
-      this%wv(1:nzs) = 0.0_wp
       call igrow(this%spos, this%ns); call igrow(this%scol, this%ns)
-      this%scol(1:this%ns) = 0
-      do jj = 1, m
-        b = this%rslot(jj)
-        if (b == 0) cycle
-        do p = this%wptr(b), this%wptr(b + 1) - 1
-          this%spos(this%wi(p)) = p; this%scol(this%wi(p)) = b
-        end do
-        do q = this%fp(jj), this%fp(jj + 1) - 1
-          a = this%rslot(this%fi(q))
-          if (a == 0 .or. a > b) cycle
-          if (this%scol(a) /= b) then
-            this%keys_ok = .false.; return
-          end if
-          this%wv(this%spos(a)) = this%fv(q)
-        end do
-      end do
+      call slot_values(m, this%ns, this%rslot, this%fp, this%fi, this%fv, this%wptr, this%wi, &
+        this%wv, this%spos, this%scol, ok)
+      if (.not. ok) then
+        this%keys_ok = .false.; return
+      end if
       call this%chol%set_analysed_values(this%wv(1:nzs), error)
       if (allocated(error)) then
         ! the analysis does not match (never expected): analyse afresh
@@ -1123,9 +1068,7 @@ contains
           end if
         end do
         if (alpha >= 1.0_wp) then
-          do q = 1, this%nact
-            jj = this%alist(q); this%lam(jj) = this%z(jj)
-          end do
+          call copy_on_list(this%nact, this%alist, this%z, this%lam)
           return
         end if
         if (it >= itmax) then
@@ -1209,20 +1152,8 @@ contains
       ! gd = slack, md = -slack, tl = 0 on P, set when a row is first met in the walk (ps)
       this%npsearch = this%npsearch + 1
       ps = this%npsearch
-      sl = 0.0_wp; nb = 0
-      do q = 1, this%nact
-        jj = this%alist(q)
-        this%w(jj) = this%z(jj) - this%lam(jj)
-        sl = sl + this%slack(jj) * this%w(jj)
-        if (this%z(jj) <= 0.0_wp) then
-          nb = nb + 1; this%ord(nb) = jj
-          if (this%lam(jj) > 0.0_wp) then
-            this%tbk(jj) = this%lam(jj) / (this%lam(jj) - this%z(jj))
-          else
-            this%tbk(jj) = 0.0_wp
-          end if
-        end if
-      end do
+      call search_start(this%nact, this%alist, this%z, this%lam, this%slack, this%w, this%ord, &
+        this%tbk, sl, nb)
       qq = -sl
       ta = 0.0_wp; kb = 0; ts = 0.0_wp
       do
@@ -1280,12 +1211,7 @@ contains
       nv = 0
       if (kb == 0) return
       ! lambda(t*): frozen rows (and rows that reach zero at t* by round-off) leave
-      lmax = 0.0_wp
-      do q = 1, this%nact
-        jj = this%alist(q)
-        this%lam(jj) = max(0.0_wp, this%lam(jj) + ts * this%w(jj))
-        lmax = max(lmax, this%lam(jj))
-      end do
+      call move_on_list(this%nact, this%alist, this%lam, this%w, ts, lmax)
       do q = 1, kb
         this%lam(this%ord(q)) = 0.0_wp
       end do
@@ -1588,6 +1514,143 @@ contains
     end subroutine velocities
 
   end subroutine sparse_core
+
+  !> projected_step's start: d = z - lambda on the list of P (into w), the slope
+  !> sl = slack' d, and the rows with z <= 0 (ord(1:nb)) with their breakpoints tbk.
+  pure subroutine search_start(nact, alist, z, lam, slack, w, ord, tbk, sl, nb)
+    integer, intent(in) :: nact, alist(nact)
+    real(wp), intent(in) :: z(*), lam(*), slack(*)
+    real(wp), intent(inout) :: w(*), tbk(*)
+    integer, intent(inout) :: ord(*)
+    real(wp), intent(out) :: sl
+    integer, intent(out) :: nb
+    integer :: q, jj
+    sl = 0.0_wp; nb = 0
+    do q = 1, nact
+      jj = alist(q)
+      w(jj) = z(jj) - lam(jj)
+      sl = sl + slack(jj) * w(jj)
+      if (z(jj) <= 0.0_wp) then
+        nb = nb + 1; ord(nb) = jj
+        if (lam(jj) > 0.0_wp) then
+          tbk(jj) = lam(jj) / (lam(jj) - z(jj))
+        else
+          tbk(jj) = 0.0_wp
+        end if
+      end if
+    end do
+  end subroutine search_start
+
+  !> lam = max(0, lam + t w) on the list of P; lmax its largest value there.
+  pure subroutine move_on_list(nact, alist, lam, w, t, lmax)
+    integer, intent(in) :: nact, alist(nact)
+    real(wp), intent(inout) :: lam(*)
+    real(wp), intent(in) :: w(*), t
+    real(wp), intent(out) :: lmax
+    integer :: q, jj
+    lmax = 0.0_wp
+    do q = 1, nact
+      jj = alist(q)
+      lam(jj) = max(0.0_wp, lam(jj) + t * w(jj))
+      lmax = max(lmax, lam(jj))
+    end do
+  end subroutine move_on_list
+
+  !> dst = src on the list of P.
+  pure subroutine copy_on_list(nact, alist, src, dst)
+    integer, intent(in) :: nact, alist(nact)
+    real(wp), intent(in) :: src(*)
+    real(wp), intent(inout) :: dst(*)
+    integer :: q
+    do q = 1, nact
+      dst(alist(q)) = src(alist(q))
+    end do
+  end subroutine copy_on_list
+
+  !> reuse_slots: the values of M on the analysed pattern (wptr, wi: upper triangle in slot
+  !> space, rows increasing in each column): slot column b = rslot(jj) takes the entries of
+  !> the whole column jj of M whose row has a slot a <= b, each found through the positions
+  !> of column b's rows scattered first (spos, scol [ns]: work). ok is false when an entry
+  !> lies outside the pattern.
+  pure subroutine slot_values(m, ns, rslot, fp, fi, fv, wptr, wi, wv, spos, scol, ok)
+    integer, intent(in) :: m, ns, rslot(m), fp(m + 1), fi(*), wptr(ns + 1), wi(*)
+    real(wp), intent(in) :: fv(*)
+    real(wp), intent(inout) :: wv(*)
+    integer, intent(inout) :: spos(ns), scol(ns)
+    logical, intent(out) :: ok
+    integer :: jj, a, b, p, q
+    ok = .false.
+    wv(1:wptr(ns + 1) - 1) = 0.0_wp
+    scol = 0
+    do jj = 1, m
+      b = rslot(jj)
+      if (b == 0) cycle
+      do p = wptr(b), wptr(b + 1) - 1
+        spos(wi(p)) = p; scol(wi(p)) = b
+      end do
+      do q = fp(jj), fp(jj + 1) - 1
+        a = rslot(fi(q))
+        if (a == 0 .or. a > b) cycle
+        if (scol(a) /= b) return
+        wv(spos(a)) = fv(q)
+      end do
+    end do
+    ok = .true.
+  end subroutine slot_values
+
+  !> Columns of M = B B^T (sparse_core's assemble): column j (signed + for its first agent a,
+  !> - for its second b) is the rows of a (a wall row), or the merge of the rows of a and of b
+  !> (each list sorted by row and closed by the sentinel huge(1)), a row met in both (the
+  !> same pair twice) summed: sorted columns without marks or sorting. fd(j): position of
+  !> the diagonal; nz: entries; nzu: entries of the upper triangle. (Explicit-shape arrays:
+  !> in the solver's own arrays the compiler reloaded every descriptor after each store.)
+  pure subroutine assemble_columns(m, ia, ib, c1, c2, astart, arows, ae1, ae2, fp, fi, fv, fd, nz, nzu)
+    integer, intent(in) :: m, ia(m), ib(m), astart(*), arows(*)
+    real(wp), intent(in) :: c1(m), c2(m), ae1(*), ae2(*)
+    integer, intent(inout) :: fp(*), fi(*), fd(m)
+    real(wp), intent(inout) :: fv(*)
+    integer, intent(out) :: nz, nzu
+    integer :: j, a, b, l, p1, p2, e1, r1, r2
+    real(wp) :: x1, x2
+    nz = 0; nzu = 0
+    do j = 1, m
+      fp(j) = nz + 1
+      a = ia(j); b = ib(j)
+      x1 = c1(j); x2 = c2(j)
+      p1 = astart(a)
+      if (b == 0) then
+        e1 = astart(a + 1) - 2
+        do p1 = p1, e1
+          l = arows(p1)
+          nz = nz + 1
+          fi(nz) = l; fv(nz) = x1 * ae1(p1) + x2 * ae2(p1)
+          if (l == j) fd(j) = nz
+        end do
+      else
+        p2 = astart(b)
+        r1 = arows(p1); r2 = arows(p2)
+        do
+          nz = nz + 1
+          if (r1 < r2) then
+            fi(nz) = r1; fv(nz) = x1 * ae1(p1) + x2 * ae2(p1)
+            p1 = p1 + 1; r1 = arows(p1)
+          else if (r2 < r1) then
+            fi(nz) = r2; fv(nz) = -(x1 * ae1(p2) + x2 * ae2(p2))
+            p2 = p2 + 1; r2 = arows(p2)
+          else if (r1 == huge(1)) then
+            nz = nz - 1; exit
+          else
+            fi(nz) = r1
+            fv(nz) = (x1 * ae1(p1) + x2 * ae2(p1)) - (x1 * ae1(p2) + x2 * ae2(p2))
+            if (r1 == j) fd(j) = nz
+            p1 = p1 + 1; r1 = arows(p1)
+            p2 = p2 + 1; r2 = arows(p2)
+          end if
+        end do
+      end if
+      nzu = nzu + fd(j) - fp(j) + 1
+    end do
+  end subroutine assemble_columns
 
   !> uu = v - sum over the rows j of P (list alist(1:nact), in increasing order) of lam_j b_j
   !> (normalised rows by components c1, c2, velocity positions ka, kb of their agents: see
