@@ -8,7 +8,9 @@
 !> check_mpi, which returns an error_t with code code_mpi naming the call. A rank holding
 !> such an error does not take part in the error agreement (see agree_error_on); its driver
 !> ends the job by MPI_Abort (cr_program). Communicators derived from env%comm inherit the
-!> handler (HDF5's MPI-IO driver sets MPI_ERRORS_RETURN on its own duplicate anyway).
+!> handler (HDF5's MPI-IO driver sets MPI_ERRORS_RETURN on its own duplicate anyway, and checks
+!> the statuses); BLACS, which does not check them, gets an env of its own with
+!> MPI_ERRORS_ARE_FATAL (init's errors_fatal, cr_distribution).
 module cr_env
   use, intrinsic :: iso_c_binding, only: c_ptr, c_f_pointer
   use mpi_f08
@@ -106,16 +108,28 @@ contains
 
   !> Duplicate `comm`, make MPI errors on the duplicate returned (MPI_ERRORS_RETURN) and
   !> record rank/size. (A failure of MPI_Comm_dup itself is handled by `comm`'s own handler.)
-  subroutine init(this, comm, error)
+  !> With errors_fatal = .true. (default .false.) the duplicate gets MPI_ERRORS_ARE_FATAL
+  !> instead: for a communicator handed to a library that does not check MPI statuses (BLACS,
+  !> see cr_distribution), where a returned error would pass unseen.
+  subroutine init(this, comm, error, errors_fatal)
     class(env_t), intent(inout) :: this
     type(MPI_Comm), intent(in) :: comm
     type(error_t), allocatable, intent(out) :: error
+    logical, intent(in), optional :: errors_fatal
     integer :: ierr
+    logical :: fatal
+    fatal = .false.
+    if (present(errors_fatal)) fatal = errors_fatal
     call MPI_Comm_dup(comm, this%comm, ierr)
     call check_mpi(ierr, "MPI_Comm_dup", error)
     if (allocated(error)) return
-    call MPI_Comm_set_errhandler(this%comm, MPI_ERRORS_RETURN, ierr)
-    call check_mpi(ierr, "MPI_Comm_set_errhandler (MPI_ERRORS_RETURN)", error)
+    if (fatal) then
+      call MPI_Comm_set_errhandler(this%comm, MPI_ERRORS_ARE_FATAL, ierr)
+      call check_mpi(ierr, "MPI_Comm_set_errhandler (MPI_ERRORS_ARE_FATAL)", error)
+    else
+      call MPI_Comm_set_errhandler(this%comm, MPI_ERRORS_RETURN, ierr)
+      call check_mpi(ierr, "MPI_Comm_set_errhandler (MPI_ERRORS_RETURN)", error)
+    end if
     if (allocated(error)) return
     call MPI_Comm_rank(this%comm, this%rank, ierr)
     call check_mpi(ierr, "MPI_Comm_rank", error)
