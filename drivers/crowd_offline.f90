@@ -59,7 +59,7 @@ contains
     print '(a)', "enrichment (PGA), reduced inf-sup table; writes the ROM file (&offline rom_file)."
     print '(a)', "The input is the study's namelist file plus an &offline group (see README)."
     print '(a)', ""
-    print '(a)', "Exit status: 0 success, 2 bad input, 1 other failure."
+    print '(a)', "Exit status: 0 success, 2 bad input, 1 other failure, 4 failed MPI call."
   end subroutine print_help
 
   !> One call per stage of the offline run (each collective), then the summary.

@@ -48,7 +48,7 @@ contains
     print '(a)', "  --summary FILE   also write the totals as JSON"
     print '(a)', "  -h, --help       this text"
     print '(a)', ""
-    print '(a)', "Exit status: 0 success, 2 bad input, 1 other failure."
+    print '(a)', "Exit status: 0 success, 2 bad input, 1 other failure, 4 failed MPI call."
   end subroutine print_help
 
 end program crowd_project

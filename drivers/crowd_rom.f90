@@ -62,6 +62,6 @@ contains
     print '(a)', "E_avg, overlaps, agents that fail to leave, time per step and the speedup over the"
     print '(a)', "full-order model; writes &rom output (HDF5) and &rom table (CSV). Serial."
     print '(a)', ""
-    print '(a)', "Exit status: 0 success, 2 bad input, 1 other failure."
+    print '(a)', "Exit status: 0 success, 2 bad input, 1 other failure, 4 failed MPI call."
   end subroutine print_help
 end program crowd_rom

@@ -78,7 +78,7 @@ contains
     print '(a)', "  --batch-seconds S  time slice of one piece file (default 2 s; 0: one sample per piece)"
     print '(a)', "  -h, --help       this text"
     print '(a)', ""
-    print '(a)', "Exit status: 0 success, 2 bad input, 3 stopped by --stop-after, 1 other failure."
+    print '(a)', "Exit status: 0 success, 2 bad input, 3 stopped by --stop-after, 1 other failure, 4 failed MPI call."
   end subroutine print_help
 
 end program crowd_snapshots

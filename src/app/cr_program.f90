@@ -1,11 +1,14 @@
 !> Start and end of a crowdrom program, shared by the drivers: MPI, the environment on
 !> MPI_COMM_WORLD, the root-only logger, the command line; at the end the error is printed
 !> once (`error: <message>`), the exit code is agreed by all ranks, MPI is finalised.
-!> Only the driver stops (with the code returned by program_finish).
+!> Only the driver stops (with the code returned by program_finish). After a failed MPI call
+!> (code 4) the failing rank prints its own line and ends every rank by MPI_Abort instead.
 module cr_program
-  ! MPI's life cycle (init, finalize) is the program's; every other call goes through env_t
-  use mpi_f08, only: MPI_Init, MPI_Finalize, MPI_COMM_WORLD
-  use cr_error, only: error_t
+  use, intrinsic :: iso_fortran_env, only: error_unit
+  ! MPI's life cycle (init, finalize, abort) is the program's; every other call goes through env_t
+  use mpi_f08, only: MPI_Init, MPI_Finalize, MPI_Abort, MPI_COMM_WORLD
+  use cr_error, only: error_t, code_mpi
+  use cr_strings, only: str
   use cr_env, only: env_t
   use cr_logger, only: logger_t, LOG_ERROR, LOG_WARN, LOG_INFO, LOG_DEBUG
   use cr_cli, only: cli_t, parse_cli
@@ -39,6 +42,12 @@ contains
 
   !> Print the error (root), agree on the exit code (largest over the ranks), free the
   !> environment and finalise MPI. Returns 0 or the error code.
+  !>
+  !> A failed MPI call (error code code_mpi) may have failed inside a collective that other
+  !> ranks still wait in, so no collective follows it (no agreement on the code, no release of
+  !> env or of HDF5): this rank prints its error itself, on any rank (the logger prints on rank
+  !> 0 only), as `error: rank R of P: <message>` (no prefix on one rank), and calls
+  !> MPI_Abort(MPI_COMM_WORLD, 4), which ends every rank with a non-zero status (mpirun: 4).
   integer function program_finish(env, log, error) result(code)
     type(env_t), intent(inout) :: env
     type(logger_t), intent(in) :: log
@@ -46,6 +55,20 @@ contains
     integer :: ierr
     type(error_t), allocatable :: e
     code = 0
+    if (allocated(error)) then
+      if (error%code == code_mpi) then
+        if (env%size > 1) then
+          write(error_unit, '(a)') "error: rank " // str(env%rank) // " of " // str(env%size) // ": " // error%message
+        else
+          write(error_unit, '(a)') "error: " // error%message
+        end if
+        flush(error_unit)
+        call MPI_Abort(MPI_COMM_WORLD, code_mpi, ierr)
+        ! (not reached: MPI_Abort does not return)
+        code = code_mpi
+        return
+      end if
+    end if
     if (allocated(error)) then
       call log%error(error%message)
       code = error%code

@@ -2,11 +2,20 @@
 !>
 !> Library code never names MPI_COMM_WORLD; drivers create an env_t on it and tests may
 !> create one on any sub-communicator. Collective helpers check every MPI status.
+!>
+!> MPI errors are returned, not fatal: the duplicate communicator and every window created
+!> here have the error handler MPI_ERRORS_RETURN, so a failing call gives its status to
+!> check_mpi, which returns an error_t with code code_mpi naming the call. A rank holding
+!> such an error does not take part in the error agreement (see agree_error_on); its driver
+!> ends the job by MPI_Abort (cr_program). Communicators derived from env%comm inherit the
+!> handler (HDF5's MPI-IO driver sets MPI_ERRORS_RETURN on its own duplicate anyway, and checks
+!> the statuses); BLACS, which does not check them, gets an env of its own with
+!> MPI_ERRORS_ARE_FATAL (init's errors_fatal, cr_distribution).
 module cr_env
   use, intrinsic :: iso_c_binding, only: c_ptr, c_f_pointer
   use mpi_f08
   use cr_kinds, only: wp, i8
-  use cr_error, only: error_t, set_error
+  use cr_error, only: error_t, set_error, code_mpi
   use cr_strings, only: str
   implicit none
   private
@@ -97,16 +106,31 @@ module cr_env
 
 contains
 
-  !> Duplicate `comm` and record rank/size.
-  subroutine init(this, comm, error)
+  !> Duplicate `comm`, make MPI errors on the duplicate returned (MPI_ERRORS_RETURN) and
+  !> record rank/size. (A failure of MPI_Comm_dup itself is handled by `comm`'s own handler.)
+  !> With errors_fatal = .true. (default .false.) the duplicate gets MPI_ERRORS_ARE_FATAL
+  !> instead: for a communicator handed to a library that does not check MPI statuses (BLACS,
+  !> see cr_distribution), where a returned error would pass unseen.
+  subroutine init(this, comm, error, errors_fatal)
     class(env_t), intent(inout) :: this
     type(MPI_Comm), intent(in) :: comm
     type(error_t), allocatable, intent(out) :: error
+    logical, intent(in), optional :: errors_fatal
     integer :: ierr
+    logical :: fatal
+    fatal = .false.
+    if (present(errors_fatal)) fatal = errors_fatal
     call MPI_Comm_dup(comm, this%comm, ierr)
-    if (ierr /= MPI_SUCCESS) then
-      call set_error(error, "env: MPI_Comm_dup failed"); return
+    call check_mpi(ierr, "MPI_Comm_dup", error)
+    if (allocated(error)) return
+    if (fatal) then
+      call MPI_Comm_set_errhandler(this%comm, MPI_ERRORS_ARE_FATAL, ierr)
+      call check_mpi(ierr, "MPI_Comm_set_errhandler (MPI_ERRORS_ARE_FATAL)", error)
+    else
+      call MPI_Comm_set_errhandler(this%comm, MPI_ERRORS_RETURN, ierr)
+      call check_mpi(ierr, "MPI_Comm_set_errhandler (MPI_ERRORS_RETURN)", error)
     end if
+    if (allocated(error)) return
     call MPI_Comm_rank(this%comm, this%rank, ierr)
     call check_mpi(ierr, "MPI_Comm_rank", error)
     if (allocated(error)) return
@@ -133,6 +157,13 @@ contains
   !> returns the error of the lowest failing rank (message and code broadcast from it). When
   !> only some ranks failed, the message starts with "rank R of P: " so that the one line that
   !> rank 0 prints says where it happened. Collective: every rank must call it.
+  !>
+  !> Except after a failed MPI call: a rank whose error has code code_mpi returns it at once,
+  !> unchanged, without any MPI call. Its call may have failed inside a collective that other
+  !> ranks are still waiting in, and a further collective could then be matched wrongly or never
+  !> complete. That rank goes straight to its driver's end (program_finish), whose MPI_Abort
+  !> also ends the ranks waiting in this agreement or elsewhere. If a call of the agreement
+  !> itself fails, the rank's error becomes such an MPI failure too (code code_mpi).
   subroutine agree_error(this, error)
     class(env_t), intent(in) :: this
     type(error_t), allocatable, intent(inout) :: error
@@ -145,9 +176,14 @@ contains
     type(error_t), allocatable, intent(inout) :: error
     integer :: who, n_failed, rank, nranks, ierr, meta(2)
     character(len=:), allocatable :: msg
-    ! a failed MPI call here cannot be agreed on: the rank keeps its own error, or this one
+    ! a failed MPI call here cannot be agreed on: the rank keeps its own message, or this one,
+    ! with the code of an MPI failure
     type(error_t), allocatable :: mpi_error
     if (comm == MPI_COMM_NULL) return
+    ! no collective after a failed MPI call (see agree_error)
+    if (allocated(error)) then
+      if (error%code == code_mpi) return
+    end if
     call MPI_Comm_size(comm, nranks, ierr)
     call check_mpi(ierr, "MPI_Comm_size (error agreement)", mpi_error)
     if (failed()) return
@@ -181,10 +217,17 @@ contains
     if (allocated(error)) deallocate(error)
     call set_error(error, msg, meta(2))
   contains
-    !> The agreement's own MPI call failed: keep this rank's error if it has one, else report it.
+    !> The agreement's own MPI call failed: this rank's error (its own message, then the failed
+    !> call) becomes an MPI failure, which ends the job (see agree_error).
     logical function failed()
       failed = allocated(mpi_error)
-      if (failed .and. .not. allocated(error)) call move_alloc(mpi_error, error)
+      if (.not. failed) return
+      if (allocated(error)) then
+        error%message = error%message // "; then " // mpi_error%message
+        error%code = code_mpi
+      else
+        call move_alloc(mpi_error, error)
+      end if
     end function failed
   end subroutine agree_error_on
 
@@ -206,7 +249,8 @@ contains
     n_of = product(max(shp, 0))
   end function n_of
 
-  !> Turn a non-zero MPI status into an error "env: <what> failed: <MPI's message>".
+  !> Turn a non-zero MPI status into an error "env: <what> failed: <MPI's message>" with code
+  !> code_mpi (statuses other than MPI_SUCCESS reach it because of MPI_ERRORS_RETURN, see init).
   subroutine check_mpi(ierr, what, error)
     integer, intent(in) :: ierr
     character(len=*), intent(in) :: what
@@ -217,7 +261,7 @@ contains
     msg = ''
     call MPI_Error_string(ierr, msg, n, ierr2)
     if (ierr2 /= MPI_SUCCESS) msg = 'MPI error code ' // str(ierr)
-    call set_error(error, "env: " // what // " failed: " // trim(msg))
+    call set_error(error, "env: " // what // " failed: " // trim(msg), code_mpi)
   end subroutine check_mpi
 
   !> The MPI operation of 'sum', 'min' or 'max'.
@@ -661,6 +705,10 @@ contains
     call MPI_Win_allocate(bytes, 8, MPI_INFO_NULL, env%comm, base, this%win, ierr)
     call check_mpi(ierr, "MPI_Win_allocate of " // str(n_slots) // " counters", error)
     if (allocated(error)) return
+    ! a window's default handler is MPI_ERRORS_ARE_FATAL (it is not inherited from env%comm)
+    call MPI_Win_set_errhandler(this%win, MPI_ERRORS_RETURN, ierr)
+    call check_mpi(ierr, "MPI_Win_set_errhandler (MPI_ERRORS_RETURN, shared counter)", error)
+    if (allocated(error)) return
     if (env%rank == 0) then
       call c_f_pointer(base, this%slots, [n_slots])
       call MPI_Win_lock(MPI_LOCK_EXCLUSIVE, 0, 0, this%win, ierr)
@@ -713,13 +761,17 @@ contains
     this%t_calls = this%t_calls + (MPI_Wtime() - t0)
   end function counter_fetch_add
 
-  !> Free the window (collective over the environment it was created on).
+  !> Free the window (collective over the environment it was created on). Like env%free it
+  !> cannot fail for the caller: the two statuses are deliberately not turned into an error.
+  !> The window is not used again, so a failed MPI_Win_unlock_all or MPI_Win_free (returned,
+  !> not fatal: MPI_ERRORS_RETURN) leaves nothing to recover; MPI_Win_free is called whatever
+  !> the unlock returned, since it is collective and the other ranks wait for this one in it.
   subroutine counter_free(this)
     class(shared_counter_t), intent(inout) :: this
-    integer :: ierr
-    if (this%epoch) call MPI_Win_unlock_all(this%win, ierr)
+    integer :: ierr_unlock, ierr_free
+    if (this%epoch) call MPI_Win_unlock_all(this%win, ierr_unlock)
     this%epoch = .false.
-    if (this%win /= MPI_WIN_NULL) call MPI_Win_free(this%win, ierr)
+    if (this%win /= MPI_WIN_NULL) call MPI_Win_free(this%win, ierr_free)
     this%win = MPI_WIN_NULL
     this%slots => null()
   end subroutine counter_free

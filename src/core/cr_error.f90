@@ -6,12 +6,19 @@ module cr_error
   implicit none
   private
   public :: error_t, set_error, prefix_error, problems_t
+  public :: code_mpi
+
+  !> Error codes (error_t%code), also the programs' exit statuses: 1 generic failure (the
+  !> default), 2 bad input, 3 stopped by --stop-after (the snapshot stage, used by its driver),
+  !> 4 a failed MPI call (set by env_t's status checks only; the program then ends by
+  !> MPI_Abort, see cr_program).
+  integer, parameter :: code_mpi = 4
 
   !> An error with a human-readable one-line message and a numeric code.
   type :: error_t
     !> message, one line, starting with the place that failed
     character(len=:), allocatable :: message
-    !> non-zero status (1: generic failure, 2: bad input)
+    !> non-zero status (1 generic failure, 2 bad input, 3 stopped, 4 MPI failure: see above)
     integer :: code = 1
   end type error_t
 
@@ -63,7 +70,7 @@ contains
     if (present(code)) error%code = code
   end subroutine set_error
 
-  !> Prepend context ("where: ") to an existing error message.
+  !> Prepend context ("where: ") to an existing error message (the code is kept).
   subroutine prefix_error(error, prefix)
     type(error_t), intent(inout) :: error
     character(len=*), intent(in) :: prefix

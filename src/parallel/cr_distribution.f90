@@ -21,6 +21,10 @@ module cr_distribution
   type :: blacs_grid_t
     integer :: context = -1
     integer :: system_handle = -1
+    !> the duplicate given to BLACS, with MPI_ERRORS_ARE_FATAL: BLACS (and ScaLAPACK over it)
+    !> does not check MPI statuses, and its communicators inherit the handler of this one, so
+    !> env%comm's MPI_ERRORS_RETURN would let a failed MPI call inside it pass unseen
+    type(env_t), private :: blacs_env
     integer :: nprow = 0, npcol = 0
     integer :: myrow = -1, mycol = -1
   contains
@@ -134,7 +138,9 @@ contains
         & " does not match the " // str(env%size) // " ranks of the communicator")
       return
     end if
-    this%system_handle = sys2blacs_handle(env%comm%MPI_VAL)
+    call this%blacs_env%init(env%comm, error, errors_fatal=.true.)
+    if (allocated(error)) return
+    this%system_handle = sys2blacs_handle(this%blacs_env%comm%MPI_VAL)
     this%context = this%system_handle
     call blacs_gridinit(this%context, 'R', pr, pc)
     call blacs_gridinfo(this%context, this%nprow, this%npcol, this%myrow, this%mycol)
@@ -149,6 +155,7 @@ contains
     class(blacs_grid_t), intent(inout) :: this
     if (this%context >= 0) call blacs_gridexit(this%context)
     if (this%system_handle >= 0) call free_blacs_system_handle(this%system_handle)
+    call this%blacs_env%free()
     this%context = -1
     this%system_handle = -1
     this%nprow = 0; this%npcol = 0; this%myrow = -1; this%mycol = -1

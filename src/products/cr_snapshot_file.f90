@@ -17,7 +17,7 @@
 !> parallel read add up to the whole datasets).
 module cr_snapshot_file
   use cr_kinds, only: wp, i8
-  use cr_error, only: error_t, set_error, prefix_error
+  use cr_error, only: error_t, set_error, prefix_error, code_mpi
   use cr_strings, only: str
   use cr_env, only: env_t, pending_bcast_t
   use cr_h5file, only: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64
@@ -1172,13 +1172,15 @@ contains
     call h5%open(path, error, env=env)
     if (allocated(error)) then
       error%message = where // ": '" // path // "': cannot open the snapshot database (" // error%message // ")"
-      error%code = 2; return
+      ! (in parallel the open agrees on errors: a failed MPI call keeps its code)
+      if (error%code /= code_mpi) error%code = 2
+      return
     end if
     call header_of(h5, path, hdr, error)
     call h5%close(e2)
     if (allocated(error)) then
       if (index(error%message, where) /= 1) error%message = where // ": " // error%message
-      error%code = 2
+      if (error%code /= code_mpi) error%code = 2
       return
     end if
     if (allocated(e2)) call move_alloc(e2, error)
@@ -1353,7 +1355,8 @@ contains
 9   call h5%close(e2)
     if (allocated(error)) then
       if (error%code /= 2) call prefix_error(error, "database '" // path // "', set " // name)
-      error%code = 2
+      ! (a failed MPI call of the parallel read keeps its code: it ends the job, see cr_program)
+      if (error%code /= code_mpi) error%code = 2
       return
     end if
     if (allocated(e2)) call move_alloc(e2, error)
