@@ -137,11 +137,11 @@ def solver_table(scenes, tols, uzawa_steps, workdir):
 def print_solver_row(row):
     scene, solver, tol, s = row
     print("  %-13s %-17s tol %-18s %8.3f ms/step  it mean %10.1f max %9d  KKT %.2e  failed %d"
-          "  fact/step %.2f  updates/step %.1f  fallbacks %d" % (
+          "  fact/step %.2f  updates/step %.1f  changes/step %.1f  fallbacks %d" % (
               scene, solver, tol, 1e3 * s["solver_time_per_step"], s["iterations_mean"],
               s["iterations_max"], s["largest_kkt_residual"], s["failed_steps"],
               s.get("factorizations_per_step", 0), s.get("factor_updates_per_step", 0),
-              s.get("fallback_solves", 0)), flush=True)
+              s.get("active_set_changes_per_step", 0), s.get("fallback_solves", 0)), flush=True)
 
 
 def scaling_table(ns, steps, solvers, workdir, timeout):
@@ -215,13 +215,14 @@ def main():
             print("scaling:")
             crows = scaling_table(ns, a.steps, a.scaling_solvers, wd, a.scaling_timeout)
     lines = ["| scene | solver | tolerance | steps | time/step (ms) | iterations mean | iterations max | largest KKT "
-             "| failed steps | factorisations/step | factor updates/step | fallbacks |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| failed steps | factorisations/step | factor updates/step | active-set changes/step | fallbacks |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for scene, solver, tol, s in srows:
-        lines.append("| %s | %s | %s | %d | %.3f | %.1f | %d | %.1e | %d | %.2f | %.1f | %d |" % (
+        lines.append("| %s | %s | %s | %d | %.3f | %.1f | %d | %.1e | %d | %.2f | %.1f | %.1f | %d |" % (
             scene, solver, tol, s["steps"], 1e3 * s["solver_time_per_step"], s["iterations_mean"],
             s["iterations_max"], s["largest_kkt_residual"], s["failed_steps"],
-            s.get("factorizations_per_step", 0), s.get("factor_updates_per_step", 0), s.get("fallback_solves", 0)))
+            s.get("factorizations_per_step", 0), s.get("factor_updates_per_step", 0),
+            s.get("active_set_changes_per_step", 0), s.get("fallback_solves", 0)))
     lines += ["", "| agents | solver | time/step (ms) | solver part (ms) | per agent (us) | peak RSS (MB) | largest KKT "
               "| failed steps | fallbacks |", "|---|---|---|---|---|---|---|---|---|"]
     for n, solver, s in crows:

@@ -163,7 +163,7 @@ contains
   !> next value of a small linear congruential generator (non-negative)
   integer function lcg(state)
     integer, intent(inout) :: state
-    state = mod(1103515245_i8 * state + 12345_i8, 2147483648_i8)
+    state = int(mod(1103515245_i8 * state + 12345_i8, 2147483648_i8))
     lcg = state / 65536
   end function lcg
 end program test_cone

@@ -37,7 +37,7 @@ contains
     type(fom_t) :: fom
     type(step_record_t) :: rec
     type(error_t), allocatable :: err
-    integer :: k, n_fail, n0
+    integer :: k, n_fail, n0, n_prev, bad_changes, sum_changes
     real(wp) :: worst, kkt
     call read_config(path, env, cfg, err)
     call check(.not. allocated(err), path // ": reads")
@@ -57,12 +57,18 @@ contains
     call check(worst >= -1.0e-10_wp * fom%radius, path // ": initial configuration feasible")
     n0 = fom%n_inside()
     n_fail = 0; kkt = 0
+    n_prev = 0; bad_changes = 0; sum_changes = 0
     do k = 1, max_steps
       if (until_empty .and. fom%n_inside() == 0) exit
       call fom%advance(rec, err)
       if (allocated(err)) then
         call check(.false., path // ": step " // str(k) // ": " // err%message); return
       end if
+      ! active-set changes: every active row is one on the first step (no warm start); later
+      ! at most the rows active now plus the rows active before (the warm start's)
+      if (k == 1 .and. rec%n_changes /= rec%n_active) bad_changes = bad_changes + 1
+      if (rec%n_changes < 0 .or. rec%n_changes > rec%n_active + n_prev) bad_changes = bad_changes + 1
+      n_prev = rec%n_active; sum_changes = sum_changes + rec%n_changes
       if (.not. rec%converged) n_fail = n_fail + 1
       kkt = max(kkt, rec%kkt)
       worst = min(worst, brute_min_gap(fom))
@@ -72,6 +78,8 @@ contains
     call check(worst >= -1.0e-10_wp * fom%radius, path // ": no overlap deeper than round-off (min gap " // &
       str(worst) // ")")
     call check(n_fail == 0, path // ": every step converged")
+    call check(bad_changes == 0 .and. sum_changes > 0, path // ": active-set changes counted (" // &
+      str(sum_changes) // ")")
     call check(kkt <= 1.0e-9_wp, path // ": KKT residual <= 1e-9")
     if (all_leave) then
       call check(fom%n_inside() == 0, path // ": every agent leaves (" // str(fom%n_inside()) // " remain)")

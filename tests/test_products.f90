@@ -22,7 +22,7 @@ program test_products
   use cr_sparse_cone, only: sparse_cone_t
   use cr_fom_file, only: fom_writer_t, fom_file_t, read_fom_file
   use cr_snapshot_file, only: SNAP_SCHEMA, SNAP_SCHEMA_VERSION, snap_header_t, snap_block_t, read_snap_header, &
-    read_snap_block
+    read_snap_block, snap_sample_t, move_sample
   use cr_digest, only: digest_of, put_digest
   use cr_rom_file, only: rom_file_t, rom_pair_t, write_rom_file, read_rom_file, read_rom_pair
   use cr_hyper_factory, only: stored_hypers
@@ -48,6 +48,7 @@ program test_products
 
   call snapshot_roundtrip()
   if (env%rank == 0) then
+    call sample_move()
     call snapshot_corrupt()
     call rom_roundtrip()
     call rom_corrupt()
@@ -59,6 +60,49 @@ program test_products
   call MPI_Finalize(ierr)
 
 contains
+
+  !> move_sample hands every component of a full sample to the target (equal to a copy made
+  !> before) and leaves the source empty.
+  subroutine sample_move()
+    type(snap_sample_t) :: a, b, c
+    integer :: k
+    logical :: ok
+    a%set = 'valid'; a%index = 7; a%time = 1.5_wp; a%start = 2.5_wp; a%rank = 3
+    a%scene_exit = [1.0_wp, 2.0_wp, 3.0_wp, 4.0_wp]
+    a%mu = [0.1_wp, 0.2_wp]
+    a%q = reshape([(real(k, wp), k = 1, 12)], [4, 3])
+    a%u = reshape([(real(-k, wp), k = 1, 8)], [4, 2]); a%v = 2 * a%u
+    a%kkt = [1.0e-12_wp, 2.0e-12_wp]; a%min_gap = [0.0_wp, -1.0e-16_wp]
+    a%iterations = [3, 4]; a%converged = [1, 0]; a%n_active = [1, 2]
+    a%offset = [0_i8, 1_i8, 3_i8]; a%key = [11_i8, 12_i8, 13_i8]
+    a%ia = [1, 1, 2]; a%ib = [2, 0, 0]; a%ob = [0, 1, 2]; a%value = [0.5_wp, 0.25_wp, 0.125_wp]
+    a%scene_v = [0.0_wp, 1.0_wp, 2.0_wp, 3.0_wp]
+    c = a
+    call move_sample(a, b)
+    call check(b%set == c%set .and. b%index == c%index .and. b%time == c%time .and. &
+      b%start == c%start .and. b%rank == c%rank .and. all(b%scene_exit == c%scene_exit), &
+      "move_sample: scalars")
+    ok = allocated(b%mu) .and. allocated(b%q) .and. allocated(b%u) .and. allocated(b%v) .and. &
+      allocated(b%kkt) .and. allocated(b%min_gap) .and. allocated(b%iterations) .and. &
+      allocated(b%converged) .and. allocated(b%n_active) .and. allocated(b%offset) .and. &
+      allocated(b%key) .and. allocated(b%ia) .and. allocated(b%ib) .and. allocated(b%ob) .and. &
+      allocated(b%value) .and. allocated(b%scene_v)
+    call check(ok, "move_sample: every array component handed over")
+    if (.not. ok) return
+    call check(all(b%mu == c%mu) .and. all(b%q == c%q) .and. all(b%u == c%u) .and. all(b%v == c%v) &
+      .and. all(b%kkt == c%kkt) .and. all(b%min_gap == c%min_gap), "move_sample: real arrays")
+    call check(all(b%iterations == c%iterations) .and. all(b%converged == c%converged) .and. &
+      all(b%n_active == c%n_active) .and. all(b%offset == c%offset) .and. all(b%key == c%key) &
+      .and. all(b%ia == c%ia) .and. all(b%ib == c%ib) .and. all(b%ob == c%ob), &
+      "move_sample: integer arrays")
+    call check(all(b%value == c%value) .and. all(b%scene_v == c%scene_v), "move_sample: multipliers, scene")
+    call check(.not. (allocated(a%mu) .or. allocated(a%q) .or. allocated(a%u) .or. allocated(a%v) .or. &
+      allocated(a%kkt) .or. allocated(a%min_gap) .or. allocated(a%iterations) .or. &
+      allocated(a%converged) .or. allocated(a%n_active) .or. allocated(a%offset) .or. &
+      allocated(a%key) .or. allocated(a%ia) .or. allocated(a%ib) .or. allocated(a%ob) .or. &
+      allocated(a%value) .or. allocated(a%scene_v)) .and. a%index == 0 .and. a%rank == -1, &
+      "move_sample: source left empty")
+  end subroutine sample_move
 
   ! ------------------------------------------------------------------ helpers
 

@@ -157,6 +157,7 @@ contains
       call js%add("solver_time_per_step", sum(recs%t_solve) / k)
       call js%add("factorizations_per_step", real(sum(recs%n_factor), wp) / k)
       call js%add("factor_updates_per_step", real(sum(recs%n_modify), wp) / k)
+      call js%add("active_set_changes_per_step", real(sum(recs%n_changes), wp) / k)
       call js%add("fallback_solves", sum(recs%n_fallback))
     else
       call js%add("failed_steps", 0)

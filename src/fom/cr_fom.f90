@@ -44,6 +44,10 @@ module cr_fom
     !> sparse_active_set: numeric factorisations, factor row additions/deletions, solves handed
     !> to the safe path (summed over the re-solves of the step)
     integer :: n_factor = 0, n_modify = 0, n_fallback = 0
+    !> active-set changes of the step: candidate rows active (lambda > 0) in the solution but
+    !> not in the warm start, or the reverse (last solve of the step; any solver). An exact
+    !> solver that updates a factor needs at least this many row additions and deletions.
+    integer :: n_changes = 0
   end type step_record_t
 
   !> State of a full-order simulation.
@@ -69,6 +73,8 @@ module cr_fom
     real(wp), allocatable :: margin(:), need(:)
     !> multipliers of the current rows [cs%n]
     real(wp), allocatable :: lambda(:)
+    !> the warm start of the current solve (for step_record_t%n_changes)
+    real(wp), allocatable :: lambda_warm(:)
     !> agents still in the hall [n_agents]
     logical, allocatable :: inside(:)
     !> multipliers of the previous step's rows by identity (warm start), and the identities
@@ -181,9 +187,11 @@ contains
       call build_contacts(this%scene, this%q, this%radius, 2 * maxval(this%margin), this%cells, this%cs, &
         margin=this%margin)
       call warm_start_multipliers(this)
+      this%lambda_warm = this%lambda(1:this%cs%n)
       call system_clock(c1)
       call this%solver%solve(this%cs, this%v, this%u, this%lambda, st, error)
       call system_clock(c2)
+      rec%n_changes = count((this%lambda_warm > 0.0_wp) .neqv. (this%lambda(1:this%cs%n) > 0.0_wp))
       rec%t_solve = rec%t_solve + real(c2 - c1, wp) / real(rate, wp)
       if (allocated(error)) then
         call prefix_error(error, "fom: step " // str(this%step)); return

@@ -32,7 +32,7 @@ module cr_snapshot_file
   private
   public :: SNAP_SCHEMA, SNAP_SCHEMA_VERSION, SNAP_VERSIONS_READ, SNAP_UNITS, db_meta_t, snap_header_t, &
     snap_block_t, read_snap_header, read_snap_block, snap_sample_t, snap_write_stats_t, snap_writer_t, &
-    probe_snap_database, scene_vertex_list, SNAP_SET_NAMES
+    probe_snap_database, scene_vertex_list, SNAP_SET_NAMES, move_sample
 
   character(len=*), parameter :: SNAP_SCHEMA = "crowdrom-snapshots"
   integer, parameter :: SNAP_SCHEMA_VERSION = 1
@@ -579,18 +579,17 @@ contains
     this%stats%t_put = this%stats%t_put + (this%env%wtime() - t0)
   end subroutine writer_put
 
-  !> Move every component of a sample (no copy of its arrays).
+  !> Move sample a into b; a is left empty (every allocatable component deallocated, the
+  !> scalars at their defaults). Intrinsic assignment copies every component of the type,
+  !> including components added later, so this never needs extending by hand; the price is one
+  !> copy of the sample's arrays per move (queues and held lists grow by doubling: about one
+  !> copy per sample, against seconds to compute it), and only one sample is held twice at a
+  !> time.
   subroutine move_sample(a, b)
     type(snap_sample_t), intent(inout) :: a
     type(snap_sample_t), intent(out) :: b
-    b%set = a%set; b%index = a%index; b%time = a%time; b%start = a%start; b%rank = a%rank
-    b%scene_exit = a%scene_exit
-    call move_alloc(a%mu, b%mu); call move_alloc(a%q, b%q); call move_alloc(a%u, b%u); call move_alloc(a%v, b%v)
-    call move_alloc(a%kkt, b%kkt); call move_alloc(a%min_gap, b%min_gap)
-    call move_alloc(a%iterations, b%iterations); call move_alloc(a%converged, b%converged)
-    call move_alloc(a%n_active, b%n_active); call move_alloc(a%offset, b%offset); call move_alloc(a%key, b%key)
-    call move_alloc(a%ia, b%ia); call move_alloc(a%ib, b%ib); call move_alloc(a%ob, b%ob)
-    call move_alloc(a%value, b%value); call move_alloc(a%scene_v, b%scene_v)
+    b = a
+    a = snap_sample_t()
   end subroutine move_sample
 
   !> The blocks of one checked sample at their places, its checksum parts, its multipliers kept.

@@ -18,10 +18,11 @@ module cr_piece_store
   use cr_env, only: env_t
   use cr_fsys, only: file_exists, make_dir, rename_file
   use cr_sampling, only: sample_set_t
-  use cr_snapshot_piece, only: sample_result_t, piece_header, read_piece, check_sample, piece_path, write_piece
+  use cr_snapshot_piece, only: sample_result_t, move_sample, piece_header, read_piece, check_sample, piece_path, &
+    write_piece
   implicit none
   private
-  public :: piece_index_t, piece_batch_t, scan_pieces, global_sample, set_of_sample, quarantine_piece, move_sample
+  public :: piece_index_t, piece_batch_t, scan_pieces, global_sample, set_of_sample, quarantine_piece
 
   !> A variable-length path.
   type :: path_t
@@ -464,18 +465,4 @@ contains
     this%n = 0
     this%bytes = 0
   end subroutine batch_flush
-
-  !> Move sample a into b (allocations moved, no copies).
-  subroutine move_sample(a, b)
-    type(sample_result_t), intent(inout) :: a
-    type(sample_result_t), intent(inout) :: b
-    b%set = a%set; b%index = a%index; b%time = a%time; b%start = a%start; b%rank = a%rank
-    b%scene_exit = a%scene_exit
-    call move_alloc(a%mu, b%mu); call move_alloc(a%q, b%q); call move_alloc(a%u, b%u)
-    call move_alloc(a%v, b%v); call move_alloc(a%kkt, b%kkt); call move_alloc(a%min_gap, b%min_gap)
-    call move_alloc(a%iterations, b%iterations); call move_alloc(a%converged, b%converged)
-    call move_alloc(a%n_active, b%n_active); call move_alloc(a%offset, b%offset)
-    call move_alloc(a%key, b%key); call move_alloc(a%ia, b%ia); call move_alloc(a%ib, b%ib)
-    call move_alloc(a%ob, b%ob); call move_alloc(a%value, b%value); call move_alloc(a%scene_v, b%scene_v)
-  end subroutine move_sample
 end module cr_piece_store

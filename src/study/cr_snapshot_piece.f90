@@ -30,10 +30,10 @@ module cr_snapshot_piece
   use cr_sampling, only: param_space_t
   use cr_h5file, only: h5file_t
   use cr_digest, only: digest_of, put_digest, check_digest, DIGEST_ALGORITHM
-  use cr_snapshot_file, only: sample_result_t => snap_sample_t, SET_NAMES => SNAP_SET_NAMES
+  use cr_snapshot_file, only: sample_result_t => snap_sample_t, SET_NAMES => SNAP_SET_NAMES, move_sample
   implicit none
   private
-  public :: sample_result_t, compute_sample, write_piece, read_piece, piece_header, check_sample, &
+  public :: sample_result_t, move_sample, compute_sample, write_piece, read_piece, piece_header, check_sample, &
     piece_path, PIECE_SCHEMA, PIECE_SCHEMA_VERSION
 
   character(len=*), parameter :: PIECE_SCHEMA = "crowdrom-snapshot-piece"

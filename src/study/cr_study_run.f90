@@ -24,7 +24,7 @@ module cr_study_run
   use cr_sampling, only: param_space_t, sample_set_t, generate_samples
   use cr_scheduler, only: scheduler_t
   use cr_snapshot_piece, only: sample_result_t, compute_sample, piece_path
-  use cr_piece_store, only: piece_index_t, piece_batch_t, scan_pieces, set_of_sample, move_sample
+  use cr_piece_store, only: piece_index_t, piece_batch_t, scan_pieces, set_of_sample
   use cr_snapshot_file, only: SNAP_SCHEMA_VERSION, db_meta_t, snap_write_stats_t, snap_writer_t, &
     probe_snap_database, scene_vertex_list
   implicit none
