@@ -78,6 +78,9 @@ module cr_env
   type :: shared_counter_t
     type(MPI_Win) :: win = MPI_WIN_NULL
     integer(i8), pointer :: slots(:) => null()
+    !> number of counters (known on every rank: fetch_add refuses a slot outside 1..n_slots,
+    !> which MPI would not: an out-of-range displacement is not an error there)
+    integer :: n_slots = 0
     !> this rank's operations and the wall time spent in them (s)
     integer :: n_calls = 0
     real(wp) :: t_calls = 0
@@ -705,6 +708,7 @@ contains
     call MPI_Win_allocate(bytes, 8, MPI_INFO_NULL, env%comm, base, this%win, ierr)
     call check_mpi(ierr, "MPI_Win_allocate of " // str(n_slots) // " counters", error)
     if (allocated(error)) return
+    this%n_slots = n_slots
     ! a window's default handler is MPI_ERRORS_ARE_FATAL (it is not inherited from env%comm)
     call MPI_Win_set_errhandler(this%win, MPI_ERRORS_RETURN, ierr)
     call check_mpi(ierr, "MPI_Win_set_errhandler (MPI_ERRORS_RETURN, shared counter)", error)
@@ -739,6 +743,13 @@ contains
     one = inc
     res = 0
     old = -1
+    if (this%win == MPI_WIN_NULL) then
+      call set_error(error, "env: shared counter used before init (slot " // str(slot) // ")"); return
+    end if
+    if (slot < 1 .or. slot > this%n_slots) then
+      call set_error(error, "env: shared counter slot " // str(slot) // " outside 1.." // str(this%n_slots))
+      return
+    end if
     ! one passive-target epoch for all of this rank's operations (no lock and unlock each time)
     if (.not. this%epoch) then
       call MPI_Win_lock_all(0, this%win, ierr)
@@ -774,6 +785,7 @@ contains
     if (this%win /= MPI_WIN_NULL) call MPI_Win_free(this%win, ierr_free)
     this%win = MPI_WIN_NULL
     this%slots => null()
+    this%n_slots = 0
   end subroutine counter_free
 
   !> Start the broadcast of `this%x` from rank 0 over env (collective, nonblocking).
