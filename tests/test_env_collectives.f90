@@ -82,7 +82,21 @@ program test_env_collectives
   call check(.not. allocated(error), "barrier")
   tickets(1) = counter%fetch_add(2, 0_i8, error)
   call check(tickets(1) == 7_i8 * p, "second counter: sum of the additions")
+  ! a slot outside the window is refused (MPI itself would write past the window on rank 0)
+  old = counter%fetch_add(3, 1_i8, error)
+  call check(allocated(error) .and. old == -1_i8, "counter slot 3 of 2 refused")
+  if (allocated(error)) then
+    call check(error%message == "env: shared counter slot 3 outside 1..2", "counter slot refusal: " // &
+      error%message)
+    deallocate(error)
+  end if
+  old = counter%fetch_add(0, 1_i8, error)
+  call check(allocated(error), "counter slot 0 refused")
+  if (allocated(error)) deallocate(error)
   call counter%free()
+  old = counter%fetch_add(1, 1_i8, error)
+  call check(allocated(error), "counter used after free refused")
+  if (allocated(error)) deallocate(error)
 
   ! block file: each rank opens the file and writes its blocks interleaved; rank 0 reads it back
   if (r == 0) then

@@ -5,14 +5,21 @@
 !> error agreement leaves an MPI failure as it is (no collective); BLACS, which does not check
 !> MPI statuses, works on communicators with MPI_ERRORS_ARE_FATAL. Run at 1, 2 and 3 ranks (on
 !> code where MPI errors are fatal the job aborts: the test fails by its exit status).
+!> After a failed MPI call the rank makes no clean-up collective (cr_env's mpi_failed: the
+!> barrier is skipped with an error); this run then ends by MPI_Finalize itself, since
+!> program_finish would end it by MPI_Abort (the `abort` run checks that).
 !> With the argument `abort` (2 ranks, tests/env.cmake) rank 1 alone fails in a receive, as in a
-!> driver: rank 0 waits in the error agreement, which rank 1 (an MPI failure) does not enter;
-!> rank 1's line is printed and its MPI_Abort ends the job with status 4 instead of a hang.
+!> driver, while rank 0 waits in a barrier (as in the collective that failed) and then in the
+!> error agreement: rank 1 frees its shared counter (a collective MPI_Win_free, which would
+!> wait for ever beside rank 0's barrier) and calls the barrier, both skipped after its
+!> failure, does not enter the agreement; its line is printed and its MPI_Abort ends the job
+!> with status 4 instead of a hang.
 program test_env_mpi_error
   use mpi_f08, only: MPI_Errhandler, MPI_Comm_get_errhandler, MPI_Win_get_errhandler, &
-    MPI_Errhandler_free, MPI_ERRORS_RETURN, MPI_ERRORS_ARE_FATAL, MPI_SUCCESS, MPI_Comm, operator(==)
+    MPI_Errhandler_free, MPI_ERRORS_RETURN, MPI_ERRORS_ARE_FATAL, MPI_SUCCESS, MPI_Comm, operator(==), &
+    MPI_Finalize
   use cr_error, only: error_t, set_error, prefix_error, code_mpi
-  use cr_env, only: env_t, shared_counter_t
+  use cr_env, only: env_t, shared_counter_t, mpi_failed
   use cr_distribution, only: blacs_grid_t
   use cr_logger, only: logger_t
   use cr_cli, only: cli_t
@@ -41,16 +48,26 @@ program test_env_mpi_error
   integer :: code, ierr, p, r, iv(3), ir(2), one(1), handle
   integer(i8) :: old
   character(len=:), allocatable :: head
+  type(error_t), allocatable :: e2
 
   call program_start("test_env_mpi_error", env, log, cli, error)
   if (allocated(error)) deallocate(error)   ! no input file is fine here
   p = env%size; r = env%rank
   if (allocated(cli%input)) then
     if (cli%input == 'abort') then
-      ! rank 0 sends 3 integers, rank 1 receives 2; then rank 0 waits in the agreement
+      ! rank 0 sends 3 integers, rank 1 receives 2; then rank 0 waits in a barrier and in the
+      ! agreement, rank 1 cleans up (window freed, barrier) and goes to program_finish
+      call counter%init(env, 1, error)
+      if (allocated(error)) stop 1
       iv = [1, 2, 3]
-      if (r == 0) call env%send(iv, 1, 7, error)
-      if (r == 1) call env%recv(ir, 0, 7, error)
+      if (r == 0) then
+        call env%send(iv, 1, 7, error)
+        if (.not. allocated(error)) call env%sync(error)
+      else if (r == 1) then
+        call env%recv(ir, 0, 7, error)
+        call counter%free()
+        call env%sync(e2)
+      end if
       call env%agree_error(error)
       code = program_finish(env, log, error)
       if (code /= 0) stop code, quiet=.true.
@@ -96,6 +113,15 @@ program test_env_mpi_error
     head = "env: MPI_Bcast of 3 integer(s) from rank " // str(p) // " failed: "
     call check(index(error%message, head) == 1 .and. len(error%message) > len(head), &
       "bcast from an invalid root: the message names the call, then MPI's reason")
+    ! from now on this rank makes no clean-up collective: the barrier is skipped, with an error
+    call check(mpi_failed(), "mpi_failed after the failed broadcast")
+    call env%sync(e2)
+    call check(allocated(e2), "barrier after a failed MPI call: skipped with an error")
+    if (allocated(e2)) then
+      call check(e2%code == code_mpi .and. e2%message == &
+        "env: MPI_Barrier skipped after a failed MPI call on this rank", "barrier skipped: " // e2%message)
+      deallocate(e2)
+    end if
     ! the code survives the context added on the way up
     call prefix_error(error, "stage")
     call check(error%code == code_mpi .and. index(error%message, "stage: " // head) == 1, "prefix_error keeps code_mpi")
@@ -133,11 +159,10 @@ program test_env_mpi_error
       end if
     end if
     if (allocated(error)) deallocate(error)
-    call env%sync(error)
-    call check(.not. allocated(error), "barrier after the truncated receive")
-    if (allocated(error)) deallocate(error)
   end if
 
-  code = program_finish(env, log, error)
+  ! program_finish would end this run by MPI_Abort (an MPI call failed on every rank): end here
+  call env%free()
+  call MPI_Finalize(ierr)
   call test_summary(r)
 end program test_env_mpi_error

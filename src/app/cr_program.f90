@@ -9,7 +9,7 @@ module cr_program
   use mpi_f08, only: MPI_Init, MPI_Finalize, MPI_Abort, MPI_COMM_WORLD
   use cr_error, only: error_t, code_mpi
   use cr_strings, only: str
-  use cr_env, only: env_t
+  use cr_env, only: env_t, mpi_failed
   use cr_logger, only: logger_t, LOG_ERROR, LOG_WARN, LOG_INFO, LOG_DEBUG
   use cr_cli, only: cli_t, parse_cli
   use cr_h5file, only: h5_library_close
@@ -43,31 +43,40 @@ contains
   !> Print the error (root), agree on the exit code (largest over the ranks), free the
   !> environment and finalise MPI. Returns 0 or the error code.
   !>
-  !> A failed MPI call (error code code_mpi) may have failed inside a collective that other
-  !> ranks still wait in, so no collective follows it (no agreement on the code, no release of
-  !> env or of HDF5): this rank prints its error itself, on any rank (the logger prints on rank
-  !> 0 only), as `error: rank R of P: <message>` (no prefix on one rank), and calls
-  !> MPI_Abort(MPI_COMM_WORLD, 4), which ends every rank with a non-zero status (mpirun: 4).
+  !> A failed MPI call (error code code_mpi, or any failed call of this rank: cr_env's
+  !> mpi_failed, also when the error was turned into another one on the way) may have failed
+  !> inside a collective that other ranks still wait in, so no collective follows it (no
+  !> agreement on the code, no release of env or of HDF5): this rank prints its error itself,
+  !> on any rank (the logger prints on rank 0 only), as `error: rank R of P: <message>` (no
+  !> prefix on one rank), and calls MPI_Abort(MPI_COMM_WORLD, 4), which ends every rank with a
+  !> non-zero status (mpirun: 4).
   integer function program_finish(env, log, error) result(code)
     type(env_t), intent(inout) :: env
     type(logger_t), intent(in) :: log
     type(error_t), allocatable, intent(in) :: error
     integer :: ierr
     type(error_t), allocatable :: e
+    logical :: failed_mpi
+    character(len=:), allocatable :: msg
     code = 0
-    if (allocated(error)) then
-      if (error%code == code_mpi) then
-        if (env%size > 1) then
-          write(error_unit, '(a)') "error: rank " // str(env%rank) // " of " // str(env%size) // ": " // error%message
-        else
-          write(error_unit, '(a)') "error: " // error%message
-        end if
-        flush(error_unit)
-        call MPI_Abort(MPI_COMM_WORLD, code_mpi, ierr)
-        ! (not reached: MPI_Abort does not return)
-        code = code_mpi
-        return
+    failed_mpi = mpi_failed()
+    if (allocated(error)) failed_mpi = failed_mpi .or. error%code == code_mpi
+    if (failed_mpi) then
+      if (allocated(error)) then
+        msg = error%message
+      else
+        msg = "an MPI call failed on this rank"
       end if
+      if (env%size > 1) then
+        write(error_unit, '(a)') "error: rank " // str(env%rank) // " of " // str(env%size) // ": " // msg
+      else
+        write(error_unit, '(a)') "error: " // msg
+      end if
+      flush(error_unit)
+      call MPI_Abort(MPI_COMM_WORLD, code_mpi, ierr)
+      ! (not reached: MPI_Abort does not return)
+      code = code_mpi
+      return
     end if
     if (allocated(error)) then
       call log%error(error%message)

@@ -19,8 +19,11 @@ module cr_env
   use cr_strings, only: str
   implicit none
   private
-  public :: env_t, agree_error_on
+  public :: env_t, agree_error_on, mpi_failed
   public :: shared_counter_t, pending_bcast_t
+
+  !> An MPI call of this rank has failed (set by check_mpi; see mpi_failed).
+  logical, save :: failed_here = .false.
 
   !> MPI environment: private duplicate communicator, rank, size.
   type :: env_t
@@ -78,6 +81,9 @@ module cr_env
   type :: shared_counter_t
     type(MPI_Win) :: win = MPI_WIN_NULL
     integer(i8), pointer :: slots(:) => null()
+    !> number of counters (known on every rank: fetch_add refuses a slot outside 1..n_slots,
+    !> which MPI would not: an out-of-range displacement is not an error there)
+    integer :: n_slots = 0
     !> this rank's operations and the wall time spent in them (s)
     integer :: n_calls = 0
     real(wp) :: t_calls = 0
@@ -143,7 +149,8 @@ contains
   subroutine free(this)
     class(env_t), intent(inout) :: this
     integer :: ierr
-    if (this%comm /= MPI_COMM_NULL) call MPI_Comm_free(this%comm, ierr)
+    ! (no MPI call after a failed one on this rank: see mpi_failed)
+    if (this%comm /= MPI_COMM_NULL .and. .not. failed_here) call MPI_Comm_free(this%comm, ierr)
     this%comm = MPI_COMM_NULL
   end subroutine free
 
@@ -180,7 +187,8 @@ contains
     ! with the code of an MPI failure
     type(error_t), allocatable :: mpi_error
     if (comm == MPI_COMM_NULL) return
-    ! no collective after a failed MPI call (see agree_error)
+    ! no collective after a failed MPI call (see agree_error and mpi_failed)
+    if (failed_here) return
     if (allocated(error)) then
       if (error%code == code_mpi) return
     end if
@@ -257,12 +265,25 @@ contains
     type(error_t), allocatable, intent(inout) :: error
     character(len=MPI_MAX_ERROR_STRING) :: msg
     integer :: n, ierr2
-    if (ierr == MPI_SUCCESS .or. allocated(error)) return
+    if (ierr == MPI_SUCCESS) return
+    failed_here = .true.
+    if (allocated(error)) return
     msg = ''
     call MPI_Error_string(ierr, msg, n, ierr2)
     if (ierr2 /= MPI_SUCCESS) msg = 'MPI error code ' // str(ierr)
     call set_error(error, "env: " // what // " failed: " // trim(msg), code_mpi)
   end subroutine check_mpi
+
+  !> True once an MPI call of this rank has failed (any env_t, any communicator or window).
+  !> From then on this rank makes no blocking MPI call on its way to the driver's end, where
+  !> MPI_Abort ends the job (cr_program): the failed call may have been a collective that the
+  !> other ranks still wait in, so a clean-up collective here (a barrier, freeing a window or
+  !> a communicator, closing a parallel HDF5 file) could wait for ever. sync, free,
+  !> counter_free and agree_error skip their MPI calls, and cr_h5file leaves parallel files
+  !> open.
+  logical function mpi_failed()
+    mpi_failed = failed_here
+  end function mpi_failed
 
   !> The MPI operation of 'sum', 'min' or 'max'.
   subroutine reduction_op(op, mop, error)
@@ -625,6 +646,11 @@ contains
     class(env_t), intent(in) :: this
     type(error_t), allocatable, intent(out) :: error
     integer :: ierr
+    if (failed_here) then
+      ! (see mpi_failed)
+      call set_error(error, "env: MPI_Barrier skipped after a failed MPI call on this rank", code_mpi)
+      return
+    end if
     call MPI_Barrier(this%comm, ierr)
     call check_mpi(ierr, "MPI_Barrier", error)
   end subroutine sync
@@ -705,6 +731,7 @@ contains
     call MPI_Win_allocate(bytes, 8, MPI_INFO_NULL, env%comm, base, this%win, ierr)
     call check_mpi(ierr, "MPI_Win_allocate of " // str(n_slots) // " counters", error)
     if (allocated(error)) return
+    this%n_slots = n_slots
     ! a window's default handler is MPI_ERRORS_ARE_FATAL (it is not inherited from env%comm)
     call MPI_Win_set_errhandler(this%win, MPI_ERRORS_RETURN, ierr)
     call check_mpi(ierr, "MPI_Win_set_errhandler (MPI_ERRORS_RETURN, shared counter)", error)
@@ -739,6 +766,13 @@ contains
     one = inc
     res = 0
     old = -1
+    if (this%win == MPI_WIN_NULL) then
+      call set_error(error, "env: shared counter used before init (slot " // str(slot) // ")"); return
+    end if
+    if (slot < 1 .or. slot > this%n_slots) then
+      call set_error(error, "env: shared counter slot " // str(slot) // " outside 1.." // str(this%n_slots))
+      return
+    end if
     ! one passive-target epoch for all of this rank's operations (no lock and unlock each time)
     if (.not. this%epoch) then
       call MPI_Win_lock_all(0, this%win, ierr)
@@ -769,11 +803,13 @@ contains
   subroutine counter_free(this)
     class(shared_counter_t), intent(inout) :: this
     integer :: ierr_unlock, ierr_free
-    if (this%epoch) call MPI_Win_unlock_all(this%win, ierr_unlock)
+    ! no MPI call after a failed one on this rank (see mpi_failed)
+    if (this%epoch .and. .not. failed_here) call MPI_Win_unlock_all(this%win, ierr_unlock)
     this%epoch = .false.
-    if (this%win /= MPI_WIN_NULL) call MPI_Win_free(this%win, ierr_free)
+    if (this%win /= MPI_WIN_NULL .and. .not. failed_here) call MPI_Win_free(this%win, ierr_free)
     this%win = MPI_WIN_NULL
     this%slots => null()
+    this%n_slots = 0
   end subroutine counter_free
 
   !> Start the broadcast of `this%x` from rank 0 over env (collective, nonblocking).

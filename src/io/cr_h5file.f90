@@ -49,7 +49,7 @@ module cr_h5file
     h5pset_alloc_time_f, h5pset_fill_time_f, h5dget_offset_f, H5D_ALLOC_TIME_EARLY_F, H5D_FILL_TIME_NEVER_F
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error
-  use cr_env, only: env_t
+  use cr_env, only: env_t, mpi_failed
   use cr_strings, only: str
   use cr_fsys, only: rename_file, remove_file, truncate_file, clear_errno, io_fault_text, discard_fd, errno_text, &
     reserve_space, errno_name, file_size, truncate_to
@@ -588,7 +588,9 @@ contains
     hdferr = 0
     if (this%lcpl >= 0) call h5pclose_f(this%lcpl, e)
     this%lcpl = -1
-    if (this%fid >= 0) call h5fclose_f(this%fid, hdferr)
+    ! closing a parallel file is collective: not after a failed MPI call on this rank (the
+    ! file is left open, the job ends by MPI_Abort; see cr_env's mpi_failed)
+    if (this%fid >= 0 .and. .not. (this%parallel .and. mpi_failed())) call h5fclose_f(this%fid, hdferr)
     this%fid = -1
   end subroutine close_file
 
