@@ -139,7 +139,9 @@ contains
       return
     end if
     call this%blacs_env%init(env%comm, error, errors_fatal=.true.)
-    if (allocated(error)) return
+    if (allocated(error)) then
+      call grid_free(this); return
+    end if
     this%system_handle = sys2blacs_handle(this%blacs_env%comm%MPI_VAL)
     this%context = this%system_handle
     call blacs_gridinit(this%context, 'R', pr, pc)
@@ -147,6 +149,8 @@ contains
     if (this%nprow /= pr .or. this%npcol /= pc .or. this%myrow < 0) then
       call set_error(error, "blacs grid: blacs_gridinit failed for a " // str(pr) // " x " // &
         & str(pc) // " grid")
+      ! nothing of a failed grid is kept (the caller need not free it)
+      call grid_free(this)
     end if
   end subroutine grid_init
 
