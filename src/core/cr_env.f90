@@ -165,8 +165,8 @@ contains
   !> only some ranks failed, the message starts with "rank R of P: " so that the one line that
   !> rank 0 prints says where it happened. Collective: every rank must call it.
   !>
-  !> Except after a failed MPI call: a rank whose error has code code_mpi returns it at once,
-  !> unchanged, without any MPI call. Its call may have failed inside a collective that other
+  !> Except after a failed MPI call: a rank whose error has code code_mpi, or on which any MPI
+  !> call has failed (mpi_failed), returns its error at once, unchanged, without any MPI call. Its call may have failed inside a collective that other
   !> ranks are still waiting in, and a further collective could then be matched wrongly or never
   !> complete. That rank goes straight to its driver's end (program_finish), whose MPI_Abort
   !> also ends the ranks waiting in this agreement or elsewhere. If a call of the agreement
