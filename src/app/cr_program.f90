@@ -43,8 +43,8 @@ contains
   !> Print the error (root), agree on the exit code (largest over the ranks), free the
   !> environment and finalise MPI. Returns 0 or the error code.
   !>
-  !> A failed MPI call (error code code_mpi, or any failed call of this rank: cr_env's
-  !> mpi_failed, also when the error was turned into another one on the way) may have failed
+  !> A failed MPI call of this rank (cr_env's mpi_failed; the error has code code_mpi unless a
+  !> caller replaced it on the way, e.g. by an input error of a parallel read) may have failed
   !> inside a collective that other ranks still wait in, so no collective follows it (no
   !> agreement on the code, no release of env or of HDF5): this rank prints its error itself,
   !> on any rank (the logger prints on rank 0 only), as `error: rank R of P: <message>` (no
@@ -56,12 +56,9 @@ contains
     type(error_t), allocatable, intent(in) :: error
     integer :: ierr
     type(error_t), allocatable :: e
-    logical :: failed_mpi
     character(len=:), allocatable :: msg
     code = 0
-    failed_mpi = mpi_failed()
-    if (allocated(error)) failed_mpi = failed_mpi .or. error%code == code_mpi
-    if (failed_mpi) then
+    if (mpi_failed()) then
       if (allocated(error)) then
         msg = error%message
       else

@@ -165,8 +165,9 @@ contains
   !> only some ranks failed, the message starts with "rank R of P: " so that the one line that
   !> rank 0 prints says where it happened. Collective: every rank must call it.
   !>
-  !> Except after a failed MPI call: a rank whose error has code code_mpi, or on which any MPI
-  !> call has failed (mpi_failed), returns its error at once, unchanged, without any MPI call. Its call may have failed inside a collective that other
+  !> Except after a failed MPI call: a rank on which any MPI call has failed (mpi_failed; its
+  !> error has code code_mpi, or another one if a caller replaced it) returns its error at
+  !> once, unchanged, without any MPI call. Its call may have failed inside a collective that other
   !> ranks are still waiting in, and a further collective could then be matched wrongly or never
   !> complete. That rank goes straight to its driver's end (program_finish), whose MPI_Abort
   !> also ends the ranks waiting in this agreement or elsewhere. If a call of the agreement
@@ -189,9 +190,6 @@ contains
     if (comm == MPI_COMM_NULL) return
     ! no collective after a failed MPI call (see agree_error and mpi_failed)
     if (failed_here) return
-    if (allocated(error)) then
-      if (error%code == code_mpi) return
-    end if
     call MPI_Comm_size(comm, nranks, ierr)
     call check_mpi(ierr, "MPI_Comm_size (error agreement)", mpi_error)
     if (failed()) return

@@ -366,8 +366,6 @@ contains
       call this%env%allreduce(total, 'sum', e)
       if (allocated(e)) then
         if (.not. allocated(error)) call fail(this, error, op, name, e%message)
-        ! (a failed MPI call keeps its code: no collective follows it, see cr_env)
-        error%code = e%code
         return
       end if
     end if
@@ -394,8 +392,6 @@ contains
       call this%env%bcast(shared, e, root=0)
       if (allocated(e)) then
         if (.not. allocated(error)) call fail(this, error, op, name, e%message)
-        ! (a failed MPI call keeps its code: no collective follows it, see cr_env)
-        error%code = e%code
         return
       end if
       status = int(shared(1)); this%reserved = shared(2)

@@ -17,7 +17,7 @@
 !> parallel read add up to the whole datasets).
 module cr_snapshot_file
   use cr_kinds, only: wp, i8
-  use cr_error, only: error_t, set_error, prefix_error, code_mpi
+  use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
   use cr_env, only: env_t, pending_bcast_t
   use cr_h5file, only: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64
@@ -1171,15 +1171,13 @@ contains
     call h5%open(path, error, env=env)
     if (allocated(error)) then
       error%message = where // ": '" // path // "': cannot open the snapshot database (" // error%message // ")"
-      ! (in parallel the open agrees on errors: a failed MPI call keeps its code)
-      if (error%code /= code_mpi) error%code = 2
-      return
+      error%code = 2; return
     end if
     call header_of(h5, path, hdr, error)
     call h5%close(e2)
     if (allocated(error)) then
       if (index(error%message, where) /= 1) error%message = where // ": " // error%message
-      if (error%code /= code_mpi) error%code = 2
+      error%code = 2
       return
     end if
     if (allocated(e2)) call move_alloc(e2, error)
@@ -1354,8 +1352,7 @@ contains
 9   call h5%close(e2)
     if (allocated(error)) then
       if (error%code /= 2) call prefix_error(error, "database '" // path // "', set " // name)
-      ! (a failed MPI call of the parallel read keeps its code: it ends the job, see cr_program)
-      if (error%code /= code_mpi) error%code = 2
+      error%code = 2
       return
     end if
     if (allocated(e2)) call move_alloc(e2, error)
