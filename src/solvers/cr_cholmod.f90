@@ -306,7 +306,8 @@ contains
 
   !> New values of M on the stored analysis, given on the analysed pattern itself: val [nnz]
   !> in the order of the entries handed to analyze (zero for an entry absent now). The
-  !> current factor is discarded.
+  !> current factor no longer counts (no solve or update on it); the next factor call
+  !> refactorises it in place.
   subroutine chol_set_analysed_values(this, val, error)
     class(chol_t), intent(inout) :: this
     real(wp), intent(in) :: val(:)
@@ -319,7 +320,6 @@ contains
     if (rc /= 0) call shim_error(this, "set_analysed_values", rc, error)
   end subroutine chol_set_analysed_values
 
-  !> Numeric factorisation of M on the rows with active(i) [nrow], identity elsewhere.
   !> Give tail slot s (the next free one) to row `row` (1-based; a row without a slot): rows
   !> (slots, increasing, all below s, then s) and val are its column of the upper triangle of
   !> M. The analysis grows by that column (no new ordering, no factorisation); the row is an
@@ -356,6 +356,7 @@ contains
     if (c_associated(this%h)) k = int(c_tail_free(this%h))
   end function chol_tail_free
 
+  !> Numeric factorisation of M on the rows with active(i) [nrow], identity elsewhere.
   subroutine chol_factor(this, active, error)
     class(chol_t), intent(inout) :: this
     logical, intent(in) :: active(:)

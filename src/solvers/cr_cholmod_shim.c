@@ -272,6 +272,24 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
   return 0;
 }
 
+/* Room for need entries in the pattern a and in its companion array *side (elements of elem
+ * bytes, one per entry, allocated with malloc): both grow by half when short. */
+static int room(cr_chol_t *h, cholmod_sparse *a, void **side, size_t elem, size_t need, const char *what) {
+  size_t cap;
+  void *p;
+  if (need <= a->nzmax) return 0;
+  cap = need + need / 2 + 16;
+  if (!cholmod_reallocate_sparse(cap, a, &h->c) || h->c.status < CHOLMOD_OK) {
+    snprintf(h->msg, sizeof h->msg, "CHOLMOD reallocate_sparse (%s) failed (status %d, n = %d)", what,
+             h->c.status, h->n);
+    return 41;
+  }
+  p = realloc(*side, cap * elem);
+  if (!p) { snprintf(h->msg, sizeof h->msg, "out of memory (%s, %zu entries)", what, cap); return 5; }
+  *side = p;
+  return 0;
+}
+
 /* Give the next tail slot s (s = tail_next, 0-based) to the caller's row `row` (0-based, a row
  * without a slot). Its column of the upper triangle of M: rows [nz] (slots, increasing, every
  * one below s but the last, which is s itself: the diagonal) and val [nz]. The analysed
@@ -283,8 +301,7 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
  * until cr_chol_rowadd (which finds the fill of the new row itself). */
 int cr_chol_add_slot(void *hp, int s, int nz, const int *rows, const double *val, int row) {
   cr_chol_t *h = (cr_chol_t *)hp;
-  int n = h->n, q, j, a, r, ps, e0, *mp, *sp, *ord;
-  size_t need;
+  int n = h->n, q, j, a, r, ps, e0, rc, *mp, *sp, *ord;
   if (!h->sym || !h->m || !h->pm) { snprintf(h->msg, sizeof h->msg, "cr_chol_add_slot before cr_chol_analyze"); return 37; }
   if (s != h->tail_next || s >= n) {
     snprintf(h->msg, sizeof h->msg, "cr_chol_add_slot: slot %d is not the next free tail slot (%d of %d)", s + 1,
@@ -308,31 +325,15 @@ int cr_chol_add_slot(void *hp, int s, int nz, const int *rows, const double *val
   /* the analysed pattern and values: column s (the columns after it are empty) */
   mp = (int *)h->m->p;
   e0 = mp[s];
-  need = (size_t)e0 + (size_t)nz;
-  if (need > h->m->nzmax) {
-    size_t cap = need + need / 2 + 16;
-    double *nv;
-    if (!cholmod_reallocate_sparse(cap, h->m, &h->c) || h->c.status < CHOLMOD_OK)
-      return fail(h, 41, "reallocate_sparse (M)");
-    nv = realloc(h->v, cap * sizeof(double));
-    if (!nv) { snprintf(h->msg, sizeof h->msg, "out of memory (slot %d)", s + 1); return 5; }
-    h->v = nv;
-  }
+  rc = room(h, h->m, (void **)&h->v, sizeof(double), (size_t)e0 + (size_t)nz, "M");
+  if (rc) return rc;
   for (q = 0; q < nz; q++) { ((int *)h->m->i)[e0 + q] = rows[q]; h->v[e0 + q] = val[q]; }
   for (j = s + 1; j <= n; j++) mp[j] = e0 + nz;
   /* P M P': column ps = position of s (its neighbours' positions, increasing, then ps) */
   ps = h->iperm[s];
   sp = (int *)h->pm->p;
-  need = (size_t)sp[ps] + (size_t)nz;
-  if (need > h->pm->nzmax) {
-    size_t cap = need + need / 2 + 16;
-    int *nss;
-    if (!cholmod_reallocate_sparse(cap, h->pm, &h->c) || h->c.status < CHOLMOD_OK)
-      return fail(h, 41, "reallocate_sparse (P M P')");
-    nss = realloc(h->ss, cap * sizeof(int));
-    if (!nss) { snprintf(h->msg, sizeof h->msg, "out of memory (slot %d)", s + 1); return 5; }
-    h->ss = nss;
-  }
+  rc = room(h, h->pm, (void **)&h->ss, sizeof(int), (size_t)sp[ps] + (size_t)nz, "P M P'");
+  if (rc) return rc;
   ord = h->stk;   /* (position, entry of m) pairs sorted by position: insertion sort */
   for (q = 0; q + 1 < nz; q++) {
     int pos = h->iperm[rows[q]], k = q;
