@@ -8,7 +8,8 @@
 !> Rows are normalised to unit norm (same problem, lambda rescaled on exit). M = B B^T over all
 !> candidate rows is assembled once per solve (linear in rows: each row meets the rows of its
 !> two agents) and analysed once (AMD) on the rows that can become active (W: warm-start rows
-!> and rows with a small slack at u = v; a violated row outside W enlarges it and M is analysed
+!> and rows with a small slack at u = v; a violated row outside W takes one of the empty tail
+!> slots ordered last in every analysis, or, when none is left, enlarges W and M is analysed
 !> again, counted in n_reanalyse); the factor holds M on the passive set P and the identity
 !> elsewhere. Row deletions hand CHOLMOD the row's pattern (its row subtree in the elimination
 !> tree of the analysed matrix) instead of letting it scan the factor.
@@ -742,8 +743,9 @@ contains
       end do
     end function find_slot
 
-    !> Rows viol(1:n) must be able to enter: if some lie outside W, W takes them and every row
-    !> whose current slack is below the margin, M is analysed again and P refactorised. The
+    !> Rows viol(1:n) must be able to enter: those outside W take tail slots while enough are
+    !> left (tail_slot: the analysis grows, the factor stays); otherwise W takes them and every
+    !> row whose current slack is below the margin, M is analysed again and P refactorised. The
     !> margin doubles at each enlargement of a solve, so that a solve re-analyses a few times
     !> at most (W soon holds every row).
     subroutine enlarge_w(n)
@@ -1544,7 +1546,6 @@ contains
     subroutine solve_p()
       call this%chol%solve(this%bp(1:m), this%z(1:m), error)
     end subroutine solve_p
-
 
     !> Refactorise P afresh. With check_drift, first measure the backward error of a solve with
     !> the updated factor, |M_P z - c_P|_inf / (|M_P|_inf |z|_inf + |c_P|_inf) (about eps for a
