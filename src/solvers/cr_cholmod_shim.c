@@ -44,7 +44,8 @@ typedef struct {
   long n_schur_scan;      /* Schur tests whose reach missed a fill (done by the scan) */
   int nrow;               /* the caller's rows (cr_chol_set_rows; n after an analysis) */
   int *rowof;             /* caller's row at each factor position, -1 for none [n] */
-  int *noslot, nnoslot;   /* the caller's rows without a slot [nrow] */
+  int *slotof;            /* slot of each of the caller's rows, -1 for none [nrow] (NULL: the
+                           * identity, as after an analysis) */
   int *rs;                /* work [n + 1] */
   int ntail, tail_next;   /* tail slots n - ntail .. n - 1: empty at the analysis, ordered last
                            * (in slot order); cr_chol_add_slot gives the next one (tail_next) a
@@ -83,8 +84,8 @@ static void release(cr_chol_t *h) {
   free(h->rowof); h->rowof = NULL;
   free(h->apos); h->apos = NULL; h->napos = 0;
   free(h->rs); h->rs = NULL;
-  free(h->noslot); h->noslot = NULL;
-  h->nnoslot = 0; h->nrow = 0;
+  free(h->slotof); h->slotof = NULL;
+  h->nrow = 0;
   h->ntail = 0; h->tail_next = 0;
   h->n = 0;
 }
@@ -259,7 +260,8 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
     snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5;
   }
   for (j = 0; j < n; j++) h->rowof[j] = p[j];
-  h->nrow = n; h->nnoslot = 0;
+  h->nrow = n;
+  free(h->slotof); h->slotof = NULL;
   for (j = nh; j < n; j++)
     if (ip[j] != j) { snprintf(h->msg, sizeof h->msg, "cr_chol_analyze: tail slot %d not ordered last", j + 1); return 36; }
   h->ntail = ntail; h->tail_next = nh;
@@ -317,11 +319,10 @@ int cr_chol_add_slot(void *hp, int s, int nz, const int *rows, const double *val
       snprintf(h->msg, sizeof h->msg, "cr_chol_add_slot: column of slot %d: rows not increasing below it", s + 1);
       return 39;
     }
-  for (q = 0; q < h->n; q++)
-    if (h->rowof[q] == row) {
-      snprintf(h->msg, sizeof h->msg, "cr_chol_add_slot: row %d already has a slot", row + 1);
-      return 40;
-    }
+  if (!h->slotof || h->slotof[row] >= 0) {
+    snprintf(h->msg, sizeof h->msg, "cr_chol_add_slot: row %d already has a slot", row + 1);
+    return 40;
+  }
   /* the analysed pattern and values: column s (the columns after it are empty) */
   mp = (int *)h->m->p;
   e0 = mp[s];
@@ -354,8 +355,7 @@ int cr_chol_add_slot(void *hp, int s, int nz, const int *rows, const double *val
   }
   /* the caller's row now lives at position ps */
   h->rowof[ps] = row;
-  for (q = 0; q < h->nnoslot; q++)
-    if (h->noslot[q] == row) { h->noslot[q] = h->noslot[--h->nnoslot]; break; }
+  h->slotof[row] = s;
   h->inset[s] = 1;
   h->tail_next++;
   return 0;
@@ -387,19 +387,19 @@ int cr_chol_set_analysed_values(void *hp, int nz, const double *val) {
 }
 
 /* The caller's rows from now on: map [nrow] (0-based slot of each row, -1 for none; slots
- * distinct, checked by the caller). Only the solve uses it here (the other calls get slots). */
+ * distinct, checked by the caller). The solve and cr_chol_add_slot use it (the other calls
+ * get slots). */
 int cr_chol_set_rows(void *hp, int nrow, const int *map) {
   cr_chol_t *h = (cr_chol_t *)hp;
   int i, k;
   if (!h->sym) { snprintf(h->msg, sizeof h->msg, "cr_chol_set_rows before cr_chol_analyze"); return 32; }
-  free(h->noslot);
-  h->noslot = malloc((size_t)(nrow > 0 ? nrow : 1) * sizeof(int));
-  if (!h->noslot) { snprintf(h->msg, sizeof h->msg, "out of memory (nrow = %d)", nrow); return 5; }
+  free(h->slotof);
+  h->slotof = malloc((size_t)(nrow > 0 ? nrow : 1) * sizeof(int));
+  if (!h->slotof) { snprintf(h->msg, sizeof h->msg, "out of memory (nrow = %d)", nrow); return 5; }
   for (k = 0; k < h->n; k++) h->rowof[k] = -1;
-  h->nnoslot = 0;
   for (i = 0; i < nrow; i++) {
-    if (map[i] < 0) { h->noslot[h->nnoslot++] = i; continue; }
-    h->rowof[h->iperm[map[i]]] = i;
+    h->slotof[i] = map[i];
+    if (map[i] >= 0) h->rowof[h->iperm[map[i]]] = i;
   }
   h->nrow = nrow;
   return 0;
