@@ -8,11 +8,14 @@ scaled by sqrt(N / 150)).
 
 Usage: .venv/bin/python scripts/bench_fom.py [--quick] [--out results/bench_fom.md]
        [--scenes congested150] [--ns 150 1000 10000] [--skip-solvers] [--skip-scaling]
-       [--fom PATH ...] [--repeat K]
+       [--fom PATH ...] [--repeat K] [--cpu K]
 
 --fom runs several crowd_fom binaries (e.g. before and after a change, built from two commits)
 back to back on every case, alternating, K times each (--repeat): on a shared machine only
 ratios measured that way mean something. Rows are labelled by the binary's file name.
+--cpu K pins every run to CPU K (sched_setaffinity): on this 2-core virtual machine unpinned
+congested150 runs fall into two modes about 25% apart from run to run; pinned runs scatter
+by a few percent, with rare outliers (hence --repeat, the fastest kept).
 
 Runs build/bin/crowd_fom (Release) on generated namelists and prints Markdown tables.
 Uzawa (the paper's scheme) needs 1e5-1e6 iterations per step in the congested scene, so it
@@ -33,6 +36,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FOM = os.path.join(ROOT, "build", "bin", "crowd_fom")
 FOMS = [FOM]
 REPEAT = 1
+CPU = None
 
 
 def read_nml(path):
@@ -51,7 +55,9 @@ def run(nml_text, workdir, tag, timeout=None, fom=None):
     t0 = time.perf_counter()
     logf = os.path.join(workdir, tag + ".log")
     with open(logf, "w") as lf:
-        p = subprocess.Popen([fom or FOM, nml, "--summary", js], stdout=lf, stderr=subprocess.STDOUT, env=env)
+        pin = None if CPU is None else (lambda: os.sched_setaffinity(0, {CPU}))
+        p = subprocess.Popen([fom or FOM, nml, "--summary", js], stdout=lf, stderr=subprocess.STDOUT, env=env,
+                             preexec_fn=pin)
         deadline = None if timeout is None else t0 + timeout
         while True:
             pid, status, ru = os.wait4(p.pid, os.WNOHANG)
@@ -193,8 +199,14 @@ def main():
     ap.add_argument("--fom", nargs="+", default=[FOM],
                     help="crowd_fom binaries to compare back to back (default build/bin/crowd_fom)")
     ap.add_argument("--repeat", type=int, default=1, help="runs of each case and binary; the fastest is kept")
+    ap.add_argument("--cpu", type=int, default=None, help="pin every run to this CPU (see above)")
     a = ap.parse_args()
-    global FOMS, REPEAT
+    global FOMS, REPEAT, CPU
+    if a.cpu is not None:
+        if a.cpu not in os.sched_getaffinity(0):
+            raise SystemExit("--cpu %d: not a CPU this process may run on (%s)" % (
+                a.cpu, sorted(os.sched_getaffinity(0))))
+        CPU = a.cpu
     FOMS = [os.path.abspath(f) for f in a.fom]
     REPEAT = max(1, a.repeat)
     for f in FOMS:

@@ -21,6 +21,7 @@ program test_sparse_as
   call test_analysed_set()
   call test_step_back()
   call test_reuse()
+  call test_tail_slots()
   call test_options()
   call test_kernels()
   call test_summary()
@@ -246,6 +247,9 @@ contains
     print '(2x,a,i0)', "drift: Schur tests whose factor reach missed a fill (done by the scan): ", &
       sp%chol%n_schur_scan()
     call check(sp%chol%n_schur_scan() == 0, "drift: the elimination tree of the factor bounds every Schur solve")
+    print '(2x,a,i0,a,i0,a,i0)', "drift: rows given tail slots ", sp%n_tail, ", fresh analyses ", sp%n_analyse, &
+      ", enlargements of W ", sp%n_reanalyse
+    call check(sp%n_tail > 0, "drift: rows new to the analysis took tail slots (updated factors checked with them)")
     call check(drift <= sqrt(epsilon(1.0_wp)), "drift: backward error of updated factors <= sqrt(eps)")
     call check(du <= 10.0_wp * s%tol, "drift: agrees with active_set on every step")
   end subroutine test_drift
@@ -384,7 +388,8 @@ contains
   !> solves each step to scaled KKT <= tol on the sparse path with the same u as active_set to
   !> 10 tol |v| (as in compare); with reuse most steps keep the previous analysis, and some
   !> must analyse afresh (new rows among those that may become active). Variant 4: variant 1
-  !> without keep_violated.
+  !> without keep_violated. Rows new to a reused analysis take tail slots; variant 5 (variant
+  !> 1 without tail slots) enlarges W instead.
   subroutine test_reuse()
     integer, parameter :: na = 100, nsteps = 40
     type(contact_set_t) :: cs
@@ -398,8 +403,10 @@ contains
     real(wp), allocatable :: l(:), la(:), lprev(:)
     integer(i8), allocatable :: kprev(:)
     integer :: i, j, k, step, nfail, var, p
-    logical :: reuse(4) = [.true., .false., .true., .true.], warm(4) = [.true., .true., .false., .true.]
-    logical :: keep(4) = [.true., .true., .true., .false.]
+    logical :: reuse(5) = [.true., .false., .true., .true., .true.]
+    logical :: warm(5) = [.true., .true., .false., .true., .true.]
+    logical :: keep(5) = [.true., .true., .true., .false., .true.]
+    integer :: tails(5) = [16, 16, 16, 16, 0]
     character(len=16) :: tag
     hh = 0.005_wp
     do j = 1, 10
@@ -410,11 +417,12 @@ contains
     c = sum(q0, dim=2) / na
     s = projection_settings_t(); s%name = 'active_set'
     call make_projection_solver(s, sa, err)
-    do var = 1, 4
+    do var = 1, 5
       write(tag, '(a,i0)') "reuse var ", var
       s = projection_settings_t(); s%name = 'sparse_active_set'; s%dense_rows = 0
       call sp%init(s, err)
       sp%reuse_analysis = reuse(var); sp%warm_search = warm(var); sp%keep_violated = keep(var)
+      sp%tail_slots = tails(var)
       sp%n_kept = 0
       q = q0; du = 0; nfail = 0
       allocate(lprev(0), kprev(0))
@@ -452,11 +460,18 @@ contains
         deallocate(l, la)
       end do
       deallocate(lprev, kprev)
-      print '(2x,a,": analyses ",i0," reused ",i0," re-analyses ",i0,", rows kept ",i0,&
-        &", largest |u - u_active_set| ",es9.2)', trim(tag), sp%n_analyse, sp%n_reuse, sp%n_reanalyse, sp%n_kept, du
+      print '(2x,a,": analyses ",i0," reused ",i0," re-analyses ",i0," tail slots ",i0,", rows kept ",i0,&
+        &", largest |u - u_active_set| ",es9.2)', trim(tag), sp%n_analyse, sp%n_reuse, sp%n_reanalyse, &
+        sp%n_tail, sp%n_kept, du
       call check(nfail == 0, trim(tag) // ": every step converged on the sparse path")
       if (.not. keep(var)) call check(sp%n_kept == 0, trim(tag) // ": no row kept when keep_violated is off")
       call check(du <= 10.0_wp * s%tol, trim(tag) // ": agrees with active_set on every step")
+      if (tails(var) > 0 .and. reuse(var)) then
+        call check(sp%n_tail > 0, trim(tag) // ": rows new to a reused analysis take tail slots")
+      else if (tails(var) == 0) then
+        call check(sp%n_tail == 0 .and. sp%n_reanalyse > 0, trim(tag) // &
+          ": without tail slots new rows enlarge W (re-analysis)")
+      end if
       if (reuse(var)) then
         call check(sp%n_reuse > nsteps / 2, trim(tag) // ": most steps reuse the analysis")
         call check(sp%n_analyse > 1, trim(tag) // ": new rows force fresh analyses")
@@ -505,6 +520,114 @@ contains
     end block
     call ch%free()
   end subroutine test_reuse
+
+  !> Tail slots (chol%add_slot): M on three rows analysed with two empty tail slots; rows 4
+  !> and 5, new to the analysis, take the tail slots and enter by rowadd; after every addition
+  !> and deletion (the deletions bound row patterns by the grown elimination tree) a solve
+  !> through the row map matches a dense solve of M on the active rows (identity elsewhere)
+  !> to a few eps; a fresh factorisation on the grown analysis agrees too. Bad calls (no tail
+  !> left, a row that has a slot, a column not ending at its diagonal, a tail column that is
+  !> not empty at the analysis) are refused with a message.
+  subroutine test_tail_slots()
+    type(chol_t) :: ch
+    type(error_t), allocatable :: err
+    real(wp) :: mf(5, 5), b(5), pivot
+    logical :: act(5)
+    ! M (rows 1..5): chain 1-2-3 analysed; 4 couples with 1 and 3, 5 with 2 and 4
+    mf = 0
+    mf(1, 1) = 4; mf(2, 2) = 4; mf(3, 3) = 4; mf(4, 4) = 4; mf(5, 5) = 4
+    mf(1, 2) = 1; mf(2, 3) = 1; mf(1, 4) = 1; mf(3, 4) = -1; mf(2, 5) = 0.5_wp; mf(4, 5) = 2
+    mf(2, 1) = mf(1, 2); mf(3, 2) = mf(2, 3); mf(4, 1) = mf(1, 4); mf(4, 3) = mf(3, 4)
+    mf(5, 2) = mf(2, 5); mf(5, 4) = mf(4, 5)
+    b = [1.0_wp, 2.0_wp, 3.0_wp, 4.0_wp, 5.0_wp]
+    call ch%analyze(5, [1, 2, 4, 6, 6, 6], [1, 1, 2, 2, 3], [4.0_wp, 1.0_wp, 4.0_wp, 1.0_wp, 4.0_wp], err, &
+      ntail=2)
+    call check(.not. allocated(err) .and. ch%tail_free() == 2, "tail slots: analysis with two tail slots")
+    call ch%set_rows([1, 2, 3, 0, 0], err)
+    act = [.true., .true., .true., .false., .false.]
+    call ch%factor(act, err)
+    call tail_agree(ch, mf, act, b, err, "three analysed rows")
+    call ch%add_slot(4, [1, 3, 4], [1.0_wp, -1.0_wp, 4.0_wp], 4, err)
+    call check(.not. allocated(err) .and. ch%tail_free() == 1, "tail slots: row 4 takes slot 4")
+    call ch%rowadd(4, [1, 3, 4], [1.0_wp, -1.0_wp, 4.0_wp], pivot, err)
+    act(4) = .true.
+    call tail_agree(ch, mf, act, b, err, "row 4 added on its tail slot")
+    call ch%rowdel(1, err)
+    act(1) = .false.
+    call tail_agree(ch, mf, act, b, err, "row 1 deleted (its fill reaches the tail row)")
+    call ch%add_slot(5, [2, 4, 5], [0.5_wp, 2.0_wp, 4.0_wp], 5, err)
+    call check(.not. allocated(err) .and. ch%tail_free() == 0, "tail slots: row 5 takes slot 5")
+    call ch%rowadd(5, [2, 4, 5], [0.5_wp, 2.0_wp, 4.0_wp], pivot, err)
+    act(5) = .true.
+    call tail_agree(ch, mf, act, b, err, "row 5 added on its tail slot")
+    call ch%rowadd(1, [1, 2, 4], [4.0_wp, 1.0_wp, 1.0_wp], pivot, err)
+    act(1) = .true.
+    call tail_agree(ch, mf, act, b, err, "row 1 back")
+    call ch%rowdel(4, err)
+    act(4) = .false.
+    call tail_agree(ch, mf, act, b, err, "tail row 4 deleted (row pattern from the grown tree)")
+    call ch%rowdel(2, err)
+    act(2) = .false.
+    call tail_agree(ch, mf, act, b, err, "row 2 deleted")
+    act = .true.
+    call ch%factor(act, err)
+    call tail_agree(ch, mf, act, b, err, "fresh factorisation on the grown analysis")
+    ! refusals
+    call ch%add_slot(5, [2, 5], [0.5_wp, 4.0_wp], 3, err)
+    call check(allocated(err), "tail slots: a slot when none is left refused")
+    call ch%analyze(5, [1, 2, 4, 6, 6, 6], [1, 1, 2, 2, 3], [4.0_wp, 1.0_wp, 4.0_wp, 1.0_wp, 4.0_wp], err, &
+      ntail=2)
+    call ch%set_rows([1, 2, 3, 0, 0], err)
+    call ch%add_slot(4, [1, 3], [1.0_wp, -1.0_wp], 4, err)
+    call check(allocated(err), "tail slots: a column not ending at its diagonal refused")
+    if (allocated(err)) call check(index(err%message, "diagonal") > 0, "tail slots: message names the diagonal")
+    call ch%add_slot(4, [1, 3, 4], [1.0_wp, -1.0_wp, 4.0_wp], 2, err)
+    call check(allocated(err), "tail slots: a row that has a slot refused")
+    call ch%add_slot(5, [1, 5], [1.0_wp, 4.0_wp], 4, err)
+    call check(allocated(err), "tail slots: a tail slot out of turn refused")
+    call ch%analyze(5, [1, 2, 4, 6, 6, 7], [1, 1, 2, 2, 3, 5], [4.0_wp, 1.0_wp, 4.0_wp, 1.0_wp, 4.0_wp, 1.0_wp], &
+      err, ntail=2)
+    call check(allocated(err), "tail slots: a tail column with entries at the analysis refused")
+    call ch%free()
+
+  end subroutine test_tail_slots
+
+  !> Test of test_tail_slots: x from the factor against a dense solve of M (mf) on the active
+  !> rows (identity elsewhere).
+  subroutine tail_agree(ch, mf, act, b, err, what)
+    type(chol_t), intent(inout) :: ch
+    real(wp), intent(in) :: mf(5, 5), b(5)
+    logical, intent(in) :: act(5)
+    type(error_t), allocatable, intent(inout) :: err
+    character(len=*), intent(in) :: what
+    real(wp) :: a(5, 5), y(5), x(5), piv
+    integer :: i, j, k
+    call check(.not. allocated(err), "tail slots: " // what // ": no error")
+    if (allocated(err)) then
+      print '(4x,a)', err%message; deallocate(err); return
+    end if
+    call ch%solve(b, x, err)
+    a = 0; y = b
+    do i = 1, 5
+      do j = 1, 5
+        if (act(i) .and. act(j)) a(i, j) = mf(i, j)
+      end do
+      if (.not. act(i)) a(i, i) = 1
+    end do
+    ! Gaussian elimination (M is SPD on the active rows: no pivoting needed)
+    do k = 1, 5
+      piv = a(k, k)
+      do i = k + 1, 5
+        y(i) = y(i) - a(i, k) / piv * y(k)
+        a(i, k + 1:5) = a(i, k + 1:5) - a(i, k) / piv * a(k, k + 1:5)
+      end do
+    end do
+    do k = 5, 1, -1
+      y(k) = (y(k) - sum(a(k, k + 1:5) * y(k + 1:5))) / a(k, k)
+    end do
+    call check(.not. allocated(err) .and. maxval(abs(x - y)) <= 64.0_wp * epsilon(1.0_wp) * maxval(abs(y)), &
+      "tail slots: " // what // ": solve matches the dense one")
+  end subroutine tail_agree
 
   !> The new options: bad values give an error naming them.
   subroutine test_options()

@@ -57,6 +57,8 @@ module cr_cholmod
     procedure :: n_schur_scan => chol_n_schur_scan
     procedure :: set_rows => chol_set_rows
     procedure :: set_analysed_values => chol_set_analysed_values
+    procedure :: add_slot => chol_add_slot
+    procedure :: tail_free => chol_tail_free
   end type chol_t
 
   interface
@@ -74,7 +76,7 @@ module cr_cholmod
       character(kind=c_char), intent(out) :: buf(*)
       integer(c_int), value :: len
     end subroutine c_message
-    integer(c_int) function c_analyze(h, n, colptr, rowind, val, perm, inset) bind(C, name='cr_chol_analyze')
+    integer(c_int) function c_analyze(h, n, colptr, rowind, val, perm, inset, ntail) bind(C, name='cr_chol_analyze')
       import :: c_ptr, c_int, c_double
       type(c_ptr), value :: h
       integer(c_int), value :: n
@@ -82,8 +84,9 @@ module cr_cholmod
       real(c_double), intent(in) :: val(*)
       type(c_ptr), value :: perm
       integer(c_int), intent(in) :: inset(*)
+      integer(c_int), value :: ntail
     end function c_analyze
-    integer(c_int) function c_analyze_perm(h, n, colptr, rowind, val, perm, inset) bind(C, name='cr_chol_analyze')
+    integer(c_int) function c_analyze_perm(h, n, colptr, rowind, val, perm, inset, ntail) bind(C, name='cr_chol_analyze')
       import :: c_ptr, c_int, c_double
       type(c_ptr), value :: h
       integer(c_int), value :: n
@@ -91,7 +94,20 @@ module cr_cholmod
       real(c_double), intent(in) :: val(*)
       integer(c_int), intent(in) :: perm(*)
       integer(c_int), intent(in) :: inset(*)
+      integer(c_int), value :: ntail
     end function c_analyze_perm
+    integer(c_int) function c_add_slot(h, s, nz, rows, val, row) bind(C, name='cr_chol_add_slot')
+      import :: c_ptr, c_int, c_double
+      type(c_ptr), value :: h
+      integer(c_int), value :: s, nz
+      integer(c_int), intent(in) :: rows(*)
+      real(c_double), intent(in) :: val(*)
+      integer(c_int), value :: row
+    end function c_add_slot
+    integer(c_int) function c_tail_free(h) bind(C, name='cr_chol_tail_free')
+      import :: c_ptr, c_int
+      type(c_ptr), value :: h
+    end function c_tail_free
     integer(c_int) function c_factor(h, active, pack_min) bind(C, name='cr_chol_factor')
       import :: c_ptr, c_int
       type(c_ptr), value :: h
@@ -207,7 +223,9 @@ contains
   !> analyse it; perm [n] (1-based) is the ordering to use, AMD when absent. inset [n]: the
   !> rows that may become active (all when absent); M must hold every entry between two of
   !> them; factor and rowadd refuse the other rows (an error, never a wrong factor).
-  subroutine chol_analyze(this, n, colptr, rowind, val, error, perm, inset)
+  !> ntail (default 0): the last ntail slots are tail slots (empty columns, ordered last; with
+  !> perm absent, AMD orders the others), handed out later by add_slot.
+  subroutine chol_analyze(this, n, colptr, rowind, val, error, perm, inset, ntail)
     class(chol_t), intent(inout) :: this
     integer, intent(in) :: n
     !> column starts [n + 1], row indices and values [colptr(n+1) - 1]
@@ -216,9 +234,12 @@ contains
     type(error_t), allocatable, intent(out) :: error
     integer, intent(in), optional :: perm(:)
     logical, intent(in), optional :: inset(:)
-    integer(c_int) :: rc
+    integer, intent(in), optional :: ntail
+    integer(c_int) :: rc, nt
     integer(c_int), allocatable :: ins(:)
     integer :: nz, i
+    nt = 0_c_int
+    if (present(ntail)) nt = int(ntail, c_int)
     call this%init(error)
     if (allocated(error)) return
     nz = colptr(n + 1) - 1
@@ -227,10 +248,10 @@ contains
     if (present(inset)) ins(1:n) = merge(1_c_int, 0_c_int, inset(1:n))
     if (present(perm)) then
       rc = c_analyze_perm(this%h, int(n, c_int), int(colptr(1:n + 1) - 1, c_int), &
-        int(rowind(1:max(nz, 1)) - 1, c_int), val, int(perm(1:max(n, 1)) - 1, c_int), ins)
+        int(rowind(1:max(nz, 1)) - 1, c_int), val, int(perm(1:max(n, 1)) - 1, c_int), ins, nt)
     else
       rc = c_analyze(this%h, int(n, c_int), int(colptr(1:n + 1) - 1, c_int), &
-        int(rowind(1:max(nz, 1)) - 1, c_int), val, c_null_ptr, ins)
+        int(rowind(1:max(nz, 1)) - 1, c_int), val, c_null_ptr, ins, nt)
     end if
     if (rc /= 0) then
       call shim_error(this, "analyze", rc, error); return
@@ -285,7 +306,8 @@ contains
 
   !> New values of M on the stored analysis, given on the analysed pattern itself: val [nnz]
   !> in the order of the entries handed to analyze (zero for an entry absent now). The
-  !> current factor is discarded.
+  !> current factor no longer counts (no solve or update on it); the next factor call
+  !> refactorises it in place.
   subroutine chol_set_analysed_values(this, val, error)
     class(chol_t), intent(inout) :: this
     real(wp), intent(in) :: val(:)
@@ -297,6 +319,42 @@ contains
     rc = c_set_analysed_values(this%h, int(size(val), c_int), val)
     if (rc /= 0) call shim_error(this, "set_analysed_values", rc, error)
   end subroutine chol_set_analysed_values
+
+  !> Give tail slot s (the next free one) to row `row` (1-based; a row without a slot): rows
+  !> (slots, increasing, all below s, then s) and val are its column of the upper triangle of
+  !> M. The analysis grows by that column (no new ordering, no factorisation); the row is an
+  !> identity row of the factor until rowadd.
+  subroutine chol_add_slot(this, s, rows, val, row, error)
+    class(chol_t), intent(inout) :: this
+    integer, intent(in) :: s, row
+    integer, intent(in) :: rows(:)
+    real(wp), intent(in) :: val(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer(c_int) :: rc
+    if (.not. c_associated(this%h) .or. this%n == 0) then
+      call set_error(error, "cholmod add_slot: no analysis"); return
+    end if
+    if (row < 1 .or. row > this%nrow .or. size(rows) /= size(val)) then
+      call set_error(error, "cholmod add_slot: row " // str(row) // " outside 1.." // str(this%nrow) // &
+        " or sizes differ"); return
+    end if
+    if (this%map(row) /= 0) then
+      call set_error(error, "cholmod add_slot: row " // str(row) // " already has slot " // str(this%map(row))); return
+    end if
+    rc = c_add_slot(this%h, int(s - 1, c_int), int(size(rows), c_int), int(rows - 1, c_int), val, &
+      int(row - 1, c_int))
+    if (rc /= 0) then
+      call shim_error(this, "add_slot", rc, error); return
+    end if
+    this%map(row) = s
+  end subroutine chol_add_slot
+
+  !> Tail slots not yet handed out (0 without an analysis).
+  integer function chol_tail_free(this) result(k)
+    class(chol_t), intent(in) :: this
+    k = 0
+    if (c_associated(this%h)) k = int(c_tail_free(this%h))
+  end function chol_tail_free
 
   !> Numeric factorisation of M on the rows with active(i) [nrow], identity elsewhere.
   subroutine chol_factor(this, active, error)

@@ -25,6 +25,10 @@ typedef struct {
   int *ss;                /* the entry of m each entry of pm comes from [nnz(m)] */
   cholmod_factor *sym;    /* symbolic analysis of M */
   cholmod_factor *l;      /* numeric LDL' factor of the active matrix */
+  int lstale;             /* l belongs to this analysis but not to the current values (after
+                           * cr_chol_set_analysed_values): no factor for the solve, the row
+                           * updates and the pivots; cr_chol_factor refactorises it in place */
+  cholmod_sparse *fa;     /* the active matrix handed to cholmod_rowfac (kept per analysis) */
   cholmod_sparse *r;      /* rowadd column [n, 1] */
   int *iperm;             /* position of each row in the factor [n] */
   int *active;            /* current active flags [n] */
@@ -40,8 +44,12 @@ typedef struct {
   long n_schur_scan;      /* Schur tests whose reach missed a fill (done by the scan) */
   int nrow;               /* the caller's rows (cr_chol_set_rows; n after an analysis) */
   int *rowof;             /* caller's row at each factor position, -1 for none [n] */
-  int *noslot, nnoslot;   /* the caller's rows without a slot [nrow] */
+  int *slotof;            /* slot of each of the caller's rows, -1 for none [nrow] (NULL: the
+                           * identity, as after an analysis) */
   int *rs;                /* work [n + 1] */
+  int ntail, tail_next;   /* tail slots n - ntail .. n - 1: empty at the analysis, ordered last
+                           * (in slot order); cr_chol_add_slot gives the next one (tail_next) a
+                           * row whose pattern the analysis did not know */
   int *apos, napos;       /* active factor positions, ascending [n] (the solve visits only
                            * these; the others are identity rows and, in the work vector
                            * xw, stay zero) */
@@ -60,6 +68,8 @@ static void release(cr_chol_t *h) {
   free(h->ss); h->ss = NULL;
   if (h->sym) cholmod_free_factor(&h->sym, &h->c);
   if (h->l) cholmod_free_factor(&h->l, &h->c);
+  h->lstale = 0;
+  if (h->fa) cholmod_free_sparse(&h->fa, &h->c);
   if (h->r) cholmod_free_sparse(&h->r, &h->c);
   free(h->iperm); h->iperm = NULL;
   free(h->active); h->active = NULL;
@@ -74,8 +84,9 @@ static void release(cr_chol_t *h) {
   free(h->rowof); h->rowof = NULL;
   free(h->apos); h->apos = NULL; h->napos = 0;
   free(h->rs); h->rs = NULL;
-  free(h->noslot); h->noslot = NULL;
-  h->nnoslot = 0; h->nrow = 0;
+  free(h->slotof); h->slotof = NULL;
+  h->nrow = 0;
+  h->ntail = 0; h->tail_next = 0;
   h->n = 0;
 }
 
@@ -189,17 +200,36 @@ static int sorted_upper(cr_chol_t *h) {
  * column's rows sorted) and analyse its pattern. perm [n] (0-based) is the ordering to use,
  * or NULL for AMD. inset [n] (or NULL: all rows) marks the rows that may become active; M
  * must hold every entry between two such rows (the caller drops the others, so that the
- * analysis is that of the rows that can become active); rowadd and factor refuse other rows. */
+ * analysis is that of the rows that can become active); rowadd and factor refuse other rows.
+ * The last ntail slots (0 <= ntail <= n) are tail slots: their columns must be empty; the
+ * ordering puts them last, in slot order (with perm == NULL: AMD on the other slots), and
+ * cr_chol_add_slot hands them, one by one, to rows that the analysis did not know. */
 int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const double *val,
-                    const int *perm, const int *inset) {
+                    const int *perm, const int *inset, int ntail) {
   cr_chol_t *h = (cr_chol_t *)hp;
-  int nz = colptr[n], j, *p, *ip;
+  int nz = colptr[n], j, *p, *ip, nh = n - ntail, *tperm = NULL;
   release(h);
+  if (ntail < 0 || ntail > n || colptr[nh] != nz) {
+    snprintf(h->msg, sizeof h->msg, "cr_chol_analyze: %d tail slots of %d (their columns must be empty)", ntail, n);
+    return 35;
+  }
   h->n = n;
   h->m = cholmod_allocate_sparse(n, n, nz > 0 ? nz : 1, 1, 1, 1, CHOLMOD_PATTERN, &h->c);
   if (!h->m) return fail(h, 3, "allocate_sparse (M)");
   memcpy(h->m->p, colptr, (size_t)(n + 1) * sizeof(int));
   memcpy(h->m->i, rowind, (size_t)nz * sizeof(int));
+  if (ntail > 0 && !perm) {
+    /* AMD on the leading nh slots (their columns hold every entry: a view of m), tails last */
+    cholmod_sparse head = *h->m;
+    head.nrow = (size_t)nh; head.ncol = (size_t)nh;
+    tperm = malloc((size_t)n * sizeof(int));
+    if (!tperm) { snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5; }
+    if (nh > 0 && (!cholmod_amd(&head, NULL, 0, tperm, &h->c) || h->c.status < CHOLMOD_OK)) {
+      free(tperm); return fail(h, 4, "amd (leading slots)");
+    }
+    for (j = nh; j < n; j++) tperm[j] = j;
+    perm = tperm;
+  }
   if (perm) {
     h->c.nmethods = 1; h->c.method[0].ordering = CHOLMOD_GIVEN; h->c.postorder = 0;
     h->sym = cholmod_analyze_p(h->m, (int *)perm, NULL, 0, &h->c);
@@ -207,6 +237,7 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
     h->c.nmethods = 1; h->c.method[0].ordering = CHOLMOD_AMD; h->c.postorder = 0;
     h->sym = cholmod_analyze(h->m, &h->c);
   }
+  free(tperm);
   if (!h->sym || h->c.status < CHOLMOD_OK) return fail(h, 4, "analyze");
   h->iperm = malloc((size_t)(n > 0 ? n : 1) * sizeof(int));
   h->active = calloc((size_t)(n > 0 ? n : 1), sizeof(int));
@@ -229,7 +260,11 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
     snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5;
   }
   for (j = 0; j < n; j++) h->rowof[j] = p[j];
-  h->nrow = n; h->nnoslot = 0;
+  h->nrow = n;
+  free(h->slotof); h->slotof = NULL;
+  for (j = nh; j < n; j++)
+    if (ip[j] != j) { snprintf(h->msg, sizeof h->msg, "cr_chol_analyze: tail slot %d not ordered last", j + 1); return 36; }
+  h->ntail = ntail; h->tail_next = nh;
   j = permuted_etree(h);
   if (j != 0) return j;
   /* the values, after the work of the pattern is freed (a lower peak of memory) */
@@ -237,6 +272,99 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
   if (!h->v) { snprintf(h->msg, sizeof h->msg, "out of memory (n = %d)", n); return 5; }
   memcpy(h->v, val, (size_t)nz * sizeof(double));
   return 0;
+}
+
+/* Room for need entries in the pattern a and in its companion array *side (elements of elem
+ * bytes, one per entry, allocated with malloc): both grow by half when short. */
+static int room(cr_chol_t *h, cholmod_sparse *a, void **side, size_t elem, size_t need, const char *what) {
+  size_t cap;
+  void *p;
+  if (need <= a->nzmax) return 0;
+  cap = need + need / 2 + 16;
+  if (!cholmod_reallocate_sparse(cap, a, &h->c) || h->c.status < CHOLMOD_OK) {
+    snprintf(h->msg, sizeof h->msg, "CHOLMOD reallocate_sparse (%s) failed (status %d, n = %d)", what,
+             h->c.status, h->n);
+    return 41;
+  }
+  p = realloc(*side, cap * elem);
+  if (!p) { snprintf(h->msg, sizeof h->msg, "out of memory (%s, %zu entries)", what, cap); return 5; }
+  *side = p;
+  return 0;
+}
+
+/* Give the next tail slot s (s = tail_next, 0-based) to the caller's row `row` (0-based, a row
+ * without a slot). Its column of the upper triangle of M: rows [nz] (slots, increasing, every
+ * one below s but the last, which is s itself: the diagonal) and val [nz]. The analysed
+ * pattern and values, the pattern of P M P' with its map to M, and the elimination tree grow
+ * by that column; as s is the last slot holding a row and is ordered after every such slot,
+ * the tree of the grown matrix is the old one with s made the parent of the roots of the
+ * subtrees that hold its neighbours (later tail slots are isolated). So the row-subtree bound
+ * of every row deletion stays valid. The factor is not touched: slot s is an identity row
+ * until cr_chol_rowadd (which finds the fill of the new row itself). */
+int cr_chol_add_slot(void *hp, int s, int nz, const int *rows, const double *val, int row) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  int n = h->n, q, j, a, r, ps, e0, rc, *mp, *sp, *ord;
+  if (!h->sym || !h->m || !h->pm) { snprintf(h->msg, sizeof h->msg, "cr_chol_add_slot before cr_chol_analyze"); return 37; }
+  if (s != h->tail_next || s >= n) {
+    snprintf(h->msg, sizeof h->msg, "cr_chol_add_slot: slot %d is not the next free tail slot (%d of %d)", s + 1,
+             h->tail_next + 1, n);
+    return 38;
+  }
+  if (nz < 1 || rows[nz - 1] != s || row < 0 || row >= h->nrow) {
+    snprintf(h->msg, sizeof h->msg, "cr_chol_add_slot: column of slot %d must end at its diagonal (row %d)", s + 1, row + 1);
+    return 39;
+  }
+  for (q = 0; q + 1 < nz; q++)
+    if (rows[q] < 0 || rows[q] >= s || (q > 0 && rows[q] <= rows[q - 1])) {
+      snprintf(h->msg, sizeof h->msg, "cr_chol_add_slot: column of slot %d: rows not increasing below it", s + 1);
+      return 39;
+    }
+  if (!h->slotof || h->slotof[row] >= 0) {
+    snprintf(h->msg, sizeof h->msg, "cr_chol_add_slot: row %d already has a slot", row + 1);
+    return 40;
+  }
+  /* the analysed pattern and values: column s (the columns after it are empty) */
+  mp = (int *)h->m->p;
+  e0 = mp[s];
+  rc = room(h, h->m, (void **)&h->v, sizeof(double), (size_t)e0 + (size_t)nz, "M");
+  if (rc) return rc;
+  for (q = 0; q < nz; q++) { ((int *)h->m->i)[e0 + q] = rows[q]; h->v[e0 + q] = val[q]; }
+  for (j = s + 1; j <= n; j++) mp[j] = e0 + nz;
+  /* P M P': column ps = position of s (its neighbours' positions, increasing, then ps) */
+  ps = h->iperm[s];
+  sp = (int *)h->pm->p;
+  rc = room(h, h->pm, (void **)&h->ss, sizeof(int), (size_t)sp[ps] + (size_t)nz, "P M P'");
+  if (rc) return rc;
+  ord = h->stk;   /* (position, entry of m) pairs sorted by position: insertion sort */
+  for (q = 0; q + 1 < nz; q++) {
+    int pos = h->iperm[rows[q]], k = q;
+    while (k > 0 && h->iperm[rows[ord[k - 1]]] > pos) { ord[k] = ord[k - 1]; k--; }
+    ord[k] = q;
+  }
+  ord[nz - 1] = nz - 1;
+  for (q = 0; q < nz; q++) {
+    ((int *)h->pm->i)[sp[ps] + q] = h->iperm[rows[ord[q]]];
+    h->ss[sp[ps] + q] = e0 + ord[q];
+  }
+  for (j = ps + 1; j <= n; j++) sp[j] = sp[ps] + nz;
+  /* the elimination tree */
+  for (q = 0; q + 1 < nz; q++) {
+    a = h->iperm[rows[q]];
+    for (r = a; h->parent[r] >= 0 && h->parent[r] != ps; r = h->parent[r]) ;
+    if (h->parent[r] < 0 && r != ps) h->parent[r] = ps;
+  }
+  /* the caller's row now lives at position ps */
+  h->rowof[ps] = row;
+  h->slotof[row] = s;
+  h->inset[s] = 1;
+  h->tail_next++;
+  return 0;
+}
+
+/* Tail slots left (cr_chol_add_slot). */
+int cr_chol_tail_free(void *hp) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  return h->sym ? h->n - h->tail_next : 0;
 }
 
 /* New values of M on the stored analysis, on the analysed pattern itself: val [nz], nz the
@@ -251,26 +379,27 @@ int cr_chol_set_analysed_values(void *hp, int nz, const double *val) {
     return 34;
   }
   memcpy(h->v, val, (size_t)nz * sizeof(double));
-  if (h->l) cholmod_free_factor(&h->l, &h->c);
+  /* the factor's storage is kept for the next cr_chol_factor (refactorised in place) */
+  if (h->l) h->lstale = 1;
   memset(h->active, 0, (size_t)h->n * sizeof(int));
   h->napos = 0;
   return 0;
 }
 
 /* The caller's rows from now on: map [nrow] (0-based slot of each row, -1 for none; slots
- * distinct, checked by the caller). Only the solve uses it here (the other calls get slots). */
+ * distinct, checked by the caller). The solve and cr_chol_add_slot use it (the other calls
+ * get slots). */
 int cr_chol_set_rows(void *hp, int nrow, const int *map) {
   cr_chol_t *h = (cr_chol_t *)hp;
   int i, k;
   if (!h->sym) { snprintf(h->msg, sizeof h->msg, "cr_chol_set_rows before cr_chol_analyze"); return 32; }
-  free(h->noslot);
-  h->noslot = malloc((size_t)(nrow > 0 ? nrow : 1) * sizeof(int));
-  if (!h->noslot) { snprintf(h->msg, sizeof h->msg, "out of memory (nrow = %d)", nrow); return 5; }
+  free(h->slotof);
+  h->slotof = malloc((size_t)(nrow > 0 ? nrow : 1) * sizeof(int));
+  if (!h->slotof) { snprintf(h->msg, sizeof h->msg, "out of memory (nrow = %d)", nrow); return 5; }
   for (k = 0; k < h->n; k++) h->rowof[k] = -1;
-  h->nnoslot = 0;
   for (i = 0; i < nrow; i++) {
-    if (map[i] < 0) { h->noslot[h->nnoslot++] = i; continue; }
-    h->rowof[h->iperm[map[i]]] = i;
+    h->slotof[i] = map[i];
+    if (map[i] >= 0) h->rowof[h->iperm[map[i]]] = i;
   }
   h->nrow = nrow;
   return 0;
@@ -315,10 +444,16 @@ int cr_chol_factor(void *hp, const int *active, int pack_min) {
   pp = (int *)h->sym->Perm;
   actp = h->rs;   /* active flag of each factor position */
   for (k = 0; k < n; k++) actp[k] = active[pp[k]] != 0;
-  /* room: the analysed columns of the active positions, one entry for each other one */
+  /* room: the analysed columns of the active positions, one entry for each other one; the
+   * matrix is kept with the analysis, sized for every position active */
   for (k = 0; k < n; k++) nz += actp[k] ? sp[k + 1] - sp[k] : 1;
-  A = cholmod_allocate_sparse(n, n, nz + 1, 1, 1, 1, CHOLMOD_REAL, &h->c);
-  if (!A) return fail(h, 8, "allocate_sparse (active matrix)");
+  if (h->fa && h->fa->nzmax < (size_t)nz + 1) cholmod_free_sparse(&h->fa, &h->c);
+  if (!h->fa) {
+    h->fa = cholmod_allocate_sparse(n, n, (size_t)(sp[n] > nz ? sp[n] : nz) + 1, 1, 1, 1,
+                                    CHOLMOD_REAL, &h->c);
+    if (!h->fa) return fail(h, 8, "allocate_sparse (active matrix)");
+  }
+  A = h->fa;
   pa = (int *)A->p; ia = (int *)A->i; xa = (double *)A->x;
   nz = 0;
   /* column k of the upper triangle of P A P': the active entries, rows increasing; an
@@ -332,24 +467,34 @@ int cr_chol_factor(void *hp, const int *active, int pack_min) {
     }
   }
   pa[n] = nz;
-  if (h->l) cholmod_free_factor(&h->l, &h->c);
-  h->l = cholmod_copy_factor(h->sym, &h->c);
-  if (!h->l) { cholmod_free_sparse(&A, &h->c); return fail(h, 9, "copy_factor"); }
-  /* from pack_min positions on, the factor starts as the packed identity (as in
-   * cholmod_factorize) and its columns grow as rowfac fills them; below, rowfac gives each
-   * column the analysed count plus room at once (no column moves; at 10^5 agents that took
-   * about twice the memory of the factor, and page faults at every factorisation) */
-  if (n >= pack_min && (!cholmod_change_factor(CHOLMOD_REAL, 0, 0, 1, 1, h->l, &h->c) ||
-                        h->c.status < CHOLMOD_OK)) {
-    cholmod_free_sparse(&A, &h->c); return fail(h, 9, "change_factor");
+  /* a numeric factor of this analysis is refactorised in place (cholmod_rowfac resets its
+   * columns and reuses their storage: no allocation, no page faults); otherwise a new one
+   * from the symbolic analysis. From pack_min positions on, a new factor starts as the
+   * packed identity (as in cholmod_factorize) and its columns grow as rowfac fills them;
+   * below, rowfac gives each column the analysed count plus room at once (no column moves;
+   * at 10^5 agents that took about twice the memory of the factor) */
+  if (!(h->l && h->l->xtype == CHOLMOD_REAL && !h->l->is_super && !h->l->is_ll &&
+        h->l->n == (size_t)n)) {
+    if (h->l) cholmod_free_factor(&h->l, &h->c);
+    h->l = cholmod_copy_factor(h->sym, &h->c);
+    if (!h->l) return fail(h, 9, "copy_factor");
+    if (n >= pack_min && (!cholmod_change_factor(CHOLMOD_REAL, 0, 0, 1, 1, h->l, &h->c) ||
+                          h->c.status < CHOLMOD_OK)) {
+      cholmod_free_factor(&h->l, &h->c); return fail(h, 9, "change_factor");
+    }
   }
+  h->lstale = 1;
   k = cholmod_rowfac(A, NULL, beta, 0, (size_t)n, h->l, &h->c);
-  cholmod_free_sparse(&A, &h->c);
   /* CHOLMOD_NOT_POSDEF / DSMALL are warnings: the caller inspects the pivots (cr_chol_pivots) */
-  if (!k || h->c.status < CHOLMOD_OK) return fail(h, 10, "rowfac");
+  if (!k || h->c.status < CHOLMOD_OK) {
+    /* a failed rowfac may leave the factor symbolic: never refactorised in place */
+    cholmod_free_factor(&h->l, &h->c); h->lstale = 0;
+    return fail(h, 10, "rowfac");
+  }
   if (h->l->is_super || h->l->is_ll || h->l->xtype != CHOLMOD_REAL) {
     snprintf(h->msg, sizeof h->msg, "CHOLMOD returned a supernodal, LL' or non-real factor"); return 11;
   }
+  h->lstale = 0;
   h->napos = 0;
   for (k = 0; k < n; k++)
     if (actp[k]) h->apos[h->napos++] = k;
@@ -362,7 +507,7 @@ int cr_chol_pivots(void *hp, double *d) {
   cr_chol_t *h = (cr_chol_t *)hp;
   int j, *lp, *p;
   double *lx;
-  if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_pivots without a factor"); return 12; }
+  if (!h->l || h->lstale) { snprintf(h->msg, sizeof h->msg, "cr_chol_pivots without a factor"); return 12; }
   lp = (int *)h->l->p; lx = (double *)h->l->x; p = (int *)h->l->Perm;
   for (j = 0; j < h->n; j++) d[p[j]] = lx[lp[j]];
   return 0;
@@ -374,7 +519,7 @@ int cr_chol_rowadd(void *hp, int t, int nz, const int *idx, const double *val, d
   cr_chol_t *h = (cr_chol_t *)hp;
   int q, cnt = 0, k, *ri, *rp, *lp;
   double *rx;
-  if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowadd without a factor"); return 13; }
+  if (!h->l || h->lstale) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowadd without a factor"); return 13; }
   if (h->active[t]) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowadd: row %d already active", t + 1); return 14; }
   if (!h->inset[t]) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowadd: row %d is outside the analysed set", t + 1); return 27; }
   rp = (int *)h->r->p; ri = (int *)h->r->i; rx = (double *)h->r->x;
@@ -445,7 +590,7 @@ int cr_chol_schur(void *hp, int t, int nz, const int *idx, const double *val, in
   cr_chol_t *h = (cr_chol_t *)hp;
   int q, k, j, p, n, len, top, bad = 0, *lp, *li, *lnz, *mk, *stk;
   double *lx, *y, yj, acc = 0.0;
-  if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_schur without a factor"); return 21; }
+  if (!h->l || h->lstale) { snprintf(h->msg, sizeof h->msg, "cr_chol_schur without a factor"); return 21; }
   if (h->n < reach_min) {
     *s = schur_scan(h, t, nz, idx, val);
     return 0;
@@ -492,7 +637,7 @@ double cr_chol_min_pivot(void *hp) {
   cr_chol_t *h = (cr_chol_t *)hp;
   int j, *lp, *p;
   double *lx, d = 1.0;
-  if (!h->l) return 0.0;
+  if (!h->l || h->lstale) return 0.0;
   lp = (int *)h->l->p; lx = (double *)h->l->x; p = (int *)h->l->Perm;
   for (j = 0; j < h->n; j++)
     if (h->active[p[j]] && !(lx[lp[j]] >= d)) d = lx[lp[j]];
@@ -504,7 +649,7 @@ double cr_chol_min_pivot(void *hp) {
 int cr_chol_rowdel(void *hp, int t) {
   cr_chol_t *h = (cr_chol_t *)hp;
   int k;
-  if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowdel without a factor"); return 16; }
+  if (!h->l || h->lstale) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowdel without a factor"); return 16; }
   if (!h->active[t]) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowdel: row %d not active", t + 1); return 17; }
   k = h->iperm[t];
   if (!cholmod_row_subtree(h->pm, NULL, (size_t)k, h->parent, h->rpat, &h->c) || h->c.status < CHOLMOD_OK)
@@ -536,7 +681,7 @@ int cr_chol_solve(void *hp, const double *b, double *x) {
   cr_chol_t *h = (cr_chol_t *)hp;
   int i, j, p, na, *lp, *li, *lnz, *ap, *rowof;
   double *lx, *y, yj;
-  if (!h->l) { snprintf(h->msg, sizeof h->msg, "cr_chol_solve without a factor"); return 19; }
+  if (!h->l || h->lstale) { snprintf(h->msg, sizeof h->msg, "cr_chol_solve without a factor"); return 19; }
   if (h->l->is_super || h->l->is_ll || h->l->xtype != CHOLMOD_REAL) {
     snprintf(h->msg, sizeof h->msg, "cr_chol_solve: factor is not a real simplicial LDL'");
     return 20;
@@ -592,7 +737,7 @@ long cr_chol_factor_nnz(void *hp) {
   cr_chol_t *h = (cr_chol_t *)hp;
   long s = 0;
   int j, *nzc;
-  if (!h->l) return 0;
+  if (!h->l || h->lstale) return 0;
   nzc = (int *)h->l->nz;
   for (j = 0; j < h->n; j++) s += nzc[j];
   return s;

@@ -8,7 +8,8 @@
 !> Rows are normalised to unit norm (same problem, lambda rescaled on exit). M = B B^T over all
 !> candidate rows is assembled once per solve (linear in rows: each row meets the rows of its
 !> two agents) and analysed once (AMD) on the rows that can become active (W: warm-start rows
-!> and rows with a small slack at u = v; a violated row outside W enlarges it and M is analysed
+!> and rows with a small slack at u = v; a violated row outside W takes one of the empty tail
+!> slots ordered last in every analysis, or, when none is left, enlarges W and M is analysed
 !> again, counted in n_reanalyse); the factor holds M on the passive set P and the identity
 !> elsewhere. Row deletions hand CHOLMOD the row's pattern (its row subtree in the elimination
 !> tree of the analysed matrix) instead of letting it scan the factor.
@@ -51,7 +52,8 @@
 module cr_sparse_as
   use cr_kinds, only: wp, i8
   use cr_sort, only: lower_bound
-  use cr_grow, only: igrow => grow_int, rgrow => grow_real, lgrow => grow_logical
+  use cr_grow, only: igrow => grow_int, rgrow => grow_real, lgrow => grow_logical, grow_kept_int, &
+    grow_kept_real
   use cr_error, only: error_t, prefix_error
   use cr_strings, only: str
   use cr_contact_set, only: contact_set_t, velocity_scale
@@ -182,6 +184,15 @@ module cr_sparse_as
     !> and a_margin 2 take the fewest instructions.
     logical :: reuse_analysis = .true.
     real(wp) :: a_margin = 2.0_wp, reuse_fill = 0.5_wp, r_margin = 0.0_wp
+    !> tail slots: a fresh analysis appends tail_slots empty slots, ordered after the others.
+    !> A violated row without a slot (a contact pair new to the analysis) that must enter takes
+    !> the next one (its column joins the analysed pattern, the elimination tree grows by one
+    !> node; cholmod_rowadd finds the new row's fill itself): no new ordering and no
+    !> refactorisation, where the enlargement of W costs both (n_reanalyse); the slot keeps
+    !> its row in the next solves that reuse the analysis. Only when the tail slots run out is
+    !> W enlarged as before. Rows given a tail slot since init: n_tail.
+    integer :: tail_slots = 16
+    integer :: n_tail = 0
     !> analyses done (fresh) and reused since the last free
     integer :: n_analyse = 0, n_reuse = 0
     !> slots of the current analysis: number; their keys in an open-addressing hash table
@@ -617,11 +628,12 @@ contains
           k = k + 1; this%rslot(jj) = k
         end if
       end do
-      this%ns = k
+      ! and the tail slots k + 1 .. ns (empty columns)
+      this%ns = k + max(this%tail_slots, 0)
       ! no reuse of this analysis until it is complete
       this%keys_ok = .false.
       ! slot numbers grow with the row number: sorted columns stay sorted
-      call igrow(this%wptr, k + 1); call igrow(this%wi, max(this%nzu, 1))
+      call igrow(this%wptr, this%ns + 1); call igrow(this%wi, max(this%nzu, 1))
       call rgrow(this%wv, max(this%nzu, 1))
       nzw = 0
       do jj = 1, m
@@ -634,15 +646,15 @@ contains
           end if
         end do
       end do
-      this%wptr(k + 1) = nzw + 1
-      call this%chol%analyze(k, this%wptr, this%wi, this%wv, error)
+      this%wptr(k + 1:this%ns + 1) = nzw + 1
+      call this%chol%analyze(this%ns, this%wptr, this%wi, this%wv, error, ntail=this%ns - k)
       if (allocated(error)) return
       call this%chol%set_rows(this%rslot(1:m), error)
       if (allocated(error)) return
       this%n_analyse = this%n_analyse + 1
       ! the slots' identities in a hash table (at most half full), for the next solves
       q = 16
-      do while (q < 2 * k)
+      do while (q < 2 * this%ns)
         q = 2 * q
       end do
       if (allocated(this%hkey)) then
@@ -670,23 +682,26 @@ contains
     !> identity), no two rows share one, and at least reuse_fill of the slots hold a row. Then W becomes every row with a slot, M is handed over in slot space (same
     !> pattern as analysed or a part of it) and ok is true.
     logical function reuse_slots() result(ok)
-      integer :: jj, k, nzs, nin
+      integer :: jj, k, nzs, nin, nneed
       ok = .false.
       if (.not. this%keys_ok .or. this%ns == 0) return
       call igrow(this%rslot, m); call igrow(this%smark, this%ns)
       this%smark(1:this%ns) = 0
-      nin = 0
+      nin = 0; nneed = 0
       do jj = 1, m
         k = find_slot(cs%key(jj))
         if (k > 0) then
           if (this%smark(k) /= 0) return
           this%smark(k) = jj; nin = nin + 1
         else if (this%lam(jj) > 0.0_wp .or. this%cc(jj) > -this%r_margin * sv) then
-          return
+          ! may become active without a slot: a tail slot below, while they last
+          nneed = nneed + 1
+          if (nneed > this%chol%tail_free()) return
+          this%rem(nneed) = jj
         end if
         this%rslot(jj) = k
       end do
-      if (real(nin, wp) < this%reuse_fill * real(this%ns, wp)) return
+      if (real(nin, wp) < this%reuse_fill * real(this%ns - this%chol%tail_free(), wp)) return
       ! the values of M on the analysed pattern (slot_values; M is assembled exactly
       ! symmetric, so the values are those of the row-space upper triangle); an entry outside
       ! the pattern (never expected: the same slots keep the same neighbours) means no reuse
@@ -707,6 +722,9 @@ contains
       do jj = 1, m
         this%inw(jj) = this%rslot(jj) > 0
       end do
+      do k = 1, nneed
+        call tail_slot(this%rem(k)); if (allocated(error)) return
+      end do
       this%n_reuse = this%n_reuse + 1
       ok = .true.
     end function reuse_slots
@@ -725,14 +743,24 @@ contains
       end do
     end function find_slot
 
-    !> Rows viol(1:n) must be able to enter: if some lie outside W, W takes them and every row
-    !> whose current slack is below the margin, M is analysed again and P refactorised. The
+    !> Rows viol(1:n) must be able to enter: those outside W take tail slots while enough are
+    !> left (tail_slot: the analysis grows, the factor stays); otherwise W takes them and every
+    !> row whose current slack is below the margin, M is analysed again and P refactorised. The
     !> margin doubles at each enlargement of a solve, so that a solve re-analyses a few times
     !> at most (W soon holds every row).
     subroutine enlarge_w(n)
       integer, intent(in) :: n
       integer :: q
       if (all(this%inw(this%viol(1:n)))) return
+      if (count(.not. this%inw(this%viol(1:n))) <= this%chol%tail_free()) then
+        ! tail slots for the rows without one: the analysis grows, the factor stays
+        do q = 1, n
+          if (.not. this%inw(this%viol(q))) then
+            call tail_slot(this%viol(q)); if (allocated(error)) return
+          end if
+        end do
+        return
+      end if
       this%inw(this%viol(1:n)) = .true.
       wmarg = 2.0_wp * wmarg
       call slacks()
@@ -743,6 +771,51 @@ contains
       call order_and_analyze(.true.); if (allocated(error)) return
       call this%chol%factor(this%act(1:m), error)
     end subroutine enlarge_w
+
+    !> Give row jr (no slot) the next tail slot: its column of the slot-space upper triangle
+    !> (the rows of its agents that have a slot, then its diagonal) joins the analysed
+    !> pattern (wptr, wi: the next solves put their values there) and the analysis in the shim;
+    !> its identity joins the slot table.
+    subroutine tail_slot(jr)
+      integer, intent(in) :: jr
+      integer :: q, e, st, cnt, kk, p
+      integer(i8) :: key
+      real(wp) :: x
+      st = this%ns - this%chol%tail_free() + 1
+      e = this%wptr(st)
+      q = e - 1 + this%fp(jr + 1) - this%fp(jr)
+      if (size(this%wi) < q) call grow_kept_int(this%wi, 2 * q, e - 1)
+      if (size(this%wv) < q) call grow_kept_real(this%wv, 2 * q, e - 1)
+      cnt = 0
+      do q = this%fp(jr), this%fp(jr + 1) - 1
+        kk = this%fi(q)
+        if (kk == jr .or. this%rslot(kk) == 0) cycle
+        ! by increasing slot (insertion: a few entries)
+        kk = this%rslot(kk); x = this%fv(q)
+        p = e + cnt
+        do while (p > e)
+          if (this%wi(p - 1) < kk) exit
+          this%wi(p) = this%wi(p - 1); this%wv(p) = this%wv(p - 1)
+          p = p - 1
+        end do
+        this%wi(p) = kk; this%wv(p) = x
+        cnt = cnt + 1
+      end do
+      cnt = cnt + 1
+      this%wi(e + cnt - 1) = st; this%wv(e + cnt - 1) = this%fv(this%fd(jr))
+      call this%chol%add_slot(st, this%wi(e:e + cnt - 1), this%wv(e:e + cnt - 1), jr, error)
+      if (allocated(error)) return
+      this%wptr(st + 1:this%ns + 1) = e + cnt
+      this%rslot(jr) = st; this%inw(jr) = .true.
+      key = cs%key(jr)
+      q = key_hash(key, this%hmask)
+      do while (this%hslot(q) /= 0)
+        if (this%hkey(q) == key) this%keys_ok = .false.
+        q = iand(q + 1, this%hmask)
+      end do
+      this%hkey(q) = key; this%hslot(q) = st
+      this%n_tail = this%n_tail + 1
+    end subroutine tail_slot
 
     !> The active-set iteration from this%lam (warm start) on the current analysis. why is set
     !> (non-empty) when the safe path must take over.
@@ -1751,7 +1824,7 @@ contains
     class(sparse_as_solver_t), intent(inout) :: this
     call this%chol%free()
     this%keys_ok = .false.; this%ns = 0
-    this%n_analyse = 0; this%n_reuse = 0
+    this%n_analyse = 0; this%n_reuse = 0; this%n_tail = 0
     if (this%dense_ready) call this%dense%free()
     this%dense_ready = .false.
   end subroutine sparse_as_free
