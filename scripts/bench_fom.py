@@ -30,6 +30,8 @@ import sys
 import tempfile
 import time
 
+from crowdrom_io import InputError, one_line_errors
+
 DEFAULT_SOLVERS = ("sparse_active_set", "active_set", "gpcg", "apgd", "uzawa")
 SOLVERS = list(DEFAULT_SOLVERS)
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -182,7 +184,7 @@ def print_scaling_row(row):
                   s["failed_steps"], s.get("fallback_solves", 0)), flush=True)
 
 
-def main():
+def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="fewer cases (smoke run)")
     ap.add_argument("--uzawa-steps", type=int, default=5)
@@ -200,12 +202,12 @@ def main():
                     help="crowd_fom binaries to compare back to back (default build/bin/crowd_fom)")
     ap.add_argument("--repeat", type=int, default=1, help="runs of each case and binary; the fastest is kept")
     ap.add_argument("--cpu", type=int, default=None, help="pin every run to this CPU (see above)")
-    a = ap.parse_args()
+    a = ap.parse_args(argv)
     global FOMS, REPEAT, CPU
     if a.cpu is not None:
         if a.cpu not in os.sched_getaffinity(0):
-            raise SystemExit("--cpu %d: not a CPU this process may run on (%s)" % (
-                a.cpu, sorted(os.sched_getaffinity(0))))
+            raise InputError("--cpu %d: not a CPU this process may run on (%s)" % (
+                a.cpu, ", ".join(map(str, sorted(os.sched_getaffinity(0))))))
         CPU = a.cpu
     FOMS = [os.path.abspath(f) for f in a.fom]
     REPEAT = max(1, a.repeat)
@@ -253,4 +255,4 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(one_line_errors("bench_fom.py", main))

@@ -187,3 +187,12 @@ def test_ml_correct_output_and_csv_same(study, tmp_path):
               "--quiet")
     assert_refused(res, "are the same file")
     assert not (tmp_path / "ml.h5").exists()
+
+
+def test_bench_fom_cpu_outside_affinity(tmp_path):
+    """bench_fom.py --cpu names a CPU this process may not run on: one error line, exit 2,
+    no table written (checked before any run)."""
+    out = tmp_path / "bench.md"
+    res = run("bench_fom.py", "--cpu", 4096, "--skip-solvers", "--skip-scaling", "--out", out)
+    assert_refused(res, "--cpu 4096")
+    assert not out.exists()
