@@ -47,9 +47,9 @@ typedef struct {
   int *slotof;            /* slot of each of the caller's rows, -1 for none [nrow] (NULL: the
                            * identity, as after an analysis) */
   int *rs;                /* work [n + 1] */
-  int ntail, tail_next;   /* tail slots n - ntail .. n - 1: empty at the analysis, ordered last
-                           * (in slot order); cr_chol_add_slot gives the next one (tail_next) a
-                           * row whose pattern the analysis did not know */
+  int tail_next;          /* the next free tail slot (tail slots: the last ones of an analysis,
+                           * empty there and ordered last, in slot order; cr_chol_add_slot gives
+                           * them to rows whose pattern the analysis did not know); n: none */
   int *apos, napos;       /* active factor positions, ascending [n] (the solve visits only
                            * these; the others are identity rows and, in the work vector
                            * xw, stay zero) */
@@ -60,6 +60,10 @@ static int fail(cr_chol_t *h, int code, const char *what) {
   snprintf(h->msg, sizeof h->msg, "CHOLMOD %s failed (status %d, n = %d)", what, h->c.status, h->n);
   return code;
 }
+
+/* A factor of the current values: a numeric factor exists and no new values came since it
+ * was computed (cr_chol_set_analysed_values marks it stale until cr_chol_factor). */
+static int have_factor(const cr_chol_t *h) { return h->l && !h->lstale; }
 
 static void release(cr_chol_t *h) {
   if (!h->started) return;
@@ -86,7 +90,7 @@ static void release(cr_chol_t *h) {
   free(h->rs); h->rs = NULL;
   free(h->slotof); h->slotof = NULL;
   h->nrow = 0;
-  h->ntail = 0; h->tail_next = 0;
+  h->tail_next = 0;
   h->n = 0;
 }
 
@@ -264,7 +268,7 @@ int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const
   free(h->slotof); h->slotof = NULL;
   for (j = nh; j < n; j++)
     if (ip[j] != j) { snprintf(h->msg, sizeof h->msg, "cr_chol_analyze: tail slot %d not ordered last", j + 1); return 36; }
-  h->ntail = ntail; h->tail_next = nh;
+  h->tail_next = nh;
   j = permuted_etree(h);
   if (j != 0) return j;
   /* the values, after the work of the pattern is freed (a lower peak of memory) */
@@ -369,7 +373,8 @@ int cr_chol_tail_free(void *hp) {
 
 /* New values of M on the stored analysis, on the analysed pattern itself: val [nz], nz the
  * entries handed to cr_chol_analyze, in their order (zero where the caller has no entry now).
- * The current numeric factor is discarded. */
+ * The current numeric factor is stale from here on (see have_factor); cr_chol_factor
+ * refactorises it in place. */
 int cr_chol_set_analysed_values(void *hp, int nz, const double *val) {
   cr_chol_t *h = (cr_chol_t *)hp;
   if (!h->sym || !h->m) { snprintf(h->msg, sizeof h->msg, "cr_chol_set_analysed_values before cr_chol_analyze"); return 33; }
@@ -467,15 +472,13 @@ int cr_chol_factor(void *hp, const int *active, int pack_min) {
     }
   }
   pa[n] = nz;
-  /* a numeric factor of this analysis is refactorised in place (cholmod_rowfac resets its
+  /* the numeric factor of this analysis (h->l: freed with the analysis) is refactorised in place (cholmod_rowfac resets its
    * columns and reuses their storage: no allocation, no page faults); otherwise a new one
    * from the symbolic analysis. From pack_min positions on, a new factor starts as the
    * packed identity (as in cholmod_factorize) and its columns grow as rowfac fills them;
    * below, rowfac gives each column the analysed count plus room at once (no column moves;
    * at 10^5 agents that took about twice the memory of the factor) */
-  if (!(h->l && h->l->xtype == CHOLMOD_REAL && !h->l->is_super && !h->l->is_ll &&
-        h->l->n == (size_t)n)) {
-    if (h->l) cholmod_free_factor(&h->l, &h->c);
+  if (!h->l) {
     h->l = cholmod_copy_factor(h->sym, &h->c);
     if (!h->l) return fail(h, 9, "copy_factor");
     if (n >= pack_min && (!cholmod_change_factor(CHOLMOD_REAL, 0, 0, 1, 1, h->l, &h->c) ||
@@ -492,6 +495,8 @@ int cr_chol_factor(void *hp, const int *active, int pack_min) {
     return fail(h, 10, "rowfac");
   }
   if (h->l->is_super || h->l->is_ll || h->l->xtype != CHOLMOD_REAL) {
+    /* (h->l, when it exists, is a real simplicial LDL' factor of this analysis) */
+    cholmod_free_factor(&h->l, &h->c); h->lstale = 0;
     snprintf(h->msg, sizeof h->msg, "CHOLMOD returned a supernodal, LL' or non-real factor"); return 11;
   }
   h->lstale = 0;
@@ -507,7 +512,7 @@ int cr_chol_pivots(void *hp, double *d) {
   cr_chol_t *h = (cr_chol_t *)hp;
   int j, *lp, *p;
   double *lx;
-  if (!h->l || h->lstale) { snprintf(h->msg, sizeof h->msg, "cr_chol_pivots without a factor"); return 12; }
+  if (!have_factor(h)) { snprintf(h->msg, sizeof h->msg, "cr_chol_pivots without a factor"); return 12; }
   lp = (int *)h->l->p; lx = (double *)h->l->x; p = (int *)h->l->Perm;
   for (j = 0; j < h->n; j++) d[p[j]] = lx[lp[j]];
   return 0;
@@ -519,7 +524,7 @@ int cr_chol_rowadd(void *hp, int t, int nz, const int *idx, const double *val, d
   cr_chol_t *h = (cr_chol_t *)hp;
   int q, cnt = 0, k, *ri, *rp, *lp;
   double *rx;
-  if (!h->l || h->lstale) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowadd without a factor"); return 13; }
+  if (!have_factor(h)) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowadd without a factor"); return 13; }
   if (h->active[t]) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowadd: row %d already active", t + 1); return 14; }
   if (!h->inset[t]) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowadd: row %d is outside the analysed set", t + 1); return 27; }
   rp = (int *)h->r->p; ri = (int *)h->r->i; rx = (double *)h->r->x;
@@ -590,7 +595,7 @@ int cr_chol_schur(void *hp, int t, int nz, const int *idx, const double *val, in
   cr_chol_t *h = (cr_chol_t *)hp;
   int q, k, j, p, n, len, top, bad = 0, *lp, *li, *lnz, *mk, *stk;
   double *lx, *y, yj, acc = 0.0;
-  if (!h->l || h->lstale) { snprintf(h->msg, sizeof h->msg, "cr_chol_schur without a factor"); return 21; }
+  if (!have_factor(h)) { snprintf(h->msg, sizeof h->msg, "cr_chol_schur without a factor"); return 21; }
   if (h->n < reach_min) {
     *s = schur_scan(h, t, nz, idx, val);
     return 0;
@@ -637,7 +642,7 @@ double cr_chol_min_pivot(void *hp) {
   cr_chol_t *h = (cr_chol_t *)hp;
   int j, *lp, *p;
   double *lx, d = 1.0;
-  if (!h->l || h->lstale) return 0.0;
+  if (!have_factor(h)) return 0.0;
   lp = (int *)h->l->p; lx = (double *)h->l->x; p = (int *)h->l->Perm;
   for (j = 0; j < h->n; j++)
     if (h->active[p[j]] && !(lx[lp[j]] >= d)) d = lx[lp[j]];
@@ -649,7 +654,7 @@ double cr_chol_min_pivot(void *hp) {
 int cr_chol_rowdel(void *hp, int t) {
   cr_chol_t *h = (cr_chol_t *)hp;
   int k;
-  if (!h->l || h->lstale) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowdel without a factor"); return 16; }
+  if (!have_factor(h)) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowdel without a factor"); return 16; }
   if (!h->active[t]) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowdel: row %d not active", t + 1); return 17; }
   k = h->iperm[t];
   if (!cholmod_row_subtree(h->pm, NULL, (size_t)k, h->parent, h->rpat, &h->c) || h->c.status < CHOLMOD_OK)
@@ -681,7 +686,7 @@ int cr_chol_solve(void *hp, const double *b, double *x) {
   cr_chol_t *h = (cr_chol_t *)hp;
   int i, j, p, na, *lp, *li, *lnz, *ap, *rowof;
   double *lx, *y, yj;
-  if (!h->l || h->lstale) { snprintf(h->msg, sizeof h->msg, "cr_chol_solve without a factor"); return 19; }
+  if (!have_factor(h)) { snprintf(h->msg, sizeof h->msg, "cr_chol_solve without a factor"); return 19; }
   if (h->l->is_super || h->l->is_ll || h->l->xtype != CHOLMOD_REAL) {
     snprintf(h->msg, sizeof h->msg, "cr_chol_solve: factor is not a real simplicial LDL'");
     return 20;
@@ -737,7 +742,7 @@ long cr_chol_factor_nnz(void *hp) {
   cr_chol_t *h = (cr_chol_t *)hp;
   long s = 0;
   int j, *nzc;
-  if (!h->l || h->lstale) return 0;
+  if (!have_factor(h)) return 0;
   nzc = (int *)h->l->nz;
   for (j = 0; j < h->n; j++) s += nzc[j];
   return s;

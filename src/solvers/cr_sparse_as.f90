@@ -610,7 +610,6 @@ contains
     subroutine order_and_analyze(fresh)
       logical, intent(in) :: fresh
       integer :: jj, q, nzw, k
-      integer(i8) :: key
       if (.not. fresh .and. this%reuse_analysis) then
         if (reuse_slots()) return
         if (allocated(error)) return
@@ -665,17 +664,23 @@ contains
       this%hslot(0:q - 1) = 0
       this%keys_ok = .true.
       do jj = 1, m
-        if (.not. this%inw(jj)) cycle
-        key = cs%key(jj)
-        q = key_hash(key, this%hmask)
-        do while (this%hslot(q) /= 0)
-          ! two rows with one identity: no reuse (never expected of a contact set)
-          if (this%hkey(q) == key) this%keys_ok = .false.
-          q = iand(q + 1, this%hmask)
-        end do
-        this%hkey(q) = key; this%hslot(q) = this%rslot(jj)
+        if (this%inw(jj)) call slot_insert(cs%key(jj), this%rslot(jj))
       end do
     end subroutine order_and_analyze
+
+    !> Name slot k by contact identity key in the slot table (two rows with one identity: no
+    !> reuse of this analysis, never expected of a contact set).
+    subroutine slot_insert(key, k)
+      integer(i8), intent(in) :: key
+      integer, intent(in) :: k
+      integer :: q
+      q = key_hash(key, this%hmask)
+      do while (this%hslot(q) /= 0)
+        if (this%hkey(q) == key) this%keys_ok = .false.
+        q = iand(q + 1, this%hmask)
+      end do
+      this%hkey(q) = key; this%hslot(q) = k
+    end subroutine slot_insert
 
     !> The previous analysis serves this solve when every row that may become active (warm
     !> start, slack at u = v below r_margin velocity scales) has a slot (found by its contact
@@ -779,7 +784,6 @@ contains
     subroutine tail_slot(jr)
       integer, intent(in) :: jr
       integer :: q, e, st, cnt, kk, p
-      integer(i8) :: key
       real(wp) :: x
       st = this%ns - this%chol%tail_free() + 1
       e = this%wptr(st)
@@ -807,13 +811,7 @@ contains
       if (allocated(error)) return
       this%wptr(st + 1:this%ns + 1) = e + cnt
       this%rslot(jr) = st; this%inw(jr) = .true.
-      key = cs%key(jr)
-      q = key_hash(key, this%hmask)
-      do while (this%hslot(q) /= 0)
-        if (this%hkey(q) == key) this%keys_ok = .false.
-        q = iand(q + 1, this%hmask)
-      end do
-      this%hkey(q) = key; this%hslot(q) = st
+      call slot_insert(cs%key(jr), st)
       this%n_tail = this%n_tail + 1
     end subroutine tail_slot
 
