@@ -526,7 +526,7 @@ contains
   !> and deletion (the deletions bound row patterns by the grown elimination tree) a solve
   !> through the row map matches a dense solve of M on the active rows (identity elsewhere)
   !> to 64 eps |x| (both solves are backward stable: their error is a small multiple of
-  !> n kappa eps with n = 5 and kappa < 4 here, diagonally dominant; a wrong pattern or a
+  !> n kappa eps with n = 5 and kappa <= 4.4 on every active subset here; a wrong pattern or a
   !> missed fill gives errors of order one); a fresh factorisation on the grown analysis agrees
   !> too. Bad calls (no tail
   !> left, a row that has a slot, a column not ending at its diagonal, a tail column that is
