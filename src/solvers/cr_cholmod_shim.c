@@ -327,18 +327,20 @@ int cr_chol_add_slot(void *hp, int s, int nz, const int *rows, const double *val
     snprintf(h->msg, sizeof h->msg, "cr_chol_add_slot: row %d already has a slot", row + 1);
     return 40;
   }
-  /* the analysed pattern and values: column s (the columns after it are empty) */
+  /* room first (a failure leaves the analysis as it was), then the analysed pattern and
+   * values: column s (the columns after it are empty) */
   mp = (int *)h->m->p;
   e0 = mp[s];
+  ps = h->iperm[s];
+  sp = (int *)h->pm->p;
   rc = room(h, h->m, (void **)&h->v, sizeof(double), (size_t)e0 + (size_t)nz, "M");
   if (rc) return rc;
+  rc = room(h, h->pm, (void **)&h->ss, sizeof(int), (size_t)sp[ps] + (size_t)nz, "P M P'");
+  if (rc) return rc;
+  mp = (int *)h->m->p; sp = (int *)h->pm->p;   /* (reallocation moves only i and x) */
   for (q = 0; q < nz; q++) { ((int *)h->m->i)[e0 + q] = rows[q]; h->v[e0 + q] = val[q]; }
   for (j = s + 1; j <= n; j++) mp[j] = e0 + nz;
   /* P M P': column ps = position of s (its neighbours' positions, increasing, then ps) */
-  ps = h->iperm[s];
-  sp = (int *)h->pm->p;
-  rc = room(h, h->pm, (void **)&h->ss, sizeof(int), (size_t)sp[ps] + (size_t)nz, "P M P'");
-  if (rc) return rc;
   ord = h->stk;   /* (position, entry of m) pairs sorted by position: insertion sort */
   for (q = 0; q + 1 < nz; q++) {
     int pos = h->iperm[rows[q]], k = q;
