@@ -56,16 +56,20 @@ def make_database(workdir, steps, bindir):
     db = os.path.join(workdir, f"crowd1000_bench_{steps}.h5")
     if os.path.exists(db):
         return db
+    exe = os.path.join(bindir, "crowd_snapshots")
+    if not (os.path.isfile(exe) and os.access(exe, os.X_OK)):
+        raise cio.InputError(f"no crowd_snapshots in --bindir '{bindir}' (build first: scripts/setup.sh)")
     nml = os.path.join(workdir, f"crowd1000_bench_{steps}.nml")
     with open(nml, "w") as f:
         f.write(scene_text(steps, db))
-    print(f"making the database: {bindir}/crowd_snapshots {nml}", flush=True)
+    print(f"making the database: {exe} {nml}", flush=True)
     t0 = time.time()
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
-    p = subprocess.run([os.path.join(bindir, "crowd_snapshots"), nml], cwd=workdir,
+    p = subprocess.run([exe, nml], cwd=workdir,
                        capture_output=True, text=True, env=env)
     if p.returncode != 0:
-        sys.exit(f"error: crowd_snapshots failed:\n{p.stdout}\n{p.stderr}")
+        last = (p.stderr.strip() or p.stdout.strip() or "(no message)").splitlines()[-1]
+        raise RuntimeError(f"crowd_snapshots failed (exit status {p.returncode}): {last}")
     print(f"  done in {time.time() - t0:.1f} s", flush=True)
     return db
 
@@ -126,10 +130,7 @@ def main(argv=None):
     qml = perturb(q[:n_conf], args.smooth, args.noise, args.seed)
     exe = args.exe or os.path.join(args.bindir, "crowd_project")
     t0 = time.time()
-    try:
-        r = cio.run_projection(exe, db, tr["params"][:1], qml[None], workdir, refine_max=args.refine)
-    except (cio.InputError, RuntimeError) as e:
-        sys.exit(f"error: {e}")
+    r = cio.run_projection(exe, db, tr["params"][:1], qml[None], workdir, refine_max=args.refine)
     wall = time.time() - t0
     t = r["time"][0]
     fig = {
@@ -144,7 +145,7 @@ def main(argv=None):
         "time_per_config_max": float(t.max()), "time_query": float(r["t_total"]),
         "wall_program": wall,
         "solves_mean": float(r["solves"][0].mean()), "iterations_mean": float(r["iterations"][0].mean()),
-        "grows_mean": float(r["grows"][0].mean()), "restarts_mean": float(r["restarts"][0].mean()),
+        "restarts_mean": float(r["restarts"][0].mean()),
         "n_free_mean": float(r["n_free"][0].mean()), "n_moved_mean": float(r["n_moved"][0].mean()),
         "refined_short": int((r["refined"][0] == 0).sum()),
         "displacement_rel": float(np.linalg.norm(r["positions"][0] - qml) / np.linalg.norm(qml - q[:n_conf])),
@@ -158,7 +159,7 @@ def main(argv=None):
           f"{fig['time_per_config_median']:.4f} s, max {fig['time_per_config_max']:.4f} s; per query "
           f"(projection loop) {fig['time_query']:.2f} s, program wall {wall:.2f} s")
     print(f"  per configuration: {fig['solves_mean']:.1f} solves, {fig['iterations_mean']:.0f} solver "
-          f"iterations, {fig['grows_mean']:.1f} growths, {fig['restarts_mean']:.1f} restarts, "
+          f"iterations, {fig['restarts_mean']:.1f} restarts, "
           f"{fig['n_free_mean']:.0f} agents free, {fig['n_moved_mean']:.0f} moved")
     print(f"  |q_out - q_ml| / |q_fom - q_ml| = {fig['displacement_rel']:.3f}; request: "
           f"{os.path.join(workdir, 'projection_request.h5')}")
@@ -174,4 +175,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cio.one_line_errors("bench_project.py", main))

@@ -35,7 +35,7 @@ PROJ_SCHEMA = "crowdrom-projected"
 #: read the offline results of a version-1 ROM file (written before the prepared pairs), which
 #: crowd_rom (pairs needed) refuses
 SCHEMA_VERSIONS = {FOM_SCHEMA: (1,), DB_SCHEMA: (1,), ROM_SCHEMA: (1, 2), ROMRUN_SCHEMA: (1,),
-                   ML_SCHEMA: (1,), PROJ_SCHEMA: (1,)}
+                   ML_SCHEMA: (1,), PROJ_SCHEMA: (2,)}
 
 
 class InputError(Exception):
@@ -466,7 +466,7 @@ def mobility(q_ref, q):
 
 PROJ_PER_CONFIG = ("time", "displacement", "max_move", "depth_in", "overlap_agents_before",
                    "overlap_walls_before", "overlap_agents_after", "overlap_walls_after", "kkt",
-                   "n_overlaps", "n_moved", "n_free", "solves", "iterations", "grows", "restarts",
+                   "n_overlaps", "n_moved", "n_free", "solves", "iterations", "restarts",
                    "refines", "refined")
 
 

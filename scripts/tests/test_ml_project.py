@@ -76,6 +76,11 @@ def test_projection_removes_overlaps(study, tmp_path):
             assert o_aa <= TOL and o_aw <= TOL, (s, c, o_aa, o_aw)
     np.testing.assert_array_equal(r["positions"][:, 0], q[:, 0])
     assert np.all(r["solves"][:, 0] == 0) and np.all(r["time"] >= 0)
+    # the result's schema: version 2, exactly the datasets the reader documents (version 1's
+    # always-zero `grows` is gone)
+    with h5py.File(tmp_path / "projection_result.h5", "r") as f:
+        assert int(f.attrs["schema_version"]) == 2
+        assert set(f.keys()) == {"positions", *cio.PROJ_PER_CONFIG}
     # closer to the input than the input is to the full model (a projection, not a reset)
     assert np.linalg.norm(r["positions"] - noisy) < np.linalg.norm(q - noisy)
     # without refinement: one projection per configuration, still no overlap, not closer

@@ -196,3 +196,13 @@ def test_bench_fom_cpu_outside_affinity(tmp_path):
     res = run("bench_fom.py", "--cpu", 4096, "--skip-solvers", "--skip-scaling", "--out", out)
     assert_refused(res, "--cpu 4096")
     assert not out.exists()
+
+
+def test_bench_project_without_build(tmp_path):
+    """bench_project.py with a --bindir holding no crowd_snapshots: one error line, exit 2,
+    nothing made in the work directory but the directory itself."""
+    work = tmp_path / "work"
+    res = run("bench_project.py", "--bindir", tmp_path / "nobin", "--workdir", work, "--configs", 2,
+              "--steps", 2)
+    assert_refused(res, "no crowd_snapshots in --bindir")
+    assert listing(work) == {}

@@ -107,7 +107,7 @@ contains
         res%time(c) = st%t_total; res%displacement(c) = st%displacement; res%max_move(c) = st%max_move
         res%depth_in(c) = st%depth_in; res%kkt(c) = st%kkt
         res%n_overlaps(c) = st%n_overlaps; res%n_moved(c) = st%n_moved; res%n_free(c) = st%n_free
-        res%solves(c) = st%solves; res%iterations(c) = st%iterations; res%grows(c) = st%grows
+        res%solves(c) = st%solves; res%iterations(c) = st%iterations
         res%restarts(c) = st%restarts; res%refines(c) = st%refines
         res%refined(c) = merge(1, 0, st%refined)
         call max_overlaps(scene, hdr%radius, req%positions(:, c:c), res%oaa_before(c), res%oaw_before(c))

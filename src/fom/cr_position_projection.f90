@@ -61,9 +61,9 @@ module cr_position_projection
     integer :: n_overlaps = 0, n_moved = 0, n_free = 0
     !> candidate rows (last contact set) and rows of the last local problem
     integer :: n_rows = 0, n_local_rows = 0
-    !> solves, solver iterations (summed), growths of the free set (always 0: every agent is
-    !> free), re-solves with more rows or wider reaches, refinement projections
-    integer :: solves = 0, iterations = 0, grows = 0, restarts = 0, refines = 0
+    !> solves, solver iterations (summed), re-solves with more rows or wider reaches,
+    !> refinement projections
+    integer :: solves = 0, iterations = 0, restarts = 0, refines = 0
     !> the refinement stopped on its tolerance (not on refine_max or a failed solve)
     logical :: refined = .true.
     !> deepest overlap of q_in [m]; |q_out - q_in|_2 and max_i |q_out,i - q_in,i| [m]

@@ -7,14 +7,15 @@
 !>   default 50); datasets `positions` [2 n_a, n_conf] (h5py [n_conf, 2 n_a]) and
 !>   `params` [n_mu, n_S] (h5py [n_S, n_mu]), n_conf = n_S * configs_per_sample, the
 !>   configurations of sample s being the columns (s - 1) * configs_per_sample + 1 ..;
-!> - the result (schema "crowdrom-projected", version 1), written atomically: root attributes
+!> - the result (schema "crowdrom-projected", version 2; version 1 also had `grows`, always 0),
+!>   written atomically: root attributes
 !>   `request`, `database`, `solver`, `tol`, `cutoff_factor`, `n_agents`, `n_samples`,
 !>   `configs_per_sample`, `t_total`; datasets `positions` [2 n_a, n_conf] (the projected
 !>   configurations) and per configuration [n_conf]: `time` (s), `displacement`
 !>   (|q_out - q_in|_2, m), `max_move` (m), `depth_in` (deepest overlap of the input, m),
 !>   `overlap_agents_before`, `overlap_walls_before`, `overlap_agents_after`,
 !>   `overlap_walls_after` (deepest agent-agent / agent-obstacle overlap, 0: none, m), `kkt`,
-!>   `n_overlaps`, `n_moved`, `n_free`, `solves`, `iterations`, `grows`, `restarts`, `refines`
+!>   `n_overlaps`, `n_moved`, `n_free`, `solves`, `iterations`, `restarts`, `refines`
 !>   (refinement projections), `refined` (1: the refinement met its tolerance).
 module cr_projection_file
   use cr_kinds, only: wp, i8
@@ -29,7 +30,9 @@ module cr_projection_file
 
   character(len=*), parameter :: PROJREQ_SCHEMA = "crowdrom-projreq"
   character(len=*), parameter :: PROJRES_SCHEMA = "crowdrom-projected"
+  !> request versions read; result version written (2: without the always-zero `grows`)
   integer, parameter :: VERSIONS_READ(1) = [1]
+  integer, parameter :: PROJRES_VERSION = 2
 
   !> A projection request.
   type :: proj_request_t
@@ -49,7 +52,7 @@ module cr_projection_file
     !> [n_conf]
     real(wp), allocatable :: time(:), displacement(:), max_move(:), depth_in(:), oaa_before(:), &
       oaw_before(:), oaa_after(:), oaw_after(:), kkt(:)
-    integer, allocatable :: n_overlaps(:), n_moved(:), n_free(:), solves(:), iterations(:), grows(:), &
+    integer, allocatable :: n_overlaps(:), n_moved(:), n_free(:), solves(:), iterations(:), &
       restarts(:), refines(:), refined(:)
   contains
     procedure :: allocate_for
@@ -140,7 +143,7 @@ contains
       this%oaa_before(n_conf), this%oaw_before(n_conf), this%oaa_after(n_conf), this%oaw_after(n_conf), &
       this%kkt(n_conf))
     allocate(this%n_overlaps(n_conf), this%n_moved(n_conf), this%n_free(n_conf), this%solves(n_conf), &
-      this%iterations(n_conf), this%grows(n_conf), this%restarts(n_conf), this%refines(n_conf), &
+      this%iterations(n_conf), this%restarts(n_conf), this%refines(n_conf), &
       this%refined(n_conf))
   end subroutine allocate_for
 
@@ -162,7 +165,7 @@ contains
     subroutine body(error)
       type(error_t), allocatable, intent(out) :: error
       call h5%write_attr("/", "schema", PROJRES_SCHEMA, error); if (allocated(error)) return
-      call h5%write_attr("/", "schema_version", 1, error); if (allocated(error)) return
+      call h5%write_attr("/", "schema_version", PROJRES_VERSION, error); if (allocated(error)) return
       call h5%write_attr("/", "request", req%path, error); if (allocated(error)) return
       call h5%write_attr("/", "database", req%database, error); if (allocated(error)) return
       call h5%write_attr("/", "solver", res%solver, error); if (allocated(error)) return
@@ -189,7 +192,6 @@ contains
       call h5%write("n_free", res%n_free, error); if (allocated(error)) return
       call h5%write("solves", res%solves, error); if (allocated(error)) return
       call h5%write("iterations", res%iterations, error); if (allocated(error)) return
-      call h5%write("grows", res%grows, error); if (allocated(error)) return
       call h5%write("restarts", res%restarts, error); if (allocated(error)) return
       call h5%write("refines", res%refines, error); if (allocated(error)) return
       call h5%write("refined", res%refined, error)
