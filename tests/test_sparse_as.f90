@@ -558,6 +558,7 @@ contains
     call ch%rowdel(1, err)
     act(1) = .false.
     call tail_agree(ch, mf, act, b, err, "row 1 deleted (its fill reaches the tail row)")
+    call check(ch%row_entries(1) == 0, "tail slots: the deleted row 1 keeps no entry in the factor")
     call ch%add_slot(5, [2, 4, 5], [0.5_wp, 2.0_wp, 4.0_wp], 5, err)
     call check(.not. allocated(err) .and. ch%tail_free() == 0, "tail slots: row 5 takes slot 5")
     call ch%rowadd(5, [2, 4, 5], [0.5_wp, 2.0_wp, 4.0_wp], pivot, err)
@@ -566,12 +567,17 @@ contains
     call ch%rowadd(1, [1, 2, 4], [4.0_wp, 1.0_wp, 1.0_wp], pivot, err)
     act(1) = .true.
     call tail_agree(ch, mf, act, b, err, "row 1 back")
+    ! the tail row, ordered after every analysed slot, couples with rows 1 and 3: entries in
+    ! its row of L
+    call check(ch%row_entries(4) >= 2, "tail slots: the tail row 4 has entries before its deletion")
     call ch%rowdel(4, err)
     act(4) = .false.
     call tail_agree(ch, mf, act, b, err, "tail row 4 deleted (row pattern from the grown tree)")
+    call check(ch%row_entries(4) == 0, "tail slots: the deleted tail row 4 keeps no entry")
     call ch%rowdel(2, err)
     act(2) = .false.
     call tail_agree(ch, mf, act, b, err, "row 2 deleted")
+    call check(ch%row_entries(2) == 0, "tail slots: the deleted row 2 keeps no entry")
     act = .true.
     call ch%factor(act, err)
     call tail_agree(ch, mf, act, b, err, "fresh factorisation on the grown analysis")

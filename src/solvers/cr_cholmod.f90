@@ -49,6 +49,7 @@ module cr_cholmod
     procedure :: rowdel => chol_rowdel
     procedure :: solve => chol_solve
     procedure :: factor_nnz => chol_factor_nnz
+    procedure :: row_entries => chol_row_entries
     procedure :: min_pivot => chol_min_pivot
     procedure :: schur => chol_schur
     procedure :: symbolic_nnz => chol_symbolic_nnz
@@ -184,6 +185,11 @@ module cr_cholmod
       import :: c_ptr, c_long
       type(c_ptr), value :: h
     end function c_factor_nnz
+    integer(c_long) function c_row_entries(h, t) bind(C, name='cr_chol_row_entries')
+      import :: c_ptr, c_long, c_int
+      type(c_ptr), value :: h
+      integer(c_int), value :: t
+    end function c_row_entries
   end interface
 
 contains
@@ -539,4 +545,16 @@ contains
     class(chol_t), intent(in) :: this
     nnz = int(c_factor_nnz(this%h))
   end function chol_factor_nnz
+
+  !> Stored off-diagonal entries of the current factor in the row of caller row t (0 for a
+  !> row without a slot or without a factor): a deleted row has none (tests).
+  integer function chol_row_entries(this, t) result(k)
+    class(chol_t), intent(in) :: this
+    integer, intent(in) :: t
+    k = 0
+    if (.not. c_associated(this%h)) return
+    if (t < 1 .or. t > size(this%map)) return
+    if (this%map(t) == 0) return
+    k = int(c_row_entries(this%h, int(this%map(t) - 1, c_int)))
+  end function chol_row_entries
 end module cr_cholmod
