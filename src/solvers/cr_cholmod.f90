@@ -128,10 +128,11 @@ module cr_cholmod
       real(c_double), intent(in) :: val(*)
       real(c_double), intent(out) :: pivot
     end function c_rowadd
-    integer(c_int) function c_rowdel(h, t) bind(C, name='cr_chol_rowdel')
+    integer(c_int) function c_rowdel(h, nt, t) bind(C, name='cr_chol_rowdel')
       import :: c_ptr, c_int
       type(c_ptr), value :: h
-      integer(c_int), value :: t
+      integer(c_int), value :: nt
+      integer(c_int), intent(in) :: t(*)
     end function c_rowdel
     integer(c_int) function c_solve(h, b, x) bind(C, name='cr_chol_solve')
       import :: c_ptr, c_int, c_double
@@ -429,21 +430,25 @@ contains
     this%n_since = this%n_since + 1
   end subroutine chol_rowadd
 
-  !> Make row t inactive (identity row).
+  !> Make rows t(:) inactive (identity rows), in one update of the factor.
   subroutine chol_rowdel(this, t, error)
     class(chol_t), intent(inout) :: this
-    integer, intent(in) :: t
+    integer, intent(in) :: t(:)
     type(error_t), allocatable, intent(out) :: error
-    integer(c_int) :: rc
-    if (this%map(t) == 0) then
-      call set_error(error, "cholmod rowdel: row " // str(t) // " has no slot (never active)"); return
-    end if
-    rc = c_rowdel(this%h, int(this%map(t) - 1, c_int))
+    integer(c_int) :: rc, ts(size(t))
+    integer :: q
+    do q = 1, size(t)
+      if (this%map(t(q)) == 0) then
+        call set_error(error, "cholmod rowdel: row " // str(t(q)) // " has no slot (never active)"); return
+      end if
+      ts(q) = int(this%map(t(q)) - 1, c_int)
+    end do
+    rc = c_rowdel(this%h, int(size(t), c_int), ts)
     if (rc /= 0) then
       call shim_error(this, "rowdel", rc, error); return
     end if
-    this%n_modify = this%n_modify + 1
-    this%n_since = this%n_since + 1
+    this%n_modify = this%n_modify + size(t)
+    this%n_since = this%n_since + size(t)
   end subroutine chol_rowdel
 
   !> The entries (idx, val) of a row of M in the caller's numbering as 0-based slots (ic, vc

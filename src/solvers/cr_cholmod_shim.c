@@ -13,6 +13,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <stdio.h>
+#include <math.h>
 #include <suitesparse/cholmod.h>
 
 typedef struct {
@@ -39,6 +40,7 @@ typedef struct {
                            * column), for the row subtrees and the factorisation */
   int *parent;            /* elimination tree of P M P' [n] */
   int *mk, *stk;          /* marks (zero between calls) and a stack of the Schur test [n] */
+  cholmod_sparse *cu;     /* the update of a row deletion [n, nt] */
   cholmod_sparse *rpat;   /* pattern of a row of L handed to cholmod_rowdel [n, 1] */
   long n_pattern;         /* row deletions done with a known row pattern */
   long n_schur_scan;      /* Schur tests whose reach missed a fill (done by the scan) */
@@ -82,6 +84,7 @@ static void release(cr_chol_t *h) {
   free(h->xw); h->xw = NULL;
   if (h->pm) cholmod_free_sparse(&h->pm, &h->c);
   if (h->rpat) cholmod_free_sparse(&h->rpat, &h->c);
+  if (h->cu) cholmod_free_sparse(&h->cu, &h->c);
   free(h->parent); h->parent = NULL;
   free(h->mk); h->mk = NULL;
   free(h->stk); h->stk = NULL;
@@ -661,32 +664,81 @@ double cr_chol_min_pivot(void *hp) {
  * in column k's, so the next row of column j, its new parent, holds every row after it (the
  * fill of eliminating k): cholmod_rowadd and cholmod_updown, which take the elimination tree
  * from the pattern, see a valid one. */
-int cr_chol_rowdel(void *hp, int t) {
+int cr_chol_rowdel(void *hp, int nt, const int *t) {
   cr_chol_t *h = (cr_chol_t *)hp;
-  int k, q, j, p, e, *rp, *ri, *lp, *li, *lnz;
-  double *lx;
+  int q, k, j, p, e, nc, *rp, *ri, *lp, *li, *lnz, *mk, *cp, *ci, rc;
+  double *lx, *cx, dk, sd;
   if (!have_factor(h)) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowdel without a factor"); return 16; }
-  if (!h->active[t]) { snprintf(h->msg, sizeof h->msg, "cr_chol_rowdel: row %d not active", t + 1); return 17; }
-  k = h->iperm[t];
-  if (!cholmod_row_subtree(h->pm, NULL, (size_t)k, h->parent, h->rpat, &h->c) || h->c.status < CHOLMOD_OK)
-    return fail(h, 25, "row_subtree");
-  if (!cholmod_rowdel((size_t)k, h->rpat, h->l, &h->c) || h->c.status < CHOLMOD_OK)
-    return fail(h, 18, "rowdel");
-  rp = (int *)h->rpat->p; ri = (int *)h->rpat->i;
+  if (nt <= 0) return 0;
   lp = (int *)h->l->p; li = (int *)h->l->i; lnz = (int *)h->l->nz; lx = (double *)h->l->x;
-  for (q = rp[0]; q < rp[1]; q++) {
-    j = ri[q];
-    e = lp[j] + lnz[j];
-    for (p = lp[j] + 1; p < e && li[p] != k; p++) {}
-    if (p == e) continue;               /* the row subtree bounds the pattern: not always in it */
-    memmove(li + p, li + p + 1, (size_t)(e - p - 1) * sizeof(int));
-    memmove(lx + p, lx + p + 1, (size_t)(e - p - 1) * sizeof(double));
-    lnz[j]--;
+  mk = h->mk;
+  /* checks, the deleted positions marked in mk, and the room of C */
+  nc = 0;
+  for (q = 0; q < nt; q++) {
+    if (t[q] < 0 || t[q] >= h->n || !h->active[t[q]] || mk[h->iperm[t[q]]]) {
+      for (j = 0; j < q; j++) mk[h->iperm[t[j]]] = 0;
+      snprintf(h->msg, sizeof h->msg, "cr_chol_rowdel: row %d not active (or given twice)", t[q] + 1);
+      return 17;
+    }
+    k = h->iperm[t[q]];
+    mk[k] = 1;
+    nc += lnz[k] - 1;
   }
-  h->n_pattern++;
-  h->active[t] = 0;
-  {
+  if (!h->cu || (int)h->cu->ncol < nt || (int)h->cu->nzmax < nc) {
+    size_t ncol = (size_t)nt + 8, nzmax = (size_t)nc + (size_t)nc / 2 + 64;
+    if (h->cu) cholmod_free_sparse(&h->cu, &h->c);
+    h->cu = cholmod_allocate_sparse((size_t)h->n, ncol, nzmax, 1, 1, 0, CHOLMOD_REAL, &h->c);
+    if (!h->cu) {
+      for (q = 0; q < nt; q++) mk[h->iperm[t[q]]] = 0;
+      return fail(h, 18, "allocate_sparse (rowdel)");
+    }
+  }
+  /* C = L(R, S) sqrt(D(S)) from the columns as they are (rows of S left out), then the
+   * columns of S become identity columns (their entries zero, as cholmod_rowdel leaves them) */
+  cp = (int *)h->cu->p; ci = (int *)h->cu->i; cx = (double *)h->cu->x;
+  cp[0] = 0; nc = 0;
+  for (q = 0; q < nt; q++) {
+    k = h->iperm[t[q]];
+    dk = lx[lp[k]];
+    if (!(dk > 0.0)) {
+      for (j = 0; j < nt; j++) mk[h->iperm[t[j]]] = 0;
+      snprintf(h->msg, sizeof h->msg, "cr_chol_rowdel: pivot %g of row %d is not positive", dk, t[q] + 1);
+      return 18;
+    }
+    sd = sqrt(dk);
+    e = lp[k] + lnz[k];
+    for (p = lp[k] + 1; p < e; p++) {
+      if (!mk[li[p]]) { ci[nc] = li[p]; cx[nc] = lx[p] * sd; nc++; }
+      lx[p] = 0.0;
+    }
+    lx[lp[k]] = 1.0;
+    cp[q + 1] = nc;
+  }
+  h->cu->ncol = (size_t)nt;
+  /* rows S leave every column of their row subtree */
+  rc = 0;
+  for (q = 0; q < nt && rc == 0; q++) {
+    k = h->iperm[t[q]];
+    if (!cholmod_row_subtree(h->pm, NULL, (size_t)k, h->parent, h->rpat, &h->c) || h->c.status < CHOLMOD_OK) {
+      rc = fail(h, 25, "row_subtree"); break;
+    }
+    rp = (int *)h->rpat->p; ri = (int *)h->rpat->i;
+    for (p = rp[0]; p < rp[1]; p++) {
+      int pp;
+      j = ri[p];
+      e = lp[j] + lnz[j];
+      for (pp = lp[j] + 1; pp < e && li[pp] != k; pp++) {}
+      if (pp == e) continue;
+      memmove(li + pp, li + pp + 1, (size_t)(e - pp - 1) * sizeof(int));
+      memmove(lx + pp, lx + pp + 1, (size_t)(e - pp - 1) * sizeof(double));
+      lnz[j]--;
+    }
+  }
+  for (q = 0; q < nt; q++) {
     int lo = 0, hi = h->napos;
+    k = h->iperm[t[q]];
+    mk[k] = 0;
+    h->active[t[q]] = 0;
     while (lo < hi) { int mid = (lo + hi) / 2; if (h->apos[mid] < k) lo = mid + 1; else hi = mid; }
     if (lo < h->napos && h->apos[lo] == k) {
       memmove(h->apos + lo, h->apos + lo + 1, (size_t)(h->napos - lo - 1) * sizeof(int));
@@ -694,6 +746,10 @@ int cr_chol_rowdel(void *hp, int t) {
     }
     h->xw[k] = 0.0;
   }
+  if (rc != 0) return rc;
+  h->n_pattern += nt;
+  if (nc > 0 && (!cholmod_updown(1, h->cu, h->l, &h->c) || h->c.status < CHOLMOD_OK))
+    return fail(h, 18, "updown (rowdel)");
   return 0;
 }
 

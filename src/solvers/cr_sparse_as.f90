@@ -907,10 +907,10 @@ contains
           end if
           this%act(1:m) = this%newact(1:m)
         else
-          do q = 1, nrem
-            call this%chol%rowdel(this%rem(q), error); if (allocated(error)) return
-            this%act(this%rem(q)) = .false.
-          end do
+          if (nrem > 0) then
+            call this%chol%rowdel(this%rem(1:nrem), error); if (allocated(error)) return
+          end if
+          this%act(this%rem(1:nrem)) = .false.
           bad = .false.
           do q = 1, nv
             t = this%viol(q)
@@ -1093,7 +1093,7 @@ contains
             j = this%alist(q); this%lam(j) = max(0.0_wp, this%lam(j) - tau * this%w(j))
           end do
           this%lam(pmin) = 0.0_wp
-          call this%chol%rowdel(pmin, error); if (allocated(error)) return
+          call this%chol%rowdel([pmin], error); if (allocated(error)) return
           this%act(pmin) = .false.
           call list_delete(pmin)
           call add_row(t, pivot, 1.0e3_wp * epsilon(1.0_wp), precheck=.true.)
@@ -1330,8 +1330,8 @@ contains
         call list_prune()
         call this%chol%factor(this%act(1:m), error)
       else
+        call this%chol%rowdel(this%viol(1:n), error); if (allocated(error)) return
         do q = 1, n
-          call this%chol%rowdel(this%viol(q), error); if (allocated(error)) return
           this%act(this%viol(q)) = .false.
           if (n <= 4) call list_delete(this%viol(q))
         end do
