@@ -555,7 +555,7 @@ contains
     call ch%rowadd(4, [1, 3, 4], [1.0_wp, -1.0_wp, 4.0_wp], pivot, err)
     act(4) = .true.
     call tail_agree(ch, mf, act, b, err, "row 4 added on its tail slot")
-    call ch%rowdel(1, err)
+    call ch%rowdel([1], err)
     act(1) = .false.
     call tail_agree(ch, mf, act, b, err, "row 1 deleted (its fill reaches the tail row)")
     call check(ch%row_entries(1) == 0, "tail slots: the deleted row 1 keeps no entry in the factor")
@@ -570,11 +570,11 @@ contains
     ! the tail row, ordered after every analysed slot, couples with rows 1 and 3: entries in
     ! its row of L
     call check(ch%row_entries(4) >= 2, "tail slots: the tail row 4 has entries before its deletion")
-    call ch%rowdel(4, err)
+    call ch%rowdel([4], err)
     act(4) = .false.
     call tail_agree(ch, mf, act, b, err, "tail row 4 deleted (row pattern from the grown tree)")
     call check(ch%row_entries(4) == 0, "tail slots: the deleted tail row 4 keeps no entry")
-    call ch%rowdel(2, err)
+    call ch%rowdel([2], err)
     act(2) = .false.
     call tail_agree(ch, mf, act, b, err, "row 2 deleted")
     call check(ch%row_entries(2) == 0, "tail slots: the deleted row 2 keeps no entry")
@@ -666,6 +666,7 @@ contains
   subroutine test_kernels()
     integer, parameter :: n = 60, nc = 45
     real(wp) :: bm(n, nc), m(n, n), rhs(n), x(n), r(n), u, sref, sval, mnorm, worst, worst_s
+    real(wp) :: xa(n), sval2, worst_a, worst_u, worst_d
     integer :: colptr(n + 1), rowind(n * n), i, j, k, t, trial, nz, nw
     integer :: idx(n)
     real(wp) :: val(n * n), wv(n)
@@ -674,7 +675,7 @@ contains
     type(error_t), allocatable :: err
     integer :: reach_default
     reach_default = ch%reach_min
-    worst = 0; worst_s = 0
+    worst = 0; worst_s = 0; worst_a = 0; worst_u = 0; worst_d = 0
     do trial = 1, 6
       bm = 0
       do i = 1, n
@@ -731,6 +732,10 @@ contains
         end do
         call ch%schur(t, idx(1:nw), wv(1:nw), sval, err)
         call check(.not. allocated(err), "kernels: Schur value")
+        ! the same test with alpha = M_P^{-1} w (its forward half, then the backward one)
+        xa = huge(1.0_wp)
+        call ch%schur(t, idx(1:nw), wv(1:nw), sval2, err, xa)
+        call check(.not. allocated(err) .and. sval2 == sval, "kernels: Schur value with alpha unchanged")
         rhs = 0
         do i = 1, nw
           if (act(idx(i)) .and. idx(i) /= t) rhs(idx(i)) = wv(i)
@@ -739,13 +744,69 @@ contains
         call check(.not. allocated(err), "kernels: solve for the Schur reference")
         sref = dot_product(rhs, merge(x, 0.0_wp, act))
         worst_s = max(worst_s, abs(sval - sref) / max(abs(sref), 1.0_wp))
+        if (any(act)) worst_a = max(worst_a, maxval(abs(xa - x), mask=act) / max(maxval(abs(x), mask=act), 1.0_wp))
+      end do
+      ! a column of the inverse by a forward solve along one path: against the solve of e_t
+      do t = 1, n
+        if (.not. act(t)) cycle
+        xa = huge(1.0_wp)
+        call ch%unit_solve(t, xa, sval, err)
+        call check(.not. allocated(err), "kernels: unit solve")
+        rhs = 0; rhs(t) = 1
+        call ch%solve(rhs, x, err)
+        worst_u = max(worst_u, maxval(abs(xa - x), mask=act) / maxval(abs(x), mask=act), &
+          abs(sval - x(t)) / abs(x(t)))
+      end do
+      ! several rows deleted by one update of the factor: solve residual on the rows left,
+      ! and no entry of the factor left in a deleted row
+      nw = 0
+      do i = 1, n
+        call random_number(u)
+        if (act(i) .and. u < 0.3_wp) then
+          nw = nw + 1; idx(nw) = i
+        end if
+      end do
+      if (nw > 0) then
+        call ch%rowdel(idx(1:nw), err)
+        call check(.not. allocated(err), "kernels: deletion of several rows at once")
+        act(idx(1:nw)) = .false.
+        do i = 1, nw
+          if (ch%row_entries(idx(i)) /= 0) call check(.false., "kernels: a deleted row keeps no entry")
+        end do
+        call random_number(rhs); rhs = rhs - 0.5_wp
+        call ch%solve(rhs, x, err)
+        do i = 1, n
+          if (act(i)) then
+            r(i) = dot_product(merge(m(i, :), 0.0_wp, act), x) - rhs(i)
+          else
+            r(i) = x(i) - rhs(i)
+          end if
+        end do
+        worst_d = max(worst_d, maxval(abs(r)) / (mnorm * maxval(abs(x))))
+      end if
+      ! deleting a row twice in one call, or an inactive row, is refused
+      if (nw > 0) then
+        call ch%rowdel([idx(1)], err)
+        call check(allocated(err), "kernels: deletion of an inactive row refused")
+      end if
+      do i = 1, n
+        if (act(i)) then
+          call ch%rowdel([i, i], err)
+          call check(allocated(err), "kernels: a row given twice in one deletion refused")
+          exit
+        end if
       end do
     end do
     call ch%free()
     print '(2x,a,es9.2,a,es9.2)', "kernels: largest scaled residual of the solve ", worst, &
       ", of the Schur value ", worst_s
+    print '(2x,a,es9.2,a,es9.2,a,es9.2)', "kernels: alpha of the Schur test against the solve ", &
+      worst_a, ", inverse column ", worst_u, ", solve residual after a multiple deletion ", worst_d
     call check(worst <= 1.0e3_wp * n * epsilon(1.0_wp), "kernels: solve residual at rounding level")
     call check(worst_s <= 1.0e3_wp * n * epsilon(1.0_wp), "kernels: Schur value at rounding level")
+    call check(worst_a <= 1.0e3_wp * n * epsilon(1.0_wp), "kernels: alpha of the Schur test at rounding level")
+    call check(worst_u <= 1.0e3_wp * n * epsilon(1.0_wp), "kernels: inverse column at rounding level")
+    call check(worst_d <= 1.0e3_wp * n * epsilon(1.0_wp), "kernels: solve after a multiple deletion at rounding level")
   end subroutine test_kernels
 
 end program test_sparse_as

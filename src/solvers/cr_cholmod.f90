@@ -5,7 +5,7 @@
 !> CHOLMOD status is checked by the shim and returned as an error_t naming the call.
 module cr_cholmod
   use, intrinsic :: iso_c_binding, only: c_ptr, c_null_ptr, c_int, c_double, c_char, c_long, &
-    c_associated
+    c_associated, c_loc
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
@@ -48,6 +48,7 @@ module cr_cholmod
     procedure :: rowadd => chol_rowadd
     procedure :: rowdel => chol_rowdel
     procedure :: solve => chol_solve
+    procedure :: unit_solve => chol_unit_solve
     procedure :: factor_nnz => chol_factor_nnz
     procedure :: row_entries => chol_row_entries
     procedure :: min_pivot => chol_min_pivot
@@ -134,13 +135,19 @@ module cr_cholmod
       integer(c_int), value :: nt
       integer(c_int), intent(in) :: t(*)
     end function c_rowdel
+    integer(c_int) function c_unit_solve(h, s, x, xss) bind(C, name='cr_chol_unit_solve')
+      import :: c_ptr, c_int, c_double
+      type(c_ptr), value :: h
+      integer(c_int), value :: s
+      real(c_double), intent(out) :: x(*), xss
+    end function c_unit_solve
     integer(c_int) function c_solve(h, b, x) bind(C, name='cr_chol_solve')
       import :: c_ptr, c_int, c_double
       type(c_ptr), value :: h
       real(c_double), intent(in) :: b(*)
       real(c_double), intent(out) :: x(*)
     end function c_solve
-    integer(c_int) function c_schur(h, t, nz, idx, val, reach_min, s) bind(C, name='cr_chol_schur')
+    integer(c_int) function c_schur(h, t, nz, idx, val, reach_min, s, x) bind(C, name='cr_chol_schur')
       import :: c_ptr, c_int, c_double
       type(c_ptr), value :: h
       integer(c_int), value :: t, nz
@@ -148,6 +155,7 @@ module cr_cholmod
       real(c_double), intent(in) :: val(*)
       integer(c_int), value :: reach_min
       real(c_double), intent(out) :: s
+      type(c_ptr), value :: x
     end function c_schur
     real(c_double) function c_symbolic_nnz(h) bind(C, name='cr_chol_symbolic_nnz')
       import :: c_ptr, c_double
@@ -480,25 +488,49 @@ contains
     if (rc /= 0) call shim_error(this, "solve", rc, error)
   end subroutine chol_solve
 
+  !> x = A^{-1} e_t (the column of the inverse of the active matrix at the active row t; set on
+  !> the active rows only) and xtt = x(t): a forward solve along one path of the elimination
+  !> tree and a full backward solve.
+  subroutine chol_unit_solve(this, t, x, xtt, error)
+    class(chol_t), intent(inout) :: this
+    integer, intent(in) :: t
+    real(wp), intent(out) :: x(:), xtt
+    type(error_t), allocatable, intent(out) :: error
+    integer(c_int) :: rc
+    if (this%map(t) == 0) then
+      call set_error(error, "cholmod unit_solve: row " // str(t) // " has no slot (never active)"); return
+    end if
+    rc = c_unit_solve(this%h, int(this%map(t) - 1, c_int), x, xtt)
+    if (rc /= 0) call shim_error(this, "unit_solve", rc, error)
+  end subroutine chol_unit_solve
+
   !> s = w^T A_P^{-1} w for w = M(P, t) given by its entries idx, val [nz] (entries off the
   !> active rows and t itself are ignored): row t's pivot would be M(t,t) - s.
-  subroutine chol_schur(this, t, idx, val, s, error)
+  subroutine chol_schur(this, t, idx, val, s, error, x)
     class(chol_t), intent(inout) :: this
     integer, intent(in) :: t
     integer, intent(in) :: idx(:)
     real(wp), intent(in) :: val(:)
     real(wp), intent(out) :: s
     type(error_t), allocatable, intent(out) :: error
+    !> present: also x = A^{-1} w (the backward half of the solve after the test's forward
+    !> half), set on the active rows only
+    real(wp), intent(out), optional, target, contiguous :: x(:)
     integer(c_int) :: rc
     integer(c_int) :: ic(size(idx))
     real(wp) :: vc(size(idx))
     integer :: nz
+    type(c_ptr) :: xp
     if (this%map(t) == 0) then
       call set_error(error, "cholmod schur: row " // str(t) // " is outside the analysed set"); return
     end if
     call to_slots(this, idx, val, ic, vc, nz)
+    xp = c_null_ptr
+    if (present(x)) then
+      if (size(x) > 0) xp = c_loc(x(1))
+    end if
     rc = c_schur(this%h, int(this%map(t) - 1, c_int), int(nz, c_int), ic, vc, &
-      int(this%reach_min, c_int), s)
+      int(this%reach_min, c_int), s, xp)
     if (rc /= 0) call shim_error(this, "schur", rc, error)
   end subroutine chol_schur
 

@@ -563,7 +563,7 @@ int cr_chol_rowadd(void *hp, int t, int nz, const int *idx, const double *val, d
  * first off-diagonal row, as cholmod_rowadd itself takes it), in topological order (the
  * paths stacked depth first, no sort). A fill outside the reach (never expected) means the
  * tree did not bound the pattern: the scan is done instead, never a wrong pivot. */
-static double schur_scan(cr_chol_t *h, int t, int nz, const int *idx, const double *val) {
+static double schur_scan(cr_chol_t *h, int t, int nz, const int *idx, const double *val, int keep) {
   int q, k, j, p, i, jmin = h->n, lo, hi, *lp = (int *)h->l->p, *li = (int *)h->l->i;
   int *lnz = (int *)h->l->nz;
   double *lx = (double *)h->l->x, *y = h->yw, yj, acc = 0.0;
@@ -578,9 +578,11 @@ static double schur_scan(cr_chol_t *h, int t, int nz, const int *idx, const doub
    * exact zeros, as in cr_chol_solve) */
   lo = 0; hi = h->napos;
   while (lo < hi) { int mid = (lo + hi) / 2; if (h->apos[mid] < jmin) lo = mid + 1; else hi = mid; }
+  if (keep) for (i = 0; i < lo; i++) h->xw[h->apos[i]] = 0.0;
   for (i = lo; i < h->napos; i++) {
     j = h->apos[i];
     yj = y[j];
+    if (keep) h->xw[j] = yj;
     if (yj == 0.0) continue;
     y[j] = 0.0;
     acc += yj * yj / lx[lp[j]];
@@ -595,14 +597,33 @@ static double schur_scan(cr_chol_t *h, int t, int nz, const int *idx, const doub
   return acc;
 }
 
+/* The backward half of a solve from the forward values in xw (active positions): x = A^{-1} w
+ * in the caller's rows, set on the active rows only. */
+static void back_solve(cr_chol_t *h, double *x) {
+  int i, j, p, c, *lp = (int *)h->l->p, *li = (int *)h->l->i, *lnz = (int *)h->l->nz;
+  double *lx = (double *)h->l->x, *y = h->xw, yj;
+  for (i = h->napos - 1; i >= 0; i--) {
+    const int *ip;
+    const double *xp;
+    j = h->apos[i];
+    yj = y[j] / lx[lp[j]];
+    ip = li + lp[j] + 1; xp = lx + lp[j] + 1; c = lnz[j] - 1;
+#pragma GCC unroll 4
+    for (p = 0; p < c; p++) yj -= xp[p] * y[ip[p]];
+    y[j] = yj;
+    x[h->rowof[j]] = yj;
+  }
+}
+
 int cr_chol_schur(void *hp, int t, int nz, const int *idx, const double *val, int reach_min,
-                  double *s) {
+                  double *s, double *x) {
   cr_chol_t *h = (cr_chol_t *)hp;
   int q, k, j, p, n, len, top, bad = 0, *lp, *li, *lnz, *mk, *stk;
   double *lx, *y, yj, acc = 0.0;
   if (!have_factor(h)) { snprintf(h->msg, sizeof h->msg, "cr_chol_schur without a factor"); return 21; }
   if (h->n < reach_min) {
-    *s = schur_scan(h, t, nz, idx, val);
+    *s = schur_scan(h, t, nz, idx, val, x != NULL);
+    if (x) back_solve(h, x);
     return 0;
   }
   n = h->n; y = h->yw;
@@ -620,9 +641,12 @@ int cr_chol_schur(void *hp, int t, int nz, const int *idx, const double *val, in
     }
     while (len > 0) stk[--top] = stk[--len];
   }
+  /* with x: the forward values kept in xw (zero elsewhere on the active positions) */
+  if (x) for (q = 0; q < h->napos; q++) h->xw[h->apos[q]] = 0.0;
   for (q = top; q < n; q++) {
     j = stk[q];
     yj = y[j];
+    if (x) h->xw[j] = yj;
     if (yj == 0.0) continue;
     y[j] = 0.0;
     acc += yj * yj / lx[lp[j]];
@@ -635,10 +659,12 @@ int cr_chol_schur(void *hp, int t, int nz, const int *idx, const double *val, in
   if (bad) {
     memset(y, 0, (size_t)n * sizeof(double));
     h->n_schur_scan++;
-    *s = schur_scan(h, t, nz, idx, val);
+    *s = schur_scan(h, t, nz, idx, val, x != NULL);
+    if (x) back_solve(h, x);
     return 0;
   }
   *s = acc;
+  if (x) back_solve(h, x);
   return 0;
 }
 
@@ -801,6 +827,49 @@ int cr_chol_solve(void *hp, const double *b, double *x) {
     y[j] = yj;
     x[rowof[j]] = yj;
   }
+  return 0;
+}
+
+/* x = A^{-1} e_s in the caller's rows (x [nrow], set on the active rows only) for the active slot
+ * s, and *xss = x at s, the diagonal entry of A^{-1}: L y = e_k (k the position of s) has its
+ * nonzeros on the path from k to the root of the elimination tree of the current factor (the
+ * parent of column j is its first off-diagonal row, as in the Schur test), so the forward solve
+ * visits that path only; the backward solve is the full one of cr_chol_solve. */
+int cr_chol_unit_solve(void *hp, int s, double *x, double *xss) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  int i, j, k, p, c, na, *lp, *li, *lnz, *ap, *rowof;
+  double *lx, *y, yj;
+  if (!have_factor(h)) { snprintf(h->msg, sizeof h->msg, "cr_chol_unit_solve without a factor"); return 19; }
+  if (s < 0 || s >= h->n || !h->active[s]) {
+    snprintf(h->msg, sizeof h->msg, "cr_chol_unit_solve: slot %d not active", s + 1);
+    return 17;
+  }
+  y = h->xw; na = h->napos; ap = h->apos; rowof = h->rowof;
+  lp = (int *)h->l->p; li = (int *)h->l->i; lnz = (int *)h->l->nz; lx = (double *)h->l->x;
+  for (i = 0; i < na; i++) y[ap[i]] = 0.0;
+  k = h->iperm[s];
+  y[k] = 1.0;
+  for (j = k;;) {                       /* L y = e_k along the path from k */
+    const int *ip = li + lp[j] + 1;
+    const double *xp = lx + lp[j] + 1;
+    yj = y[j];
+    c = lnz[j] - 1;
+    if (c <= 0) break;
+    for (p = 0; p < c; p++) y[ip[p]] -= xp[p] * yj;
+    j = ip[0];
+  }
+  for (i = na - 1; i >= 0; i--) {       /* L' x = D^{-1} y */
+    const int *ip;
+    const double *xp;
+    j = ap[i];
+    yj = y[j] / lx[lp[j]];
+    ip = li + lp[j] + 1; xp = lx + lp[j] + 1; c = lnz[j] - 1;
+#pragma GCC unroll 4
+    for (p = 0; p < c; p++) yj -= xp[p] * y[ip[p]];
+    y[j] = yj;
+    x[rowof[j]] = yj;
+  }
+  *xss = y[k];
   return 0;
 }
 

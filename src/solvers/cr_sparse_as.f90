@@ -821,8 +821,10 @@ contains
     !> (non-empty) when the safe path must take over.
     subroutine run(why)
       character(len=:), allocatable, intent(inout) :: why
-      integer :: q, pmin, nadd, ntry, n_ref, nrem, nv_all
+      integer :: q, pmin, nadd, ntry, n_ref, nrem, nv_all, i1
       real(wp) :: frac
+      !> z already holds the minimiser on P (one row entered)
+      logical :: zset
       integer, parameter :: n_refine = 3
       real(wp) :: pivot, tau, xmax, r, r_ref
       !> some row may be refused (refused(1:m) not all false)
@@ -843,7 +845,7 @@ contains
         ! only where f still falls with them at zero (monotone from here on)
         call factor_independent(bad); if (allocated(error)) return
         call list_prune()
-        call step_back(.false.); if (allocated(error)) return
+        call step_back(.false., .false.); if (allocated(error)) return
         if (len(why) > 0) return
       else if (k > 0) then
         call factor_independent(bad); if (allocated(error)) return
@@ -1038,9 +1040,25 @@ contains
         end if
         if (nadd == 0 .and. .not. exch) then
           ! the rows that entered join the list of P together after the loop (rem: scratch)
+          zset = .false.
           do q = 1, nv
             t = this%viol(q)
-            call add_row(t, pivot); if (allocated(error)) return
+            if (nv == 1) then
+              ! one row enters: the minimiser on P + t from lambda (the minimiser on P) and
+              ! alpha = M_P^{-1} M(P, t) (the backward half of a solve after the test's
+              ! forward half): z_t = -slack_t / pivot, z_P = lambda_P - z_t alpha
+              call add_row(t, pivot, alpha=.true., schur=r); if (allocated(error)) return
+              if (this%act(t)) then
+                tau = -this%slack(t) / r
+                do j = 1, this%nact
+                  i1 = this%alist(j); this%z(i1) = this%lam(i1) - tau * this%w(i1)
+                end do
+                this%z(t) = tau
+                zset = .true.
+              end if
+            else
+              call add_row(t, pivot); if (allocated(error)) return
+            end if
             if (this%act(t)) then
               nadd = nadd + 1; this%rem(nadd) = t
             else
@@ -1067,7 +1085,7 @@ contains
           call add_row(t, pivot, precheck=.true., alpha=.true.); if (allocated(error)) return
           if (this%act(t)) then
             call list_insert(t)
-            call step_back(.false.); if (allocated(error)) return
+            call step_back(.false., .false.); if (allocated(error)) return
             if (len(why) > 0) return
             cycle outer
           end if
@@ -1109,12 +1127,12 @@ contains
           if (nv > 0) then
             call remove_rows(nv); if (allocated(error)) return
           end if
-          call step_back(.false.); if (allocated(error)) return
+          call step_back(.false., .false.); if (allocated(error)) return
         else
           if (any_ref) this%refused(1:m) = .false.
           any_ref = .false.
           ! lambda has not moved since the slacks above (entering rows have lambda = 0)
-          call step_back(.true.); if (allocated(error)) return
+          call step_back(.true., zset); if (allocated(error)) return
         end if
         if (len(why) > 0) return
       end do outer
@@ -1123,15 +1141,21 @@ contains
     !> Move lambda towards the minimiser z on P until z > 0 (rows reaching zero leave P, except
     !> the violated ones kept by keep_violated in the first keep_searches searches).
     !> fresh: uu and the slacks are those of lambda on entry (no need to compute them again).
-    subroutine step_back(fresh)
+    subroutine step_back(fresh, have_z)
       logical, intent(in) :: fresh
+      !> z already holds the minimiser on P
+      logical, intent(in) :: have_z
       real(wp) :: alpha, r, lmax
-      integer :: jj, q, nsearch
-      logical :: have_u
+      integer :: jj, q, nsearch, i1
+      logical :: have_u, zok
       have_u = fresh
       nsearch = 0
+      zok = have_z
       do
-        call solve_p(); if (allocated(error)) return
+        if (.not. zok) then
+          call solve_p(); if (allocated(error)) return
+        end if
+        zok = .false.
         alpha = 1.0_wp
         do q = 1, this%nact
           jj = this%alist(q)
@@ -1159,6 +1183,18 @@ contains
           have_u = .false.
           ! only kept rows reached zero: solve again on P (they are in it, at zero)
           if (nv == 0 .and. nkept > 0) cycle
+          if (nv == 1 .and. nkept == 0) then
+            ! one row leaves: the minimiser on P without it from the one on P by a column
+            ! of the inverse, z - (z_k / (M_P^{-1})_kk) M_P^{-1} e_k (half a solve less)
+            jj = this%viol(1)
+            call this%chol%unit_solve(jj, this%rhs(1:m), r, error); if (allocated(error)) return
+            r = this%z(jj) / r
+            do q = 1, this%nact
+              i1 = this%alist(q); this%z(i1) = this%z(i1) - r * this%rhs(i1)
+            end do
+            this%z(jj) = 0.0_wp
+            zok = .true.
+          end if
           if (nv > 0) then
             call remove_rows(nv); if (allocated(error)) return
             cycle
@@ -1462,9 +1498,11 @@ contains
     !> Row tt enters the factor unless dependent on P: pivot = 1 - w^T M_P^{-1} w (w = M(P, tt),
     !> alpha = M_P^{-1} w left in this%w) is checked before the addition (a near-zero pivot would
     !> spoil the rank-2 update of the trailing factor); pivot is then the factor's new D(tt,tt).
-    subroutine add_row(tt, pivot, min_pivot, precheck, alpha)
+    subroutine add_row(tt, pivot, min_pivot, precheck, alpha, schur)
       integer, intent(in) :: tt
       real(wp), intent(out) :: pivot
+      !> with alpha: the Schur complement M(tt,tt) - M(P,tt)^T alpha the test found
+      real(wp), intent(out), optional :: schur
       !> relative pivot below which tt counts as dependent (default dep_tol)
       real(wp), intent(in), optional :: min_pivot
       !> test the pivot by a solve before the addition (default; leaves alpha in this%w);
@@ -1488,17 +1526,10 @@ contains
       end do
       if (pre) then
         if (present(alpha)) then
-          ! alpha = M_P^{-1} M(P, tt) in this%w (the exchange needs it)
-          this%rhs(1:m) = 0.0_wp
-          do q = q1, q2
-            if (this%act(this%fi(q))) this%rhs(this%fi(q)) = this%fv(q)
-          end do
-          call this%chol%solve(this%rhs(1:m), this%w(1:m), error)
+          ! alpha = M_P^{-1} M(P, tt) in this%w on P: the test's forward solve, then the
+          ! backward one
+          call this%chol%schur(tt, this%fi(q1:q2), this%fv(q1:q2), s, error, this%w(1:m))
           if (allocated(error)) return
-          s = 0.0_wp
-          do q = q1, q2
-            if (this%act(this%fi(q))) s = s + this%fv(q) * this%w(this%fi(q))
-          end do
         else if (free_agent(tt)) then
           ! an agent of tt in no active row: b_t has a part (norm^2 >= dtt / 2) on that
           ! agent's velocity outside the span of B_P, so pivot >= dtt / 2 (no test needed)
@@ -1509,6 +1540,7 @@ contains
           if (allocated(error)) return
         end if
         pivot = dtt - s
+        if (present(schur)) schur = pivot
         if (.not. (pivot > pmin_rel * dtt)) return
       end if
       call this%chol%rowadd(tt, this%fi(q1:q2), this%fv(q1:q2), pivot, error)
