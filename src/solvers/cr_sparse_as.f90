@@ -1017,6 +1017,7 @@ contains
         stats%iterations = stats%iterations + 1
         k = this%nact
         nadd = 0
+        zset = .false.
         if (exch) then
           continue
         else if (nv > max(this%bulk_min, k / this%bulk_div)) then
@@ -1040,7 +1041,6 @@ contains
         end if
         if (nadd == 0 .and. .not. exch) then
           ! the rows that entered join the list of P together after the loop (rem: scratch)
-          zset = .false.
           do q = 1, nv
             t = this%viol(q)
             if (nv == 1) then
