@@ -1,7 +1,7 @@
 !> Fortran side of the CHOLMOD shim (src/solvers/cr_cholmod_shim.c): a sparse symmetric matrix
 !> M [n, n], its fill-reducing analysis, and a simplicial LDL' factor of the "active" matrix
 !> (M on the active rows, identity elsewhere) that is modified by row additions and deletions
-!> (cholmod_rowadd / cholmod_rowdel) instead of being rebuilt. Indices here are 1-based; every
+!> (cholmod_rowadd; several rows deleted by one cholmod_updown) instead of being rebuilt. Indices here are 1-based; every
 !> CHOLMOD status is checked by the shim and returned as an error_t naming the call.
 module cr_cholmod
   use, intrinsic :: iso_c_binding, only: c_ptr, c_null_ptr, c_int, c_double, c_char, c_long, &

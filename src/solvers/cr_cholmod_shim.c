@@ -5,8 +5,8 @@
  * rows sorted within each column), its symbolic analysis (fill-reducing ordering and pattern)
  * and a simplicial LDL' factor of the "active" matrix
  *     A = M restricted to the active rows and columns, identity on the other rows,
- * which the caller modifies with row additions and deletions (cholmod_rowadd / cholmod_rowdel)
- * as the active set changes. Every function returns 0 on success and a nonzero code otherwise;
+ * which the caller modifies with row additions (cholmod_rowadd) and deletions (several rows in
+ * one multiple-rank cholmod_updown, cr_chol_rowdel) as the active set changes. Every function returns 0 on success and a nonzero code otherwise;
  * cr_chol_message gives the reason. The shim allocates nothing the caller sees; all indices
  * at this interface are 0-based and in the caller's (unpermuted) numbering.
  */
@@ -39,8 +39,9 @@ typedef struct {
   cholmod_sparse *pm;     /* pattern of P M P' (upper, factor order, rows increasing in each
                            * column), for the row subtrees and the factorisation */
   int *parent;            /* elimination tree of P M P' [n] */
-  int *mk, *stk;          /* marks (zero between calls) and a stack of the Schur test [n] */
-  cholmod_sparse *cu;     /* the update of a row deletion [n, nt] */
+  int *mk, *stk;          /* marks (zero between calls) and a stack of the Schur test [n]
+                           * (mk also flags the rows of a deletion) */
+  cholmod_sparse *cu;     /* the update C of a row deletion [n, nt] (grown as needed) */
   cholmod_sparse *rpat;   /* pattern of a row of L handed to cholmod_rowdel [n, 1] */
   long n_pattern;         /* row deletions done with a known row pattern */
   long n_schur_scan;      /* Schur tests whose reach missed a fill (done by the scan) */
@@ -680,16 +681,26 @@ double cr_chol_min_pivot(void *hp) {
   return d;
 }
 
-/* Delete row/column t (0-based) from the factor (it becomes an identity row). The pattern of
- * row t of L is bounded by its row subtree in the elimination tree of P M P' (permuted_etree).
- * cholmod_rowdel zeroes row k of L but keeps its entries in the pattern; they are then taken out
- * of their columns (the columns keep their order and their room): the solves, the Schur tests
- * and the later updates no longer visit them (measured: 8% of the entries a solve visited on
- * congested150). The pattern stays that of a Cholesky factor: row k leaves every column at
- * once, and a column j whose parent (first off-diagonal row) was k has the rest of its pattern
- * in column k's, so the next row of column j, its new parent, holds every row after it (the
- * fill of eliminating k): cholmod_rowadd and cholmod_updown, which take the elimination tree
- * from the pattern, see a valid one. */
+/* Delete the rows/columns t[0..nt-1] (0-based slots, active, distinct) from the factor: they
+ * become identity rows, in one multiple-rank update. With S the deleted positions and R the
+ * others, A = L D L' gives A(R,R) = L(R,R) D(R) L(R,R)' + L(R,S) D(S) L(R,S)', and L(R,R) (the
+ * factor with the rows and columns of S taken out) is unit lower triangular: so the rows of S
+ * leave every column, the columns of S become identity columns (D = 1, entries zero, as
+ * cholmod_rowdel leaves them), and cholmod_updown adds C C' with C = L(R,S) sqrt(D(S)) (the
+ * columns of S as they were, their rows in S left out). For one row this is what cholmod_rowdel
+ * does (a rank-one update with column k); for several, one call of rank nt walks the union of
+ * their elimination-tree paths once (measured: 3-4% fewer instructions per step on
+ * congested150 than a cholmod_rowdel per row). The pattern of row k of L is bounded by its row
+ * subtree in the elimination tree of P M P' (permuted_etree); the deleted rows are taken out of
+ * their columns (the columns keep their order and their room), so that the solves, the Schur
+ * tests and the later updates no longer visit them. The pattern stays that of a Cholesky
+ * factor: the rows leave every column at once, and a column j whose parent (first
+ * off-diagonal row) was deleted has the rest of its pattern in that column's, so the next row
+ * of column j, its new parent, holds every row after it (the fill of eliminating the deleted
+ * rows): cholmod_rowadd and cholmod_updown, which take the elimination tree from the pattern,
+ * see a valid one, and C's columns lie in it. The marks mk (zero between calls, shared with
+ * the Schur test) flag S during the call. A failure once L is modified frees the factor (the
+ * caller's next cr_chol_factor builds a new one). */
 int cr_chol_rowdel(void *hp, int nt, const int *t) {
   cr_chol_t *h = (cr_chol_t *)hp;
   int q, k, j, p, e, nc, *rp, *ri, *lp, *li, *lnz, *mk, *cp, *ci, rc;
@@ -772,10 +783,14 @@ int cr_chol_rowdel(void *hp, int nt, const int *t) {
     }
     h->xw[k] = 0.0;
   }
-  if (rc != 0) return rc;
+  if (rc == 0 && nc > 0 && (!cholmod_updown(1, h->cu, h->l, &h->c) || h->c.status < CHOLMOD_OK))
+    rc = fail(h, 18, "updown (rowdel)");
+  if (rc != 0) {
+    /* L is half modified (or, out of memory, symbolic): no factor until the next one */
+    cholmod_free_factor(&h->l, &h->c); h->lstale = 0;
+    return rc;
+  }
   h->n_pattern += nt;
-  if (nc > 0 && (!cholmod_updown(1, h->cu, h->l, &h->c) || h->c.status < CHOLMOD_OK))
-    return fail(h, 18, "updown (rowdel)");
   return 0;
 }
 

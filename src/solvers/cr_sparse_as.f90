@@ -1,6 +1,7 @@
 !> Exact projection by a dual active-set method whose linear algebra is a sparse LDL'
 !> factorisation (SuiteSparse CHOLMOD, through cr_cholmod) of the Gram matrix of the active rows,
-!> modified (cholmod_rowadd / cholmod_rowdel) rather than rebuilt when the active set changes:
+!> modified (cholmod_rowadd; the rows leaving together deleted by one multiple-rank update)
+!> rather than rebuilt when the active set changes:
 !>
 !>   min |u - v|^2  s.t.  B u <= d   <=>   min_{lambda >= 0} f = 1/2 |B^T lambda|^2 - lambda^T (B v - d),
 !>   u = v - B^T lambda,  grad f = d - B u (the slacks).
@@ -36,6 +37,12 @@
 !>   z is negative), so no face repeats and the method is finite. A row the search brings from
 !>   lambda > 0 to zero but violated at the new point stays in P at zero (keep_violated: it
 !>   would enter again at once; the step back still ends at a minimiser on P with z > 0).
+!> - Minimiser after one change of P without a full solve: when one row t enters, z on P + t
+!>   follows from lambda (the minimiser on P) and alpha = M_P^{-1} M(P, t), the backward half of
+!>   a solve after the Schur test's forward half: z_t = -slack_t / (M(t,t) - M(P,t)' alpha),
+!>   z_P = lambda_P - z_t alpha; when one row k leaves in a projected search, z on P - k is
+!>   z - (z_k / (M_P^{-1})_kk) M_P^{-1} e_k, whose forward half visits one elimination-tree
+!>   path only. Other changes take a solve on P.
 !> - Linearly dependent rows (jammed crowds): an entering row whose new pivot D(t,t) is below
 !>   dep_tol is taken out again; if every violated row is dependent, the most violated enters by
 !>   exchange (b_t = B_P^T alpha: lambda_P -= tau alpha, lambda_t = tau, the row reaching zero
