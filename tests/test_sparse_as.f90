@@ -665,7 +665,7 @@ contains
   !> (entries of B in [-0.5, 0.5], at most 3 per row): 1e3 n eps relative.
   subroutine test_kernels()
     integer, parameter :: n = 60, nc = 45
-    real(wp) :: bm(n, nc), m(n, n), rhs(n), x(n), r(n), u, sref, sval, mnorm, worst, worst_s
+    real(wp) :: bm(n, nc), m(n, n), rhs(n), x(n), u, sref, sval, worst, worst_s
     real(wp) :: xa(n), sval2, worst_a, worst_u, worst_d
     integer :: colptr(n + 1), rowind(n * n), i, j, k, t, trial, nz, nw
     integer :: idx(n)
@@ -688,7 +688,6 @@ contains
       do i = 1, n
         m(i, i) = m(i, i) + 1.0_wp
       end do
-      mnorm = maxval(sum(abs(m), dim=2))
       nz = 0
       do j = 1, n
         colptr(j) = nz + 1
@@ -712,15 +711,7 @@ contains
       call random_number(rhs); rhs = rhs - 0.5_wp
       call ch%solve(rhs, x, err)
       call check(.not. allocated(err), "kernels: solve")
-      ! M_P x_P = b_P on the active rows, x = b elsewhere
-      do i = 1, n
-        if (act(i)) then
-          r(i) = dot_product(merge(m(i, :), 0.0_wp, act), x) - rhs(i)
-        else
-          r(i) = x(i) - rhs(i)
-        end if
-      end do
-      worst = max(worst, maxval(abs(r)) / (mnorm * maxval(abs(x))))
+      worst = max(worst, solve_residual(m, act, x, rhs))
       ! Schur value of an inactive row t against the active rows
       do t = 1, n
         if (act(t)) cycle
@@ -775,14 +766,7 @@ contains
         end do
         call random_number(rhs); rhs = rhs - 0.5_wp
         call ch%solve(rhs, x, err)
-        do i = 1, n
-          if (act(i)) then
-            r(i) = dot_product(merge(m(i, :), 0.0_wp, act), x) - rhs(i)
-          else
-            r(i) = x(i) - rhs(i)
-          end if
-        end do
-        worst_d = max(worst_d, maxval(abs(r)) / (mnorm * maxval(abs(x))))
+        worst_d = max(worst_d, solve_residual(m, act, x, rhs))
       end if
       ! deleting a row twice in one call, or an inactive row, is refused
       if (nw > 0) then
@@ -808,5 +792,22 @@ contains
     call check(worst_u <= 1.0e3_wp * n * epsilon(1.0_wp), "kernels: inverse column at rounding level")
     call check(worst_d <= 1.0e3_wp * n * epsilon(1.0_wp), "kernels: solve after a multiple deletion at rounding level")
   end subroutine test_kernels
+
+  !> Test of test_kernels: |M_P x_P - b_P| on the active rows, |x - b| elsewhere, scaled by
+  !> |M|_inf |x|_inf (the backward error of a solve with the factor of M_P).
+  real(wp) function solve_residual(m, act, x, rhs) result(res)
+    real(wp), intent(in) :: m(:, :), x(:), rhs(:)
+    logical, intent(in) :: act(:)
+    real(wp) :: r(size(x))
+    integer :: i
+    do i = 1, size(x)
+      if (act(i)) then
+        r(i) = dot_product(merge(m(i, :), 0.0_wp, act), x) - rhs(i)
+      else
+        r(i) = x(i) - rhs(i)
+      end if
+    end do
+    res = maxval(abs(r)) / (maxval(sum(abs(m), dim=2)) * maxval(abs(x)))
+  end function solve_residual
 
 end program test_sparse_as

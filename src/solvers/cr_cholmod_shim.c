@@ -598,8 +598,9 @@ static double schur_scan(cr_chol_t *h, int t, int nz, const int *idx, const doub
   return acc;
 }
 
-/* The backward half of a solve from the forward values in xw (active positions): x = A^{-1} w
- * in the caller's rows, set on the active rows only. */
+/* The backward half of a solve, L' x = D^{-1} y, from the forward values y in xw (active
+ * positions; xw keeps x there): x in the caller's rows, set on the active rows only. The one
+ * backward loop of the solves (cr_chol_solve, cr_chol_unit_solve, cr_chol_schur's alpha). */
 static void back_solve(cr_chol_t *h, double *x) {
   int i, j, p, c, *lp = (int *)h->l->p, *li = (int *)h->l->i, *lnz = (int *)h->l->nz;
   double *lx = (double *)h->l->x, *y = h->xw, yj;
@@ -830,18 +831,7 @@ int cr_chol_solve(void *hp, const double *b, double *x) {
 #pragma GCC unroll 4
     for (p = 0; p < c; p++) y[ip[p]] -= xp[p] * yj;
   }
-  for (i = na - 1; i >= 0; i--) {       /* L' x = D^{-1} y, the result scattered to x */
-    const int *ip;
-    const double *xp;
-    int c;
-    j = ap[i];
-    yj = y[j] / lx[lp[j]];
-    ip = li + lp[j] + 1; xp = lx + lp[j] + 1; c = lnz[j] - 1;
-#pragma GCC unroll 4
-    for (p = 0; p < c; p++) yj -= xp[p] * y[ip[p]];
-    y[j] = yj;
-    x[rowof[j]] = yj;
-  }
+  back_solve(h, x);                     /* L' x = D^{-1} y, the result scattered to x */
   return 0;
 }
 
@@ -852,14 +842,14 @@ int cr_chol_solve(void *hp, const double *b, double *x) {
  * visits that path only; the backward solve is the full one of cr_chol_solve. */
 int cr_chol_unit_solve(void *hp, int s, double *x, double *xss) {
   cr_chol_t *h = (cr_chol_t *)hp;
-  int i, j, k, p, c, na, *lp, *li, *lnz, *ap, *rowof;
+  int i, j, k, p, c, na, *lp, *li, *lnz, *ap;
   double *lx, *y, yj;
   if (!have_factor(h)) { snprintf(h->msg, sizeof h->msg, "cr_chol_unit_solve without a factor"); return 19; }
   if (s < 0 || s >= h->n || !h->active[s]) {
     snprintf(h->msg, sizeof h->msg, "cr_chol_unit_solve: slot %d not active", s + 1);
     return 17;
   }
-  y = h->xw; na = h->napos; ap = h->apos; rowof = h->rowof;
+  y = h->xw; na = h->napos; ap = h->apos;
   lp = (int *)h->l->p; li = (int *)h->l->i; lnz = (int *)h->l->nz; lx = (double *)h->l->x;
   for (i = 0; i < na; i++) y[ap[i]] = 0.0;
   k = h->iperm[s];
@@ -873,17 +863,7 @@ int cr_chol_unit_solve(void *hp, int s, double *x, double *xss) {
     for (p = 0; p < c; p++) y[ip[p]] -= xp[p] * yj;
     j = ip[0];
   }
-  for (i = na - 1; i >= 0; i--) {       /* L' x = D^{-1} y */
-    const int *ip;
-    const double *xp;
-    j = ap[i];
-    yj = y[j] / lx[lp[j]];
-    ip = li + lp[j] + 1; xp = lx + lp[j] + 1; c = lnz[j] - 1;
-#pragma GCC unroll 4
-    for (p = 0; p < c; p++) yj -= xp[p] * y[ip[p]];
-    y[j] = yj;
-    x[rowof[j]] = yj;
-  }
+  back_solve(h, x);                     /* L' x = D^{-1} y */
   *xss = y[k];
   return 0;
 }
