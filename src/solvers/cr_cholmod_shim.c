@@ -473,8 +473,10 @@ int cr_chol_factor(void *hp, const int *active, int pack_min) {
     pa[k] = nz;
     if (!actp[k]) { ia[nz] = k; xa[nz] = 1.0; nz++; continue; }
     for (e = sp[k]; e < sp[k + 1]; e++) {
+      /* stored always, kept when active (no data-dependent branch; room: sp[k + 1] - sp[k]) */
       a = si[e];
-      if (actp[a]) { ia[nz] = a; xa[nz] = h->v[h->ss[e]]; nz++; }
+      ia[nz] = a; xa[nz] = h->v[h->ss[e]];
+      nz += actp[a];
     }
   }
   pa[n] = nz;
@@ -601,7 +603,7 @@ static double schur_scan(cr_chol_t *h, int t, int nz, const int *idx, const doub
 /* The backward half of a solve, L' x = D^{-1} y, from the forward values y in xw (active
  * positions; xw keeps x there): x in the caller's rows, set on the active rows only. The one
  * backward loop of the solves (cr_chol_solve, cr_chol_unit_solve, cr_chol_schur's alpha). */
-static void back_solve(cr_chol_t *h, double *x) {
+static inline __attribute__((always_inline)) void back_solve(cr_chol_t *h, double *x) {
   int i, j, p, c, *lp = (int *)h->l->p, *li = (int *)h->l->i, *lnz = (int *)h->l->nz;
   double *lx = (double *)h->l->x, *y = h->xw, yj;
   for (i = h->napos - 1; i >= 0; i--) {

@@ -510,7 +510,7 @@ contains
     !> Normalised rows, B v - d, scale, thresholds; work arrays sized.
     subroutine prepare()
       integer :: a, b
-      real(wp) :: x1, x2
+      real(wp) :: x1, x2, rinv
       call rgrow(this%rn, m); call rgrow(this%dd, m); call rgrow(this%cc, m)
       call rgrow(this%lam, m); call rgrow(this%slack, m); call rgrow(this%z, m)
       call rgrow(this%rhs, m); call rgrow(this%piv, m); call rgrow(this%w, m)
@@ -532,12 +532,14 @@ contains
       sv = tiny(1.0_wp) * 1.0e10_wp
       if (size(v) > 0) sv = max(sv, maxval(abs(v)))
       do j = 1, m
+        ! the row's norm (h |g| with |g| about 1: no scaling needed) and one division
         x1 = -cs%h * cs%g(1, j); x2 = -cs%h * cs%g(2, j)
-        this%rn(j) = norm2([x1, x2])
+        this%rn(j) = sqrt(x1 * x1 + x2 * x2)
         if (cs%ib(j) > 0) this%rn(j) = this%rn(j) * sqrt(2.0_wp)
-        x1 = x1 / this%rn(j); x2 = x2 / this%rn(j)
+        rinv = 1.0_wp / this%rn(j)
+        x1 = x1 * rinv; x2 = x2 * rinv
         this%c1(j) = x1; this%c2(j) = x2
-        this%dd(j) = cs%gap(j) / this%rn(j)
+        this%dd(j) = cs%gap(j) * rinv
         sv = max(sv, -this%dd(j))
         a = cs%ia(j); b = cs%ib(j)
         this%ka(j) = 2 * a - 1
