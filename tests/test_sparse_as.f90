@@ -9,7 +9,7 @@ program test_sparse_as
   use cr_contact_set, only: contact_set_t
   use cr_projection, only: projection_settings_t, solve_stats_t, projection_solver_t, &
     make_projection_solver
-  use cr_sparse_as, only: sparse_as_solver_t
+  use cr_sparse_as, only: sparse_as_solver_t, pivot_lower_bound
   use cr_cholmod, only: chol_t
   implicit none
   real(wp), parameter :: rad = 0.05_wp, h = 0.01_wp
@@ -24,6 +24,7 @@ program test_sparse_as
   call test_tail_slots()
   call test_options()
   call test_kernels()
+  call test_pivot_bound()
   call test_summary()
 
 contains
@@ -792,6 +793,86 @@ contains
     call check(worst_u <= 1.0e3_wp * n * epsilon(1.0_wp), "kernels: inverse column at rounding level")
     call check(worst_d <= 1.0e3_wp * n * epsilon(1.0_wp), "kernels: solve after a multiple deletion at rounding level")
   end subroutine test_kernels
+
+  !> The pivot bound that lets an entering row skip the Schur test (pivot_lower_bound, from the
+  !> active rows at the row's agents) against the exact squared distance of b_t to the span of
+  !> the active rows (two-pass Gram-Schmidt in velocity space), on random small crowds whose
+  !> normals come from eight directions (exact parallels occur) with random active sets: the
+  !> bound never exceeds the distance (up to 64 eps), is positive for some rows and comes from
+  !> an agent with exactly one active row (the angle case) for some.
+  subroutine test_pivot_bound()
+    integer, parameter :: na = 5, m = 10, ntrial = 300
+    integer :: ia(m), ib(m), fp(m + 1), fi(m * m), trial, t, l, k, nq, nz, n_pos, n_one, cnt
+    real(wp) :: c1(m), c2(m), bv(2 * na, m), q(2 * na, m), u, ang, bnd, d2, x(2 * na), worst
+    logical :: act(m)
+    worst = -huge(1.0_wp); n_pos = 0; n_one = 0
+    do trial = 1, ntrial
+      do t = 1, m
+        call random_number(u); ia(t) = 1 + int(u * na)
+        call random_number(u); ib(t) = int(u * (na + 1))
+        if (ib(t) == ia(t)) ib(t) = 0
+        call random_number(u); ang = 2.0_wp * acos(-1.0_wp) * real(int(8 * u), wp) / 8.0_wp
+        c1(t) = cos(ang); c2(t) = sin(ang)
+        if (ib(t) > 0) then
+          c1(t) = c1(t) / sqrt(2.0_wp); c2(t) = c2(t) / sqrt(2.0_wp)
+        end if
+        call random_number(u); act(t) = u < 0.5_wp
+        bv(:, t) = 0.0_wp
+        bv(2 * ia(t) - 1, t) = c1(t); bv(2 * ia(t), t) = c2(t)
+        if (ib(t) > 0) then
+          bv(2 * ib(t) - 1, t) = -c1(t); bv(2 * ib(t), t) = -c2(t)
+        end if
+      end do
+      ! columns of M: every row sharing an agent with t
+      nz = 0
+      do t = 1, m
+        fp(t) = nz + 1
+        do l = 1, m
+          if (ia(l) == ia(t) .or. (ib(l) > 0 .and. ib(l) == ia(t)) .or. &
+              (ib(t) > 0 .and. (ia(l) == ib(t) .or. ib(l) == ib(t)))) then
+            nz = nz + 1; fi(nz) = l
+          end if
+        end do
+      end do
+      fp(m + 1) = nz + 1
+      ! orthonormal basis of the active rows' span
+      nq = 0
+      do l = 1, m
+        if (.not. act(l)) cycle
+        x = bv(:, l)
+        do k = 1, 2
+          x = x - matmul(q(:, 1:nq), matmul(transpose(q(:, 1:nq)), x))
+        end do
+        if (norm2(x) > 1.0e-8_wp) then
+          nq = nq + 1; q(:, nq) = x / norm2(x)
+        end if
+      end do
+      do t = 1, m
+        if (act(t)) cycle
+        bnd = pivot_lower_bound(t, fp, fi, act, ia, ib, c1, c2)
+        x = bv(:, t)
+        do k = 1, 2
+          x = x - matmul(q(:, 1:nq), matmul(transpose(q(:, 1:nq)), x))
+        end do
+        d2 = dot_product(x, x)
+        worst = max(worst, bnd - d2)
+        if (bnd > 0.0_wp) n_pos = n_pos + 1
+        ! an agent of t with exactly one active row, the bound positive: the angle case
+        do k = 1, 2
+          l = merge(ia(t), ib(t), k == 1)
+          if (l == 0) cycle
+          cnt = count(act .and. (ia == l .or. ib == l))
+          if (cnt == 1 .and. bnd > 0.0_wp .and. bnd < dot_product(bv(:, t), bv(:, t)) / 2 - 1.0e-12_wp) &
+            n_one = n_one + 1
+        end do
+      end do
+    end do
+    print '(2x,a,es10.2,a,i0,a,i0)', "pivot bound: largest bound - distance^2 ", worst, &
+      "; positive bounds ", n_pos, ", from one active row at an angle ", n_one
+    call check(worst <= 64.0_wp * epsilon(1.0_wp), "pivot bound: never above the squared distance to the active span")
+    call check(n_pos > 0, "pivot bound: positive for some entering rows")
+    call check(n_one > 0, "pivot bound: the one-active-row (angle) case occurs")
+  end subroutine test_pivot_bound
 
   !> Test of test_kernels: |M_P x_P - b_P| on the active rows, |x - b| elsewhere, scaled by
   !> |M|_inf |x|_inf (the backward error of a solve with the factor of M_P).

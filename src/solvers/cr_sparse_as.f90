@@ -71,7 +71,7 @@ module cr_sparse_as
   use cr_projection, only: projection_solver_t, solve_stats_t, finish_stats, check_sizes, add_note
   implicit none
   private
-  public :: sparse_as_solver_t
+  public :: sparse_as_solver_t, pivot_lower_bound
 
   !> relative pivot (rows of unit norm) below which an entering row counts as dependent
   real(wp), parameter :: dep_tol = 1.0e-10_wp
@@ -166,8 +166,9 @@ module cr_sparse_as
     real(wp), allocatable :: uu(:)
     !> solves whose warm start already met the KKT test (no analysis, no factorisation)
     integer :: n_warm_exact = 0
-    !> row additions whose pre-test was skipped since an agent of the row was in no active
-    !> row (the pivot is then at least half the diagonal) since init
+    !> row additions whose pre-test was skipped since init: at an agent of the row the active
+    !> rows (none, or one at an angle) leave the pivot provably far above the threshold
+    !> (pivot_lower_bound)
     integer :: n_free = 0
     !> rows analysed (the set W that can become active): warm-start rows and rows whose slack
     !> at u = v is below w_margin * (velocity scale); a violated row outside W enlarges W
@@ -1539,9 +1540,9 @@ contains
           ! backward one
           call this%chol%schur(tt, this%fi(q1:q2), this%fv(q1:q2), s, error, this%w(1:m))
           if (allocated(error)) return
-        else if (free_agent(tt)) then
-          ! an agent of tt in no active row: b_t has a part (norm^2 >= dtt / 2) on that
-          ! agent's velocity outside the span of B_P, so pivot >= dtt / 2 (no test needed)
+        else if (local_bound(tt) > 1.0e3_wp * pmin_rel * dtt) then
+          ! at an agent of tt the active rows leave part of b_t outside the span of B_P:
+          ! the pivot is at least that part's norm^2, far above the threshold (no test)
           this%n_free = this%n_free + 1
           s = 0.0_wp
         else
@@ -1564,26 +1565,11 @@ contains
       end if
     end subroutine add_row
 
-    !> True when an agent of row tt is in no active row (column tt of M lists every row
-    !> sharing an agent with tt): then b_t has a part of norm^2 >= M(tt,tt) / 2 outside the
-    !> span of B_P (on that agent's velocity), so tt cannot depend on P.
-    logical function free_agent(tt) result(free)
+    !> A lower bound of the pivot row tt would get (pivot_lower_bound).
+    real(wp) function local_bound(tt) result(bnd)
       integer, intent(in) :: tt
-      integer :: a, b, l, p
-      logical :: busy_a, busy_b
-      a = cs%ia(tt); b = cs%ib(tt)
-      busy_a = .false.; busy_b = b <= 0
-      do p = this%fp(tt), this%fp(tt + 1) - 1
-        l = this%fi(p)
-        if (l == tt .or. .not. this%act(l)) cycle
-        if (cs%ia(l) == a .or. cs%ib(l) == a) busy_a = .true.
-        if (b > 0) then
-          if (cs%ia(l) == b .or. cs%ib(l) == b) busy_b = .true.
-        end if
-        if (busy_a .and. busy_b) exit
-      end do
-      free = .not. (busy_a .and. busy_b)
-    end function free_agent
+      bnd = pivot_lower_bound(tt, this%fp, this%fi, this%act, cs%ia, cs%ib, this%c1, this%c2)
+    end function local_bound
 
     !> z = (B_P B_P^T)^{-1} (B v - d)_P (zero off P).
     subroutine solve_p()
@@ -1630,6 +1616,46 @@ contains
     end subroutine velocities
 
   end subroutine sparse_core
+
+  !> A lower bound of the pivot row tt would get against the active rows (its Schur
+  !> complement, the squared distance of b_t to the span of B_P; rows by their coefficients
+  !> c1, c2 on the velocity of their first agent ia and -c1, -c2 on that of their second ib,
+  !> 0 for a wall), from the active rows at each of tt's agents only: the distance is at least
+  !> that of b_t's part on the agent's velocity (norm^2 n2 = c1^2 + c2^2) to the span of the
+  !> active rows' parts there, which is n2 with no such row, n2 sin^2(angle) with one, and
+  !> unknown (0) with two or more. Column tt of M (fi(fp(tt):fp(tt + 1) - 1)) must list every
+  !> row sharing an agent with tt. Public for its test.
+  pure real(wp) function pivot_lower_bound(tt, fp, fi, act, ia, ib, c1, c2) result(bnd)
+    integer, intent(in) :: tt, fp(*), fi(*), ia(*), ib(*)
+    logical, intent(in) :: act(*)
+    real(wp), intent(in) :: c1(*), c2(*)
+    integer :: ag(2), nr(2), l, p, k, na_t
+    real(wp) :: n2, cr(2), nl2(2)
+    ag(1) = ia(tt); ag(2) = ib(tt)
+    na_t = merge(2, 1, ag(2) > 0)
+    nr = 0; cr = 0.0_wp; nl2 = 1.0_wp
+    do p = fp(tt), fp(tt + 1) - 1
+      l = fi(p)
+      if (l == tt .or. .not. act(l)) cycle
+      do k = 1, na_t
+        if (ia(l) == ag(k) .or. ib(l) == ag(k)) then
+          nr(k) = nr(k) + 1
+          ! (c1, c2) x (c1_l, c2_l): the sine of the angle times both norms
+          cr(k) = c1(tt) * c2(l) - c2(tt) * c1(l)
+          nl2(k) = c1(l)**2 + c2(l)**2
+        end if
+      end do
+    end do
+    n2 = c1(tt)**2 + c2(tt)**2
+    bnd = 0.0_wp
+    do k = 1, na_t
+      if (nr(k) == 0) then
+        bnd = max(bnd, n2)
+      else if (nr(k) == 1) then
+        bnd = max(bnd, cr(k)**2 / nl2(k))
+      end if
+    end do
+  end function pivot_lower_bound
 
   !> projected_step's start: d = z - lambda on the list of P (into w), the slope
   !> sl = slack' d, and the rows with z <= 0 (ord(1:nb)) with their breakpoints tbk.
