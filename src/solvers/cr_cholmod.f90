@@ -1,8 +1,9 @@
 !> Fortran side of the CHOLMOD shim (src/solvers/cr_cholmod_shim.c): a sparse symmetric matrix
 !> M [n, n], its fill-reducing analysis, and a simplicial LDL' factor of the "active" matrix
 !> (M on the active rows, identity elsewhere) that is modified by row additions and deletions
-!> (cholmod_rowadd; several rows deleted by one cholmod_updown) instead of being rebuilt. Indices here are 1-based; every
-!> CHOLMOD status is checked by the shim and returned as an error_t naming the call.
+!> (cholmod_rowadd; several rows deleted by one cholmod_updown) instead of being rebuilt.
+!> Indices here are 1-based; every CHOLMOD status is checked by the shim and returned as an
+!> error_t naming the call.
 module cr_cholmod
   use, intrinsic :: iso_c_binding, only: c_ptr, c_null_ptr, c_int, c_double, c_char, c_long, &
     c_associated, c_loc
@@ -55,7 +56,6 @@ module cr_cholmod
     procedure :: schur => chol_schur
     procedure :: symbolic_nnz => chol_symbolic_nnz
     procedure :: perm => chol_perm
-    procedure :: n_pattern => chol_n_pattern
     procedure :: n_schur_scan => chol_n_schur_scan
     procedure :: set_rows => chol_set_rows
     procedure :: set_analysed_values => chol_set_analysed_values
@@ -170,10 +170,6 @@ module cr_cholmod
       import :: c_ptr, c_double
       type(c_ptr), value :: h
     end function c_min_pivot
-    integer(c_long) function c_n_pattern(h) bind(C, name='cr_chol_n_pattern')
-      import :: c_ptr, c_long
-      type(c_ptr), value :: h
-    end function c_n_pattern
     integer(c_long) function c_n_schur_scan(h) bind(C, name='cr_chol_n_schur_scan')
       import :: c_ptr, c_long
       type(c_ptr), value :: h
@@ -561,13 +557,6 @@ contains
     d = real(c_min_pivot(this%h), wp)
   end function chol_min_pivot
 
-  !> Row deletions done with the row's pattern (row subtree of the analysis' elimination tree)
-  !> since init.
-  integer function chol_n_pattern(this) result(k)
-    class(chol_t), intent(in) :: this
-    k = 0
-    if (c_associated(this%h)) k = int(c_n_pattern(this%h))
-  end function chol_n_pattern
 
   !> Schur pivot tests through the elimination-tree reach (n >= reach_min) whose reach missed
   !> a fill of the factor (never expected; then done by the scan) since init.

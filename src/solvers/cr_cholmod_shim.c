@@ -6,8 +6,8 @@
  * and a simplicial LDL' factor of the "active" matrix
  *     A = M restricted to the active rows and columns, identity on the other rows,
  * which the caller modifies with row additions (cholmod_rowadd) and deletions (several rows in
- * one multiple-rank cholmod_updown, cr_chol_rowdel) as the active set changes. Every function returns 0 on success and a nonzero code otherwise;
- * cr_chol_message gives the reason. The shim allocates nothing the caller sees; all indices
+ * one multiple-rank cholmod_updown, cr_chol_rowdel) as the active set changes. Every function
+ * returns 0 on success and a nonzero code otherwise; cr_chol_message gives the reason. The shim allocates nothing the caller sees; all indices
  * at this interface are 0-based and in the caller's (unpermuted) numbering.
  */
 #include <stdlib.h>
@@ -42,8 +42,7 @@ typedef struct {
   int *mk, *stk;          /* marks (zero between calls) and a stack of the Schur test [n]
                            * (mk also flags the rows of a deletion) */
   cholmod_sparse *cu;     /* the update C of a row deletion [n, nt] (grown as needed) */
-  cholmod_sparse *rpat;   /* pattern of a row of L handed to cholmod_rowdel [n, 1] */
-  long n_pattern;         /* row deletions done with a known row pattern */
+  cholmod_sparse *rpat;   /* pattern bound of a row of L (its row subtree) in a deletion [n, 1] */
   long n_schur_scan;      /* Schur tests whose reach missed a fill (done by the scan) */
   int nrow;               /* the caller's rows (cr_chol_set_rows; n after an analysis) */
   int *rowof;             /* caller's row at each factor position, -1 for none [n] */
@@ -704,6 +703,12 @@ double cr_chol_min_pivot(void *hp) {
  * see a valid one, and C's columns lie in it. The marks mk (zero between calls, shared with
  * the Schur test) flag S during the call. A failure once L is modified frees the factor (the
  * caller's next cr_chol_factor builds a new one). */
+/* Clear the marks of the deletion's first n positions (rows t[0..n-1]). */
+static void unmark(cr_chol_t *h, int n, const int *t) {
+  int q;
+  for (q = 0; q < n; q++) h->mk[h->iperm[t[q]]] = 0;
+}
+
 int cr_chol_rowdel(void *hp, int nt, const int *t) {
   cr_chol_t *h = (cr_chol_t *)hp;
   int q, k, j, p, e, nc, *rp, *ri, *lp, *li, *lnz, *mk, *cp, *ci, rc;
@@ -716,7 +721,7 @@ int cr_chol_rowdel(void *hp, int nt, const int *t) {
   nc = 0;
   for (q = 0; q < nt; q++) {
     if (t[q] < 0 || t[q] >= h->n || !h->active[t[q]] || mk[h->iperm[t[q]]]) {
-      for (j = 0; j < q; j++) mk[h->iperm[t[j]]] = 0;
+      unmark(h, q, t);
       snprintf(h->msg, sizeof h->msg, "cr_chol_rowdel: row %d not active (or given twice)", t[q] + 1);
       return 17;
     }
@@ -729,7 +734,7 @@ int cr_chol_rowdel(void *hp, int nt, const int *t) {
     if (h->cu) cholmod_free_sparse(&h->cu, &h->c);
     h->cu = cholmod_allocate_sparse((size_t)h->n, ncol, nzmax, 1, 1, 0, CHOLMOD_REAL, &h->c);
     if (!h->cu) {
-      for (q = 0; q < nt; q++) mk[h->iperm[t[q]]] = 0;
+      unmark(h, nt, t);
       return fail(h, 18, "allocate_sparse (rowdel)");
     }
   }
@@ -741,7 +746,7 @@ int cr_chol_rowdel(void *hp, int nt, const int *t) {
     k = h->iperm[t[q]];
     dk = lx[lp[k]];
     if (!(dk > 0.0)) {
-      for (j = 0; j < nt; j++) mk[h->iperm[t[j]]] = 0;
+      unmark(h, nt, t);
       snprintf(h->msg, sizeof h->msg, "cr_chol_rowdel: pivot %g of row %d is not positive", dk, t[q] + 1);
       return 18;
     }
@@ -774,10 +779,10 @@ int cr_chol_rowdel(void *hp, int nt, const int *t) {
       lnz[j]--;
     }
   }
+  unmark(h, nt, t);
   for (q = 0; q < nt; q++) {
     int lo = 0, hi = h->napos;
     k = h->iperm[t[q]];
-    mk[k] = 0;
     h->active[t[q]] = 0;
     while (lo < hi) { int mid = (lo + hi) / 2; if (h->apos[mid] < k) lo = mid + 1; else hi = mid; }
     if (lo < h->napos && h->apos[lo] == k) {
@@ -793,7 +798,6 @@ int cr_chol_rowdel(void *hp, int nt, const int *t) {
     cholmod_free_factor(&h->l, &h->c); h->lstale = 0;
     return rc;
   }
-  h->n_pattern += nt;
   return 0;
 }
 
@@ -874,12 +878,6 @@ int cr_chol_unit_solve(void *hp, int s, double *x, double *xss) {
 long cr_chol_n_schur_scan(void *hp) {
   cr_chol_t *h = (cr_chol_t *)hp;
   return h->n_schur_scan;
-}
-
-/* Row deletions done with a known row pattern since the handle was created. */
-long cr_chol_n_pattern(void *hp) {
-  cr_chol_t *h = (cr_chol_t *)hp;
-  return h->n_pattern;
 }
 
 /* Stored off-diagonal entries of the current factor in the row of slot t (0-based; 0 without

@@ -1540,7 +1540,8 @@ contains
           ! backward one
           call this%chol%schur(tt, this%fi(q1:q2), this%fv(q1:q2), s, error, this%w(1:m))
           if (allocated(error)) return
-        else if (local_bound(tt) > 1.0e3_wp * pmin_rel * dtt) then
+        else if (pivot_lower_bound(tt, this%fp, this%fi, this%act, cs%ia, cs%ib, this%c1, &
+                                   this%c2) > 1.0e3_wp * pmin_rel * dtt) then
           ! at an agent of tt the active rows leave part of b_t outside the span of B_P:
           ! the pivot is at least that part's norm^2, far above the threshold (no test)
           this%n_free = this%n_free + 1
@@ -1564,12 +1565,6 @@ contains
         call this%chol%factor(this%act(1:m), error)
       end if
     end subroutine add_row
-
-    !> A lower bound of the pivot row tt would get (pivot_lower_bound).
-    real(wp) function local_bound(tt) result(bnd)
-      integer, intent(in) :: tt
-      bnd = pivot_lower_bound(tt, this%fp, this%fi, this%act, cs%ia, cs%ib, this%c1, this%c2)
-    end function local_bound
 
     !> z = (B_P B_P^T)^{-1} (B v - d)_P (zero off P).
     subroutine solve_p()
