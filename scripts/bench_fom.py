@@ -17,6 +17,11 @@ ratios measured that way mean something. Rows are labelled by the binary's file 
 congested150 runs fall into two modes about 25% apart from run to run; pinned runs scatter
 by a few percent, with rare outliers (hence --repeat, the fastest kept).
 
+The solver table's column "x active_set" is the dense cross-check's time over the row's (same
+scene, tolerance and binary; blank when active_set is not run): its code is the one issue 13
+timed at 2.0-3.5 ms per step on congested150, so the ratio says what a time means across
+machines, whose speed moves the same binary's time by up to 1.5x (README, issue 13).
+
 Runs build/bin/crowd_fom (Release) on generated namelists and prints Markdown tables.
 Uzawa (the paper's scheme) needs 1e5-1e6 iterations per step in the congested scene, so it
 is run on the first --uzawa-steps steps only; its rows say so.
@@ -137,13 +142,25 @@ def solver_table(scenes, tols, uzawa_steps, workdir):
                     if "failed" in s:
                         raise SystemExit("crowd_fom failed: %s" % s["failed"])
                     rows.append((scene, label(solver, f if len(FOMS) > 1 else None),
-                                 "paper (eps=1e-12)" if tol is None else "%g" % tol, s))
+                                 "paper (eps=1e-12)" if tol is None else "%g" % tol, s, solver, f))
                     print_solver_row(rows[-1])
     return rows
 
 
+def dense_ratios(rows):
+    """The dense cross-check's solver time over each row's, from the active_set row of the same
+    scene, tolerance and binary (None where there is none or a time is not positive). rows:
+    (scene, label, tolerance, summary, solver, binary) as solver_table makes them."""
+    dense = {(r[0], r[2], r[5]): r[3]["solver_time_per_step"] for r in rows if r[4] == "active_set"}
+    out = []
+    for r in rows:
+        t, td = r[3]["solver_time_per_step"], dense.get((r[0], r[2], r[5]))
+        out.append(td / t if td is not None and t > 0 and td > 0 else None)
+    return out
+
+
 def print_solver_row(row):
-    scene, solver, tol, s = row
+    scene, solver, tol, s = row[:4]
     print("  %-13s %-17s tol %-18s %8.3f ms/step  it mean %10.1f max %9d  KKT %.2e  failed %d"
           "  fact/step %.2f  updates/step %.1f  changes/step %.1f  fallbacks %d" % (
               scene, solver, tol, 1e3 * s["solver_time_per_step"], s["iterations_mean"],
@@ -229,14 +246,17 @@ def main(argv=None):
             print("scaling:")
             crows = scaling_table(ns, a.steps, a.scaling_solvers, wd, a.scaling_timeout)
     lines = ["| scene | solver | tolerance | steps | time/step (ms) | iterations mean | iterations max | largest KKT "
-             "| failed steps | factorisations/step | factor updates/step | active-set changes/step | fallbacks |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for scene, solver, tol, s in srows:
-        lines.append("| %s | %s | %s | %d | %.3f | %.1f | %d | %.1e | %d | %.2f | %.1f | %.1f | %d |" % (
+             "| failed steps | factorisations/step | factor updates/step | active-set changes/step | fallbacks "
+             "| x active_set |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for row, ratio in zip(srows, dense_ratios(srows)):
+        scene, solver, tol, s = row[:4]
+        lines.append("| %s | %s | %s | %d | %.3f | %.1f | %d | %.1e | %d | %.2f | %.1f | %.1f | %d | %s |" % (
             scene, solver, tol, s["steps"], 1e3 * s["solver_time_per_step"], s["iterations_mean"],
             s["iterations_max"], s["largest_kkt_residual"], s["failed_steps"],
             s.get("factorizations_per_step", 0), s.get("factor_updates_per_step", 0),
-            s.get("active_set_changes_per_step", 0), s.get("fallback_solves", 0)))
+            s.get("active_set_changes_per_step", 0), s.get("fallback_solves", 0),
+            "" if ratio is None else "%.2f" % ratio))
     lines += ["", "| agents | solver | time/step (ms) | solver part (ms) | per agent (us) | peak RSS (MB) | largest KKT "
               "| failed steps | fallbacks |", "|---|---|---|---|---|---|---|---|---|"]
     for n, solver, s in crows:

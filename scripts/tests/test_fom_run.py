@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
-from bench_fom import strip_groups  # noqa: E402  (one namelist-group filter for scripts and tests)
+from bench_fom import dense_ratios, strip_groups  # noqa: E402  (one namelist-group filter for scripts and tests)
 
 ROOT = os.environ.get("CROWDROM_ROOT", os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 BIN = os.environ.get("CROWDROM_BIN", os.path.join(ROOT, "build", "bin"))
@@ -139,3 +139,22 @@ def test_init_from_hdf5_reproduces_run(tiny, tmp_path):
     assert p.returncode == 0, p.stdout + p.stderr
     with h5py.File(h5, "r") as a, h5py.File(tmp_path / "tiny_fom.h5", "r") as b:
         np.testing.assert_array_equal(a["traj/positions"][...], b["traj/positions"][...])
+
+
+def test_bench_fom_dense_ratios():
+    """bench_fom.py's "x active_set" column: the dense cross-check's time over the row's, matched
+    by scene, tolerance and binary only; None without a match or with a time that is not
+    positive."""
+    def row(scene, tol, solver, fom, t):
+        return (scene, solver, tol, {"solver_time_per_step": t}, solver, fom)
+    rows = [row("c150", "1e-09", "sparse_active_set", "a", 0.5e-3),
+            row("c150", "1e-09", "active_set", "a", 3.0e-3),
+            row("c150", "1e-09", "sparse_active_set", "b", 0.4e-3),
+            row("c150", "1e-09", "active_set", "b", 2.0e-3),
+            row("c150", "1e-06", "sparse_active_set", "a", 0.5e-3),   # no dense row at 1e-6
+            row("h20", "1e-09", "sparse_active_set", "a", 0.0),       # time not positive
+            row("h20", "1e-09", "active_set", "a", 1.0e-3)]
+    r = dense_ratios(rows)
+    assert r[0] == pytest.approx(6.0) and r[2] == pytest.approx(5.0)
+    assert r[1] == pytest.approx(1.0) and r[3] == pytest.approx(1.0)
+    assert r[4] is None and r[5] is None and r[6] == pytest.approx(1.0)
