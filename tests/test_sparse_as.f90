@@ -22,6 +22,7 @@ program test_sparse_as
   call test_step_back()
   call test_reuse()
   call test_tail_slots()
+  call test_rowdel_refusal()
   call test_options()
   call test_kernels()
   call test_pivot_bound()
@@ -600,6 +601,35 @@ contains
     call ch%free()
 
   end subroutine test_tail_slots
+
+  !> A deletion naming a row whose pivot is not positive is refused before the factor is
+  !> touched: M = [4 2; 2 1] is singular, its factor has the pivots 4 and 0 or 1 and 0 (exact
+  !> in binary arithmetic, whichever row AMD orders first); deleting the good row together with
+  !> the bad one (the good one first) leaves every pivot as it was.
+  subroutine test_rowdel_refusal()
+    type(chol_t) :: ch
+    type(error_t), allocatable :: err
+    real(wp) :: d0(2), d1(2)
+    integer :: good, bad
+    call ch%analyze(2, [1, 2, 4], [1, 1, 2], [4.0_wp, 2.0_wp, 1.0_wp], err)
+    call check(.not. allocated(err), "rowdel refusal: analysis")
+    call ch%factor([.true., .true.], err)
+    call check(.not. allocated(err), "rowdel refusal: factorisation of the singular pair")
+    call ch%pivots(d0, err)
+    bad = merge(1, 2, d0(1) == 0.0_wp); good = 3 - bad
+    call check(d0(bad) == 0.0_wp .and. d0(good) > 0.0_wp, "rowdel refusal: one pivot exactly zero")
+    call ch%rowdel([good, bad], err)
+    call check(allocated(err), "rowdel refusal: a zero pivot in the list refused")
+    if (allocated(err)) then
+      call check(index(err%message, "not positive") > 0, "rowdel refusal: the message names the pivot")
+      deallocate(err)
+    end if
+    call ch%pivots(d1, err)
+    call check(.not. allocated(err) .and. all(d1 == d0), "rowdel refusal: the factor left as it was")
+    call ch%rowdel([good], err)
+    call check(.not. allocated(err), "rowdel refusal: the good row alone is deleted")
+    call ch%free()
+  end subroutine test_rowdel_refusal
 
   !> Test of test_tail_slots: x from the factor against a dense solve of M (mf) on the active
   !> rows (identity elsewhere).

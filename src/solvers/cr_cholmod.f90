@@ -557,7 +557,6 @@ contains
     d = real(c_min_pivot(this%h), wp)
   end function chol_min_pivot
 
-
   !> Schur pivot tests through the elimination-tree reach (n >= reach_min) whose reach missed
   !> a fill of the factor (never expected; then done by the scan) since init.
   integer function chol_n_schur_scan(this) result(k)

@@ -7,8 +7,9 @@
  *     A = M restricted to the active rows and columns, identity on the other rows,
  * which the caller modifies with row additions (cholmod_rowadd) and deletions (several rows in
  * one multiple-rank cholmod_updown, cr_chol_rowdel) as the active set changes. Every function
- * returns 0 on success and a nonzero code otherwise; cr_chol_message gives the reason. The shim allocates nothing the caller sees; all indices
- * at this interface are 0-based and in the caller's (unpermuted) numbering.
+ * returns 0 on success and a nonzero code otherwise; cr_chol_message gives the reason. The shim
+ * allocates nothing the caller sees; all indices at this interface are 0-based and in the
+ * caller's (unpermuted) numbering.
  */
 #include <stdlib.h>
 #include <string.h>
@@ -683,6 +684,12 @@ double cr_chol_min_pivot(void *hp) {
   return d;
 }
 
+/* Clear the marks of the deletion's first n positions (rows t[0..n-1]). */
+static void unmark(cr_chol_t *h, int n, const int *t) {
+  int q;
+  for (q = 0; q < n; q++) h->mk[h->iperm[t[q]]] = 0;
+}
+
 /* Delete the rows/columns t[0..nt-1] (0-based slots, active, distinct) from the factor: they
  * become identity rows, in one multiple-rank update. With S the deleted positions and R the
  * others, A = L D L' gives A(R,R) = L(R,R) D(R) L(R,R)' + L(R,S) D(S) L(R,S)', and L(R,R) (the
@@ -701,14 +708,9 @@ double cr_chol_min_pivot(void *hp) {
  * of column j, its new parent, holds every row after it (the fill of eliminating the deleted
  * rows): cholmod_rowadd and cholmod_updown, which take the elimination tree from the pattern,
  * see a valid one, and C's columns lie in it. The marks mk (zero between calls, shared with
- * the Schur test) flag S during the call. A failure once L is modified frees the factor (the
- * caller's next cr_chol_factor builds a new one). */
-/* Clear the marks of the deletion's first n positions (rows t[0..n-1]). */
-static void unmark(cr_chol_t *h, int n, const int *t) {
-  int q;
-  for (q = 0; q < n; q++) h->mk[h->iperm[t[q]]] = 0;
-}
-
+ * the Schur test) flag S during the call. Refusals (a row not active or given twice, a pivot
+ * that is not positive) come before L is touched; a failure once L is modified frees the
+ * factor (the caller's next cr_chol_factor builds a new one). */
 int cr_chol_rowdel(void *hp, int nt, const int *t) {
   cr_chol_t *h = (cr_chol_t *)hp;
   int q, k, j, p, e, nc, *rp, *ri, *lp, *li, *lnz, *mk, *cp, *ci, rc;
@@ -717,7 +719,8 @@ int cr_chol_rowdel(void *hp, int nt, const int *t) {
   if (nt <= 0) return 0;
   lp = (int *)h->l->p; li = (int *)h->l->i; lnz = (int *)h->l->nz; lx = (double *)h->l->x;
   mk = h->mk;
-  /* checks, the deleted positions marked in mk, and the room of C */
+  /* checks (all of them before L is touched), the deleted positions marked in mk, and the
+   * room of C */
   nc = 0;
   for (q = 0; q < nt; q++) {
     if (t[q] < 0 || t[q] >= h->n || !h->active[t[q]] || mk[h->iperm[t[q]]]) {
@@ -726,6 +729,12 @@ int cr_chol_rowdel(void *hp, int nt, const int *t) {
       return 17;
     }
     k = h->iperm[t[q]];
+    dk = lx[lp[k]];
+    if (!(dk > 0.0)) {
+      unmark(h, q, t);
+      snprintf(h->msg, sizeof h->msg, "cr_chol_rowdel: pivot %g of row %d is not positive", dk, t[q] + 1);
+      return 18;
+    }
     mk[k] = 1;
     nc += lnz[k] - 1;
   }
@@ -744,13 +753,7 @@ int cr_chol_rowdel(void *hp, int nt, const int *t) {
   cp[0] = 0; nc = 0;
   for (q = 0; q < nt; q++) {
     k = h->iperm[t[q]];
-    dk = lx[lp[k]];
-    if (!(dk > 0.0)) {
-      unmark(h, nt, t);
-      snprintf(h->msg, sizeof h->msg, "cr_chol_rowdel: pivot %g of row %d is not positive", dk, t[q] + 1);
-      return 18;
-    }
-    sd = sqrt(dk);
+    sd = sqrt(lx[lp[k]]);
     e = lp[k] + lnz[k];
     for (p = lp[k] + 1; p < e; p++) {
       if (!mk[li[p]]) { ci[nc] = li[p]; cx[nc] = lx[p] * sd; nc++; }

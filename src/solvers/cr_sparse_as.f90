@@ -1507,7 +1507,7 @@ contains
 
     !> Row tt enters the factor unless dependent on P: pivot = 1 - w^T M_P^{-1} w (w = M(P, tt),
     !> alpha = M_P^{-1} w left in this%w) is checked before the addition (a near-zero pivot would
-    !> spoil the rank-2 update of the trailing factor); pivot is then the factor's new D(tt,tt).
+    !> spoil the rank-one downdate of the trailing factor); pivot is then the factor's new D(tt,tt).
     subroutine add_row(tt, pivot, min_pivot, precheck, alpha, schur)
       integer, intent(in) :: tt
       real(wp), intent(out) :: pivot
