@@ -23,6 +23,7 @@ program test_sparse_as
   call test_reuse()
   call test_tail_slots()
   call test_rowdel_refusal()
+  call test_zero_pivot_factor()
   call test_options()
   call test_kernels()
   call test_pivot_bound()
@@ -603,22 +604,24 @@ contains
   end subroutine test_tail_slots
 
   !> A deletion naming a row whose pivot is not positive is refused before the factor is
-  !> touched: M = [4 2; 2 1] is singular, its factor has the pivots 4 and 0 or 1 and 0 (exact
-  !> in binary arithmetic, whichever row AMD orders first); deleting the good row together with
-  !> the bad one (the good one first) leaves every pivot as it was.
+  !> touched: M = [4 2; 2 1] is singular, its factor has the pivots 4 and 0 (exact in binary
+  !> arithmetic); deleting the good row together with the bad one (the good one first) leaves
+  !> every pivot as it was.
   subroutine test_rowdel_refusal()
     type(chol_t) :: ch
     type(error_t), allocatable :: err
-    real(wp) :: d0(2), d1(2)
-    integer :: good, bad
-    call ch%analyze(2, [1, 2, 4], [1, 1, 2], [4.0_wp, 2.0_wp, 1.0_wp], err)
+    real(wp) :: d0(2), d1(2), pivot
+    ! M = [4 2; 2 1] in the natural order: row 1 factorised alone, row 2 added last, whose
+    ! pivot is exactly 1 - 2 * 2 / 4 = 0 (rowadd keeps it: the factorisation would bound it)
+    call ch%analyze(2, [1, 2, 4], [1, 1, 2], [4.0_wp, 2.0_wp, 1.0_wp], err, perm=[1, 2])
     call check(.not. allocated(err), "rowdel refusal: analysis")
-    call ch%factor([.true., .true.], err)
-    call check(.not. allocated(err), "rowdel refusal: factorisation of the singular pair")
+    call ch%factor([.true., .false.], err)
+    call check(.not. allocated(err), "rowdel refusal: factorisation of row 1")
+    call ch%rowadd(2, [1, 2], [2.0_wp, 1.0_wp], pivot, err)
+    call check(.not. allocated(err) .and. pivot == 0.0_wp, "rowdel refusal: the dependent row added, pivot 0")
     call ch%pivots(d0, err)
-    bad = merge(1, 2, d0(1) == 0.0_wp); good = 3 - bad
-    call check(d0(bad) == 0.0_wp .and. d0(good) > 0.0_wp, "rowdel refusal: one pivot exactly zero")
-    call ch%rowdel([good, bad], err)
+    call check(d0(2) == 0.0_wp .and. d0(1) == 4.0_wp, "rowdel refusal: pivots exactly 4 and 0")
+    call ch%rowdel([1, 2], err)
     call check(allocated(err), "rowdel refusal: a zero pivot in the list refused")
     if (allocated(err)) then
       call check(index(err%message, "not positive") > 0, "rowdel refusal: the message names the pivot")
@@ -628,6 +631,42 @@ contains
     call check(.not. allocated(err) .and. all(d1 == d0), "rowdel refusal: the factor left as it was")
     call ch%free()
   end subroutine test_rowdel_refusal
+
+  !> A row dependent on earlier ones in a factorisation: its pivot is an exact zero here (two
+  !> equal rows), after which CHOLMOD's factorisation would set every later pivot to zero and
+  !> the independent rows after it would read as dependent (factor_independent would drop
+  !> them). The shim bounds such pivots (1e-14 of the largest diagonal entry): M = rows 1 and
+  !> 2 equal, then an independent pair, natural order; true pivots 1, 0, 2, 2.5. The later
+  !> ones must be exact to a few eps, the dependent one below dep_tol, positive.
+  subroutine test_zero_pivot_factor()
+    type(chol_t) :: ch
+    type(error_t), allocatable :: err
+    real(wp) :: d(4)
+    call ch%analyze(4, [1, 2, 4, 5, 7], [1, 1, 2, 3, 3, 4], [1.0_wp, 1.0_wp, 1.0_wp, 2.0_wp, 1.0_wp, 3.0_wp], &
+      err, perm=[1, 2, 3, 4])
+    call check(.not. allocated(err), "zero pivot: analysis")
+    call ch%factor([.true., .true., .true., .true.], err)
+    call check(.not. allocated(err), "zero pivot: factorisation with an exactly dependent row")
+    call ch%pivots(d, err)
+    print '(2x,a,4es11.3)', "zero pivot: pivots ", d
+    call check(.not. allocated(err) .and. d(1) == 1.0_wp, "zero pivot: first pivot 1")
+    call check(d(2) > 0.0_wp .and. d(2) <= 1.0e-13_wp, "zero pivot: the dependent row's pivot bounded, tiny")
+    call check(abs(d(3) - 2.0_wp) <= 4.0_wp * epsilon(1.0_wp) .and. abs(d(4) - 2.5_wp) <= 4.0_wp * epsilon(1.0_wp), &
+      "zero pivot: the independent rows after it keep their pivots 2 and 2.5")
+    call check(ch%n_bounded() == 1, "zero pivot: the factorisation redone once with bounded pivots")
+    call ch%factor([.true., .false., .true., .true.], err)
+    call check(.not. allocated(err) .and. ch%n_bounded() == 1, "zero pivot: not redone without the dependent row")
+    ! a failed analysis leaves nothing half built: the next calls refuse, no crash
+    call ch%analyze(3, [1, 2, 3, 3], [1, 2], [1.0_wp, 1.0_wp], err, perm=[3, 1, 2], ntail=1)
+    call check(allocated(err), "failed analysis: a tail slot not ordered last refused")
+    if (allocated(err)) deallocate(err)
+    call ch%factor([.true., .true., .false.], err)
+    call check(allocated(err), "failed analysis: the next factorisation refused")
+    if (allocated(err)) deallocate(err)
+    call ch%pivots(d(1:3), err)
+    call check(allocated(err), "failed analysis: no pivots")
+    call ch%free()
+  end subroutine test_zero_pivot_factor
 
   !> Test of test_tail_slots: x from the factor against a dense solve of M (mf) on the active
   !> rows (identity elsewhere).

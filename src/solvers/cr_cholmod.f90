@@ -57,6 +57,7 @@ module cr_cholmod
     procedure :: symbolic_nnz => chol_symbolic_nnz
     procedure :: perm => chol_perm
     procedure :: n_schur_scan => chol_n_schur_scan
+    procedure :: n_bounded => chol_n_bounded
     procedure :: set_rows => chol_set_rows
     procedure :: set_analysed_values => chol_set_analysed_values
     procedure :: add_slot => chol_add_slot
@@ -174,6 +175,10 @@ module cr_cholmod
       import :: c_ptr, c_long
       type(c_ptr), value :: h
     end function c_n_schur_scan
+    integer(c_long) function c_n_bounded(h) bind(C, name='cr_chol_n_bounded')
+      import :: c_ptr, c_long
+      type(c_ptr), value :: h
+    end function c_n_bounded
     integer(c_int) function c_set_rows(h, nrow, map) bind(C, name='cr_chol_set_rows')
       import :: c_ptr, c_int
       type(c_ptr), value :: h
@@ -564,6 +569,14 @@ contains
     k = 0
     if (c_associated(this%h)) k = int(c_n_schur_scan(this%h))
   end function chol_n_schur_scan
+
+  !> Factorisations redone with the pivots bounded (an exact zero pivot, a row dependent on the
+  !> earlier ones: CHOLMOD would have set every later pivot to zero) since init.
+  integer function chol_n_bounded(this) result(k)
+    class(chol_t), intent(in) :: this
+    k = 0
+    if (c_associated(this%h)) k = int(c_n_bounded(this%h))
+  end function chol_n_bounded
 
   !> Stored entries of the current factor.
   integer function chol_factor_nnz(this) result(nnz)

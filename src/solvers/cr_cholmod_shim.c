@@ -45,6 +45,7 @@ typedef struct {
   cholmod_sparse *cu;     /* the update C of a row deletion [n, nt] (grown as needed) */
   cholmod_sparse *rpat;   /* pattern bound of a row of L (its row subtree) in a deletion [n, 1] */
   long n_schur_scan;      /* Schur tests whose reach missed a fill (done by the scan) */
+  long n_bounded;         /* factorisations redone with bounded pivots (an exact zero pivot) */
   int nrow;               /* the caller's rows (cr_chol_set_rows; n after an analysis) */
   int *rowof;             /* caller's row at each factor position, -1 for none [n] */
   int *slotof;            /* slot of each of the caller's rows, -1 for none [nrow] (NULL: the
@@ -212,9 +213,20 @@ static int sorted_upper(cr_chol_t *h) {
  * The last ntail slots (0 <= ntail <= n) are tail slots: their columns must be empty; the
  * ordering puts them last, in slot order (with perm == NULL: AMD on the other slots), and
  * cr_chol_add_slot hands them, one by one, to rows that the analysis did not know. */
+static int analyze(cr_chol_t *h, int n, const int *colptr, const int *rowind, const double *val,
+                   const int *perm, const int *inset, int ntail);
+
 int cr_chol_analyze(void *hp, int n, const int *colptr, const int *rowind, const double *val,
                     const int *perm, const int *inset, int ntail) {
   cr_chol_t *h = (cr_chol_t *)hp;
+  int rc = analyze(h, n, colptr, rowind, val, perm, inset, ntail);
+  /* a failure leaves no half-built analysis: every later call refuses until the next one */
+  if (rc) release(h);
+  return rc;
+}
+
+static int analyze(cr_chol_t *h, int n, const int *colptr, const int *rowind, const double *val,
+                   const int *perm, const int *inset, int ntail) {
   int nz = colptr[n], j, *p, *ip, nh = n - ntail, *tperm = NULL;
   release(h);
   if (ntail < 0 || ntail > n || colptr[nh] != nz) {
@@ -289,14 +301,15 @@ static int room(cr_chol_t *h, cholmod_sparse *a, void **side, size_t elem, size_
   void *p;
   if (need <= a->nzmax) return 0;
   cap = need + need / 2 + 16;
+  /* the companion first: a.nzmax, grown last, never promises room that *side lacks */
+  p = realloc(*side, cap * elem);
+  if (!p) { snprintf(h->msg, sizeof h->msg, "out of memory (%s, %zu entries)", what, cap); return 5; }
+  *side = p;
   if (!cholmod_reallocate_sparse(cap, a, &h->c) || h->c.status < CHOLMOD_OK) {
     snprintf(h->msg, sizeof h->msg, "CHOLMOD reallocate_sparse (%s) failed (status %d, n = %d)", what,
              h->c.status, h->n);
     return 41;
   }
-  p = realloc(*side, cap * elem);
-  if (!p) { snprintf(h->msg, sizeof h->msg, "out of memory (%s, %zu entries)", what, cap); return 5; }
-  *side = p;
   return 0;
 }
 
@@ -407,6 +420,8 @@ int cr_chol_set_rows(void *hp, int nrow, const int *map) {
   free(h->slotof);
   h->slotof = malloc((size_t)(nrow > 0 ? nrow : 1) * sizeof(int));
   if (!h->slotof) { snprintf(h->msg, sizeof h->msg, "out of memory (nrow = %d)", nrow); return 5; }
+  /* the factor's positions now name other rows: refactorise before the next solve */
+  if (h->l) h->lstale = 1;
   for (k = 0; k < h->n; k++) h->rowof[k] = -1;
   for (i = 0; i < nrow; i++) {
     h->slotof[i] = map[i];
@@ -442,7 +457,7 @@ int cr_chol_perm(void *hp, int *perm) {
 int cr_chol_factor(void *hp, const int *active, int pack_min) {
   cr_chol_t *h = (cr_chol_t *)hp;
   int n = h->n, j, k, e, a, nz = 0, *pa, *ia, *actp, *pp, *sp, *si;
-  double *xa, beta[2] = {0.0, 0.0};
+  double *xa, beta[2] = {0.0, 0.0}, dmax = 0.0;
   cholmod_sparse *A;
   if (!h->sym) { snprintf(h->msg, sizeof h->msg, "cr_chol_factor before cr_chol_analyze"); return 7; }
   for (j = 0; j < n; j++)
@@ -450,6 +465,8 @@ int cr_chol_factor(void *hp, const int *active, int pack_min) {
       snprintf(h->msg, sizeof h->msg, "cr_chol_factor: row %d is active but outside the analysed set", j + 1);
       return 26;
     }
+  /* from here on a failure leaves no usable factor (the active flags change below) */
+  if (h->l) h->lstale = 1;
   memcpy(h->active, active, (size_t)n * sizeof(int));
   sp = (int *)h->pm->p; si = (int *)h->pm->i;
   pp = (int *)h->sym->Perm;
@@ -496,6 +513,21 @@ int cr_chol_factor(void *hp, const int *active, int pack_min) {
   }
   h->lstale = 1;
   k = cholmod_rowfac(A, NULL, beta, 0, (size_t)n, h->l, &h->c);
+  if (k && h->c.status >= CHOLMOD_OK && h->l->minor < (size_t)n) {
+    /* A is positive semidefinite: the pivot of a row dependent on the earlier ones is
+     * round-off, or an exact zero, after which rowfac sets every later pivot to zero (and
+     * skips those columns), so that independent rows would read as dependent. Then once more
+     * with pivots of magnitude below 1e-14 of the largest diagonal entry set to that bound,
+     * with their sign (the entries below such a pivot are round-off and stay small); the
+     * caller still finds those rows dependent by their pivots (cr_chol_pivots). The updates
+     * keep dbound 0. */
+    for (j = 0; j < n; j++)
+      if (actp[j] && pa[j + 1] > pa[j] && fabs(xa[pa[j + 1] - 1]) > dmax) dmax = fabs(xa[pa[j + 1] - 1]);
+    h->c.dbound = 1.0e-14 * (dmax > 0.0 ? dmax : 1.0);
+    k = cholmod_rowfac(A, NULL, beta, 0, (size_t)n, h->l, &h->c);
+    h->c.dbound = 0.0;
+    h->n_bounded++;
+  }
   /* CHOLMOD_NOT_POSDEF / DSMALL are warnings: the caller inspects the pivots (cr_chol_pivots) */
   if (!k || h->c.status < CHOLMOD_OK) {
     /* a failed rowfac may leave the factor symbolic: never refactorised in place */
@@ -543,8 +575,11 @@ int cr_chol_rowadd(void *hp, int t, int nz, const int *idx, const double *val, d
   rp[0] = 0; rp[1] = cnt;
   h->r->sorted = 0;
   k = h->iperm[t];
-  if (!cholmod_rowadd((size_t)k, h->r, h->l, &h->c) || h->c.status < CHOLMOD_OK)
+  if (!cholmod_rowadd((size_t)k, h->r, h->l, &h->c) || h->c.status < CHOLMOD_OK) {
+    /* a failed rowadd may leave L half modified (or symbolic): never used again */
+    cholmod_free_factor(&h->l, &h->c); h->lstale = 0; h->napos = 0;
     return fail(h, 15, "rowadd");
+  }
   h->active[t] = 1;
   {
     int lo = 0, hi = h->napos;
@@ -881,6 +916,12 @@ int cr_chol_unit_solve(void *hp, int s, double *x, double *xss) {
 long cr_chol_n_schur_scan(void *hp) {
   cr_chol_t *h = (cr_chol_t *)hp;
   return h->n_schur_scan;
+}
+
+/* Factorisations redone with bounded pivots since the handle was created (cr_chol_factor). */
+long cr_chol_n_bounded(void *hp) {
+  cr_chol_t *h = (cr_chol_t *)hp;
+  return h->n_bounded;
 }
 
 /* Stored off-diagonal entries of the current factor in the row of slot t (0-based; 0 without
