@@ -270,6 +270,8 @@ contains
         int(rowind(1:max(nz, 1)) - 1, c_int), val, c_null_ptr, ins, nt)
     end if
     if (rc /= 0) then
+      ! the shim keeps no analysis after a failure: neither does this side
+      this%n = 0; this%nrow = 0
       call shim_error(this, "analyze", rc, error); return
     end if
     this%n = n

@@ -376,9 +376,12 @@ contains
     call conclude(done)
     if (.not. done) return
     if (.not. (stats%kkt <= this%settings%tol)) then
-      ! the updated factor may have drifted: one fresh refactorisation and restart from here
-      call this%chol%factor(this%act(1:m), error)
-      if (.not. allocated(error)) call run(why)
+      ! the updated factor may have drifted: restart from here (run refactorises the rows with
+      ! lam > 0 afresh); the first run's outcome, and its note, are superseded
+      stats%note = ""
+      ! (the first run may have left anything off P in lam, NaN included: run starts from it)
+      where (.not. (this%lam(1:m) > 0.0_wp)) this%lam(1:m) = 0.0_wp
+      call run(why)
       call conclude(done)
       if (.not. done) return
       if (.not. (stats%kkt <= this%settings%tol)) call fallback("KKT residual " // str(stats%kkt, "es9.2") // &
@@ -474,11 +477,11 @@ contains
       logical, intent(out) :: done
       integer :: jj
       done = .false.
+      stats%n_factor = this%chol%n_factor - nfac0
+      stats%n_modify = this%chol%n_modify - nmod0
       if (allocated(error)) then
         call fallback(error%message); return
       end if
-      stats%n_factor = this%chol%n_factor - nfac0
-      stats%n_modify = this%chol%n_modify - nmod0
       if (len(why) > 0) then
         call fallback(why); return
       end if
@@ -496,6 +499,8 @@ contains
       character(len=:), allocatable :: r
       r = reason
       if (allocated(error)) deallocate(error)
+      ! the sparse run's notes are superseded (the reason says why)
+      stats%note = ""
       ! restart the dense path from the warm start the caller gave (the sparse multipliers may
       ! be half-way)
       if (this%settings%warm_start) then
@@ -925,13 +930,12 @@ contains
           this%act(this%rem(1:nrem)) = .false.
           bad = .false.
           do q = 1, nv
+            ! with the pivot pre-test: a row dependent on the ones added before it is never
+            ! added (CHOLMOD's next update would divide by its zero pivot)
             t = this%viol(q)
-            call this%chol%rowadd(t, this%fi(this%fp(t):this%fp(t + 1) - 1), &
-              this%fv(this%fp(t):this%fp(t + 1) - 1), pivot, error)
-            if (allocated(error)) return
-            this%act(t) = .true.
-            if (.not. (pivot > dep_tol)) then
-              this%act(t) = .false.; bad = .true.
+            call add_row(t, pivot); if (allocated(error)) return
+            if (.not. this%act(t)) then
+              bad = .true.
               exit
             end if
           end do
