@@ -210,6 +210,7 @@ contains
     end do
     do
       if (k == 0) exit
+      call refresh_yc()
       call solve_p()
       changed = .false.
       do p = k, 1, -1
@@ -245,6 +246,7 @@ contains
         end if
         ! one step of iterative refinement on P, then test again
         refined = .true.
+        call refresh_yc()
         do p = 1, k
           wk%x(p) = wk%slack(wk%plist(p))
         end do
@@ -318,6 +320,10 @@ contains
     stats%iterations = it
     if (stats%infeasible) return
     call slacks()
+    ! the stopping test only looks at the rows outside P: B_P u = d_P must hold as well
+    if (stats%converged .and. k > 0) then
+      if (maxval(abs(wk%slack(wk%plist(1:k)))) > thr) stats%converged = .false.
+    end if
     call finish()
 
   contains
@@ -371,6 +377,15 @@ contains
         stats%max_violation = max(stats%max_violation, -wk%slack(jj) * wk%rn(jj))
       end do
     end subroutine finish
+
+    !> yc = L^{-1} (B v - d)_P from scratch (the updates of remove lose accuracy when yc is large)
+    subroutine refresh_yc()
+      integer :: pp
+      do pp = 1, k
+        wk%yc(pp) = wk%cc(wk%plist(pp))
+      end do
+      call forward(wk%yc)
+    end subroutine refresh_yc
 
     !> z = (B_P B_P^T)^{-1} (B v - d)_P = L^{-T} yc
     subroutine solve_p()
