@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Issue 18 / 11 item 7: an output that names an input (directly, as ./x, dir/../x, or through
-# a symbolic or hard link), two outputs that are the same file, an output in a missing directory or
+# a symbolic or hard link), two outputs that are the same file or one the other's temporary
+# (<name>.partial, session 17), an output in a missing directory or
 # with a directory under its name: refused before any work with one line, exit 2, nothing
 # written and every input untouched. A generated family per program.
 #   output_paths.sh crowd_fom|crowd_snapshots|crowd_offline|crowd_rom EXECUTABLE
@@ -39,6 +40,7 @@ setup hard_link;        write_input in.nml hard.nml; ln in.nml hard.nml; refused
 setup abs_path;         write_input in.nml "$PWD/in.nml";     refused abs_path "$same" "$exe" in.nml
 setup summary_input;    write_input in.nml out.h5;            refused summary_input "--summary 'in.nml' $same" "$exe" in.nml --summary in.nml
 setup summary_output;   write_input in.nml out.h5;            refused summary_output "--summary 'out.h5' and .* are the same file" "$exe" in.nml --summary out.h5
+setup summary_partial;  write_input in.nml out.h5.partial;    refused summary_partial "--summary 'out.h5' and .* clash: one is the other's temporary" "$exe" in.nml --summary out.h5
 setup missing_dir;      write_input in.nml nodir/out.h5;      refused missing_dir "the directory 'nodir' does not exist" "$exe" in.nml
 setup is_directory;     write_input in.nml sub;               refused is_directory "'sub' is a directory" "$exe" in.nml
 case $prog in
@@ -50,6 +52,7 @@ case $prog in
   crowd_rom)
     setup rom_file;     write_input in.nml rom.h5;            refused rom_file "&rom output 'rom.h5' $same" "$exe" in.nml
     setup table_input;  write_input in.nml out.h5 in.nml;     refused table_input "&rom table 'in.nml' $same" "$exe" in.nml
-    setup table_output; write_input in.nml out.h5 ./out.h5;   refused table_output "&rom table './out.h5' and &rom output 'out.h5' are the same file" "$exe" in.nml;;
+    setup table_output; write_input in.nml out.h5 ./out.h5;   refused table_output "&rom table './out.h5' and &rom output 'out.h5' are the same file" "$exe" in.nml
+    setup table_partial; write_input in.nml T.csv.partial T.csv; refused table_partial "&rom table 'T.csv' and &rom output 'T.csv.partial' clash" "$exe" in.nml;;
 esac
 finish

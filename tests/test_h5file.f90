@@ -191,6 +191,27 @@ program test_h5file
   call check(.not. file_exists("ab.h5") .and. .not. file_exists("ab.h5.partial"), &
     "abort leaves no file at all")
 
+  ! ---- a create that fails leaves another writer's temporary alone (session 17: it removed
+  ! it, and the first writer's work was lost at its commit): the same output created twice,
+  ! the second refused by HDF5 (the temporary is open), the first still commits
+  block
+    type(h5file_t) :: g
+    call f%create("two.h5", error)
+    call f%write("scalars/r0", 7.0_wp, error)
+    call g%create("two.h5", error)
+    call check(allocated(error), "a second create of an open temporary is refused")
+    if (allocated(error)) deallocate(error)
+    call check(file_exists("two.h5.partial"), "the refused create leaves the first writer's temporary")
+    call f%commit(error)
+    call check(.not. allocated(error) .and. file_exists("two.h5"), "the first writer still commits")
+    if (allocated(error)) deallocate(error)
+    call f%open("two.h5", error)
+    call f%read("scalars/r0", r0b, error)
+    call check(.not. allocated(error) .and. r0b == 7.0_wp, "the first writer's content is intact")
+    call f%close(error)
+    call check(remove_file("two.h5") == 0, "cleanup two.h5")
+  end block
+
   ! ---- commit replaces an existing final file
   call f%create("rt.h5", error)
   call f%write("scalars/r0", 2.5_wp, error)

@@ -491,6 +491,9 @@ contains
       call h5fcreate_f(this%disk_path, H5F_ACC_TRUNC_F, this%fid, hdferr, access_prp=fapl)
       if (hdferr < 0) then
         this%fid = -1
+        ! not ours to remove: a temporary of that name may be another run's, still being
+        ! written (HDF5's file lock refused it)
+        this%temporary = .false.
         ! any system reason is the one that matters here (missing directory, permission, ...)
         why = errno_text()
         if (len(why) == 0) why = "h5fcreate_f failed"

@@ -11,7 +11,7 @@ module cr_json
   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error
-  use cr_fsys, only: rename_file, write_whole_file
+  use cr_fsys, only: rename_file, write_whole_file, remove_file
   implicit none
   private
   public :: json_writer_t, json_escape
@@ -234,6 +234,8 @@ contains
     end if
     if (rename_file(path // ".partial", path) /= 0) then
       call set_error(error, "json: rename '" // path // ".partial' -> '" // path // "' failed")
+      ! no temporary left behind
+      if (remove_file(path // ".partial") /= 0) continue
     end if
   end subroutine write_file
 end module cr_json

@@ -129,6 +129,10 @@ contains
           if (len_trim(res_out(j)) == 0) cycle
           call probs%need(trim(res_out(j)) /= r, o%what // " '" // o%path // "' and " // &
             this%outputs(j)%what // " '" // this%outputs(j)%path // "' are the same file (" // r // ")")
+          ! every output is written to <name>.partial first: one output may not be the other's
+          call probs%need(trim(res_out(j)) /= r // ".partial" .and. trim(res_out(j)) // ".partial" /= r, &
+            o%what // " '" // o%path // "' and " // this%outputs(j)%what // " '" // &
+            this%outputs(j)%path // "' clash: one is the other's temporary (<name>.partial)")
         end do
       end associate
     end do

@@ -231,16 +231,21 @@ contains
     this%rows = this%rows(1:nrow)   ! settings with &sweep sets(k) skip a set
     call out%write_table(rhdr, this%rows, error); if (allocated(error)) goto 9
     ! the run file and the table are one result: the table is written completely first, then
-    ! both are renamed; if either fails, neither replaces an earlier result
+    ! both are renamed; if the run file's commit fails, neither replaces an earlier result (a
+    ! rename of the table failing after it is reported, the table left as <table>.partial)
     call write_csv(this, error); if (allocated(error)) goto 9
     call out%commit(error)
     if (allocated(error)) then
+      ! neither replaces an earlier result, and no temporary is left behind
+      call out%abort()
       k = remove_file(trim(this%cfg%table) // ".partial"); return
     end if
     if (rename_file(trim(this%cfg%table) // ".partial", trim(this%cfg%table)) /= 0) then
+      ! the run file already replaced the earlier one (moving it back would leave no run file
+      ! at all): it stays, and the error says the table did not follow
       call set_error(error, this%where // ": table: cannot rename '" // trim(this%cfg%table) // ".partial' to '" // &
-        trim(this%cfg%table) // "'; the run file is kept as '" // trim(this%cfg%output) // ".partial'")
-      k = rename_file(trim(this%cfg%output), trim(this%cfg%output) // ".partial")
+        trim(this%cfg%table) // "': the new run file is '" // trim(this%cfg%output) // "', its table is left as '" // &
+        trim(this%cfg%table) // ".partial'")
     end if
     return
 9   call out%abort()
