@@ -106,6 +106,58 @@ def test_bad_requests(study, tmp_path):
         cio.run_projection(tmp_path / "nope", study["db"], params, study["valid"]["positions"], tmp_path)
 
 
+def test_project_paths(study, tmp_path):
+    """The result and the --summary file are checked against the request, the database and
+    each other (resolved paths: ./db.h5 is db.h5) before any work: exit 2 with one line naming
+    the attribute, every file intact (session 17: a result named ./db.h5 replaced the database,
+    exit 0)."""
+    import hashlib
+    import shutil
+    import subprocess
+
+    import h5py
+
+    db = tmp_path / "db.h5"
+    shutil.copy(study["db"], db)
+    q = study["valid"]["positions"][:, :2]
+    params = study["valid"]["params"]
+    n_s, n_conf, n_dof = q.shape
+    req = tmp_path / "req.h5"
+
+    def request(output):
+        with h5py.File(req, "w") as f:
+            a = f.attrs
+            a["schema"], a["schema_version"] = np.bytes_(cio.PROJREQ_SCHEMA), np.int32(1)
+            a["database"] = np.bytes_(str(db))
+            a["output"] = np.bytes_(output)
+            a["solver"] = np.bytes_("")
+            a["tol"] = 0.0
+            a["refine_max"] = np.int32(5)
+            a["n_agents"], a["configs_per_sample"] = np.int32(n_dof // 2), np.int32(n_conf)
+            f["positions"] = q.reshape(n_s * n_conf, n_dof)
+            f["params"] = params
+
+    def digest(path):
+        return hashlib.sha256(open(path, "rb").read()).hexdigest()
+
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+    cases = [(str(tmp_path / "." / "db.h5"), [], "attribute 'output'.*is the input attribute 'database'"),
+             (str(tmp_path / "sub" / ".." / "req.h5"), [], "attribute 'output'.*is the input request"),
+             (str(tmp_path / "out.h5"), ["--summary", str(db)], "--summary.*is the input attribute 'database'"),
+             (str(tmp_path / "out.h5"), ["--summary", str(tmp_path / "out.h5.partial")], "clash"),
+             (str(tmp_path / "nodir" / "out.h5"), [], "attribute 'output'.*does not exist")]
+    os.makedirs(tmp_path / "sub", exist_ok=True)
+    for output, extra, pattern in cases:
+        request(output)
+        before = (digest(db), digest(req))
+        p = subprocess.run([EXE, str(req)] + extra, capture_output=True, text=True, env=env, cwd=tmp_path)
+        errors = [ln for ln in (p.stdout + p.stderr).splitlines() if "error:" in ln]
+        assert p.returncode == 2, (output, extra, p.stdout + p.stderr)
+        assert len(errors) == 1 and __import__("re").search(pattern, errors[0]), (pattern, errors)
+        assert (digest(db), digest(req)) == before, (output, extra)
+        assert not os.path.exists(tmp_path / "out.h5")
+
+
 def test_ml_correct_reports_projection(study, tmp_path, capsys):
     cfg = tmp_path / "c.json"
     cfg.write_text('{"n_values": [2, 4], "regressors": ["random_forest"], "random_forest": {"n_estimators": 10}, '

@@ -49,6 +49,18 @@ contains
     call log%stage_begin("crowd_project: setup")
     call read_proj_request(input, req, error)
     if (allocated(error)) return
+    ! the result and the summary against the request, the database and each other, before
+    ! any work (resolved paths: ./db.h5 is db.h5)
+    block
+      use cr_paths, only: io_paths_t
+      type(io_paths_t) :: paths
+      call paths%input("request", input)
+      call paths%input("attribute 'database'", req%database)
+      call paths%output("attribute 'output'", req%output)
+      call paths%output("--summary", summary)
+      call paths%check("projection request '" // input // "'", error)
+      if (allocated(error)) return
+    end block
     where = "projection request '" // input // "': attribute 'database'"
     call read_snap_header(req%database, where, hdr, error)
     if (allocated(error)) return
@@ -56,10 +68,6 @@ contains
       call set_error(error, where // ": '" // req%database // "' has " // str(hdr%n_agents) // " agents and " // &
         str(hdr%n_params) // " parameter components, the request " // str(req%n_agents) // " and " // &
         str(req%n_params), 2); return
-    end if
-    if (req%output == req%database) then
-      call set_error(error, "projection request '" // input // "': attribute 'output' names the database", 2)
-      return
     end if
     call t%set_text(req%database // " (attribute config)", hdr%config_text)
     call parse_config(t, cfg, error)
