@@ -1005,6 +1005,20 @@ contains
       call check(maxval(abs(pz - u1)) <= 1.0e-13_wp * (1.0_wp + maxval(abs(uz))), &
         "zero row, d < 0: u = projection on the other rows")
     end do
+    ! an empty slab of width |gap| between two opposite rows, v far away (session 17: the
+    ! certificate found by the first pass was lost by the rescaled second one for |gap| <=
+    ! 1e-6 of the data, and the problem reported feasible with row 2 violated by |gap|):
+    ! infeasible at every width, both rows violated by |gap| / 2 (the least squares split)
+    do k = 3, 12
+      gap = -10.0_wp**(-k)
+      call ldp_solve(reshape([1.0_wp, -1.0_wp, 0.5_wp, -0.5_wp], [2, 2]), [1.0_wp, -1.0_wp + gap], &
+        [3.0_wp, 2.0_wp], u2, l2, st, err, warm=.false.)
+      call check(.not. allocated(err) .and. st%infeasible, &
+        "empty slab of width 1e" // str(-k) // ": infeasible")
+      ! (to 1e-12, as the other least-violation splits here: about 1e3 eps of the data)
+      call check(abs(st%max_violation - 0.5_wp * abs(gap)) <= 1.0e-12_wp, &
+        "empty slab of width 1e" // str(-k) // ": each row violated by |gap| / 2")
+    end do
     ! all rows zero, one d < 0: nothing can move, u = v
     b0 = 0.0_wp
     lb = 0.0_wp

@@ -699,6 +699,7 @@ contains
     logical, intent(out) :: feasible
     integer :: mc, n, i, j, pass, it1
     real(wp) :: gmax, emax, s, den, cancel, ysum
+    logical :: feas
     type(nnls_stats_t) :: st1
 
     mc = size(bm, 1); n = size(bm, 2)
@@ -743,18 +744,22 @@ contains
         cancel = cancel + abs(wk%e(n + 1, j) * wk%y(j))
         if (wk%y(j) > 0.0_wp) ysum = ysum + norm2(wk%e(1:n + 1, j)) * wk%y(j)
       end do
+      ! Infeasible when den cannot be told from 0: below the rounding of its own sum (cancel),
+      ! or den = |r|^2 below the square of the residual nnls_solve guarantees for a consistent
+      ! problem, |r| <= 32 m eps sum_j |E_j| y_j with m = n + 1 (taken twice as a margin). A
+      ! certificate of infeasibility is final: the rescaled pass below can lose it (its
+      ! entering gradient, about |gap| / s, falls under the NNLS's relative stopping test)
+      feas = den > max(64.0_wp * epsilon(1.0_wp) * sqrt(real(mc, wp)) * cancel, &
+                       (64.0_wp * real(n + 1, wp) * epsilon(1.0_wp) * ysum)**2)
+      if (.not. feas) exit
       ! |x'| >> 1 loses accuracy (relative error ~ eps / den): rescale so that |x'| ~ 1 and
-      ! solve again, warm started (a second pass with den ~ eps confirms infeasibility)
+      ! solve again, warm started
       if (den >= 0.25_wp .or. pass == 2) exit
       s = s * min(1.0e8_wp, 1.0_wp / sqrt(max(den, tiny(1.0_wp))))
       s = scale(1.0_wp, exponent(s))
       wk%p0(1:mc) = wk%y(1:mc) > 0.0_wp
     end do
-    ! Infeasible when den cannot be told from 0: below the rounding of its own sum (cancel), or
-    ! den = |r|^2 below the square of the residual nnls_solve guarantees for a consistent
-    ! problem, |r| <= 32 m eps sum_j |E_j| y_j with m = n + 1 (taken twice as a margin)
-    if (den > max(64.0_wp * epsilon(1.0_wp) * sqrt(real(mc, wp)) * cancel, &
-                  (64.0_wp * real(n + 1, wp) * epsilon(1.0_wp) * ysum)**2)) then
+    if (feas) then
       lambda = (s / den) * wk%y(1:mc)
       u = v
       do j = 1, mc
