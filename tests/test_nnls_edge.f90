@@ -663,6 +663,8 @@ contains
     real(wp) :: a(8, 6), b(8), x(6), xs(6), dc(6), as(8, 6)
     real(wp), parameter :: scales(3) = [1.0e-20_wp, 1.0_wp, 1.0e15_wp]
     type(nnls_stats_t) :: st, sts
+    type(error_t), allocatable :: err
+    real(wp) :: sa, sbb
     integer :: trial, i, k, j
     character(len=:), allocatable :: name
     do trial = 1, 20
@@ -678,6 +680,21 @@ contains
           call check(all((xs > 0.0_wp) .eqv. (x > 0.0_wp)), name // ": same support")
           call check(maxval(abs(xs - x)) <= 1.0e-12_wp * maxval(abs(x)), name // ": x scaled")
         end do
+      end do
+      ! the extremes (session 17: below about 1e-154 norm2's squares underflowed and a column
+      ! or b read as zero; above about 1e154 they overflowed): A and b scaled together and apart
+      do i = 1, 4
+        select case (i)
+        case (1); sa = 1.0e-170_wp; sbb = 1.0e-170_wp; name = "extreme scaling A*1e-170 b*1e-170"
+        case (2); sa = 1.0e150_wp; sbb = 1.0e150_wp; name = "extreme scaling A*1e150 b*1e150"
+        case (3); sa = 1.0e-170_wp; sbb = 1.0_wp; name = "extreme scaling A*1e-170"
+        case (4); sa = 1.0_wp; sbb = 1.0e-170_wp; name = "extreme scaling b*1e-170"
+        end select
+        call nnls_solve(a * sa, b * sbb, xs, sts, err)
+        call check(.not. allocated(err) .and. sts%converged, name // ": converged")
+        xs = xs * (sa / sbb)
+        call check(all((xs > 0.0_wp) .eqv. (x > 0.0_wp)), name // ": same support")
+        call check(maxval(abs(xs - x)) <= 1.0e-12_wp * maxval(abs(x)), name // ": x scaled")
       end do
       do j = 1, 6
         dc(j) = 10.0_wp**(-20.0_wp + 35.0_wp * rng%uniform())

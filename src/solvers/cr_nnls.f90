@@ -191,14 +191,14 @@ contains
     end do
     call reserve(wk, m, n, nnz)
     ! scale b and the columns of A by powers of two (exact)
-    bnorm = norm2(b)
+    bnorm = safe_norm2(b)
     sb = 1.0_wp
     if (bnorm > 0.0_wp) sb = scale(1.0_wp, exponent(bnorm))
     wk%bs(1:m) = b / sb
     nnz = 0
     do j = 1, n
       wk%col(j) = nnz + 1
-      cmax = norm2(a(:, j))
+      cmax = safe_norm2(a(:, j))
       if (cmax > 0.0_wp) then
         wk%cs(j) = scale(1.0_wp, -exponent(cmax))
       else
@@ -915,6 +915,21 @@ contains
   !> Lawson-Hanson step back: x(plist) moves towards the passive-set minimiser z along the
   !> segment as far as x stays >= 0 (the largest alpha in [0, 1]); the passive variable that
   !> blocks the step is set to exactly 0. Shared by the NNLS here and the sparse contact kernel.
+  !> Euclidean norm of x without underflow or overflow of the squares (gfortran's norm2
+  !> squares directly: entries below about 1e-154 give 0): x scaled by the power of two of its
+  !> largest entry first, which is exact, so that the result is norm2(x) itself in between.
+  pure real(wp) function safe_norm2(x) result(r)
+    real(wp), intent(in) :: x(:)
+    real(wp) :: amax
+    integer :: e
+    r = 0.0_wp
+    if (size(x) == 0) return
+    amax = maxval(abs(x))
+    if (.not. (amax > 0.0_wp)) return
+    e = exponent(amax)
+    r = scale(norm2(scale(x, -e)), e)
+  end function safe_norm2
+
   pure subroutine lh_step_back(x, z, plist)
     real(wp), intent(inout) :: x(:)
     real(wp), intent(in) :: z(:)
