@@ -112,6 +112,7 @@ def test_project_paths(study, tmp_path):
     the attribute, every file intact (session 17: a result named ./db.h5 replaced the database,
     exit 0)."""
     import hashlib
+    import re
     import shutil
     import subprocess
 
@@ -153,7 +154,7 @@ def test_project_paths(study, tmp_path):
         p = subprocess.run([EXE, str(req)] + extra, capture_output=True, text=True, env=env, cwd=tmp_path)
         errors = [ln for ln in (p.stdout + p.stderr).splitlines() if "error:" in ln]
         assert p.returncode == 2, (output, extra, p.stdout + p.stderr)
-        assert len(errors) == 1 and __import__("re").search(pattern, errors[0]), (pattern, errors)
+        assert len(errors) == 1 and re.search(pattern, errors[0]), (pattern, errors)
         assert (digest(db), digest(req)) == before, (output, extra)
         assert not os.path.exists(tmp_path / "out.h5")
 

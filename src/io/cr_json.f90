@@ -224,6 +224,7 @@ contains
     character(len=*), intent(in) :: path
     type(error_t), allocatable, intent(out) :: error
     character(len=:), allocatable :: msg
+    integer :: status
     if (this%depth /= 0 .or. this%misuse) then
       call set_error(error, "json: write '" // path // "': unbalanced begin_object/end_object")
       return
@@ -235,7 +236,7 @@ contains
     if (rename_file(path // ".partial", path) /= 0) then
       call set_error(error, "json: rename '" // path // ".partial' -> '" // path // "' failed")
       ! no temporary left behind
-      if (remove_file(path // ".partial") /= 0) continue
+      status = remove_file(path // ".partial")
     end if
   end subroutine write_file
 end module cr_json

@@ -466,7 +466,7 @@ int cr_chol_factor(void *hp, const int *active, int pack_min) {
       return 26;
     }
   /* from here on a failure leaves no usable factor (the active flags change below) */
-  if (h->l) h->lstale = 1;
+  h->lstale = 1;
   memcpy(h->active, active, (size_t)n * sizeof(int));
   sp = (int *)h->pm->p; si = (int *)h->pm->i;
   pp = (int *)h->sym->Perm;
@@ -511,7 +511,6 @@ int cr_chol_factor(void *hp, const int *active, int pack_min) {
       cholmod_free_factor(&h->l, &h->c); return fail(h, 9, "change_factor");
     }
   }
-  h->lstale = 1;
   k = cholmod_rowfac(A, NULL, beta, 0, (size_t)n, h->l, &h->c);
   if (k && h->c.status >= CHOLMOD_OK && h->l->minor < (size_t)n) {
     /* A is positive semidefinite: the pivot of a row dependent on the earlier ones is

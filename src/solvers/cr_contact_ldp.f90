@@ -215,7 +215,6 @@ contains
     end do
     do
       if (k == 0) exit
-      call refresh_yc()
       call solve_p()
       changed = .false.
       do p = k, 1, -1
@@ -226,6 +225,8 @@ contains
         end if
       end do
       if (.not. changed) exit
+      ! (the deletions rotated yc with L)
+      call refresh_yc()
     end do
     do p = 1, k
       wk%lam(wk%plist(p)) = wk%z(p)

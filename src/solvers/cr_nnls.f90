@@ -699,7 +699,6 @@ contains
     logical, intent(out) :: feasible
     integer :: mc, n, i, j, pass, it1
     real(wp) :: gmax, emax, s, den, cancel, ysum
-    logical :: feas
     type(nnls_stats_t) :: st1
 
     mc = size(bm, 1); n = size(bm, 2)
@@ -749,9 +748,9 @@ contains
       ! problem, |r| <= 32 m eps sum_j |E_j| y_j with m = n + 1 (taken twice as a margin). A
       ! certificate of infeasibility is final: the rescaled pass below can lose it (its
       ! entering gradient, about |gap| / s, falls under the NNLS's relative stopping test)
-      feas = den > max(64.0_wp * epsilon(1.0_wp) * sqrt(real(mc, wp)) * cancel, &
-                       (64.0_wp * real(n + 1, wp) * epsilon(1.0_wp) * ysum)**2)
-      if (.not. feas) exit
+      feasible = den > max(64.0_wp * epsilon(1.0_wp) * sqrt(real(mc, wp)) * cancel, &
+                           (64.0_wp * real(n + 1, wp) * epsilon(1.0_wp) * ysum)**2)
+      if (.not. feasible) exit
       ! |x'| >> 1 loses accuracy (relative error ~ eps / den): rescale so that |x'| ~ 1 and
       ! solve again, warm started
       if (den >= 0.25_wp .or. pass == 2) exit
@@ -759,14 +758,12 @@ contains
       s = scale(1.0_wp, exponent(s))
       wk%p0(1:mc) = wk%y(1:mc) > 0.0_wp
     end do
-    if (feas) then
+    if (feasible) then
       lambda = (s / den) * wk%y(1:mc)
       u = v
       do j = 1, mc
         if (lambda(j) /= 0.0_wp) u = u - lambda(j) * bm(j, :)
       end do
-    else
-      feasible = .false.
     end if
   end subroutine ldp_project
 
