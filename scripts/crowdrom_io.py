@@ -19,6 +19,7 @@ writes a product (the ML output) under a temporary name. No script opens h5py it
 Every problem with an input raises ``InputError`` with a one-line message naming the file and the
 missing object; the command-line scripts turn it into ``<script>: error: <message>`` and exit 2.
 """
+import math
 import os
 import sys
 
@@ -34,8 +35,13 @@ PROJ_SCHEMA = "crowdrom-projected"
 #: schema versions each reader accepts (as in src/products: *_VERSIONS_READ); the figures also
 #: read the offline results of a version-1 ROM file (written before the prepared pairs), which
 #: crowd_rom (pairs needed) refuses
-SCHEMA_VERSIONS = {FOM_SCHEMA: (1,), DB_SCHEMA: (1,), ROM_SCHEMA: (1, 2), ROMRUN_SCHEMA: (1,),
-                   ML_SCHEMA: (1,), PROJ_SCHEMA: (2,)}
+SCHEMA_VERSIONS = {FOM_SCHEMA: (1,), DB_SCHEMA: (1, 2), ROM_SCHEMA: (1, 2), ROMRUN_SCHEMA: (1,),
+                   ML_SCHEMA: (1, 2), PROJ_SCHEMA: (2,)}
+#: products whose every dataset carries a ``checksum`` attribute (from the given schema version
+#: on): ``dataset`` refuses one without it, and verifies it wherever it is present
+CHECKSUMMED = {DB_SCHEMA: 1, ML_SCHEMA: 2}
+#: version of the ML output this package writes (2: every dataset with its checksum)
+ML_VERSION = 2
 
 
 class InputError(Exception):
@@ -116,11 +122,20 @@ def write_h5_atomic(path, write):
     try:
         with h5py.File(tmp, "w") as f:
             write(f)
+            stamp_checksums(f)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.remove(tmp)
         raise
+
+
+def stamp_checksums(f):
+    """Give every numeric dataset of an open writable file its ``checksum`` attribute."""
+    def visit(name, obj):
+        if hasattr(obj, "shape") and obj.dtype.kind in "fiub":
+            obj.attrs["checksum"] = np.bytes_(digest(obj[()]))
+    f.visititems(visit)
 
 
 def attr(obj, name, kind=float):
@@ -133,14 +148,50 @@ def attr(obj, name, kind=float):
     return kind(scalar(v))
 
 
-def dataset(f, name):
-    """Dataset ``name`` as a numpy array (InputError naming the file if missing)."""
+def dataset(f, name, finite=False):
+    """Dataset ``name`` of an open file or group as a numpy array, verified: its ``checksum``
+    attribute (the digest below, as the Fortran readers compute it) when it has one, and it must
+    have one in a product listed in CHECKSUMMED; ``finite``: no NaN or Inf. InputError naming the
+    file, the dataset and the problem otherwise."""
+    path = f.file.filename
     if name not in f:
-        raise InputError(f"'{f.file.filename}': missing dataset '{name}'")
+        raise InputError(f"'{path}': missing dataset '{name}'")
     obj = f[name]
     if not hasattr(obj, "shape"):
-        raise InputError(f"'{f.file.filename}': '{name}' is a group, expected a dataset")
-    return np.asarray(obj[()])
+        raise InputError(f"'{path}': '{name}' is a group, expected a dataset")
+    try:
+        data = np.asarray(obj[()])
+    except (OSError, ValueError, TypeError) as exc:
+        raise InputError(f"'{path}': dataset '{obj.name}' cannot be read ({' '.join(str(exc).split())})") from None
+    if "checksum" in obj.attrs:
+        _verify(path, obj.name, data, obj.attrs["checksum"])
+    elif _needs_checksums(f.file):
+        raise InputError(f"'{path}': dataset '{obj.name}' has no checksum attribute (written by an older "
+                         "crowdrom, or damaged)")
+    if finite:
+        need_finite(path, obj.name.lstrip("/"), data)
+    return data
+
+
+def _needs_checksums(f):
+    """Does the open file's schema (and version) promise a checksum on every dataset?"""
+    schema = text(f.attrs["schema"]) if "schema" in f.attrs else None
+    if schema not in CHECKSUMMED:
+        return False
+    try:
+        v = int(scalar(f.attrs["schema_version"]))
+    except (KeyError, TypeError, ValueError):
+        return True
+    return v >= CHECKSUMMED[schema]
+
+
+def _verify(path, name, data, stored):
+    if data.dtype.kind not in "fiub":
+        return
+    got = digest(data)
+    if text(stored) != got:
+        raise InputError(f"'{path}': checksum mismatch in dataset '{name.lstrip('/')}' (stored {text(stored)}, "
+                         f"data {got}): the file is corrupted")
 
 
 def group(f, name):
@@ -187,8 +238,13 @@ def _blocks(arr, n_blocks, per_block, n_dof, path, name):
 
 
 def read_database_meta(f):
-    """Root metadata of an open snapshot database."""
-    return {
+    """Root metadata of an open snapshot database, checked as the Fortran reader does: complete,
+    n_agents and n_steps >= 1, n_train and n_valid >= 0, dt and agent_radius finite and > 0."""
+    path = f.filename
+    if "complete" in f.attrs and attr(f, "complete", int) != 1:
+        raise InputError(f"'{path}': the snapshot database is not complete (attribute complete = "
+                         f"{attr(f, 'complete', int)})")
+    m = {
         "n_agents": attr(f, "n_agents", int),
         "n_steps": attr(f, "n_steps", int),
         "dt": attr(f, "dt", float),
@@ -196,6 +252,14 @@ def read_database_meta(f):
         "param_names": attr(f, "param_names", str).split(",") if "param_names" in f.attrs else [],
         "config_hash": attr(f, "config_hash", str) if "config_hash" in f.attrs else "",
     }
+    for key in ("n_train", "n_valid"):
+        m[key] = attr(f, key, int) if key in f.attrs else None
+    bad = [f"{k} = {m[k]}" for k in ("n_agents", "n_steps") if m[k] < 1]
+    bad += [f"{k} = {m[k]}" for k in ("n_train", "n_valid") if m[k] is not None and m[k] < 0]
+    bad += [f"{k} = {m[k]}" for k in ("dt", "agent_radius") if not (np.isfinite(m[k]) and m[k] > 0)]
+    if bad:
+        raise InputError(f"'{path}': root attribute(s) out of range: {', '.join(bad)}")
+    return m
 
 
 def read_database_set(f, s, velocities=True):
@@ -204,11 +268,14 @@ def read_database_set(f, s, velocities=True):
     meta = read_database_meta(f)
     nt, n_dof = meta["n_steps"], 2 * meta["n_agents"]
     group(f, s)
-    params = dataset(f, f"{s}/params")
+    params = dataset(f, f"{s}/params", finite=True)
     if params.ndim == 1:
         params = params.reshape(-1, 1)
     n_s = params.shape[0]
-    need_finite(f.filename, f"{s}/params", params)
+    n_attr = meta.get(f"n_{s}")
+    if n_attr is not None and n_s != n_attr:
+        raise InputError(f"'{f.filename}': dataset '{s}/params' holds {n_s} samples, but the root attribute "
+                         f"n_{s} says {n_attr}")
     out = {"params": params,
            "positions": need_finite(f.filename, f"{s}/positions",
                                     _blocks(dataset(f, f"{s}/positions"), n_s, nt + 1, n_dof,
@@ -345,9 +412,17 @@ def romrun_meta(f):
          "dt": attr(f, "dt", float), "agent_radius": attr(f, "agent_radius", float),
          "n_settings": attr(f, "n_settings", int),
          "param_names": attr(f, "param_names", str).split(",") if "param_names" in f.attrs else []}
+    bad = [f"{k} = {m[k]}" for k in ("n_agents", "n_steps") if m[k] < 1]
+    bad += [f"{k} = {m[k]}" for k in ("dt", "agent_radius") if not (np.isfinite(m[k]) and m[k] > 0)]
+    bad += [f"n_settings = {m['n_settings']}"] if m["n_settings"] < 0 else []
+    if bad:
+        raise InputError(f"'{f.filename}': root attribute(s) out of range: {', '.join(bad)}")
     g = group(f, "fom_timing")
     m["t_step_uzawa"] = attr(g, "t_step_uzawa", float)
     m["t_step_exact"] = attr(g, "t_step_exact", float)
+    for k in ("t_step_uzawa", "t_step_exact"):
+        if not np.isfinite(m[k]):
+            raise InputError(f"'{f.filename}': attribute 'fom_timing/{k}' = {m[k]} is not finite")
     m["exact_solver"] = attr(g, "exact_solver", str) if "exact_solver" in g.attrs else ""
     # the solver asked for ('fastest' or a name) and "name t_step t_query; ..." of every exact
     # solver timed (absent from files written before the 'fastest' reference)
@@ -368,6 +443,8 @@ def romrun_setting(f, k):
     s = {"index": k}
     for key, kind in SETTING_ATTRS.items():
         s[key] = attr(g, key, kind)
+        if kind is float and not np.isfinite(s[key]):
+            raise InputError(f"'{f.filename}': attribute '{name}/{key}' = {s[key]} is not finite")
     for key, kind in SETTING_ATTRS_OPTIONAL.items():
         s[key] = attr(g, key, kind) if key in g.attrs else None
     if s["correction"] is None:     # files written before the local correction
@@ -383,18 +460,18 @@ def romrun_set(f, k, s, n_steps, n_dof):
     if name not in f:
         raise InputError(f"'{f.filename}': setting {k} has no '{s}' set (group '/{name}')")
     g = f[name]
-    params = dataset(g, "params")
+    params = dataset(g, "params", finite=True)
     if params.ndim == 1:
         params = params.reshape(-1, 1)
     n_s = params.shape[0]
-    alpha = dataset(g, "alpha")
+    alpha = dataset(g, "alpha", finite=True)
     if alpha.ndim != 2 or alpha.shape[0] != n_steps * n_s:
         raise InputError(f"'{f.filename}': '{name}/alpha' has h5py shape {alpha.shape}, expected "
                          f"(N_T n_S = {n_steps * n_s}, n_basis)")
     out = {"params": params, "alpha": alpha.reshape(n_s, n_steps, alpha.shape[1]),
-           "positions": _blocks(dataset(g, "positions"), n_s, n_steps + 1, n_dof, f.filename,
+           "positions": _blocks(dataset(g, "positions", finite=True), n_s, n_steps + 1, n_dof, f.filename,
                                 f"{name}/positions")}
-    et = dataset(g, "err_time")
+    et = dataset(g, "err_time", finite=True)
     if et.shape != (n_s, n_steps + 1):
         raise InputError(f"'{f.filename}': '{name}/err_time' has h5py shape {et.shape}, expected "
                          f"({n_s}, {n_steps + 1})")
@@ -402,11 +479,13 @@ def romrun_set(f, k, s, n_steps, n_dof):
     for key in ("E_mu", "E_proj", "max_overlap", "n_not_left", "time", "diverged_step", "E_disp",
                 "max_overlap_agents", "max_overlap_walls", "mobility"):
         if key in g:
-            out[key] = np.asarray(g[key][()]).ravel()
+            out[key] = dataset(g, key, finite=True).ravel()
+            if out[key].size != n_s:
+                raise InputError(f"'{f.filename}': '{name}/{key}' has {out[key].size} entries, expected n_S = {n_s}")
     # evacuation curves [n_S, N_T + 1] and times of 50 % / 90 % out [n_S, 2] (-1: not reached)
     for key, width in (("evac_rom", n_steps + 1), ("evac_fom", n_steps + 1), ("t_out_rom", 2), ("t_out_fom", 2)):
         if key in g:
-            x = np.asarray(g[key][()])
+            x = dataset(g, key, finite=True)
             if x.shape != (n_s, width):
                 raise InputError(f"'{f.filename}': '{name}/{key}' has h5py shape {x.shape}, expected "
                                  f"({n_s}, {width})")
@@ -415,13 +494,89 @@ def romrun_set(f, k, s, n_steps, n_dof):
     # the correction's wall time per sample [n_S]; the positions are then the corrected ones,
     # carried in full (integrating alpha does not give them back)
     if "n_corrected" in g:
-        x = np.asarray(g["n_corrected"][()])
+        x = dataset(g, "n_corrected")
         if x.shape != (n_s, n_steps):
             raise InputError(f"'{f.filename}': '{name}/n_corrected' has h5py shape {x.shape}, expected "
                              f"({n_s}, {n_steps})")
         out["n_corrected"] = x
-        out["t_correct"] = np.asarray(g["t_correct"][()]).ravel()
+        out["t_correct"] = dataset(g, "t_correct", finite=True).ravel()
     return out
+
+
+# ------------------------------------------------------------------------------ CSV tables
+
+#: columns of the tables holding text (every other column holds numbers)
+CSV_TEXT_COLUMNS = {"set", "hyper", "contacts", "solver", "correction", "exact_solver", "regressor", "label",
+                    "kind", "mode"}
+#: columns holding wall times (s): >= 0, or -1 for "not measured"
+CSV_TIME_COLUMNS = {"t_step_rom", "t_step_fom_exact", "t_step_fom_uzawa", "t_query_rom", "t_query_fom_exact",
+                    "t_correct", "t_step", "t_query", "t_project_step", "t_project_query", "t_ml_step"}
+
+
+def csv_number(v):
+    """A CSV cell as int (written without '.' or exponent) or float; ValueError otherwise."""
+    x = float(v)
+    if math.isfinite(x) and x.is_integer() and "." not in v and "e" not in v.lower():
+        return int(x)
+    return x
+
+
+def read_csv_table(path, needed, what, positive_times=()):
+    """(header, rows) of a CSV table written by crowd_rom (the sweep table) or ml_correct.py (the
+    ML table), checked: every column of ``needed`` in the header, every row as long as the header,
+    no empty cell in a needed column, a finite number in every numeric column (all but
+    CSV_TEXT_COLUMNS), times >= 0 or -1 (unknown), and > 0 for ``positive_times``. Rows are dicts
+    of converted values. InputError naming the file, the line and the column otherwise."""
+    import csv
+
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise InputError(f"{what} not found: '{path}'")
+    if os.path.isdir(path):
+        raise InputError(f"{what} '{path}' is a directory")
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            lines = list(csv.reader(fh))
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise InputError(f"'{path}': not a CSV {what} ({' '.join(str(exc).split())})") from None
+    if not lines:
+        raise InputError(f"'{path}': empty {what}")
+    header = [c.strip() for c in lines[0]]
+    missing = [c for c in needed if c not in header]
+    if missing:
+        raise InputError(f"'{path}': missing column(s) {missing} in the header of the {what}")
+    rows = []
+    for i, cells in enumerate(lines[1:], start=2):
+        if not cells:
+            continue
+        if len(cells) != len(header):
+            raise InputError(f"'{path}' line {i}: {len(cells)} cells, the header has {len(header)} columns")
+        r = {}
+        for c, v in zip(header, cells):
+            v = v.strip()
+            if v == "":
+                if c in needed:
+                    raise InputError(f"'{path}' line {i}: empty '{c}'")
+                r[c] = v
+                continue
+            if c in CSV_TEXT_COLUMNS:
+                r[c] = v
+                continue
+            try:
+                x = csv_number(v)
+            except ValueError:
+                raise InputError(f"'{path}' line {i}: column '{c}' holds '{v}', not a number") from None
+            if not math.isfinite(x):
+                raise InputError(f"'{path}' line {i}: column '{c}' holds {v} (not a finite number)")
+            if c in CSV_TIME_COLUMNS and x < 0 and x != -1:
+                raise InputError(f"'{path}' line {i}: column '{c}' = {v}: a time must be >= 0 (or -1: not measured)")
+            if c in positive_times and not x > 0:
+                raise InputError(f"'{path}' line {i}: column '{c}' = {v}: must be > 0")
+            r[c] = x
+        rows.append(r)
+    if not rows:
+        raise InputError(f"'{path}': no rows in the {what}")
+    return header, rows
 
 
 # ------------------------------------------------------------------------------ errors, schemes
@@ -690,6 +845,121 @@ class OutputSet:
         if kind is not None:
             self.abort()
         return False
+
+
+class OutputDir:
+    """A folder of outputs written together or not at all. Files are written into a temporary
+    folder next to the target (``<parent>/.<name>.partial-<pid>``, see ``path``); ``commit()``
+    puts it in place of the target in one step (an atomic exchange, renameat2 RENAME_EXCHANGE, on
+    Linux; two renames elsewhere) and removes the previous set. Leaving the ``with`` block by an
+    exception, or SIGTERM / SIGINT meanwhile, removes the temporary: the previous set stays as it
+    was. A SIGKILL leaves the previous set too, and the temporary, which the next run removes
+    (its process is gone). Refused before anything is written: a target that is a file, a parent
+    folder that does not exist or cannot be written."""
+
+    def __init__(self, target, what="output directory"):
+        self.target = os.path.abspath(os.fspath(target))
+        parent, name = os.path.split(self.target)
+        if os.path.exists(self.target) and not os.path.isdir(self.target):
+            raise InputError(f"{what} '{target}' is a file")
+        if not os.path.isdir(parent):
+            raise InputError(f"{what} '{target}': the directory '{parent}' does not exist")
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise InputError(f"{what} '{target}': cannot write in the directory '{parent}'")
+        self.prefix = os.path.join(parent, f".{name}.partial-")
+        self.tmp = None
+        self._old = {}
+
+    def path(self, name):
+        """Where to write output ``name`` (in the temporary folder)."""
+        return os.path.join(self.tmp, name)
+
+    def final(self, name):
+        return os.path.join(self.target, name)
+
+    def __enter__(self):
+        import glob
+        import shutil
+        import signal
+
+        for stale in glob.glob(self.prefix + "*"):
+            pid = stale[len(self.prefix):]
+            if pid.isdigit() and not _alive(int(pid)):
+                shutil.rmtree(stale, ignore_errors=True)
+        self.tmp = self.prefix + str(os.getpid())
+        shutil.rmtree(self.tmp, ignore_errors=True)
+        os.mkdir(self.tmp)
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            try:
+                self._old[sig] = signal.signal(sig, _interrupted)
+            except ValueError:      # not the main thread
+                pass
+        return self
+
+    def commit(self):
+        import shutil
+
+        if os.path.isdir(self.target):
+            if not _exchange(self.tmp, self.target):
+                old = self.tmp + ".old"
+                os.rename(self.target, old)
+                os.rename(self.tmp, self.target)
+                os.rename(old, self.tmp)
+            shutil.rmtree(self.tmp, ignore_errors=True)
+        else:
+            os.rename(self.tmp, self.target)
+        self.tmp = None
+
+    def __exit__(self, kind, value, tb):
+        import shutil
+        import signal
+
+        for sig, h in self._old.items():
+            signal.signal(sig, h)
+        self._old = {}
+        if self.tmp is not None:
+            shutil.rmtree(self.tmp, ignore_errors=True)
+            self.tmp = None
+        return False
+
+
+class Interrupted(Exception):
+    """SIGTERM or SIGINT while an output set was being written (exit status 1)."""
+
+
+def _interrupted(signum, frame):
+    raise Interrupted(f"signal {signum}: stopped, the output set was not written")
+
+
+def _alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _exchange(a, b):
+    """Swap two paths atomically (Linux renameat2 RENAME_EXCHANGE); False where unavailable."""
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        fn = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    return fn(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0
+
+
+class ArgumentParser(__import__("argparse").ArgumentParser):
+    """argparse's parser whose usage errors raise InputError (one line, exit 2 through
+    one_line_errors) instead of printing the usage."""
+
+    def error(self, message):
+        raise InputError(f"{' '.join(message.split())} (see --help)")
 
 
 def one_line_errors(prog, main, argv=None):

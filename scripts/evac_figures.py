@@ -28,7 +28,6 @@ and the same after the exact position projection when --ml has them).
 Exit codes: 0 success, 2 an input is missing, unreadable or of the wrong schema.
 """
 import argparse
-import csv
 import math
 import os
 import re
@@ -42,6 +41,8 @@ import crowdrom_io as cio  # noqa: E402
 from crowdrom_io import InputError  # noqa: E402
 
 PROG = "evac_figures"
+#: largest --dpi (a figure of 15 x 4.4 inches is then 30 000 pixels wide)
+MAX_DPI = 2000
 #: columns of the sweep CSV this script needs
 NEEDED = ("setting", "set", "n", "r", "n_basis", "hyper", "contacts", "E_avg", "E_disp", "t50_err", "t50_n",
           "t50_rom_missed", "t90_err", "t90_n", "t90_rom_missed", "max_overlap_agents", "max_overlap_walls",
@@ -96,17 +97,9 @@ def out_rule(db):
 
 
 def read_rows(path):
-    if not os.path.exists(path):
-        raise InputError(f"sweep table not found: '{path}'")
-    with open(path, newline="") as fh:
-        rd = csv.DictReader(fh)
-        missing = [c for c in NEEDED if c not in (rd.fieldnames or [])]
-        if missing:
-            raise InputError(f"'{path}': missing column(s) {missing} in the header")
-        rows = list(rd)
-    if not rows:
-        raise InputError(f"'{path}': no rows")
-    return rows
+    """Rows of the sweep CSV, checked (crowdrom_io.read_csv_table: no NaN, Inf, text in a number
+    column, ragged row or negative time)."""
+    return cio.read_csv_table(path, NEEDED, "sweep table")[1]
 
 
 def read_runs(romrun):
@@ -128,32 +121,46 @@ def read_runs(romrun):
     return meta, out
 
 
-def read_ml(path, is_out, n_steps):
+def read_ml(path, is_out, n_steps, n_dof):
     """ML-corrected validation evacuation curves [n_S, N_T + 1] per regressor (best n)."""
     res = {}
     with cio.open_h5(path, cio.ML_SCHEMA, "ML output") as f:
-        params = cio.dataset(f, "valid_params")
+        params = cio.dataset(f, "valid_params", finite=True)
+        n_s = params.shape[0]
+        n_values = cio.dataset(f, "n_values", finite=True).ravel()
         for reg in ("random_forest", "mlp"):
             if reg not in f:
                 continue
             g = cio.group(f, reg)
-            q = cio.dataset(g, "best/positions")
-            n_s = q.shape[0] // (n_steps + 1)
+            q = cio.dataset(g, "best/positions", finite=True)
+            if q.ndim != 2 or q.shape[0] != n_s * (n_steps + 1) or q.shape[1] != n_dof:
+                raise InputError(f"'{path}': dataset '{reg}/best/positions' has shape {q.shape}, expected "
+                                 f"({n_s * (n_steps + 1)}, {n_dof}) for {n_s} validation samples of "
+                                 f"{n_steps} steps")
             q = q.reshape(n_s, n_steps + 1, -1)
-            res[reg] = {"evac": is_out(q).sum(axis=2), "best_n": int(cio.attr(g, "best_n", int)),
-                        "E_avg": float(cio.attr(g, "best_E_avg", float)),
-                        "speedup_exact": cio.dataset(g, "speedup_exact").ravel(),
-                        "n_values": cio.dataset(f, "n_values").ravel()}
+            best_n = int(cio.attr(g, "best_n", int))
+            if best_n not in [int(x) for x in n_values]:
+                raise InputError(f"'{path}': attribute '{reg}/best_n' = {best_n} is not in n_values "
+                                 f"{[int(x) for x in n_values]}")
+            e_avg = float(cio.attr(g, "best_E_avg", float))
+            if not (math.isfinite(e_avg) and e_avg >= 0):
+                raise InputError(f"'{path}': attribute '{reg}/best_E_avg' = {e_avg}: must be a finite number >= 0")
+            sp = cio.dataset(g, "speedup_exact", finite=True).ravel()
+            if sp.size != n_values.size:
+                raise InputError(f"'{path}': dataset '{reg}/speedup_exact' has {sp.size} entries, n_values "
+                                 f"{n_values.size}")
+            res[reg] = {"evac": is_out(q).sum(axis=2), "best_n": best_n, "E_avg": e_avg,
+                        "speedup_exact": sp, "n_values": n_values}
             if "best/projected_positions" in g:
                 # the same trajectories after the exact position projection (crowd_project)
-                qp = cio.dataset(g, "best/projected_positions")
+                qp = cio.dataset(g, "best/projected_positions", finite=True)
                 if qp.shape != (n_s * (n_steps + 1), q.shape[2]):
                     raise InputError(f"'{path}': {reg}/best/projected_positions has shape {qp.shape}, "
                                      f"positions {(n_s * (n_steps + 1), q.shape[2])}")
                 proj = {"evac": is_out(qp.reshape(n_s, n_steps + 1, -1)).sum(axis=2)}
                 for name in ("E_avg_proj", "overlap_agents_proj", "overlap_walls_proj", "mobility_proj",
                              "speedup_exact_proj", "t_query", "speedup_query_exact"):
-                    proj[name] = cio.dataset(g, name).ravel() if name in g else None
+                    proj[name] = cio.dataset(g, name, finite=True).ravel() if name in g else None
                 res[reg]["projected"] = proj
     return params, res
 
@@ -256,13 +263,10 @@ def fig_t90_map(meta, runs, setting, out, dpi):
     plt.close(fig)
 
 
-def train_convergence(db, n_modes, sizes, stride):
+def train_convergence(u_tr, u_va, n_modes, sizes, stride):
     """Validation velocity error of POD bases of N modes built from the first n training samples:
-    1 - tr(V_N^T G_val V_N) / tr(G_val), G the Gramian [n_dof, n_dof] of the (strided) snapshots."""
-    with cio.open_h5(db, cio.DB_SCHEMA, "snapshot database") as f:
-        tr = cio.read_database_set(f, "train")
-        va = cio.read_database_set(f, "valid")
-    u_tr, u_va = tr["velocities"], va["velocities"]
+    1 - tr(V_N^T G_val V_N) / tr(G_val), G the Gramian [n_dof, n_dof] of the (strided) snapshots;
+    u_tr, u_va: velocities [n_S, N_T, n_dof] of the training and validation sets."""
     n_tr = u_tr.shape[0]
     sizes = sorted({min(max(1, s), n_tr) for s in sizes} | {n_tr})
     g_val = np.zeros((u_va.shape[2],) * 2)
@@ -270,6 +274,8 @@ def train_convergence(db, n_modes, sizes, stride):
         a = u_va[k, ::stride]
         g_val += a.T @ a
     tot = np.trace(g_val)
+    if not tot > 0:
+        raise InputError("the validation velocities are all zero: no convergence curve")
     g = np.zeros_like(g_val)
     err = np.full((len(sizes), len(n_modes)), np.nan)
     done = 0
@@ -370,9 +376,42 @@ def table_lines(rows, ml, fom=None, n_agents=0, h=0.0):
 
 # ------------------------------------------------------------------------------ main
 
+def check_args(args):
+    """The numeric arguments on their own, before any input is read (InputError)."""
+    def need(ok, text):
+        if not ok:
+            raise InputError(text)
+    for key in ("samples", "modes", "sizes", "settings"):
+        v = getattr(args, key)
+        need(v is None or all(x >= 1 for x in v), f"--{key} {' '.join(map(str, v or []))}: every value must be >= 1")
+    need(args.map_setting is None or args.map_setting >= 1, f"--map-setting {args.map_setting}: must be >= 1")
+    need(args.stride >= 1, f"--stride {args.stride}: must be >= 1")
+    need(1 <= args.dpi <= MAX_DPI, f"--dpi {args.dpi}: must be in 1..{MAX_DPI}")
+
+
+def check_against_inputs(args, meta, runs, n_train, n_valid, valid_settings):
+    """The arguments against the inputs, before any figure is drawn (InputError)."""
+    if args.samples and max(args.samples) > n_valid:
+        raise InputError(f"--samples {' '.join(map(str, args.samples))}: the validation set of "
+                         f"'{args.romrun}' has {n_valid} samples")
+    if args.modes and max(args.modes) > 2 * meta["n_agents"]:
+        raise InputError(f"--modes {' '.join(map(str, args.modes))}: at most n_dof = {2 * meta['n_agents']} "
+                         "modes")
+    if args.sizes and max(args.sizes) > n_train:
+        raise InputError(f"--sizes {' '.join(map(str, args.sizes))}: the database has {n_train} training samples")
+    if args.stride > meta["n_steps"]:
+        raise InputError(f"--stride {args.stride}: must be <= n_steps = {meta['n_steps']}")
+    for key, ks in (("settings", args.settings or []), ("map-setting", [args.map_setting] if args.map_setting else [])):
+        for k in ks:
+            if k not in runs:
+                raise InputError(f"--{key} {k}: '{args.romrun}' has settings 1..{meta['n_settings']}")
+            if k not in valid_settings:
+                raise InputError(f"--{key} {k}: setting {k} of '{args.romrun}' has no validation set")
+
+
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="evac_figures.py", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = cio.ArgumentParser(prog="evac_figures.py", description=__doc__,
+                            formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--database", required=True)
     ap.add_argument("--romrun", required=True)
     ap.add_argument("--csv")
@@ -382,67 +421,81 @@ def main(argv=None):
                     "plain cone settings and up to three overlap-free ones, else the first four)")
     ap.add_argument("--map-setting", type=int, help="setting of the t90 map (default: the valid row with "
                     "the smallest t90 error among those without agent overlap, else the smallest t90 error)")
-    ap.add_argument("--samples", type=int, nargs="+", default=[1, 2, 3], help="validation samples (1-based)")
-    ap.add_argument("--modes", type=int, nargs="+", default=[10, 25, 50, 100], help="N of the convergence curves")
+    ap.add_argument("--samples", type=int, nargs="+", help="validation samples (1-based; "
+                    "default 1 2 3, those the set has)")
+    ap.add_argument("--modes", type=int, nargs="+", help="N of the convergence curves (default: 10 25 50 100, "
+                    "those <= n_dof)")
     ap.add_argument("--sizes", type=int, nargs="+", help="training sizes of the convergence curves "
                     "(default: 8 sizes up to n_train)")
     ap.add_argument("--stride", type=int, default=3, help="step stride of the convergence Gramians")
     ap.add_argument("--dpi", type=int, default=110)
     args = ap.parse_args(argv)
-    try:
-        csv_path = args.csv or os.path.splitext(args.romrun)[0] + ".csv"
-        is_out, dbmeta = out_rule(args.database)
-        meta, runs = read_runs(args.romrun)
-        rows = read_rows(csv_path)
-        if meta["n_agents"] != dbmeta["n_agents"]:
-            raise InputError(f"'{args.romrun}' has {meta['n_agents']} agents, '{args.database}' {dbmeta['n_agents']}")
-        valid_settings = [k for k, s in runs.items() if "valid" in s["data"]]
-        if not valid_settings:
-            raise InputError(f"'{args.romrun}': no setting has a validation set")
-        # default: the first two plain cone settings, then up to three without overlap by
-        # construction (local correction, online contacts): the trade a user chooses from
-        plain = [k for k in valid_settings if mode(runs[k]) == "cone"]
-        safe = [k for k in valid_settings if k not in plain]
-        settings = args.settings or (plain[:2] + safe[:3] if safe else valid_settings[:4])
-        for k in settings:
-            if k not in valid_settings:
-                raise InputError(f"'{args.romrun}': setting {k} has no validation set")
-        ml = {}
-        if args.ml:
-            _, ml = read_ml(args.ml, is_out, meta["n_steps"])
-        os.makedirs(args.outdir, exist_ok=True)
-        fig_curves(meta, runs, settings, [i - 1 for i in args.samples], ml,
-                   os.path.join(args.outdir, "evac_curves.png"), args.dpi)
-        ms = args.map_setting
-        if ms is None:
-            cand = [r for r in rows if r["set"] == "valid" and int(r["t90_n"]) > 0]
-            clean = [r for r in cand if float(r["max_overlap_agents"]) <= 1e-6]
-            pool = clean or cand
-            ms = int(min(pool, key=lambda r: float(r["t90_err"]))["setting"]) if pool else valid_settings[0]
-        if ms not in runs:
-            raise InputError(f"'{args.romrun}': no setting {ms}")
-        fig_t90_map(meta, runs, ms, os.path.join(args.outdir, "t90_map.png"), args.dpi)
-        n_train = None
-        with cio.open_h5(args.database, cio.DB_SCHEMA, "snapshot database") as f:
-            n_train = cio.attr(f, "n_train", int)
-        sizes = args.sizes or sorted({max(1, round(n_train * x)) for x in (0.05, 0.1, 0.2, 0.3, 0.45, 0.6, 0.8, 1.0)})
-        modes = [m for m in args.modes if m <= 2 * meta["n_agents"]]
-        sz, err = train_convergence(args.database, modes, sizes, max(1, args.stride))
-        fig_convergence(sz, err, modes, os.path.join(args.outdir, "train_convergence.png"), args.dpi)
-        fom_valid = runs[valid_settings[0]]["data"]["valid"]["evac_fom"]
-        lines = table_lines(rows, ml, fom_valid, meta["n_agents"], meta["dt"])
-        conv = ["", "Validation velocity error of a POD basis vs training samples (strided snapshots):",
-                "| samples | " + " | ".join(f"N = {m}" for m in modes) + " |", "|---|" + "---|" * len(modes)]
-        conv += ["| %d | %s |" % (n, " | ".join("%.3e" % e for e in err[i])) for i, n in enumerate(sz)]
-        with open(os.path.join(args.outdir, "evac_table.md"), "w") as fh:
-            fh.write("\n".join(lines + conv) + "\n")
-        print("\n".join(lines + conv))
-    except InputError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
+    check_args(args)
+    csv_path = args.csv or os.path.splitext(args.romrun)[0] + ".csv"
+    outs = cio.OutputDir(args.outdir)
+    names = ("evac_curves.png", "t90_map.png", "train_convergence.png", "evac_table.md")
+    inputs = [("--database", args.database), ("--romrun", args.romrun), ("--csv", csv_path), ("--ml", args.ml)]
+    for what, p in inputs:
+        if p and os.path.exists(p) and os.path.realpath(p) == os.path.realpath(args.outdir):
+            raise InputError(f"--outdir '{args.outdir}' is the input {what} '{p}'")
+    cio.check_outputs([(n, os.path.join(args.outdir, n)) for n in names if os.path.isdir(args.outdir)], inputs)
+    # every input read and checked before anything is drawn
+    is_out, dbmeta = out_rule(args.database)
+    meta, runs = read_runs(args.romrun)
+    rows = read_rows(csv_path)
+    if meta["n_agents"] != dbmeta["n_agents"] or meta["n_steps"] != dbmeta["n_steps"]:
+        raise InputError(f"'{args.romrun}' has {meta['n_agents']} agents and {meta['n_steps']} steps, "
+                         f"'{args.database}' {dbmeta['n_agents']} and {dbmeta['n_steps']}")
+    valid_settings = [k for k, s in runs.items() if "valid" in s["data"]]
+    if not valid_settings:
+        raise InputError(f"'{args.romrun}': no setting has a validation set")
+    with cio.open_h5(args.database, cio.DB_SCHEMA, "snapshot database") as f:
+        tr = cio.read_database_set(f, "train")
+        va = cio.read_database_set(f, "valid", velocities=True)
+    n_train, n_valid = tr["params"].shape[0], runs[valid_settings[0]]["data"]["valid"]["params"].shape[0]
+    check_against_inputs(args, meta, runs, n_train, n_valid, valid_settings)
+    # default: the first two plain cone settings, then up to three without overlap by
+    # construction (local correction, online contacts): the trade a user chooses from
+    plain = [k for k in valid_settings if mode(runs[k]) == "cone"]
+    safe = [k for k in valid_settings if k not in plain]
+    settings = args.settings or (plain[:2] + safe[:3] if safe else valid_settings[:4])
+    samples = [i - 1 for i in (args.samples or [k for k in (1, 2, 3) if k <= n_valid])]
+    ml = {}
+    if args.ml:
+        _, ml = read_ml(args.ml, is_out, meta["n_steps"], 2 * meta["n_agents"])
+        for reg, r in ml.items():
+            if r["evac"].shape[0] != n_valid:
+                raise InputError(f"'{args.ml}': {reg} has {r['evac'].shape[0]} validation samples, "
+                                 f"'{args.romrun}' {n_valid}")
+    ms = args.map_setting
+    if ms is None:
+        cand = [r for r in rows if r["set"] == "valid" and int(r["t90_n"]) > 0 and int(r["setting"]) in valid_settings]
+        clean = [r for r in cand if float(r["max_overlap_agents"]) <= 1e-6]
+        pool = clean or cand
+        ms = int(min(pool, key=lambda r: float(r["t90_err"]))["setting"]) if pool else valid_settings[0]
+    sizes = args.sizes or sorted({max(1, round(n_train * x)) for x in (0.05, 0.1, 0.2, 0.3, 0.45, 0.6, 0.8, 1.0)})
+    modes = args.modes or [m for m in (10, 25, 50, 100) if m <= 2 * meta["n_agents"]] or [2 * meta["n_agents"]]
+    sz, err = train_convergence(tr["velocities"], va["velocities"], modes, sizes, args.stride)
+    fom_valid = runs[valid_settings[0]]["data"]["valid"]["evac_fom"]
+    lines = table_lines(rows, ml, fom_valid, meta["n_agents"], meta["dt"])
+    conv = ["", "Validation velocity error of a POD basis vs training samples (strided snapshots):",
+            "| samples | " + " | ".join(f"N = {m}" for m in modes) + " |", "|---|" + "---|" * len(modes)]
+    conv += ["| %d | %s |" % (n, " | ".join("%.3e" % e for e in err[i])) for i, n in enumerate(sz)]
+    text = "\n".join(lines + conv) + "\n"
+    if re.search(r"\b(nan|inf)\b", text, re.IGNORECASE):
+        raise InputError("the table would hold a non-finite value (NaN or Inf) from the inputs: nothing written")
+    # the output set, all or nothing
+    with outs:
+        fig_curves(meta, runs, settings, samples, ml, outs.path("evac_curves.png"), args.dpi)
+        fig_t90_map(meta, runs, ms, outs.path("t90_map.png"), args.dpi)
+        fig_convergence(sz, err, modes, outs.path("train_convergence.png"), args.dpi)
+        with open(outs.path("evac_table.md"), "w") as fh:
+            fh.write(text)
+        outs.commit()
+    print(text, end="")
     print(f"{PROG}: evac_curves.png, t90_map.png, train_convergence.png, evac_table.md written to {args.outdir}")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cio.one_line_errors(PROG, main))

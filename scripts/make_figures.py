@@ -528,7 +528,10 @@ def fig_positions(ctx, out, dpi):
         else:
             rows.append((f"ML-corrected ({ml['regressor']}, n = {ml['best_n']})", ml["positions"][k],
                          "tab:green"))
-    steps = [min(max(st, 0), meta["n_steps"]) for st in (ctx.get("steps") or [0, 9, 18])]
+    if ctx.get("steps") is not None and any(st > meta["n_steps"] for st in ctx["steps"]):
+        raise InputError(f"--steps {' '.join(map(str, ctx['steps']))}: every value must be <= n_steps = "
+                         f"{meta['n_steps']} of '{ctx['romrun']}'")
+    steps = ctx.get("steps") or [min(st, meta["n_steps"]) for st in (0, 9, 18)]
     sc = scene = scenes[k]
     plt = _plt()
     fig, axes = plt.subplots(len(rows), len(steps), figsize=(3.8 * len(steps), 3.6 * len(rows)),
@@ -672,7 +675,8 @@ def main(argv=None):
                     "trajectory and position figures")
     ap.add_argument("--agents", type=int, nargs="+", help="agents (1-based) of the trajectory figure "
                     "(default: nearest, median and farthest from the exit)")
-    ap.add_argument("--steps", type=int, nargs="+", default=[0, 9, 18], help="steps of the positions figure")
+    ap.add_argument("--steps", type=int, nargs="+", help="steps of the positions figure (default 0 9 18, "
+                    "at most n_steps)")
     ap.add_argument("--pair", type=int, help="ROM pair of the EIM figure (default: the first)")
     ap.add_argument("--regressor", choices=("random_forest", "mlp"),
                     help="ML regressor of the positions figure (default: the more accurate)")
@@ -688,6 +692,12 @@ def main(argv=None):
                 cio.open_h5(ctx[key], schema, key).close()
         for p in ctx["ml"]:
             cio.open_h5(p, cio.ML_SCHEMA, "ML output").close()
+        if ctx.get("steps") and ctx.get("romrun"):
+            with cio.open_h5(ctx["romrun"], cio.ROMRUN_SCHEMA, "romrun") as f:
+                nt = cio.attr(f, "n_steps", int)
+            if any(st > nt for st in ctx["steps"]):
+                raise InputError(f"--steps {' '.join(map(str, ctx['steps']))}: every value must be <= n_steps = "
+                                 f"{nt} of '{ctx['romrun']}'")
         if ctx.get("csv") and not os.path.exists(ctx["csv"]):
             raise InputError(f"sweep table not found: '{ctx['csv']}'")
         written, skipped = make_all(ctx, args.outdir, args.only, args.dpi)

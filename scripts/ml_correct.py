@@ -494,7 +494,7 @@ def write_output(path, st, res, cfg, mode):
 
     def write(f):
         a = f.attrs
-        a["schema"], a["schema_version"], a["program"] = cio.ML_SCHEMA, 1, "ml_correct.py"
+        a["schema"], a["schema_version"], a["program"] = cio.ML_SCHEMA, cio.ML_VERSION, "ml_correct.py"
         a["mode"] = mode
         a["romrun"] = os.path.abspath(st.romrun_path)
         a["rom_file"] = os.path.abspath(st.rom_path)

@@ -27,7 +27,7 @@ and any contacts name is accepted.
 Exit codes: 0 success, 2 missing/unreadable input or missing columns (message on stderr).
 """
 import argparse
-import csv
+import math
 import os
 import sys
 
@@ -44,27 +44,9 @@ NEEDED = ("setting", "set", "n", "r", "hyper", "E_avg", "t_step_rom", "t_step_fo
 HYPER_MARKERS = {"none": "s", "eim": "D", "eq": "o"}
 
 
-def _num(v):
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        return v
-    return int(x) if x.is_integer() and "." not in str(v) and "e" not in str(v).lower() else x
-
-
 def read_csv_rows(path):
-    """Rows of the sweep CSV as dicts (numbers converted)."""
-    if not os.path.exists(path):
-        raise InputError(f"sweep table not found: '{path}'")
-    with open(path, newline="") as fh:
-        reader = csv.DictReader(fh)
-        missing = [c for c in NEEDED if c not in (reader.fieldnames or [])]
-        if missing:
-            raise InputError(f"'{path}': missing column(s) {missing} in the header")
-        rows = [{k: _num(v) for k, v in row.items()} for row in reader]
-    if not rows:
-        raise InputError(f"'{path}': no rows")
-    return rows
+    """Rows of the sweep CSV as dicts (numbers converted; checked by crowdrom_io.read_csv_table)."""
+    return cio.read_csv_table(path, NEEDED, "sweep table")[1]
 
 
 def read_romrun_rows(path):
@@ -75,9 +57,9 @@ def read_romrun_rows(path):
         for k in range(1, m["n_settings"] + 1):
             s = cio.romrun_setting(f, k)
             for name in s["sets"]:
-                e = cio.dataset(f, f"setting_{k}/{name}/E_mu").ravel()
+                e = cio.dataset(f, f"setting_{k}/{name}/E_mu", finite=True).ravel()
                 g = f[f"setting_{k}/{name}"]
-                div = np.asarray(g["diverged_step"][()]).ravel() > 0 if "diverged_step" in g else np.zeros(e.size, bool)
+                div = cio.dataset(g, "diverged_step").ravel() > 0 if "diverged_step" in g else np.zeros(e.size, bool)
                 kept = e[~div]
                 rows.append({"setting": k, "set": name, "n": s["n"], "r": s["r"],
                              "n_basis": s["n_basis"], "hyper": s["hyper"],
@@ -269,6 +251,8 @@ def main(argv=None):
     try:
         if args.dpi < 1:
             raise InputError(f"--dpi {args.dpi}: must be >= 1")
+        if not (math.isfinite(args.overlap_tol) and args.overlap_tol >= 0):
+            raise InputError(f"--overlap-tol {args.overlap_tol}: must be a finite number >= 0")
         cio.check_outputs([("output", out)], [("input", args.input)] + [("ML output", p) for p in args.ml])
         rows = read_rows(args.input)
         mlr = [u for p in args.ml for u in study_table.ml_rows(p)]

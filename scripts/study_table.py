@@ -25,7 +25,6 @@ without overlap that no other row without overlap beats in both error and cost).
 Exit status: 0, 2 for bad input (one 'study_table: error:' line), 1 for other failures.
 """
 import argparse
-import csv
 import math
 import os
 import sys
@@ -47,17 +46,6 @@ ML_NEEDED = ("regressor", "n", "E_avg", "t_step", "speedup_exact")
 DEFAULT_LEVELS = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5)
 
 
-def _num(v):
-    """A CSV cell as int, float or the string itself."""
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        return v
-    if math.isfinite(x) and x.is_integer() and "." not in str(v) and "e" not in str(v).lower():
-        return int(x)
-    return x
-
-
 def _f(r, key, default=-1.0):
     """Float value of a row's column (default when absent or empty)."""
     v = r.get(key)
@@ -70,22 +58,9 @@ def _f(r, key, default=-1.0):
 
 
 def read_csv(path, needed, what):
-    if not os.path.exists(path):
-        raise InputError(f"{what} not found: '{path}'")
-    with open(path, newline="") as fh:
-        reader = csv.DictReader(fh)
-        cols = list(reader.fieldnames or [])
-        missing = [c for c in needed if c not in cols]
-        if missing:
-            raise InputError(f"'{path}': missing column(s) {missing} in the header of the {what}")
-        rows = [{k: _num(v) for k, v in row.items()} for row in reader]
-    if not rows:
-        raise InputError(f"'{path}': no rows in the {what}")
-    for i, r in enumerate(rows, start=2):
-        for c in needed:
-            if r.get(c) is None or r.get(c) == "":
-                raise InputError(f"'{path}' line {i}: empty '{c}'")
-    return cols, rows
+    """(header, rows) of a sweep or ML table, checked by crowdrom_io.read_csv_table (NaN, Inf,
+    text in a number column, ragged rows and negative times refused)."""
+    return cio.read_csv_table(path, needed, what)
 
 
 def sweep_rows(path, set_name="valid"):
@@ -160,13 +135,16 @@ def ml_rows_h5(path):
 
     rows = []
     with cio.open_h5(path, cio.ML_SCHEMA, "ML output") as f:
-        n_values = [int(x) for x in np.asarray(f["n_values"][()]).ravel()]
+        n_values = [int(x) for x in cio.dataset(f, "n_values", finite=True).ravel()]
         for reg in ("random_forest", "mlp"):
             if reg not in f:
                 continue
             g = f[reg]
-            cols = {k: np.asarray(g[k][()]).ravel() for k in g if hasattr(g[k], "shape") and g[k].ndim == 1
-                    and g[k].shape[0] == len(n_values)}
+            cols = {k: cio.dataset(g, k, finite=True).ravel() for k in g if hasattr(g[k], "shape")
+                    and g[k].ndim == 1 and g[k].shape[0] == len(n_values) and g[k].dtype.kind in "fiu"}
+            for k in ("t_step", "speedup_exact"):
+                if k not in cols:
+                    raise InputError(f"'{path}': missing dataset '{reg}/{k}' with one entry per n")
             for i, n in enumerate(n_values):
                 r = {"regressor": reg, "n": n, "t_step": float(cols["t_step"][i]),
                      "speedup_exact": float(cols["speedup_exact"][i])}

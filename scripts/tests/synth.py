@@ -19,9 +19,13 @@ Everything derives from one seed; ``rom_variant`` changes the basis (another sup
 modes instead of 6; variant 2: the first POD mode has the other sign).
 """
 import os
+import sys
 
 import h5py
 import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+import crowdrom_io as cio  # noqa: E402
 
 CSV_HEADER = ("setting,set,n,r,n_basis,hyper,contacts,solver,m_v,m_b,m_d,E_avg,E_max,E_proj_avg,"
               "max_overlap,agents_not_left,agents_not_left_fom,infeasible_steps,capped_steps,"
@@ -173,6 +177,8 @@ def make_database(path, seed=7, config_hash="0123456789abcdef"):
             st = g.create_group("stats")
             st["time"] = np.full(n_s, 0.01)
             sets[name] = {"params": p, "u": u, "q": q, "csr": (off, idx, val)}
+        # every dataset with its checksum, as crowd_snapshots writes them
+        cio.stamp_checksums(f)
     return {"path": path, "q0": q0, "w": w, "sets": sets, "config_hash": config_hash}
 
 

@@ -70,7 +70,7 @@ def write_ml(path):
                          t_fit=1.0, t_predict_step=1e-6, t_step=1e-4, speedup_uzawa=1000.0, speedup_exact=16.0,
                          E_disp=0.05, mobility=1.1, overlap_agents=0.05, overlap_walls=0.02, E_avg_proj=e_proj,
                          E_disp_proj=0.06, mobility_proj=1.0, overlap_agents_proj=o_proj, overlap_walls_proj=0.0,
-                         moved_fraction=0.4, t_project_step=2e-4, t_project_query=tq - 0.004, t_query=tq,
+                         moved_fraction=0.4, t_project_step=2e-4, t_project_query=tq / 2, t_query=tq,
                          speedup_query_exact=T_FOM_QUERY / tq, speedup_exact_proj=5.0))
     assert set(rows[0]) == set(keys)
     with open(path, "w", newline="") as fh:

@@ -13,15 +13,16 @@ module cr_inputs
   use cr_config_check, only: check_config
   use cr_study_config, only: study_cfg_t, read_study
   use cr_offline_config, only: offline_cfg_t, read_offline
-  use cr_rom_config, only: rom_cfg_t, read_rom
+  use cr_rom_config, only: rom_cfg_t, read_rom_groups
   implicit none
   private
   public :: check_input_groups, read_model_input
 
 contains
 
-  !> Read every group of `t` with its owner (&study and the groups of crowd_rom only when &study /
-  !> &rom are present: the programs that need them report their absence themselves).
+  !> Read every group of `t` with its owner (&study only when present: the programs that need it
+  !> report its absence themselves; crowd_rom's groups &rom, &sweep, &reduced, &fom_timing each
+  !> when present, whether or not &rom is).
   subroutine check_input_groups(t, error)
     type(namelist_text_t), intent(in) :: t
     type(error_t), allocatable, intent(out) :: error
@@ -33,7 +34,7 @@ contains
     if (t%has_group('study')) call read_study(t, study, error)
     if (allocated(error)) return
     call read_offline(t, ocfg, error); if (allocated(error)) return
-    if (t%has_group('rom')) call read_rom(t, rcfg, error)
+    call read_rom_groups(t, rcfg, error)
   end subroutine check_input_groups
 
   !> A program's input: rank 0 reads `path` (broadcast to every rank of env), the groups

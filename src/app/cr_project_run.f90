@@ -76,6 +76,8 @@ contains
     if (allocated(error)) then
       call prefix_error(error, "'" // req%database // "': attribute 'param_names'"); return
     end if
+    call check_params(input, req, cfg, pm, error)
+    if (allocated(error)) return
     settings = cfg%solver
     if (len_trim(req%solver) > 0) settings%name = req%solver
     if (req%tol > 0) settings%tol = req%tol
@@ -135,6 +137,37 @@ contains
       str(count(res%refined == 0)) // "; wrote " // req%output)
     if (len(summary) > 0) call write_summary(summary, req, res, error)
   end subroutine project_request
+
+  !> Every sample's parameters give a valid scene (the checks of an input file, e.g. an exit
+  !> no wider than the hall and > 0), before any work: an input error naming the sample.
+  subroutine check_params(input, req, cfg, pm, error)
+    use cr_projection_file, only: proj_request_t
+    use cr_config, only: config_t
+    use cr_param_model, only: param_model_t
+    use cr_config_check, only: check_config
+    character(len=*), intent(in) :: input
+    type(proj_request_t), intent(in) :: req
+    type(config_t), intent(in) :: cfg
+    type(param_model_t), intent(in) :: pm
+    type(error_t), allocatable, intent(out) :: error
+    type(config_t) :: c
+    real(wp), allocatable :: speeds(:)
+    integer :: s
+    do s = 1, req%n_samples
+      c = cfg
+      allocate(speeds(req%n_agents))
+      speeds = cfg%agents%speed
+      call pm%apply(req%params(:, s), c, speeds)
+      deallocate(speeds)
+      call check_config(c, error)
+      if (allocated(error)) then
+        error%code = 2
+        call prefix_error(error, "projection request '" // input // "': dataset 'params': sample " // str(s) // &
+          " gives no valid scene")
+        return
+      end if
+    end do
+  end subroutine check_params
 
   !> Totals as JSON.
   subroutine write_summary(path, req, res, error)

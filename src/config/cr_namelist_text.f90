@@ -131,9 +131,14 @@ contains
     type(error_t), allocatable, intent(out) :: error
     character(len=:), allocatable :: groups(:)
     character(len=:), allocatable :: list
-    integer :: k, j
+    integer :: k, j, bare
     logical :: found
-    call list_groups(this, groups)
+    call list_groups(this, groups, bare)
+    if (bare > 0) then
+      call set_error(error, this%path // ": line " // str(bare) // ": '&' without a group name (a group " // &
+        "starts with &name, e.g. &scene)", 2)
+      return
+    end if
     do k = 1, size(groups)
       found = .false.
       do j = 1, size(known)
@@ -233,16 +238,19 @@ contains
     end do
   end function has_binary
 
-  !> Names (lower case) of the groups opened with '&' at the start of a token.
-  subroutine list_groups(this, groups)
+  !> Names (lower case) of the groups opened with '&' at the start of a token; `bare`: the
+  !> line of the first '&' followed by no name (0: none).
+  subroutine list_groups(this, groups, bare)
     type(namelist_text_t), intent(in) :: this
     character(len=:), allocatable, intent(out) :: groups(:)
+    integer, intent(out), optional :: bare
     character(len=64) :: found(200)
     integer :: n, k, i, j
     character(len=MAX_LINE) :: line
     logical :: in_str
     character :: q
     n = 0
+    if (present(bare)) bare = 0
     do k = 1, size(this%lines)
       line = this%lines(k)
       in_str = .false.; q = ' '
@@ -260,6 +268,9 @@ contains
             if (index('abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_', line(j:j)) == 0) exit
             j = j + 1
           end do
+          if (j == i + 1 .and. present(bare)) then
+            if (bare == 0) bare = k
+          end if
           if (j > i + 1 .and. n < size(found)) then
             n = n + 1
             found(n) = to_lower(line(i+1:j-1))

@@ -10,6 +10,14 @@
 !>
 !> Stored as the attribute `checksum` (16 hex digits) of the dataset; `put_digest` writes it,
 !> `check_digest` compares it with the digest of the data a reader actually read.
+!>
+!> Block digests, for readers of a part of a dataset: a product splits its datasets into blocks
+!> (e.g. one sample's columns) and stores a table, an integer dataset [2 n_ds, n_blocks] whose
+!> column b holds the two residues (`digest_pack`) of block b of each of n_ds datasets (block b
+!> of a dataset being digested at its own linear offsets, the blocks add up to the whole). A
+!> reader of blocks b0..b1 compares the digest of what it read with the sum of those columns
+!> (`digest_table_sum`, `check_digest_blocks`); the table itself carries a `checksum`, and the
+!> sum of all its columns equals each dataset's whole checksum.
 module cr_digest
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error
@@ -19,7 +27,8 @@ module cr_digest
   implicit none
   private
   public :: digest_t, digest_of, digest_of_ranges, digest_add, digest_allreduce, digest_hex, put_digest, &
-    check_digest, check_digest_parts, DIGEST_ATTR, DIGEST_ALGORITHM
+    check_digest, check_digest_parts, DIGEST_ATTR, DIGEST_ALGORITHM, digest_pack, digest_table_sum, &
+    check_digest_blocks
 
   !> name of the dataset attribute holding the digest
   character(len=*), parameter :: DIGEST_ATTR = "checksum"
@@ -161,6 +170,43 @@ contains
       c = c + ranges(2, q)
     end do
   end function dgr_int1
+
+  !> The two residues of a digest as default integers (both below 2^31 - 1), for block tables.
+  pure function digest_pack(d) result(r)
+    type(digest_t), intent(in) :: d
+    integer :: r(2)
+    r = int([d%s1, d%s2])
+  end function digest_pack
+
+  !> Sum of the block digests of dataset q (1-based) over the columns of a block table
+  !> [2 n_ds, n_blocks] (entries outside 0..2^31-2 make an impossible digest, -1).
+  pure function digest_table_sum(table, q) result(d)
+    integer, intent(in) :: table(:,:)
+    integer, intent(in) :: q
+    type(digest_t) :: d
+    integer :: b
+    do b = 1, size(table, 2)
+      if (any(table(2 * q - 1:2 * q, b) < 0) .or. any(table(2 * q - 1:2 * q, b) >= M)) then
+        d = digest_t(-1, -1); return
+      end if
+      d = digest_add(d, digest_t(int(table(2 * q - 1, b), i8), int(table(2 * q, b), i8)))
+    end do
+  end function digest_table_sum
+
+  !> Compare the digest `d` of blocks read from dataset `name` with the sum of their entries in
+  !> the block table (the table's columns of those blocks). `what` leads the message.
+  subroutine check_digest_blocks(table, q, name, d, what, error)
+    integer, intent(in) :: table(:,:)
+    integer, intent(in) :: q
+    character(len=*), intent(in) :: name, what
+    type(digest_t), intent(in) :: d
+    type(error_t), allocatable, intent(out) :: error
+    type(digest_t) :: t
+    t = digest_table_sum(table, q)
+    if (t%s1 == d%s1 .and. t%s2 == d%s2) return
+    call set_error(error, what // ": block checksum mismatch in dataset '" // name // "' (stored " // &
+      digest_hex(t) // ", data " // digest_hex(d) // "): the file is corrupted", 2)
+  end subroutine check_digest_blocks
 
   !> Digest of the union of two disjoint parts.
   elemental function digest_add(a, b) result(d)

@@ -79,7 +79,7 @@ contains
     integer, intent(in) :: ia, ib, ob
     real(wp), intent(in) :: g(2), gap
     integer :: cap
-    if (.not. allocated(this%ia)) call this%init(this%n_agents, this%h)
+    if (.not. allocated(this%ia)) call this%init((this%n_agents), (this%h))
     cap = size(this%ia)
     if (this%n == cap) call grow(this, 2 * cap)
     this%n = this%n + 1
@@ -95,7 +95,7 @@ contains
     class(contact_set_t), intent(inout) :: this
     integer, intent(in) :: cap
     if (.not. allocated(this%ia)) then
-      call this%init(this%n_agents, this%h, cap)
+      call this%init((this%n_agents), (this%h), cap)
     else if (size(this%ia) < cap) then
       call grow(this, cap)
     end if

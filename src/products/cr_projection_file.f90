@@ -72,9 +72,10 @@ contains
     integer(i8), allocatable :: d(:)
     integer :: version
     req%path = path
-    call h5%open(path, error)
-    if (allocated(error)) then
-      call set_error(error, "'" // path // "': cannot open the projection request (" // error%message // ")", 2)
+    call h5%open(path, e2)
+    if (allocated(e2)) then
+      ! the message is copied out of e2 before error (intent(out) in set_error) is allocated
+      call set_error(error, "'" // path // "': cannot open the projection request (" // e2%message // ")", 2)
       return
     end if
     call body(error)

@@ -1,5 +1,7 @@
-!> The snapshot database of a parameter study (schema "crowdrom-snapshots", version 1; layout in
-!> the README, "Snapshot database"): written by crowd_snapshots, read by crowd_offline (a block
+!> The snapshot database of a parameter study (schema "crowdrom-snapshots", version 2; layout in
+!> the README, "Snapshot database"; version 2 adds each set's block table `sample_checksums`, the
+!> per-sample digests of every dataset of the set, so that a reader of some samples verifies
+!> them: docs/robustness.md): written by crowd_snapshots, read by crowd_offline (a block
 !> of training samples per rank), crowd_rom (the study and its full-order trajectories) and the
 !> Python scripts.
 !>
@@ -22,7 +24,7 @@ module cr_snapshot_file
   use cr_env, only: env_t, pending_bcast_t
   use cr_h5file, only: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64
   use cr_digest, only: digest_t, digest_of, digest_add, check_digest, check_digest_parts, digest_allreduce, &
-    put_digest, DIGEST_ALGORITHM
+    put_digest, DIGEST_ALGORITHM, digest_pack, digest_table_sum, check_digest_blocks, digest_hex
   use cr_product_check, only: check_schema, need_finite, need_range, need_dims, product_error
   use cr_sort, only: argsort_i8, bsearch_i8
   use cr_scene, only: scene_t
@@ -35,9 +37,12 @@ module cr_snapshot_file
     probe_snap_database, scene_vertex_list, SNAP_SET_NAMES, move_sample
 
   character(len=*), parameter :: SNAP_SCHEMA = "crowdrom-snapshots"
-  integer, parameter :: SNAP_SCHEMA_VERSION = 1
-  !> versions the readers accept
-  integer, parameter :: SNAP_VERSIONS_READ(1) = [1]
+  !> 2: with the per-sample block checksums <set>/sample_checksums (partial reads verified)
+  integer, parameter :: SNAP_SCHEMA_VERSION = 2
+  !> versions the readers accept (version 1: whole sets only, see read_snap_block)
+  integer, parameter :: SNAP_VERSIONS_READ(2) = [1, 2]
+  !> block table of each set: per sample, the digests of the 17 datasets DS of that sample
+  character(len=*), parameter :: SAMPLE_CHECKSUMS = "sample_checksums"
   character(len=*), parameter :: SNAP_UNITS = "length: m, time: s, velocity: m/s, l_exit: m, " // &
     "speed: m/s, multiplier: m/s^2 (lambda scales B = -h G: u = v - B^T lambda)"
 
@@ -156,10 +161,12 @@ module cr_snapshot_file
     !> fail with it
     character(len=:), allocatable, private :: fault
     logical, private :: active = .false.
-    !> the multipliers of the samples put by this rank and their global numbers [nl]
+    !> the multipliers of the samples put by this rank, their global numbers and their block
+    !> digests (one per dataset DS; the multipliers' filled in finish) [nl]
     integer, private :: nl = 0
     type(snap_sample_t), allocatable, private :: lam(:)
     integer, allocatable, private :: gl(:)
+    type(digest_t), allocatable, private :: sdg(:,:)
     !> this rank's contacts [4, n] (end_local) and whether end_local has run
     integer(i8), allocatable, private :: pack4(:,:)
     logical, private :: local_done = .false.
@@ -318,7 +325,7 @@ contains
     this%nq = 0
     this%placed = .false.
     this%local_done = .false.
-    allocate(this%lam(16), this%gl(16), this%queue(4))
+    allocate(this%lam(16), this%gl(16), this%sdg(17, 16), this%queue(4))
     if (allocated(this%fault)) deallocate(this%fault)
     m = ""
     failed = .false.
@@ -599,28 +606,23 @@ contains
     type(error_t), allocatable, intent(out) :: error
     type(snap_sample_t), allocatable :: l2(:)
     integer, allocatable :: g2(:)
+    type(digest_t), allocatable :: sd2(:,:)
+    type(digest_t) :: dd(17)
     integer(i8) :: o(17), at(17)
     integer :: is, q, nd, ns, ne, nv
     nd = this%nd; ns = this%ns; ne = this%ne; nv = this%nv
     is = findloc(SNAP_SET_NAMES, s%set, dim=1)
     o = elem_offsets(this, s, 0_i8)
     at = this%place(:, is) + o * ESZ
-    associate (d => this%dg(:, is))
-      d(1) = digest_add(d(1), digest_of(s%mu, o(1)))
-      d(2) = digest_add(d(2), digest_of(s%q, o(2)))
-      d(3) = digest_add(d(3), digest_of(s%u, o(3)))
-      d(4) = digest_add(d(4), digest_of(s%v, o(4)))
-      d(8) = digest_add(d(8), digest_of(s%kkt, o(8)))
-      d(9) = digest_add(d(9), digest_of(s%min_gap, o(9)))
-      d(10) = digest_add(d(10), digest_of(s%iterations, o(10)))
-      d(11) = digest_add(d(11), digest_of(s%converged, o(11)))
-      d(12) = digest_add(d(12), digest_of(s%n_active, o(12)))
-      d(13) = digest_add(d(13), digest_of([s%time], o(13)))
-      d(14) = digest_add(d(14), digest_of([s%rank], o(14)))
-      d(15) = digest_add(d(15), digest_of([s%start], o(15)))
-      d(16) = digest_add(d(16), digest_of(s%scene_v, o(16)))
-      d(17) = digest_add(d(17), digest_of(s%scene_exit, o(17)))
-    end associate
+    ! the sample's block digests (the multipliers' in finish), added to the checksum parts
+    dd(1) = digest_of(s%mu, o(1)); dd(2) = digest_of(s%q, o(2))
+    dd(3) = digest_of(s%u, o(3)); dd(4) = digest_of(s%v, o(4))
+    dd(8) = digest_of(s%kkt, o(8)); dd(9) = digest_of(s%min_gap, o(9))
+    dd(10) = digest_of(s%iterations, o(10)); dd(11) = digest_of(s%converged, o(11))
+    dd(12) = digest_of(s%n_active, o(12)); dd(13) = digest_of([s%time], o(13))
+    dd(14) = digest_of([s%rank], o(14)); dd(15) = digest_of([s%start], o(15))
+    dd(16) = digest_of(s%scene_v, o(16)); dd(17) = digest_of(s%scene_exit, o(17))
+    this%dg(:, is) = digest_add(this%dg(:, is), dd)
     w: block
       call this%pf%write_at(at(1), s%mu, 8_i8 * ne, error); if (allocated(error)) exit w
       call this%pf%write_at(at(2), s%q, 8_i8 * nd * (ns + 1), error); if (allocated(error)) exit w
@@ -642,8 +644,10 @@ contains
     if (allocated(error)) return
     ! the multipliers, kept for finish
     if (this%nl == size(this%lam)) then
-      allocate(l2(2 * this%nl), g2(2 * this%nl))
+      allocate(l2(2 * this%nl), g2(2 * this%nl), sd2(17, 2 * this%nl))
       g2(1:this%nl) = this%gl(1:this%nl)
+      sd2(:, 1:this%nl) = this%sdg(:, 1:this%nl)
+      call move_alloc(sd2, this%sdg)
       do q = 1, this%nl
         call move_alloc(this%lam(q)%offset, l2(q)%offset); call move_alloc(this%lam(q)%key, l2(q)%key)
         call move_alloc(this%lam(q)%ia, l2(q)%ia); call move_alloc(this%lam(q)%ib, l2(q)%ib)
@@ -658,6 +662,7 @@ contains
       l%offset = s%offset; l%key = s%key; l%ia = s%ia; l%ib = s%ib; l%ob = s%ob; l%value = s%value
     end associate
     this%gl(this%nl) = gnum(this, s)
+    this%sdg(:, this%nl) = dd
     this%stats%bytes = this%stats%bytes + sample_bytes(this, s)
   end subroutine write_sample
 
@@ -819,8 +824,12 @@ contains
       is = findloc(SNAP_SET_NAMES, this%lam(j)%set, dim=1)
       csr(j)%off8 = this%base(this%gl(j)) + this%lam(j)%offset(2:ns + 1)
       o = elem_offsets(this, this%lam(j), this%base(this%gl(j)))
-      this%dg(5, is) = digest_add(this%dg(5, is), digest_of(csr(j)%off8, o(5)))
-      this%dg(7, is) = digest_add(this%dg(7, is), digest_of(this%lam(j)%value, o(7)))
+      this%sdg(5, j) = digest_of(csr(j)%off8, o(5))
+      this%sdg(7, j) = digest_of(this%lam(j)%value, o(7))
+      this%dg(5, is) = digest_add(this%dg(5, is), this%sdg(5, j))
+      this%dg(7, is) = digest_add(this%dg(7, is), this%sdg(7, j))
+      ! the leading 0 of lambda_offset belongs to the block of the set's first sample
+      if (this%lam(j)%index == 1) this%sdg(5, j) = digest_add(this%sdg(5, j), digest_of([0_i8], 0_i8))
     end do
     if (env%is_root()) then
       do is = 1, 2
@@ -871,10 +880,16 @@ contains
         csr(j)%li(k) = bsearch_i8(dkey, this%lam(j)%key(k))
       end do
       o = elem_offsets(this, this%lam(j), this%base(this%gl(j)))
-      this%dg(6, is) = digest_add(this%dg(6, is), digest_of(csr(j)%li, o(6)))
+      this%sdg(6, j) = digest_of(csr(j)%li, o(6))
+      this%dg(6, is) = digest_add(this%dg(6, is), this%sdg(6, j))
     end do
-    allocate(dl(13))
+    ! [multipliers' checksum parts [2, 3, 2], failed, block digests [34, ntot]]
+    allocate(dl(13 + 34 * ntot))
     dl = 0
+    do j = 1, this%nl
+      k = 13 + 34 * (this%gl(j) - 1)
+      dl(k + 1:k + 34) = real(reshape(digest_pack_all(this%sdg(:, j)), [34]), wp)
+    end do
     k = 0
     do is = 1, 2
       do q = 1, 3
@@ -923,7 +938,8 @@ contains
           end do
         end do
         m = ""
-        call add_rest(m)
+        call add_block_table(m)
+        if (len(m) == 0) call add_rest(m)
         if (len(m) == 0) then
           if (rename_file(this%path // ".partial", this%path) /= 0) &
             m = "rename '" // this%path // ".partial' -> '" // this%path // "' failed"
@@ -953,6 +969,44 @@ contains
     end if
 
   contains
+
+    !> Rank 0 (before add_rest closes the file): each set's block table <set>/sample_checksums
+    !> [34, n] from the reduced block digests, with its own checksum; each column's sum over the
+    !> samples must give the dataset checksums (a slip in the bookkeeping fails here).
+    subroutine add_block_table(m)
+      character(len=:), allocatable, intent(inout) :: m
+      type(error_t), allocatable :: e
+      integer, allocatable :: tab(:,:)
+      integer :: iss, q2, g0
+      character(len=:), allocatable :: g, names
+      names = ""
+      do q2 = 1, 17
+        if (q2 > 1) names = names // ","
+        names = names // trim(DS(q2))
+      end do
+      g0 = 0
+      do iss = 1, 2
+        g = trim(SNAP_SET_NAMES(iss))
+        tab = reshape(nint(dl(13 + 34 * g0 + 1:13 + 34 * (g0 + this%nset(iss)))), [34, this%nset(iss)])
+        g0 = g0 + this%nset(iss)
+        if (this%nset(iss) == 0) cycle
+        do q2 = 1, 17
+          if (digest_hex(digest_table_sum(tab, q2)) /= digest_hex(this%dg(q2, iss))) then
+            m = "block digests of " // g // "/" // trim(DS(q2)) // " do not add up to its checksum"; return
+          end if
+        end do
+        call this%h5%write(g // "/" // SAMPLE_CHECKSUMS, tab, e); if (allocated(e)) exit
+        call put_digest(this%h5, g // "/" // SAMPLE_CHECKSUMS, digest_of(tab, 0_i8), e); if (allocated(e)) exit
+        call this%h5%write_attr(g // "/" // SAMPLE_CHECKSUMS, "datasets", names, e); if (allocated(e)) exit
+        call this%h5%write_attr(g // "/" // SAMPLE_CHECKSUMS, "description", "per sample (column), the " // &
+          "two residues of the digest of that sample's block of each dataset named in 'datasets' " // &
+          "(src/io/cr_digest.f90); lambda_offset's block of the first sample includes the leading 0", e)
+        if (allocated(e)) exit
+      end do
+      if (allocated(e)) then
+        m = e%message; call this%h5%abort()
+      end if
+    end subroutine add_block_table
 
     !> Rank 0: create lambda_index and lambda_value of both sets (their places in lplace [2, 2]).
     subroutine place_multipliers(m)
@@ -1036,6 +1090,16 @@ contains
     call this%env%sync(e)
     if (this%env%is_root()) st = remove_file(this%path // ".partial")
   end subroutine writer_discard
+
+  !> Block digests as a table column [2, n].
+  pure function digest_pack_all(d) result(r)
+    type(digest_t), intent(in) :: d(:)
+    integer :: r(2, size(d))
+    integer :: q
+    do q = 1, size(d)
+      r(:, q) = digest_pack(d(q))
+    end do
+  end function digest_pack_all
 
   !> Global number of a sample (train 1..n_train, then valid).
   integer function gnum(this, s)
@@ -1189,6 +1253,7 @@ contains
     type(snap_header_t), intent(out) :: hdr
     type(error_t), allocatable, intent(out) :: error
     integer :: complete
+    integer(i8), allocatable :: d(:)
     hdr%path = path
     call check_schema(h5, path, SNAP_SCHEMA, SNAP_VERSIONS_READ, "snapshot database", hdr%version, error)
     if (allocated(error)) return
@@ -1227,7 +1292,9 @@ contains
     call h5%read("contacts/ob", hdr%dict_ob, error); if (allocated(error)) return
     call need_range(path, "contacts/ia", hdr%dict_ia, 1, hdr%n_agents, error); if (allocated(error)) return
     call need_range(path, "contacts/ib", hdr%dict_ib, 0, hdr%n_agents, error); if (allocated(error)) return
-    call need_range(path, "contacts/ob", hdr%dict_ob, 0, huge(1), error); if (allocated(error)) return
+    call h5%get_dims("scene/obstacle_kind", d, error); if (allocated(error)) return
+    call need_range(path, "contacts/ob", hdr%dict_ob, 0, int(product(d)), error); if (allocated(error)) return
+    call pairing(error); if (allocated(error)) return
     call check_digest(h5, "initial_positions", digest_of(hdr%q0, 0_i8), "'" // path // "'", error)
     if (allocated(error)) return
     call check_digest(h5, "contacts/ia", digest_of(hdr%dict_ia, 0_i8), "'" // path // "'", error)
@@ -1235,6 +1302,22 @@ contains
     call check_digest(h5, "contacts/ib", digest_of(hdr%dict_ib, 0_i8), "'" // path // "'", error)
     if (allocated(error)) return
     call check_digest(h5, "contacts/ob", digest_of(hdr%dict_ob, 0_i8), "'" // path // "'", error)
+
+  contains
+
+    !> Each contact of the dictionary is an agent pair (ib > 0, not ia, ob = 0) or an
+    !> agent-obstacle contact (ib = 0, ob > 0).
+    subroutine pairing(error)
+      type(error_t), allocatable, intent(out) :: error
+      integer :: k
+      do k = 1, hdr%n_dict
+        if (hdr%dict_ib(k) == hdr%dict_ia(k) .or. (hdr%dict_ob(k) > 0 .neqv. hdr%dict_ib(k) == 0)) then
+          call product_error(path, "contact " // str(k) // " of the dictionary (contacts/ia, ib, ob = " // &
+            str(hdr%dict_ia(k)) // ", " // str(hdr%dict_ib(k)) // ", " // str(hdr%dict_ob(k)) // ") is neither " // &
+            "an agent pair nor an agent-obstacle contact", error); return
+        end if
+      end do
+    end subroutine pairing
   end subroutine header_of
 
   !> Read samples k0..k0+nloc-1 of set `name` ('train' or 'valid') and validate them. With env
@@ -1254,6 +1337,9 @@ contains
     integer(i8), allocatable :: off(:), d(:)
     integer(i8) :: ns8, nt8, base, nnz_all
     integer :: nt, nd, c, n, flag(1)
+    !> the block table's columns of this block [34, nloc] (version 2)
+    integer, allocatable :: tab(:,:)
+    logical :: blocks
     nnz_all = 0
     path = hdr%path
     nt = hdr%n_steps; nd = hdr%n_dof
@@ -1261,6 +1347,14 @@ contains
     if (k0 < 1 .or. nloc < 0 .or. k0 - 1 + nloc > n) then
       call set_error(error, "'" // path // "': samples " // str(k0) // ".." // str(k0 + nloc - 1) // " of set " // &
         name // " requested, the set has " // str(n)); return
+    end if
+    ! version 1 has only whole-dataset checksums: a part of a set read serially cannot be verified
+    blocks = hdr%version >= 2 .and. n > 0
+    if (.not. blocks .and. .not. present(env) .and. n > 0 .and. (k0 /= 1 .or. nloc /= n)) then
+      call set_error(error, "'" // path // "': snapshot database schema version " // str(hdr%version) // &
+        " has no per-sample checksums: samples " // str(k0) // ".." // str(k0 + nloc - 1) // " of the " // &
+        str(n) // " of set " // name // " cannot be verified (read the whole set, or rerun crowd_snapshots " // &
+        "to write version " // str(SNAP_SCHEMA_VERSION) // ")", 2); return
     end if
     call h5%open(path, error, env=env)
     if (allocated(error)) return
@@ -1284,6 +1378,9 @@ contains
       call h5%get_dims(g // "lambda_index", d, error); if (allocated(error)) goto 9
       nnz_all = d(1)
       call need_dims(h5, path, g // "lambda_value", [nnz_all], "lambda_index", error); if (allocated(error)) goto 9
+    end if
+    if (blocks) then
+      call read_table(error); if (allocated(error)) goto 9
     end if
     ! collective reads (every rank makes the same calls, whatever its block holds) ...
     allocate(blk%mu(hdr%n_params, nloc), blk%q(nd, (nt + 1) * nloc), blk%u(nd, nt * nloc))
@@ -1331,6 +1428,7 @@ contains
       call need_range(path, g // "lambda_index", blk%lam_idx, 1, hdr%n_dict, error); if (allocated(error)) exit checks
       call need_finite(path, g // "lambda_value", blk%lam_val, error); if (allocated(error)) exit checks
     end if
+    if (blocks .and. nloc > 0) call verify_blocks(error)
     end block checks
     if (present(env)) then
       flag = merge(1, 0, allocated(error))
@@ -1343,8 +1441,11 @@ contains
       end if
     end if
     if (allocated(error)) goto 9
-    ! checksums: in parallel every rank's block is a part of the whole; serially only a whole set
-    if (present(env) .and. n > 0) then
+    ! version 1 checksums: in parallel every rank's block is a part of the whole; serially only a
+    ! whole set (version 2: each block against its samples' block digests, above)
+    if (blocks) then
+      continue
+    else if (present(env) .and. n > 0) then
       call verify(.true., error); if (allocated(error)) goto 9
     else if (k0 == 1 .and. nloc == n .and. n > 0) then
       call verify(.false., error); if (allocated(error)) goto 9
@@ -1358,6 +1459,49 @@ contains
     if (allocated(e2)) call move_alloc(e2, error)
 
   contains
+
+    !> The set's block table (whole: it is small, 34 integers per sample), checked against its
+    !> own checksum and shape; this block's columns kept in tab.
+    subroutine read_table(error)
+      type(error_t), allocatable, intent(out) :: error
+      integer, allocatable :: all(:,:)
+      call need_dims(h5, path, g // SAMPLE_CHECKSUMS, [34_i8, ns8], "34 x n_" // name, error)
+      if (allocated(error)) return
+      call h5%read(g // SAMPLE_CHECKSUMS, all, error); if (allocated(error)) return
+      call check_digest(h5, g // SAMPLE_CHECKSUMS, digest_of(all, 0_i8), "'" // path // "'", error)
+      if (allocated(error)) return
+      tab = all(:, k0:k0 + nloc - 1)
+    end subroutine read_table
+
+    !> Version 2: the digest of each dataset read against the sum of its samples' block digests
+    !> (no collective: every rank checks its own samples). DS order: 1 params, 2 positions,
+    !> 3 velocities, 4 desired, 5 lambda_offset, 6 lambda_index, 7 lambda_value.
+    subroutine verify_blocks(error)
+      type(error_t), allocatable, intent(out) :: error
+      character(len=:), allocatable :: w
+      type(digest_t) :: d
+      integer(i8) :: o
+      w = "'" // path // "'"
+      o = int(k0 - 1, i8)
+      call check_digest_blocks(tab, 1, g // "params", digest_of(blk%mu, o * hdr%n_params), w, error)
+      if (allocated(error)) return
+      call check_digest_blocks(tab, 2, g // "positions", digest_of(blk%q, o * (nt + 1) * nd), w, error)
+      if (allocated(error)) return
+      call check_digest_blocks(tab, 3, g // "velocities", digest_of(blk%u, o * nt * nd), w, error)
+      if (allocated(error)) return
+      if (desired) then
+        call check_digest_blocks(tab, 4, g // "desired", digest_of(blk%v, o * nt * nd), w, error)
+        if (allocated(error)) return
+      end if
+      if (.not. multipliers) return
+      ! a sample's offsets block: the ends of its steps (and the leading 0 for the first sample)
+      d = digest_of(off(2:), o * nt + 1)
+      if (k0 == 1) d = digest_add(d, digest_of(off(1:1), 0_i8))
+      call check_digest_blocks(tab, 5, g // "lambda_offset", d, w, error); if (allocated(error)) return
+      call check_digest_blocks(tab, 6, g // "lambda_index", digest_of(blk%lam_idx, base), w, error)
+      if (allocated(error)) return
+      call check_digest_blocks(tab, 7, g // "lambda_value", digest_of(blk%lam_val, base), w, error)
+    end subroutine verify_blocks
 
     !> Compare the checksums of the datasets read (parts: this rank's block is one part).
     subroutine verify(parts, error)

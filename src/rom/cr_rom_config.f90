@@ -24,7 +24,7 @@ module cr_rom_config
   implicit none
   private
   public :: check_rom_paths
-  public :: rom_cfg_t, read_rom, check_rom, rom_echo, MAX_SETTINGS, MAX_MU, EXACT_SOLVERS
+  public :: rom_cfg_t, read_rom, read_rom_groups, check_rom, rom_echo, MAX_SETTINGS, MAX_MU, EXACT_SOLVERS
 
   integer, parameter :: MAX_SETTINGS = 64, MAX_PATH = 512, MAX_MU = 1024
   !> the exact full-order solvers &fom_timing exact_solver = 'fastest' times
@@ -97,6 +97,16 @@ contains
     if (.not. t%has_group('rom')) then
       call set_error(error, t%path // ": namelist group &rom is missing", 2); return
     end if
+    call read_rom_groups(t, c, error)
+  end subroutine read_rom
+
+  !> Read whichever of crowd_rom's groups (&rom, &sweep, &reduced, &fom_timing) `t` holds (an
+  !> absent group keeps its defaults): the variables of each group present are checked, also
+  !> in a file read by another program.
+  subroutine read_rom_groups(t, c, error)
+    type(namelist_text_t), intent(in) :: t
+    type(rom_cfg_t), intent(inout) :: c
+    type(error_t), allocatable, intent(out) :: error
     call read_files(error); if (allocated(error)) return
     call read_sweep(error); if (allocated(error)) return
     call read_reduced(error); if (allocated(error)) return
@@ -179,7 +189,7 @@ contains
       c%fom_timing_samples = samples; c%fom_tol = tol; c%fom_uzawa_eps = uzawa_eps
       c%fom_uzawa_steps = uzawa_steps; c%fom_uzawa_rows = uzawa_rows; c%fom_exact_solver = exact_solver
     end subroutine read_timing
-  end subroutine read_rom
+  end subroutine read_rom_groups
 
   !> crowd_rom's outputs (&rom output and table, the --summary file) checked against its
   !> inputs (the namelist, the ROM file, the snapshot database `database`, which may come

@@ -93,6 +93,7 @@ contains
     type(logger_t), intent(inout) :: log
     type(error_t), allocatable, intent(out) :: error
     integer :: ks
+    type(sample_block_t) :: given
     call this%free()
     this%cfg = cfg
     this%input = input
@@ -118,8 +119,10 @@ contains
       call read_block_set(this%st, 'train', this%cfg%n_samples, this%blocks(1), error)
       if (.not. allocated(error)) call read_block_set(this%st, 'valid', this%cfg%n_samples, this%blocks(2), error)
     case ('given')
+      ! built in a local block: an intent(out) argument must not alias a part of `this`
+      call given_block(this, given, error)
       allocate(this%blocks(1))
-      call given_block(this, this%blocks(1), error)
+      if (.not. allocated(error)) this%blocks(1) = given
     case default
       call set_error(error, this%where // ": sets '" // trim(this%cfg%sets) // "' unknown", 2)
     end select

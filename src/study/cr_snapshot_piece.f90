@@ -30,6 +30,7 @@ module cr_snapshot_piece
   use cr_sampling, only: param_space_t
   use cr_h5file, only: h5file_t
   use cr_digest, only: digest_of, put_digest, check_digest, DIGEST_ALGORITHM
+  use cr_contact_set, only: contact_key
   use cr_snapshot_file, only: sample_result_t => snap_sample_t, SET_NAMES => SNAP_SET_NAMES, move_sample
   implicit none
   private
@@ -419,6 +420,8 @@ contains
         call set_error(error, w // ": lambda_offset counts " // str(m) // " multipliers, lambda_value holds " // &
           str(nnz)); exit ops
       end if
+      ! indices in range (a piece whose checksums were re-stamped over edited indices)
+      call check_indices(error); if (allocated(error)) exit ops
       ! values
       call need_finite(reshape(mu, [size(mu)]), "mu", error); if (allocated(error)) exit ops
       call need_finite(reshape(q, [size(q)]), "positions", error); if (allocated(error)) exit ops
@@ -460,6 +463,38 @@ contains
     end if
 
   contains
+
+    !> Contact indices of the multipliers: ia in 1..n_agents, ib in 0..n_agents (0: an obstacle
+    !> contact) and not ia, ob > 0 exactly when ib = 0, lambda_key the key of (ia, ib, ob);
+    !> solver counts and ranks >= 0.
+    subroutine check_indices(error)
+      type(error_t), allocatable, intent(out) :: error
+      character(len=:), allocatable :: bad
+      integer :: na
+      integer(i8) :: l
+      na = nd / 2
+      bad = ""
+      do l = 1, nnz
+        if (ia(l) < 1 .or. ia(l) > na) then
+          bad = "dataset 'lambda_ia': index " // str(ia(l)) // " outside 1.." // str(na)
+        else if (ib(l) < 0 .or. ib(l) > na .or. ib(l) == ia(l)) then
+          bad = "dataset 'lambda_ib': index " // str(ib(l)) // " outside 0.." // str(na) // " or equal to lambda_ia"
+        else if (ob(l) < 0 .or. (ob(l) > 0 .neqv. ib(l) == 0)) then
+          bad = "dataset 'lambda_ob': index " // str(ob(l)) // " negative, or not > 0 exactly where lambda_ib = 0"
+        else if (key(l) /= contact_key(ia(l), ib(l), ob(l))) then
+          bad = "dataset 'lambda_key': not the key of (lambda_ia, lambda_ib, lambda_ob)"
+        end if
+        if (len(bad) > 0) then
+          call set_error(error, w // ": " // bad // " at entry " // str(int(l))); return
+        end if
+      end do
+      if (any(rk < 0)) then
+        call set_error(error, w // ": dataset 'rank' holds a negative rank"); return
+      end if
+      if (any(iters < 0) .or. any(nact < 0)) then
+        call set_error(error, w // ": dataset 'iterations' or 'n_active' holds a negative count"); return
+      end if
+    end subroutine check_indices
 
     subroutine rr1(name, x, error)
       character(len=*), intent(in) :: name
