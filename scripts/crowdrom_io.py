@@ -262,9 +262,82 @@ def read_database_meta(f):
     return m
 
 
+#: datasets of a set in the order of the block table ``<set>/sample_checksums`` (schema 2): per
+#: sample, the two residues of the digest of its block of each (src/products/cr_snapshot_file.f90)
+SAMPLE_CHECKSUM_DATASETS = ("params", "positions", "velocities", "desired", "lambda_offset", "lambda_index",
+                            "lambda_value", "stats/kkt", "stats/min_gap", "stats/iterations", "stats/converged",
+                            "stats/n_active", "stats/time", "stats/rank", "stats/start", "scene_vertices",
+                            "scene_exit")
+
+
+def sample_block_table(f, s):
+    """The block table of set S of an open database [n_S, 34] (schema version 2; None for version
+    1), its own checksum verified by ``dataset``."""
+    if int(scalar(f.attrs["schema_version"])) < 2:
+        return None
+    t = dataset(f, f"{s}/sample_checksums")
+    n = params_count(f, s)
+    if t.shape != (n, 2 * len(SAMPLE_CHECKSUM_DATASETS)):
+        raise InputError(f"'{f.filename}': dataset '{s}/sample_checksums' has h5py shape {t.shape}, expected "
+                         f"({n}, {2 * len(SAMPLE_CHECKSUM_DATASETS)})")
+    return t
+
+
+def params_count(f, s):
+    d = f[f"{s}/params"] if f"{s}/params" in f else None
+    if d is None:
+        raise InputError(f"'{f.filename}': missing dataset '{s}/params'")
+    return d.shape[0] if d.ndim > 1 else d.size
+
+
+def verify_blocks(f, s, name, data, k0, k1, offset):
+    """Samples k0..k1-1 (0-based) of dataset ``<s>/<name>`` were read as ``data`` (h5py layout),
+    its first element at 0-based linear index ``offset``: compare its digest with the sum of those
+    samples' entries in the block table (InputError on a mismatch)."""
+    t = sample_block_table(f, s)
+    q = SAMPLE_CHECKSUM_DATASETS.index(name)
+    got = digest(data, offset)
+    part = t[k0:k1, 2 * q:2 * q + 2].astype(np.int64)
+    want = "%08x%08x" % tuple(int(x) % _M for x in part.sum(axis=0))
+    if got != want:
+        raise InputError(f"'{f.filename}': block checksum mismatch in dataset '{s}/{name}' (samples {k0 + 1}.."
+                         f"{k1}: stored {want}, data {got}): the file is corrupted")
+
+
+def read_database_samples(f, s, k0, k1, velocities=True):
+    """Samples k0..k1-1 (0-based) of set S of an open database, read alone and verified against
+    the block table as the Fortran reader does (a version 1 database has none: refused unless
+    the range is the whole set). Returns what ``read_database_set`` returns, for those samples."""
+    meta = read_database_meta(f)
+    nt, n_dof = meta["n_steps"], 2 * meta["n_agents"]
+    n = params_count(f, s)
+    if not (0 <= k0 < k1 <= n):
+        raise InputError(f"'{f.filename}': samples {k0 + 1}..{k1} of set '{s}' requested, the set has {n}")
+    if k0 == 0 and k1 == n:
+        return read_database_set(f, s, velocities)
+    if sample_block_table(f, s) is None:
+        raise InputError(f"'{f.filename}': snapshot database schema version 1 has no per-sample checksums: "
+                         f"samples {k0 + 1}..{k1} of the {n} of set {s} cannot be verified (read the whole set, "
+                         "or rerun crowd_snapshots)")
+    out = {}
+    for name, per, key in (("params", 1, "params"), ("positions", nt + 1, "positions"),
+                           ("velocities", nt, "velocities")):
+        if key == "velocities" and not velocities:
+            continue
+        d = f[f"{s}/{name}"]
+        width = d.shape[1] if d.ndim > 1 else 1
+        a = np.asarray(d[k0 * per:k1 * per])
+        verify_blocks(f, s, name, a, k0, k1, k0 * per * width)
+        need_finite(f.filename, f"{s}/{name}", a)
+        out[key] = a if key == "params" else _blocks(a, k1 - k0, per, n_dof, f.filename, f"{s}/{name}")
+    if out["params"].ndim == 1:
+        out["params"] = out["params"].reshape(-1, 1)
+    return out
+
+
 def read_database_set(f, s, velocities=True):
     """One set S of an open database: params [n_S, n_mu], positions [n_S, N_T+1, n_dof],
-    velocities [n_S, N_T, n_dof] (if asked)."""
+    velocities [n_S, N_T, n_dof] (if asked); every dataset against its checksum."""
     meta = read_database_meta(f)
     nt, n_dof = meta["n_steps"], 2 * meta["n_agents"]
     group(f, s)

@@ -98,4 +98,20 @@ case $prog in
     run_case fom_tol_inf fom_timing "tol = Inf" "&fom_timing: tol $fin"
     ;;
 esac
+# a lone '&' (a group without its name) in the file, whichever program reads it
+case_dir lone_ampersand; { make_input none ""; echo "&"; } > in.nml
+refused "lone '&' line" "in.nml: line [0-9]+: '&' without a group name" "$exe" in.nml
+case_dir lone_ampersand_first; { echo "  &  "; make_input none ""; } > in.nml
+refused "lone '&' first" "in.nml: line 1: '&' without a group name" "$exe" in.nml
+# crowd_rom's groups in a file another program reads are checked like every other group
+case $prog in
+  crowd_fom|crowd_snapshots|crowd_offline)
+    case_dir sweep_misspelt; { make_input none ""; echo "&sweep bogus = 1 /"; } > in.nml
+    refused "&sweep misspelt" "namelist group &sweep: .*bogus" "$exe" in.nml
+    case_dir sweep_text; { make_input none ""; echo "&sweep n = 'two' /"; } > in.nml
+    refused "&sweep text" "namelist group &sweep" "$exe" in.nml
+    case_dir reduced_misspelt; { make_input none ""; echo "&reduced solverr = 'dual' /"; } > in.nml
+    refused "&reduced misspelt" "namelist group &reduced: .*solverr" "$exe" in.nml
+    ;;
+esac
 finish

@@ -82,3 +82,13 @@ cr_refused(snapbench_args_block "argument 3 \\(block\\) must be a positive multi
   $<TARGET_FILE:crowd_snapbench> scratch.tmp 1 12)
 cr_refused(snapbench_existing_scratch "scratch file '.*CMakeLists.txt' exists already"
   $<TARGET_FILE:crowd_snapbench> ${CMAKE_CURRENT_SOURCE_DIR}/CMakeLists.txt 1)
+
+# crowd_project's request: files it cannot open (empty, truncated, random bytes, superblock
+# zeroed, text, folder, empty argument, namelist, missing, another product) and parameters that
+# give no valid scene, each refused with one line and exit 2 (needs h5py: the project venv)
+if(EXISTS ${CMAKE_SOURCE_DIR}/.venv/bin/python)
+  add_test(NAME project_requests
+    COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/project_requests.sh $<TARGET_FILE_DIR:crowd_project>
+      ${CMAKE_CURRENT_SOURCE_DIR}/inputs/snap_tiny.nml ${CMAKE_SOURCE_DIR}/.venv/bin/python)
+  set_tests_properties(project_requests PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}")
+endif()

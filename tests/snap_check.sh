@@ -141,8 +141,8 @@ for p in sorted(glob.glob('$P/*.h5')):
         if f['lambda_value'].size > 0:
             print(p); sys.exit(0)
 sys.exit(1)") || fail "no piece with multipliers to corrupt"
-  expect_refused() {  # expect_refused CASE REGEX: the run fails with status 2 and names the piece
-    out=$("$MPIRUN" -np 2 --oversubscribe "$bin" "$input" 2>&1); rc=$?
+  expect_refused() {  # expect_refused CASE REGEX [NP]: the run fails with status 2 and names the piece
+    out=$("$MPIRUN" -np "${3:-2}" --oversubscribe "$bin" "$input" 2>&1); rc=$?
     [ $rc -eq 2 ] || { echo "$out"; fail "$1: exit status $rc, expected 2"; }
     grep -qE "$2" <<<"$out" || { echo "$out"; fail "$1: message"; }
     grep -q "quarantine-bad-pieces" <<<"$out" || { echo "$out"; fail "$1: no hint at --quarantine-bad-pieces"; }
@@ -164,6 +164,18 @@ sys.exit(1)") || fail "no piece with multipliers to corrupt"
   expect_refused truncated "piece '$P/train_000003.h5'.*\\(unreadable or incomplete piece\\)"
   "$py" "$here/snap_corrupt.py" nan $P/train_000006.h5 velocities || fail "corrupt (nan)"
   expect_refused nan "piece '$P/train_000006.h5' \\(train sample 6\\): dataset 'velocities' holds a non-finite value"
+  # contact indices out of range (or inconsistent) with the checksums re-stamped: only the
+  # range checks can catch them, at 1 and 2 ranks
+  for np_ in 1 2; do
+    "$py" "$here/snap_corrupt.py" shift "$lam" lambda_ia 100 || fail "corrupt (shift ia)"
+    expect_refused shifted_ia_np$np_ "piece '$lam' \\(train sample [0-9]+\\): dataset 'lambda_ia': index [0-9]+ outside 1\\.\\.8" $np_
+    "$py" "$here/snap_corrupt.py" shift "$lam" lambda_ib 100 || fail "corrupt (shift ib)"
+    expect_refused shifted_ib_np$np_ "piece '$lam' .*dataset 'lambda_ib': index [0-9]+ outside 0\\.\\.8" $np_
+    "$py" "$here/snap_corrupt.py" shift "$lam" lambda_ob -1000 || fail "corrupt (shift ob)"
+    expect_refused shifted_ob_np$np_ "piece '$lam' .*dataset 'lambda_ob': index -[0-9]+ negative" $np_
+    "$py" "$here/snap_corrupt.py" shift "$lam" lambda_key 1 || fail "corrupt (shift key)"
+    expect_refused shifted_key_np$np_ "piece '$lam' .*dataset 'lambda_key': not the key of" $np_
+  done
   # several bad pieces at once, all named; --quarantine-bad-pieces moves them aside and the run
   # recomputes them: the database equals the uninterrupted one
   "$py" "$here/snap_corrupt.py" nan $P/train_000006.h5 velocities || fail "corrupt (nan)"

@@ -4,6 +4,8 @@
     snap_corrupt.py scale PIECE DATASET   DATASET *= 1.001 (checksum left as it was)
     snap_corrupt.py nan   PIECE DATASET   one element NaN, checksum recomputed (so only the
                                           finiteness check can catch it)
+    snap_corrupt.py shift PIECE DATASET K every element of an integer DATASET plus K, checksum
+                                          recomputed (so only the range checks can catch it)
 The dataset must hold data (an empty one makes this script fail, never a silent no-op).
 """
 import os
@@ -18,6 +20,15 @@ import crowdrom_io  # noqa: E402
 
 def main():
     mode, path, name = sys.argv[1:4]
+    if mode == "shift":
+        with h5py.File(path, "r+") as f:
+            d = f[name]
+            if d.size == 0 or d.dtype.kind not in "iu":
+                sys.exit(f"snap_corrupt: '{name}' in '{path}' is empty or not integer")
+            a = d[...] + int(sys.argv[4])
+            d[...] = a
+            d.attrs["checksum"] = np.bytes_(crowdrom_io.digest(d[...]))
+        return
     if mode == "bytes":
         with h5py.File(path, "r") as f:
             d = f[name]

@@ -23,7 +23,7 @@ program test_products
   use cr_fom_file, only: fom_writer_t, fom_file_t, read_fom_file
   use cr_snapshot_file, only: SNAP_SCHEMA, SNAP_SCHEMA_VERSION, snap_header_t, snap_block_t, read_snap_header, &
     read_snap_block, snap_sample_t, move_sample
-  use cr_digest, only: digest_of, put_digest
+  use cr_digest, only: digest_t, digest_of, digest_add, digest_pack, put_digest
   use cr_rom_file, only: rom_file_t, rom_pair_t, write_rom_file, read_rom_file, read_rom_pair
   use cr_hyper_factory, only: stored_hypers
   use cr_hyper_eim, only: hyper_eim_t
@@ -243,20 +243,25 @@ contains
     end do
   end function make_block
 
-  !> Write the synthetic database (3 train, 2 valid samples; every dataset with its checksum) on
-  !> the ranks of `e` (the file is opened in parallel; rank 0 writes the data).
-  subroutine write_db(e, path)
+  !> Write the synthetic database (3 train, 2 valid samples; every dataset with its checksum and,
+  !> from schema version 2 on, each set's per-sample block table) on the ranks of `e` (the file is
+  !> opened in parallel; rank 0 writes the data). `version`: schema version (default the current).
+  subroutine write_db(e, path, version)
     type(env_t), intent(in) :: e
     character(len=*), intent(in) :: path
+    integer, intent(in), optional :: version
     type(h5file_t) :: h5
     type(snap_block_t) :: b
     real(wp), allocatable :: q0(:)
-    integer :: set, n
+    integer :: set, n, v
     character(len=:), allocatable :: g
+    integer, allocatable :: tab(:,:)
+    v = SNAP_SCHEMA_VERSION
+    if (present(version)) v = version
     q0 = [(0.1_wp * n, n = 1, 2 * NA)]
     call h5%create(path, error, env=e); call check(.not. allocated(error), "db: create")
     call h5%write_attr("/", "schema", SNAP_SCHEMA, error)
-    call h5%write_attr("/", "schema_version", SNAP_SCHEMA_VERSION, error)
+    call h5%write_attr("/", "schema_version", v, error)
     call h5%write_attr("/", "config", "&time n_steps = 2 /", error)
     call h5%write_attr("/", "config_hash", "0123456789abcdef", error)
     call h5%write_attr("/", "param_names", "l_exit,speed", error)
@@ -270,6 +275,8 @@ contains
     call h5%write_attr("/", "complete", 1, error)
     call h5%write("initial_positions", q0, error)
     call put_digest(h5, "initial_positions", digest_of(q0, 0_i8), error)
+    call h5%make_group("scene", error)
+    call h5%write("scene/obstacle_kind", [1, 1], error)
     call h5%make_group("contacts", error)
     call h5%write("contacts/ia", DICT_IA, error)
     call put_digest(h5, "contacts/ia", digest_of(DICT_IA, 0_i8), error)
@@ -297,10 +304,43 @@ contains
       call put_digest(h5, g // "lambda_index", digest_of(b%lam_idx, 0_i8), error)
       call h5%write(g // "lambda_value", b%lam_val, error)
       call put_digest(h5, g // "lambda_value", digest_of(b%lam_val, 0_i8), error)
+      if (v >= 2) then
+        tab = block_table(b)
+        call h5%write(g // "sample_checksums", tab, error)
+        call put_digest(h5, g // "sample_checksums", digest_of(tab, 0_i8), error)
+      end if
       call check(.not. allocated(error), "db: set " // str(set))
     end do
     call h5%commit(error); call check(.not. allocated(error), "db: commit")
   end subroutine write_db
+
+  !> The block table of a whole set [34, n] as crowd_snapshots writes it: per sample, the digests of
+  !> its blocks of the 17 datasets (params, positions, velocities, desired, lambda_offset,
+  !> lambda_index, lambda_value, then stats and scenes, not in this file: 0).
+  function block_table(b) result(tab)
+    type(snap_block_t), intent(in) :: b
+    integer, allocatable :: tab(:,:)
+    type(digest_t) :: d(17)
+    integer(i8) :: k1, lo, hi
+    integer :: k, q
+    allocate(tab(34, b%n))
+    do k = 1, b%n
+      k1 = k - 1
+      d = digest_t()
+      d(1) = digest_of(b%mu(:, k), k1 * NE)
+      d(2) = digest_of(b%q(:, k1 * (NT + 1) + 1:k * (NT + 1)), k1 * (NT + 1) * 2 * NA)
+      d(3) = digest_of(b%u(:, k1 * NT + 1:k * NT), k1 * NT * 2 * NA)
+      d(4) = digest_of(b%v(:, k1 * NT + 1:k * NT), k1 * NT * 2 * NA)
+      d(5) = digest_of(b%lam_ptr(k1 * NT + 2:k * NT + 1), k1 * NT + 1)
+      if (k == 1) d(5) = digest_add(d(5), digest_of(b%lam_ptr(1:1), 0_i8))
+      lo = b%lam_ptr(k1 * NT + 1); hi = b%lam_ptr(k * NT + 1)
+      d(6) = digest_of(b%lam_idx(lo + 1:hi), lo)
+      d(7) = digest_of(b%lam_val(lo + 1:hi), lo)
+      do q = 1, 17
+        tab(2 * q - 1:2 * q, k) = digest_pack(d(q))
+      end do
+    end do
+  end function block_table
 
   !> Read the whole database (header, both sets with desired velocities and multipliers).
   subroutine read_db(path, error)
@@ -400,11 +440,66 @@ contains
     call db_attr_case("n_valid", 1, "valid/params")
     call db_attr_case("n_params", NE + 1, "train/params")
     ! versions and completeness
-    call db_attr_case("schema_version", 0, "schema version 0 is not supported (supported: 1)")
-    call db_attr_case("schema_version", 2, "schema version 2 is not supported (supported: 1)")
+    call db_attr_case("schema_version", 0, "schema version 0 is not supported (supported: 1, 2)")
+    call db_attr_case("schema_version", 3, "schema version 3 is not supported (supported: 1, 2)")
     call db_attr_case("complete", 0, "not complete")
+    ! contacts that are neither an agent pair nor an agent-obstacle contact, an obstacle beyond
+    ! the scene's
+    call db_int_case("contacts/ob", 1, 1)
+    call db_int_case("contacts/ib", 3, 2)
+    call db_int_case("contacts/ob", 4, 3)
+    call partial_reads()
     k = remove_file(path)
   end subroutine snapshot_corrupt
+
+  !> A serial read of some samples verifies them against the block table: edits inside them
+  !> refused (the whole-dataset checksum cannot tell), an edit outside them not read; a version 1
+  !> file (no table) refused for such a read, accepted whole; the table edited refused.
+  subroutine partial_reads()
+    character(len=*), parameter :: path = "products_db_part.h5"
+    type(snap_header_t) :: hdr
+    type(snap_block_t) :: b
+    integer :: k
+    call write_db(self, path)
+    call read_part(path, hdr, b, 2, 2)
+    call check(.not. allocated(error), "db part: samples 2..3 of a clean file read")
+    if (.not. allocated(error)) call compare_block(b, make_block(1, 3, 2, 2), "db part: samples 2..3")
+    ! one position of train sample 1 scaled (the stale checksum is not read by this reader)
+    call poke_real(path, "train/positions", 3, 1.001_wp * sval(1, 1, 3, 1, 1))
+    call read_part(path, hdr, b, 1, 1)
+    call expect_refusal(error, path, "block checksum mismatch in dataset 'train/positions'", "db part: positions")
+    call read_part(path, hdr, b, 2, 2)
+    call check(.not. allocated(error), "db part: samples 2..3 unaffected by an edit in sample 1")
+    call write_db(self, path)
+    call poke_real(path, "train/velocities", 2 * NA * NT + 1, 7.0_wp)
+    call read_part(path, hdr, b, 2, 1)
+    call expect_refusal(error, path, "block checksum mismatch in dataset 'train/velocities'", "db part: velocities")
+    call write_db(self, path)
+    call poke_real(path, "train/lambda_value", 1, 0.5_wp)
+    call read_part(path, hdr, b, 1, 2)
+    call expect_refusal(error, path, "block checksum mismatch in dataset 'train/lambda_value'", "db part: multipliers")
+    call write_db(self, path)
+    call poke_int(path, "train/sample_checksums", 4, 12345)
+    call read_part(path, hdr, b, 2, 1)
+    call expect_refusal(error, path, "checksum mismatch in dataset 'train/sample_checksums'", "db part: table edited")
+    call write_db(self, path, version=1)
+    call read_part(path, hdr, b, 1, 2)
+    call expect_refusal(error, path, "schema version 1 has no per-sample checksums", "db part: version 1")
+    call read_part(path, hdr, b, 1, 3)
+    call check(.not. allocated(error), "db part: a whole set of a version 1 file read")
+    k = remove_file(path)
+  end subroutine partial_reads
+
+  !> Samples k0..k0+nloc-1 of the training set, read serially.
+  subroutine read_part(path, hdr, b, k0, nloc)
+    character(len=*), intent(in) :: path
+    type(snap_header_t), intent(out) :: hdr
+    type(snap_block_t), intent(out) :: b
+    integer, intent(in) :: k0, nloc
+    call read_snap_header(path, "test", hdr, error)
+    if (allocated(error)) return
+    call read_snap_block(hdr, 'train', k0, nloc, .true., .true., b, error)
+  end subroutine read_part
 
   subroutine db_int_case(name, at, x)
     character(len=*), intent(in) :: name

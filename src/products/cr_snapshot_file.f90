@@ -1312,7 +1312,7 @@ contains
       integer :: k
       do k = 1, hdr%n_dict
         if (hdr%dict_ib(k) == hdr%dict_ia(k) .or. (hdr%dict_ob(k) > 0 .neqv. hdr%dict_ib(k) == 0)) then
-          call product_error(path, "contact " // str(k) // " of the dictionary (contacts/ia, ib, ob = " // &
+          call product_error(path, "datasets 'contacts/ib' and 'contacts/ob': contact " // str(k) // " (ia, ib, ob = " // &
             str(hdr%dict_ia(k)) // ", " // str(hdr%dict_ib(k)) // ", " // str(hdr%dict_ob(k)) // ") is neither " // &
             "an agent pair nor an agent-obstacle contact", error); return
         end if
