@@ -579,8 +579,8 @@ def romrun_set(f, k, s, n_steps, n_dof):
 # ------------------------------------------------------------------------------ CSV tables
 
 #: columns of the tables holding text (every other column holds numbers)
-CSV_TEXT_COLUMNS = {"set", "hyper", "contacts", "solver", "correction", "exact_solver", "regressor", "label",
-                    "kind", "mode"}
+CSV_TEXT_COLUMNS = {"set", "hyper", "contacts", "solver", "correction", "exact_solver", "fom_exact_solver",
+                    "regressor", "label", "kind", "mode"}
 #: columns holding wall times (s): >= 0, or -1 for "not measured"
 CSV_TIME_COLUMNS = {"t_step_rom", "t_step_fom_exact", "t_step_fom_uzawa", "t_query_rom", "t_query_fom_exact",
                     "t_correct", "t_step", "t_query", "t_project_step", "t_project_query", "t_ml_step"}
@@ -598,7 +598,8 @@ def read_csv_table(path, needed, what, positive_times=()):
     """(header, rows) of a CSV table written by crowd_rom (the sweep table) or ml_correct.py (the
     ML table), checked: every column of ``needed`` in the header, every row as long as the header,
     no empty cell in a needed column, a finite number in every numeric column (all but
-    CSV_TEXT_COLUMNS), times >= 0 or -1 (unknown), and > 0 for ``positive_times``. Rows are dicts
+    CSV_TEXT_COLUMNS; a column neither needed nor known may hold text), times >= 0 or -1
+    (unknown), and > 0 for ``positive_times``. Rows are dicts
     of converted values. InputError naming the file, the line and the column otherwise."""
     import csv
 
@@ -638,7 +639,11 @@ def read_csv_table(path, needed, what, positive_times=()):
             try:
                 x = csv_number(v)
             except ValueError:
-                raise InputError(f"'{path}' line {i}: column '{c}' holds '{v}', not a number") from None
+                # a column this reader does not know may hold text (a solver's name, say)
+                if c in needed or c in CSV_TIME_COLUMNS:
+                    raise InputError(f"'{path}' line {i}: column '{c}' holds '{v}', not a number") from None
+                r[c] = v
+                continue
             if not math.isfinite(x):
                 raise InputError(f"'{path}' line {i}: column '{c}' holds {v} (not a finite number)")
             if c in CSV_TIME_COLUMNS and x < 0 and x != -1:
@@ -923,8 +928,9 @@ class OutputSet:
 class OutputDir:
     """A folder of outputs written together or not at all. Files are written into a temporary
     folder next to the target (``<parent>/.<name>.partial-<pid>``, see ``path``); ``commit()``
-    puts it in place of the target in one step (an atomic exchange, renameat2 RENAME_EXCHANGE, on
-    Linux; two renames elsewhere) and removes the previous set. Leaving the ``with`` block by an
+    puts it in place of the target in one step when the target holds nothing else (a rename, or
+    an atomic exchange with the previous set, renameat2 RENAME_EXCHANGE, on Linux; the previous
+    set then removed), else renames its files into the target one by one (other files stay). Leaving the ``with`` block by an
     exception, or SIGTERM / SIGINT meanwhile, removes the temporary: the previous set stays as it
     was. A SIGKILL leaves the previous set too, and the temporary, which the next run removes
     (its process is gone). Refused before anything is written: a target that is a file, a parent
@@ -970,17 +976,20 @@ class OutputDir:
         return self
 
     def commit(self):
+        """Put the new set in place: the temporary folder renamed to the target when there is
+        none; exchanged with it atomically when it holds only files of this set (an earlier run's
+        outputs); else (the target holds other files, which stay) each file renamed into it."""
         import shutil
 
-        if os.path.isdir(self.target):
-            if not _exchange(self.tmp, self.target):
-                old = self.tmp + ".old"
-                os.rename(self.target, old)
-                os.rename(self.tmp, self.target)
-                os.rename(old, self.tmp)
+        new = set(os.listdir(self.tmp))
+        if not os.path.isdir(self.target):
+            os.rename(self.tmp, self.target)
+        elif set(os.listdir(self.target)) <= new and _exchange(self.tmp, self.target):
             shutil.rmtree(self.tmp, ignore_errors=True)
         else:
-            os.rename(self.tmp, self.target)
+            for name in sorted(new):
+                os.replace(os.path.join(self.tmp, name), os.path.join(self.target, name))
+            os.rmdir(self.tmp)
         self.tmp = None
 
     def __exit__(self, kind, value, tb):

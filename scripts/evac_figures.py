@@ -345,7 +345,7 @@ def table_lines(rows, ml, fom=None, n_agents=0, h=0.0):
     for r in rows:
         if r["set"] != "valid":
             continue
-        out.append("| " + " | ".join([
+        out.append("| " + " | ".join(str(x) for x in [
             r["n"], r["r"], r["n_basis"], r["hyper"], mode(r),
             _f(r["E_avg"]) + ("*" if int(r["samples_diverged"]) > 0 else ""), _f(r["E_disp"]),
             t(r, "t50"), t(r, "t90"),

@@ -30,7 +30,7 @@ if(EXISTS ${CR_VENV_PY})
   # groups by running time (measured, README "Tests"): the error paths of the scripts alone,
   # the rest in four groups, so that ctest -j2 runs about half of the total on each core; the
   # groups start 2-rank runs only for seconds (oversubscribed), hence PROCESSORS 1
-  cr_pytest(pytest_script_errors TIMEOUT 600 FILES test_script_errors.py)
+  cr_pytest(pytest_script_errors TIMEOUT 600 FILES test_script_errors.py test_hostile_inputs.py)
   cr_pytest(pytest_figures TIMEOUT 300 FILES test_figures.py test_plot_scene.py test_study_table.py test_io.py
     test_deim_desired.py test_layout.py)
   cr_pytest(pytest_rom TIMEOUT 300 FILES test_rom.py test_rom_measures.py)
