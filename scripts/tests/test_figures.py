@@ -82,7 +82,7 @@ def test_only_rom_skips_the_rest(study, tmp_path):
 def test_romrun_without_ml_and_csv(study, tmp_path):
     out = tmp_path / "noml"
     ctx = {"romrun": study["romrun"], "database": study["db"], "settings": [2, 3], "sample": 2,
-           "agents": [1, 6], "steps": [0, 5, 99]}
+           "agents": [1, 6], "steps": [0, 5, 10]}
     written, skipped = make_figures.make_all(ctx, str(out), log=lambda m: None, dpi=70)
     names = {os.path.basename(p)[:-4] for p in written}
     assert {"error_in_time", "tradeoff", "trajectories", "positions"} <= names
