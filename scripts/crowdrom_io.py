@@ -38,8 +38,9 @@ PROJ_SCHEMA = "crowdrom-projected"
 SCHEMA_VERSIONS = {FOM_SCHEMA: (1,), DB_SCHEMA: (1, 2), ROM_SCHEMA: (1, 2), ROMRUN_SCHEMA: (1,),
                    ML_SCHEMA: (1, 2), PROJ_SCHEMA: (2,)}
 #: products whose every dataset carries a ``checksum`` attribute (from the given schema version
-#: on): ``dataset`` refuses one without it, and verifies it wherever it is present
-CHECKSUMMED = {DB_SCHEMA: 1, ML_SCHEMA: 2}
+#: on; but those under the listed groups, e.g. the database's reference scene written by the
+#: full-order writer): ``dataset`` refuses one without it, and verifies it wherever it is present
+CHECKSUMMED = {DB_SCHEMA: (1, ("/scene/",)), ML_SCHEMA: (2, ())}
 #: version of the ML output this package writes (2: every dataset with its checksum)
 ML_VERSION = 2
 
@@ -165,7 +166,7 @@ def dataset(f, name, finite=False):
         raise InputError(f"'{path}': dataset '{obj.name}' cannot be read ({' '.join(str(exc).split())})") from None
     if "checksum" in obj.attrs:
         _verify(path, obj.name, data, obj.attrs["checksum"])
-    elif _needs_checksums(f.file):
+    elif _needs_checksums(f.file, obj.name):
         raise InputError(f"'{path}': dataset '{obj.name}' has no checksum attribute (written by an older "
                          "crowdrom, or damaged)")
     if finite:
@@ -173,16 +174,19 @@ def dataset(f, name, finite=False):
     return data
 
 
-def _needs_checksums(f):
-    """Does the open file's schema (and version) promise a checksum on every dataset?"""
+def _needs_checksums(f, name):
+    """Does the open file's schema (and version) promise a checksum on dataset ``name``?"""
     schema = text(f.attrs["schema"]) if "schema" in f.attrs else None
     if schema not in CHECKSUMMED:
+        return False
+    since, exempt = CHECKSUMMED[schema]
+    if any(name.startswith(g) for g in exempt):
         return False
     try:
         v = int(scalar(f.attrs["schema_version"]))
     except (KeyError, TypeError, ValueError):
         return True
-    return v >= CHECKSUMMED[schema]
+    return v >= since
 
 
 def _verify(path, name, data, stored):

@@ -21,7 +21,7 @@ def test_snapshot_database(tmp_path):
     assert summary["samples_total"] == 9 and summary["samples_computed"] == 9
     with h5py.File(tmp_path / "snap_tiny.h5", "r") as f:
         a = f.attrs
-        assert a["schema"].decode() == "crowdrom-snapshots" and a["schema_version"] == 1
+        assert a["schema"].decode() == "crowdrom-snapshots" and a["schema_version"] == 2
         assert a["complete"] == 1
         na, ns = int(a["n_agents"]), int(a["n_steps"])
         assert (na, ns) == (8, 10)

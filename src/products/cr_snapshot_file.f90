@@ -1341,11 +1341,11 @@ contains
     type(error_t), allocatable, intent(out) :: error
     type(env_t), intent(in), optional :: env
     type(h5file_t) :: h5
-    type(error_t), allocatable :: e2, e3
+    type(error_t), allocatable :: e2
     character(len=:), allocatable :: path, g, bad
     integer(i8), allocatable :: off(:), d(:)
     integer(i8) :: ns8, nt8, base, nnz_all
-    integer :: nt, nd, c, n, flag(1)
+    integer :: nt, nd, c, n
     !> the block table's columns of this block [34, nloc] (version 2)
     integer, allocatable :: tab(:,:)
     logical :: blocks
@@ -1439,16 +1439,9 @@ contains
     end if
     if (blocks .and. nloc > 0) call verify_blocks(error)
     end block checks
-    if (present(env)) then
-      flag = merge(1, 0, allocated(error))
-      call env%allreduce(flag, 'max', e3)
-      if (allocated(e3)) then
-        if (allocated(error)) deallocate(error)
-        call move_alloc(e3, error)
-      else if (flag(1) > 0 .and. .not. allocated(error)) then
-        call set_error(error, "'" // path // "': another rank found a corrupt block of set " // name, 2)
-      end if
-    end if
+    ! every rank returns the lowest failing rank's message (the block checksums are checked by
+    ! each rank on its own samples)
+    if (present(env)) call env%agree_error(error)
     if (allocated(error)) goto 9
     ! version 1 checksums: in parallel every rank's block is a part of the whole; serially only a
     ! whole set (version 2: each block against its samples' block digests, above)
