@@ -115,7 +115,7 @@ def _cone_groups(f):
 def fig_cone_max(ctx, out, dpi):
     _need(ctx, "rom")
     with cio.open_h5(ctx["rom"], cio.ROM_SCHEMA, "ROM file") as f:
-        cones = {m: np.asarray(g["err_max"][()]).ravel() for m, g in _cone_groups(f).items()}
+        cones = {m: cio.dataset(g, "err_max").ravel() for m, g in _cone_groups(f).items()}
     if not cones:
         raise Skip("the ROM file has no cone group")
     plt = _plt()
@@ -166,8 +166,8 @@ def fig_cone_vs_pod(ctx, out, dpi):
         cones = _cone_groups(f)
         if "gis" not in cones:
             raise Skip("the ROM file has no gIS cone")
-        e_mean = np.asarray(cones["gis"]["err_mean"][()]).ravel()
-        e_max = np.asarray(cones["gis"]["err_max"][()]).ravel()
+        e_mean = cio.dataset(cones["gis"], "err_mean").ravel()
+        e_max = cio.dataset(cones["gis"], "err_max").ravel()
     with cio.open_h5(ctx["database"], cio.DB_SCHEMA, "database") as f:
         lam = cio.multipliers_csr(f, "train")
     r_max = max(e_mean.size - 1, 1)
@@ -193,9 +193,9 @@ def fig_infsup(ctx, out, dpi):
         if "infsup" not in f or "n" not in f["infsup"]:
             raise Skip("the ROM file has no inf-sup table")
         g = f["infsup"]
-        n = np.asarray(g["n"][()]).ravel()
-        r = np.asarray(g["r"][()]).ravel()
-        tabs = [(np.asarray(g[k][()]).ravel(), t) for k, t in
+        n = cio.dataset(g, "n").ravel()
+        r = cio.dataset(g, "r").ravel()
+        tabs = [(cio.dataset(g, k).ravel(), t) for k, t in
                 (("gamma_up_min", "without PGA"), ("gamma_up_min_pga", "with PGA supremizers"))
                 if k in g]
     ns, rs = np.unique(n), np.unique(r)
@@ -234,10 +234,10 @@ def fig_pga(ctx, out, dpi):
     with cio.open_h5(ctx["rom"], cio.ROM_SCHEMA, "ROM file") as f:
         curves = []
         if "pga/err" in f:
-            curves.append(("offline basis (all POD modes, all cone vectors)", np.asarray(f["pga/err"][()]).ravel()))
+            curves.append(("offline basis (all POD modes, all cone vectors)", cio.dataset(f, "pga/err").ravel()))
         for k, n, r, g in _pairs(f):
             if "pga_err" in g:
-                curves.append((f"pair {k}: (N, R) = ({n}, {r})", np.asarray(g["pga_err"][()]).ravel()))
+                curves.append((f"pair {k}: (N, R) = ({n}, {r})", cio.dataset(g, "pga_err").ravel()))
     if not curves:
         raise Skip("the ROM file has no PGA history")
     plt = _plt()
@@ -265,7 +265,7 @@ def fig_eim(ctx, out, dpi):
         if not sel:
             raise InputError(f"'{ctx['rom']}': no pair {want} (pairs {[p[0] for p in pairs]})")
         k, n, r, g = sel[0]
-        sig = {s: np.asarray(g[f"eim/{s}/sigma"][()]).ravel() for s in ("s1", "s2", "s3")
+        sig = {s: cio.dataset(g, f"eim/{s}/sigma").ravel() for s in ("s1", "s2", "s3")
                if f"eim/{s}/sigma" in g}
     if not sig:
         raise Skip(f"pair {k} has no EIM data")
@@ -288,7 +288,7 @@ def fig_eq(ctx, out, dpi):
     _need(ctx, "rom")
     with cio.open_h5(ctx["rom"], cio.ROM_SCHEMA, "ROM file") as f:
         pairs = _pairs(f)
-        data = [(k, n, r, {s: np.asarray(g[f"eq/{s}/err"][()]).ravel() for s in ("s1", "s2", "s3")
+        data = [(k, n, r, {s: cio.dataset(g, f"eq/{s}/err").ravel() for s in ("s1", "s2", "s3")
                            if f"eq/{s}/err" in g}) for k, n, r, g in pairs]
     data = [d for d in data if d[3]]
     if not data:

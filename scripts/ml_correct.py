@@ -671,9 +671,9 @@ def query_costs(st):
             t_fom = float(cio.scalar(f["fom_timing"].attrs["t_query_exact"]))
         if "table" in f and all(k in f["table"] for k in ("setting", "t_step_rom", "t_query_rom")):
             g = f["table"]
-            k = np.asarray(g["setting"][()]).ravel()
-            ts = np.asarray(g["t_step_rom"][()]).ravel()
-            tq = np.asarray(g["t_query_rom"][()]).ravel()
+            k = cio.dataset(g, "setting").ravel()
+            ts = cio.dataset(g, "t_step_rom").ravel()
+            tq = cio.dataset(g, "t_query_rom").ravel()
             rows = np.flatnonzero(k == st.setting["index"])
             match = [i for i in rows if abs(ts[i] - st.setting["t_step"]) <= 1e-12 * max(ts[i], 1e-300)]
             if match:

@@ -91,8 +91,8 @@ def read_ml_points(paths):
                 if reg not in f:
                     continue
                 g = f[reg]
-                i = int(np.argmin(g["E_avg"][()]))
-                n_vals = f["n_values"][()]
+                i = int(np.argmin(cio.dataset(g, "E_avg")))
+                n_vals = cio.dataset(f, "n_values")
                 pts.append({"label": f"ML {reg} ({int(cio.scalar(a['pair_n']))},{int(cio.scalar(a['pair_r']))}) "
                                      f"n={int(n_vals[i])}",
                             "E_avg": float(g["E_avg"][i]), "t_step": float(g["t_step"][i]),
