@@ -811,33 +811,48 @@ def resolve_path(path, relative_to):
 _M = 2147483647  # 2^31 - 1
 
 
-def _fold(x):
-    """x mod 2^31-1 for 0 <= x < 2^63 (int64 arrays), as cr_digest's fold."""
-    y = (x & _M) + (x >> 31)
-    y = (y & _M) + (y >> 31)
-    return np.where(y >= _M, y - _M, y)
+def _fold(y, t):
+    """y mod 2^31-1 in place for 0 <= y < 2^63 (int64 arrays; t a scratch array of the same
+    size), as cr_digest's fold: two folds of the high bits, one subtraction."""
+    np.right_shift(y, 31, out=t)
+    np.bitwise_and(y, _M, out=y)
+    y += t
+    np.right_shift(y, 31, out=t)
+    np.bitwise_and(y, _M, out=y)
+    y += t
+    y -= _M * (y >= _M)
+    return y
 
 
-def digest(arr, offset=0):
+_LANES = ((1103515245, 69069, 1664525, 12345, 977), (214013, 1812433253, 22695477, 2531011, 1013))
+
+
+def digest(arr, offset=0, chunk=1 << 16):
     """Checksum of a dataset as crowdrom writes it (attribute ``checksum``, 16 hex digits; the
     algorithm of src/io/cr_digest.f90): two sums over the elements, in file order, of a mix of
-    the element's 64 bits (integers sign-extended to 64 bits) and its 0-based linear index,
-    modulo 2^31 - 1. ``arr`` is the array as h5py reads it (C order = Fortran linear order)."""
+    the element's 64 bits (integers sign-extended to 64 bits) and its 0-based linear index
+    (the first element's is ``offset``), modulo 2^31 - 1. ``arr`` is the array as h5py reads it
+    (C order = Fortran linear order). Computed in chunks of ``chunk`` elements (in cache); every
+    intermediate stays below 2^63."""
     a = np.ascontiguousarray(arr)
-    if a.dtype.kind == "f":
-        w = a.astype("<f8").reshape(-1).view("<u8")
-    else:
-        w = a.astype("<i8").reshape(-1).view("<u8")
-    lo = (w & np.uint64(0xFFFFFFFF)).astype(np.int64)
-    hi = (w >> np.uint64(32)).astype(np.int64)
-    g = _fold(np.arange(offset, offset + w.size, dtype=np.int64))
-    out = []
-    for a1, a2, a3, a4, a5 in ((1103515245, 69069, 1664525, 12345, 977),
-                               (214013, 1812433253, 22695477, 2531011, 1013)):
-        x = _fold(_fold(lo * a1) + _fold(hi * a2) + _fold(g * a3) + a4)
-        x = _fold(x * (x + a5))
-        out.append(int(x.sum() % _M) if x.size else 0)
-    return "%08x%08x" % tuple(out)
+    w = (a.astype("<f8") if a.dtype.kind == "f" else a.astype("<i8")).reshape(-1).view("<u8")
+    s = [0, 0]
+    for i0 in range(0, w.size, chunk):
+        ww = w[i0:i0 + chunk]
+        lo = (ww & np.uint64(0xFFFFFFFF)).view(np.int64)
+        hi = (ww >> np.uint64(32)).view(np.int64)
+        t = np.empty(ww.size, np.int64)
+        g = _fold(np.arange(offset + i0, offset + i0 + ww.size, dtype=np.int64), t)
+        for lane, (a1, a2, a3, a4, a5) in enumerate(_LANES):
+            x = _fold(lo * a1, t)
+            x += _fold(hi * a2, t)
+            x += _fold(g * a3, t)
+            x += a4
+            _fold(x, t)
+            x *= x + a5
+            _fold(x, t)
+            s[lane] = (s[lane] + int(x.sum()) % _M) % _M
+    return "%08x%08x" % tuple(s)
 
 
 def verify_checksum(f, name):
