@@ -25,7 +25,14 @@ and per-query speedups against the exact full model, E_avg, E_disp, t50 / t90 er
 overlaps, agents not out, mobility, diverged samples; ML rows from --ml (the corrected positions,
 and the same after the exact position projection when --ml has them).
 
-Exit codes: 0 success, 2 an input is missing, unreadable or of the wrong schema.
+Every argument is checked before any input is read, and against the inputs before anything is
+drawn; the inputs are read through crowdrom_io (checksums, finiteness, shapes against the
+attributes, the sweep table's cells). The four outputs are written together or not at all: into
+a temporary folder next to --outdir, put in place at the end (crowdrom_io.OutputDir), so an
+earlier set survives any failure, SIGTERM or SIGKILL.
+
+Exit codes: 0 success, 2 bad input or arguments (one 'evac_figures: error:' line), 1 any other
+failure or an interrupt.
 """
 import argparse
 import math
