@@ -56,6 +56,7 @@ def _files(tmp, bad_index=False):
         f.attrs["agent_radius"] = 0.01
         f["valid/params"] = rng.random((NS, 1))
         f["valid/desired"] = desired
+        cio.stamp_checksums(f)          # as crowd_snapshots writes every dataset
     return rom, db, desired, u, np.array(idx), v
 
 
