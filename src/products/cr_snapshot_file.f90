@@ -1,5 +1,5 @@
 !> The snapshot database of a parameter study (schema "crowdrom-snapshots", version 1; layout in
-!> the README, "Snapshot database"): written by crowd_snapshots, read by crowd_offline (a block
+!> docs/file-formats.md): written by crowd_snapshots, read by crowd_offline (a block
 !> of training samples per rank), crowd_rom (the study and its full-order trajectories) and the
 !> Python scripts.
 !>
