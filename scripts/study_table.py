@@ -44,7 +44,7 @@ KNOWN = set(NEEDED) | {
     "agents_not_left", "agents_not_left_fom", "infeasible_steps", "capped_steps", "t_step_fom_uzawa",
     "speedup_uzawa", "extrapolating", "mobility", "samples_diverged", "E_disp", "max_overlap_agents",
     "max_overlap_walls", "t50_err", "t50_n", "t50_rom_missed", "t50_fom_missed", "t90_err", "t90_n",
-    "t90_rom_missed", "t90_fom_missed", "t_query_rom", "t_query_fom_exact", "speedup_query_exact"}
+    "t90_rom_missed", "t90_fom_missed", "t_query_rom", "t_query_fom_exact", "speedup_query_exact", "correction"}
 ML_NEEDED = ("regressor", "n", "E_avg", "t_step", "speedup_exact")
 DEFAULT_LEVELS = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5)
 
@@ -107,7 +107,10 @@ def unify_row(r):
     -1: unknown), mobility, diverged, t_step, t_query, speedup_step, speedup_query (-1: unknown)."""
     o_aa = _f(r, "max_overlap_agents", _f(r, "max_overlap"))
     o_aw = _f(r, "max_overlap_walls", _f(r, "max_overlap"))
-    return dict(r, kind="rom", label=f"({r['n']},{r['r']}) {r['hyper']} / {r.get('contacts') or 'cone'}",
+    corr = str(r.get("correction") or "none")
+    label = f"({r['n']},{r['r']}) {r['hyper']} / {r.get('contacts') or 'cone'}"
+    label += f" + {corr} correction" if corr != "none" else ""
+    return dict(r, kind="rom", label=label,
                 E_avg=_f(r, "E_avg"), E_disp=_f(r, "E_disp"), overlap_agents=o_aa, overlap_walls=o_aw,
                 mobility=_f(r, "mobility"), diverged=int(_f(r, "samples_diverged", 0)),
                 t_step=_f(r, "t_step_rom"), t_query=_f(r, "t_query_rom"),
@@ -240,7 +243,7 @@ def markdown(rows, tol, key="t_query"):
 
 
 #: columns of --rows-csv after the row's label and kind (then the sweep table's unknown columns)
-ROW_COLUMNS = ("setting", "n", "r", "n_basis", "hyper", "contacts", "E_avg", "E_disp", "overlap_agents",
+ROW_COLUMNS = ("setting", "n", "r", "n_basis", "hyper", "contacts", "correction", "E_avg", "E_disp", "overlap_agents",
                "overlap_walls", "mobility", "diverged", "t50_err", "t50_n", "t50_rom_missed", "t90_err", "t90_n",
                "t90_rom_missed", "agents_not_left", "agents_not_left_fom", "t_step", "t_query", "speedup_step",
                "speedup_query", "speedup_uzawa")

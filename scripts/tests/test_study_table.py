@@ -37,7 +37,7 @@ def write_sweep(path, with_query=True, settings=SETTINGS):
             "max_overlap", "max_overlap_agents", "max_overlap_walls", "agents_not_left", "agents_not_left_fom",
             "t_step_rom", "t_step_fom_uzawa", "t_step_fom_exact", "speedup_uzawa", "speedup_exact", "mobility",
             "samples_diverged", "t50_err", "t50_n", "t50_rom_missed", "t50_fom_missed", "t90_err", "t90_n",
-            "t90_rom_missed", "t90_fom_missed", "frac_corrected", "t_correct"]
+            "t90_rom_missed", "t90_fom_missed", "frac_corrected", "t_correct", "correction"]
     if with_query:
         cols += ["t_query_rom", "t_query_fom_exact", "speedup_query_exact"]
     with open(path, "w", newline="") as fh:
@@ -53,7 +53,8 @@ def write_sweep(path, with_query=True, settings=SETTINGS):
                            speedup_uzawa=0.1 / t_step, speedup_exact=T_FOM_STEP / t_step, mobility=0.95,
                            samples_diverged=div, t50_err=0.1, t50_n=5, t50_rom_missed=0, t50_fom_missed=0,
                            t90_err=-1.0, t90_n=0, t90_rom_missed=0, t90_fom_missed=5, frac_corrected=frac,
-                           t_correct=1e-5, t_query_rom=tq, t_query_fom_exact=T_FOM_QUERY,
+                           t_correct=1e-5, correction="local" if k == 6 else "none",
+                           t_query_rom=tq, t_query_fom_exact=T_FOM_QUERY,
                            speedup_query_exact=T_FOM_QUERY / tq)
                 w.writerow({c: row[c] for c in cols})
     return path
@@ -127,7 +128,8 @@ def test_cli_writes_table_and_answers(tmp_path):
     assert head == ("| setting | E_avg | E_disp | overlap agents / walls [m] | mobility | cost per query [s] | "
                     "speedup per query | no overlap |")
     assert "| (10,20) eq / local | 4.00e-02 | 1.60e-01 | 5.00e-11 / 0.00e+00 | 0.950 | 1.00e-02 | 8 | yes |" in text
-    assert "| (10,20) eq / local | 1.00e-03* |" in text          # the diverged setting, over the others
+    # the diverged setting, over the other samples; a corrected setting says so
+    assert "| (10,20) eq / local + local correction | 1.00e-03* |" in text
     assert "| ML mlp n=4 + projection |" in text and "| full model (exact) |" in text
     assert "frac_corrected" not in text and "t50" not in text
     assert "| 0.05 | (10,20) eq / local | 4.00e-02 |" in text
