@@ -4,6 +4,7 @@ statements, and their check against the input reference (docs/input-reference.md
 
     input_reference.py [--root DIR]                       print every group, its variables and file
     input_reference.py --check docs/input-reference.md    exit 1 listing every difference
+    input_reference.py --skeleton GROUP                   the reference's table of a group, to fill in
 
 The source of truth is the Fortran: every `namelist /group/ var, var, &` statement of
 src/**/*.f90 (continuation lines and comments handled). The reference documents a group under a
@@ -97,8 +98,20 @@ def main(argv=None):
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--root", default=ROOT, help="repository root (default: this script's)")
     ap.add_argument("--check", metavar="MARKDOWN", help="compare with this input reference")
+    ap.add_argument("--skeleton", metavar="GROUP", help="print the Markdown table of GROUP to fill in")
     args = ap.parse_args(argv)
     try:
+        if args.skeleton:
+            groups = code_groups(args.root)
+            g = args.skeleton.lstrip("&").lower()
+            if g not in groups:
+                raise ValueError(f"no namelist group &{g} in the code (groups: {', '.join(sorted(groups))})")
+            names, src = groups[g]
+            print(f"### `&{g}`\n\nRead from {src}.\n")
+            print("| variable | default | unit | valid range | meaning |\n|---|---|---|---|---|")
+            for v in names:
+                print(f"| `{v}` | | | | |")
+            return 0
         if args.check:
             if not os.path.isfile(args.check):
                 raise ValueError(f"input reference not found: '{args.check}'")
