@@ -132,7 +132,8 @@ def pareto_mask(cost, err):
 
 
 def _label(r):
-    return f"({r['n']},{r['r']},{r['hyper']})"
+    corr = str(r.get("correction") or "none")
+    return f"({r['n']},{r['r']},{r['hyper']})" + (f" + {corr} correction" if corr != "none" else "")
 
 
 def _no_overlap_labels(fig, ax, labels, max_moves=40):
