@@ -48,7 +48,7 @@ contains
     print '(a)', ""
     print '(a)', "Full-order crowd model (Maury-Venel): each step projects the desired velocity onto"
     print '(a)', "the cone of non-overlapping velocities. Namelist groups: &scene &obstacles &agents"
-    print '(a)', "&desired &time &solver &contacts &output (see README, 'Input reference')."
+    print '(a)', "&desired &time &solver &contacts &output (see docs/input-reference.md)."
     print '(a)', ""
     print '(a)', "  --summary FILE   also write the run summary as JSON"
     print '(a)', "  -h, --help       this text"

@@ -57,7 +57,7 @@ contains
     print '(a)', "Builds the reduced bases from the snapshot database named in &offline: velocity POD"
     print '(a)', "(tsqr | rsvd | scalapack | snapshots), multiplier cone (gis | mcpg), supremizer"
     print '(a)', "enrichment (PGA), reduced inf-sup table; writes the ROM file (&offline rom_file)."
-    print '(a)', "The input is the study's namelist file plus an &offline group (see README)."
+    print '(a)', "The input is the study's namelist file plus an &offline group (docs/input-reference.md)."
     print '(a)', ""
     print '(a)', "Exit status: 0 success, 2 bad input, 1 other failure, 4 failed MPI call."
   end subroutine print_help

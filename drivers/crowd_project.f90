@@ -1,6 +1,6 @@
-!> crowd_project: exact position projection of given configurations (issue 14 item 4, ML
-!> part): every configuration of a request file is replaced by the closest configuration
-!> without overlap (cr_position_projection), with the full model's exact solver.
+!> crowd_project: exact position projection of given configurations (docs/user-guide.md): every
+!> configuration of a request file is replaced by the closest configuration without overlap
+!> (cr_position_projection), with the full model's exact solver.
 !>
 !>   crowd_project request.h5 [--summary FILE]
 !>
@@ -43,7 +43,7 @@ contains
     print '(a)', "Exact position projection: each configuration of the request is replaced by the"
     print '(a)', "closest configuration without overlap (desired velocity 0, h = 1, the full model's"
     print '(a)', "exact solver and cutoff, from the snapshot database the request names). Request and"
-    print '(a)', "result layout: README, 'ML-corrected ROM'."
+    print '(a)', "result layout: docs/file-formats.md."
     print '(a)', ""
     print '(a)', "  --summary FILE   also write the totals as JSON"
     print '(a)', "  -h, --help       this text"

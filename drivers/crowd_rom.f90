@@ -2,10 +2,10 @@
 !>
 !>   crowd_rom input.nml [--summary FILE]
 !>
-!> The input holds the groups &rom, &sweep, &reduced, &fom_timing (see README). The sweep
-!> itself (src/rom/cr_rom_sweep.f90) reads the ROM file and its study, times the full-order
-!> model, runs every setting and writes the ROM-run file and the table; this program reads
-!> and checks the input, calls one stage after the other and prints the summary.
+!> The input holds the groups &rom, &sweep, &reduced, &fom_timing (docs/input-reference.md). The
+!> sweep itself (src/rom/cr_rom_sweep.f90) reads the ROM file and its study, times the full-order
+!> model, runs every setting and writes the ROM-run file and the table; this program reads and
+!> checks the input, calls one stage after the other and prints the summary.
 program crowd_rom
   use cr_error, only: error_t, set_error
   use cr_env, only: env_t

@@ -66,7 +66,7 @@ contains
     print '(a)', ""
     print '(a)', "Parameter study of the full-order crowd model: samples the parameters of &study,"
     print '(a)', "spreads the runs over the MPI ranks (dynamic assignment) and writes one snapshot"
-    print '(a)', "database (&study database; schema in README.md)."
+    print '(a)', "database (&study database; schema in docs/file-formats.md)."
     print '(a)', "A killed run resumes where it stopped when the same command is run again."
     print '(a)', ""
     print '(a)', "  --summary FILE   also write the run summary as JSON"

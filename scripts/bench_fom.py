@@ -18,9 +18,9 @@ congested150 runs fall into two modes about 25% apart from run to run; pinned ru
 by a few percent, with rare outliers (hence --repeat, the fastest kept).
 
 The solver table's column "x active_set" is the dense cross-check's time over the row's (same
-scene, tolerance and binary; blank when active_set is not run): its code is the one issue 13
-timed at 2.0-3.5 ms per step on congested150, so the ratio says what a time means across
-machines, whose speed moves the same binary's time by up to 1.5x (README, issue 13).
+scene, tolerance and binary; blank when active_set is not run): the dense code is kept
+unchanged, so the ratio says what a time means across machines, whose speed moves the same
+binary's time by up to 1.5x (docs/benchmarks.md#full-order-model).
 
 Runs build/bin/crowd_fom (Release) on generated namelists and prints Markdown tables.
 Uzawa (the paper's scheme) needs 1e5-1e6 iterations per step in the congested scene, so it

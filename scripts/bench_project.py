@@ -45,7 +45,8 @@ def scene_text(steps, db):
     text = text[:text.index("&study")]
     text = re.sub(r"n_steps\s*=\s*\d+", f"n_steps = {steps}", text)
     text = text.replace("results/crowd1000_fom.h5", os.path.join(os.path.dirname(db), "fom.h5"))
-    # (about) the reference parameters of the README's full-order measurement (exits 2.4 m, 1.2 m/s)
+    # (about) the reference parameters of the full-order measurement of docs/results.md#crowd1000
+    # (exits 2.4 m, 1.2 m/s)
     text += ("&study\n  n_params = 3, param_name = 'l_exit', 'l_exit2', 'speed', "
              "param_min = 2.4, 2.4, 1.2,\n  param_max = 2.4001, 2.4001, 1.2001, sampling = 'random', "
              f"n_train = 1, n_valid = 0, seed = 1000,\n  database = '{db}'\n/\n")

@@ -15,7 +15,7 @@ load drifts alike over all of them); the tables give, per rank count, the run of
 time (its own figures) with the range of the 1-minute load average at the start of the runs,
 and every run's busy-time efficiency; the model is validated round by round.
 
-Efficiencies (all from the same session; the machine is shared, so compare ratios within it):
+Efficiencies (all from the same run; the machine is shared, so compare ratios within it):
 * busy-time efficiency = sum over ranks of busy time (samples, their piece files and their
   database blocks, and rank 0's serial work on the database: its HDF5 layout, dictionary,
   checksums, close and rename) / (P x wall time), for the sample loop and for the whole run;

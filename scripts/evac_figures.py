@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Evacuation figures and table of a crowdrom study, for a safety engineer (issue 15).
+"""Evacuation figures and table of a crowdrom study, for a safety engineer.
 
 Inputs (files only, read through crowdrom_io):
   --database   snapshot database (crowdrom-snapshots): the full-order trajectories, parameters

@@ -1,4 +1,4 @@
-"""The stability campaign at the extremes (issue 7): one record per case.
+"""The stability campaign at the extremes (docs/testing.md#the-extremes-campaign): one record per case.
 
 A case is a run of one program (crowd_fom, crowd_snapshots, crowd_offline) on an input built
 from a namelist file in tests/inputs/extremes/ with some groups replaced, in one of two sizes:

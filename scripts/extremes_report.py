@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Numerical stability at the extremes (issue 7): run the campaign and write its table.
+"""Numerical stability at the extremes (docs/testing.md): run the campaign and write its table.
 
   .venv/bin/python scripts/extremes_report.py [--out results/extremes.md] [--bin build/bin]
         [--size full|small] [--cases NAME ...] [--workdir DIR]

@@ -770,7 +770,7 @@ def main(argv=None):
                     "the other n get -1 in the projection columns)")
     ap.add_argument("--project-refine", type=int, default=0, metavar="N",
                     help="refinement projections per configuration at most (default 0: the "
-                    "first-order projection from the previous projected configuration; see README)")
+                    "first-order projection from the previous projected configuration; see docs/user-guide.md)")
     ap.add_argument("--crowd-project", help="the crowd_project program (default: $CROWDROM_BIN/crowd_project, "
                     "else build/bin/crowd_project of this checkout)")
     ap.add_argument("--quiet", action="store_true", help="no progress lines")

@@ -1,6 +1,6 @@
 """Where each crowd_offline / crowd_rom variable lives: one namelist group per concern.
 
-The groups (README "Input reference"): crowd_offline reads &offline (files), &pod, &cone, &pga,
+The groups (docs/input-reference.md): crowd_offline reads &offline (files), &pod, &cone, &pga,
 &infsup, &pairs, &hyper; crowd_rom reads &rom (files, samples), &sweep (settings), &reduced
 (reduced solver), &fom_timing. The tests and the extremes campaign describe a stage's options
 as one flat list of ``stage_variable = value`` assignments (the names of the former single

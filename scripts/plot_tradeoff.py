@@ -7,10 +7,11 @@ speedup_uzawa,speedup_exact) or the ROM run file itself (schema crowdrom-romrun;
 then come from each setting's validation E_mu). One PNG with two panels:
 (a) E_avg vs the ROM time per step, with the FOM times per step (Uzawa and exact solver) as
 reference lines; (b) E_avg vs the speedup against both FOM references. The Pareto front
-(settings no other setting beats in both error and cost) is highlighted; points are labelled
-(N, R, hyper). A setting with diverged samples (column samples_diverged: crowd_rom stopped
+(settings no other setting beats in both error and cost) is highlighted, and only its points
+are labelled (N, R, hyper); the other settings are told apart by their marker (the legend names
+the hyper-reduction). Labels that would overlap are moved apart. A setting with diverged samples (column samples_diverged: crowd_rom stopped
 them, its E_avg is over the other samples) is drawn as a red cross, labelled with the count, and
-kept off the Pareto front; one whose samples all diverged (E_avg -1) is left out, with a note.
+kept off the Pareto front (the legend gives the count); one whose samples all diverged (E_avg -1) is left out, with a note.
 ML-corrected results (files of scripts/ml_correct.py) can be overlaid (--ml):
 the best n of each regressor, at the ROM step time plus the prediction time per step.
 
@@ -20,7 +21,8 @@ green. A third panel (c) answers "for each error level, the cheapest setting tha
 overlap": E_avg against the cost per query (per step when the table has no per-query columns),
 the front of the settings without overlap as a staircase, the exact full model as a reference
 (error 0: a vertical line), and the ML-corrected positions after their exact projection
-(crowd_project; from --ml) as green diamonds; the answers are also printed per level
+(crowd_project; from --ml) as green diamonds; only the points of that staircase are labelled;
+the answers are also printed per level
 (scripts/study_table.py prints the whole table). Columns the script does not know are ignored,
 and any contacts name is accepted.
 
@@ -112,13 +114,40 @@ def pareto_mask(cost, err):
 
 
 def _label(r):
-    return f"({r['n']},{r['r']},{r['hyper']})"
+    corr = str(r.get("correction") or "none")
+    return f"({r['n']},{r['r']},{r['hyper']})" + (f" + {corr} correction" if corr != "none" else "")
+
+
+def _no_overlap_labels(fig, ax, labels, max_moves=40):
+    """Move the labels ``labels`` (annotations of ``ax``) down or up, one line at a time, until no
+    two of their boxes intersect (at most ``max_moves`` moves each)."""
+    renderer = fig.canvas.get_renderer()
+    placed = []
+    for lab in labels:
+        x0, y0 = lab.xyann
+        for k in range(max_moves + 1):
+            box = lab.get_window_extent(renderer).expanded(1.02, 1.1)
+            if not any(box.overlaps(p) for p in placed):
+                break
+            step = (k // 2 + 1) * (1 if k % 2 else -1)         # below, above, further below, ...
+            lab.xyann = (x0, y0 + step * 1.15 * lab.get_fontsize())
+        placed.append(lab.get_window_extent(renderer))
 
 
 def plot_tradeoff(rows, out, ml_points=(), set_name="valid", title=None, dpi=120, ml_rows=(),
                   overlap_tol=1e-10):
     """Draw the three panels into ``out`` (PNG); return the Pareto-optimal rows of panel (a).
     ``ml_rows``: rows of study_table.ml_rows (ML results, corrected and projected) for panel (c)."""
+    import matplotlib.pyplot as plt
+
+    fig, front = draw_tradeoff(rows, ml_points, set_name, title, ml_rows, overlap_tol)
+    fig.savefig(out, dpi=dpi)
+    plt.close(fig)
+    return front
+
+
+def draw_tradeoff(rows, ml_points=(), set_name="valid", title=None, ml_rows=(), overlap_tol=1e-10):
+    """The figure of ``plot_tradeoff`` and the Pareto-optimal rows of panel (a)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -153,14 +182,23 @@ def plot_tradeoff(rows, out, ml_points=(), set_name="valid", title=None, dpi=120
     if np.any(div > 0):
         ax1.scatter(t[div > 0], err[div > 0], marker="x", c="tab:red", label="with diverged samples")
         ax2.scatter(sp_u[div > 0], err[div > 0], marker="x", c="tab:red", label="with diverged samples")
-    for sp, color in ((sp_u, "tab:red"), (sp_e, "tab:purple")):
+    fronts2 = {}
+    for name, sp, color in (("uzawa", sp_u, "tab:red"), ("exact", sp_e, "tab:purple")):
         f2 = pareto_mask(np.where(div > 0, np.inf, -sp), np.where(div > 0, np.inf, err)) & (div == 0)
         o2 = np.argsort(sp[f2])
         ax2.plot(sp[f2][o2], err[f2][o2], "-", color=color, lw=1.2)
-    for i, r in enumerate(rows):
-        lab = _label(r) + (f" {div[i]} diverged" if div[i] > 0 else "")
-        ax1.annotate(lab, (t[i], err[i]), fontsize=7, xytext=(3, 3), textcoords="offset points")
-        ax2.annotate(lab, (sp_u[i], err[i]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+        fronts2[name] = f2
+    # labels on the fronts only (every other point is named by its marker in the legend)
+    labels = {ax1: [], ax2: [], ax3: []}
+    for i in np.flatnonzero(front)[np.argsort(t[front])]:
+        labels[ax1].append(ax1.annotate(_label(rows[i]), (t[i], err[i]), fontsize=7, xytext=(4, 3),
+                                        textcoords="offset points"))
+    for i in np.flatnonzero(fronts2["uzawa"])[np.argsort(sp_u[fronts2["uzawa"]])]:
+        labels[ax2].append(ax2.annotate(_label(rows[i]), (sp_u[i], err[i]), fontsize=7, xytext=(4, 3),
+                                        textcoords="offset points"))
+    if np.any(div > 0):
+        ax1.plot([], [], ls="none", label="diverged samples: " + ", ".join(
+            f"{_label(r)} {d}" for r, d in zip(rows, div) if d > 0))
     if lost:
         fig.text(0.01, 0.01, "not drawn (every sample diverged or no reference): " +
                  ", ".join(_label(r) for r in lost), fontsize=7)
@@ -170,13 +208,13 @@ def plot_tradeoff(rows, out, ml_points=(), set_name="valid", title=None, dpi=120
     ax2.axvline(1.0, color="0.5", ls=":", lw=1)
     for p in ml_points:
         ax1.scatter([p["t_step"]], [p["E_avg"]], marker="*", s=140, c="tab:green", zorder=5)
-        ax1.annotate(p["label"], (p["t_step"], p["E_avg"]), fontsize=7, color="tab:green",
-                     xytext=(3, -9), textcoords="offset points")
+        labels[ax1].append(ax1.annotate(p["label"], (p["t_step"], p["E_avg"]), fontsize=7, color="tab:green",
+                                        xytext=(4, -9), textcoords="offset points"))
         ax2.scatter([p["speedup_uzawa"]], [p["E_avg"]], marker="*", s=140, c="tab:green", zorder=5)
         ax2.scatter([p["speedup_exact"]], [p["E_avg"]], marker="*", s=140, facecolors="none",
                     edgecolors="tab:green", zorder=5)
-        ax2.annotate(p["label"], (p["speedup_uzawa"], p["E_avg"]), fontsize=7, color="tab:green",
-                     xytext=(3, -9), textcoords="offset points")
+        labels[ax2].append(ax2.annotate(p["label"], (p["speedup_uzawa"], p["E_avg"]), fontsize=7,
+                                        color="tab:green", xytext=(4, -9), textcoords="offset points"))
     if ml_points:
         ax1.scatter([], [], marker="*", c="tab:green", label="ML-corrected (best n)")
         ax2.scatter([], [], marker="*", c="tab:green", label="ML-corrected (best n)")
@@ -196,7 +234,6 @@ def plot_tradeoff(rows, out, ml_points=(), set_name="valid", title=None, dpi=120
         col = "tab:green" if u["kind"] != "rom" else "tab:blue"
         ax3.scatter([u[key]], [u["E_avg"]], marker=mk, s=60 if u["kind"] != "rom" else 36,
                     facecolors=col if ok else "none", edgecolors=col, zorder=4)
-        ax3.annotate(u["label"], (u[key], u["E_avg"]), fontsize=6, xytext=(3, 3), textcoords="offset points")
     fom = study_table.fom_row(rows)
     if fom[key] > 0:
         ax3.axvline(fom[key], color="k", ls="--", lw=1, label=f"exact full model {fom[key]:.2e} s (error 0)")
@@ -207,6 +244,9 @@ def plot_tradeoff(rows, out, ml_points=(), set_name="valid", title=None, dpi=120
             xs += [u[key], u[key]]
             ys += [ys[-1], u["E_avg"]]
         ax3.plot(xs, ys, "-", color="tab:red", lw=1.5, label="cheapest without overlap per error level")
+        for u in pts:
+            labels[ax3].append(ax3.annotate(u["label"], (u[key], u["E_avg"]), fontsize=6, xytext=(4, 3),
+                                            textcoords="offset points"))
     ax3.scatter([], [], marker="o", c="tab:blue", label="ROM (filled: no overlap)")
     if ml_rows:
         ax3.scatter([], [], marker="*", facecolors="none", edgecolors="tab:green", label="ML-corrected")
@@ -230,9 +270,9 @@ def plot_tradeoff(rows, out, ml_points=(), set_name="valid", title=None, dpi=120
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(out, dpi=dpi)
-    plt.close(fig)
-    return [r for r, m in zip(rows, front) if m]
+    for ax, labs in labels.items():
+        _no_overlap_labels(fig, ax, labs)
+    return fig, [r for r, m in zip(rows, front) if m]
 
 
 def main(argv=None):

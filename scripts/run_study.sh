@@ -71,6 +71,6 @@ $PY "$SCRIPTS/evac_figures.py" --database "results/${CASE}_snapshots.h5" --romru
   --csv "results/${CASE}_table.csv" --ml "results/${CASE}_ml.h5" -o "results/${CASE}_figures/evac"
 stage 6 "accuracy / cost table and the cheapest setting without overlap per error level (scripts/study_table.py)"
 $PY "$SCRIPTS/study_table.py" "results/${CASE}_table.csv" --ml "results/${CASE}_ml.csv" \
-  -o "results/${CASE}_study_table.md" --csv "results/${CASE}_cheapest.csv"
+  -o "results/${CASE}_study_table.md" --csv "results/${CASE}_cheapest.csv" --rows-csv "results/${CASE}_study_rows.csv"
 echo
 echo "run_study [$CASE]: done in $(( $(date +%s) - t0 )) s; table results/${CASE}_table.csv, ML results/${CASE}_ml.csv, figures results/${CASE}_figures/"

@@ -219,7 +219,7 @@ def predict(db, summary, agents=1000, agents_ref=150, step_ratio=194.385 / 3.036
     """Efficiency of a study like `db`'s with `agents` agents on many ranks.
 
     Per-sample times: the database's distribution times `step_ratio` (full-order time per step at
-    `agents` over `agents_ref` agents, README "Full-order model: scaling"); data per sample x
+    `agents` over `agents_ref` agents, docs/benchmarks.md#full-order-model); data per sample x
     agents / agents_ref. Machine (assumed, not measured here): counter latency `latency` (s, one
     RDMA atomic), per-rank write rate (the aggregate capped by the file system's bandwidth),
     collective cost alpha log2(P) (creating or freeing the window: 2 collectives each).

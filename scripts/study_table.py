@@ -1,30 +1,33 @@
 #!/usr/bin/env python3
 """The accuracy / cost table of a study and, for each error level, the cheapest setting that has
-no overlap (issue 14 item 5; stage 6 of scripts/run_study.sh).
+no overlap (stage 6 of scripts/run_study.sh).
 
     study_table.py results/<case>_table.csv [--ml results/<case>_ml.csv ...] [--set valid]
         [--error E_avg|E_disp] [--levels 0.01 0.02 0.05 0.1 0.2 0.5] [--overlap-tol 1e-10]
-        [-o table.md] [--csv front.csv]
+        [-o table.md] [--csv cheapest.csv] [--rows-csv rows.csv]
 
 Rows: every setting of crowd_rom's sweep table (the chosen set), the ML-corrected settings of
 ml_correct.py (its --csv or its HDF5 output: one row per regressor and n, as corrected and as
 corrected *and projected* by crowd_project), and the exact full model itself (error 0, no
 overlap, its per-query and per-step cost from the sweep table), so that every error level has an
-answer. Columns: E_avg, E_disp, the relative errors of the times at which 50% / 90% of the agents
-are out, the deepest overlaps agent-agent / agent-wall, mobility, diverged samples, the cost per
-step and per query and the speedups per step and per query against the exact full model, and
-"no overlap" (deepest overlap <= --overlap-tol m, no diverged sample). Columns of the sweep table
-this script does not know (a new contacts mode's measures, say) are appended to the table as
-they are, and any contacts name is accepted.
+answer. The Markdown table keeps the columns a reader decides on: setting, E_avg, E_disp, the
+deepest overlaps agent-agent / agent-wall, mobility, the cost per query and the speedup per query
+against the exact full model, and "no overlap" (deepest overlap <= --overlap-tol m, no diverged
+sample). Every other column (evacuation-time errors, agents not out, diverged samples, the costs
+and speedups per step, columns of the sweep table this script does not know, such as a new
+contacts mode's measures) goes to --rows-csv, one line per row; any contacts name is accepted.
 
 "Cheapest per error level": for each level L, among the rows without overlap whose error (the
 --error measure) is <= L, the one with the smallest cost per query (per step when the table has
-no per-query columns; the script says which); the front of such rows is also printed (rows
-without overlap that no other row without overlap beats in both error and cost).
+no per-query columns; the script says which, and the table then shows the cost and speedup per
+step); the front of such rows is also printed (rows without overlap that no other row without
+overlap beats in both error and cost).
 
 Exit status: 0, 2 for bad input (one 'study_table: error:' line), 1 for other failures.
 """
 import argparse
+import csv
+import io
 import math
 import os
 import sys
@@ -41,7 +44,7 @@ KNOWN = set(NEEDED) | {
     "agents_not_left", "agents_not_left_fom", "infeasible_steps", "capped_steps", "t_step_fom_uzawa",
     "speedup_uzawa", "extrapolating", "mobility", "samples_diverged", "E_disp", "max_overlap_agents",
     "max_overlap_walls", "t50_err", "t50_n", "t50_rom_missed", "t50_fom_missed", "t90_err", "t90_n",
-    "t90_rom_missed", "t90_fom_missed", "t_query_rom", "t_query_fom_exact", "speedup_query_exact"}
+    "t90_rom_missed", "t90_fom_missed", "t_query_rom", "t_query_fom_exact", "speedup_query_exact", "correction"}
 ML_NEEDED = ("regressor", "n", "E_avg", "t_step", "speedup_exact")
 DEFAULT_LEVELS = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5)
 
@@ -80,7 +83,10 @@ def unify_row(r):
     -1: unknown), mobility, diverged, t_step, t_query, speedup_step, speedup_query (-1: unknown)."""
     o_aa = _f(r, "max_overlap_agents", _f(r, "max_overlap"))
     o_aw = _f(r, "max_overlap_walls", _f(r, "max_overlap"))
-    return dict(r, kind="rom", label=f"({r['n']},{r['r']}) {r['hyper']} / {r.get('contacts') or 'cone'}",
+    corr = str(r.get("correction") or "none")
+    label = f"({r['n']},{r['r']}) {r['hyper']} / {r.get('contacts') or 'cone'}"
+    label += f" + {corr} correction" if corr != "none" else ""
+    return dict(r, kind="rom", label=label,
                 E_avg=_f(r, "E_avg"), E_disp=_f(r, "E_disp"), overlap_agents=o_aa, overlap_walls=o_aw,
                 mobility=_f(r, "mobility"), diverged=int(_f(r, "samples_diverged", 0)),
                 t_step=_f(r, "t_step_rom"), t_query=_f(r, "t_query_rom"),
@@ -199,51 +205,54 @@ def _e(x, fmt="%.2e"):
     return fmt % x if x >= 0 else "n/a"
 
 
-def _t(r, k):
-    n = int(_f(r, k + "_n", -1))
-    if r["kind"] == "fom":
-        return "0"
-    if n <= 0:
-        return "n/a"
-    s = "%.2e (%d)" % (_f(r, k + "_err"), n)
-    if int(_f(r, k + "_rom_missed", 0)) > 0:
-        s += ", ROM never %d" % int(_f(r, k + "_rom_missed", 0))
-    return s
-
-
-def markdown(rows, extras, tol, fronts):
-    """The table, the per-level answers and the front, as Markdown lines."""
-    head = ["setting", "Nb", "E_avg", "E_disp", "t50 err", "t90 err", "overlap agents / walls",
-            "agents not out (FOM)", "mobility", "diverged", "t_step [s]", "t_query [s]", "speedup/step",
-            "speedup/query", "speedup/step (Uzawa)", "no overlap"] + extras
+def markdown(rows, tol, key="t_query"):
+    """The decision table as Markdown lines: setting, errors, overlaps, mobility, cost and speedup
+    per query (per step when ``key`` is 't_step'), no overlap."""
+    per = "query" if key == "t_query" else "step"
+    sp = "speedup_query" if key == "t_query" else "speedup_step"
+    head = ["setting", "E_avg", "E_disp", "overlap agents / walls [m]", "mobility", f"cost per {per} [s]",
+            f"speedup per {per}", "no overlap"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
-        cells = [r["label"], str(r.get("n_basis", "")), _e(r["E_avg"]) + ("*" if r["diverged"] > 0 else ""),
-                 _e(r["E_disp"]), _t(r, "t50"), _t(r, "t90"),
-                 "%s / %s" % (_e(r["overlap_agents"]), _e(r["overlap_walls"])),
-                 "%s (%s)" % (r["agents_not_left"], r["agents_not_left_fom"]) if "agents_not_left" in r else "",
-                 _e(r["mobility"], "%.3f"), str(r["diverged"]), _e(r["t_step"]), _e(r["t_query"]),
-                 _e(r["speedup_step"], "%.3g"), _e(r["speedup_query"], "%.3g"),
-                 _e(_f(r, "speedup_uzawa"), "%.3g"), "yes" if no_overlap(r, tol) else "no"]
-        for c in extras:
-            v = r.get(c, "")
-            cells.append("%.3g" % v if isinstance(v, float) else str(v))
+        cells = [r["label"], _e(r["E_avg"]) + ("*" if r["diverged"] > 0 else ""), _e(r["E_disp"]),
+                 "%s / %s" % (_e(r["overlap_agents"]), _e(r["overlap_walls"])), _e(r["mobility"], "%.3f"),
+                 _e(r[key]), _e(r[sp], "%.3g"), "yes" if no_overlap(r, tol) else "no"]
         lines.append("| " + " | ".join(cells) + " |")
     return lines
 
 
-def render(rows, extras, levels, tol, error):
+#: columns of --rows-csv after the row's label and kind (then the sweep table's unknown columns)
+ROW_COLUMNS = ("setting", "n", "r", "n_basis", "hyper", "contacts", "correction", "E_avg", "E_disp", "overlap_agents",
+               "overlap_walls", "mobility", "diverged", "t50_err", "t50_n", "t50_rom_missed", "t90_err", "t90_n",
+               "t90_rom_missed", "agents_not_left", "agents_not_left_fom", "t_step", "t_query", "speedup_step",
+               "speedup_query", "speedup_uzawa")
+
+
+def rows_csv(rows, extras, tol):
+    """Every row of the table with every column (the Markdown keeps the few a reader decides on)."""
+    cols = ["label", "kind"] + list(ROW_COLUMNS) + ["no_overlap"] + list(extras)
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(cols)
+    for r in rows:
+        vals = []
+        for c in cols:
+            v = "yes" if (c == "no_overlap" and no_overlap(r, tol)) else ("no" if c == "no_overlap" else r.get(c, ""))
+            vals.append(repr(v) if isinstance(v, float) else v)
+        w.writerow(vals)
+    return buf.getvalue()
+
+
+def render(rows, levels, tol, error):
     per_level, key = cheapest_per_level(rows, levels, tol, error)
     front, fkey = overlap_free_front(rows, tol, error)
     what = "per query" if key == "t_query" else "per step (the table has no per-query cost)"
-    lines = ["Validation rows: E_avg (the paper's error), E_disp (relative to the displacement q - q0),",
-             "relative errors of the times at which 50% / 90% of the agents are out (over the (n) samples",
-             "where both models reach it), deepest overlaps [m], agents not out, mobility, diverged samples",
-             "(* = E_avg over the other samples), cost per step and per query (setup + whole trajectory),",
-             "speedups against the exact full model timed in the same run; 'no overlap': deepest overlap",
-             f"<= {tol:g} m and no diverged sample. ML rows: the corrected positions, then the same projected",
-             "exactly (crowd_project; its cost added per step and per query).", ""]
-    lines += markdown(rows, extras, tol, None)
+    lines = ["Validation rows: E_avg (the paper's error; * = over the samples that did not diverge), E_disp",
+             "(relative to the displacement q - q0), deepest overlaps, mobility (ROM / full-model displacement),",
+             f"cost {what} and speedup against the exact full model timed in the same run; 'no overlap':",
+             f"deepest overlap <= {tol:g} m and no diverged sample. ML rows: the corrected positions, then the",
+             "same projected exactly (crowd_project; its cost included). Every other column: --rows-csv.", ""]
+    lines += markdown(rows, tol, key)
     lines += ["", f"Cheapest setting without overlap for each {error} level (cost {what}):", "",
               f"| {error} <= | setting | E_avg | E_disp | mobility | {key} [s] | speedup/query | speedup/step |",
               "|---|---|---|---|---|---|---|---|"]
@@ -290,15 +299,16 @@ def main(argv=None):
     ap.add_argument("--overlap-tol", type=float, default=1e-10, help="deepest overlap counted as none [m]")
     ap.add_argument("-o", "--output", help="also write the Markdown to this file")
     ap.add_argument("--csv", help="also write the per-level answers as CSV")
+    ap.add_argument("--rows-csv", help="also write every row with every column as CSV")
     args = ap.parse_args(argv)
     if not all(math.isfinite(x) and x > 0 for x in args.levels):
         raise InputError(f"--levels must be positive numbers, got {args.levels}")
     if not (math.isfinite(args.overlap_tol) and args.overlap_tol >= 0):
         raise InputError(f"--overlap-tol must be >= 0, got {args.overlap_tol}")
-    cio.check_outputs([("--output", args.output), ("--csv", args.csv)],
+    cio.check_outputs([("--output", args.output), ("--csv", args.csv), ("--rows-csv", args.rows_csv)],
                       [("sweep table", args.table)] + [("ML result", p) for p in args.ml])
     extras, rows = load_rows(args.table, args.ml, args.set)
-    lines, per_level, _, key = render(rows, extras, sorted(args.levels), args.overlap_tol, args.error)
+    lines, per_level, _, key = render(rows, sorted(args.levels), args.overlap_tol, args.error)
     text = "\n".join(lines) + "\n"
     with cio.OutputSet() as outs:
         if args.output:
@@ -307,6 +317,9 @@ def main(argv=None):
         if args.csv:
             with open(outs.tmp(args.csv), "w") as fh:
                 fh.write(front_csv(per_level, key, args.error))
+        if args.rows_csv:
+            with open(outs.tmp(args.rows_csv), "w") as fh:
+                fh.write(rows_csv(rows, extras, args.overlap_tol))
         outs.commit()
     print(text, end="")
     return 0

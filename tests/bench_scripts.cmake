@@ -1,4 +1,4 @@
-# The benchmark helper scripts still run (not timed: their figures go to the README).
+# The benchmark helper scripts still run (not timed: their figures go to docs/benchmarks.md).
 # count_instructions.sh: instructions of the exact projection per step under callgrind, two steps
 # of congested150; a non-zero count with no failed step and no fallback, and the one-line refusal
 # of a missing input

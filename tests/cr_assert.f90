@@ -14,7 +14,7 @@ module cr_assert
   logical :: quiet = .false.
   !> -1 not yet read, 0 off, 1 on: CROWDROM_TEST_MARGINS=1 prints every check_close as
   !> "MARGIN: name | |a-b| tol" (how close each passing check is to its tolerance; used to
-  !> compare runs under other BLAS kernels, README "Other CPUs' kernels")
+  !> compare runs under other BLAS kernels, docs/testing.md#other-cpus-kernels)
   integer :: margins = -1
 
 contains

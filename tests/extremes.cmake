@@ -1,4 +1,4 @@
-# Numerical stability at the extremes (issue 7): label `extremes`, one test per case of
+# Numerical stability at the extremes (docs/testing.md): label `extremes`, one test per case of
 # scripts/extremes_cases.py, each run at small size on this build and checked by
 # scripts/extremes_report.py --check (the full-size campaign is scripts/extremes_report.py).
 set(CR_EXT_PY ${CMAKE_SOURCE_DIR}/.venv/bin/python)

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 17: a program given an input holding none of the groups it needs (empty, whitespace
+# Careless use: a program given an input holding none of the groups it needs (empty, whitespace
 # only, binary, HDF5, JSON, CSV, plain text, another program's input) stops with exit 2 and
 # exactly one `error:` line naming the file and what is missing, and writes nothing.
 #   foreign_input.sh PROGRAM [OTHER_PROGRAMS_INPUT ...]

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 18 / 11 item 7: every program writing to a full disk (a 64 KiB tmpfs) prints one
+# Every program writing to a full disk (a 64 KiB tmpfs) prints one
 # error line saying why ("No space left on device"), keeps the old output, leaves no
 # temporary, and shuts MPI down cleanly (no SIGSEGV in MPI_Finalize); crowd_snapshots runs
 # at 2 ranks. Needs root for `mount -t tmpfs`; skipped (exit 77) otherwise.

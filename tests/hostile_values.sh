@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 11 item 7 / 18: hostile namelist values (Inf, NaN, 1e308, 1e-308, 2147483647) are
+# Hostile namelist values (Inf, NaN, 1e308, 1e-308, 2147483647) are
 # refused by each program with one line, exit 2, nothing written; never a crash or a hang.
 #   hostile_values.sh crowd_fom|crowd_snapshots|crowd_offline|crowd_rom EXECUTABLE
 set -u

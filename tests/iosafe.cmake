@@ -1,5 +1,5 @@
 # Error agreement across ranks, foreign inputs, output paths naming inputs, hostile values,
-# output faults (issues 11 items 5 and 7, 17, 18).
+# output faults (docs/testing.md#careless-and-hostile-use).
 cr_mpi_test(test_env_error NP 1 2 3)
 # rank 1 alone fails at 2 ranks: its message and rank are printed exactly once
 add_test(NAME env_error_printed_np2
@@ -10,7 +10,7 @@ add_test(NAME env_error_printed_np2
   WORKING_DIRECTORY ${CMAKE_BINARY_DIR}/tests)
 set_tests_properties(env_error_printed_np2 PROPERTIES LABELS mpi ENVIRONMENT "${CR_MPI_ENV}" PROCESSORS 2)
 
-# Issue 17: foreign inputs (empty, blank, binary, HDF5, JSON, CSV, text, another program's
+# Foreign inputs (empty, blank, binary, HDF5, JSON, CSV, text, another program's
 # input) are refused by each program with one line, exit 2, nothing written.
 set(CR_EX ${CMAKE_SOURCE_DIR}/inputs)
 foreach(p crowd_fom crowd_snapshots crowd_offline crowd_rom)
@@ -44,7 +44,7 @@ cr_refused(geobench_args_repeats "repeats must be a positive integer, got '0'" $
   ${CMAKE_SOURCE_DIR}/inputs/hall20.nml 0)
 cr_refused(geobench_missing_input "missing.nml: cannot open input file" $<TARGET_FILE:crowd_geobench> missing.nml)
 
-# Issue 11 item 7 / 18: hostile namelist values (Inf, NaN, 1e308, 1e-308, 2147483647, size
+# Hostile namelist values (Inf, NaN, 1e308, 1e-308, 2147483647, size
 # products that overflow), a generated family per program
 foreach(p crowd_fom crowd_snapshots crowd_offline crowd_rom)
   add_test(NAME hostile_values_${p}
@@ -52,7 +52,7 @@ foreach(p crowd_fom crowd_snapshots crowd_offline crowd_rom)
   set_tests_properties(hostile_values_${p} PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}")
 endforeach()
 
-# Issue 18: an output naming an input (./x, dir/../x, absolute, symbolic link), outputs that
+# An output naming an input (./x, dir/../x, absolute, symbolic link), outputs that
 # coincide, a missing directory, a directory under the output's name: a family per program
 foreach(p crowd_fom crowd_snapshots crowd_offline crowd_rom)
   add_test(NAME output_paths_${p}
@@ -69,7 +69,7 @@ add_test(NAME full_disk
 set_tests_properties(full_disk PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}" SKIP_RETURN_CODE 77
   PROCESSORS 2)
 
-# Issue 18: crowd_offline refuses a study that contradicts the database it reads (one
+# crowd_offline refuses a study that contradicts the database it reads (one
 # variable changed per case: scene, obstacles, agents, time, solver, study), accepts its own
 add_test(NAME offline_mismatch
   COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/offline_mismatch.sh $<TARGET_FILE_DIR:crowd_fom>

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 18: crowd_offline refuses a study namelist that contradicts the database it reads (the
+# crowd_offline refuses a study namelist that contradicts the database it reads (the
 # stored effective configuration and config_hash), naming each variable that differs; the
 # study's own namelist is accepted. A generated family of one-variable changes.
 #   offline_mismatch.sh BINDIR STUDY_NML

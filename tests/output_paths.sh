@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Issue 18 / 11 item 7: an output that names an input (directly, as ./x, dir/../x, or through
+# Careless use: an output that names an input (directly, as ./x, dir/../x, or through
 # a symbolic or hard link), two outputs that are the same file or one the other's temporary
-# (<name>.partial, session 17), an output in a missing directory or
+# (<name>.partial), an output in a missing directory or
 # with a directory under its name: refused before any work with one line, exit 2, nothing
 # written and every input untouched. A generated family per program.
 #   output_paths.sh crowd_fom|crowd_snapshots|crowd_offline|crowd_rom EXECUTABLE

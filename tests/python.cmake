@@ -1,6 +1,6 @@
 # Python post-processing tests (pytest in the project venv), run by ctest like the rest: one
 # entry per group of test files, each with a timeout of its own (5 to 10 times the group's time
-# on this 2-core machine at low load, README "Tests"), so that `ctest -j2` runs them side by side.
+# on this 2-core machine at low load, docs/testing.md#labels), so that `ctest -j2` runs them side by side.
 # Every scripts/tests/test_*.py file runs in exactly one entry: a file no group names runs in
 # pytest_scripts_other.
 set(CR_VENV_PY ${CMAKE_SOURCE_DIR}/.venv/bin/python)
@@ -27,12 +27,12 @@ if(EXISTS ${CR_VENV_PY})
     set(CR_PY_LISTED ${CR_PY_LISTED} ${A_FILES} PARENT_SCOPE)
   endfunction()
 
-  # groups by running time (measured, README "Tests"): the error paths of the scripts alone,
+  # groups by running time (measured, docs/testing.md#labels): the error paths of the scripts alone,
   # the rest in four groups, so that ctest -j2 runs about half of the total on each core; the
   # groups start 2-rank runs only for seconds (oversubscribed), hence PROCESSORS 1
   cr_pytest(pytest_script_errors TIMEOUT 600 FILES test_script_errors.py test_hostile_inputs.py)
   cr_pytest(pytest_figures TIMEOUT 300 FILES test_figures.py test_plot_scene.py test_study_table.py test_io.py
-    test_deim_desired.py test_layout.py)
+    test_deim_desired.py test_layout.py test_docs.py)
   cr_pytest(pytest_rom TIMEOUT 300 FILES test_rom.py test_rom_measures.py)
   cr_pytest(pytest_stages TIMEOUT 300 FILES test_offline.py test_snapshot_model.py test_fom_run.py test_snapshots.py
     test_checksums.py)

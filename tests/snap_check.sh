@@ -82,7 +82,7 @@ kill_resume)
     [ "$n" -ge 3 ] && break
     sleep 0.02
   done
-  # like a batch system ending a job: SIGKILL mpirun and every process of its session (Open MPI
+  # like a batch system ending a job: SIGKILL mpirun and every process of its login group (sid; Open MPI
   # puts the ranks in their own process groups, so killing mpirun's group alone leaves them running)
   sid=$(ps -o sid= -p $pid | tr -d ' ')
   [ -n "$sid" ] || fail "mpirun ended before it could be killed (make the study longer)"

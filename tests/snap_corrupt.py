@@ -1,4 +1,5 @@
-"""Corrupt a snapshot piece the ways issue 16 lists, for tests/snap_check.sh (mode corrupt).
+"""Corrupt a snapshot piece in the ways a disk, a copy or a hand can, for tests/snap_check.sh
+(mode corrupt).
 
     snap_corrupt.py bytes PIECE DATASET   random bytes over the stored data of DATASET
     snap_corrupt.py scale PIECE DATASET   DATASET *= 1.001 (checksum left as it was)

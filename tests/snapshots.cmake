@@ -1,4 +1,4 @@
-# crowd_snapshots: parameter studies (issue 3). Tests run in ${CMAKE_BINARY_DIR}/tests/snap.
+# crowd_snapshots: parameter studies. Tests run in ${CMAKE_BINARY_DIR}/tests/snap.
 set(CR_SNAP_DIR ${CMAKE_BINARY_DIR}/tests/snap)
 file(MAKE_DIRECTORY ${CR_SNAP_DIR})
 set(CR_SNAP_CHECK ${CMAKE_CURRENT_SOURCE_DIR}/snap_check.sh)

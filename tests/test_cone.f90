@@ -102,7 +102,7 @@ contains
     if (allocated(res%note)) call check(index(res%note, "empty cone") > 0, "says the cone is empty")
   end subroutine test_empty
   !> mCPG at delta = 0 on snapshots lying in the cone of a few sparse non-negative generators
-  !> (issue 11): in exact arithmetic the error reaches 0; in floating point it reaches the
+  !> in exact arithmetic the error reaches 0; in floating point it reaches the
   !> accuracy of the Gram-form projections. Checks cr_cone's stated guarantees: the accuracy
   !> history a_r has R + 1 entries and obeys its bound a_r <= sqrt(reg + (64 r + 2 n_rows) eps
   !> (1 + sqrt(r))^2) (|k| <= |x| <= n1 since the psi are non-negative); the computed history

@@ -191,8 +191,8 @@ program test_h5file
   call check(.not. file_exists("ab.h5") .and. .not. file_exists("ab.h5.partial"), &
     "abort leaves no file at all")
 
-  ! ---- a create that fails leaves another writer's temporary alone (session 17: it removed
-  ! it, and the first writer's work was lost at its commit): the same output created twice,
+  ! ---- a create that fails leaves another writer's temporary alone (removing it would
+  ! lose the first writer's work at its commit): the same output created twice,
   ! the second refused by HDF5 (the temporary is open), the first still commits
   block
     type(h5file_t) :: g

@@ -132,7 +132,7 @@ contains
   !> cr_eq.f90 states its absolute floor as about sqrt(eps 1^T|H|1 / 1^T H 1), H = (S S^T) o
   !> (F^T F), 1^T H 1 = sum_sigma |Pi|^2: 10x that (>= 1.5e-7). Whether a run sits at the floor
   !> depends on the BLAS kernels: ~2e-8 with the FMA ones (Haswell, AVX-512), ~2e-14 at one
-  !> rank with the SSE/AVX ones (README "Other CPUs' kernels").
+  !> rank with the SSE/AVX ones (docs/testing.md#other-cpus-kernels).
   real(wp) function eq_err_tol(s, f) result(tol)
     real(wp), intent(in) :: s(:, :), f(:, :)
     tol = 10.0_wp * sqrt(epsilon(1.0_wp) * sum(abs(matmul(s, transpose(s))) * &

@@ -14,7 +14,7 @@ program test_lapack
   ! eigensolver (Higham, Accuracy and Stability, Thms 19.4 and 19.13; LAPACK Users' Guide 4.9
   ! and 4.7): errors <= p(m, n) eps ||A|| with p a modest function of the sizes, here
   ! p = c m n with c = 4 (m = 4, n = 3: 48 eps). Not what one CPU gave: the AVX-512 kernels
-  ! give |Q^T Q - I| = 4 eps where other kernels give 1 eps (README "Other CPUs' kernels").
+  ! give |Q^T Q - I| = 4 eps where other kernels give 1 eps (docs/testing.md).
   real(wp), parameter :: P_MN = 4.0_wp * 4.0_wp * 3.0_wp * epsilon(1.0_wp)
   real(wp) :: anorm
 

@@ -1,6 +1,6 @@
 !> A warm-started problem on which the dense kernel (cr_contact_ldp, solver active_set) once
 !> returned a scaled KKT residual of 9.7e21 while reporting convergence: 456 agents, 2 116 rows,
-!> 1 242 warm rows (a stress trajectory of the sparse solver's review, session 17). The warm set
+!> 1 242 warm rows (from a stress trajectory of the sparse solver). The warm set
 !> held nearly dependent rows (pivots down to 1.7e-5 of the diagonal), so that yc =
 !> L^{-1} (B v - d)_P grew to 1e27; the warm start's deletions rotated it with L, leaving an
 !> absolute error of eps |yc| that was never recomputed, and the stopping test looked only at

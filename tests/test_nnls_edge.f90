@@ -579,11 +579,11 @@ contains
     end do
   end subroutine test_nnls_ill_conditioned
 
-  !> Ill-conditioned consistent problems whose optimum is known by construction (issue 11):
+  !> Ill-conditioned consistent problems whose optimum is known by construction:
   !> A = U diag(s) V^T [m, n] with U, V orthonormal, singular values log-spaced from 1 to
   !> 1/cond, x* > 0 and b = A x*, so the optimal residual is 0 (up to the rounding of b) and,
   !> when m >= n, x* is the unique solution; for m < n the optimum is not unique and only the
-  !> objective is checked (the README's promise). Tolerances (from cr_nnls's stated accuracy):
+  !> objective is checked (the promise of docs/model.md#dense-nnls--ldp-kernel). Tolerances (from cr_nnls's stated accuracy):
   !> - residual: nnls_solve stops when every inactive column has a_j^T r <= 16 m eps |a_j| |r|
   !>   (r the residual of its factorisation), so by convexity |r|^2 - |r*|^2 <= 2 sum_j w_j x*_j
   !>   gives |r| <= |r*| + 32 m eps sum_j |a_j| x*_j; the backward errors of the Householder
@@ -681,8 +681,8 @@ contains
           call check(maxval(abs(xs - x)) <= 1.0e-12_wp * maxval(abs(x)), name // ": x scaled")
         end do
       end do
-      ! the extremes (session 17: below about 1e-154 norm2's squares underflowed and a column
-      ! or b read as zero; above about 1e154 they overflowed): A and b scaled together and apart
+      ! the extremes (below about 1e-154 plain squares underflow and a column or b would read
+      ! as zero; above about 1e154 they overflow): A and b scaled together and apart
       do i = 1, 4
         select case (i)
         case (1); sa = 1.0e-170_wp; sbb = 1.0e-170_wp; name = "extreme scaling A*1e-170 b*1e-170"
@@ -1022,9 +1022,9 @@ contains
       call check(maxval(abs(pz - u1)) <= 1.0e-13_wp * (1.0_wp + maxval(abs(uz))), &
         "zero row, d < 0: u = projection on the other rows")
     end do
-    ! an empty slab of width |gap| between two opposite rows, v far away (session 17: the
-    ! certificate found by the first pass was lost by the rescaled second one for |gap| <=
-    ! 1e-6 of the data, and the problem reported feasible with row 2 violated by |gap|):
+    ! an empty slab of width |gap| between two opposite rows, v far away (a certificate of
+    ! infeasibility found by the first pass must stay final for |gap| down to 1e-12 of the data,
+    ! never a feasible answer with row 2 violated by |gap|):
     ! infeasible at every width, both rows violated by |gap| / 2 (the least squares split)
     do k = 3, 12
       gap = -10.0_wp**(-k)

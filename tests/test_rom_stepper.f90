@@ -336,7 +336,7 @@ contains
   end subroutine check_eim_rows
 
   !> A reduced row of norm 1e-15 that asks for a negative gap (the EIM failure of congested150,
-  !> README "Reduced model: divergence") is feasible only at |alpha| = 1e12: the guard stops
+  !> docs/model.md#eim-rows-with-unit-normals) is feasible only at |alpha| = 1e12: the guard stops
   !> the trajectory at that step and zeroes the coefficients from there; a sane trajectory
   !> is not touched.
   subroutine check_guard()

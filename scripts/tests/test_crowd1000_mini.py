@@ -1,4 +1,4 @@
-"""The 1 000-agent evacuation study's shape (issue 15) at test size.
+"""The 1 000-agent evacuation study's shape at test size.
 
 * Two exits in different walls (&scene l_exit2, exit2_center: a second opening in the right wall):
   an agent in front of each opening walks straight out of it and leaves at the step given in

@@ -31,7 +31,7 @@ REF = os.path.join(ROOT, "tests", "reference", "tiny_final_positions.txt")
 # the growth of a perturbation over the 30 steps of this scene (initial positions moved by
 # 1e-14 .. 1e-10 end 6 .. 24x farther apart); 1e-8 covers that with a 6x margin. Measured: the
 # final positions are bitwise equal under OPENBLAS_CORETYPE=Haswell, Sandybridge, Prescott and with
-# glibc's FMA/AVX2 libm variants disabled (README "Other CPUs' kernels").
+# glibc's FMA/AVX2 libm variants disabled (docs/testing.md#other-cpus-kernels).
 REF_TOL = 1e-8
 
 SUMMARY_KEYS = ["program", "input", "solver", "agents", "steps", "agents_left", "agents_inside",

@@ -1,6 +1,6 @@
 """The folders of src/ form a layered architecture: no folder-level import circle (a module of
 folder A using a module of folder B while some module of B reaches A again), and every module
-lives in exactly one file (README, Layout)."""
+lives in exactly one file (docs/design.md#layers)."""
 import collections
 import glob
 import os

@@ -109,8 +109,7 @@ def test_bad_requests(study, tmp_path):
 def test_project_paths(study, tmp_path):
     """The result and the --summary file are checked against the request, the database and
     each other (resolved paths: ./db.h5 is db.h5) before any work: exit 2 with one line naming
-    the attribute, every file intact (session 17: a result named ./db.h5 replaced the database,
-    exit 0)."""
+    the attribute, every file intact (a result named ./db.h5 must not replace the database)."""
     import hashlib
     import re
     import shutil

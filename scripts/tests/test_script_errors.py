@@ -1,4 +1,4 @@
-"""Issues 11 (item 7) and 18 for the Python scripts, as generated families: bad arguments
+"""Careless and hostile use of the Python scripts, as generated families: bad arguments
 (zero or negative counts, --dpi 0, --fps 0), outputs naming an input (directly, ./x, dir/../x,
 a symbolic link), outputs in a missing directory or under a directory's name, and failures
 while drawing all end with one `error:` line (no traceback), a non-zero exit, and no output

@@ -32,18 +32,18 @@ EXPECT = {0.01: "full model (exact)", 0.02: "ML mlp n=4 + projection", 0.05: "(1
 EXPECT_SETTING = {0.05: 3, 0.1: 4, 0.2: 4, 0.5: 4}
 
 
-def write_sweep(path, with_query=True):
+def write_sweep(path, with_query=True, settings=SETTINGS):
     cols = ["setting", "set", "n", "r", "n_basis", "hyper", "contacts", "solver", "E_avg", "E_disp",
             "max_overlap", "max_overlap_agents", "max_overlap_walls", "agents_not_left", "agents_not_left_fom",
             "t_step_rom", "t_step_fom_uzawa", "t_step_fom_exact", "speedup_uzawa", "speedup_exact", "mobility",
             "samples_diverged", "t50_err", "t50_n", "t50_rom_missed", "t50_fom_missed", "t90_err", "t90_n",
-            "t90_rom_missed", "t90_fom_missed", "frac_corrected", "t_correct"]
+            "t90_rom_missed", "t90_fom_missed", "frac_corrected", "t_correct", "correction"]
     if with_query:
         cols += ["t_query_rom", "t_query_fom_exact", "speedup_query_exact"]
     with open(path, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=cols)
         w.writeheader()
-        for k, hyper, contacts, e, oa, ow, tq, div, frac in SETTINGS:
+        for k, hyper, contacts, e, oa, ow, tq, div, frac in settings:
             for s in ("train", "valid"):
                 t_step = tq / 50
                 row = dict(setting=k, set=s, n=10, r=20, n_basis=30, hyper=hyper, contacts=contacts, solver="dual",
@@ -53,7 +53,8 @@ def write_sweep(path, with_query=True):
                            speedup_uzawa=0.1 / t_step, speedup_exact=T_FOM_STEP / t_step, mobility=0.95,
                            samples_diverged=div, t50_err=0.1, t50_n=5, t50_rom_missed=0, t50_fom_missed=0,
                            t90_err=-1.0, t90_n=0, t90_rom_missed=0, t90_fom_missed=5, frac_corrected=frac,
-                           t_correct=1e-5, t_query_rom=tq, t_query_fom_exact=T_FOM_QUERY,
+                           t_correct=1e-5, correction="local" if k == 6 else "none",
+                           t_query_rom=tq, t_query_fom_exact=T_FOM_QUERY,
                            speedup_query_exact=T_FOM_QUERY / tq)
                 w.writerow({c: row[c] for c in cols})
     return path
@@ -116,19 +117,41 @@ def test_cost_per_step_without_query_columns(tmp_path):
 
 
 def test_cli_writes_table_and_answers(tmp_path):
-    md, out_csv = tmp_path / "table.md", tmp_path / "cheapest.csv"
-    res = run(write_sweep(tmp_path / "t.csv"), "--ml", write_ml(tmp_path / "ml.csv"), "-o", md, "--csv", out_csv)
+    md, out_csv, rows_csv = tmp_path / "table.md", tmp_path / "cheapest.csv", tmp_path / "rows.csv"
+    res = run(write_sweep(tmp_path / "t.csv"), "--ml", write_ml(tmp_path / "ml.csv"), "-o", md, "--csv", out_csv,
+              "--rows-csv", rows_csv)
     assert res.returncode == 0, res.stderr
     text = md.read_text()
     assert res.stdout == text
+    # the decision table: the few columns a reader decides on, nothing else
     head = [ln for ln in text.splitlines() if ln.startswith("| setting |")][0]
-    assert head.endswith("| no overlap | frac_corrected | t_correct |")
-    assert "| (10,20) eq / local | 30 | 4.00e-02 |" in text
+    assert head == ("| setting | E_avg | E_disp | overlap agents / walls [m] | mobility | cost per query [s] | "
+                    "speedup per query | no overlap |")
+    assert "| (10,20) eq / local | 4.00e-02 | 1.60e-01 | 5.00e-11 / 0.00e+00 | 0.950 | 1.00e-02 | 8 | yes |" in text
+    # the diverged setting, over the other samples; a corrected setting says so
+    assert "| (10,20) eq / local + local correction | 1.00e-03* |" in text
     assert "| ML mlp n=4 + projection |" in text and "| full model (exact) |" in text
+    assert "frac_corrected" not in text and "t50" not in text
     assert "| 0.05 | (10,20) eq / local | 4.00e-02 |" in text
     rows = list(csv.DictReader(open(out_csv)))
     assert [r["label"] for r in rows] == [EXPECT[k] for k in sorted(EXPECT)]
+    # every row with every column, the sweep table's unknown columns last
+    full = list(csv.DictReader(open(rows_csv)))
+    assert len(full) == len(SETTINGS) + 4 + 1
+    cols = list(full[0])
+    assert cols[:2] == ["label", "kind"] and cols[-2:] == ["frac_corrected", "t_correct"]
+    for c in ("t50_err", "t90_n", "agents_not_left", "speedup_step", "speedup_uzawa", "t_step", "diverged"):
+        assert c in cols, c
+    s3 = [r for r in full if r["kind"] == "rom" and r["setting"] == "3"][0]
+    assert float(s3["frac_corrected"]) == 0.3 and float(s3["t50_err"]) == 0.1 and s3["no_overlap"] == "yes"
     assert not [p for p in os.listdir(tmp_path) if ".partial" in p]
+
+
+def test_cli_per_step_table_without_query_columns(tmp_path):
+    res = run(write_sweep(tmp_path / "t.csv", with_query=False))
+    assert res.returncode == 0, res.stderr
+    head = [ln for ln in res.stdout.splitlines() if ln.startswith("| setting |")][0]
+    assert "| cost per step [s] | speedup per step |" in head
 
 
 @pytest.mark.parametrize("args,expect", [
@@ -160,3 +183,28 @@ def test_tradeoff_plot_marks_overlap_free_and_front(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "E_avg <= 0.05: cheapest without overlap (t_query): (10,20) eq / local (1.00e-02 s)" in text
     assert "E_avg <= 0.01: cheapest without overlap (t_query): full model (exact)" in text
+
+
+def test_tradeoff_labels_only_the_fronts_and_never_overlap(tmp_path):
+    """Ten settings on one crowded front plus four dominated ones: only the front's points carry a
+    label, and no two labels of a panel overlap."""
+    from matplotlib.text import Annotation
+
+    crowded = [(k, "eq", "cone", 0.1 * (1 - 0.02 * k), 0.1, 0.1, 0.005 * (1 + 0.03 * k), 0, -1.0)
+               for k in range(1, 11)]
+    crowded += [(k, "none", "cone", 0.2, 0.1, 0.1, 0.01 * k, 0, -1.0) for k in range(11, 15)]
+    table = write_sweep(tmp_path / "t.csv", settings=crowded)
+    rows = plot_tradeoff.read_rows(table)
+    fig, front = plot_tradeoff.draw_tradeoff(rows, ml_rows=study_table.ml_rows(write_ml(tmp_path / "ml.csv")))
+    assert sorted(r["setting"] for r in front) == list(range(1, 11))
+    renderer = fig.canvas.get_renderer()
+    ax1, ax2, ax3 = fig.axes
+    n_labels = {}
+    for ax in (ax1, ax2, ax3):
+        boxes = [a.get_window_extent(renderer) for a in ax.texts if isinstance(a, Annotation)]
+        n_labels[ax] = len(boxes)
+        for i in range(len(boxes)):
+            for j in range(i):
+                assert not boxes[i].overlaps(boxes[j]), (ax.get_title(), i, j)
+    assert n_labels[ax1] == len(front)                # the dominated settings carry no label
+    assert n_labels[ax2] == len(front)

@@ -127,7 +127,7 @@ contains
     end if
   end subroutine fom_run
 
-  !> The summary as JSON (keys documented in the README).
+  !> The summary as JSON (keys documented in docs/user-guide.md).
   subroutine write_summary(path, cfg, fom, recs, t_total, error)
     character(len=*), intent(in) :: path
     type(config_t), intent(in) :: cfg

@@ -1,11 +1,11 @@
 !> The run of crowd_project: exact position projection of the configurations of a request file
-!> (issue 14 item 4, ML part). The request (written by scripts/ml_correct.py; layout in
-!> cr_projection_file) names the snapshot database the positions belong to: its configuration
-!> gives the scene of each sample (the parameters mapped by cr_param_model, as in every stage),
-!> the &solver settings and the &contacts cutoff factor. The configurations of a sample are a
-!> trajectory: the first is projected on its own, each later one starts from the projection of
-!> the one before (a configuration without overlap: see cr_position_projection for why deep
-!> overlaps need such a start). The result file named by the request is written atomically.
+!> (docs/model.md#exact-position-projection). The request (written by scripts/ml_correct.py; layout
+!> in cr_projection_file) names the snapshot database the positions belong to: its configuration
+!> gives the scene of each sample (the parameters mapped by cr_param_model, as in every stage), the
+!> &solver settings and the &contacts cutoff factor. The configurations of a sample are a
+!> trajectory: the first is projected on its own, each later one starts from the projection of the
+!> one before (a configuration without overlap: see cr_position_projection for why deep overlaps
+!> need such a start). The result file named by the request is written atomically.
 module cr_project_run
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error, prefix_error

@@ -59,10 +59,11 @@ module cr_fom
     type(cell_list_t) :: cells
     integer :: n_agents = 0, step = 0
     real(wp) :: radius = 0, dt = 0, cutoff_factor = 1.5_wp
-    !> share of the desired speed added to the previous speed in the margins (a predictor
-    !> only: any value >= 0 is exact, the check after the solve adds what it misses).
-    !> Measured (README, issue 13, "Candidate rows by agent"): 0.4-0.6 take the least solver
-    !> time on congested150 and congested1000; 0.2 re-solves more and 0.8 keeps more rows
+    !> share of the desired speed added to the previous speed in the margins (a predictor only: any
+    !> value >= 0 is exact, the check after the solve adds what it misses). Measured
+    !> (docs/benchmarks.md#tuned-parameters-of-sparse_active_set, speed_allowance): 0.4-0.6 take the
+    !> least solver time on congested150 and congested1000; 0.2 re-solves more and 0.8 keeps more
+    !> rows
     real(wp) :: speed_allowance = 0.5_wp
     logical :: warm_start = .true.
     !> positions, desired and actual velocities [2*n_agents]

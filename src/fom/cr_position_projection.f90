@@ -1,5 +1,5 @@
-!> Exact position projection (issue 14 item 4, ML part): the closest configuration without
-!> overlap to given positions q_in [2 n_a] (agents of radius r in a scene),
+!> Exact position projection (docs/model.md#exact-position-projection): the closest configuration
+!> without overlap to given positions q_in [2 n_a] (agents of radius r in a scene),
 !>   q_out = argmin |q - q_in|^2  s.t.  every gap (agent-agent, agent-obstacle) >= 0,
 !> solved as projections of the full model's kind (h = 1) with its exact solver (the &solver
 !> factory). The gaps of two disks and of a disk and a convex obstacle are convex in the

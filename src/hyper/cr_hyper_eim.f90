@@ -5,7 +5,7 @@
 !> normals of every support row are reconstructed from the s2 modes and renormalised to unit
 !> length (a row whose interpolated normal is shorter than 1/2 has lost its direction and is
 !> evaluated exactly), then the rows are assembled as in the exact variant: O(p2 (m_b + Nb))
-!> per step (README "Diverged reduced trajectories" says why the raw interpolated rows
+!> per step (docs/model.md#eim-rows-with-unit-normals says why the raw interpolated rows
 !> diverge).
 module cr_hyper_eim
   use cr_kinds, only: wp

@@ -8,7 +8,7 @@
 !> `v_deim` existed are read as they are; 'eq_deim' then refuses them.
 !>
 !> Online, 'eq' sums the m_k weighted quadrature entries of each term. Its desired-velocity
-!> term needs every dof (README "Why the EQ of the desired-velocity term needs every dof"):
+!> term needs every dof (docs/model.md#reduced-desired-velocity-eq_deim):
 !> Pi1 = V^T v = sum_j v_j V(j,:) is exact for a quadrature only if it integrates every
 !> function j -> v_j V(j, i), and these span R^n_dof as soon as Nb >= 2 and the snapshots
 !> v vary, so the only exact rule is all dofs with weight 1. 'eq_deim' replaces that term by

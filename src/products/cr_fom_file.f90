@@ -1,7 +1,7 @@
-!> HDF5 output of a full-order run (schema "crowdrom-fom", version 1; see README), written by
-!> crowd_fom (`fom_writer_t`) and read back by `read_fom_file` (tests, tools), which accepts
-!> the versions in FOM_VERSIONS_READ and validates shapes, contact identities and finiteness.
-!> The scene group (`write_scene`) is shared with the snapshot database.
+!> HDF5 output of a full-order run (schema "crowdrom-fom", version 1; docs/file-formats.md), written
+!> by crowd_fom (`fom_writer_t`) and read back by `read_fom_file` (tests, tools), which accepts the
+!> versions in FOM_VERSIONS_READ and validates shapes, contact identities and finiteness. The scene
+!> group (`write_scene`) is shared with the snapshot database.
 !>
 !> The file is written under a temporary name and renamed when complete (cr_h5file), so an
 !> interrupted or failed run never leaves a file that looks finished and never destroys a

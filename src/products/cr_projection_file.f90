@@ -1,4 +1,4 @@
-!> The files of the position projection (crowd_project, issue 14 item 4, ML part):
+!> The files of the position projection (crowd_project, docs/file-formats.md):
 !> - the request (schema "crowdrom-projreq", version 1), written by scripts/ml_correct.py:
 !>   root attributes `database` (snapshot database the positions belong to: its configuration
 !>   gives the scene, &solver and &contacts), `output` (result file to write), `n_agents`,

@@ -1,4 +1,4 @@
-!> The ROM file (schema "crowdrom-rom", version 2; layout in the README, "ROM file"): written by
+!> The ROM file (schema "crowdrom-rom", version 2; layout in docs/file-formats.md): written by
 !> crowd_offline, read by crowd_rom and the Python scripts. It holds the offline results (POD
 !> spectrum, velocity basis, multiplier cones, PGA history, contact dictionary, inf-sup table,
 !> timings) and the prepared reduced models: one `rom_pair_t` per pair (N, R) with its basis,

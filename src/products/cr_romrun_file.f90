@@ -1,6 +1,6 @@
-!> The ROM-run file (schema "crowdrom-romrun", version 1; layout in the README, "ROM run
-!> file"): written by crowd_rom, read by the Python scripts (ML correction, figures) and by
-!> `read_romrun` (tests, tools).
+!> The ROM-run file (schema "crowdrom-romrun", version 1; layout in docs/file-formats.md): written
+!> by crowd_rom, read by the Python scripts (ML correction, figures) and by `read_romrun` (tests,
+!> tools).
 !>
 !> Writing is streamed: `open` writes the header, `write_set` one (setting, set) group as soon
 !> as it is computed, `close` the sweep table and commits the file (temporary name + rename);

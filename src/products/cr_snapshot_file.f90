@@ -1,5 +1,5 @@
 !> The snapshot database of a parameter study (schema "crowdrom-snapshots", version 2; layout in
-!> the README, "Snapshot database"; version 2 adds each set's block table `sample_checksums`, the
+!> docs/file-formats.md; version 2 adds each set's block table `sample_checksums`, the
 !> per-sample digests of every dataset of the set, so that a reader of some samples verifies
 !> them: docs/robustness.md): written by crowd_snapshots, read by crowd_offline (a block
 !> of training samples per rank), crowd_rom (the study and its full-order trajectories) and the

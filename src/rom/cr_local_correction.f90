@@ -1,5 +1,5 @@
-!> Local exact correction of a reduced velocity (issue 14 item 4): no interpenetration
-!> without solving the full projection every step.
+!> Local exact correction of a reduced velocity (docs/model.md#local-exact-correction): no
+!> interpenetration without solving the full projection every step.
 !>
 !> Given positions q, a reduced velocity u_r = V alpha [2 n_a] and the step h, return
 !> u = u_r + delta such that every linearised contact row of the full model holds:

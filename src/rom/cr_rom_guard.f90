@@ -1,6 +1,6 @@
 !> Divergence guard of a reduced trajectory: a reduced model can produce coefficients that
 !> send agents kilometres away (an EIM-interpolated constraint that is nearly zero but asks
-!> for a negative gap, see README "Reduced model: divergence"), or non-finite values. The
+!> for a negative gap, docs/model.md#eim-rows-with-unit-normals), or non-finite values. The
 !> guard decides, once per step and cheaply, whether the trajectory is still physical; the
 !> stepper stops at the first step that is not, and the sweep reports the sample as diverged.
 !>

@@ -2,7 +2,7 @@
 !> measure rather than hide: overlaps between agents (contacts outside the enforced set)
 !> and agents that never leave (locking).
 !>
-!> Per sample (`measure_sample`, README "Reduced model: accuracy measures"): the paper's E_mu;
+!> Per sample (`measure_sample`, docs/model.md#accuracy-measures): the paper's E_mu;
 !> the displacement error E_disp = sqrt(sum_nu |qr^nu - q^nu|^2) / sqrt(sum_nu |q^nu - q^0|^2)
 !> (nu = 1..N_T); mobility |qr^N_T - q^0| / |q^N_T - q^0|; the deepest agent-agent and
 !> agent-obstacle (walls and interior obstacles) overlaps; the evacuation curves (agents out

@@ -1,5 +1,5 @@
-!> The online sweep of crowd_rom (issue 12: the driver keeps argument handling, one call per
-!> stage and the summary): for every setting of &sweep and every sample of the chosen sets,
+!> The online sweep of crowd_rom (the driver keeps argument handling, one call per stage and
+!> the summary): for every setting of &sweep and every sample of the chosen sets,
 !> the reduced model is stepped and measured against the full-order trajectories where they
 !> exist (E_mu, E_avg, displacement and evacuation-time errors, overlaps agent/wall, mobility,
 !> agents that fail to leave); the full-order model is timed on the same samples (the paper's

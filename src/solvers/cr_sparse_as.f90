@@ -103,27 +103,27 @@ module cr_sparse_as
     !> falling (every row reaching zero on the way leaves P at once); otherwise the classical
     !> step to the first breakpoint
     logical :: proj_search = .true.
-    !> only violated rows with a slack below add_frac times the most negative one enter at an
-    !> outer iteration (0: every violated row), on problems with fewer than add_frac_rows rows.
-    !> Measured (README, third pass): 0.5 takes 12% fewer instructions on congested150, 19% on
-    !> congested1000 and halves the CPU time of the crowd1000 scene; on congested10000 and
-    !> congested100000 (one global threshold holds back the many separate jams) every violated
-    !> row entering is 10-20% cheaper
+    !> only violated rows with a slack below add_frac times the most negative one enter at an outer
+    !> iteration (0: every violated row), on problems with fewer than add_frac_rows rows. Measured
+    !> (docs/benchmarks.md#tuned-parameters-of-sparse_active_set, add_frac): 0.5 takes 12% fewer
+    !> instructions on congested150, 19% on congested1000 and halves the CPU time of the crowd1000
+    !> scene; on congested10000 and congested100000 (one global threshold holds back the many
+    !> separate jams) every violated row entering is 10-20% cheaper
     real(wp) :: add_frac = 0.5_wp
-    !> warm start by the step back from the warm multipliers (projected search towards the
-    !> minimiser on the warm passive set) instead of dropping every row whose minimiser is
-    !> not positive, on problems with fewer than warm_search_rows rows. Measured (README,
-    !> fourth pass): 22% fewer row updates on congested150; on congested10000 1.7% more
-    !> instructions than without
+    !> warm start by the step back from the warm multipliers (projected search towards the minimiser
+    !> on the warm passive set) instead of dropping every row whose minimiser is not positive, on
+    !> problems with fewer than warm_search_rows rows. Measured
+    !> (docs/benchmarks.md#tuned-parameters-of-sparse_active_set, warm_search): 22% fewer row
+    !> updates on congested150; on congested10000 1.7% more instructions than without
     logical :: warm_search = .true.
     integer :: warm_search_rows = 10000
-    !> a row that a projected search brings from lambda > 0 to zero but that is violated at the
-    !> new point (its slack, the gradient of f, is below -thr there) stays in P at zero instead
-    !> of leaving: it would enter again at the next outer iteration (a deletion, an addition
-    !> and an iteration saved). Only in the first keep_searches searches of a step back, and
-    !> never for a row that was at zero when the search began, so the step back stays finite.
-    !> Measured (README, fifth pass, iterations): 2-3% fewer instructions on congested150
-    !> (four seeds), -0.7% on congested1000
+    !> a row that a projected search brings from lambda > 0 to zero but that is violated at the new
+    !> point (its slack, the gradient of f, is below -thr there) stays in P at zero instead of
+    !> leaving: it would enter again at the next outer iteration (a deletion, an addition and an
+    !> iteration saved). Only in the first keep_searches searches of a step back, and never for a
+    !> row that was at zero when the search began, so the step back stays finite. Measured
+    !> (docs/benchmarks.md#tuned-parameters-of-sparse_active_set, keep_violated): 2-3% fewer
+    !> instructions on congested150 (four seeds), -0.7% on congested1000
     logical :: keep_violated = .true.
     integer :: keep_searches = 4
     !> rows kept in P that way since init
@@ -180,18 +180,18 @@ module cr_sparse_as
     !> (reuse_slots puts later values on this pattern) [ns + 1], [nnz]
     integer, allocatable :: wptr(:), wi(:)
     real(wp), allocatable :: wv(:)
-    !> reuse the analysis of an earlier solve (reuse_analysis): the analysed matrix is indexed
-    !> by slots, one per row analysed, named by the row's contact identity (key). M's pattern
-    !> between two rows depends only on their identities (they share an agent), so a later
-    !> solve whose rows that can become active all have a slot factorises on the same
-    !> analysis (rows without one stay inactive; slots without a row are identity rows).
-    !> The analysis is redone when a row that may become active has no slot, or when fewer
-    !> than reuse_fill of the slots hold a row. A fresh analysis takes the rows whose slack at
-    !> u = v is below a_margin (>= w_margin) times the velocity scale, so that it lasts. The
-    !> rows that may become active: warm-start rows and rows whose slack at u = v is below
-    !> r_margin times the velocity scale (0: the violated ones; a row violated later without a
-    !> slot enlarges W as before). Measured on congested150 (README, fourth pass): r_margin 0
-    !> and a_margin 2 take the fewest instructions.
+    !> reuse the analysis of an earlier solve (reuse_analysis): the analysed matrix is indexed by
+    !> slots, one per row analysed, named by the row's contact identity (key). M's pattern between
+    !> two rows depends only on their identities (they share an agent), so a later solve whose rows
+    !> that can become active all have a slot factorises on the same analysis (rows without one stay
+    !> inactive; slots without a row are identity rows). The analysis is redone when a row that may
+    !> become active has no slot, or when fewer than reuse_fill of the slots hold a row. A fresh
+    !> analysis takes the rows whose slack at u = v is below a_margin (>= w_margin) times the
+    !> velocity scale, so that it lasts. The rows that may become active: warm-start rows and rows
+    !> whose slack at u = v is below r_margin times the velocity scale (0: the violated ones; a row
+    !> violated later without a slot enlarges W as before). Measured on congested150
+    !> (docs/benchmarks.md#tuned-parameters-of-sparse_active_set, a_margin): r_margin 0 and a_margin
+    !> 2 take the fewest instructions.
     logical :: reuse_analysis = .true.
     real(wp) :: a_margin = 2.0_wp, reuse_fill = 0.5_wp, r_margin = 0.0_wp
     !> tail slots: a fresh analysis appends tail_slots empty slots, ordered after the others.
@@ -617,11 +617,11 @@ contains
       this%fp(m + 1) = nz + 1
     end subroutine assemble
 
-    !> Analyse M restricted to the rows of W (AMD ordering), in slot space: slot k is the k-th
-    !> row of W, the other rows have no slot (they never enter the factor). Without fresh and
-    !> with reuse_analysis, the previous analysis is kept when every row that may become active
-    !> has a slot in it (reuse_slots); a fresh analysis widens W to the a_margin rows first (unless fresh: the
-    !> enlargement of a solve, which sets W itself). Reusing the previous call's ordering by
+    !> Analyse M restricted to the rows of W (AMD ordering), in slot space: slot k is the k-th row
+    !> of W, the other rows have no slot (they never enter the factor). Without fresh and with
+    !> reuse_analysis, the previous analysis is kept when every row that may become active has a
+    !> slot in it (reuse_slots); a fresh analysis widens W to the a_margin rows first (unless fresh:
+    !> the enlargement of a solve, which sets W itself). Reusing the previous call's ordering by
     !> contact identity with a fresh symbolic analysis (CHOLMOD_GIVEN) was measured and is not
     !> cheaper: the symbolic analysis costs about as much as AMD on these graphs.
     subroutine order_and_analyze(fresh)
@@ -699,10 +699,11 @@ contains
       this%hkey(q) = key; this%hslot(q) = k
     end subroutine slot_insert
 
-    !> The previous analysis serves this solve when every row that may become active (warm
-    !> start, slack at u = v below r_margin velocity scales) has a slot (found by its contact
-    !> identity), no two rows share one, and at least reuse_fill of the slots hold a row. Then W becomes every row with a slot, M is handed over in slot space (same
-    !> pattern as analysed or a part of it) and ok is true.
+    !> The previous analysis serves this solve when every row that may become active (warm start,
+    !> slack at u = v below r_margin velocity scales) has a slot (found by its contact identity), no
+    !> two rows share one, and at least reuse_fill of the slots hold a row. Then W becomes every row
+    !> with a slot, M is handed over in slot space (same pattern as analysed or a part of it) and ok
+    !> is true.
     logical function reuse_slots() result(ok)
       integer :: jj, k, nzs, nin, nneed
       ok = .false.
