@@ -550,6 +550,10 @@ contains
       out_set%evac_rom(:, k) = ms(k)%evac_rom
       out_set%t_out_rom(:, k) = ms(k)%t_rom
     end do
+    allocate(out_set%qoi(blk%n))
+    do k = 1, blk%n
+      out_set%qoi(k) = ms(k)%qoi_rom
+    end do
     if (blk%has_fom) then
       allocate(out_set%evac_fom(nt + 1, blk%n), out_set%t_out_fom(size(EVAC_PCT), blk%n))
       do k = 1, blk%n
