@@ -415,6 +415,13 @@ def romrun_set(f, k, s, n_steps, n_dof):
                 raise InputError(f"'{f.filename}': '{name}/{key}' has h5py shape {x.shape}, expected "
                                  f"({n_s}, {width})")
             out[key] = x
+    # the quantities of interest of the reduced trajectories (read_qoi_group), when stored
+    if "qoi" in g:
+        q = read_qoi_group(f, name + "/qoi")
+        if q["n_rows"] != n_s or q["n_steps"] != n_steps:
+            raise InputError(f"'{f.filename}': '{name}/qoi' has {q['n_rows']} rows of {q['n_steps']} steps, "
+                             f"expected {n_s} of {n_steps}")
+        out["qoi"] = q
     # local exact correction ('local' settings only): agents corrected per step [n_S, N_T] and
     # the correction's wall time per sample [n_S]; the positions are then the corrected ones,
     # carried in full (integrating alpha does not give them back)
