@@ -14,7 +14,7 @@ import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import crowdrom_io  # noqa: E402
-from test_rom import BIN, ENV, ROOT, STUDY, run  # noqa: E402
+from test_rom import BIN, ENV, ROOT, STUDY, offline, rom_input, run  # noqa: E402
 
 N_STEPS = 40
 
@@ -140,3 +140,33 @@ def test_product_reader_refuses(tmp_path):
         f.attrs["schema_version"] = np.int32(2)
     with pytest.raises(crowdrom_io.InputError, match="schema version 2 is not supported"):
         crowdrom_io.read_qoi(path)
+
+
+def test_sweep_qoi_equal_independent(databases):
+    """crowd_rom stores each setting's per-sample QoIs: equal to the numpy recomputation from the
+    reduced positions it stores, and its evacuation columns are made of them."""
+    tmp, (db1, _) = databases
+    nml = tmp / "study1.nml"
+    rom = offline(tmp, nml, db1, tmp / "rom.h5")
+    with h5py.File(rom, "r") as f:
+        n, r = int(f["pairs/1"].attrs["n"]), int(f["pairs/1"].attrs["r"])
+    out = tmp / "run.h5"
+    settings = [dict(n=n, r=r, hyper="'eq'")]
+    p = run(0, "crowd_rom", rom_input(tmp, "rom.nml", rom, out, settings, sets="'both'"), tmp)
+    assert p.returncode == 0, p.stdout + p.stderr
+    with h5py.File(db1, "r") as d:
+        h = float(d.attrs["dt"])
+        y_line = float(d["scene"].attrs["hall_width"]) + float(d["scene"].attrs["wall_thickness"]) + \
+            float(d.attrs["agent_radius"])
+        exits = {s: d[s + "/scene_exit"][...] for s in ("train", "valid")}
+    with h5py.File(out, "r") as f:
+        meta = crowdrom_io.romrun_meta(f)
+        for s in ("train", "valid"):
+            d = crowdrom_io.romrun_set(f, 1, s, meta["n_steps"], 2 * meta["n_agents"])
+            got = d["qoi"]
+            for k in range(got["n_rows"]):
+                pos = d["positions"][k].reshape(N_STEPS + 1, -1, 2)
+                want = qoi_numpy(pos, h, y_line, exits[s][k, 2] - exits[s][k, 0])
+                check_row(got, k, want, "sweep %s sample %d" % (s, k + 1))
+            assert np.array_equal(d["evac_rom"], got["curve_total"])
+            assert np.array_equal(d["t_out_rom"], np.where(got["censored"], -1.0, got["t_evac"])[:, :2])
