@@ -98,21 +98,21 @@ contains
     !> a [m, n] with its checksum
     subroutine put_real(name, a)
       character(len=*), intent(in) :: name
-      real(wp), intent(in) :: a(:,:)
+      real(wp), intent(in), contiguous :: a(:,:)
       call h5%write(name, a, error)
       if (.not. allocated(error)) call put_digest(h5, name, digest_of(a, 0_i8), error)
     end subroutine put_real
 
     subroutine put_int(name, a)
       character(len=*), intent(in) :: name
-      integer, intent(in) :: a(:,:)
+      integer, intent(in), contiguous :: a(:,:)
       call h5%write(name, a, error)
       if (.not. allocated(error)) call put_digest(h5, name, digest_of(a, 0_i8), error)
     end subroutine put_int
 
     subroutine put_vec(name, a)
       character(len=*), intent(in) :: name
-      real(wp), intent(in) :: a(:)
+      real(wp), intent(in), contiguous :: a(:)
       call h5%write(name, a, error)
       if (.not. allocated(error)) call put_digest(h5, name, digest_of(a, 0_i8), error)
     end subroutine put_vec
