@@ -34,7 +34,7 @@ PROJ_SCHEMA = "crowdrom-projected"
 #: schema versions each reader accepts (as in src/products: *_VERSIONS_READ); the figures also
 #: read the offline results of a version-1 ROM file (written before the prepared pairs), which
 #: crowd_rom (pairs needed) refuses
-SCHEMA_VERSIONS = {FOM_SCHEMA: (1,), DB_SCHEMA: (1,), ROM_SCHEMA: (1, 2), ROMRUN_SCHEMA: (1,),
+SCHEMA_VERSIONS = {FOM_SCHEMA: (1,), DB_SCHEMA: (1,), ROM_SCHEMA: (1, 2, 3), ROMRUN_SCHEMA: (1,),
                    ML_SCHEMA: (1,), PROJ_SCHEMA: (2,)}
 
 
