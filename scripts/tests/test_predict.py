@@ -233,3 +233,51 @@ def test_older_rom_file_refused(study):
     assert p.returncode == 2 and not out.exists()
     lines = [l for l in p.stderr.splitlines() if l.strip()]
     assert len(lines) == 1 and "ROM file version 2 holds no study" in lines[0], p.stderr
+
+
+def test_ml_predict_any_list(study):
+    """ml_correct.py --predict: the saved models correct crowd_predict's coefficients; the QoIs of the
+    corrected positions (by crowd_predict, model = 'positions') match those of the training run's
+    corrected validation positions, with no ROM run file or database."""
+    tmp, db, rom, names, params = study
+    romrun = tmp / "ml_romrun.h5"
+    flat = ("rom_file = '%s', output = '%s', sets = 'both', fom_timing_samples = 0, timing_repeats = 1, "
+            "n(1) = 4, r(1) = 3, hyper(1) = 'eq'" % (rom, romrun))
+    (tmp / "ml_rom.nml").write_text(nml_groups.as_text(nml_groups.rom_groups(flat)))
+    p = run(0, "crowd_rom", tmp / "ml_rom.nml", tmp)
+    assert p.returncode == 0, p.stdout + p.stderr
+    cfg = tmp / "ml_small.json"
+    cfg.write_text('{"n_values": [3], "regressors": ["random_forest"], "random_forest": {"n_estimators": 10}}')
+    script = os.path.join(ROOT, "scripts", "ml_correct.py")
+    env = dict(ENV, CROWDROM_BIN=BIN)
+    p = subprocess.run([sys.executable, script, str(romrun), "--config", str(cfg), "--no-project", "--quiet",
+                        "-o", str(tmp / "ml.h5"), "--models-dir", str(tmp / "ml_models")],
+                       capture_output=True, text=True, env=env, cwd=tmp)
+    assert p.returncode == 0, p.stdout + p.stderr
+    with h5py.File(db, "r") as f:
+        valid = f["valid/params"][...]
+    with h5py.File(tmp / "ml.h5", "r") as f:
+        q_ml = f["random_forest/best/positions"][...].reshape(len(valid), 13, 16)
+    plist = write_text_list(tmp / "valid.txt", names, valid)
+    pred = tmp / "pred_valid.h5"
+    p = run(0, "crowd_predict", predict_input(tmp, "pred_valid.nml", rom, pred, n=4, r=3,
+                                              params_file="'%s'" % plist, trajectories=".true."), tmp)
+    assert p.returncode == 0, p.stdout + p.stderr
+    out = tmp / "pred_valid_ml.h5"
+    p = subprocess.run([sys.executable, script, "--predict", str(pred), "--ml-output", str(tmp / "ml.h5"),
+                        "--config", str(cfg), "--models-dir", str(tmp / "ml_models"), "-o", str(out), "--quiet"],
+                       capture_output=True, text=True, env=env, cwd=tmp)
+    assert p.returncode == 0, p.stdout + p.stderr
+    d, a = product(out)
+    base, _ = product(pred)
+    assert a["model"].decode() == "ml random_forest n=3"
+    assert np.array_equal(d["params"], valid)
+    # the tiny hall (no second exit): out when the centre is above hall_width + wall + radius
+    curve = (q_ml[:, :, 1::2] > 0.5 + 0.05 + 0.04).sum(axis=2)
+    assert np.array_equal(d["curve_total"], curve)
+    assert np.all(d["cpu_seconds"] > base["cpu_seconds"])
+    # a product without coefficients is refused with one line
+    p = subprocess.run([sys.executable, script, "--predict", str(out), "--n", "3", "--config", str(cfg),
+                        "--models-dir", str(tmp / "ml_models"), "-o", str(tmp / "nope.h5")],
+                       capture_output=True, text=True, env=env, cwd=tmp)
+    assert p.returncode == 2 and "no reduced coefficients" in p.stderr and not (tmp / "nope.h5").exists()

@@ -4,7 +4,11 @@
 !>
 !> model = 'rom' runs one reduced setting, as one entry of crowd_rom's &sweep (n, r, hyper,
 !> contacts, m_v, m_b, m_d, correction) with the reduced solver `solver`; model = 'exact' runs
-!> the full model of the study's configuration (its &solver) on the same list.
+!> the full model of the study's configuration (its &solver) on the same list; model =
+!> 'positions' runs nothing: the trajectories are given in the HDF5 params_file (dataset
+!> `positions`, query k's frames 0..n_steps in rows (k - 1)(n_steps + 1) + 1.., the layout of the
+!> product's positions) and only measured (the ML correction's QoIs, scripts/ml_correct.py).
+!> `label` (default: derived from the model) names the model in the product.
 !>
 !> The list: `params_file` (a text file, a header naming the columns then one query per row,
 !> or an HDF5 file with a dataset `params_dataset` [n_queries rows, one column per component]
@@ -41,8 +45,10 @@ module cr_predict_config
     !> ROM file (crowd_offline, version 3) and the QoI product written
     character(len=MAX_PATH) :: rom_file = ''
     character(len=MAX_PATH) :: output = ''
-    !> 'rom' (one reduced setting) or 'exact' (the full model)
-    character(len=8) :: model = 'rom'
+    !> 'rom' (one reduced setting), 'exact' (the full model) or 'positions' (given trajectories)
+    character(len=16) :: model = 'rom'
+    !> the model's name in the product ('' = derived from the model and its setting)
+    character(len=128) :: label = ''
     !> the reduced setting (as one entry of crowd_rom's &sweep) and the reduced solver
     integer :: n = 0, r = 0
     character(len=8) :: hyper = 'eq'
@@ -75,13 +81,15 @@ contains
     type(error_t), allocatable, intent(out) :: error
     character(len=MAX_PATH) :: rom_file, output, params_file
     character(len=64) :: params_dataset
-    character(len=8) :: model, hyper, contacts, correction, solver, out_of_box
+    character(len=16) :: model
+    character(len=128) :: label
+    character(len=8) :: hyper, contacts, correction, solver, out_of_box
     integer :: n, r, m_v, m_b, m_d, n_queries, seed
     character(len=16) :: dist_param(MAX_DIST)
     character(len=11) :: dist(MAX_DIST)
     real(wp), dimension(MAX_DIST) :: dist_a, dist_b, dist_lo, dist_hi
     logical :: trajectories
-    namelist /predict/ rom_file, output, model, n, r, hyper, contacts, m_v, m_b, m_d, correction, solver, &
+    namelist /predict/ rom_file, output, model, label, n, r, hyper, contacts, m_v, m_b, m_d, correction, solver, &
       params_file, params_dataset, n_queries, seed, dist_param, dist, dist_a, dist_b, dist_lo, dist_hi, &
       out_of_box, trajectories
     integer :: ios
@@ -89,7 +97,7 @@ contains
     if (.not. t%has_group('predict')) then
       call set_error(error, t%path // ": namelist group &predict is missing", 2); return
     end if
-    rom_file = c%rom_file; output = c%output; model = c%model; n = c%n; r = c%r; hyper = c%hyper
+    rom_file = c%rom_file; output = c%output; model = c%model; label = c%label; n = c%n; r = c%r; hyper = c%hyper
     contacts = c%contacts; m_v = c%m_v; m_b = c%m_b; m_d = c%m_d; correction = c%correction; solver = c%solver
     params_file = c%params_file; params_dataset = c%params_dataset; n_queries = c%n_queries; seed = c%seed
     dist_param = c%dist_param; dist = c%dist; dist_a = c%dist_a; dist_b = c%dist_b; dist_lo = c%dist_lo
@@ -97,7 +105,7 @@ contains
     msg = ''
     read(t%lines, nml=predict, iostat=ios, iomsg=msg)
     call nml_status(t, 'predict', ios, msg, error); if (allocated(error)) return
-    c%rom_file = rom_file; c%output = output; c%model = model; c%n = n; c%r = r; c%hyper = hyper
+    c%rom_file = rom_file; c%output = output; c%model = model; c%label = label; c%n = n; c%r = r; c%hyper = hyper
     c%contacts = contacts; c%m_v = m_v; c%m_b = m_b; c%m_d = m_d; c%correction = correction; c%solver = solver
     c%params_file = params_file; c%params_dataset = params_dataset; c%n_queries = n_queries; c%seed = seed
     c%dist_param = dist_param; c%dist = dist; c%dist_a = dist_a; c%dist_b = dist_b; c%dist_lo = dist_lo
@@ -126,8 +134,12 @@ contains
     end if
     call probs%need(len_trim(c%rom_file) > 0, "&predict: rom_file must be given")
     call probs%need(len_trim(c%output) > 0, "&predict: output must be given")
-    call probs%need(c%model == 'rom' .or. c%model == 'exact', "&predict: model must be 'rom' or 'exact' (got '" // &
-      trim(c%model) // "')")
+    call probs%need(c%model == 'rom' .or. c%model == 'exact' .or. c%model == 'positions', "&predict: model must " // &
+      "be 'rom', 'exact' or 'positions' (got '" // trim(c%model) // "')")
+    call probs%need(c%model /= 'positions' .or. len_trim(c%params_file) > 0, "&predict: model = 'positions' " // &
+      "needs params_file (an HDF5 file with the parameters and the dataset 'positions')")
+    call probs%need(c%model /= 'positions' .or. .not. c%trajectories, "&predict: model = 'positions' writes " // &
+      "no trajectories (they are its input)")
     if (c%model == 'rom') then
       call probs%need(c%n >= 1 .and. c%r >= 0, "&predict: model = 'rom' needs n >= 1 and r >= 0 (a pair (N, R) of " // &
         "the ROM file)")
@@ -209,7 +221,8 @@ contains
     character(len=*), parameter :: nl = new_line('a')
     integer :: k
     s = "&predict rom_file = '" // trim(c%rom_file) // "', output = '" // trim(c%output) // "', model = '" // &
-      trim(c%model) // "'," // nl // "  n = " // str(c%n) // ", r = " // str(c%r) // ", hyper = '" // trim(c%hyper) // &
+      trim(c%model) // "', label = '" // trim(c%label) // "'," // nl // "  n = " // str(c%n) // ", r = " // &
+      str(c%r) // ", hyper = '" // trim(c%hyper) // &
       "', contacts = '" // trim(c%contacts) // "', m_v = " // str(c%m_v) // ", m_b = " // str(c%m_b) // ", m_d = " // &
       str(c%m_d) // ", correction = '" // trim(c%correction) // "', solver = '" // trim(c%solver) // "'," // nl // &
       "  params_file = '" // trim(c%params_file) // "', params_dataset = '" // trim(c%params_dataset) // &

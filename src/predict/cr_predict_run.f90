@@ -14,7 +14,7 @@
 !>   write  rank 0 writes the product (temporary + rename);
 !>   print_summary / write_summary.
 module cr_predict_run
-  use cr_kinds, only: wp
+  use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str, shorten
   use cr_env, only: env_t
@@ -36,6 +36,7 @@ module cr_predict_run
   use cr_predict_output, only: query_record_t, record_size, pack_record, unpack_record, predict_product_t, &
     write_predict_product
   use cr_json, only: json_writer_t
+  use cr_h5file, only: h5file_t
   implicit none
   private
   public :: predict_run_t
@@ -55,6 +56,10 @@ module cr_predict_run
     !> wall time of the query loop and the summed CPU time of the queries [s]
     real(wp) :: t_wall = 0, t_cpu = 0
     integer :: n_ranks = 1
+    !> model = 'positions': the params_file, open on every rank during run, and the CPU seconds
+    !> that produced each query's positions (its dataset 'cpu_seconds', else 0) [n_queries]
+    type(h5file_t) :: given
+    real(wp), allocatable :: given_cpu(:)
   contains
     procedure :: init
     procedure :: run
@@ -96,6 +101,10 @@ contains
         "the training box (first: query " // str(findloc(this%list%out_of_box, .true., 1)) // "; out_of_box = " // &
         "'refuse')", 2); return
     end if
+    if (cfg%model == 'positions') then
+      call check_given(this, error)
+      if (allocated(error)) return
+    end if
     if (cfg%model == 'rom') then
       call find_pair(this%hdr, cfg%n, cfg%r, this%where, this%kp, error)
       if (allocated(error)) return
@@ -103,6 +112,49 @@ contains
     end if
     call log%stage_end()
   end subroutine init
+
+  !> model = 'positions': the params_file's dataset 'positions' holds n_steps + 1 frames of
+  !> n_dof positions per query.
+  subroutine check_given(this, error)
+    type(predict_run_t), intent(inout) :: this
+    type(error_t), allocatable, intent(out) :: error
+    type(error_t), allocatable :: e2
+    integer(i8), allocatable :: dims(:)
+    character(len=:), allocatable :: what
+    what = this%where // ": params_file '" // trim(this%cfg%params_file) // "'"
+    call this%given%open(trim(this%cfg%params_file), error)
+    if (allocated(error)) then
+      error%message = what // ": " // error%message; error%code = 2; return
+    end if
+    if (.not. this%given%exists("positions")) then
+      call set_error(error, what // ": no dataset 'positions' (model = 'positions')", 2)
+    else
+      call this%given%get_dims("positions", dims, error)
+      if (.not. allocated(error)) then
+        if (size(dims) /= 2) then
+          call set_error(error, what // ": dataset 'positions' must be 2-dimensional", 2)
+        else if (dims(1) /= this%st%n_dof .or. dims(2) /= this%list%n * (this%st%n_steps + 1)) then
+          call set_error(error, what // ": dataset 'positions' has " // str(dims(2)) // " x " // str(dims(1)) // &
+            " entries, expected n_queries (n_steps + 1) x n_dof = " // str(this%list%n * (this%st%n_steps + 1)) // &
+            " x " // str(this%st%n_dof), 2)
+        end if
+      end if
+    end if
+    if (.not. allocated(error)) then
+      if (this%given%exists("cpu_seconds")) then
+        call this%given%read("cpu_seconds", this%given_cpu, error)
+        if (.not. allocated(error)) then
+          if (size(this%given_cpu) /= this%list%n .or. .not. all(this%given_cpu >= 0 .and. &
+              this%given_cpu <= huge(1.0_wp))) call set_error(error, what // ": dataset 'cpu_seconds' must hold " // &
+            str(this%list%n) // " finite values >= 0", 2)
+        end if
+      else
+        allocate(this%given_cpu(this%list%n))
+        this%given_cpu = 0
+      end if
+    end if
+    call this%given%close(e2)
+  end subroutine check_given
 
   !> Every query, distributed dynamically over the ranks of env; the records gathered on rank 0.
   subroutine run(this, env, log, error)
@@ -118,6 +170,7 @@ contains
     integer, allocatable :: ids(:)
     integer :: k, n_mine, lrec
     real(wp) :: w0
+    type(error_t), allocatable :: e2
     this%n_ranks = env%size
     if (this%cfg%model == 'rom') then
       call log%stage_begin("crowd_predict: load the reduced model (N, R) = (" // str(this%cfg%n) // ", " // &
@@ -130,6 +183,12 @@ contains
     end if
     lrec = record_size(this%st%n_steps, this%st%n_dof, this%nb, this%cfg%trajectories)
     allocate(mine(lrec, 16), ids(16))
+    if (this%cfg%model == 'positions') then
+      call this%given%open(trim(this%cfg%params_file), error)
+      if (allocated(error)) call prefix_error(error, this%where // ": params_file")
+      call env%agree_error(error)
+      if (allocated(error)) return
+    end if
     call log%stage_begin("crowd_predict: " // str(this%list%n) // " queries (" // trim(this%cfg%model) // ") on " // &
       str(env%size) // " rank(s)")
     call sched%init(env, this%list%n, error)
@@ -152,6 +211,7 @@ contains
       end if
       call log%progress("query", min(k, this%list%n), this%list%n)
     end do
+    if (this%given%is_open()) call this%given%close(e2)
     call env%agree_error(error)
     call sched%free()
     if (allocated(error)) return
@@ -186,7 +246,7 @@ contains
 
   !> Query k: its trajectory (reduced or full) and its record.
   subroutine one_query(this, pair, ops, corr, k, packed, error)
-    type(predict_run_t), intent(in) :: this
+    type(predict_run_t), intent(inout) :: this
     type(rom_pair_t), intent(in) :: pair
     class(reduced_ops_t), allocatable, intent(inout) :: ops
     type(local_correction_t), allocatable, intent(inout) :: corr
@@ -198,15 +258,19 @@ contains
     real(wp), allocatable :: qr(:,:)
     real(wp) :: c0, c1
     call cpu_time(c0)
-    if (this%cfg%model == 'rom') then
+    select case (trim(this%cfg%model))
+    case ('rom')
       call rom_query(this, pair, ops, corr, this%list%mu(:, k), qr, scene, r, error)
-    else
+    case ('exact')
       call exact_query(this, this%list%mu(:, k), qr, scene, r, error)
-    end if
+    case default
+      call given_query(this, k, qr, scene, error)
+    end select
     if (allocated(error)) return
     call r%measure(scene, this%st%radius, this%st%dt, qr)
     call cpu_time(c1)
     r%cpu = c1 - c0
+    if (this%cfg%model == 'positions') r%cpu = r%cpu + this%given_cpu(k)
     r%out_of_box = this%list%out_of_box(k)
     if (this%cfg%trajectories) call move_alloc(qr, r%q)
     call pack_record(r, packed)
@@ -269,6 +333,33 @@ contains
     scene = fom%scene
   end subroutine exact_query
 
+  !> Query k of model = 'positions': its frames of the params_file's dataset 'positions' and
+  !> the scene of its parameters.
+  subroutine given_query(this, k, q, scene, error)
+    type(predict_run_t), intent(inout) :: this
+    integer, intent(in) :: k
+    real(wp), allocatable, intent(out) :: q(:,:)
+    type(scene_t), intent(out) :: scene
+    type(error_t), allocatable, intent(out) :: error
+    integer :: nc
+    nc = this%st%n_steps + 1
+    allocate(q(this%st%n_dof, nc))
+    call this%given%read_block("positions", q, (k - 1) * nc, error)
+    if (allocated(error)) then
+      call prefix_error(error, "params_file: dataset 'positions'"); error%code = 2; return
+    end if
+    call need_finite_q(q, error); if (allocated(error)) return
+    call this%st%space%scene_of(this%list%mu(:, k), this%st%cfg, scene, error)
+  end subroutine given_query
+
+  !> Given positions must be finite.
+  subroutine need_finite_q(q, error)
+    real(wp), intent(in) :: q(:,:)
+    type(error_t), allocatable, intent(out) :: error
+    if (all(abs(q) <= huge(1.0_wp))) return
+    call set_error(error, "params_file: dataset 'positions': a value is not finite", 2)
+  end subroutine need_finite_q
+
   !> Rank 0 receives every rank's records and puts them in query order (this%rec).
   subroutine gather_records(this, env, mine, ids, error)
     type(predict_run_t), intent(inout) :: this
@@ -330,7 +421,11 @@ contains
   function model_name(this) result(s)
     type(predict_run_t), intent(in) :: this
     character(len=:), allocatable :: s
-    if (this%cfg%model == 'exact') then
+    if (len_trim(this%cfg%label) > 0) then
+      s = trim(this%cfg%label)
+    else if (this%cfg%model == 'positions') then
+      s = "given positions"
+    else if (this%cfg%model == 'exact') then
       s = "exact " // trim(this%st%cfg%solver%name)
     else
       s = "rom n=" // str(this%cfg%n) // " r=" // str(this%cfg%r) // " hyper=" // trim(this%cfg%hyper) // &
