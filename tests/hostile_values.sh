@@ -100,10 +100,10 @@ case $prog in
     run_case fom_tol_inf fom_timing "tol = Inf" "&fom_timing: tol $fin"
     ;;
   crowd_predict)
-    d="dist_param = 'l_exit', dist = 'normal'"
-    run_case dist_a_inf predict "$d, dist_a = Inf, dist_b = 0.1" "&predict: dist_a\\(1\\) $fin"
-    run_case dist_b_nan predict "$d, dist_a = 0.2, dist_b = NaN" "&predict: dist_b\\(1\\) $fin"
-    run_case dist_a_huge predict "$d, dist_a = 1e308, dist_b = 0.1" "&predict: dist_a\\(1\\) = .*$big"
+    dn="dist_param = 'l_exit', dist = 'normal'"
+    run_case dist_a_inf predict "$dn, dist_a = Inf, dist_b = 0.1" "&predict: dist_a\\(1\\) $fin"
+    run_case dist_b_nan predict "$dn, dist_a = 0.2, dist_b = NaN" "&predict: dist_b\\(1\\) $fin"
+    run_case dist_a_huge predict "$dn, dist_a = 1e308, dist_b = 0.1" "&predict: dist_a\\(1\\) = .*$big"
     run_case dist_lo_ninf predict "dist_param = 'l_exit', dist = 'truncnormal', dist_a = 0.2, dist_b = 0.1, dist_lo = -Inf, dist_hi = 1" "&predict: dist_lo\\(1\\) $fin"
     run_case queries_negative predict "n_queries = -1" "&predict: .*n_queries must be >= 0"
     ;;
