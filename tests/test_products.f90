@@ -594,8 +594,8 @@ contains
 
   subroutine rom_corrupt()
     character(len=*), parameter :: path = "products_rom_bad.h5"
-    character(len=24), parameter :: floats(7) = [character(len=24) :: "pod/sigma", "basis/v", "pairs/1/v", &
-      "pairs/1/cand/w", "pairs/1/eim/s1/basis", "pairs/1/eim/s2/basis", "pairs/1/eq/s3/weights"]
+    character(len=24), parameter :: floats(8) = [character(len=24) :: "pod/sigma", "basis/v", "pairs/1/v", &
+      "pairs/1/cand/w", "pairs/1/eim/s1/basis", "pairs/1/eim/s2/basis", "pairs/1/eq/s3/weights", "study/q0"]
     integer :: k, b
     do k = 1, size(floats)
       do b = 1, 3

@@ -335,13 +335,6 @@ contains
         str(rom%dt) // ")", error); goto 9
     end if
     rom%n_dof = 2 * rom%n_agents
-    if (version >= 3) then
-      call h5%read_attr("study", "config", rom%study_config, error); if (allocated(error)) goto 9
-      call h5%read_attr("study", "param_names", rom%param_names, error); if (allocated(error)) goto 9
-      call h5%read("study/q0", rom%q0, error); if (allocated(error)) goto 9
-      call need_size(path, "study/q0", size(rom%q0), rom%n_dof, "2 n_agents", error); if (allocated(error)) goto 9
-      call need_finite(path, "study/q0", rom%q0, error); if (allocated(error)) goto 9
-    end if
     ! offline results
     call h5%read_attr("pod", "method", rom%pod_method, error); if (allocated(error)) goto 9
     call h5%read_attr("pod", "numerical_rank", rom%pod_rank, error); if (allocated(error)) goto 9
@@ -352,6 +345,13 @@ contains
     call h5%read_attr("basis", "n_pod", rom%n_pod, error); if (allocated(error)) goto 9
     call need_size(path, "basis/v (rows)", size(rom%v, 1), rom%n_dof, "2 n_agents", error); if (allocated(error)) goto 9
     call need_finite(path, "basis/v", rom%v, error); if (allocated(error)) goto 9
+    if (version >= 3) then
+      call h5%read_attr("study", "config", rom%study_config, error); if (allocated(error)) goto 9
+      call h5%read_attr("study", "param_names", rom%param_names, error); if (allocated(error)) goto 9
+      call h5%read("study/q0", rom%q0, error); if (allocated(error)) goto 9
+      call need_size(path, "study/q0", size(rom%q0), rom%n_dof, "2 n_agents", error); if (allocated(error)) goto 9
+      call need_finite(path, "study/q0", rom%q0, error); if (allocated(error)) goto 9
+    end if
     call read_cone(h5, path, "cone", rom%cone, error); if (allocated(error)) goto 9
     do k = 1, 2
       g = "cone_" // trim(merge('gis ', 'mcpg', k == 1))
