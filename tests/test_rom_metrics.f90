@@ -14,7 +14,8 @@ program test_rom_metrics
   use cr_config, only: scene_cfg_t, obstacles_cfg_t
   use cr_scene, only: scene_t
   use cr_rom_metrics, only: sample_measures_t, row_measures_t, measure_sample, aggregate_measures, &
-    evacuation_time, max_overlaps, EVAC_PCT
+    evacuation_time, EVAC_PCT
+  use cr_qoi, only: max_overlaps
   use cr_rom_guard, only: rom_guard_t
   implicit none
   integer, parameter :: na = 10, nt = 150
@@ -76,14 +77,18 @@ contains
     character(len=2) :: p
     ! s1: full model at speed 1, reduced at 0.8 (both reach 50 % and 90 %)
     qf = walk(1.0_wp)
-    call measure_sample(scene, radius, h, walk(0.8_wp), ms(1), q=qf)
+    call measure_sample(scene, radius, h, walk(0.8_wp), ms(1), error, q=qf)
+    call check(.not. allocated(error), "measure_sample")
     ! s2: reduced at 0.5 (reaches 50 %, not 90 %: agent 2 needs 190 steps)
-    call measure_sample(scene, radius, h, walk(0.5_wp), ms(2), q=qf)
+    call measure_sample(scene, radius, h, walk(0.5_wp), ms(2), error, q=qf)
+    call check(.not. allocated(error), "measure_sample")
     ! s3: diverged (excluded whatever its figures)
-    call measure_sample(scene, radius, h, walk(3.0_wp), ms(3), q=qf)
+    call measure_sample(scene, radius, h, walk(3.0_wp), ms(3), error, q=qf)
+    call check(.not. allocated(error), "measure_sample")
     ms(3)%diverged = .true.
     ! s4: full model at 0.5 (misses 90 %), reduced at 0.8
-    call measure_sample(scene, radius, h, walk(0.8_wp), ms(4), q=walk(0.5_wp))
+    call measure_sample(scene, radius, h, walk(0.8_wp), ms(4), error, q=walk(0.5_wp))
+    call check(.not. allocated(error), "measure_sample")
     do j = 1, 2
       write(p, '(i2)') EVAC_PCT(j)
       call check(ms(1)%t_fom(j) == t_closed(1.0_wp, EVAC_PCT(j)) .and. t_closed(1.0_wp, EVAC_PCT(j)) > 0, &

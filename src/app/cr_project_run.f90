@@ -28,7 +28,7 @@ contains
     use cr_scene, only: scene_t
     use cr_projection, only: projection_settings_t
     use cr_position_projection, only: position_projection_t, pproj_stats_t
-    use cr_rom_metrics, only: max_overlaps
+    use cr_qoi, only: max_overlaps
     character(len=*), intent(in) :: input, summary
     type(logger_t), intent(inout) :: log
     type(error_t), allocatable, intent(out) :: error

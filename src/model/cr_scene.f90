@@ -40,6 +40,9 @@ module cr_scene
     procedure :: has_exit2
     procedure :: exit2_center
     procedure :: is_out
+    procedure :: exit_of
+    procedure :: n_exits
+    procedure :: exit_width
   end type scene_t
 
 contains
@@ -140,14 +143,41 @@ contains
     c = [this%length, (this%y_lo2 + this%y_hi2) / 2]
   end function exit2_center
 
-  !> Whether an agent of radius r centred at p has left the hall: above the top wall's outer
-  !> face + r, or (second exit) right of the right wall's outer face + r.
+  !> Number of exits: 1 (top wall), 2 with the second exit in the right wall.
+  pure integer function n_exits(this)
+    class(scene_t), intent(in) :: this
+    n_exits = merge(2, 1, this%has_exit2())
+  end function n_exits
+
+  !> Width of exit e (1: top wall, 2: right wall) [m].
+  pure real(wp) function exit_width(this, e)
+    class(scene_t), intent(in) :: this
+    integer, intent(in) :: e
+    exit_width = merge(this%l_exit2, this%l_exit, e == 2)
+  end function exit_width
+
+  !> The "has left" rule, per exit: the exit an agent of radius r centred at p is beyond
+  !> (1: above the top wall's outer face + r; 2, with a second exit: right of the right wall's
+  !> outer face + r; 1 when both hold), 0 while it has not left the hall.
+  pure integer function exit_of(this, p, r)
+    class(scene_t), intent(in) :: this
+    !> centre [2]
+    real(wp), intent(in) :: p(2)
+    real(wp), intent(in) :: r
+    exit_of = 0
+    if (p(2) > this%y_out(r)) then
+      exit_of = 1
+    else if (this%has_exit2()) then
+      if (p(1) > this%length + this%wall + r) exit_of = 2
+    end if
+  end function exit_of
+
+  !> Whether an agent of radius r centred at p has left the hall (through any exit: exit_of).
   pure logical function is_out(this, p, r)
     class(scene_t), intent(in) :: this
     !> centre [2]
     real(wp), intent(in) :: p(2)
     real(wp), intent(in) :: r
-    is_out = p(2) > this%y_out(r)
-    if (this%has_exit2()) is_out = is_out .or. p(1) > this%length + this%wall + r
+    is_out = this%exit_of(p, r) > 0
   end function is_out
 end module cr_scene

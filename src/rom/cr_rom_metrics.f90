@@ -5,23 +5,22 @@
 !> Per sample (`measure_sample`, README "Reduced model: accuracy measures"): the paper's E_mu;
 !> the displacement error E_disp = sqrt(sum_nu |qr^nu - q^nu|^2) / sqrt(sum_nu |q^nu - q^0|^2)
 !> (nu = 1..N_T); mobility |qr^N_T - q^0| / |q^N_T - q^0|; the deepest agent-agent and
-!> agent-obstacle (walls and interior obstacles) overlaps; the evacuation curves (agents out
-!> of the hall at t = nu h, nu = 0..N_T) of both models and the times at which EVAC_PCT % of
-!> the agents are out (-1: not reached within the horizon). Per row of a sweep
+!> agent-obstacle (walls and interior obstacles) overlaps; the quantities of interest of both
+!> models (cr_qoi: evacuation curves, times, flows, trust indicators), and from them the times at
+!> which EVAC_PCT % of the agents are out (-1: not reached within the horizon). Per row of a sweep
 !> (`aggregate_measures`): means and maxima over the samples that did not diverge, and for
 !> each evacuation fraction the mean relative time error over the samples where both models
 !> reach it, with the counts of samples where only one of them does.
 module cr_rom_metrics
   use cr_kinds, only: wp
+  use cr_error, only: error_t, prefix_error
   use cr_scene, only: scene_t
-  use cr_contact_set, only: contact_set_t
-  use cr_neighbours, only: cell_list_t, build_contacts
+  use cr_qoi, only: qoi_t, compute_qoi, max_overlaps, mobility_ratio
   !> the row aggregates and evacuation fractions are those the ROM-run file stores
   use cr_romrun_file, only: row_measures_t, EVAC_PCT
   implicit none
   private
-  public :: position_errors, projection_error, max_overlap, agents_not_left
-  public :: max_overlaps, evacuation_curve, evacuation_time, displacement_error
+  public :: position_errors, projection_error, max_overlap, evacuation_time, displacement_error
   public :: sample_measures_t, row_measures_t, measure_sample, aggregate_measures, EVAC_PCT
 
   !> Measures of one reduced trajectory (-1: not available, e.g. no full-order reference).
@@ -37,6 +36,8 @@ module cr_rom_metrics
     logical :: diverged = .false.
     !> agents out at nu = 0..N_T, reduced and full (empty without reference)
     integer, allocatable :: evac_rom(:), evac_fom(:)
+    !> quantities of interest of the reduced and (with a reference) the full trajectory
+    type(qoi_t) :: qoi_rom, qoi_fom
   end type sample_measures_t
 
 
@@ -82,69 +83,20 @@ contains
   real(wp) function max_overlap(scene, radius, q) result(o)
     type(scene_t), intent(in) :: scene
     real(wp), intent(in) :: radius, q(:,:)
-    type(cell_list_t) :: cells
-    type(contact_set_t) :: cs
-    integer :: nu, l
-    o = 0
-    call cs%init(size(q, 1) / 2, 1.0_wp, 4 * size(q, 1))
-    do nu = 1, size(q, 2)
-      call build_contacts(scene, q(:, nu), radius, 1.0e-12_wp * radius, cells, cs)
-      do l = 1, cs%n
-        o = max(o, -cs%gap(l))
-      end do
-    end do
+    real(wp) :: o_aa, o_aw
+    call max_overlaps(scene, radius, q, o_aa, o_aw)
+    o = max(o_aa, o_aw)
   end function max_overlap
 
-  !> Deepest agent-agent (o_aa) and agent-obstacle (o_aw: walls and interior obstacles)
-  !> overlaps over the configurations q [n_dof, n_conf]; 0 when nothing overlaps.
-  subroutine max_overlaps(scene, radius, q, o_aa, o_aw)
-    type(scene_t), intent(in) :: scene
-    real(wp), intent(in) :: radius, q(:,:)
-    real(wp), intent(out) :: o_aa, o_aw
-    type(cell_list_t) :: cells
-    type(contact_set_t) :: cs
-    integer :: nu, l
-    o_aa = 0; o_aw = 0
-    call cs%init(size(q, 1) / 2, 1.0_wp, 4 * size(q, 1))
-    do nu = 1, size(q, 2)
-      call build_contacts(scene, q(:, nu), radius, 1.0e-12_wp * radius, cells, cs)
-      do l = 1, cs%n
-        if (cs%ib(l) > 0) then
-          o_aa = max(o_aa, -cs%gap(l))
-        else
-          o_aw = max(o_aw, -cs%gap(l))
-        end if
-      end do
-    end do
-  end subroutine max_overlaps
-
-  !> Evacuation curve: agents out of the hall (scene%is_out: centre above scene%y_out(radius),
-  !> or beyond the right wall when the scene has a second exit) in each
-  !> configuration of q [n_dof, n_conf].
-  function evacuation_curve(scene, radius, q) result(nout)
-    type(scene_t), intent(in) :: scene
-    real(wp), intent(in) :: radius, q(:,:)
-    integer, allocatable :: nout(:)
-    integer :: nu
-    allocate(nout(size(q, 2)))
-    do nu = 1, size(q, 2)
-      nout(nu) = size(q, 1) / 2 - agents_not_left(scene, radius, q(:, nu))
-    end do
-  end function evacuation_curve
-
-  !> First time t = (c - 1) h at which the curve nout(c) reaches pct % of n_agents (at least
-  !> ceiling(pct n_agents / 100) agents out); -1 when not reached within the curve.
+  !> cr_qoi's time at which pct % of n_agents are out of the curve nout [n_conf] (time step h),
+  !> -1 where censored (not reached within the curve).
   pure real(wp) function evacuation_time(nout, n_agents, pct, h) result(t)
+    use cr_qoi, only: qoi_time => evacuation_time
     integer, intent(in) :: nout(:), n_agents, pct
     real(wp), intent(in) :: h
-    integer :: c, k
-    k = (pct * n_agents + 99) / 100
-    t = -1
-    do c = 1, size(nout)
-      if (nout(c) >= k) then
-        t = (c - 1) * h; return
-      end if
-    end do
+    logical :: censored
+    call qoi_time(nout, n_agents, pct, h, t, censored)
+    if (censored) t = -1
   end function evacuation_time
 
   !> Displacement error sqrt(sum_nu |qr - q|^2) / sqrt(sum_nu |q - q0|^2) over the
@@ -166,38 +118,52 @@ contains
   !> Every measure of one reduced trajectory qr [n_dof, N_T + 1] (time step h), against
   !> the full-order one q [n_dof, N_T + 1] when present; err [N_T + 1] (optional) receives
   !> the per-step relative position error.
-  subroutine measure_sample(scene, radius, h, qr, m, q, err)
+  subroutine measure_sample(scene, radius, h, qr, m, error, q, err)
     type(scene_t), intent(in) :: scene
     real(wp), intent(in) :: radius, h, qr(:,:)
     type(sample_measures_t), intent(out) :: m
+    type(error_t), allocatable, intent(out) :: error
     real(wp), intent(in), optional :: q(:,:)
     real(wp), intent(out), optional :: err(:)
     real(wp), allocatable :: e(:)
-    integer :: na, nc, j
-    na = size(qr, 1) / 2
-    nc = size(qr, 2)
-    call max_overlaps(scene, radius, qr, m%overlap_aa, m%overlap_aw)
-    m%evac_rom = evacuation_curve(scene, radius, qr)
-    m%not_left = na - m%evac_rom(nc)
-    do j = 1, size(EVAC_PCT)
-      m%t_rom(j) = evacuation_time(m%evac_rom, na, EVAC_PCT(j), h)
-    end do
+    call compute_qoi(scene, radius, h, qr, m%qoi_rom, error)
+    if (allocated(error)) then
+      call prefix_error(error, "reduced trajectory"); return
+    end if
+    m%overlap_aa = m%qoi_rom%overlap_aa; m%overlap_aw = m%qoi_rom%overlap_aw
+    call evac_times(m%qoi_rom, m%evac_rom, m%not_left, m%t_rom)
     m%has_fom = present(q)
     if (.not. m%has_fom) then
       allocate(m%evac_fom(0))
       return
     end if
-    allocate(e(nc))
+    call compute_qoi(scene, radius, h, q, m%qoi_fom, error)
+    if (allocated(error)) then
+      call prefix_error(error, "full-order trajectory"); return
+    end if
+    allocate(e(size(qr, 2)))
     call position_errors(q, qr, e, m%e_mu)
     if (present(err)) err = e
     m%e_disp = displacement_error(q, qr, qr(:, 1))
-    if (norm2(q(:, nc) - q(:, 1)) > 0) m%mobility = norm2(qr(:, nc) - qr(:, 1)) / norm2(q(:, nc) - q(:, 1))
-    m%evac_fom = evacuation_curve(scene, radius, q)
-    m%not_left_fom = na - m%evac_fom(nc)
-    do j = 1, size(EVAC_PCT)
-      m%t_fom(j) = evacuation_time(m%evac_fom, na, EVAC_PCT(j), h)
-    end do
+    m%mobility = mobility_ratio(m%qoi_rom%displacement, m%qoi_fom%displacement)
+    call evac_times(m%qoi_fom, m%evac_fom, m%not_left_fom, m%t_fom)
   end subroutine measure_sample
+
+  !> The sweep's evacuation figures from the QoIs: curve, agents not out at the end, times of
+  !> EVAC_PCT % out (-1: censored).
+  subroutine evac_times(qoi, evac, not_left, t)
+    type(qoi_t), intent(in) :: qoi
+    integer, allocatable, intent(out) :: evac(:)
+    integer, intent(out) :: not_left
+    real(wp), intent(out) :: t(:)
+    integer :: j
+    allocate(evac(size(qoi%curve_total)))
+    evac = qoi%curve_total
+    not_left = qoi%n_agents - evac(size(evac))
+    do j = 1, size(EVAC_PCT)
+      t(j) = evacuation_time(evac, qoi%n_agents, EVAC_PCT(j), qoi%h)
+    end do
+  end subroutine evac_times
 
   !> Aggregate the measures ms of the samples of one row (time step h): every figure over
   !> the samples that did not diverge.
@@ -240,14 +206,4 @@ contains
     end do
   end subroutine aggregate_measures
 
-  !> Agents that have not left the hall at configuration q [n_dof].
-  integer function agents_not_left(scene, radius, q) result(n)
-    type(scene_t), intent(in) :: scene
-    real(wp), intent(in) :: radius, q(:)
-    integer :: i
-    n = 0
-    do i = 1, size(q) / 2
-      if (.not. scene%is_out(q(2*i-1:2*i), radius)) n = n + 1
-    end do
-  end function agents_not_left
 end module cr_rom_metrics

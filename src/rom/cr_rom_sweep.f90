@@ -406,11 +406,14 @@ contains
       extrap(k) = merge(1, 0, any(blk%mu(:, k) < this%st%space%lo - 1.0e-12_wp * abs(this%st%space%lo)) .or. &
         any(blk%mu(:, k) > this%st%space%hi + 1.0e-12_wp * abs(this%st%space%hi)))
       if (blk%has_fom) then
-        call measure_sample(ctx%scene, this%st%radius, this%st%dt, qr, ms(k), q=blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), &
-          err=err_time(:, k))
+        call measure_sample(ctx%scene, this%st%radius, this%st%dt, qr, ms(k), error, &
+          q=blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), err=err_time(:, k))
         e_proj(k) = projection_error(blk%u(:, (k - 1) * nt + 1:k * nt), pair%v)
       else
-        call measure_sample(ctx%scene, this%st%radius, this%st%dt, qr, ms(k))
+        call measure_sample(ctx%scene, this%st%radius, this%st%dt, qr, ms(k), error)
+      end if
+      if (allocated(error)) then
+        call prefix_error(error, "setting " // str(ks) // ", " // trim(blk%name) // " sample " // str(k)); return
       end if
       ms(k)%diverged = div_step(k) > 0
       e_mu(k) = ms(k)%e_mu
