@@ -9,32 +9,28 @@ module cr_predict_output
   use cr_h5file, only: h5file_t
   use cr_digest, only: digest_of, put_digest
   use cr_scene, only: scene_t
-  use cr_rom_metrics, only: evacuation_curve, evacuation_time, max_overlaps
+  use cr_qoi, only: qoi_t, compute_qoi, QOI_PCT
   implicit none
   private
   public :: query_record_t, record_size, pack_record, unpack_record, predict_product_t, write_predict_product, &
-    PREDICT_PCT
+    MAX_EXITS
 
-  !> the evacuation percentages of t50, t90, t100
-  integer, parameter :: PREDICT_PCT(3) = [50, 90, 100]
-  !> scalar slots of a packed record (before the curve)
-  integer, parameter :: N_SCALARS = 5 + 2 * size(PREDICT_PCT) + 2
+  !> exits of a scene at most (the top wall's, the right wall's)
+  integer, parameter :: MAX_EXITS = 2
+  !> scalar slots of a packed record: the query's (5), the QoIs' (n_exits, t_evac, censored,
+  !> overlaps, n_through, displacement), per exit width, flow rate, flow, defined
+  integer, parameter :: N_SCALARS = 5 + 1 + 2 * size(QOI_PCT) + 4 + 4 * MAX_EXITS
 
   !> One query's result.
   type :: query_record_t
-    !> CPU seconds of the query (setup, trajectory and measures)
+    !> CPU seconds of the query (setup, trajectory and QoIs)
     real(wp) :: cpu = 0
     logical :: out_of_box = .false.
     !> reduced: first diverged step (0: none), infeasible and capped steps; exact: steps whose
     !> projection did not converge (n_capped)
     integer :: diverged_step = 0, n_infeasible = 0, n_capped = 0
-    !> agents out at each frame [n_steps + 1]
-    integer, allocatable :: curve(:)
-    !> t50, t90, t100 [s]; censored: not reached within the horizon (value = the horizon)
-    real(wp) :: t_pct(size(PREDICT_PCT)) = 0
-    logical :: censored(size(PREDICT_PCT)) = .false.
-    !> deepest agent-agent and agent-obstacle overlaps over the frames [m]
-    real(wp) :: overlap_aa = 0, overlap_aw = 0
+    !> the quantities of interest of the trajectory (cr_qoi)
+    type(qoi_t) :: qoi
     !> positions [n_dof, n_steps + 1] and, reduced model, the velocity coefficients
     !> [n_basis, n_steps] (trajectories = .true. only)
     real(wp), allocatable :: q(:,:), alpha(:,:)
@@ -54,66 +50,89 @@ module cr_predict_output
 
 contains
 
-  !> The quantities of interest of trajectory q [n_dof, n_steps + 1] on `scene`.
-  subroutine measure(this, scene, radius, h, q)
+  !> The quantities of interest of trajectory q [n_dof, n_steps + 1] on `scene` (cr_qoi).
+  subroutine measure(this, scene, radius, h, q, error)
     class(query_record_t), intent(inout) :: this
     type(scene_t), intent(in) :: scene
     real(wp), intent(in) :: radius, h, q(:,:)
-    integer :: j, na
-    na = size(q, 1) / 2
-    this%curve = evacuation_curve(scene, radius, q)
-    do j = 1, size(PREDICT_PCT)
-      this%t_pct(j) = evacuation_time(this%curve, na, PREDICT_PCT(j), h)
-      this%censored(j) = this%t_pct(j) < 0
-      if (this%censored(j)) this%t_pct(j) = (size(q, 2) - 1) * h
-    end do
-    call max_overlaps(scene, radius, q, this%overlap_aa, this%overlap_aw)
+    type(error_t), allocatable, intent(out) :: error
+    call compute_qoi(scene, radius, h, q, this%qoi, error)
   end subroutine measure
 
   !> Length of a packed record (with_q: positions and n_basis coefficients per step).
   pure integer function record_size(n_steps, n_dof, n_basis, with_q) result(n)
     integer, intent(in) :: n_steps, n_dof, n_basis
     logical, intent(in) :: with_q
-    n = N_SCALARS + (n_steps + 1)
+    n = N_SCALARS + MAX_EXITS * (n_steps + 1)
     if (with_q) n = n + n_dof * (n_steps + 1) + n_basis * n_steps
   end function record_size
 
-  !> r into x [record_size] (positions only when allocated).
+  !> r into x [record_size] (positions and coefficients only when allocated).
   subroutine pack_record(r, x)
     type(query_record_t), intent(in) :: r
     real(wp), intent(out) :: x(:)
-    integer :: m, nc
-    m = size(PREDICT_PCT)
-    nc = size(r%curve)
-    x(1:5) = [r%cpu, merge(1.0_wp, 0.0_wp, r%out_of_box), real(r%diverged_step, wp), real(r%n_infeasible, wp), &
-      real(r%n_capped, wp)]
-    x(6:5 + m) = r%t_pct
-    x(6 + m:5 + 2 * m) = merge(1.0_wp, 0.0_wp, r%censored)
-    x(6 + 2 * m:7 + 2 * m) = [r%overlap_aa, r%overlap_aw]
-    x(N_SCALARS + 1:N_SCALARS + nc) = real(r%curve, wp)
-    if (allocated(r%q)) x(N_SCALARS + nc + 1:N_SCALARS + nc + size(r%q)) = reshape(r%q, [size(r%q)])
-    if (allocated(r%alpha)) x(N_SCALARS + nc + size(r%q) + 1:) = reshape(r%alpha, [size(r%alpha)])
+    integer :: m, nc, e, i
+    m = size(QOI_PCT)
+    x = 0
+    associate (qo => r%qoi)
+      nc = qo%n_steps + 1
+      x(1:6) = [r%cpu, b2r(r%out_of_box), real(r%diverged_step, wp), real(r%n_infeasible, wp), real(r%n_capped, wp), &
+        real(qo%n_exits, wp)]
+      x(7:6 + m) = qo%t_evac
+      x(7 + m:6 + 2 * m) = merge(1.0_wp, 0.0_wp, qo%censored)
+      i = 6 + 2 * m
+      x(i + 1:i + 4) = [qo%overlap_aa, qo%overlap_aw, real(qo%n_through, wp), qo%displacement]
+      i = i + 4
+      do e = 1, qo%n_exits
+        x(i + 4 * e - 3:i + 4 * e) = [qo%width(e), qo%flow_rate(e), qo%flow(e), b2r(qo%flow_defined(e))]
+        x(N_SCALARS + (e - 1) * nc + 1:N_SCALARS + e * nc) = real(qo%curve(:, e), wp)
+      end do
+      i = N_SCALARS + MAX_EXITS * nc
+    end associate
+    if (allocated(r%q)) x(i + 1:i + size(r%q)) = reshape(r%q, [size(r%q)])
+    if (allocated(r%alpha)) x(i + size(r%q) + 1:i + size(r%q) + size(r%alpha)) = reshape(r%alpha, [size(r%alpha)])
+
+  contains
+
+    pure real(wp) function b2r(l)
+      logical, intent(in) :: l
+      b2r = merge(1.0_wp, 0.0_wp, l)
+    end function b2r
   end subroutine pack_record
 
-  !> The record of x (n_steps, n_dof, n_basis, with_q as for record_size).
-  subroutine unpack_record(x, n_steps, n_dof, n_basis, with_q, r)
+  !> The record of x (n_steps, n_dof, n_basis, with_q as for record_size; h the time step,
+  !> n_agents the agents).
+  subroutine unpack_record(x, n_steps, n_dof, n_basis, with_q, h, r)
     real(wp), intent(in) :: x(:)
     integer, intent(in) :: n_steps, n_dof, n_basis
     logical, intent(in) :: with_q
+    real(wp), intent(in) :: h
     type(query_record_t), intent(out) :: r
-    integer :: m, nc
-    m = size(PREDICT_PCT)
+    integer :: m, nc, e, i, ne
+    m = size(QOI_PCT)
     nc = n_steps + 1
     r%cpu = x(1); r%out_of_box = x(2) > 0
     r%diverged_step = nint(x(3)); r%n_infeasible = nint(x(4)); r%n_capped = nint(x(5))
-    r%t_pct = x(6:5 + m)
-    r%censored = x(6 + m:5 + 2 * m) > 0
-    r%overlap_aa = x(6 + 2 * m); r%overlap_aw = x(7 + 2 * m)
-    r%curve = nint(x(N_SCALARS + 1:N_SCALARS + nc))
+    ne = nint(x(6))
+    associate (qo => r%qoi)
+      qo%n_agents = n_dof / 2; qo%n_steps = n_steps; qo%n_exits = ne; qo%h = h
+      qo%t_evac = x(7:6 + m)
+      qo%censored = x(7 + m:6 + 2 * m) > 0
+      i = 6 + 2 * m
+      qo%overlap_aa = x(i + 1); qo%overlap_aw = x(i + 2); qo%n_through = nint(x(i + 3)); qo%displacement = x(i + 4)
+      i = i + 4
+      allocate(qo%width(ne), qo%flow_rate(ne), qo%flow(ne), qo%flow_defined(ne), qo%curve(0:n_steps, ne))
+      do e = 1, ne
+        qo%width(e) = x(i + 4 * e - 3); qo%flow_rate(e) = x(i + 4 * e - 2); qo%flow(e) = x(i + 4 * e - 1)
+        qo%flow_defined(e) = x(i + 4 * e) > 0
+        qo%curve(:, e) = nint(x(N_SCALARS + (e - 1) * nc + 1:N_SCALARS + e * nc))
+      end do
+      qo%curve_total = sum(qo%curve, dim=2)
+    end associate
     if (.not. with_q) return
-    r%q = reshape(x(N_SCALARS + nc + 1:N_SCALARS + nc + n_dof * nc), [n_dof, nc])
-    if (n_basis > 0) r%alpha = reshape(x(N_SCALARS + nc + n_dof * nc + 1:N_SCALARS + nc + n_dof * nc + &
-      n_basis * n_steps), [n_basis, n_steps])
+    i = N_SCALARS + MAX_EXITS * nc
+    r%q = reshape(x(i + 1:i + n_dof * nc), [n_dof, nc])
+    if (n_basis > 0) r%alpha = reshape(x(i + n_dof * nc + 1:i + n_dof * nc + n_basis * n_steps), [n_basis, n_steps])
   end subroutine unpack_record
 
   !> The product at `path` (temporary + rename): parameters mu [n_expanded, n_queries] and
@@ -125,9 +144,8 @@ contains
     type(query_record_t), intent(in) :: rec(:)
     type(error_t), allocatable, intent(out) :: error
     type(h5file_t) :: h5
-    integer :: k, nq, nc, j
-    integer, allocatable :: curve(:,:)
-    real(wp), allocatable :: t(:,:), pos(:,:)
+    integer :: k, nq, nc, j, ne
+    real(wp), allocatable :: pos(:,:)
     nq = size(rec)
     nc = p%n_steps + 1
     call h5%create(path, error)
@@ -159,19 +177,7 @@ contains
     call put_int("diverged_step", rec%diverged_step); if (allocated(error)) goto 9
     call put_int("n_infeasible", rec%n_infeasible); if (allocated(error)) goto 9
     call put_int("n_capped", rec%n_capped); if (allocated(error)) goto 9
-    allocate(curve(nc, nq), t(size(PREDICT_PCT), nq))
-    do k = 1, nq
-      curve(:, k) = rec(k)%curve
-      t(:, k) = rec(k)%t_pct
-    end do
-    call put_int2("curve_total", curve); if (allocated(error)) goto 9
-    do j = 1, size(PREDICT_PCT)
-      call put_real1("t" // trim(num(PREDICT_PCT(j))), t(j, :)); if (allocated(error)) goto 9
-      call put_int("t" // trim(num(PREDICT_PCT(j))) // "_censored", merge(1, 0, rec%censored(j)))
-      if (allocated(error)) goto 9
-    end do
-    call put_real1("max_overlap_agents", rec%overlap_aa); if (allocated(error)) goto 9
-    call put_real1("max_overlap_walls", rec%overlap_aw); if (allocated(error)) goto 9
+    call write_qoi(); if (allocated(error)) goto 9
     if (nq > 0) then
       if (allocated(rec(1)%q)) then
         allocate(pos(size(rec(1)%q, 1), nc * nq))
@@ -224,6 +230,44 @@ contains
       call h5%write(name, x, error); if (allocated(error)) return
       call put_digest(h5, name, digest_of(x, 0_i8), error)
     end subroutine put_int2
+
+    !> The QoI datasets (n_exits: the most exits of a query; a query with fewer has zeros there).
+    subroutine write_qoi()
+      integer, allocatable :: curve(:,:,:), total(:,:), idef(:,:)
+      real(wp), allocatable :: t(:,:), width(:,:), rate(:,:), flow(:,:)
+      ne = 1
+      if (nq > 0) ne = maxval([(rec(k)%qoi%n_exits, k = 1, nq)])
+      allocate(curve(nc, ne, nq), total(nc, nq), t(size(QOI_PCT), nq), width(ne, nq), rate(ne, nq), flow(ne, nq), &
+        idef(ne, nq))
+      curve = 0; width = 0; rate = 0; flow = 0; idef = 0
+      do k = 1, nq
+        associate (qo => rec(k)%qoi)
+          curve(:, 1:qo%n_exits, k) = qo%curve
+          total(:, k) = qo%curve_total
+          t(:, k) = qo%t_evac
+          width(1:qo%n_exits, k) = qo%width; rate(1:qo%n_exits, k) = qo%flow_rate; flow(1:qo%n_exits, k) = qo%flow
+          idef(1:qo%n_exits, k) = merge(1, 0, qo%flow_defined)
+        end associate
+      end do
+      call h5%write_attr("/", "n_exits", ne, error); if (allocated(error)) return
+      call h5%write_attr("/", "evacuation_percent", QOI_PCT, error); if (allocated(error)) return
+      call h5%write("curve", curve, error); if (allocated(error)) return
+      call put_digest(h5, "curve", digest_of(reshape(curve, [size(curve)]), 0_i8), error); if (allocated(error)) return
+      call put_int2("curve_total", total); if (allocated(error)) return
+      do j = 1, size(QOI_PCT)
+        call put_real1("t" // trim(num(QOI_PCT(j))), t(j, :)); if (allocated(error)) return
+        call put_int("t" // trim(num(QOI_PCT(j))) // "_censored", [(merge(1, 0, rec(k)%qoi%censored(j)), k = 1, nq)])
+        if (allocated(error)) return
+      end do
+      call put_real("exit_width", width); if (allocated(error)) return
+      call put_real("flow_rate", rate); if (allocated(error)) return
+      call put_real("flow", flow); if (allocated(error)) return
+      call put_int2("flow_defined", idef); if (allocated(error)) return
+      call put_real1("max_overlap_agents", [(rec(k)%qoi%overlap_aa, k = 1, nq)]); if (allocated(error)) return
+      call put_real1("max_overlap_walls", [(rec(k)%qoi%overlap_aw, k = 1, nq)]); if (allocated(error)) return
+      call put_int("n_through_walls", [(rec(k)%qoi%n_through, k = 1, nq)]); if (allocated(error)) return
+      call put_real1("displacement", [(rec(k)%qoi%displacement, k = 1, nq)])
+    end subroutine write_qoi
 
     function num(i) result(s)
       integer, intent(in) :: i

@@ -267,7 +267,8 @@ contains
       call given_query(this, k, qr, scene, error)
     end select
     if (allocated(error)) return
-    call r%measure(scene, this%st%radius, this%st%dt, qr)
+    call r%measure(scene, this%st%radius, this%st%dt, qr, error)
+    if (allocated(error)) return
     call cpu_time(c1)
     r%cpu = c1 - c0
     if (this%cfg%model == 'positions') r%cpu = r%cpu + this%given_cpu(k)
@@ -387,7 +388,7 @@ contains
     if (.not. env%is_root()) return
     allocate(this%rec(this%list%n))
     do j = 1, this%list%n
-      call unpack_record(all(:, j), this%st%n_steps, this%st%n_dof, this%nb, this%cfg%trajectories, &
+      call unpack_record(all(:, j), this%st%n_steps, this%st%n_dof, this%nb, this%cfg%trajectories, this%st%dt, &
         this%rec(all_ids(j)))
     end do
     this%t_cpu = sum(this%rec%cpu)
