@@ -54,7 +54,7 @@ endforeach()
 
 # Issue 18: an output naming an input (./x, dir/../x, absolute, symbolic link), outputs that
 # coincide, a missing directory, a directory under the output's name: a family per program
-foreach(p crowd_fom crowd_snapshots crowd_offline crowd_rom)
+foreach(p crowd_fom crowd_snapshots crowd_offline crowd_rom crowd_predict)
   add_test(NAME output_paths_${p}
     COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/output_paths.sh ${p} $<TARGET_FILE:${p}>)
   set_tests_properties(output_paths_${p} PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}")
