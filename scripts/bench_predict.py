@@ -127,6 +127,10 @@ def main(argv=None):
         eff = f"{r['eff']:.2f}" if r["eff"] is not None else "-"
         lines.append(f"| {r['model']} | {r['queries']} | {r['cpu_per_query']:.3e} | {r['qps']:.3g} | "
                      f"{r['qps'] / q_ex:.3g} | {eff} |")
+    load = os.getloadavg()
+    lines.append("")
+    lines.append(f"1-minute load average at the end: {load[0]:.1f} on {os.cpu_count()} cores; "
+                 f"{args.queries} reduced / {args.exact_queries} exact queries drawn uniformly in the box, seed {args.seed}")
     table = "\n".join(lines)
     print(table)
     if args.out:

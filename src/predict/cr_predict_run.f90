@@ -154,6 +154,7 @@ contains
       end if
     end if
     call this%given%close(e2)
+    if (allocated(e2) .and. .not. allocated(error)) call move_alloc(e2, error)
   end subroutine check_given
 
   !> Every query, distributed dynamically over the ranks of env; the records gathered on rank 0.
@@ -212,6 +213,7 @@ contains
       call log%progress("query", min(k, this%list%n), this%list%n)
     end do
     if (this%given%is_open()) call this%given%close(e2)
+    if (allocated(e2) .and. .not. allocated(error)) call move_alloc(e2, error)
     call env%agree_error(error)
     call sched%free()
     if (allocated(error)) return
