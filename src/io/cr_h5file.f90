@@ -98,9 +98,9 @@ module cr_h5file
     procedure :: create_placed
     procedure, private :: w_real, w_int, w_int64_1, w_string
     generic :: write => w_real, w_int, w_int64_1, w_string
-    procedure, private :: r_real0, r_real1, r_real2, r_real3, r_int0, r_int1, r_int2, &
+    procedure, private :: r_real0, r_real1, r_real2, r_real3, r_int0, r_int1, r_int2, r_int3, &
       r_int64_1, r_string
-    generic :: read => r_real0, r_real1, r_real2, r_real3, r_int0, r_int1, r_int2, &
+    generic :: read => r_real0, r_real1, r_real2, r_real3, r_int0, r_int1, r_int2, r_int3, &
       r_int64_1, r_string
     procedure, private :: a_real0, a_real1, a_real2, a_int0, a_int1, a_int2, a_int64_0, a_int64_1
     generic :: append => a_real0, a_real1, a_real2, a_int0, a_int1, a_int2, a_int64_0, a_int64_1
@@ -1254,6 +1254,19 @@ contains
     allocate(x(d(1), d(2)))
     if (size(x) > 0) call read_raw(this, name, c_loc(x), type_of(cr_h5_int), error)
   end subroutine r_int2
+
+  !> Read an integer dataset [n1, n2, n3] (allocated here).
+  subroutine r_int3(this, name, x, error)
+    class(h5file_t), intent(in) :: this
+    character(len=*), intent(in) :: name
+    integer, allocatable, intent(out), target :: x(:,:,:)
+    type(error_t), allocatable, intent(out) :: error
+    integer(hsize_t), allocatable :: d(:)
+    call query(this, name, "read", 3, H5T_INTEGER_F, d, error)
+    if (allocated(error)) return
+    allocate(x(d(1), d(2), d(3)))
+    if (size(x) > 0) call read_raw(this, name, c_loc(x), type_of(cr_h5_int), error)
+  end subroutine r_int3
 
   !> Read an integer(int64) dataset [n] (allocated here).
   subroutine r_int64_1(this, name, x, error)

@@ -31,8 +31,8 @@ module cr_qoi
   use cr_neighbours, only: cell_list_t, build_contacts
   implicit none
   private
-  public :: qoi_t, compute_qoi, QOI_PCT, QOI_FLOW_LO, QOI_FLOW_HI
-  public :: exit_curves, evacuation_time, steady_flow, max_overlaps, agents_through_obstacles, mobility_ratio
+  public :: qoi_t, qoi_acc_t, compute_qoi, QOI_PCT, QOI_FLOW_LO, QOI_FLOW_HI
+  public :: evacuation_time, steady_flow, max_overlaps, mobility_ratio
 
   !> evacuation fractions [%] of t_evac: t50, t90, t100
   integer, parameter :: QOI_PCT(3) = [50, 90, 100]
@@ -62,6 +62,25 @@ module cr_qoi
     procedure :: free
   end type qoi_t
 
+  !> Accumulates the QoIs of a trajectory frame by frame (init, add per frame, finish), so a
+  !> program that does not keep its trajectory (crowd_fom) computes exactly what compute_qoi does.
+  type :: qoi_acc_t
+    integer :: n_agents = 0, n_frames = 0
+    !> per agent: first frame out (-1: not out) and the exit [n_agents]
+    integer, allocatable :: first(:), via(:)
+    !> per agent: its path met an obstacle [n_agents]
+    logical, allocatable :: hit(:)
+    !> first and latest frame [2 n_agents]
+    real(wp), allocatable :: q0(:), prev(:)
+    real(wp) :: overlap_aa = 0, overlap_aw = 0
+    type(cell_list_t), private :: cells
+    type(contact_set_t), private :: cs
+  contains
+    procedure :: init => acc_init
+    procedure :: add => acc_add
+    procedure :: finish => acc_finish
+  end type qoi_acc_t
+
 contains
 
   !> Every QoI of the trajectory q [n_dof, n_steps + 1] (time step h, agent radius radius).
@@ -70,16 +89,78 @@ contains
     real(wp), intent(in) :: radius, h, q(:,:)
     type(qoi_t), intent(out) :: qoi
     type(error_t), allocatable, intent(out) :: error
-    integer :: j, e, nt
-    if (mod(size(q, 1), 2) /= 0 .or. size(q, 2) < 1 .or. .not. (h > 0) .or. .not. (radius > 0)) then
-      call set_error(error, "qoi: trajectory [" // str(size(q, 1)) // ", " // str(size(q, 2)) // "] with h = " // &
-        str(h) // ", radius = " // str(radius) // ": expected an even number of rows, at least one frame, h > 0, " // &
-        "radius > 0"); return
+    type(qoi_acc_t) :: acc
+    integer :: c
+    if (mod(size(q, 1), 2) /= 0) then
+      call set_error(error, "qoi: trajectory of " // str(size(q, 1)) // " rows: expected 2 per agent"); return
     end if
-    nt = size(q, 2) - 1
-    qoi%n_agents = size(q, 1) / 2; qoi%n_steps = nt; qoi%n_exits = scene%n_exits(); qoi%h = h
-    call exit_curves(scene, radius, q, qoi%curve)
-    allocate(qoi%curve_total(0:nt))
+    call acc%init(size(q, 1) / 2)
+    do c = 1, size(q, 2)
+      call acc%add(scene, radius, q(:, c))
+    end do
+    call acc%finish(scene, radius, h, qoi, error)
+  end subroutine compute_qoi
+
+  !> Start a trajectory of n_agents agents.
+  subroutine acc_init(this, n_agents)
+    class(qoi_acc_t), intent(inout) :: this
+    integer, intent(in) :: n_agents
+    this%n_agents = n_agents; this%n_frames = 0
+    if (allocated(this%first)) deallocate(this%first, this%via, this%hit)
+    allocate(this%first(n_agents), this%via(n_agents), this%hit(n_agents))
+    this%first = -1; this%via = 0; this%hit = .false.
+    this%overlap_aa = 0; this%overlap_aw = 0
+    if (allocated(this%q0)) deallocate(this%q0)
+    if (allocated(this%prev)) deallocate(this%prev)
+    call this%cs%init(n_agents, 1.0_wp, 8 * n_agents)
+  end subroutine acc_init
+
+  !> Add the next frame q [2 n_agents]: who is out through which exit (scene%exit_of), the
+  !> overlaps, the paths from the previous frame through obstacles.
+  subroutine acc_add(this, scene, radius, q)
+    class(qoi_acc_t), intent(inout) :: this
+    type(scene_t), intent(in) :: scene
+    real(wp), intent(in) :: radius, q(:)
+    integer :: i, e
+    do i = 1, this%n_agents
+      if (this%first(i) >= 0) cycle
+      e = scene%exit_of(q(2*i-1:2*i), radius)
+      if (e > 0) then
+        this%first(i) = this%n_frames; this%via(i) = e
+      end if
+    end do
+    call frame_overlaps(scene, radius, q, this%cells, this%cs, this%overlap_aa, this%overlap_aw)
+    if (this%n_frames == 0) then
+      this%q0 = q
+    else
+      call mark_through(scene, this%prev, q, this%hit)
+    end if
+    this%prev = q
+    this%n_frames = this%n_frames + 1
+  end subroutine acc_add
+
+  !> The QoIs of the frames added (at least one; time step h).
+  subroutine acc_finish(this, scene, radius, h, qoi, error)
+    class(qoi_acc_t), intent(in) :: this
+    type(scene_t), intent(in) :: scene
+    real(wp), intent(in) :: radius, h
+    type(qoi_t), intent(out) :: qoi
+    type(error_t), allocatable, intent(out) :: error
+    integer :: j, e, i, nt
+    if (this%n_frames < 1 .or. .not. (h > 0) .or. .not. (radius > 0)) then
+      call set_error(error, "qoi: " // str(this%n_frames) // " frames with h = " // str(h) // ", radius = " // &
+        str(radius) // ": expected at least one frame, h > 0, radius > 0"); return
+    end if
+    nt = this%n_frames - 1
+    qoi%n_agents = this%n_agents; qoi%n_steps = nt; qoi%n_exits = scene%n_exits(); qoi%h = h
+    allocate(qoi%curve(0:nt, qoi%n_exits), qoi%curve_total(0:nt))
+    qoi%curve = 0
+    do i = 1, this%n_agents
+      if (this%first(i) >= 0) qoi%curve(this%first(i), this%via(i)) = qoi%curve(this%first(i), this%via(i)) + 1
+    end do
+    do j = 1, nt
+      qoi%curve(j, :) = qoi%curve(j, :) + qoi%curve(j - 1, :)
+    end do
     qoi%curve_total = sum(qoi%curve, dim=2)
     do j = 1, size(QOI_PCT)
       call evacuation_time(qoi%curve_total, qoi%n_agents, QOI_PCT(j), h, qoi%t_evac(j), qoi%censored(j))
@@ -91,10 +172,10 @@ contains
       qoi%flow(e) = 0
       if (qoi%flow_defined(e)) qoi%flow(e) = qoi%flow_rate(e) / qoi%width(e)
     end do
-    call max_overlaps(scene, radius, q, qoi%overlap_aa, qoi%overlap_aw)
-    qoi%n_through = agents_through_obstacles(scene, q)
-    qoi%displacement = norm2(q(:, nt + 1) - q(:, 1))
-  end subroutine compute_qoi
+    qoi%overlap_aa = this%overlap_aa; qoi%overlap_aw = this%overlap_aw
+    qoi%n_through = count(this%hit)
+    qoi%displacement = norm2(this%prev - this%q0)
+  end subroutine acc_finish
 
   !> Release the arrays.
   subroutine free(this)
@@ -107,32 +188,6 @@ contains
     if (allocated(this%flow_defined)) deallocate(this%flow_defined)
     this%n_agents = 0; this%n_steps = 0; this%n_exits = 0
   end subroutine free
-
-  !> Per-exit evacuation curves of the configurations q [n_dof, n_conf]: curve(c, e) agents out
-  !> through exit e at configuration c [0:n_conf - 1, scene%n_exits()] (each agent counted from
-  !> the first configuration at which scene%exit_of says it is beyond an exit's line, through
-  !> that exit).
-  subroutine exit_curves(scene, radius, q, curve)
-    type(scene_t), intent(in) :: scene
-    real(wp), intent(in) :: radius, q(:,:)
-    integer, allocatable, intent(out) :: curve(:,:)
-    logical :: out(size(q, 1) / 2)
-    integer :: i, c, e
-    allocate(curve(0:size(q, 2) - 1, scene%n_exits()))
-    curve = 0
-    out = .false.
-    do c = 0, size(q, 2) - 1
-      if (c > 0) curve(c, :) = curve(c - 1, :)
-      do i = 1, size(out)
-        if (out(i)) cycle
-        e = scene%exit_of(q(2*i-1:2*i, c + 1), radius)
-        if (e > 0) then
-          out(i) = .true.
-          curve(c, e) = curve(c, e) + 1
-        end if
-      end do
-    end do
-  end subroutine exit_curves
 
   !> First time t = c h at which curve(c) (c = 0..size - 1) reaches pct % of n_agents (at least
   !> ceiling(pct n_agents / 100) agents out); not reached: the horizon (size - 1) h, censored.
@@ -199,44 +254,52 @@ contains
     real(wp), intent(out) :: o_aa, o_aw
     type(cell_list_t) :: cells
     type(contact_set_t) :: cs
-    integer :: nu, l
+    integer :: nu
     o_aa = 0; o_aw = 0
     call cs%init(size(q, 1) / 2, 1.0_wp, 4 * size(q, 1))
     do nu = 1, size(q, 2)
-      call build_contacts(scene, q(:, nu), radius, 1.0e-12_wp * radius, cells, cs)
-      do l = 1, cs%n
-        if (cs%ib(l) > 0) then
-          o_aa = max(o_aa, -cs%gap(l))
-        else
-          o_aw = max(o_aw, -cs%gap(l))
-        end if
-      end do
+      call frame_overlaps(scene, radius, q(:, nu), cells, cs, o_aa, o_aw)
     end do
   end subroutine max_overlaps
 
-  !> Agents of q [n_dof, n_conf] whose centre path, straight between consecutive configurations,
-  !> meets a wall or an interior obstacle (bounding boxes first, then the exact distance).
-  integer function agents_through_obstacles(scene, q) result(n)
+  !> Raise o_aa, o_aw to the deepest agent-agent and agent-obstacle overlaps of the
+  !> configuration q [n_dof] (cells, cs: work space).
+  subroutine frame_overlaps(scene, radius, q, cells, cs, o_aa, o_aw)
     type(scene_t), intent(in) :: scene
-    real(wp), intent(in) :: q(:,:)
-    logical :: hit(size(q, 1) / 2)
-    real(wp) :: a(2), b(2)
-    integer :: i, c, k
-    hit = .false.
-    do c = 2, size(q, 2)
-      do i = 1, size(hit)
-        if (hit(i)) cycle
-        a = q(2*i-1:2*i, c - 1); b = q(2*i-1:2*i, c)
-        do k = 1, scene%n_obstacles()
-          if (any(max(a, b) < scene%lo(:, k)) .or. any(min(a, b) > scene%hi(:, k))) cycle
-          if (segment_obstacle_distance(scene%obstacles(k), a, b) <= 0) then
-            hit(i) = .true.; exit
-          end if
-        end do
+    real(wp), intent(in) :: radius, q(:)
+    type(cell_list_t), intent(inout) :: cells
+    type(contact_set_t), intent(inout) :: cs
+    real(wp), intent(inout) :: o_aa, o_aw
+    integer :: l
+    call build_contacts(scene, q, radius, 1.0e-12_wp * radius, cells, cs)
+    do l = 1, cs%n
+      if (cs%ib(l) > 0) then
+        o_aa = max(o_aa, -cs%gap(l))
+      else
+        o_aw = max(o_aw, -cs%gap(l))
+      end if
+    end do
+  end subroutine frame_overlaps
+
+  !> Mark the agents whose centre path from a to b [2 n_agents] meets a wall or an interior
+  !> obstacle (bounding boxes first, then the exact distance).
+  subroutine mark_through(scene, a, b, hit)
+    type(scene_t), intent(in) :: scene
+    real(wp), intent(in) :: a(:), b(:)
+    logical, intent(inout) :: hit(:)
+    real(wp) :: p(2), r(2)
+    integer :: i, k
+    do i = 1, size(hit)
+      if (hit(i)) cycle
+      p = a(2*i-1:2*i); r = b(2*i-1:2*i)
+      do k = 1, scene%n_obstacles()
+        if (any(max(p, r) < scene%lo(:, k)) .or. any(min(p, r) > scene%hi(:, k))) cycle
+        if (segment_obstacle_distance(scene%obstacles(k), p, r) <= 0) then
+          hit(i) = .true.; exit
+        end if
       end do
     end do
-    n = count(hit)
-  end function agents_through_obstacles
+  end subroutine mark_through
 
   !> Mobility of a trajectory against a reference: the ratio of their displacements
   !> (qoi_t%displacement); -1 when the reference does not move.
