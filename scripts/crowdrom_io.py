@@ -9,8 +9,9 @@ readers here return arrays in a "natural" numpy layout and say so in their docst
   vectors, the first ``n`` the POD modes);
 * ROM run file (schema ``crowdrom-romrun``): alpha ``[n_S, N_T, n_basis]``, positions
   ``[n_S, N_T + 1, n_dof]``, err_time ``[n_S, N_T + 1]``;
-* prediction (schema ``crowdrom-prediction``, crowd_predict): params ``[n_Q, n_mu]``, alpha
-  ``[n_Q, N_T, n_basis]``, positions ``[n_Q, N_T + 1, n_dof]``, curve_total ``[n_Q, N_T + 1]``.
+* QoI product (schema ``crowdrom-qoi``) of crowd_predict, with the prediction's own datasets
+  (``read_prediction``): params ``[n_Q, n_mu]``, alpha ``[n_Q, N_T, n_basis]``, positions
+  ``[n_Q, N_T + 1, n_dof]``, curve_total ``[n_Q, N_T + 1]``.
 
 One reader per product, mirroring the Fortran owners in ``src/products``: ``read_fom`` (schema
 ``crowdrom-fom``), ``read_database_*`` (``crowdrom-snapshots``), ``read_rom_pair`` (``crowdrom-rom``),
@@ -30,7 +31,7 @@ DB_SCHEMA = "crowdrom-snapshots"
 ROM_SCHEMA = "crowdrom-rom"
 ROMRUN_SCHEMA = "crowdrom-romrun"
 ML_SCHEMA = "crowdrom-ml"
-PRED_SCHEMA = "crowdrom-prediction"
+QOI_SCHEMA = "crowdrom-qoi"
 FOM_SCHEMA = "crowdrom-fom"
 PROJREQ_SCHEMA = "crowdrom-projreq"
 PROJ_SCHEMA = "crowdrom-projected"
@@ -38,7 +39,7 @@ PROJ_SCHEMA = "crowdrom-projected"
 #: read the offline results of a version-1 ROM file (written before the prepared pairs), which
 #: crowd_rom (pairs needed) refuses
 SCHEMA_VERSIONS = {FOM_SCHEMA: (1,), DB_SCHEMA: (1,), ROM_SCHEMA: (1, 2, 3), ROMRUN_SCHEMA: (1,),
-                   ML_SCHEMA: (1,), PROJ_SCHEMA: (2,), PRED_SCHEMA: (1,)}
+                   ML_SCHEMA: (1,), PROJ_SCHEMA: (2,), QOI_SCHEMA: (1,)}
 
 
 class InputError(Exception):
@@ -439,22 +440,29 @@ def read_rom_study(f):
 
 
 def read_prediction(path):
-    """A crowd_predict product (schema ``crowdrom-prediction``): the root attributes, params
-    [n_Q, n_mu], the per-query arrays [n_Q] and, when written (trajectories = .true.), positions
-    [n_Q, N_T + 1, n_dof] and alpha [n_Q, N_T, n_basis] (reduced model only)."""
-    with open_h5(path, PRED_SCHEMA, "prediction") as f:
+    """A crowd_predict product (schema ``crowdrom-qoi`` with the prediction's own datasets): the
+    root attributes, params [n_Q, n_mu], outside_box, cpu_seconds, diverged_step [n_Q], the QoIs
+    ``qoi/<name>`` as stored (t_evac and censored [n_Q, 3], curve_total [n_Q, N_T + 1], ...) and,
+    when written (trajectories = .true.), positions [n_Q, N_T + 1, n_dof] and alpha
+    [n_Q, N_T, n_basis] (reduced model only)."""
+    with open_h5(path, QOI_SCHEMA, "QoI product") as f:
         d = {}
         for k, v in f.attrs.items():
             v = np.asarray(v)
             d[k] = (text(v[()]) if v.dtype.kind in "SOU" else v[()]) if v.size == 1 else v
+        if "n_steps" not in f.attrs or "pair" not in f.attrs:
+            raise InputError(f"'{path}': a QoI product without the prediction's attributes (not written by "
+                             "crowd_predict)")
         nq, nt, na = (attr(f, k, int) for k in ("n_queries", "n_steps", "n_agents"))
         d["param_names"] = attr(f, "param_names", str).split(",")
         d["params"] = need_finite(path, "params", dataset(f, "params"))
         if d["params"].shape != (nq, len(d["param_names"])):
             raise InputError(f"'{path}': params has h5py shape {d['params'].shape}, expected "
                              f"({nq}, {len(d['param_names'])})")
-        for k in ("out_of_box", "cpu_seconds", "diverged_step", "t50", "t90", "t100"):
+        for k in ("outside_box", "cpu_seconds", "diverged_step"):
             d[k] = need_finite(path, k, dataset(f, k))
+        for k in group(f, "qoi"):
+            d["qoi/" + k] = need_finite(path, "qoi/" + k, dataset(f, "qoi/" + k))
         if "positions" in f:
             d["positions"] = need_finite(path, "positions", dataset(f, "positions")).reshape(nq, nt + 1, 2 * na)
         if "alpha" in f:

@@ -72,8 +72,12 @@ def predict_input(tmp, name, rom, out, **kw):
 
 
 def product(path):
+    """Every dataset of a product by its path (e.g. 'qoi/curve_total') and the root attributes."""
+    d = {}
     with h5py.File(path, "r") as f:
-        return {k: f[k][...] for k in f.keys()}, dict(f.attrs)
+        assert f.attrs["schema"].decode() == "crowdrom-qoi"
+        f.visititems(lambda name, obj: d.__setitem__(name, obj[...]) if isinstance(obj, h5py.Dataset) else None)
+        return d, dict(f.attrs)
 
 
 @pytest.mark.parametrize("setting", [
@@ -110,9 +114,9 @@ def test_equals_sweep_trajectories(study, setting):
         evac = f["setting_1/train/evac_rom"][...]
     assert d["positions"].shape == q_sweep.shape
     assert np.array_equal(d["positions"], q_sweep)
-    assert np.array_equal(d["curve_total"], evac.astype(d["curve_total"].dtype))
+    assert np.array_equal(d["qoi/curve_total"], evac.astype(d["qoi/curve_total"].dtype))
     assert np.array_equal(d["params"], params)
-    assert not d["out_of_box"].any()
+    assert not d["outside_box"].any()
 
 
 def test_two_ranks_equal_one(study):
@@ -143,7 +147,7 @@ def test_out_of_box_flagged_and_refused(study):
     p = run(0, "crowd_predict", predict_input(tmp, "box.nml", rom, out, n=4, r=3, params_file="'%s'" % plist), tmp)
     assert p.returncode == 0, p.stdout + p.stderr
     d, a = product(out)
-    assert d["out_of_box"].tolist() == [0, 1, 1]
+    assert d["outside_box"].tolist() == [0, 1, 1]
     assert "2 outside the training box" in p.stdout
     out2 = tmp / "box_refused.h5"
     p = run(0, "crowd_predict", predict_input(tmp, "box2.nml", rom, out2, n=4, r=3, params_file="'%s'" % plist,
@@ -175,7 +179,7 @@ def test_exact_equals_crowd_fom(study):
         q = f["traj/positions"][...]          # frames 0..n_steps
     assert d["positions"].shape == q.shape == (13, 16)
     assert np.array_equal(d["positions"], q)
-    assert not d["out_of_box"].any() and a["model"].decode().startswith("exact")
+    assert not d["outside_box"].any() and a["model"].decode().startswith("exact")
 
 
 BAD = [
@@ -274,7 +278,7 @@ def test_ml_predict_any_list(study):
     assert np.array_equal(d["params"], valid)
     # the tiny hall (no second exit): out when the centre is above hall_width + wall + radius
     curve = (q_ml[:, :, 1::2] > 0.5 + 0.05 + 0.04).sum(axis=2)
-    assert np.array_equal(d["curve_total"], curve)
+    assert np.array_equal(d["qoi/curve_total"], curve)
     assert np.all(d["cpu_seconds"] > base["cpu_seconds"])
     # a product without coefficients is refused with one line
     p = subprocess.run([sys.executable, script, "--predict", str(out), "--n", "3", "--config", str(cfg),

@@ -1,12 +1,15 @@
-!> What crowd_predict keeps of one query (its record) and the product it writes.
+!> What crowd_predict keeps of one query (its record) and the product it writes (the QoI
+!> product of cr_qoi_file with the prediction's own datasets).
 !>
 !> A record is computed on the rank that ran the query and travels to rank 0 packed into one
 !> real vector of fixed length (record_size): the per-query CPU seconds, the flags, the
 !> quantities of interest of the trajectory and, on request, its positions.
 module cr_predict_output
   use cr_kinds, only: wp, i8
-  use cr_error, only: error_t, prefix_error
+  use cr_error, only: error_t, set_error, prefix_error
   use cr_h5file, only: h5file_t
+  use cr_fsys, only: rename_file, remove_file
+  use cr_qoi_file, only: qoi_product_t, write_qoi_product
   use cr_digest, only: digest_of, put_digest
   use cr_scene, only: scene_t
   use cr_qoi, only: qoi_t, compute_qoi, QOI_PCT
@@ -135,70 +138,89 @@ contains
     if (n_basis > 0) r%alpha = reshape(x(i + n_dof * nc + 1:i + n_dof * nc + n_basis * n_steps), [n_basis, n_steps])
   end subroutine unpack_record
 
-  !> The product at `path` (temporary + rename): parameters mu [n_expanded, n_queries] and
-  !> the records rec [n_queries] in query order.
+  !> The product at `path`: the QoI product (cr_qoi_file, schema crowdrom-qoi: parameters mu
+  !> [n_expanded, n_queries], outside-box flags, CPU seconds, model, configuration and the QoI
+  !> group of the records rec [n_queries], in query order) with the prediction's own datasets
+  !> added (per query: diverged_step, n_infeasible, n_capped; the ROM file, the pair, the list's
+  !> origin, the training box, the wall time; positions and coefficients when the records hold
+  !> them). Written complete under `<path>.qoi` and renamed to `path` at the end; on failure
+  !> nothing is left.
   subroutine write_predict_product(path, p, mu, rec, error)
     character(len=*), intent(in) :: path
     type(predict_product_t), intent(in) :: p
     real(wp), intent(in) :: mu(:,:)
     type(query_record_t), intent(in) :: rec(:)
     type(error_t), allocatable, intent(out) :: error
+    type(qoi_product_t) :: qp
     type(h5file_t) :: h5
-    integer :: k, nq, nc, j, ne
+    type(error_t), allocatable :: e2
+    character(len=:), allocatable :: tmp
+    integer :: k, nq
+    nq = size(rec)
+    qp%program = "crowd_predict"; qp%model = p%model; qp%config = p%config; qp%param_names = p%param_names
+    qp%radius = p%radius; qp%dt = p%dt; qp%params = mu
+    allocate(qp%outside_box(nq), qp%cpu_seconds(nq), qp%qoi(nq))
+    do k = 1, nq
+      qp%outside_box(k) = rec(k)%out_of_box
+      qp%cpu_seconds(k) = rec(k)%cpu
+      qp%qoi(k) = rec(k)%qoi
+    end do
+    tmp = path // ".qoi"
+    call write_qoi_product(tmp, qp, error)
+    if (allocated(error)) return
+    call h5%open(tmp, error, readwrite=.true.)
+    if (.not. allocated(error)) call add_prediction(h5, p, rec, error)
+    call h5%close(e2)
+    if (allocated(e2) .and. .not. allocated(error)) call move_alloc(e2, error)
+    if (.not. allocated(error)) then
+      if (rename_file(tmp, path) /= 0) call set_error(error, "cannot rename '" // tmp // "' to '" // path // "'")
+    end if
+    if (allocated(error)) then
+      call prefix_error(error, "prediction product '" // path // "'")
+      k = remove_file(tmp)
+    end if
+  end subroutine write_predict_product
+
+  !> The prediction's own attributes and datasets (write_predict_product), each with its digest.
+  subroutine add_prediction(h5, p, rec, error)
+    type(h5file_t), intent(inout) :: h5
+    type(predict_product_t), intent(in) :: p
+    type(query_record_t), intent(in) :: rec(:)
+    type(error_t), allocatable, intent(out) :: error
     real(wp), allocatable :: pos(:,:)
+    integer :: k, nq, nc
     nq = size(rec)
     nc = p%n_steps + 1
-    call h5%create(path, error)
-    if (allocated(error)) return
-    call h5%write_attr("/", "schema", "crowdrom-prediction", error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "schema_version", 1, error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "program", "crowd_predict", error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "model", p%model, error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "config", p%config, error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "rom_file", p%rom_file, error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "queries_from", p%source, error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "param_names", p%param_names, error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "param_min", p%param_min, error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "param_max", p%param_max, error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "n_queries", nq, error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "n_agents", p%n_agents, error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "n_steps", p%n_steps, error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "dt", p%dt, error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "agent_radius", p%radius, error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "n_ranks", p%n_ranks, error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "wall_seconds", p%t_wall, error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "pair", p%pair, error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "pair_n", p%pair_n, error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "pair_r", p%pair_r, error); if (allocated(error)) goto 9
-    call h5%write_attr("/", "n_basis", p%n_basis, error); if (allocated(error)) goto 9
-    call put_real("params", mu); if (allocated(error)) goto 9
-    call put_int("out_of_box", merge(1, 0, rec%out_of_box)); if (allocated(error)) goto 9
-    call put_real1("cpu_seconds", rec%cpu); if (allocated(error)) goto 9
-    call put_int("diverged_step", rec%diverged_step); if (allocated(error)) goto 9
-    call put_int("n_infeasible", rec%n_infeasible); if (allocated(error)) goto 9
-    call put_int("n_capped", rec%n_capped); if (allocated(error)) goto 9
-    call write_qoi(); if (allocated(error)) goto 9
-    if (nq > 0) then
-      if (allocated(rec(1)%q)) then
-        allocate(pos(size(rec(1)%q, 1), nc * nq))
-        do k = 1, nq
-          pos(:, (k - 1) * nc + 1:k * nc) = rec(k)%q
-        end do
-        call put_real("positions", pos); if (allocated(error)) goto 9
-        deallocate(pos)
-      end if
-      if (allocated(rec(1)%alpha)) then
-        allocate(pos(size(rec(1)%alpha, 1), p%n_steps * nq))
-        do k = 1, nq
-          pos(:, (k - 1) * p%n_steps + 1:k * p%n_steps) = rec(k)%alpha
-        end do
-        call put_real("alpha", pos); if (allocated(error)) goto 9
-      end if
+    call h5%write_attr("/", "rom_file", p%rom_file, error); if (allocated(error)) return
+    call h5%write_attr("/", "queries_from", p%source, error); if (allocated(error)) return
+    call h5%write_attr("/", "param_min", p%param_min, error); if (allocated(error)) return
+    call h5%write_attr("/", "param_max", p%param_max, error); if (allocated(error)) return
+    call h5%write_attr("/", "n_agents", p%n_agents, error); if (allocated(error)) return
+    call h5%write_attr("/", "n_steps", p%n_steps, error); if (allocated(error)) return
+    call h5%write_attr("/", "n_ranks", p%n_ranks, error); if (allocated(error)) return
+    call h5%write_attr("/", "wall_seconds", p%t_wall, error); if (allocated(error)) return
+    call h5%write_attr("/", "pair", p%pair, error); if (allocated(error)) return
+    call h5%write_attr("/", "pair_n", p%pair_n, error); if (allocated(error)) return
+    call h5%write_attr("/", "pair_r", p%pair_r, error); if (allocated(error)) return
+    call h5%write_attr("/", "n_basis", p%n_basis, error); if (allocated(error)) return
+    call put_int("diverged_step", rec%diverged_step); if (allocated(error)) return
+    call put_int("n_infeasible", rec%n_infeasible); if (allocated(error)) return
+    call put_int("n_capped", rec%n_capped); if (allocated(error)) return
+    if (nq == 0) return
+    if (allocated(rec(1)%q)) then
+      allocate(pos(size(rec(1)%q, 1), nc * nq))
+      do k = 1, nq
+        pos(:, (k - 1) * nc + 1:k * nc) = rec(k)%q
+      end do
+      call put_real("positions", pos); if (allocated(error)) return
+      deallocate(pos)
     end if
-    call h5%commit(error)
-9   if (allocated(error)) then
-      call prefix_error(error, "prediction product '" // path // "'")
-      call h5%abort()
+    if (allocated(rec(1)%alpha)) then
+      allocate(pos(size(rec(1)%alpha, 1), p%n_steps * nq))
+      do k = 1, nq
+        pos(:, (k - 1) * p%n_steps + 1:k * p%n_steps) = rec(k)%alpha
+      end do
+      call put_real("alpha", pos)
     end if
 
   contains
@@ -210,69 +232,11 @@ contains
       call put_digest(h5, name, digest_of(x, 0_i8), error)
     end subroutine put_real
 
-    subroutine put_real1(name, x)
-      character(len=*), intent(in) :: name
-      real(wp), intent(in) :: x(:)
-      call h5%write(name, x, error); if (allocated(error)) return
-      call put_digest(h5, name, digest_of(x, 0_i8), error)
-    end subroutine put_real1
-
     subroutine put_int(name, x)
       character(len=*), intent(in) :: name
       integer, intent(in) :: x(:)
       call h5%write(name, x, error); if (allocated(error)) return
       call put_digest(h5, name, digest_of(x, 0_i8), error)
     end subroutine put_int
-
-    subroutine put_int2(name, x)
-      character(len=*), intent(in) :: name
-      integer, intent(in) :: x(:,:)
-      call h5%write(name, x, error); if (allocated(error)) return
-      call put_digest(h5, name, digest_of(x, 0_i8), error)
-    end subroutine put_int2
-
-    !> The QoI datasets (n_exits: the most exits of a query; a query with fewer has zeros there).
-    subroutine write_qoi()
-      integer, allocatable :: curve(:,:,:), total(:,:), idef(:,:)
-      real(wp), allocatable :: t(:,:), width(:,:), rate(:,:), flow(:,:)
-      ne = 1
-      if (nq > 0) ne = maxval([(rec(k)%qoi%n_exits, k = 1, nq)])
-      allocate(curve(nc, ne, nq), total(nc, nq), t(size(QOI_PCT), nq), width(ne, nq), rate(ne, nq), flow(ne, nq), &
-        idef(ne, nq))
-      curve = 0; width = 0; rate = 0; flow = 0; idef = 0
-      do k = 1, nq
-        associate (qo => rec(k)%qoi)
-          curve(:, 1:qo%n_exits, k) = qo%curve
-          total(:, k) = qo%curve_total
-          t(:, k) = qo%t_evac
-          width(1:qo%n_exits, k) = qo%width; rate(1:qo%n_exits, k) = qo%flow_rate; flow(1:qo%n_exits, k) = qo%flow
-          idef(1:qo%n_exits, k) = merge(1, 0, qo%flow_defined)
-        end associate
-      end do
-      call h5%write_attr("/", "n_exits", ne, error); if (allocated(error)) return
-      call h5%write_attr("/", "evacuation_percent", QOI_PCT, error); if (allocated(error)) return
-      call h5%write("curve", curve, error); if (allocated(error)) return
-      call put_digest(h5, "curve", digest_of(reshape(curve, [size(curve)]), 0_i8), error); if (allocated(error)) return
-      call put_int2("curve_total", total); if (allocated(error)) return
-      do j = 1, size(QOI_PCT)
-        call put_real1("t" // trim(num(QOI_PCT(j))), t(j, :)); if (allocated(error)) return
-        call put_int("t" // trim(num(QOI_PCT(j))) // "_censored", [(merge(1, 0, rec(k)%qoi%censored(j)), k = 1, nq)])
-        if (allocated(error)) return
-      end do
-      call put_real("exit_width", width); if (allocated(error)) return
-      call put_real("flow_rate", rate); if (allocated(error)) return
-      call put_real("flow", flow); if (allocated(error)) return
-      call put_int2("flow_defined", idef); if (allocated(error)) return
-      call put_real1("max_overlap_agents", [(rec(k)%qoi%overlap_aa, k = 1, nq)]); if (allocated(error)) return
-      call put_real1("max_overlap_walls", [(rec(k)%qoi%overlap_aw, k = 1, nq)]); if (allocated(error)) return
-      call put_int("n_through_walls", [(rec(k)%qoi%n_through, k = 1, nq)]); if (allocated(error)) return
-      call put_real1("displacement", [(rec(k)%qoi%displacement, k = 1, nq)])
-    end subroutine write_qoi
-
-    function num(i) result(s)
-      integer, intent(in) :: i
-      character(len=8) :: s
-      write(s, '(i0)') i
-    end function num
-  end subroutine write_predict_product
+  end subroutine add_prediction
 end module cr_predict_output
