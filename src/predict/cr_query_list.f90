@@ -173,10 +173,10 @@ contains
     character(len=MAX_LINE) :: line
     character(len=:), allocatable :: tok(:)
     integer, allocatable :: col(:)
-    real(wp), allocatable :: mu(:,:), x
+    real(wp), allocatable :: mu(:,:)
+    real(wp) :: x
     integer :: u, ios, lineno, j
     character(len=256) :: msg
-    allocate(x)
     open(newunit=u, file=path, status='old', action='read', iostat=ios, iomsg=msg)
     if (ios /= 0) then
       call set_error(error, what // ": cannot open (" // trim(msg) // ")", 2); return
