@@ -9,9 +9,10 @@ readers here return arrays in a "natural" numpy layout and say so in their docst
   vectors, the first ``n`` the POD modes);
 * ROM run file (schema ``crowdrom-romrun``): alpha ``[n_S, N_T, n_basis]``, positions
   ``[n_S, N_T + 1, n_dof]``, err_time ``[n_S, N_T + 1]``;
-* QoI product (schema ``crowdrom-qoi``) of crowd_predict, with the prediction's own datasets
-  (``read_prediction``): params ``[n_Q, n_mu]``, alpha ``[n_Q, N_T, n_basis]``, positions
-  ``[n_Q, N_T + 1, n_dof]``, curve_total ``[n_Q, N_T + 1]``.
+* QoI product (schema ``crowdrom-qoi``) and the QoI groups of the other products: one row per
+  query or sample, curve ``[n, n_exits, N_T + 1]``, t_evac ``[n, 3]`` (``read_qoi``,
+  ``read_qoi_group``); crowd_predict's product adds its own datasets (``read_prediction``):
+  alpha ``[n_Q, N_T, n_basis]``, positions ``[n_Q, N_T + 1, n_dof]``.
 
 One reader per product, mirroring the Fortran owners in ``src/products``: ``read_fom`` (schema
 ``crowdrom-fom``), ``read_database_*`` (``crowdrom-snapshots``), ``read_rom_pair`` (``crowdrom-rom``),
@@ -31,10 +32,10 @@ DB_SCHEMA = "crowdrom-snapshots"
 ROM_SCHEMA = "crowdrom-rom"
 ROMRUN_SCHEMA = "crowdrom-romrun"
 ML_SCHEMA = "crowdrom-ml"
-QOI_SCHEMA = "crowdrom-qoi"
 FOM_SCHEMA = "crowdrom-fom"
 PROJREQ_SCHEMA = "crowdrom-projreq"
 PROJ_SCHEMA = "crowdrom-projected"
+QOI_SCHEMA = "crowdrom-qoi"
 #: schema versions each reader accepts (as in src/products: *_VERSIONS_READ); the figures also
 #: read the offline results of a version-1 ROM file (written before the prepared pairs), which
 #: crowd_rom (pairs needed) refuses
@@ -415,6 +416,13 @@ def romrun_set(f, k, s, n_steps, n_dof):
                 raise InputError(f"'{f.filename}': '{name}/{key}' has h5py shape {x.shape}, expected "
                                  f"({n_s}, {width})")
             out[key] = x
+    # the quantities of interest of the reduced trajectories (read_qoi_group), when stored
+    if "qoi" in g:
+        q = read_qoi_group(f, name + "/qoi")
+        if q["n_rows"] != n_s or q["n_steps"] != n_steps:
+            raise InputError(f"'{f.filename}': '{name}/qoi' has {q['n_rows']} rows of {q['n_steps']} steps, "
+                             f"expected {n_s} of {n_steps}")
+        out["qoi"] = q
     # local exact correction ('local' settings only): agents corrected per step [n_S, N_T] and
     # the correction's wall time per sample [n_S]; the positions are then the corrected ones,
     # carried in full (integrating alpha does not give them back)
@@ -440,34 +448,43 @@ def read_rom_study(f):
 
 
 def read_prediction(path):
-    """A crowd_predict product (schema ``crowdrom-qoi`` with the prediction's own datasets): the
-    root attributes, params [n_Q, n_mu], outside_box, cpu_seconds, diverged_step [n_Q], the QoIs
-    ``qoi/<name>`` as stored (t_evac and censored [n_Q, 3], curve_total [n_Q, N_T + 1], ...) and,
-    when written (trajectories = .true.), positions [n_Q, N_T + 1, n_dof] and alpha
-    [n_Q, N_T, n_basis] (reduced model only)."""
+    """A crowd_predict product: ``read_qoi``'s dict (the QoIs, params, outside_box, cpu_seconds,
+    ...) plus the prediction's own data, checked: the root attributes rom_file, queries_from,
+    param_min, param_max, n_agents, n_steps, n_ranks, wall_seconds, pair, pair_n, pair_r, n_basis;
+    diverged_step, n_infeasible, n_capped [n_Q] and, when written (trajectories = .true.),
+    positions [n_Q, N_T + 1, n_dof] and alpha [n_Q, N_T, n_basis] (reduced model only)."""
+    d = read_qoi(path)
     with open_h5(path, QOI_SCHEMA, "QoI product") as f:
-        d = {}
-        for k, v in f.attrs.items():
-            v = np.asarray(v)
-            d[k] = (text(v[()]) if v.dtype.kind in "SOU" else v[()]) if v.size == 1 else v
-        if "n_steps" not in f.attrs or "pair" not in f.attrs:
-            raise InputError(f"'{path}': a QoI product without the prediction's attributes (not written by "
+        if "pair" not in f.attrs or "diverged_step" not in f:
+            raise InputError(f"'{path}': a QoI product without the prediction's datasets (not written by "
                              "crowd_predict)")
-        nq, nt, na = (attr(f, k, int) for k in ("n_queries", "n_steps", "n_agents"))
-        d["param_names"] = attr(f, "param_names", str).split(",")
-        d["params"] = need_finite(path, "params", dataset(f, "params"))
-        if d["params"].shape != (nq, len(d["param_names"])):
-            raise InputError(f"'{path}': params has h5py shape {d['params'].shape}, expected "
-                             f"({nq}, {len(d['param_names'])})")
-        for k in ("outside_box", "cpu_seconds", "diverged_step"):
-            d[k] = need_finite(path, k, dataset(f, k))
-        for k in group(f, "qoi"):
-            d["qoi/" + k] = need_finite(path, "qoi/" + k, dataset(f, "qoi/" + k))
+        for k in ("rom_file", "queries_from"):
+            d[k] = attr(f, k, str)
+        for k in ("n_agents", "n_steps", "n_ranks", "pair", "pair_n", "pair_r", "n_basis"):
+            d[k] = attr(f, k, int)
+        d["wall_seconds"] = attr(f, "wall_seconds", float)
+        d["param_min"], d["param_max"] = np.asarray(f.attrs["param_min"]), np.asarray(f.attrs["param_max"])
+        nq, nt, na = d["n_queries"], d["n_steps"], d["n_agents"]
+        for k in ("diverged_step", "n_infeasible", "n_capped"):
+            a = dataset(f, k)
+            if a.shape != (nq,):
+                raise InputError(f"'{path}': dataset '{k}' has shape {a.shape}, expected ({nq},)")
+            verify_checksum(f, k)
+            d[k] = a
         if "positions" in f:
-            d["positions"] = need_finite(path, "positions", dataset(f, "positions")).reshape(nq, nt + 1, 2 * na)
+            a = dataset(f, "positions")
+            if a.shape != (nq * (nt + 1), 2 * na):
+                raise InputError(f"'{path}': dataset 'positions' has shape {a.shape}, expected "
+                                 f"({nq * (nt + 1)}, {2 * na})")
+            verify_checksum(f, "positions")
+            d["positions"] = need_finite(path, "positions", a).reshape(nq, nt + 1, 2 * na)
         if "alpha" in f:
-            a = need_finite(path, "alpha", dataset(f, "alpha"))
-            d["alpha"] = a.reshape(nq, nt, a.shape[1])
+            a = dataset(f, "alpha")
+            if a.ndim != 2 or a.shape != (nq * nt, d["n_basis"]):
+                raise InputError(f"'{path}': dataset 'alpha' has shape {a.shape}, expected "
+                                 f"({nq * nt}, {d['n_basis']})")
+            verify_checksum(f, "alpha")
+            d["alpha"] = need_finite(path, "alpha", a).reshape(nq, nt, d["n_basis"])
     return d
 
 
@@ -659,6 +676,78 @@ def verify_checksum(f, name):
     if stored != got:
         raise InputError("%s: checksum mismatch in dataset '%s' (stored %s, data %s): the file is corrupted"
                          % (f.filename, name, stored, got))
+
+
+# ------------------------------------------------------------------------------ quantities of interest
+
+#: the QoI group's datasets (src/products/cr_qoi_file.f90): name -> shape in rows (n), exits (e),
+#: frames (t = n_steps + 1); flags (integers 0/1) come back as bool
+_QOI_SHAPES = {"curve": "net", "curve_total": "nt", "t_evac": "n3", "censored": "n3", "exit_width": "ne",
+               "flow_rate": "ne", "flow": "ne", "flow_defined": "ne", "overlap_agents": "n",
+               "overlap_obstacles": "n", "n_through": "n", "displacement": "n"}
+_QOI_FLAGS = ("censored", "flow_defined")
+
+
+def read_qoi_group(f, name="qoi"):
+    """The QoI group ``name`` of an open crowdrom file (the QoI product's ``qoi``, a snapshot
+    database's ``train/qoi``, a ROM run's ``setting_k/<set>/qoi``, a full-order output's ``qoi``):
+    a dict of numpy arrays, one row per trajectory (curve [n, n_exits, N_T + 1], curve_total
+    [n, N_T + 1], t_evac and censored [n, 3] for t50, t90, t100, exit_width, flow_rate, flow,
+    flow_defined [n, n_exits], overlap_agents, overlap_obstacles, n_through, displacement [n])
+    and the group's attributes (n_rows, n_agents, n_steps, n_exits, dt, evac_pct,
+    flow_window_pct). Shapes, finiteness, flags and checksums are checked (InputError)."""
+    g = group(f, name)
+    path = f.file.filename
+    d = {k: attr(g, k, int) for k in ("n_rows", "n_agents", "n_steps", "n_exits")}
+    d["dt"] = attr(g, "dt", float)
+    d["evac_pct"] = np.asarray(g.attrs.get("evac_pct", (50, 90, 100)))
+    d["flow_window_pct"] = np.asarray(g.attrs.get("flow_window_pct", (10, 80)))
+    dims = {"n": d["n_rows"], "e": d["n_exits"], "t": d["n_steps"] + 1, "3": 3}
+    for key, shape in _QOI_SHAPES.items():
+        full = name + "/" + key
+        arr = dataset(f, full)
+        want = tuple(dims[c] for c in shape)
+        if arr.shape != want:
+            raise InputError(f"'{path}': dataset '{full}' has shape {arr.shape}, expected {want} "
+                             f"(n_rows, n_exits, n_steps + 1 of the group's attributes)")
+        verify_checksum(f, full)
+        need_finite(path, full, arr)
+        if key in _QOI_FLAGS:
+            if arr.size and (arr.min() < 0 or arr.max() > 1):
+                raise InputError(f"'{path}': dataset '{full}': flags must be 0 or 1")
+            arr = arr.astype(bool)
+        d[key] = arr
+    if d["curve"].size and (d["curve"].min() < 0 or d["curve"].max() > d["n_agents"]):
+        raise InputError(f"'{path}': dataset '{name}/curve': counts outside 0..n_agents = {d['n_agents']}")
+    return d
+
+
+def read_qoi(path):
+    """A QoI product (schema ``crowdrom-qoi``, version 1; docs/queries.md): ``read_qoi_group``'s
+    dict of the group ``qoi`` plus params [n, n_params], param_names (list), outside_box [n]
+    (bool), cpu_seconds [n] and the root attributes program, model, config, agent_radius, dt,
+    n_queries, n_params. Verifies schema, version, shapes, finiteness and checksums."""
+    with open_h5(path, QOI_SCHEMA, "QoI product") as f:
+        n, npar = attr(f, "n_queries", int), attr(f, "n_params", int)
+        d = read_qoi_group(f, "qoi")
+        if d["n_rows"] != n:
+            raise InputError(f"'{path}': group 'qoi' has {d['n_rows']} rows, n_queries is {n}")
+        for key, want in (("params", (n, npar)), ("outside_box", (n,)), ("cpu_seconds", (n,))):
+            arr = dataset(f, key)
+            if arr.shape != want:
+                raise InputError(f"'{path}': dataset '{key}' has shape {arr.shape}, expected {want}")
+            verify_checksum(f, key)
+            d[key] = need_finite(path, key, arr)
+        if n and (d["outside_box"].min() < 0 or d["outside_box"].max() > 1):
+            raise InputError(f"'{path}': dataset 'outside_box': flags must be 0 or 1")
+        d["outside_box"] = d["outside_box"].astype(bool)
+        for key in ("program", "model", "config"):
+            d[key] = attr(f, key, str)
+        names = attr(f, "param_names", str)
+        d["param_names"] = [x.strip() for x in names.split(",")] if names else []
+        d["agent_radius"], d["dt"] = attr(f, "agent_radius", float), attr(f, "dt", float)
+        d["n_queries"], d["n_params"] = n, npar
+    return d
 
 
 # ------------------------------------------------------------------------------ outputs

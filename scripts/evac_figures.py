@@ -86,12 +86,15 @@ def out_rule(db):
     has2 = vals.get("l_exit2", 0.0) > 0 or "l_exit2" in meta["param_names"]
 
     def is_out(q):
+        """q [..., N_T + 1, n_dof] -> out [..., N_T + 1, n_agents]: an agent counts out from the
+        first frame beyond an exit's line on (cr_qoi's rule, for the ML trajectories, whose
+        output stores no QoIs)."""
         q = np.asarray(q)
         x, y = q[..., 0::2], q[..., 1::2]
         out = y > width + wall + r
         if has2:
             out |= x > length + wall + r
-        return out
+        return np.logical_or.accumulate(out, axis=-2)
     return is_out, meta
 
 
@@ -123,6 +126,11 @@ def read_runs(romrun):
                 if "evac_rom" not in d:
                     raise InputError(f"'{romrun}': setting {k} has no evacuation curves (older crowd_rom)")
                 d.pop("positions"); d.pop("alpha")
+                if "qoi" in d:
+                    # the reduced trajectories' QoIs as crowd_rom stored them (src/model/cr_qoi.f90)
+                    q = d["qoi"]
+                    d["evac_rom"] = q["curve_total"]
+                    d["t_out_rom"] = np.where(q["censored"], -1.0, q["t_evac"])[:, :2]
                 s["data"][name] = d
             out[k] = s
     return meta, out

@@ -23,6 +23,7 @@ program test_qoi_file
   type(error_t), allocatable :: error
   type(qoi_product_t) :: p, r
   integer :: k, status
+  character(len=4096) :: dir
 
   status = remove_file("qoi_rt.h5"); status = remove_file("qoi_bad.h5"); status = remove_file("qoi_v.h5")
   sc%hall_length = 2.0_wp; sc%hall_width = 1.0_wp; sc%l_exit = 0.4_wp; sc%wall_thickness = 0.1_wp
@@ -49,6 +50,12 @@ program test_qoi_file
   if (.not. allocated(error)) call compare()
   call test_refusals()
   status = remove_file("qoi_rt.h5"); status = remove_file("qoi_v.h5")
+  ! with a directory argument: the product is left there as qoi_keep.h5 (read by scripts/tests/test_qoi.py)
+  if (command_argument_count() > 0) then
+    call get_command_argument(1, dir)
+    call write_qoi_product(trim(dir) // "/qoi_keep.h5", p, error)
+    call check(.not. allocated(error), "write the product to keep")
+  end if
   call test_summary()
 
 contains

@@ -9,6 +9,7 @@ module cr_fom_run
   use cr_config, only: config_t, config_echo
   use cr_fom, only: fom_t, step_record_t
   use cr_fom_file, only: fom_writer_t
+  use cr_qoi, only: qoi_t, qoi_acc_t
   use cr_json, only: json_writer_t
   implicit none
   private
@@ -27,6 +28,8 @@ contains
     type(fom_writer_t) :: out
     type(step_record_t), allocatable :: recs(:)
     type(step_record_t) :: rec
+    type(qoi_acc_t) :: acc
+    type(qoi_t) :: qoi
     integer :: n_target, k, n_failed, it_max, n_warned
     !> non-converged steps warned about one by one
     integer, parameter :: MAX_STEP_WARNINGS = 10
@@ -46,6 +49,9 @@ contains
       str(fom%placement_iterations) // " projection iterations")
     call out%open(trim(cfg%output%file), cfg, fom, error)
     if (allocated(error)) return
+    ! the quantities of interest of every step's positions (not only the output states)
+    call acc%init(fom%n_agents)
+    call acc%add(fom%scene, fom%radius, fom%q)
     call log%stage_end()
 
     n_target = cfg%time%n_steps
@@ -65,6 +71,7 @@ contains
       end if
       k = k + 1
       recs(k) = rec
+      call acc%add(fom%scene, fom%radius, fom%q)
       if (.not. rec%converged) then
         n_warned = n_warned + 1
         if (n_warned <= MAX_STEP_WARNINGS) call log%warn("step " // str(k) // ": projection not converged " // &
@@ -94,8 +101,14 @@ contains
     t_total = real(c1 - c0, wp) / real(rate, wp)
     call log%stage_end()
 
-    call out%close(recs(1:k), error)
+    call acc%finish(fom%scene, fom%radius, fom%dt, qoi, error)
+    if (allocated(error)) then
+      call out%abort(); return
+    end if
+    call out%close(recs(1:k), error, qoi=qoi)
     if (allocated(error)) return
+    call log%info("quantities of interest (group 'qoi' of the output): t50 / t90 / t100 " // t_text(1) // " / " // &
+      t_text(2) // " / " // t_text(3) // " s")
 
     n_failed = count(.not. recs(1:k)%converged)
     min_gap = huge(1.0_wp); kkt_max = 0; it_max = 0; it_mean = 0
@@ -125,9 +138,19 @@ contains
       if (allocated(error)) return
       call log%info("summary written to " // summary)
     end if
-  end subroutine fom_run
 
   !> The summary as JSON (keys documented in the README).
+  contains
+
+    !> t_evac(j) in seconds, "> horizon" where censored
+    function t_text(j) result(t)
+      integer, intent(in) :: j
+      character(len=:), allocatable :: t
+      t = str(qoi%t_evac(j), 'f0.3')
+      if (qoi%censored(j)) t = "> " // t // " (censored)"
+    end function t_text
+  end subroutine fom_run
+
   subroutine write_summary(path, cfg, fom, recs, t_total, error)
     character(len=*), intent(in) :: path
     type(config_t), intent(in) :: cfg

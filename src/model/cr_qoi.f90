@@ -32,7 +32,7 @@ module cr_qoi
   implicit none
   private
   public :: qoi_t, qoi_acc_t, compute_qoi, QOI_PCT, QOI_FLOW_LO, QOI_FLOW_HI
-  public :: evacuation_time, steady_flow, max_overlaps, mobility_ratio
+  public :: evacuation_time, steady_flow, max_overlaps, mobility_ratio, qoi_pack_size, pack_qoi, unpack_qoi
 
   !> evacuation fractions [%] of t_evac: t50, t90, t100
   integer, parameter :: QOI_PCT(3) = [50, 90, 100]
@@ -300,6 +300,53 @@ contains
       end do
     end do
   end subroutine mark_through
+
+  !> Length of pack_qoi's buffer for n_steps steps and n_exits exits.
+  pure integer function qoi_pack_size(n_steps, n_exits) result(n)
+    integer, intent(in) :: n_steps, n_exits
+    n = (n_steps + 1) * n_exits + 6 + 4 * n_exits + 4
+  end function qoi_pack_size
+
+  !> The QoIs as reals (integers exactly), e.g. to sum them over ranks: buf [qoi_pack_size].
+  pure subroutine pack_qoi(qoi, buf)
+    type(qoi_t), intent(in) :: qoi
+    real(wp), intent(out) :: buf(:)
+    integer :: m, ne
+    ne = qoi%n_exits
+    m = (qoi%n_steps + 1) * ne
+    buf(1:m) = reshape(real(qoi%curve, wp), [m])
+    buf(m + 1:m + 3) = qoi%t_evac
+    buf(m + 4:m + 6) = merge(1, 0, qoi%censored)
+    m = m + 6
+    buf(m + 1:m + ne) = qoi%width; m = m + ne
+    buf(m + 1:m + ne) = qoi%flow_rate; m = m + ne
+    buf(m + 1:m + ne) = qoi%flow; m = m + ne
+    buf(m + 1:m + ne) = merge(1, 0, qoi%flow_defined); m = m + ne
+    buf(m + 1:m + 4) = [qoi%overlap_aa, qoi%overlap_aw, real(qoi%n_through, wp), qoi%displacement]
+  end subroutine pack_qoi
+
+  !> The QoIs of n_agents agents, n_steps steps, n_exits exits and time step h from pack_qoi's buf.
+  subroutine unpack_qoi(buf, n_agents, n_steps, n_exits, h, qoi)
+    real(wp), intent(in) :: buf(:), h
+    integer, intent(in) :: n_agents, n_steps, n_exits
+    type(qoi_t), intent(out) :: qoi
+    integer :: m, ne
+    ne = n_exits
+    qoi%n_agents = n_agents; qoi%n_steps = n_steps; qoi%n_exits = ne; qoi%h = h
+    m = (n_steps + 1) * ne
+    allocate(qoi%curve(0:n_steps, ne), qoi%curve_total(0:n_steps))
+    qoi%curve = reshape(nint(buf(1:m)), [n_steps + 1, ne])
+    qoi%curve_total = sum(qoi%curve, dim=2)
+    qoi%t_evac = buf(m + 1:m + 3)
+    qoi%censored = buf(m + 4:m + 6) > 0.5_wp
+    m = m + 6
+    qoi%width = buf(m + 1:m + ne); m = m + ne
+    qoi%flow_rate = buf(m + 1:m + ne); m = m + ne
+    qoi%flow = buf(m + 1:m + ne); m = m + ne
+    qoi%flow_defined = buf(m + 1:m + ne) > 0.5_wp; m = m + ne
+    qoi%overlap_aa = buf(m + 1); qoi%overlap_aw = buf(m + 2); qoi%n_through = nint(buf(m + 3))
+    qoi%displacement = buf(m + 4)
+  end subroutine unpack_qoi
 
   !> Mobility of a trajectory against a reference: the ratio of their displacements
   !> (qoi_t%displacement); -1 when the reference does not move.

@@ -27,6 +27,8 @@ module cr_fom_file
   use cr_strings, only: str
   use cr_grow, only: grow_kept_int, grow_kept_real
   use cr_product_check, only: check_schema, need_finite, need_range, need_dims, product_error
+  use cr_qoi, only: qoi_t
+  use cr_qoi_file, only: write_qoi_group
   implicit none
   private
   public :: fom_writer_t, fom_file_t, read_fom_file, write_scene, FOM_SCHEMA, FOM_SCHEMA_VERSION, FOM_VERSIONS_READ
@@ -277,11 +279,13 @@ contains
   end subroutine free_buffer
 
   !> Write the buffered states and the per-step statistics and commit the file under its
-  !> final name (on an error: abort).
-  subroutine writer_close(this, recs, error)
+  !> final name (on an error: abort). With qoi: the run's quantities of interest as the QoI
+  !> group `qoi` (one row; cr_qoi_file).
+  subroutine writer_close(this, recs, error, qoi)
     class(fom_writer_t), intent(inout) :: this
     type(step_record_t), intent(in) :: recs(:)
     type(error_t), allocatable, intent(out) :: error
+    type(qoi_t), intent(in), optional :: qoi
     integer, allocatable :: iv(:)
     real(wp), allocatable :: rv(:)
     if (.not. this%h5%is_open()) then
@@ -320,6 +324,9 @@ contains
     call this%h5%write("stats/time_solve", rv, error); if (allocated(error)) goto 9
     rv = recs%t_step
     call this%h5%write("stats/time_step", rv, error); if (allocated(error)) goto 9
+    if (present(qoi)) then
+      call write_qoi_group(this%h5, "qoi", [qoi], error); if (allocated(error)) goto 9
+    end if
     call this%h5%commit(error)
 9   if (allocated(error)) then
       call prefix_error(error, "output")

@@ -13,6 +13,8 @@ module cr_romrun_file
   use cr_strings, only: str
   use cr_h5file, only: h5file_t
   use cr_product_check, only: check_schema, need_finite, need_dims, product_error
+  use cr_qoi, only: qoi_t
+  use cr_qoi_file, only: write_qoi_group, read_qoi_group
   implicit none
   private
   public :: ROMRUN_SCHEMA, ROMRUN_SCHEMA_VERSION, ROMRUN_VERSIONS_READ, romrun_header_t, romrun_row_t, &
@@ -114,6 +116,8 @@ module cr_romrun_file
     character(len=8) :: correction = 'none'
     integer, allocatable :: n_corrected(:,:)
     real(wp), allocatable :: t_correct(:)
+    !> quantities of interest of the reduced trajectories [n] (group qoi; not allocated: none)
+    type(qoi_t), allocatable :: qoi(:)
   end type romrun_set_t
 
   !> A ROM-run file as read back.
@@ -252,6 +256,9 @@ contains
       if (allocated(s%n_corrected)) then
         call h5%write(g // "/n_corrected", s%n_corrected, error); if (allocated(error)) return
         call h5%write(g // "/t_correct", s%t_correct, error); if (allocated(error)) return
+      end if
+      if (allocated(s%qoi)) then
+        call write_qoi_group(h5, g // "/qoi", s%qoi, error); if (allocated(error)) return
       end if
     end associate
   end subroutine writer_write_set
@@ -482,6 +489,13 @@ contains
               error); if (allocated(error)) goto 9
             call h5%read(g // "/n_corrected", s%n_corrected, error); if (allocated(error)) goto 9
             call read_vec(g // "/t_correct", s%t_correct); if (allocated(error)) goto 9
+          end if
+          if (h5%exists(g // "/qoi")) then
+            call read_qoi_group(h5, path, g // "/qoi", s%qoi, error); if (allocated(error)) goto 9
+            if (size(s%qoi) /= n) then
+              call product_error(path, "group '" // g // "/qoi' has " // str(size(s%qoi)) // " rows for " // &
+                str(n) // " samples", error); goto 9
+            end if
           end if
           g = "setting_" // str(ks)
         end associate

@@ -28,6 +28,8 @@ module cr_snapshot_file
   use cr_scene, only: scene_t
   use cr_fom_file, only: write_scene
   use cr_fsys, only: rename_file, remove_file, block_file_t
+  use cr_qoi, only: qoi_t
+  use cr_qoi_file, only: write_qoi_group
   implicit none
   private
   public :: SNAP_SCHEMA, SNAP_SCHEMA_VERSION, SNAP_VERSIONS_READ, SNAP_UNITS, db_meta_t, snap_header_t, &
@@ -708,10 +710,13 @@ contains
   !> parts]; rank 0 then adds the dictionary, every checksum and complete = 1, closes the file
   !> and renames it (the commit) [one broadcast of its status; on failure an agreement on the
   !> failing rank's message]. On failure the temporary is removed.
-  subroutine writer_finish(this, error, extra)
+  subroutine writer_finish(this, error, extra, qois)
     class(snap_writer_t), intent(inout) :: this
     type(error_t), allocatable, intent(inout) :: error
     real(wp), intent(inout), optional :: extra(:)
+    !> rank 0: the quantities of interest of every sample, train then valid [n_train + n_valid],
+    !> written as the QoI group <set>/qoi (cr_qoi_file)
+    type(qoi_t), intent(in), optional :: qois(:)
     !> one sample's multipliers in the set's CSR arrays: offsets [ns], dictionary indices [nnz]
     type :: csr_t
       integer(i8), allocatable :: off8(:)
@@ -1002,6 +1007,10 @@ contains
             call put_digest(h5, g // "/" // trim(DS(q2)), this%dg(q2, iss), e); if (allocated(e)) exit ops
           end do
         end do
+        if (present(qois)) then
+          call write_qoi_group(h5, "train/qoi", qois(1:this%nset(1)), e); if (allocated(e)) exit ops
+          call write_qoi_group(h5, "valid/qoi", qois(this%nset(1) + 1:), e); if (allocated(e)) exit ops
+        end if
         ! (the file keeps its temporary name until every rank's multiplier blocks are in)
         call h5%write_attr("/", "complete", 1, e)
       end block ops

@@ -117,14 +117,16 @@ contains
 
   !> Every measure of one reduced trajectory qr [n_dof, N_T + 1] (time step h), against
   !> the full-order one q [n_dof, N_T + 1] when present; err [N_T + 1] (optional) receives
-  !> the per-step relative position error.
-  subroutine measure_sample(scene, radius, h, qr, m, error, q, err)
+  !> the per-step relative position error; qoi_fom (optional) are the full-order trajectory's
+  !> QoIs as stored (otherwise computed from q).
+  subroutine measure_sample(scene, radius, h, qr, m, error, q, err, qoi_fom)
     type(scene_t), intent(in) :: scene
     real(wp), intent(in) :: radius, h, qr(:,:)
     type(sample_measures_t), intent(out) :: m
     type(error_t), allocatable, intent(out) :: error
     real(wp), intent(in), optional :: q(:,:)
     real(wp), intent(out), optional :: err(:)
+    type(qoi_t), intent(in), optional :: qoi_fom
     real(wp), allocatable :: e(:)
     call compute_qoi(scene, radius, h, qr, m%qoi_rom, error)
     if (allocated(error)) then
@@ -137,9 +139,13 @@ contains
       allocate(m%evac_fom(0))
       return
     end if
-    call compute_qoi(scene, radius, h, q, m%qoi_fom, error)
-    if (allocated(error)) then
-      call prefix_error(error, "full-order trajectory"); return
+    if (present(qoi_fom)) then
+      m%qoi_fom = qoi_fom
+    else
+      call compute_qoi(scene, radius, h, q, m%qoi_fom, error)
+      if (allocated(error)) then
+        call prefix_error(error, "full-order trajectory"); return
+      end if
     end if
     allocate(e(size(qr, 2)))
     call position_errors(q, qr, e, m%e_mu)

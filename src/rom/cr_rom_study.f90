@@ -14,6 +14,9 @@ module cr_rom_study
   use cr_study_config, only: study_cfg_t, read_study
   use cr_sampling, only: param_space_t
   use cr_rom_file, only: rom_file_t
+  use cr_h5file, only: h5file_t
+  use cr_qoi, only: qoi_t
+  use cr_qoi_file, only: read_qoi_group
   implicit none
   private
   public :: rom_study_t, sample_block_t, open_study, open_rom_study, read_block_set
@@ -27,6 +30,9 @@ module cr_rom_study
     !> full-order positions [n_dof, (N_T + 1) n] and velocities [n_dof, N_T n] (database sets)
     real(wp), allocatable :: q(:,:), u(:,:)
     logical :: has_fom = .false.
+    !> the full-order trajectories' QoIs as crowd_snapshots stored them [n] (not allocated:
+    !> a database written before they were stored)
+    type(qoi_t), allocatable :: qoi(:)
   end type sample_block_t
 
   !> The study behind a ROM file.
@@ -145,6 +151,34 @@ contains
     call move_alloc(b%q, blk%q)
     call move_alloc(b%u, blk%u)
     blk%has_fom = .true.
+    call read_block_qoi(st, name, ns, blk, error)
   end subroutine read_block_set
+
+  !> The stored QoIs of the first ns samples of set `name`, when the database has them.
+  subroutine read_block_qoi(st, name, ns, blk, error)
+    type(rom_study_t), intent(in) :: st
+    character(len=*), intent(in) :: name
+    integer, intent(in) :: ns
+    type(sample_block_t), intent(inout) :: blk
+    type(error_t), allocatable, intent(out) :: error
+    type(h5file_t) :: h5
+    type(error_t), allocatable :: e2
+    type(qoi_t), allocatable :: all(:)
+    call h5%open(st%database, error)
+    if (allocated(error)) return
+    if (h5%exists(name // "/qoi")) then
+      call read_qoi_group(h5, st%database, name // "/qoi", all, error)
+      if (.not. allocated(error)) then
+        if (size(all) < ns) then
+          call set_error(error, "'" // st%database // "': group '" // name // "/qoi' has " // str(size(all)) // &
+            " rows for " // str(ns) // " samples")
+        else
+          blk%qoi = all(1:ns)
+        end if
+      end if
+    end if
+    call h5%close(e2)
+    if (.not. allocated(error) .and. allocated(e2)) call move_alloc(e2, error)
+  end subroutine read_block_qoi
 
 end module cr_rom_study

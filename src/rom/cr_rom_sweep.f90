@@ -406,8 +406,14 @@ contains
       extrap(k) = merge(1, 0, any(blk%mu(:, k) < this%st%space%lo - 1.0e-12_wp * abs(this%st%space%lo)) .or. &
         any(blk%mu(:, k) > this%st%space%hi + 1.0e-12_wp * abs(this%st%space%hi)))
       if (blk%has_fom) then
-        call measure_sample(ctx%scene, this%st%radius, this%st%dt, qr, ms(k), error, &
-          q=blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), err=err_time(:, k))
+        if (allocated(blk%qoi)) then
+          ! the full-order QoIs as crowd_snapshots stored them (the same definitions)
+          call measure_sample(ctx%scene, this%st%radius, this%st%dt, qr, ms(k), error, &
+            q=blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), err=err_time(:, k), qoi_fom=blk%qoi(k))
+        else
+          call measure_sample(ctx%scene, this%st%radius, this%st%dt, qr, ms(k), error, &
+            q=blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), err=err_time(:, k))
+        end if
         e_proj(k) = projection_error(blk%u(:, (k - 1) * nt + 1:k * nt), pair%v)
       else
         call measure_sample(ctx%scene, this%st%radius, this%st%dt, qr, ms(k), error)
@@ -519,6 +525,10 @@ contains
     do k = 1, blk%n
       out_set%evac_rom(:, k) = ms(k)%evac_rom
       out_set%t_out_rom(:, k) = ms(k)%t_rom
+    end do
+    allocate(out_set%qoi(blk%n))
+    do k = 1, blk%n
+      out_set%qoi(k) = ms(k)%qoi_rom
     end do
     if (blk%has_fom) then
       allocate(out_set%evac_fom(nt + 1, blk%n), out_set%t_out_fom(size(EVAC_PCT), blk%n))

@@ -18,6 +18,7 @@ module cr_study_run
   use cr_config, only: config_t, config_echo
   use cr_fom, only: fom_t
   use cr_scene, only: scene_t
+  use cr_qoi, only: qoi_t, compute_qoi, qoi_pack_size, pack_qoi, unpack_qoi
   use cr_fsys, only: remove_dir, remove_file, file_exists, file_size
   use cr_json, only: json_writer_t
   use cr_study_config, only: study_cfg_t, study_echo, study_hash
@@ -125,6 +126,9 @@ contains
     type(snap_writer_t) :: writer
     type(error_t), allocatable :: e2
     real(wp), allocatable :: q0(:), redu(:)
+    !> every sample's quantities of interest (pack_qoi; this rank's columns, summed on rank 0)
+    real(wp), allocatable :: qbuf(:,:)
+    type(qoi_t), allocatable :: qois(:)
     integer :: ci(2), nv
     real(wp) :: cr(2)
     integer, allocatable :: done(:), todo(:)
@@ -217,6 +221,8 @@ contains
     ! the database (temporary name until finished), with the samples of the earlier pieces
     call fill_meta()
     nv = size(scene_vertex_list(fom_ref%scene))
+    allocate(qbuf(qoi_pack_size(cfg%time%n_steps, fom_ref%scene%n_exits()), this%n_tot))
+    qbuf = 0
     ci = 0; cr = 0
     sched%n_tasks = this%n_run
     ! the database: rank 0 lays it out while the other ranks start on their samples (the places
@@ -365,7 +371,8 @@ contains
     mk(9) = writer%stats%marks(1) - t_start
     call sched%free()
     mk(10) = env%wtime() - t_start
-    call writer%finish(error, redu)
+    call gather_qoi(error)
+    call writer%finish(error, redu, qois)
     this%wstats = writer%stats
     mk(11:15) = writer%stats%marks(2:6) - t_start
     if (allocated(error)) return
@@ -458,12 +465,50 @@ contains
           " has another vertex layout"); return
       end if
       r%scene_exit = [sc%x_lo, sc%width, sc%x_hi, sc%width]
+      call sample_qoi(r, sc, error); if (allocated(error)) return
       ci(1) = ci(1) + count(r%converged == 0)
       if (any(r%converged == 0)) ci(2) = ci(2) + 1
       if (size(r%kkt) > 0) cr(1) = max(cr(1), maxval(r%kkt))
       cr(2) = max(cr(2), r%time)
       call writer%put(r, error)
     end subroutine put
+
+    !> The quantities of interest of sample r (scene sc) into its column of qbuf.
+    subroutine sample_qoi(r, sc, error)
+      type(sample_result_t), intent(in) :: r
+      type(scene_t), intent(in) :: sc
+      type(error_t), allocatable, intent(out) :: error
+      type(qoi_t) :: qoi
+      integer :: gs
+      if (sc%n_exits() /= fom_ref%scene%n_exits()) then
+        call set_error(error, "scene of " // trim(r%set) // " sample " // str(r%index) // " has " // &
+          str(sc%n_exits()) // " exits, the reference scene " // str(fom_ref%scene%n_exits())); return
+      end if
+      call compute_qoi(sc, fom_ref%radius, cfg%time%dt, r%q, qoi, error)
+      if (allocated(error)) return
+      gs = r%index
+      if (trim(r%set) /= trim(sets(1)%name)) gs = gs + sets(1)%n
+      call pack_qoi(qoi, qbuf(:, gs))
+    end subroutine sample_qoi
+
+    !> Collective: every sample's QoIs to rank 0 (qois; a failure joins error, collectively
+    !> known in finish).
+    subroutine gather_qoi(error)
+      type(error_t), allocatable, intent(inout) :: error
+      type(error_t), allocatable :: e
+      integer :: gs
+      call env%reduce_sum_root(qbuf, e)
+      if (allocated(e)) then
+        if (.not. allocated(error)) call move_alloc(e, error)
+        return
+      end if
+      if (.not. env%is_root()) return
+      allocate(qois(this%n_tot))
+      do gs = 1, this%n_tot
+        call unpack_qoi(qbuf(:, gs), fom_ref%n_agents, cfg%time%n_steps, fom_ref%scene%n_exits(), cfg%time%dt, &
+          qois(gs))
+      end do
+    end subroutine gather_qoi
 
     !> --stop-after: the loop's figures and every rank's failure flag in one reduction (the
     !> message of a failure is agreed only when there is one).
