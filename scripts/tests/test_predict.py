@@ -285,3 +285,29 @@ def test_ml_predict_any_list(study):
                         "--models-dir", str(tmp / "ml_models"), "-o", str(tmp / "nope.h5")],
                        capture_output=True, text=True, env=env, cwd=tmp)
     assert p.returncode == 2 and "no reduced coefficients" in p.stderr and not (tmp / "nope.h5").exists()
+
+
+def test_sampling_rule(study):
+    """Distributions per parameter: truncnormal stays in its window, lognormal is positive, a parameter
+    without a distribution stays in its training box; the list depends only on the seed."""
+    tmp, db, rom, names, params = study
+    kw = dict(n=4, r=3, n_queries=40, dist_param="'l_exit', 'speeds'", dist="'truncnormal', 'lognormal'",
+              dist_a="0.2, 0.0", dist_b="0.05, 0.05", dist_lo="0.195, 0", dist_hi="0.205, 0")
+    outs = []
+    for seed in (3, 3, 4):
+        out = tmp / ("sample_%d_%d.h5" % (seed, len(outs)))
+        p = run(0, "crowd_predict", predict_input(tmp, "sample_%d.nml" % len(outs), rom, out, seed=seed, **kw), tmp)
+        assert p.returncode == 0, p.stdout + p.stderr
+        outs.append(product(out)[0]["params"])
+    mu = outs[0]
+    assert mu.shape == (40, len(names))
+    assert np.all((mu[:, 0] >= 0.195) & (mu[:, 0] <= 0.205)) and np.unique(mu[:, 0]).size == 40
+    assert np.all(mu[:, 1:] > 0) and np.unique(mu[:, 1:]).size == mu[:, 1:].size
+    # exp(N(0, 0.05)): about a third of the speeds below 0.95 or above 1.05
+    assert 0.05 < np.mean(np.abs(np.log(mu[:, 1:])) > 0.05) < 0.6
+    assert np.array_equal(outs[0], outs[1]) and not np.array_equal(outs[0], outs[2])
+    out = tmp / "sample_default.h5"
+    p = run(0, "crowd_predict", predict_input(tmp, "sample_default.nml", rom, out, n=4, r=3, n_queries=40), tmp)
+    assert p.returncode == 0, p.stdout + p.stderr
+    d, _ = product(out)
+    assert np.all((d["params"][:, 0] >= 0.18) & (d["params"][:, 0] <= 0.22)) and not d["outside_box"].any()
