@@ -11,7 +11,8 @@ readers here return arrays in a "natural" numpy layout and say so in their docst
   ``[n_S, N_T + 1, n_dof]``, err_time ``[n_S, N_T + 1]``;
 * QoI product (schema ``crowdrom-qoi``) and the QoI groups of the other products: one row per
   query or sample, curve ``[n, n_exits, N_T + 1]``, t_evac ``[n, 3]`` (``read_qoi``,
-  ``read_qoi_group``).
+  ``read_qoi_group``); crowd_predict's product adds its own datasets (``read_prediction``):
+  alpha ``[n_Q, N_T, n_basis]``, positions ``[n_Q, N_T + 1, n_dof]``.
 
 One reader per product, mirroring the Fortran owners in ``src/products``: ``read_fom`` (schema
 ``crowdrom-fom``), ``read_database_*`` (``crowdrom-snapshots``), ``read_rom_pair`` (``crowdrom-rom``),
@@ -39,7 +40,7 @@ QOI_SCHEMA = "crowdrom-qoi"
 #: schema versions each reader accepts (as in src/products: *_VERSIONS_READ); the figures also
 #: read the offline results of a version-1 ROM file (written before the prepared pairs), which
 #: crowd_rom (pairs needed) refuses
-SCHEMA_VERSIONS = {FOM_SCHEMA: (1,), DB_SCHEMA: (1, 2), ROM_SCHEMA: (1, 2), ROMRUN_SCHEMA: (1,),
+SCHEMA_VERSIONS = {FOM_SCHEMA: (1,), DB_SCHEMA: (1, 2), ROM_SCHEMA: (1, 2, 3), ROMRUN_SCHEMA: (1,),
                    ML_SCHEMA: (1, 2), PROJ_SCHEMA: (2,), QOI_SCHEMA: (1,)}
 #: products whose every dataset carries a ``checksum`` attribute (from the given schema version
 #: on; but those under the listed groups, e.g. the database's reference scene written by the
@@ -673,6 +674,56 @@ def read_csv_table(path, needed, what, positive_times=()):
 
 
 # ------------------------------------------------------------------------------ errors, schemes
+
+def read_rom_study(f):
+    """The study a ROM file holds (version 3): ``q0`` [n_dof], ``param_names`` (list), ``config``."""
+    if "study" not in f:
+        raise InputError(f"'{f.filename}': no group 'study' (ROM file version < 3: rebuild it with crowd_offline)")
+    g = f["study"]
+    q0 = need_finite(f.filename, "study/q0", dataset(g, "q0").ravel())
+    return {"q0": q0, "param_names": attr(g, "param_names", str).split(","), "config": attr(g, "config", str)}
+
+
+def read_prediction(path):
+    """A crowd_predict product: ``read_qoi``'s dict (the QoIs, params, outside_box, cpu_seconds,
+    ...) plus the prediction's own data, checked: the root attributes rom_file, queries_from,
+    param_min, param_max, n_agents, n_steps, n_ranks, wall_seconds, pair, pair_n, pair_r, n_basis;
+    diverged_step, n_infeasible, n_capped [n_Q] and, when written (trajectories = .true.),
+    positions [n_Q, N_T + 1, n_dof] and alpha [n_Q, N_T, n_basis] (reduced model only)."""
+    d = read_qoi(path)
+    with open_h5(path, QOI_SCHEMA, "QoI product") as f:
+        if "pair" not in f.attrs or "diverged_step" not in f:
+            raise InputError(f"'{path}': a QoI product without the prediction's datasets (not written by "
+                             "crowd_predict)")
+        for k in ("rom_file", "queries_from"):
+            d[k] = attr(f, k, str)
+        for k in ("n_agents", "n_steps", "n_ranks", "pair", "pair_n", "pair_r", "n_basis"):
+            d[k] = attr(f, k, int)
+        d["wall_seconds"] = attr(f, "wall_seconds", float)
+        d["param_min"], d["param_max"] = np.asarray(f.attrs["param_min"]), np.asarray(f.attrs["param_max"])
+        nq, nt, na = d["n_queries"], d["n_steps"], d["n_agents"]
+        for k in ("diverged_step", "n_infeasible", "n_capped"):
+            a = dataset(f, k)
+            if a.shape != (nq,):
+                raise InputError(f"'{path}': dataset '{k}' has shape {a.shape}, expected ({nq},)")
+            verify_checksum(f, k)
+            d[k] = a
+        if "positions" in f:
+            a = dataset(f, "positions")
+            if a.shape != (nq * (nt + 1), 2 * na):
+                raise InputError(f"'{path}': dataset 'positions' has shape {a.shape}, expected "
+                                 f"({nq * (nt + 1)}, {2 * na})")
+            verify_checksum(f, "positions")
+            d["positions"] = need_finite(path, "positions", a).reshape(nq, nt + 1, 2 * na)
+        if "alpha" in f:
+            a = dataset(f, "alpha")
+            if a.ndim != 2 or a.shape != (nq * nt, d["n_basis"]):
+                raise InputError(f"'{path}': dataset 'alpha' has shape {a.shape}, expected "
+                                 f"({nq * nt}, {d['n_basis']})")
+            verify_checksum(f, "alpha")
+            d["alpha"] = need_finite(path, "alpha", a).reshape(nq, nt, d["n_basis"])
+    return d
+
 
 def integrate_positions(q0, u, h):
     """Explicit scheme q(nu) = q(nu-1) + h u(nu) from q(0) = q0.

@@ -37,6 +37,16 @@ the ROM file and snapshot database named in its attributes (overridable). Output
 file (schema crowdrom-ml, see --help-output), the trained models (joblib, with metadata that
 ties them to the ROM), a Markdown table on stdout and optionally a CSV table.
 
+Prediction for any list of parameters (--predict PRED.h5): PRED.h5 is a crowd_predict product of
+the reduced model (model = 'rom', trajectories = .true.: it holds each query's coefficients alpha);
+the saved models of the same ROM pair (--models-dir, truncation --n or each regressor's best n of a
+training output --ml-output) correct those coefficients as above, the corrected positions are
+integrated from the ROM file's initial positions, and their quantities of interest are computed by
+crowd_predict itself (model = 'positions', the one definition of the QoIs) into a product of the
+same schema, model "ml <regressor> n=<n>", whose per-query CPU seconds are the reduced query's
+plus its share of the batch prediction. One output per regressor (-o; with several regressors
+<stem>_<regressor>.h5). No database and no ROM run file are needed.
+
 Exit status: 0 success, 2 bad input (one 'ml_correct: error:' line on stderr), 1 other failure.
 """
 import argparse
@@ -44,6 +54,7 @@ import copy
 import hashlib
 import json
 import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -743,6 +754,89 @@ def no_projection(res):
             res[reg][key] = [-1.0] * len(res["n_values"])
 
 
+# ------------------------------------------------------------------------------ any list of queries
+
+def predict_queries(args, cfg):
+    """--predict: ML-corrected QoIs for the queries of a crowd_predict product (module doc)."""
+    pred_path = args.predict
+    pred = cio.read_prediction(pred_path)
+    if "alpha" not in pred or int(pred.get("pair", 0)) <= 0:
+        raise InputError(f"'{pred_path}': no reduced coefficients (run crowd_predict with model = 'rom' and "
+                         "trajectories = .true.)")
+    if np.any(pred["diverged_step"] > 0):
+        raise InputError(f"'{pred_path}': {int(np.sum(pred['diverged_step'] > 0))} reduced trajectories diverged "
+                         "(the correction needs every trajectory)")
+    rom_path = args.rom or cio.resolve_path(pred["rom_file"], pred_path)
+    with cio.open_h5(rom_path, cio.ROM_SCHEMA, "ROM file") as f:
+        rom_hash = cio.attr(f, "database_config_hash", str)
+        pair = cio.read_rom_pair(f, int(pred["pair"]))
+        study = cio.read_rom_study(f)
+    alpha, params, h = pred["alpha"], pred["params"], float(pred["dt"])
+    if alpha.shape[2] != pair["n_basis"] or pair["n"] != int(pred["pair_n"]) or pair["r"] != int(pred["pair_r"]):
+        raise InputError(f"'{pred_path}' was predicted with pair {pred['pair']} (N, R) = ({pred['pair_n']}, "
+                         f"{pred['pair_r']}), basis {alpha.shape[2]}; '{rom_path}' pair {pair['index']} has "
+                         f"({pair['n']}, {pair['r']}), basis {pair['n_basis']}")
+    regs = list(cfg["regressors"])
+    n_of = {}
+    for reg in regs:
+        if args.n:
+            if len(args.n) != 1:
+                raise InputError("--predict takes one truncation --n (or --ml-output for each regressor's best n)")
+            n_of[reg] = args.n[0]
+        elif args.ml_output:
+            with cio.open_h5(args.ml_output, cio.ML_SCHEMA, "ML output") as f:
+                n_of[reg] = cio.attr(cio.group(f, reg), "best_n", int)
+        else:
+            raise InputError("--predict needs --n N or --ml-output FILE (each regressor's best n)")
+        if not 1 <= n_of[reg] <= pair["n"]:
+            raise InputError(f"n = {n_of[reg]} outside 1..{pair['n']} (POD modes of pair {pair['index']})")
+    out = args.output or os.path.splitext(pred_path)[0] + "_ml.h5"
+    outs = {reg: (out if len(regs) == 1 else f"{os.path.splitext(out)[0]}_{reg}.h5") for reg in regs}
+    cio.check_outputs([(f"output ({r})", o) for r, o in outs.items()],
+                      [("prediction", pred_path), ("ROM file", rom_path), ("--config", args.config)])
+    exe = os.path.join(os.environ.get("CROWDROM_BIN") or os.path.join(ROOT, "build", "bin"), "crowd_predict")
+    if not (os.path.isfile(exe) and os.access(exe, os.X_OK)):
+        raise InputError(f"crowd_predict not found or not executable: '{exe}' (set CROWDROM_BIN)")
+    nq, nt = alpha.shape[0], alpha.shape[1]
+    with cio.OutputSet() as oset, tempfile.TemporaryDirectory(
+            prefix=".ml_predict_", dir=os.path.dirname(os.path.abspath(out))) as work:
+        for reg in regs:
+            n = n_of[reg]
+            Vn = pair["V"][:, :n]
+            names = feature_names(n, pred["param_names"], params.shape[1], cfg)
+            expected = {"database_config_hash": rom_hash, "pair": pair["index"], "pair_n": pair["n"],
+                        "pair_r": pair["r"], "pair_n_basis": pair["n_basis"], "n": n,
+                        "basis_hash": basis_hash(Vn), "features": names}
+            bundle = load_model(model_path(args.models_dir, reg, n), expected)
+            t0 = time.process_time()
+            dalpha = predict(bundle, make_features(alpha, params, n, cfg), n).reshape(nq, nt, n)
+            q = cio.integrate_positions(study["q0"], (alpha[:, :, :n] + dalpha) @ Vn.T, h)
+            t_ml = time.process_time() - t0
+            given = os.path.join(work, f"{reg}.h5")
+
+            def write(f, q=q, t_ml=t_ml):
+                d = f.create_dataset("params", data=params)
+                d.attrs["param_names"] = np.bytes_(",".join(pred["param_names"]))
+                f.create_dataset("positions", data=q.reshape(nq * (nt + 1), -1))
+                f.create_dataset("cpu_seconds", data=pred["cpu_seconds"] + t_ml / nq)
+            cio.write_h5_atomic(given, write)
+            nml = os.path.join(work, f"{reg}.nml")
+            with open(nml, "w") as fh:
+                fh.write(f"&predict rom_file = '{os.path.abspath(rom_path)}', model = 'positions', "
+                         f"label = 'ml {reg} n={n}', params_file = '{given}', "
+                         f"output = '{os.path.abspath(oset.tmp(outs[reg]))}' /\n")
+            log(f"{reg} n = {n}: {nq} queries corrected in {t_ml:.2e} CPU s; QoIs by crowd_predict", args.quiet)
+            p = subprocess.run([exe, nml], capture_output=True, text=True)
+            if p.returncode != 0:
+                err = [ln for ln in p.stderr.splitlines() if ln.startswith("error:")]
+                raise RuntimeError(f"crowd_predict (QoIs of the corrected positions): "
+                                   f"{err[0] if err else p.stderr.strip()[-300:]}")
+        oset.commit()
+    for reg in regs:
+        log(f"wrote {outs[reg]}", args.quiet)
+    return 0
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="ml_correct.py", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -760,6 +854,11 @@ def main(argv=None):
                     "features (config features.append_nu)")
     ap.add_argument("-o", "--output", help="output HDF5 (default: <romrun>_ml_s<k>.h5)")
     ap.add_argument("--models-dir", help="where models are saved/loaded (default: <output>_models/)")
+    ap.add_argument("--predict", metavar="PRED",
+                    help="ML-corrected QoIs for the queries of a crowd_predict product PRED (model = 'rom', "
+                    "trajectories = .true.) with saved models (--models-dir, --n or --ml-output); no ROM run file")
+    ap.add_argument("--ml-output", help="with --predict: a training output (crowdrom-ml) giving each "
+                    "regressor's best n")
     ap.add_argument("--predict-only", action="store_true",
                     help="reuse saved models (no training set needed); refuses models of another ROM")
     ap.add_argument("--csv", help="also write the result table as CSV")
@@ -779,6 +878,19 @@ def main(argv=None):
     if args.help_output:
         print(OUTPUT_DOC)
         return 0
+    if args.predict:
+        if args.romrun:
+            fail("--predict takes no ROM run file argument")
+        if not args.models_dir:
+            fail("--predict needs --models-dir (the saved models)")
+        over = {"regressors": args.regressors} if args.regressors else {}
+        feats = {k: True for k, v in (("append_mu", args.append_mu), ("append_nu", args.append_nu)) if v}
+        if feats:
+            over["features"] = feats
+        try:
+            return predict_queries(args, load_config(args.config, over))
+        except InputError as exc:
+            fail(str(exc))
     if not args.romrun:
         fail("missing the ROM run file argument (see --help)")
     try:

@@ -1,8 +1,8 @@
-"""Where each crowd_offline / crowd_rom variable lives: one namelist group per concern.
+"""Where each crowd_offline / crowd_rom / crowd_predict variable lives: one namelist group per concern.
 
 The groups (docs/input-reference.md): crowd_offline reads &offline (files), &pod, &cone, &pga,
 &infsup, &pairs, &hyper; crowd_rom reads &rom (files, samples), &sweep (settings), &reduced
-(reduced solver), &fom_timing. The tests and the extremes campaign describe a stage's options
+(reduced solver), &fom_timing; crowd_predict reads &predict (docs/queries.md). The tests and the extremes campaign describe a stage's options
 as one flat list of ``stage_variable = value`` assignments (the names of the former single
 groups); ``offline_groups`` / ``rom_groups`` turn such a list into the groups' text.
 """
@@ -40,6 +40,12 @@ ROM = {
     "fom_uzawa_rows": ("fom_timing", "uzawa_rows"), "fom_exact_solver": ("fom_timing", "exact_solver"),
 }
 
+#: flat name -> (group, variable) for crowd_predict (one group)
+PREDICT = {name: ("predict", name) for name in (
+    "rom_file", "output", "model", "n", "r", "hyper", "contacts", "m_v", "m_b", "m_d", "correction", "solver",
+    "params_file", "params_dataset", "n_queries", "seed", "dist_param", "dist", "dist_a", "dist_b", "dist_lo",
+    "dist_hi", "out_of_box", "trajectories")}
+
 _ASSIGN = re.compile(r"(?:^|,)\s*([A-Za-z_]\w*)(\(\s*\d+\s*\))?\s*=")
 
 
@@ -71,6 +77,11 @@ def offline_groups(flat):
 def rom_groups(flat):
     """{group: text} of crowd_rom's groups for a flat assignment list."""
     return _groups(flat, ROM)
+
+
+def predict_groups(flat):
+    """{group: text} of crowd_predict's group for a flat assignment list."""
+    return _groups(flat, PREDICT)
 
 
 def as_text(groups):

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Hostile namelist values (Inf, NaN, 1e308, 1e-308, 2147483647) are
 # refused by each program with one line, exit 2, nothing written; never a crash or a hang.
-#   hostile_values.sh crowd_fom|crowd_snapshots|crowd_offline|crowd_rom EXECUTABLE
+#   hostile_values.sh crowd_fom|crowd_snapshots|crowd_offline|crowd_rom|crowd_predict EXECUTABLE
 set -u
 prog=$1; exe=$2
 . "$(dirname "$0")/family_lib.sh"
@@ -27,12 +27,14 @@ make_input() {  # g extra [g2 extra2]
     [sweep]="n = 2, r = 2"
     [reduced]="solver = 'dual'"
     [fom_timing]="samples = 1"
+    [predict]="rom_file = 'rom.h5', output = 'pred.h5', n = 2, r = 2, n_queries = 3"
   )
   local groups="scene obstacles agents time solver contacts desired output"
   case $prog in
     crowd_snapshots) groups="$groups study";;
     crowd_offline) groups="$groups study offline pod cone pga hyper";;
     crowd_rom) groups="rom sweep reduced fom_timing";;
+    crowd_predict) groups="predict";;
   esac
   for k in $groups; do
     if [ "$k" = "$g" ]; then echo "&$k ${grp[$k]}, $extra /"
@@ -96,6 +98,14 @@ case $prog in
     run_case rho_inf reduced "uzawa_rho_factor = Inf" "&reduced: uzawa_rho_factor $fin"
     run_case eps_nan reduced "uzawa_eps = NaN" "&reduced: uzawa_eps $fin"
     run_case fom_tol_inf fom_timing "tol = Inf" "&fom_timing: tol $fin"
+    ;;
+  crowd_predict)
+    dn="dist_param = 'l_exit', dist = 'normal'"
+    run_case dist_a_inf predict "$dn, dist_a = Inf, dist_b = 0.1" "&predict: dist_a\\(1\\) $fin"
+    run_case dist_b_nan predict "$dn, dist_a = 0.2, dist_b = NaN" "&predict: dist_b\\(1\\) $fin"
+    run_case dist_a_huge predict "$dn, dist_a = 1e308, dist_b = 0.1" "&predict: dist_a\\(1\\) = .*$big"
+    run_case dist_lo_ninf predict "dist_param = 'l_exit', dist = 'truncnormal', dist_a = 0.2, dist_b = 0.1, dist_lo = -Inf, dist_hi = 1" "&predict: dist_lo\\(1\\) $fin"
+    run_case queries_negative predict "n_queries = -1" "&predict: .*n_queries must be >= 0"
     ;;
 esac
 # a lone '&' (a group without its name) in the file, whichever program reads it

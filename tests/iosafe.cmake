@@ -13,8 +13,8 @@ set_tests_properties(env_error_printed_np2 PROPERTIES LABELS mpi ENVIRONMENT "${
 # Foreign inputs (empty, blank, binary, HDF5, JSON, CSV, text, another program's
 # input) are refused by each program with one line, exit 2, nothing written.
 set(CR_EX ${CMAKE_SOURCE_DIR}/inputs)
-foreach(p crowd_fom crowd_snapshots crowd_offline crowd_rom)
-  if(p STREQUAL crowd_rom)
+foreach(p crowd_fom crowd_snapshots crowd_offline crowd_rom crowd_predict)
+  if(p STREQUAL crowd_rom OR p STREQUAL crowd_predict)
     set(others ${CR_EX}/hall20.nml ${CR_EX}/hall20_study.nml)
   elseif(p STREQUAL crowd_fom)
     set(others ${CR_EX}/hall20_rom.nml)
@@ -46,7 +46,7 @@ cr_refused(geobench_missing_input "missing.nml: cannot open input file" $<TARGET
 
 # Hostile namelist values (Inf, NaN, 1e308, 1e-308, 2147483647, size
 # products that overflow), a generated family per program
-foreach(p crowd_fom crowd_snapshots crowd_offline crowd_rom)
+foreach(p crowd_fom crowd_snapshots crowd_offline crowd_rom crowd_predict)
   add_test(NAME hostile_values_${p}
     COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/hostile_values.sh ${p} $<TARGET_FILE:${p}>)
   set_tests_properties(hostile_values_${p} PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}")
@@ -54,7 +54,7 @@ endforeach()
 
 # An output naming an input (./x, dir/../x, absolute, symbolic link), outputs that
 # coincide, a missing directory, a directory under the output's name: a family per program
-foreach(p crowd_fom crowd_snapshots crowd_offline crowd_rom)
+foreach(p crowd_fom crowd_snapshots crowd_offline crowd_rom crowd_predict)
   add_test(NAME output_paths_${p}
     COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/output_paths.sh ${p} $<TARGET_FILE:${p}>)
   set_tests_properties(output_paths_${p} PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}")

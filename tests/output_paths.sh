@@ -4,7 +4,7 @@
 # (<name>.partial), an output in a missing directory or
 # with a directory under its name: refused before any work with one line, exit 2, nothing
 # written and every input untouched. A generated family per program.
-#   output_paths.sh crowd_fom|crowd_snapshots|crowd_offline|crowd_rom EXECUTABLE
+#   output_paths.sh crowd_fom|crowd_snapshots|crowd_offline|crowd_rom|crowd_predict EXECUTABLE
 set -u
 prog=$1; exe=$2
 . "$(dirname "$0")/family_lib.sh"
@@ -22,6 +22,7 @@ write_input() {
       "$base_model" "$study" "'$o1'" > "$f";;
     crowd_rom) printf "&rom rom_file = 'rom.h5', database = 'db.h5', output = %s%s /\n&sweep n = 2, r = 2 /\n" "'$o1'" \
       "${o2:+, table = '$o2'}" > "$f";;
+    crowd_predict) printf "&predict rom_file = 'rom.h5', output = %s, n = 2, r = 2, n_queries = 3 /\n" "'$o1'" > "$f";;
   esac
 }
 # inputs that must survive: the namelist, and the products the program reads
@@ -54,5 +55,7 @@ case $prog in
     setup table_input;  write_input in.nml out.h5 in.nml;     refused table_input "&rom table 'in.nml' $same" "$exe" in.nml
     setup table_output; write_input in.nml out.h5 ./out.h5;   refused table_output "&rom table './out.h5' and &rom output 'out.h5' are the same file" "$exe" in.nml
     setup table_partial; write_input in.nml T.csv.partial T.csv; refused table_partial "&rom table 'T.csv' and &rom output 'T.csv.partial' clash" "$exe" in.nml;;
+  crowd_predict)
+    setup rom_file;     write_input in.nml rom.h5;            refused rom_file "&predict output 'rom.h5' $same" "$exe" in.nml;;
 esac
 finish

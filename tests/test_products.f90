@@ -530,6 +530,8 @@ contains
     integer :: i, j, k, l, p, m
     rom%config = "&offline /"; rom%database = "db.h5"; rom%db_hash = "0123456789abcdef"
     rom%n_agents = NA; rom%n_steps = NT; rom%radius = 0.04_wp; rom%dt = 0.02_wp
+    rom%study_config = "&scene /"; rom%param_names = "l_exit"
+    rom%q0 = [(0.1_wp * i, i = 1, 2 * NA)]
     rom%pod_method = "tsqr"; rom%pod_rank = 2; rom%pod_total_energy = 1.5_wp; rom%pod_sigma = [2.0_wp, 1.0_wp]
     allocate(rom%v(2 * NA, 3))
     do j = 1, 3
@@ -609,6 +611,8 @@ contains
     if (allocated(error)) return
     call check(rom%n_agents == NA .and. rom%n_steps == NT .and. rom%radius == ref%radius .and. rom%dt == ref%dt .and. &
       rom%db_hash == ref%db_hash .and. rom%database == ref%database .and. rom%config == ref%config, "rom: header")
+    call check(rom%version == 3 .and. rom%study_config == ref%study_config .and. rom%param_names == ref%param_names &
+      .and. all(rom%q0 == ref%q0), "rom: study")
     call check(rom%pod_method == "tsqr" .and. rom%pod_rank == 2 .and. all(rom%pod_sigma == ref%pod_sigma) .and. &
       all(rom%v == ref%v) .and. rom%n_pod == 2 .and. all(rom%pga_err == ref%pga_err), "rom: POD, basis, PGA")
     call check(rom%cone%method == 'gis' .and. rom%cone%r == 2 .and. all(rom%cone%indices == [1, 3]) .and. &
@@ -685,8 +689,8 @@ contains
 
   subroutine rom_corrupt()
     character(len=*), parameter :: path = "products_rom_bad.h5"
-    character(len=24), parameter :: floats(7) = [character(len=24) :: "pod/sigma", "basis/v", "pairs/1/v", &
-      "pairs/1/cand/w", "pairs/1/eim/s1/basis", "pairs/1/eim/s2/basis", "pairs/1/eq/s3/weights"]
+    character(len=24), parameter :: floats(8) = [character(len=24) :: "pod/sigma", "basis/v", "pairs/1/v", &
+      "pairs/1/cand/w", "pairs/1/eim/s1/basis", "pairs/1/eim/s2/basis", "pairs/1/eq/s3/weights", "study/q0"]
     integer :: k, b
     do k = 1, size(floats)
       do b = 1, 3
@@ -715,8 +719,8 @@ contains
     call rom_attr_case("pairs/1/eq/s1", "m", 1, "pairs/1/eq/s1/indices")
     call rom_attr_case("pairs/1/eq/s3", "p", 1, "pairs/1/eq/s3")
     ! versions
-    call rom_attr_case("/", "schema_version", 1, "schema version 1 is not supported (supported: 2)")
-    call rom_attr_case("/", "schema_version", 3, "schema version 3 is not supported (supported: 2)")
+    call rom_attr_case("/", "schema_version", 1, "schema version 1 is not supported (supported: 2, 3)")
+    call rom_attr_case("/", "schema_version", 4, "schema version 4 is not supported (supported: 2, 3)")
     k = remove_file(path)
   end subroutine rom_corrupt
 

@@ -47,7 +47,7 @@ def _read_romrun(path):
 
 
 @pytest.mark.parametrize("product,version", [
-    (p, v) for p in ("db", "rom", "romrun") for v in (0, 3, 99)])
+    (p, v) for p in ("db", "rom", "romrun") for v in (0, 4 if p == "rom" else 3, 99)])
 def test_unknown_version_refused(study, product, version):
     tmp, paths = study
     path = _copy(paths[product], tmp, f"v{version}_{product}.h5")

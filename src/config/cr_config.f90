@@ -28,7 +28,7 @@ module cr_config
   character(len=16), parameter :: FOM_GROUPS(*) = [character(len=16) :: 'scene', 'obstacles', &
     'agents', 'desired', 'time', 'solver', 'contacts', 'output', 'study', &
     'offline', 'pod', 'cone', 'pga', 'infsup', 'pairs', 'hyper', &
-    'rom', 'sweep', 'reduced', 'fom_timing']
+    'rom', 'sweep', 'reduced', 'fom_timing', 'predict']
 
   !> &scene: rectangular hall [0, hall_length] x [0, hall_width] closed by walls of thickness
   !> wall_thickness; the top wall has an opening of width l_exit centred at exit_center, and

@@ -23,6 +23,10 @@ module cr_offline_data
     integer :: n_agents = 0, n_dof = 0, n_steps = 0, n_train = 0, n_dict = 0
     real(wp) :: radius = 0, dt = 0
     character(len=:), allocatable :: config_hash, param_names
+    !> the database's effective configuration (with &study) and initial positions [n_dof],
+    !> stored in the ROM file so that prediction needs no database
+    character(len=:), allocatable :: config_text
+    real(wp), allocatable :: q0(:)
     !> first local sample minus 1, number of local samples
     integer :: s0 = 0, ns = 0
     !> velocity snapshots u^nu, configurations q^{nu-1} and desired velocities v(q^{nu-1})
@@ -55,6 +59,7 @@ contains
     data%n_agents = hdr%n_agents; data%n_steps = hdr%n_steps; data%n_train = hdr%n_train
     data%radius = hdr%radius; data%dt = hdr%dt
     data%config_hash = hdr%hash; data%param_names = hdr%param_names
+    data%config_text = hdr%config_text; data%q0 = hdr%q0
     if (data%n_agents /= cfg%agents%n_agents .or. abs(data%radius - cfg%agents%radius) > 0 .or. &
         abs(data%dt - cfg%time%dt) > 0) then
       call set_error(error, "&offline: database '" // path // "' is from another scene (n_agents " // &

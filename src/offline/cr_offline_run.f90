@@ -409,6 +409,8 @@ contains
       rom%database = trim(this%ocfg%database); rom%db_hash = this%data%config_hash
       rom%n_agents = this%data%n_agents; rom%n_steps = this%data%n_steps
       rom%radius = this%data%radius; rom%dt = this%data%dt
+      rom%study_config = this%data%config_text; rom%param_names = this%data%param_names
+      rom%q0 = this%data%q0
       rom%pod_method = this%pod%method; rom%pod_rank = this%pod%rank
       rom%pod_total_energy = this%pod%total_energy
       rom%pod_sigma = this%pod%sigma_all

@@ -1,5 +1,5 @@
-!> The ROM file (schema "crowdrom-rom", version 2; layout in docs/file-formats.md): written by
-!> crowd_offline, read by crowd_rom and the Python scripts. It holds the offline results (POD
+!> The ROM file (schema "crowdrom-rom", version 3; layout in docs/file-formats.md): written by
+!> crowd_offline, read by crowd_rom, crowd_predict and the Python scripts. It holds the offline results (POD
 !> spectrum, velocity basis, multiplier cones, PGA history, contact dictionary, inf-sup table,
 !> timings) and the prepared reduced models: one `rom_pair_t` per pair (N, R) with its basis,
 !> cone candidates and stored hyper-reduction: one group per stored method
@@ -7,8 +7,12 @@
 !> cr_hyper_method; the methods are those of the factory, cr_hyper_factory).
 !>
 !> The offline side builds `rom_pair_t` (cr_rom_pairs), the online side reads the same type:
-!> `read_rom_file` (header, offline results, pair list) then `read_rom_pair` per pair. Readers
-!> accept schema version 2 only and validate what they read (shapes against attributes,
+!> `read_rom_file` (header, offline results, pair list) then `read_rom_pair` per pair. Version 3
+!> adds the group `study`: the study's effective configuration (attribute `config`, the snapshot
+!> database's, with &study), its parameter component names and the initial positions (dataset
+!> `study/q0`), so that prediction for new parameters needs no database (cr_rom_study,
+!> open_rom_study). Readers accept versions 2 and 3 (a version-2 file has no `study`: version
+!> tells) and validate what they read (shapes against attributes,
 !> dictionary and EIM/EQ indices in range, finite bases and weights).
 module cr_rom_file
   use cr_kinds, only: wp, i8
@@ -26,10 +30,10 @@ module cr_rom_file
     find_pair, ROM_SCHEMA, ROM_SCHEMA_VERSION, ROM_VERSIONS_READ, TERM_NAMES
 
   character(len=*), parameter :: ROM_SCHEMA = "crowdrom-rom"
-  !> 2: prepared pairs (/pairs/<k>) with their hyper-reduction
-  integer, parameter :: ROM_SCHEMA_VERSION = 2
+  !> 2: prepared pairs (/pairs/<k>) with their hyper-reduction; 3: the study (group `study`)
+  integer, parameter :: ROM_SCHEMA_VERSION = 3
   !> versions the reader accepts
-  integer, parameter :: ROM_VERSIONS_READ(1) = [2]
+  integer, parameter :: ROM_VERSIONS_READ(2) = [2, 3]
 
   !> A multiplier cone as built offline (gIS or mCPG) and stored.
   type :: rom_cone_t
@@ -87,8 +91,13 @@ module cr_rom_file
 
   !> Everything in a ROM file except the pairs' contents.
   type :: rom_file_t
-    !> file read from (set by read_rom_file)
+    !> file read from and its schema version (set by read_rom_file)
     character(len=:), allocatable :: path
+    integer :: version = 0
+    !> the study (version 3): the snapshot database's effective configuration (with &study),
+    !> its parameter component names ("l_exit,speed_1,...") and the initial positions [n_dof]
+    character(len=:), allocatable :: study_config, param_names
+    real(wp), allocatable :: q0(:)
     !> effective configuration, database path and its config hash
     character(len=:), allocatable :: config, database, db_hash
     integer :: n_agents = 0, n_dof = 0, n_steps = 0, n_dict = 0
@@ -137,6 +146,7 @@ contains
     call h5%write_attr("/", "n_steps", rom%n_steps, error); if (allocated(error)) goto 9
     call h5%write_attr("/", "agent_radius", rom%radius, error); if (allocated(error)) goto 9
     call h5%write_attr("/", "dt", rom%dt, error); if (allocated(error)) goto 9
+    call write_study(h5, rom, error); if (allocated(error)) goto 9
     ! POD
     call h5%make_group("pod", error); if (allocated(error)) goto 9
     call h5%write_attr("pod", "method", rom%pod_method, error); if (allocated(error)) goto 9
@@ -174,6 +184,20 @@ contains
       call h5%abort()
     end if
   end subroutine write_rom_file
+
+  !> The study of a version-3 file (everything prediction needs besides the pairs).
+  subroutine write_study(h5, rom, error)
+    type(h5file_t), intent(inout) :: h5
+    type(rom_file_t), intent(in) :: rom
+    type(error_t), allocatable, intent(out) :: error
+    if (.not. allocated(rom%study_config) .or. .not. allocated(rom%param_names) .or. .not. allocated(rom%q0)) then
+      call set_error(error, "the study (configuration, parameter names, initial positions) is not set"); return
+    end if
+    call h5%make_group("study", error); if (allocated(error)) return
+    call h5%write_attr("study", "config", rom%study_config, error); if (allocated(error)) return
+    call h5%write_attr("study", "param_names", rom%param_names, error); if (allocated(error)) return
+    call h5%write("study/q0", rom%q0, error)
+  end subroutine write_study
 
   subroutine write_cone(h5, g, c, error)
     type(h5file_t), intent(inout) :: h5
@@ -295,6 +319,7 @@ contains
     end if
     rom%path = path
     call check_schema(h5, path, ROM_SCHEMA, ROM_VERSIONS_READ, "ROM file", version, error); if (allocated(error)) goto 9
+    rom%version = version
     call h5%read_attr("/", "database", rom%database, error); if (allocated(error)) goto 9
     call h5%read_attr("/", "database_config_hash", rom%db_hash, error); if (allocated(error)) goto 9
     call h5%read_attr("/", "config", rom%config, error); if (allocated(error)) goto 9
@@ -320,6 +345,13 @@ contains
     call h5%read_attr("basis", "n_pod", rom%n_pod, error); if (allocated(error)) goto 9
     call need_size(path, "basis/v (rows)", size(rom%v, 1), rom%n_dof, "2 n_agents", error); if (allocated(error)) goto 9
     call need_finite(path, "basis/v", rom%v, error); if (allocated(error)) goto 9
+    if (version >= 3) then
+      call h5%read_attr("study", "config", rom%study_config, error); if (allocated(error)) goto 9
+      call h5%read_attr("study", "param_names", rom%param_names, error); if (allocated(error)) goto 9
+      call h5%read("study/q0", rom%q0, error); if (allocated(error)) goto 9
+      call need_size(path, "study/q0", size(rom%q0), rom%n_dof, "2 n_agents", error); if (allocated(error)) goto 9
+      call need_finite(path, "study/q0", rom%q0, error); if (allocated(error)) goto 9
+    end if
     call read_cone(h5, path, "cone", rom%cone, error); if (allocated(error)) goto 9
     do k = 1, 2
       g = "cone_" // trim(merge('gis ', 'mcpg', k == 1))

@@ -2,6 +2,8 @@
 !> configuration (scene, agents, time, solver and &study, parsed from the database's `config`
 !> attribute, so the reduced model runs exactly the study's scene), the parameter space
 !> (training box), the initial positions, and the full-order trajectories of the sets run.
+!> open_rom_study builds the same study from a version-3 ROM file alone (no database: what
+!> prediction for new parameters needs).
 module cr_rom_study
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error, prefix_error
@@ -17,7 +19,7 @@ module cr_rom_study
   use cr_qoi_file, only: read_qoi_group
   implicit none
   private
-  public :: rom_study_t, sample_block_t, open_study, read_block_set
+  public :: rom_study_t, sample_block_t, open_study, open_rom_study, read_block_set
 
   !> Samples of one set and, for database sets, their full-order trajectories.
   type :: sample_block_t
@@ -57,7 +59,6 @@ contains
     type(rom_file_t), intent(in) :: hdr
     type(rom_study_t), intent(out) :: st
     type(error_t), allocatable, intent(out) :: error
-    type(namelist_text_t) :: t
     call read_snap_header(path, where, st%db, error)
     if (allocated(error)) return
     st%database = path
@@ -76,19 +77,60 @@ contains
       call set_error(error, where // ": ROM file '" // hdr%path // "' and database '" // path // &
         "' disagree on n_agents / n_steps", 2); return
     end if
-    call t%set_text(path // " (attribute config)", st%db%config_text)
+    call parse_study(path // " (attribute config)", st%db%config_text, st, error)
+    if (allocated(error)) return
+    if (st%space%n_expanded /= st%db%n_params) then
+      call set_error(error, where // " '" // path // "': attribute 'n_params' = " // str(st%db%n_params) // &
+        ", but its configuration has " // str(st%space%n_expanded) // " parameter components", 2); return
+    end if
+  end subroutine open_study
+
+  !> The study stored in a ROM file (version 3; read by read_rom_file): configuration,
+  !> parameter space and initial positions, without the database (st%database is '').
+  subroutine open_rom_study(hdr, where, st, error)
+    type(rom_file_t), intent(in) :: hdr
+    character(len=*), intent(in) :: where
+    type(rom_study_t), intent(out) :: st
+    type(error_t), allocatable, intent(out) :: error
+    if (hdr%version < 3 .or. .not. allocated(hdr%study_config)) then
+      call set_error(error, where // " '" // hdr%path // "': ROM file version " // str(hdr%version) // " holds no " // &
+        "study (configuration, initial positions), which prediction needs: rebuild it with this crowd_offline " // &
+        "(version 3)", 2); return
+    end if
+    st%database = ''
+    st%hash = hdr%db_hash
+    st%n_agents = hdr%n_agents; st%n_steps = hdr%n_steps; st%n_dof = hdr%n_dof
+    st%radius = hdr%radius; st%dt = hdr%dt
+    st%param_names = hdr%param_names
+    st%q0 = hdr%q0
+    call parse_study(hdr%path // " (attribute study/config)", hdr%study_config, st, error)
+    if (allocated(error)) return
+    if (st%space%component_names() /= st%param_names) then
+      call set_error(error, where // " '" // hdr%path // "': attribute study/param_names '" // st%param_names // &
+        "' does not match its configuration ('" // st%space%component_names() // "')", 2); return
+    end if
+    if (st%cfg%agents%n_agents /= st%n_agents) then
+      call set_error(error, where // " '" // hdr%path // "': its study configuration has " // &
+        str(st%cfg%agents%n_agents) // " agents, the file " // str(st%n_agents), 2); return
+    end if
+  end subroutine open_rom_study
+
+  !> Configuration, &study, parameter space and reference speeds of st from the study's
+  !> configuration text (`what` names it in messages); st%n_agents must be set.
+  subroutine parse_study(what, text, st, error)
+    character(len=*), intent(in) :: what, text
+    type(rom_study_t), intent(inout) :: st
+    type(error_t), allocatable, intent(out) :: error
+    type(namelist_text_t) :: t
+    call t%set_text(what, text)
     call parse_config(t, st%cfg, error)
     if (allocated(error)) return
     call read_study(t, st%study, error)
     if (allocated(error)) return
     call st%space%init(st%study, st%n_agents)
-    if (st%space%n_expanded /= st%db%n_params) then
-      call set_error(error, where // " '" // path // "': attribute 'n_params' = " // str(st%db%n_params) // &
-        ", but its configuration has " // str(st%space%n_expanded) // " parameter components", 2); return
-    end if
     allocate(st%speeds(st%n_agents))
     st%speeds = st%cfg%agents%speed
-  end subroutine open_study
+  end subroutine parse_study
 
   !> Read the first n (0: all) samples of database set `name` ('train' or 'valid').
   subroutine read_block_set(st, name, n, blk, error)

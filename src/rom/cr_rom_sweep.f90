@@ -29,10 +29,11 @@ module cr_rom_sweep
   use cr_rom_file, only: rom_file_t, rom_pair_t, read_rom_file, read_rom_pair, find_pair
   use cr_rom_study, only: rom_study_t, sample_block_t, open_study, read_block_set
   use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t, make_reduced_ops, eim_exact_rows
-  use cr_rom_stepper, only: rom_solver_cfg_t, rom_traj_t, run_trajectory, reduced_positions
+  use cr_rom_stepper, only: rom_solver_cfg_t, rom_traj_t, run_trajectory
   use cr_rom_metrics, only: projection_error, sample_measures_t, row_measures_t, measure_sample, &
     aggregate_measures, EVAC_PCT
   use cr_rom_guard, only: rom_guard_t
+  use cr_rom_query, only: query_setup, query_positions
   use cr_fom, only: fom_t, step_record_t
   use cr_romrun_file, only: romrun_header_t, romrun_row_t, romrun_set_t, romrun_writer_t, speedup
   use cr_fsys, only: rename_file, remove_file, write_whole_file
@@ -311,8 +312,6 @@ contains
     type(rom_guard_t) :: guard
     logical, allocatable :: ok(:)
     integer, allocatable :: div_step(:), n_done(:)
-    real(wp) :: c_max
-    integer :: kbad
     real(wp), allocatable :: alpha(:,:), beta(:,:), pos(:,:), qr(:,:), err_time(:,:)
     real(wp), allocatable :: e_mu(:), e_proj(:), overlap(:), time(:), mobility(:), query(:)
     real(wp) :: w0, w_setup, w_run
@@ -362,16 +361,8 @@ contains
       ! the whole query as a user pays it: the per-parameter setup (scene, speeds, desired
       ! velocity, divergence guard) plus the trajectory (fastest repeat, per-trajectory setup included)
       w0 = env%wtime()
-      call ctx_reset(ctx)
-      call this%st%space%sample_model(blk%mu(:, k), this%st%cfg, this%st%speeds, this%st%radius, ctx%scene, ctx%speeds, &
-        ctx%desired, error)
+      call query_setup(this%st, blk%mu(:, k), ctx, guard, error)
       if (allocated(error)) return
-      ctx%radius = this%st%radius
-      ctx%h = this%st%dt
-      c_max = maxval(abs(ctx%speeds), mask=[(.true., kbad = 1, size(ctx%speeds))])
-      if (size(ctx%speeds) == 0) c_max = 0
-      if (ctx%desired%from_file) c_max = max(c_max, sqrt(2.0_wp) * maxval(abs(ctx%desired%fixed)))
-      call guard%init(ctx%scene, c_max, this%st%dt * nt, this%st%n_agents)
       w_setup = env%wtime() - w0
       w0 = env%wtime()
       call run_trajectory(ops, ctx, this%st%q0, nt, scfg, traj, error, guard=guard, corr=corr)
@@ -390,29 +381,8 @@ contains
           traj%time_correct = tr2%time_correct
         end if
       end do
-      if (allocated(traj%q)) then
-        ! corrected positions, carried in full by the stepper
-        qr = traj%q
-      else
-        qr = reduced_positions(this%st%q0, pair%v, traj%alpha, this%st%dt)
-      end if
-      ! every agent checked (the stepper checks only the agents its assembly reads)
-      kbad = guard%first_outside(qr)
-      if (kbad > 0) then
-        if (traj%diverged_step == 0 .or. kbad - 1 < traj%diverged_step) then
-          traj%diverged_step = kbad - 1
-          traj%alpha(:, kbad - 1:) = 0
-          traj%beta(:, kbad - 1:) = 0
-          if (allocated(traj%q)) then
-            do j = kbad, nt + 1
-              qr(:, j) = qr(:, kbad - 1)
-            end do
-            traj%n_corrected(kbad - 1:) = 0
-          else
-            qr = reduced_positions(this%st%q0, pair%v, traj%alpha, this%st%dt)
-          end if
-        end if
-      end if
+      ! every agent checked (cr_rom_query)
+      call query_positions(this%st, pair%v, guard, traj, qr)
       if (allocated(corr)) then
         ncorr(:, k) = traj%n_corrected
         tcorr(k) = traj%time_correct
@@ -865,13 +835,6 @@ contains
     end associate
     call js%write_file(path, error)
   end subroutine write_summary
-
-  !> A fresh evaluation context (scene and desired velocity are rebuilt per sample).
-  subroutine ctx_reset(ctx)
-    type(eval_ctx_t), intent(inout) :: ctx
-    type(eval_ctx_t) :: fresh
-    ctx = fresh
-  end subroutine ctx_reset
 
   function e(x) result(s)
     real(wp), intent(in) :: x
