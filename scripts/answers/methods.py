@@ -51,25 +51,28 @@ def m0_map(question, box, exact, seed, confidence, ledger):
 
 # ------------------------------------------------------------------------------ M1
 
-def m1(question, statistic, training, n, seed, confidence, ledger):
-    """GP on the first n exact training runs, the statistic by ``propagate``."""
+def m1(question, statistic, training, n, seed, confidence, ledger, restarts=2, **prop):
+    """GP on the first n exact training runs, the statistic by ``propagate`` (``prop``: its
+    sample sizes n_large, n_draws, n_sub)."""
     training.grow(n)
     with Clock() as c:
         reg = training.region
-        gp = GPSurrogate(training.inputs(n), training.Y[:n, 0], reg.lo, reg.hi, seed)
+        gp = GPSurrogate(training.inputs(n), training.Y[:n, 0], reg.lo, reg.hi, seed,
+                         restarts=restarts)
         est, lo, hi = propagate(gp, reg.sample, statistic, confidence, stream(seed, PROPAGATION),
-                                **_kw(question))
+                                **prop, **_kw(question))
     ledger.add("fitting", "gp", 0, c.seconds)
     return Answer(question.id, statistic, "M1", est, lo, hi, confidence, ledger, n_exact=n,
                   calibration=gp.calibration, cv_rel_rmse=gp.cv_rel_rmse)
 
 
-def m1_map(question, box, training, n, seed, confidence, ledger):
+def m1_map(question, box, training, n, seed, confidence, ledger, restarts=2):
     training.grow(n)
     pts, shape = question.grid_points(box)
     with Clock() as c:
         reg = training.region
-        gp = GPSurrogate(training.inputs(n), training.Y[:n, 0], reg.lo, reg.hi, seed)
+        gp = GPSurrogate(training.inputs(n), training.Y[:n, 0], reg.lo, reg.hi, seed,
+                         restarts=restarts)
         mu, sd = gp.predict(pts[:, reg.varying])
         v, lo, hi = map_interval(mu, sd, gp.calibration, confidence)
     ledger.add("fitting", "gp", 0, c.seconds)
@@ -194,7 +197,7 @@ def _mf_quantile(Y, alpha, m, p, tq):
     return q, inverse(p - tq * se), inverse(p + tq * se)
 
 
-def m3_map(question, box, low, training, n, seed, confidence, ledger):
+def m3_map(question, box, low, training, n, seed, confidence, ledger, restarts=2):
     """Autoregressive GP on n training pairs (exact and low at the same points) and the low
     fidelity at every grid point."""
     training.grow(n)
@@ -203,7 +206,8 @@ def m3_map(question, box, low, training, n, seed, confidence, ledger):
     ylo = run(low, pts, seeds, ledger, "estimation")
     with Clock() as c:
         reg = training.region
-        ar = AR1Surrogate(training.inputs(n), training.Y[:n, 0], training.Y[:n, 1], reg.lo, reg.hi, seed)
+        ar = AR1Surrogate(training.inputs(n), training.Y[:n, 0], training.Y[:n, 1], reg.lo, reg.hi, seed,
+                          restarts=restarts)
         mu, sd = ar.predict(pts[:, reg.varying], ylo)
         v, lo, hi = map_interval(mu, sd, ar.calibration, confidence)
     ledger.add("fitting", "ar1-gp", 0, c.seconds)

@@ -25,7 +25,7 @@ from .intervals import sample_statistic, z_value
 class GPSurrogate:
     """A GP on inputs X [n, d] inside [lo, hi] [d] and outputs y [n]."""
 
-    def __init__(self, X, y, lo, hi, seed=0, kernel=None, folds=5):
+    def __init__(self, X, y, lo, hi, seed=0, kernel=None, folds=5, restarts=2):
         self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
         self.X, self.y = np.asarray(X, float), np.asarray(y, float)
         d = self.X.shape[1]
@@ -33,7 +33,7 @@ class GPSurrogate:
             kernel = (ConstantKernel(1.0, (1e-3, 1e3))
                       * Matern(np.full(d, 0.5), (1e-2, 1e2), nu=2.5)
                       + WhiteKernel(1e-4, (1e-10, 1.0)))
-        self.gp = GaussianProcessRegressor(kernel, normalize_y=True, n_restarts_optimizer=2,
+        self.gp = GaussianProcessRegressor(kernel, normalize_y=True, n_restarts_optimizer=restarts,
                                            random_state=seed)
         self.gp.fit(self.unit(self.X), self.y)
         self.calibration, self.cv_rel_rmse, self.cv_z = self.cross_validate(folds, seed)
@@ -54,8 +54,11 @@ class GPSurrogate:
         """Joint posterior draws of the latent function at X [n]: [n_draws, n]."""
         mu, cov = self.gp.predict(self.unit(X), return_cov=True)
         cov = cov - self.noise_var() * np.eye(len(mu))
-        w, V = np.linalg.eigh(0.5 * (cov + cov.T))
-        L = V * np.sqrt(np.maximum(w, 0.0))
+        try:
+            L = np.linalg.cholesky(cov + 1e-10 * np.trace(cov) / len(mu) * np.eye(len(mu)))
+        except np.linalg.LinAlgError:
+            w, V = np.linalg.eigh(0.5 * (cov + cov.T))
+            L = V * np.sqrt(np.maximum(w, 0.0))
         return mu + rng.standard_normal((n_draws, len(mu))) @ L.T
 
     def cross_validate(self, folds, seed):
@@ -77,9 +80,10 @@ class GPSurrogate:
 class AR1Surrogate:
     """y_exact(x) ~ b y_low(x) + delta(x): b by least squares on the training pairs, delta a GP."""
 
-    def __init__(self, X, y_exact, y_low, lo, hi, seed=0, folds=5):
+    def __init__(self, X, y_exact, y_low, lo, hi, seed=0, folds=5, restarts=2):
         self.b = self.slope(y_exact, y_low)
-        self.delta = GPSurrogate(X, y_exact - self.b * y_low, lo, hi, seed, folds=folds)
+        self.delta = GPSurrogate(X, y_exact - self.b * y_low, lo, hi, seed, folds=folds,
+                                 restarts=restarts)
         self.calibration, self.cv_rel_rmse = self.cross_validate(X, y_exact, y_low, folds, seed)
 
     @staticmethod
