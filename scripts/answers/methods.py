@@ -15,8 +15,8 @@ from scipy import stats
 
 from . import mfmc
 from .intervals import Answer, mean_ci, sample_statistic, std_from_variance, z_value
-from .sampling import (ESTIMATION, GRID, HELD_OUT, PROPAGATION, Clock, draw, indicator_cov,
-                       per_sample, run, stream)
+from .sampling import (ESTIMATION, GRID, HELD_OUT, PROPAGATION, Clock, RunCache, draw,
+                       indicator_cov, per_sample, run, stream)
 from .surrogate import AR1Surrogate, GPSurrogate, map_interval, propagate
 
 
@@ -26,10 +26,11 @@ def _kw(question):
 
 # ------------------------------------------------------------------------------ M0
 
-def m0(question, statistic, exact, n, seed, confidence, ledger):
-    """Plain Monte Carlo on n fresh exact runs."""
+def m0(question, statistic, exact, n, seed, confidence, ledger, cache=None):
+    """Plain Monte Carlo on n fresh exact runs (``cache``: a RunCache of earlier runs on the
+    same seed, extended rather than rerun)."""
     params, seeds = draw(question, stream(seed, ESTIMATION), n)
-    y = run(exact, params, seeds, ledger, "estimation")
+    y = (cache or RunCache()).run(exact, params, seeds, ledger, "estimation")
     est, lo, hi = sample_statistic(y, statistic, confidence, **_kw(question))
     return Answer(question.id, statistic, "M0", est, lo, hi, confidence, ledger, n_exact=n)
 
@@ -139,11 +140,13 @@ def m3_plan(pilot, statistic, target_sd, question, m1_min=10):
     return p
 
 
-def m3(question, statistic, models, pilot, plan, seed, confidence, ledger):
-    """MFMC on fresh samples: model plan['models'][k] on the first m_k of N = m_K inputs."""
+def m3(question, statistic, models, pilot, plan, seed, confidence, ledger, cache=None):
+    """MFMC on fresh samples: model plan['models'][k] on the first m_k of N = m_K inputs
+    (``cache``: a RunCache of earlier runs on the same seed, extended rather than rerun)."""
     order, m, alpha = plan["models"], plan["m"], plan["alpha"]
     params, seeds = draw(question, stream(seed, ESTIMATION), int(m[-1]))
-    Y = [pilot.align(j, run(models[j], params[:mk], seeds[:mk], ledger, "estimation"))
+    cache = cache or RunCache()
+    Y = [pilot.align(j, cache.run(models[j], params[:mk], seeds[:mk], ledger, "estimation"))
          for j, mk in zip(order, m)]
     tq = stats.t.ppf(0.5 + confidence / 2, max(m[0] - 1, 1))
     if statistic == "quantile" or statistic.startswith("p"):

@@ -30,8 +30,27 @@ def run(model, params, seeds, ledger, stage):
 
 
 def draw(question, rng, n):
-    """n parameter vectors [n, d] from the question's distribution and n model seeds."""
-    return question.distribution.sample(rng, n), rng.integers(0, 2 ** 31 - 1, n)
+    """n parameter vectors [n, d] from the question's distribution and n model seeds; the first
+    rows do not depend on n (params and seeds come from two streams split off ``rng``)."""
+    a, b = (np.random.default_rng(int(v)) for v in rng.integers(0, 2 ** 63 - 1, 2))
+    return question.distribution.sample(a, n), b.integers(0, 2 ** 31 - 1, n)
+
+
+class RunCache:
+    """Values already run per model on one input sequence: ``run(model, params, seeds, ledger,
+    stage)`` with params [n, d] a prefix-extension of earlier calls runs (and charges) only the
+    rows not yet run."""
+
+    def __init__(self):
+        self.values = {}
+
+    def run(self, model, params, seeds, ledger, stage):
+        have = self.values.get(model.name, np.empty(0))
+        n = len(params)
+        if n > len(have):
+            new = run(model, params[len(have):], seeds[len(have):], ledger, stage)
+            have = self.values[model.name] = np.concatenate([have, new])
+        return have[:n]
 
 
 class Region:

@@ -21,7 +21,7 @@ import numpy as np
 from . import methods
 from .intervals import z_value
 from .ledger import CostLedger
-from .sampling import Pilot, TrainingSet, per_sample, target_sd
+from .sampling import Pilot, RunCache, TrainingSet, per_sample, target_sd
 
 
 class Setup:
@@ -179,25 +179,27 @@ def _threshold(q, stat, pilot):
 
 
 def _run_planned(q, stat, c, eps, pilot, pilot_ledger, exact_pilot, setup, conf, z):
-    """Run a planned M0 / M3 candidate on fresh samples; once more with the target scaled by
-    (eps / stated error)^2 if its stated error misses eps (both runs charged)."""
+    """Run a planned M0 / M3 candidate on fresh samples; if its stated error misses eps, extend
+    the same sample once to the plan for the target scaled by (eps / stated error) (the runs
+    made are kept and charged once)."""
     models = [setup.exact] + setup.lows
-    spent = CostLedger()
-    a = None
+    cache, spent, a = RunCache(), CostLedger(), None
+    s = setup.seed * 1000 + 500
     for attempt in range(2):
-        s = setup.seed * 1000 + 500 + attempt
         if c.method == "M0":
-            led = exact_pilot.copy().extend(spent)
             n = c.plan["n"] if a is None else int(math.ceil(c.plan["n"] * (a.stated_error / eps) ** 2 * 1.1))
-            a = methods.m0(q, stat, setup.exact, n, s, conf, led)
+            a = methods.m0(q, stat, setup.exact, n, s, conf, spent, cache)
+            a.ledger = exact_pilot.copy().extend(spent)
         else:
-            lows = [pilot.names[j] for j in c.plan["models"][1:]]
-            led = setup.ledger(lows).extend(pilot_ledger).extend(spent)
             plan = c.plan if a is None else methods.m3_plan(
                 pilot, stat, target_sd(stat, pilot.Y[:, 0], eps, z, q.threshold, q.percentile)
                 * eps / a.stated_error / 1.05, q)
-            a = methods.m3(q, stat, models, pilot, plan, s, conf, led)
-        spent.extend(CostLedger(e for e in a.ledger.entries if e[0] == "estimation"))
+            if a is not None and plan["models"] != c.plan["models"]:
+                break
+            plan["m"] = np.maximum(plan["m"], c.plan["m"])
+            a = methods.m3(q, stat, models, pilot, plan, s, conf, spent, cache)
+            lows = [pilot.names[j] for j in c.plan["models"][1:]]
+            a.ledger = setup.ledger(lows).extend(pilot_ledger).extend(spent)
         if a.stated_error <= eps:
             break
     return a
