@@ -6,16 +6,21 @@ stated error.
   posterior standard deviation is checked by K-fold cross-validation (hyperparameters kept,
   the fold refitted): the standardised residuals z_i = (y_i - mu_-i) / sd_-i give the calibration
   factor c = max(1, rms z), and every stated error uses c * sd.
-* ``ar1``: the multi-fidelity surrogate y_exact(x) ~ b y_low(x) + delta(x) (Kennedy & O'Hagan's
+* ``AR1Surrogate``: the multi-fidelity surrogate y_exact(x) ~ b y_low(x) + delta(x) (Kennedy & O'Hagan's
   autoregressive model), b by least squares, delta a GPSurrogate; cross-validated the same way
   (b refitted per fold).
 * ``propagate``: a statistic of the QoI under a parameter distribution through the surrogate:
   the estimate on a large sample of the posterior mean plus the fitted noise, the surrogate's
   own uncertainty from joint posterior draws of the latent function on a sub-sample (the spread
-  of the statistic over the draws, times c), the sampling error of the large sample added in
-  quadrature.
+  of the statistic over the draws, times c) or, where larger, from the grouped jackknife over the
+  cross-validation folds (the posterior alone misses how the fit's tails move with the training
+  points), the sampling error of the large sample added in quadrature.
 """
+import warnings
+
 import numpy as np
+from scipy import stats
+from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 
@@ -25,7 +30,7 @@ from .intervals import sample_statistic, z_value
 class GPSurrogate:
     """A GP on inputs X [n, d] inside [lo, hi] [d] and outputs y [n]."""
 
-    def __init__(self, X, y, lo, hi, seed=0, kernel=None, folds=5, restarts=2):
+    def __init__(self, X, y, lo, hi, seed=0, kernel=None, folds=10, restarts=2):
         self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
         self.X, self.y = np.asarray(X, float), np.asarray(y, float)
         d = self.X.shape[1]
@@ -35,7 +40,11 @@ class GPSurrogate:
                       + WhiteKernel(1e-4, (1e-10, 1.0)))
         self.gp = GaussianProcessRegressor(kernel, normalize_y=True, n_restarts_optimizer=restarts,
                                            random_state=seed)
-        self.gp.fit(self.unit(self.X), self.y)
+        with warnings.catch_warnings():
+            # hyperparameters at a bound (a flat direction) are expected; the cross-validation
+            # below checks the fit
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            self.gp.fit(self.unit(self.X), self.y)
         self.calibration, self.cv_rel_rmse, self.cv_z = self.cross_validate(folds, seed)
 
     def unit(self, X):
@@ -66,10 +75,12 @@ class GPSurrogate:
         k = min(folds, n)
         idx = np.random.default_rng(seed).permutation(n)
         z, err = np.empty(n), np.empty(n)
+        self.fold_models = []
         for part in np.array_split(idx, k):
             keep = np.setdiff1d(idx, part)
             g = GaussianProcessRegressor(self.gp.kernel_, normalize_y=True, optimizer=None)
             g.fit(self.unit(self.X[keep]), self.y[keep])
+            self.fold_models.append(g)
             mu, sd = g.predict(self.unit(self.X[part]), return_std=True)
             err[part] = self.y[part] - mu
             z[part] = err[part] / np.maximum(sd, 1e-300)
@@ -80,7 +91,7 @@ class GPSurrogate:
 class AR1Surrogate:
     """y_exact(x) ~ b y_low(x) + delta(x): b by least squares on the training pairs, delta a GP."""
 
-    def __init__(self, X, y_exact, y_low, lo, hi, seed=0, folds=5, restarts=2):
+    def __init__(self, X, y_exact, y_low, lo, hi, seed=0, folds=10, restarts=2):
         self.b = self.slope(y_exact, y_low)
         self.delta = GPSurrogate(X, y_exact - self.b * y_low, lo, hi, seed, folds=folds,
                                  restarts=restarts)
@@ -115,12 +126,15 @@ class AR1Surrogate:
 def propagate(gp, sample_params, statistic, confidence, rng, n_large=20000, n_draws=200,
               n_sub=300, **stat_kw):
     """(estimate, lo, hi) of a statistic of y = f(x) + noise, x drawn by ``sample_params(rng, n)``
-    [n, d], through the surrogate ``gp`` (a GPSurrogate on those inputs)."""
+    [n, d], through the surrogate ``gp`` (a GPSurrogate on those inputs). Half-widths: the larger
+    of the posterior one (draws, times the calibration factor) and the grouped jackknife one over
+    the cross-validation folds (the statistic recomputed with each fold left out:
+    se^2 = (K - 1) / K sum_k (s_k - mean s)^2, times t_{K-1}), each side combined in quadrature
+    with the large sample's own sampling error."""
     X = sample_params(rng, n_large)
     mu, _ = gp.predict(X)
     eps = rng.standard_normal(n_large) * np.sqrt(gp.noise_var())
     est, lo_mc, hi_mc = sample_statistic(mu + eps, statistic, confidence, **stat_kw)
-    hw_mc_lo, hw_mc_hi = est - lo_mc, hi_mc - est
     Xs = X[:n_sub]
     draws = gp.latent_draws(Xs, n_draws, rng)
     mu_s, _ = gp.predict(Xs)
@@ -130,9 +144,21 @@ def propagate(gp, sample_params, statistic, confidence, rng, n_large=20000, n_dr
                       for d in draws])
     a = 1.0 - confidence
     d_lo, d_hi = np.quantile(delta, [a / 2, 1 - a / 2]) * gp.calibration
-    lo = est - np.hypot(max(-d_lo, 0.0), hw_mc_lo)
-    hi = est + np.hypot(max(d_hi, 0.0), hw_mc_hi)
+    jk = _jackknife_halfwidth(gp, X, eps, statistic, confidence, stat_kw)
+    lo = est - np.hypot(max(-d_lo, jk, 0.0), est - lo_mc)
+    hi = est + np.hypot(max(d_hi, jk, 0.0), hi_mc - est)
     return est, lo, hi
+
+
+def _jackknife_halfwidth(gp, X, eps, statistic, confidence, stat_kw):
+    K = len(gp.fold_models)
+    if K < 2:
+        return 0.0
+    u = gp.unit(X)
+    s = np.array([sample_statistic(g.predict(u) + eps, statistic, confidence, **stat_kw)[0]
+                  for g in gp.fold_models])
+    se = np.sqrt((K - 1) / K * np.sum((s - s.mean()) ** 2))
+    return float(stats.t.ppf(0.5 + confidence / 2, K - 1) * se)
 
 
 def map_interval(mu, sd, calibration, confidence):
