@@ -13,6 +13,10 @@ def fmt(v, digits=4):
     return f"{v:.{digits}g}"
 
 
+def _pc(x):
+    return "unbounded" if x is None else f"{100 * x:.3g}%"
+
+
 def markdown(report):
     """One row per (question, statistic, accuracy)."""
     lines = [f"Answers for case '{report['case']}' ({report['questions_file']}), intervals at "
@@ -34,13 +38,27 @@ def markdown(report):
         gain = f"{r['gain_vs_m0']:.3g}x" if r.get("gain_vs_m0") else "-"
         lines.append(f"| {r['question']} | {r['qoi']} | {r['statistic']} | {100 * r['accuracy']:g}% | "
                      f"{r['method']} | {fmt(r['value'])} | {interval} | "
-                     f"{100 * r['stated_error']:.3g}%{reached} | {fmt(r['cost'])} | {m0} | {gain} |")
+                     f"{_pc(r['stated_error'])}{reached} | {fmt(r['cost'])} | {m0} | {gain} |")
     return "\n".join(lines) + "\n"
 
 
+def finite(obj):
+    """The report with every non-finite number (an unbounded interval end) as None."""
+    if isinstance(obj, dict):
+        return {k: finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    return obj
+
+
 def write_json(report, path):
+    """The report as JSON (unbounded interval ends as null)."""
     with open(path, "w", encoding="utf-8") as f:
-        json.dump(report, f, indent=1, allow_nan=False)
+        json.dump(finite(report), f, indent=1, allow_nan=False)
         f.write("\n")
 
 
@@ -68,7 +86,7 @@ def figure(report, path):
                                facecolors="none" if planned else col, edgecolors=col, s=22,
                                label=f"{m}{' (planned)' if planned else ''}")
         for r in report["rows"]:
-            if (r["question"], r["statistic"]) == key and r.get("method"):
+            if (r["question"], r["statistic"]) == key and r.get("method") and r["stated_error"] is not None:
                 ax.scatter([r["cost"]], [max(r["stated_error"], 1e-6)], marker="*", s=90,
                            color=colors[r["method"][:2]], edgecolors="k", zorder=3)
         for eps in report["accuracy"]:
@@ -91,5 +109,3 @@ def summary_numbers(report):
     reached = sum(1 for r in report["rows"] if r.get("reached"))
     return reached, len(report["rows"])
 
-
-__all__ = ["markdown", "write_json", "figure", "summary_numbers", "np"]
