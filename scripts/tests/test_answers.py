@@ -312,3 +312,47 @@ def test_driver_bad_questions_writes_nothing(tmp_path):
     assert r.stderr.count("\n") == 1 and "accuracy.relative[1]: must be > 0" in r.stderr
     assert "q.json" in r.stderr
     assert not any(p.name.startswith("out") for p in tmp_path.iterdir())
+
+
+# ------------------------------------------------------------------------------ command backend
+
+FAKE = r'''
+import json, sys
+rows = [l.split() for l in open(sys.argv[1]) if not l.startswith("#")]
+if any(float(r[0]) > 2.9 for r in rows):
+    sys.exit("fake: l_exit above 2.9 refused")
+shift = float(sys.argv[3]) if len(sys.argv) > 3 else 0.0
+p = [[float(v) + shift for v in r[:-1]] for r in rows]
+json.dump({"params": p, "t90": [10 + x[0] + int(r[-1]) % 7 for x, r in zip(p, rows)],
+           "t90_censored": [False] * len(p)}, open(sys.argv[2], "w"))
+'''
+
+
+def _json_reader(path):
+    with open(path) as f:
+        d = json.load(f)
+    return {k: np.asarray(v) for k, v in d.items()}
+
+
+def test_command_backend(tmp_path):
+    """A program reading the parameter list and writing the product: values row by row (seeds
+    passed through), its CPU seconds charged, a failing program and a product for other
+    parameters refused with one line."""
+    from answers.backend import CommandBackend
+    from crowdrom_io import InputError
+    fake = tmp_path / "fake.py"
+    fake.write_text(FAKE)
+    params = np.array([[2.1, 2.5, 1.2], [2.3, 2.2, 1.0], [2.6, 2.9, 1.4]])
+    seeds = np.array([3, 8, 13])
+    b = CommandBackend("exact", [sys.executable, str(fake), "{params}", "{output}"], "t90", BOX.names,
+                       workdir=str(tmp_path), reader=_json_reader)
+    ev = b.evaluate(params, seeds)
+    assert np.allclose(ev.values, 10 + params[:, 0] + seeds % 7)
+    assert ev.cpu_seconds > 0 and not ev.censored.any()
+    with pytest.raises(InputError, match="exited with 1: fake: l_exit above 2.9 refused"):
+        b.evaluate(np.array([[2.95, 2.5, 1.2]]), [1])
+    shifted = CommandBackend("rom", [sys.executable, str(fake), "{params}", "{output}", "0.001"], "t90",
+                             BOX.names, workdir=str(tmp_path), reader=_json_reader)
+    with pytest.raises(InputError, match="are not the"):
+        shifted.evaluate(params, seeds)
+    assert [p.name for p in tmp_path.iterdir()] == ["fake.py"]      # temporaries removed
