@@ -144,21 +144,24 @@ def propagate(gp, sample_params, statistic, confidence, rng, n_large=20000, n_dr
                       for d in draws])
     a = 1.0 - confidence
     d_lo, d_hi = np.quantile(delta, [a / 2, 1 - a / 2]) * gp.calibration
-    jk = _jackknife_halfwidth(gp, X, eps, statistic, confidence, stat_kw)
+    jk, bias = _jackknife(gp, X, eps, statistic, confidence, stat_kw, est)
     lo = est - np.hypot(max(-d_lo, jk, 0.0), est - lo_mc)
     hi = est + np.hypot(max(d_hi, jk, 0.0), hi_mc - est)
+    # the jackknife's bias-corrected value est - bias, +- the same half-width, stays inside
+    lo, hi = min(lo, est - bias - jk), max(hi, est - bias + jk)
     return est, lo, hi
 
 
-def _jackknife_halfwidth(gp, X, eps, statistic, confidence, stat_kw):
+def _jackknife(gp, X, eps, statistic, confidence, stat_kw, est):
+    """Grouped-jackknife half-width t_{K-1} se and bias (K - 1)(mean s_k - s) of a statistic."""
     K = len(gp.fold_models)
     if K < 2:
-        return 0.0
+        return 0.0, 0.0
     u = gp.unit(X)
     s = np.array([sample_statistic(g.predict(u) + eps, statistic, confidence, **stat_kw)[0]
                   for g in gp.fold_models])
     se = np.sqrt((K - 1) / K * np.sum((s - s.mean()) ** 2))
-    return float(stats.t.ppf(0.5 + confidence / 2, K - 1) * se)
+    return float(stats.t.ppf(0.5 + confidence / 2, K - 1) * se), float((K - 1) * (s.mean() - est))
 
 
 def map_interval(mu, sd, calibration, confidence):
