@@ -186,6 +186,22 @@ def test_surrogate_maps_cover_the_exact_values():
     assert a0.cost == pytest.approx(len(pts) * fam.costs[0])
 
 
+def test_gp_surrogate_answers_hold_the_truth():
+    """M1 on 16 exact runs of the linear ('uniform') family: mean, std, 95th percentile and
+    exceedance intervals hold the closed forms; the training runs are charged."""
+    warnings.simplefilter("ignore")
+    fam = family(kind="uniform")
+    for stat, q in (("mean", uniform_question()), ("std", uniform_question()),
+                    ("p95", uniform_question(percentile=95.0)),
+                    ("exceedance", uniform_question("exceedance", threshold=21.0))):
+        led = CostLedger()
+        tr = sampling.TrainingSet(q, BOX, [fam.model(0)], 6, led)
+        a = methods.m1(q, stat, tr, 16, 6, 0.95, led, restarts=0, n_large=5000, n_draws=100, n_sub=150)
+        assert a.covers(fam.truth(stat, 95.0, 21.0)), (stat, a.value, a.lo, a.hi)
+        assert a.stated_error < 0.05
+        assert led.by_stage()["training"] == pytest.approx(16 * fam.costs[0])
+
+
 def test_low_fidelity_alone_states_its_bias():
     """M2: the low fidelity's mean (15) is 25% off the exact one (20): the answer is the low
     value, its interval reaches the truth and its stated error is at least the bias."""
