@@ -1,0 +1,219 @@
+"""The four methods; each returns an ``Answer`` (value, interval, cost ledger).
+
+* M0 exact model alone: plain Monte Carlo (``m0``), one run (or ``replicates`` runs) per map point
+  (``m0_map``);
+* M1 Gaussian-process surrogate on exact runs (``m1``, ``m1_map``);
+* M2 a low fidelity alone, its bias and error from held-out exact runs (``m2``, ``m2_map``);
+* M3 multi-fidelity: MFMC on fresh samples with the allocation and coefficients from the
+  pilot (``m3``), the autoregressive GP for maps (``m3_map``).
+
+``ledger`` arguments are charged with every run the method makes (and the caller's entries it
+holds already: builds, pilot, training).
+"""
+import numpy as np
+from scipy import stats
+
+from . import mfmc
+from .intervals import Answer, mean_ci, sample_statistic, std_from_variance, z_value
+from .sampling import (ESTIMATION, GRID, HELD_OUT, PROPAGATION, Clock, RunCache, draw,
+                       indicator_cov, per_sample, run, stream)
+from .surrogate import AR1Surrogate, GPSurrogate, map_interval, propagate
+
+
+def _kw(question):
+    return {"percentile": question.percentile, "threshold": question.threshold}
+
+
+# ------------------------------------------------------------------------------ M0
+
+def m0(question, statistic, exact, n, seed, confidence, ledger, cache=None):
+    """Plain Monte Carlo on n fresh exact runs (``cache``: a RunCache of earlier runs on the
+    same seed, extended rather than rerun)."""
+    params, seeds = draw(question, stream(seed, ESTIMATION), n)
+    y = (cache or RunCache()).run(exact, params, seeds, ledger, "estimation")
+    est, lo, hi = sample_statistic(y, statistic, confidence, **_kw(question))
+    return Answer(question.id, statistic, "M0", est, lo, hi, confidence, ledger, n_exact=n)
+
+
+def m0_map(question, box, exact, seed, confidence, ledger):
+    """The exact model at every grid point: ``replicates`` runs per point (mean and t interval;
+    a single run of a deterministic model is the answer itself)."""
+    pts, shape = question.grid_points(box)
+    r = question.replicates
+    seeds = stream(seed, GRID).integers(0, 2 ** 31 - 1, len(pts) * r)
+    y = run(exact, np.repeat(pts, r, axis=0), seeds, ledger, "estimation").reshape(len(pts), r)
+    if r == 1:
+        v = lo = hi = y[:, 0]
+    else:
+        v, lo, hi = np.array([mean_ci(row, confidence) for row in y]).T
+    return Answer(question.id, "map", "M0", v, lo, hi, confidence, ledger, n_exact=len(pts) * r,
+                  grid_shape=list(shape))
+
+
+# ------------------------------------------------------------------------------ M1
+
+def m1(question, statistic, training, n, seed, confidence, ledger, restarts=2, **prop):
+    """GP on the first n exact training runs, the statistic by ``propagate`` (``prop``: its
+    sample sizes n_large, n_draws, n_sub)."""
+    training.grow(n)
+    with Clock() as c:
+        reg = training.region
+        gp = GPSurrogate(training.inputs(n), training.Y[:n, 0], reg.lo, reg.hi, seed,
+                         restarts=restarts)
+        est, lo, hi = propagate(gp, reg.sample, statistic, confidence, stream(seed, PROPAGATION),
+                                **prop, **_kw(question))
+    ledger.add("fitting", "gp", 0, c.seconds)
+    return Answer(question.id, statistic, "M1", est, lo, hi, confidence, ledger, n_exact=n,
+                  calibration=gp.calibration, cv_rel_rmse=gp.cv_rel_rmse)
+
+
+def m1_map(question, box, training, n, seed, confidence, ledger, restarts=2):
+    training.grow(n)
+    pts, shape = question.grid_points(box)
+    with Clock() as c:
+        reg = training.region
+        gp = GPSurrogate(training.inputs(n), training.Y[:n, 0], reg.lo, reg.hi, seed,
+                         restarts=restarts)
+        mu, sd = gp.predict(pts[:, reg.varying])
+        v, lo, hi = map_interval(mu, sd, gp.calibration, confidence)
+    ledger.add("fitting", "gp", 0, c.seconds)
+    return Answer(question.id, "map", "M1", v, lo, hi, confidence, ledger, n_exact=n,
+                  calibration=gp.calibration, cv_rel_rmse=gp.cv_rel_rmse, grid_shape=list(shape))
+
+
+# ------------------------------------------------------------------------------ M2
+
+def m2(question, statistic, low, exact, n_low, n_held, seed, confidence, ledger, n_boot=400):
+    """The low fidelity's statistic on n_low runs; its bias b = stat(exact) - stat(low) on n_held
+    held-out pairs (paired bootstrap for its standard error). Interval: the hull of the answer
+    and answer + b +- z sqrt(se_b^2 + se_low^2)."""
+    params, seeds = draw(question, stream(seed, ESTIMATION), n_low)
+    ylo = run(low, params, seeds, ledger, "estimation")
+    s_lo, a, b = sample_statistic(ylo, statistic, confidence, **_kw(question))
+    z = z_value(confidence)
+    se_lo = max(s_lo - a, b - s_lo) / z
+    hp, hs = draw(question, stream(seed, HELD_OUT), n_held)
+    yh = run(exact, hp, hs, ledger, "estimation")
+    yl = run(low, hp, hs, ledger, "estimation")
+    kw = _kw(question)
+    bias = sample_statistic(yh, statistic, confidence, **kw)[0] - sample_statistic(yl, statistic, confidence, **kw)[0]
+    rng = stream(seed, PROPAGATION)
+    boot = []
+    for _ in range(n_boot):
+        i = rng.integers(0, n_held, n_held)
+        boot.append(sample_statistic(yh[i], statistic, confidence, **kw)[0]
+                    - sample_statistic(yl[i], statistic, confidence, **kw)[0])
+    se_b = float(np.std(boot, ddof=1))
+    h = z * np.hypot(se_b, se_lo)
+    lo, hi = min(s_lo, s_lo + bias - h), max(s_lo, s_lo + bias + h)
+    return Answer(question.id, statistic, "M2", s_lo, lo, hi, confidence, ledger, n_low=n_low,
+                  n_exact=n_held, model=low.name, bias=bias, bias_se=se_b)
+
+
+def m2_map(question, box, low, exact, training, n_held, seed, confidence, ledger):
+    """The low fidelity at every grid point; the discrepancy exact - low at n_held training points
+    of the map's region (mean d and sd s_d): interval the hull of y_low and
+    y_low + d +- t s_d sqrt(1 + 1/n_held) (a prediction interval for exchangeable discrepancies)."""
+    pts, shape = question.grid_points(box)
+    seeds = stream(seed, GRID).integers(0, 2 ** 31 - 1, len(pts))
+    ylo = run(low, pts, seeds, ledger, "estimation")
+    training.grow(n_held)
+    d = training.Y[:n_held, 0] - training.Y[:n_held, 1]
+    h = stats.t.ppf(0.5 + confidence / 2, n_held - 1) * np.std(d, ddof=1) * np.sqrt(1 + 1 / n_held)
+    lo, hi = np.minimum(ylo, ylo + d.mean() - h), np.maximum(ylo, ylo + d.mean() + h)
+    return Answer(question.id, "map", "M2", ylo, lo, hi, confidence, ledger, n_exact=n_held,
+                  model=low.name, bias=float(d.mean()), grid_shape=list(shape))
+
+
+# ------------------------------------------------------------------------------ M3
+
+def m3_plan(pilot, statistic, target_sd, question, m1_min=10):
+    """The MFMC plan (models, sizes m, alpha from the pilot) for a statistic and target sd."""
+    y0, n = pilot.Y[:, 0], len(pilot.Y)
+    if statistic in ("mean", "std"):
+        C = np.atleast_2d(np.cov(np.column_stack(per_sample(statistic, list(pilot.Y.T))).T, ddof=1))
+    else:
+        level = question.percentile / 100 if statistic != "exceedance" else np.mean(y0 <= question.threshold)
+        C = indicator_cov(pilot.Y, float(np.clip(level, 0.5 / n, 1 - 0.5 / n)))
+    p = mfmc.plan(C, pilot.costs, target_sd ** 2, m1_min)
+    p["alpha"] = mfmc.optimal_alpha(C[np.ix_(p["models"], p["models"])])
+    return p
+
+
+def m3(question, statistic, models, pilot, plan, seed, confidence, ledger, cache=None):
+    """MFMC on fresh samples: model plan['models'][k] on the first m_k of N = m_K inputs
+    (``cache``: a RunCache of earlier runs on the same seed, extended rather than rerun)."""
+    order, m, alpha = plan["models"], plan["m"], plan["alpha"]
+    params, seeds = draw(question, stream(seed, ESTIMATION), int(m[-1]))
+    cache = cache or RunCache()
+    Y = [pilot.align(j, cache.run(models[j], params[:mk], seeds[:mk], ledger, "estimation"))
+         for j, mk in zip(order, m)]
+    tq = stats.t.ppf(0.5 + confidence / 2, max(m[0] - 1, 1))
+    if statistic == "quantile" or statistic.startswith("p"):
+        est, lo, hi = _mf_quantile(Y, alpha, m, question.percentile / 100, tq)
+    elif statistic == "std":
+        V = mfmc.combine_variance(Y, alpha)
+        var_v = mfmc.variance(mfmc.nested_cov(per_sample("std", Y)), m, alpha)
+        df = max(2 * V ** 2 / var_v, 1.0) if var_v > 0 and V > 0 else 1.0
+        est, lo, hi = std_from_variance(max(V, 0.0), df, confidence)
+    else:
+        G = per_sample(statistic, Y, question.threshold)
+        est = mfmc.combine(G, alpha)
+        if statistic == "exceedance":
+            v = _indicator_variance(Y, G, 1.0 - est, m, alpha)
+        else:
+            v = mfmc.variance(mfmc.nested_cov(G), m, alpha)
+        h = tq * np.sqrt(max(v, 0.0))
+        lo, hi = est - h, est + h
+        if statistic == "exceedance":
+            est, lo, hi = min(max(est, 0.0), 1.0), max(lo, 0.0), min(hi, 1.0)
+    names = [models[j].name for j in order]
+    return Answer(question.id, statistic, "M3", est, lo, hi, confidence, ledger, models=names,
+                  m=[int(v) for v in m], alpha=[float(a) for a in alpha], n_exact=int(m[0]))
+
+
+def _indicator_variance(Y, G, level, m, alpha):
+    """Variance of an MFMC mean of indicators: the larger of the plug-in value (covariances of
+    the m_1 joint indicators, unreliable when they saw few tail events) and the Gaussian-copula
+    value at the estimated level (correlations from the ranks of the m_1 joint values)."""
+    m1 = int(m[0])
+    plug = mfmc.variance(mfmc.nested_cov(G), m, alpha)
+    n = len(Y[0])
+    level = float(np.clip(level, 0.5 / n, 1 - 0.5 / n))
+    joint = np.column_stack([y[:m1] for y in Y])
+    return max(plug, mfmc.variance(indicator_cov(joint, level), m, alpha), 0.0)
+
+
+def _mf_quantile(Y, alpha, m, p, tq):
+    """Quantile from the MFMC CDF (made monotone), Woodruff interval: the CDF's inverse at
+    p -+ t se(F(q))."""
+    ts = np.unique(np.concatenate(Y))
+    F = mfmc.monotone_cdf(mfmc.combine_cdf(Y, alpha, ts))
+
+    def inverse(level):
+        if level <= 0:
+            return -np.inf
+        i = np.searchsorted(F, level, side="left")
+        return float(ts[i]) if i < len(ts) and level <= 1 else np.inf
+    q = inverse(p)
+    se = np.sqrt(_indicator_variance(Y, per_sample("p", Y, q), p, m, alpha))
+    return q, inverse(p - tq * se), inverse(p + tq * se)
+
+
+def m3_map(question, box, low, training, n, seed, confidence, ledger, restarts=2):
+    """Autoregressive GP on n training pairs (exact and low at the same points) and the low
+    fidelity at every grid point."""
+    training.grow(n)
+    pts, shape = question.grid_points(box)
+    seeds = stream(seed, GRID).integers(0, 2 ** 31 - 1, len(pts))
+    ylo = run(low, pts, seeds, ledger, "estimation")
+    with Clock() as c:
+        reg = training.region
+        ar = AR1Surrogate(training.inputs(n), training.Y[:n, 0], training.Y[:n, 1], reg.lo, reg.hi, seed,
+                          restarts=restarts)
+        mu, sd = ar.predict(pts[:, reg.varying], ylo)
+        v, lo, hi = map_interval(mu, sd, ar.calibration, confidence)
+    ledger.add("fitting", "ar1-gp", 0, c.seconds)
+    return Answer(question.id, "map", "M3", v, lo, hi, confidence, ledger, n_exact=n, model=low.name,
+                  slope=ar.b, calibration=ar.calibration, cv_rel_rmse=ar.cv_rel_rmse,
+                  grid_shape=list(shape))
