@@ -9,6 +9,7 @@ module cr_fom_run
   use cr_config, only: config_t, config_echo
   use cr_fom, only: fom_t, step_record_t
   use cr_fom_file, only: fom_writer_t
+  use cr_pdda_file, only: pdda_writer_t
   use cr_json, only: json_writer_t
   implicit none
   private
@@ -25,6 +26,8 @@ contains
     type(error_t), allocatable, intent(out) :: error
     type(fom_t) :: fom
     type(fom_writer_t) :: out
+    type(pdda_writer_t) :: pdda
+    logical :: with_pdda
     type(step_record_t), allocatable :: recs(:)
     type(step_record_t) :: rec
     integer :: n_target, k, n_failed, it_max, n_warned
@@ -46,6 +49,15 @@ contains
       str(fom%placement_iterations) // " projection iterations")
     call out%open(trim(cfg%output%file), cfg, fom, error)
     if (allocated(error)) return
+    with_pdda = len_trim(cfg%output%pdda_file) > 0
+    if (with_pdda) then
+      call pdda%open(trim(cfg%output%pdda_file), fom%scene, fom%radius, fom%n_agents, &
+        cfg%time%dt * cfg%output%every, error)
+      if (.not. allocated(error)) call pdda%write_frame(fom%scene, 0, fom%q, error)
+      if (allocated(error)) then
+        call out%abort(); call pdda%abort(); return
+      end if
+    end if
     call log%stage_end()
 
     n_target = cfg%time%n_steps
@@ -61,7 +73,7 @@ contains
       if (cfg%time%until_empty .and. fom%n_inside() == 0) exit
       call fom%advance(rec, error)
       if (allocated(error)) then
-        call out%abort(); return
+        call out%abort(); call pdda%abort(); return
       end if
       k = k + 1
       recs(k) = rec
@@ -85,7 +97,14 @@ contains
       if (mod(k, cfg%output%every) == 0 .or. k == n_target) then
         call out%write_step(fom, error)
         if (allocated(error)) then
-          call out%abort(); return
+          call out%abort(); call pdda%abort(); return
+        end if
+      end if
+      ! the archive layout holds equally spaced frames only
+      if (with_pdda .and. mod(k, cfg%output%every) == 0) then
+        call pdda%write_frame(fom%scene, k / cfg%output%every, fom%q, error)
+        if (allocated(error)) then
+          call out%abort(); call pdda%abort(); return
         end if
       end if
       call log%progress("step", k, n_target)
@@ -95,7 +114,15 @@ contains
     call log%stage_end()
 
     call out%close(recs(1:k), error)
-    if (allocated(error)) return
+    if (allocated(error)) then
+      call pdda%abort(); return
+    end if
+    if (with_pdda) then
+      call pdda%close(error)
+      if (allocated(error)) return
+      call log%info("trajectories (Pedestrian Dynamics Data Archive layout) written to " // &
+        trim(cfg%output%pdda_file))
+    end if
 
     n_failed = count(.not. recs(1:k)%converged)
     min_gap = huge(1.0_wp); kkt_max = 0; it_max = 0; it_mean = 0
