@@ -41,7 +41,7 @@ EXP_FLOW = (1.3, 2.0)
 WEIDMANN = (1.34, 1.913, 5.4)
 
 # the calibrated behaviour (inputs/crowd1000_calibrated.nml; docs/calibration.md)
-CALIBRATED = {"social_distance": 0.1, "speed_model": "weidmann", "density_sigma": 0.7}
+CALIBRATED = {"social_distance": 0.1, "speed_model": "weidmann", "density_sigma": 0.7, "look_ahead": 1.0}
 PAPER = {"social_distance": 0.0, "speed_model": "constant", "density_sigma": 0.7}
 
 
@@ -80,7 +80,8 @@ def behaviour_text(model):
     a = ", social_distance = %r" % model["social_distance"] if model["social_distance"] > 0 else ""
     d = ""
     if model["speed_model"] != "constant":
-        d = "&desired speed_model = '%s', density_sigma = %r /\n" % (model["speed_model"], model["density_sigma"])
+        d = "&desired speed_model = '%s', density_sigma = %r, density_anisotropy = %r /\n" % (
+            model["speed_model"], model["density_sigma"], model.get("look_ahead", 0.0))
     return a, d
 
 
@@ -261,11 +262,11 @@ def nearest_exit(sc, radius, p):
     return arg
 
 
-def run_jupedsim(sc, wkt, q0, radius, speeds, t_max, dt=0.01, frame_dt=0.1, sample=None):
+def run_jupedsim(sc, wkt, q0, radius, speeds, t_max, dt=0.01, frame_dt=0.1, sample=False):
     """JuPedSim's collision-free speed model (default parameters, time gap 1 s) on the walkable
     area `wkt` from positions q0 [N, 2]: exit curves at frames every frame_dt [T, n_exits], the
-    frame times, the CPU seconds of the iterations and, with `sample` (a function of the agents'
-    positions and speeds, called at every frame), its results."""
+    frame times, the CPU seconds of the iterations and, with `sample`, the agents' positions
+    at every frame after the first ({id: (x, y)} per frame)."""
     need_jupedsim()
     import jupedsim as jps
     sim = jps.Simulation(model=jps.CollisionFreeSpeedModel(), geometry=wkt, dt=dt)
@@ -295,12 +296,8 @@ def run_jupedsim(sc, wkt, q0, radius, speeds, t_max, dt=0.01, frame_dt=0.1, samp
                 out[exit_of[aid]] += 1
         cpu += time.process_time() - c0
         curves[k] = out
-        if sample is not None:
-            ag = list(sim.agents())
-            pos = np.array([a.position for a in ag]).reshape(-1, 2)
-            # CFSM state: its speed along its orientation
-            spd = np.array([a.model.speed for a in ag]) if ag else np.zeros(0)
-            samples.append(sample(k * frame_dt, pos, spd))
+        if sample:
+            samples.append({a.id: a.position for a in sim.agents()})
         if sim.agent_count() == 0:
             curves[k + 1:] = out
             break
@@ -388,10 +385,6 @@ def part_corridor(args, work):
     v0 = WEIDMANN[0]
     t_window = (2.0, 6.0)
 
-    def measure(t, pos, spd):
-        m = (pos[:, 0] >= box[0]) & (pos[:, 0] <= box[1]) & (pos[:, 1] >= box[2]) & (pos[:, 1] <= box[3])
-        return (t, int(m.sum()), float(spd[m].mean()) if m.any() else float("nan"))
-
     rows = []
     for rho in densities:
         n = int(round(rho * area))
@@ -414,10 +407,19 @@ def part_corridor(args, work):
                 q0, rad = r["q0"], r["radius"]
         if args.jupedsim:
             wkt = walkable_wkt_of(sc, work, "corridor")
-            j = run_jupedsim(sc, wkt, q0, rad, np.full(n, v0), t_max=t_window[1], sample=measure)
-            ss = [s for s in j["samples"] if t_window[0] <= s[0] <= t_window[1]]
-            row["jupedsim"] = {"density": float(np.mean([s[1] for s in ss]) / box_area),
-                               "speed": float(np.nanmean([s[2] for s in ss]))}
+            j = run_jupedsim(sc, wkt, q0, rad, np.full(n, v0), t_max=t_window[1], sample=True)
+            dens, spd = [], []
+            fdt = j["time"][1]
+            for k in range(1, len(j["samples"])):
+                t = (k + 1) * fdt
+                if not (t_window[0] <= t <= t_window[1]):
+                    continue
+                prev, cur = j["samples"][k - 1], j["samples"][k]
+                inb = [i for i, p in cur.items() if box[0] <= p[0] <= box[1] and box[2] <= p[1] <= box[3]]
+                dens.append(len(inb) / box_area)
+                v = [math.hypot(cur[i][0] - prev[i][0], cur[i][1] - prev[i][1]) / fdt for i in inb if i in prev]
+                spd.append(np.mean(v) if v else np.nan)
+            row["jupedsim"] = {"density": float(np.mean(dens)), "speed": float(np.nanmean(spd))}
         rows.append(row)
         log("corridor rho0 = %.1f: calibrated rho %.2f v %.2f; paper rho %.2f v %.2f; JuPedSim %s" % (
             rho, row["calibrated"]["density"], row["calibrated"]["speed"], row["paper"]["density"],

@@ -22,8 +22,10 @@ program test_behaviour
   call test_pillar(0.3_wp)
   call test_wall(0.3_wp)
   call test_lattice_density()
-  call test_crowd_speed(2.0_wp)
-  call test_crowd_speed(3.5_wp)
+  call test_crowd_speed(2.0_wp, 0.0_wp)
+  call test_crowd_speed(3.5_wp, 0.0_wp)
+  call test_crowd_speed(2.0_wp, 1.0_wp)
+  call test_crowd_speed(3.5_wp, 1.0_wp)
   call test_summary()
 
 contains
@@ -140,20 +142,21 @@ contains
   end subroutine test_lattice_density
 
   !> A uniform crowd at density `dens` in a large hall, all with free speed 1.34: after one step
-  !> the agents at least 3 sigma inside the crowd walk at Weidmann's speed within 1%; an
-  !> isolated agent far from the crowd keeps 99.5% of its free speed (its own kernel weight).
-  subroutine test_crowd_speed(dens)
-    real(wp), intent(in) :: dens
+  !> the agents at least 3 sigma inside the crowd walk at Weidmann's speed within 1%, with or
+  !> without look-ahead `beta`; an isolated agent far from the crowd keeps 99.5% of its free
+  !> speed (its own kernel weight); with look-ahead the front row walks faster than the back row.
+  subroutine test_crowd_speed(dens, beta)
+    real(wp), intent(in) :: dens, beta
     type(config_t) :: cfg
     type(fom_t) :: fom
     type(error_t), allocatable :: error
     type(step_record_t) :: rec
     real(wp), allocatable :: q(:), sp(:), spd(:)
     logical, allocatable :: interior(:)
-    real(wp) :: want, worst
+    real(wp) :: want, worst, ylo, yhi, vf, vb
     integer :: n, i
     character(len=:), allocatable :: tag
-    tag = " (density " // str(dens) // ")"
+    tag = " (density " // str(dens) // ", look-ahead " // str(beta) // ")"
     call hex_lattice(dens, [15.0_wp, 12.0_wp], 15, q, interior)
     n = size(q) / 2 + 1
     q = [q, 15.0_wp, 35.0_wp]          ! a lone agent far from the crowd
@@ -162,6 +165,7 @@ contains
     cfg%scene%hall_length = 30; cfg%scene%hall_width = 40; cfg%scene%exit_center = 15
     cfg%agents%n_agents = n
     cfg%desired%speed_model = 'weidmann'
+    cfg%desired%density_anisotropy = beta
     allocate(sp(n)); sp = 1.34_wp
     call fom%init(cfg, error, q0=q, speeds=sp)
     call check(.not. allocated(error), "crowd: init" // tag)
@@ -176,6 +180,16 @@ contains
       " within 1%" // tag // " (worst " // str(worst) // ")")
     call check(abs(spd(n) / 1.34_wp - 1) <= 6.0e-3_wp, "crowd: a lone agent keeps 99.5% of its free speed" // &
       tag // " (" // str(spd(n)) // ")")
+    ! mean speeds of the front row (largest y: the exit is above) and of the back row (the
+    ! lattice is symmetric under y -> -y)
+    ylo = minval(q(2:2*n-2:2)); yhi = maxval(q(2:2*n-2:2))
+    vf = sum(spd(1:n-1), mask=q(2:2*n-2:2) > yhi - 1.0e-6_wp) / count(q(2:2*n-2:2) > yhi - 1.0e-6_wp)
+    vb = sum(spd(1:n-1), mask=q(2:2*n-2:2) < ylo + 1.0e-6_wp) / count(q(2:2*n-2:2) < ylo + 1.0e-6_wp)
+    if (beta > 0) then
+      call check(vf > 1.3_wp * vb, "crowd: with look-ahead the front row walks faster than the back row" // tag)
+    else
+      call check_close(vf, vb, 1.0e-9_wp, "crowd: isotropic, front and back rows alike" // tag)
+    end if
   end subroutine test_crowd_speed
 
   !> m x m hexagonal lattice of density dens centred at c: positions q [2 m^2] and the agents

@@ -12,12 +12,12 @@ import sys
 
 import h5py
 import numpy as np
+import pedpy  # a test dependency (scripts/requirements.txt)
 import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import validate_flows as vf  # noqa: E402
 
-pedpy = pytest.importorskip("pedpy")
 
 ROOT = os.environ.get("CROWDROM_ROOT", os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 BIN = os.environ.get("CROWDROM_BIN", os.path.join(ROOT, "build", "bin"))

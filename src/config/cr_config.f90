@@ -81,6 +81,9 @@ module cr_config
     character(len=16) :: speed_model = 'constant'
     !> width sigma [m] of the Gaussian kernel of the local density (cut at 3 sigma)
     real(wp) :: density_sigma = 0.7_wp
+    !> look-ahead beta in [0, 1]: a neighbour counts with weight (1 + beta cos theta), theta its
+    !> angle from the agent's desired direction (0: isotropic)
+    real(wp) :: density_anisotropy = 0.0_wp
     !> the diagram v(rho) = v0 (1 - exp(-fd_gamma (1/rho - 1/fd_rho_max))): gamma [1/m2] and
     !> the jam density [1/m2] (Weidmann 1993: 1.913 and 5.4)
     real(wp) :: fd_gamma = 1.913_wp
@@ -256,19 +259,20 @@ contains
     type(error_t), allocatable, intent(out) :: error
     character(len=16) :: mode, field, speed_model
     character(len=MAX_PATH) :: file
-    real(wp) :: grid_dx, density_sigma, fd_gamma, fd_rho_max
-    namelist /desired/ mode, file, field, grid_dx, speed_model, density_sigma, fd_gamma, fd_rho_max
+    real(wp) :: grid_dx, density_sigma, fd_gamma, fd_rho_max, density_anisotropy
+    namelist /desired/ mode, file, field, grid_dx, speed_model, density_sigma, fd_gamma, fd_rho_max, &
+      density_anisotropy
     integer :: ios
     character(len=512) :: msg
     mode = c%mode; file = c%file; field = c%field; grid_dx = c%grid_dx
     speed_model = c%speed_model; density_sigma = c%density_sigma; fd_gamma = c%fd_gamma
-    fd_rho_max = c%fd_rho_max
+    fd_rho_max = c%fd_rho_max; density_anisotropy = c%density_anisotropy
     msg = ''
     read(t%lines, nml=desired, iostat=ios, iomsg=msg)
     call nml_status(t, 'desired', ios, msg, error); if (allocated(error)) return
     c%mode = mode; c%file = file; c%field = field; c%grid_dx = grid_dx
     c%speed_model = speed_model; c%density_sigma = density_sigma; c%fd_gamma = fd_gamma
-    c%fd_rho_max = fd_rho_max
+    c%fd_rho_max = fd_rho_max; c%density_anisotropy = density_anisotropy
   end subroutine read_desired
 
   subroutine read_time(t, c, error)
@@ -376,7 +380,8 @@ contains
       ! the speed model only when not the paper's (its configurations keep their text and hash)
       if (d%speed_model /= 'constant') s = s // ", speed_model = '" // trim(d%speed_model) // &
         "', density_sigma = " // echo_real(d%density_sigma) // ", fd_gamma = " // echo_real(d%fd_gamma) // &
-        ", fd_rho_max = " // echo_real(d%fd_rho_max)
+        ", fd_rho_max = " // echo_real(d%fd_rho_max) // ", density_anisotropy = " // &
+        echo_real(d%density_anisotropy)
       s = s // " /" // new_line('a')
     end associate
     associate (t => cfg%time)

@@ -185,6 +185,9 @@ contains
       call probs%need(d%density_sigma > 0, "&desired: density_sigma must be > 0 (got " // str(d%density_sigma) // ")")
       call probs%need(d%fd_gamma > 0, "&desired: fd_gamma must be > 0 (got " // str(d%fd_gamma) // ")")
       call probs%need(d%fd_rho_max > 0, "&desired: fd_rho_max must be > 0 (got " // str(d%fd_rho_max) // ")")
+      call need_sane(probs, d%density_anisotropy, "&desired: density_anisotropy", 1.0_wp)
+      call probs%need(d%density_anisotropy >= 0 .and. d%density_anisotropy <= 1, &
+        "&desired: density_anisotropy must be in [0, 1] (got " // str(d%density_anisotropy) // ")")
       call probs%need(d%mode == 'geodesic', "&desired: speed_model = 'weidmann' needs mode = 'geodesic' " // &
         "(prescribed vectors have no speed to scale)")
       if (len_trim(a%speed_file) == 0) call probs%need(a%speed > 0, "&agents: speed = " // str(a%speed) // &

@@ -17,8 +17,8 @@
 !> Behaviour options (defaults off: the paper's model): with a social distance d_s (&agents)
 !> the contacts use the radius r + d_s / 2 (two agents stop at gap d_s, an agent stops at d_s / 2
 !> from an obstacle) and so does the aiming at the exits; "out of the hall" keeps the body
-!> radius r. With &desired speed_model = 'weidmann' each agent's speed is scaled by the
-!> fundamental diagram of its local density at the start of the step (cr_density_speed).
+!> radius r. With &desired speed_model = 'weidmann' each agent's desired velocity is scaled by
+!> the fundamental diagram of its local density at the start of the step (cr_density_speed).
 module cr_fom
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error, prefix_error
@@ -77,8 +77,8 @@ module cr_fom
     logical :: warm_start = .true.
     !> positions, desired and actual velocities [2*n_agents]
     real(wp), allocatable :: q(:), v(:), u(:)
-    !> speeds c_i [n_agents], and those of the current step (scaled by the density model)
-    real(wp), allocatable :: speeds(:), step_speeds(:)
+    !> speeds c_i [n_agents]
+    real(wp), allocatable :: speeds(:)
     !> candidate-row margin of each agent in the current step, and h |u_i| [n_agents]
     real(wp), allocatable :: margin(:), need(:)
     !> multipliers of the current rows [cs%n]
@@ -147,7 +147,6 @@ contains
       this%speeds = cfg%agents%speed
     end if
     call this%density%init(cfg%desired, this%n_agents)
-    allocate(this%step_speeds(this%n_agents))
     allocate(this%v(2 * this%n_agents), this%u(2 * this%n_agents), this%inside(this%n_agents))
     allocate(this%margin(this%n_agents), this%need(this%n_agents))
     this%v = 0; this%u = 0
@@ -177,12 +176,8 @@ contains
     call system_clock(c0, rate)
     this%step = this%step + 1
     rec%step = this%step
-    if (this%density%on) then
-      call this%density%apply(this%q, this%speeds, this%step_speeds)
-      call this%desired%evaluate(this%q, this%step_speeds, this%v)
-    else
-      call this%desired%evaluate(this%q, this%speeds, this%v)
-    end if
+    call this%desired%evaluate(this%q, this%speeds, this%v)
+    if (this%density%on) call this%density%apply(this%q, this%v)
     ! each agent's margin: how far it may close a gap in this step, bounded from its speed in
     ! the previous step (cutoff_factor * h * (|u_i| + speed_allowance |v_i|)); on the first
     ! step, from the fastest desired speed (cutoff_factor * h * max |v|)

@@ -13,6 +13,12 @@
 !> Neighbours come from the cell list of the contacts (cr_neighbours, a scene without
 !> obstacles and zero radius: a row per pair within the cut).
 !>
+!> Look-ahead (&desired density_anisotropy = beta in [0, 1]): neighbour j counts with weight
+!> w(d) (1 + beta cos theta_ij), theta_ij the angle between agent i's desired direction and
+!> x_j - x_i, so that a pedestrian slows for the crowd ahead more than for the crowd behind
+!> (beta = 1: nothing straight behind counts). The lattice sums above are unchanged (a lattice
+!> is symmetric about each of its points, so the cosines cancel).
+!>
 !> Fundamental diagram (Weidmann 1993), v0 = the agent's own speed c_i (its free speed):
 !>   v(rho) = v0 (1 - exp(-gamma (1/rho - 1/rho_max))), clamped to [0, v0], v(0) = v0.
 module cr_density_speed
@@ -31,7 +37,7 @@ module cr_density_speed
   !> Local density estimator and diagram of one run.
   type :: density_speed_t
     logical :: on = .false.
-    real(wp) :: sigma = 0.7_wp, gamma = 1.913_wp, rho_max = 5.4_wp
+    real(wp) :: sigma = 0.7_wp, gamma = 1.913_wp, rho_max = 5.4_wp, beta = 0.0_wp
     !> local density of each agent at the last call [n_agents]
     real(wp), allocatable :: rho(:)
     type(cell_list_t), private :: cells
@@ -56,6 +62,7 @@ contains
     this%sigma = cfg%density_sigma
     this%gamma = cfg%fd_gamma
     this%rho_max = cfg%fd_rho_max
+    this%beta = cfg%density_anisotropy
     allocate(this%rho(n_agents))
     this%rho = 0
     call this%cs%init(n_agents, 1.0_wp, 16 * n_agents)
@@ -68,12 +75,14 @@ contains
     this%on = .false.
   end subroutine free
 
-  !> rho [n_agents] = local density of every agent at positions q [2*n_agents] (kernel above).
-  subroutine density(this, q, rho)
+  !> rho [n_agents] = local density of every agent at positions q [2*n_agents] (kernel above);
+  !> with dir [2*n_agents] (desired velocities, any length) the look-ahead weights apply.
+  subroutine density(this, q, rho, dir)
     class(density_speed_t), intent(inout) :: this
     real(wp), intent(in) :: q(:)
     real(wp), intent(out) :: rho(:)
-    real(wp) :: cut, c, e, two_s2, w
+    real(wp), intent(in), optional :: dir(:)
+    real(wp) :: cut, c, e, two_s2, w, ca, cb, na, nb
     integer :: l
     cut = DENSITY_CUT * this%sigma
     two_s2 = 2 * this%sigma**2
@@ -85,25 +94,34 @@ contains
       associate (a => this%cs%ia(l), b => this%cs%ib(l), d => this%cs%gap(l))
         if (b > 0 .and. d <= cut) then
           w = c * (exp(-d * d / two_s2) - e)
-          rho(a) = rho(a) + w
-          rho(b) = rho(b) + w
+          ca = 1; cb = 1
+          if (present(dir) .and. this%beta > 0 .and. d > 0) then
+            ! cosines of the angles between each agent's direction and the other agent
+            na = norm2(dir(2*a-1:2*a)); nb = norm2(dir(2*b-1:2*b))
+            if (na > 0) ca = 1 + this%beta * dot_product(dir(2*a-1:2*a), q(2*b-1:2*b) - q(2*a-1:2*a)) / (na * d)
+            if (nb > 0) cb = 1 + this%beta * dot_product(dir(2*b-1:2*b), q(2*a-1:2*a) - q(2*b-1:2*b)) / (nb * d)
+          end if
+          rho(a) = rho(a) + w * ca
+          rho(b) = rho(b) + w * cb
         end if
       end associate
     end do
   end subroutine density
 
-  !> eff [n_agents] = speeds c_i scaled by the diagram at each agent's local density at q
-  !> [2*n_agents] (eff = speeds when the model is off).
-  subroutine apply(this, q, speeds, eff)
+  !> v [2*n_agents]: desired velocities at positions q [2*n_agents], scaled in place by the
+  !> diagram at each agent's local density (unchanged when the model is off).
+  subroutine apply(this, q, v)
     class(density_speed_t), intent(inout) :: this
-    real(wp), intent(in) :: q(:), speeds(:)
-    real(wp), intent(out) :: eff(:)
-    if (.not. this%on) then
-      eff = speeds
-      return
-    end if
-    call this%density(q, this%rho)
-    eff = speeds * weidmann_factor(this%rho, this%gamma, this%rho_max)
+    real(wp), intent(in) :: q(:)
+    real(wp), intent(inout) :: v(:)
+    integer :: i
+    real(wp) :: f
+    if (.not. this%on) return
+    call this%density(q, this%rho, v)
+    do i = 1, size(this%rho)
+      f = weidmann_factor(this%rho(i), this%gamma, this%rho_max)
+      v(2*i-1:2*i) = f * v(2*i-1:2*i)
+    end do
   end subroutine apply
 
   !> v(rho) / v0 of Weidmann's diagram: 1 - exp(-gamma (1/rho - 1/rho_max)) in [0, 1]; 1 at rho <= 0.
