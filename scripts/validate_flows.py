@@ -8,6 +8,8 @@ Parts (any subset, in this order):
   crowd1000    the calibrated crowd1000 scene from the same start as JuPedSim: t50, t90, flows
                and CPU per simulated second, measured back to back
   convergence  t50, t90 and the exit flows of the calibrated crowd1000 scene at h, h/2, h/4
+  cpu          CPU per simulated second over the first 20 s of crowd1000, crowd_fom calibrated
+               and JuPedSim, back to back
 
 Each part writes <out>/<part>.json and a figure <out>/calibration_<part>.png. JuPedSim is an
 OPTIONAL dependency (scripts/requirements-validation.txt): without it the script says so and
@@ -340,6 +342,8 @@ def part_bottleneck(args, work):
         sc = bottleneck_scene(w)
         row = {"width": w}
         for name, model in (("calibrated", CALIBRATED), ("paper", PAPER)):
+            if name not in args.models.split(",") and name != "calibrated":
+                continue
             r = run_fom_timed(model_text(model, sc, n, v0, args.dt, region=region, seed=7), work,
                               "bn_%s_%g" % (name, w), pdda=False)
             q = qois(exit_curves(r["pos"], sc, r["radius"]), r["time"], sc, n)
@@ -448,6 +452,8 @@ def part_crowd1000(args, work):
     sc = crowd1000_scene()
     res = {}
     for name, model in (("calibrated", CALIBRATED), ("paper", PAPER)):
+        if name not in args.models.split(","):
+            continue
         r = run_fom_timed(crowd1000_text(args.h1000, model), work, "c1000_" + name, pdda=(name == "calibrated"))
         q = qois(exit_curves(r["pos"], sc, r["radius"]), r["time"], sc, r["n_agents"])
         q["cpu"] = r["cpu"]
@@ -471,6 +477,34 @@ def part_crowd1000(args, work):
         res["jupedsim"] = q
         log("crowd1000 JuPedSim CFSM dt = 0.01: t50 %.1f t90 %.1f flows %s, CPU %.1f s (%.3f per simulated s)" % (
             q["t50"], q["t90"], [fmt(x) for x in q["flow"]], q["cpu"], q["cpu_per_s"]))
+    return res
+
+
+def part_cpu(args, work):
+    """CPU per simulated second over the first `cpu_window` seconds of crowd1000 (nearly all
+    agents inside for both models), crowd_fom calibrated at its default step and JuPedSim's
+    collision-free speed model at its default dt = 0.01 s, measured back to back."""
+    sc = crowd1000_scene()
+    T = args.cpu_window
+    res = {"window": T}
+    text = crowd1000_text(args.h1000, CALIBRATED).replace(
+        "until_empty = .true., max_steps = 200000", "n_steps = %d" % int(round(T / args.h1000)))
+    r = run_fom_timed(text, work, "cpu_fom", pdda=True)
+    res["crowd_fom"] = {"cpu": r["cpu"], "cpu_per_s": r["cpu"] / T, "dt": args.h1000,
+                        "inside_at_end": int(r["n_agents"] - exit_curves(r["pos"], sc, r["radius"])[-1].sum())}
+    log("CPU crowd_fom calibrated h = %g over %g s: %.1f s (%.3f per simulated s)" % (
+        args.h1000, T, r["cpu"], r["cpu"] / T))
+    if args.jupedsim:
+        import h5py
+        with h5py.File(r["pdda"], "r") as f:
+            w = f.attrs["wkt_geometry"]
+        wkt = w.decode() if isinstance(w, bytes) else str(w)
+        j = run_jupedsim(sc, wkt, r["q0"], r["radius"], r["speed"], t_max=T)
+        res["jupedsim"] = {"cpu": j["cpu"], "cpu_per_s": j["cpu"] / T, "dt": 0.01,
+                           "inside_at_end": int(len(r["q0"]) - j["curves"][-1].sum())}
+        res["ratio"] = res["jupedsim"]["cpu_per_s"] / res["crowd_fom"]["cpu_per_s"]
+        log("CPU JuPedSim CFSM dt = 0.01 over %g s: %.1f s (%.3f per simulated s); ratio %.1f" % (
+            T, j["cpu"], j["cpu"] / T, res["ratio"]))
     return res
 
 
@@ -562,6 +596,8 @@ def main(argv=None):
     ap.add_argument("--bottleneck-agents", type=int, default=150)
     ap.add_argument("--t-max-bottleneck", type=float, default=300.0)
     ap.add_argument("--t-max-1000", type=float, default=400.0)
+    ap.add_argument("--cpu-window", type=float, default=20.0, help="simulated seconds of the CPU comparison")
+    ap.add_argument("--models", default="calibrated,paper", help="crowd_fom models of crowd1000 and bottleneck")
     args = ap.parse_args(argv)
     FOM = args.fom
     if args.jupedsim:
@@ -575,7 +611,7 @@ def main(argv=None):
     with tempfile.TemporaryDirectory() as work:
         for part in args.parts:
             fn = {"bottleneck": part_bottleneck, "corridor": part_corridor, "crowd1000": part_crowd1000,
-                  "convergence": part_convergence}.get(part)
+                  "convergence": part_convergence, "cpu": part_cpu}.get(part)
             if fn is None:
                 ap.error("unknown part '%s'" % part)
             results[part] = fn(args, work)
