@@ -25,7 +25,7 @@ FOM = os.path.join(BIN, "crowd_fom")
 
 SCENE = {"L": 6.0, "W": 5.0, "t": 0.3, "l_exit": 1.2, "exit_center": 4.0, "l_exit2": 1.0,
          "exit2_center": 1.5, "disks": [(3.0, 3.5, 0.4)]}
-N = 60
+N = 40
 DT = 0.05
 EVERY = 2
 
@@ -34,7 +34,7 @@ EVERY = 2
 def run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("pdda")
     text = (vf.scene_text(SCENE) +
-            "&agents n_agents = %d, radius = 0.2, speed = 1.3, seed = 5, region = 0.3, 0.3, 5.7, 3.0,"
+            "&agents n_agents = %d, radius = 0.2, speed = 1.3, seed = 5, region = 0.3, 0.3, 5.7, 2.9,"
             " social_distance = 0.1 /\n" % N +
             "&desired speed_model = 'weidmann' /\n"
             "&time dt = %r, n_steps = 800 /\n" % DT)

@@ -16,14 +16,14 @@
 !>
 !> Behaviour options (defaults off: the paper's model): with a social distance d_s (&agents)
 !> the contacts use the radius r + d_s / 2 (two agents stop at gap d_s, an agent stops at d_s / 2
-!> from an obstacle) and so does the aiming at the exits; "out of the hall" keeps the body
-!> radius r. With &desired speed_model = 'weidmann' each agent's desired velocity is scaled by
+!> from an obstacle), and so do the aiming at the exits and the random placement; "out of the
+!> hall" keeps the body radius r. With &desired speed_model = 'weidmann' each agent's desired velocity is scaled by
 !> the fundamental diagram of its local density at the start of the step (cr_density_speed).
 module cr_fom
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
-  use cr_config, only: config_t
+  use cr_config, only: config_t, agents_cfg_t
   use cr_scene, only: scene_t
   use cr_desired, only: desired_t
   use cr_density_speed, only: density_speed_t
@@ -110,6 +110,7 @@ contains
     !> per-agent speeds [n_agents] (default: &agents speed / speed_file)
     real(wp), intent(in), optional :: speeds(:)
     integer :: i
+    type(agents_cfg_t) :: agents_cfg
     this%n_agents = cfg%agents%n_agents
     this%radius = cfg%agents%radius
     this%contact_radius = cfg%agents%radius + cfg%agents%social_distance / 2
@@ -130,7 +131,11 @@ contains
       end if
       this%q = q0
     else
-      call place_agents(cfg%agents, this%scene, this%q, this%placement_iterations, error)
+      ! with a social distance the agents are placed with their contact radius (a start
+      ! that keeps d_s: from a start that does not, the first steps push a dense crowd apart)
+      agents_cfg = cfg%agents
+      agents_cfg%radius = this%contact_radius
+      call place_agents(agents_cfg, this%scene, this%q, this%placement_iterations, error)
       if (allocated(error)) return
     end if
     allocate(this%speeds(this%n_agents))
