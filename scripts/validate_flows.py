@@ -344,7 +344,8 @@ def part_bottleneck(args, work):
         for name, model in (("calibrated", CALIBRATED), ("paper", PAPER)):
             if name not in args.models.split(",") and name != "calibrated":
                 continue
-            r = run_fom_timed(model_text(model, sc, n, v0, args.dt, region=region, seed=7), work,
+            r = run_fom_timed(model_text(model, sc, n, v0, args.dt, region=region, seed=7,
+                                         max_steps=int(round(args.t_max_bottleneck / args.dt))), work,
                               "bn_%s_%g" % (name, w), pdda=False)
             q = qois(exit_curves(r["pos"], sc, r["radius"]), r["time"], sc, n)
             row[name] = q
@@ -594,7 +595,7 @@ def main(argv=None):
     ap.add_argument("--h1000", type=float, default=0.05, help="crowd_fom step of crowd1000")
     ap.add_argument("--steps", type=float, nargs="+", default=[0.1, 0.05, 0.025], help="convergence steps")
     ap.add_argument("--bottleneck-agents", type=int, default=150)
-    ap.add_argument("--t-max-bottleneck", type=float, default=300.0)
+    ap.add_argument("--t-max-bottleneck", type=float, default=200.0)
     ap.add_argument("--t-max-1000", type=float, default=400.0)
     ap.add_argument("--cpu-window", type=float, default=20.0, help="simulated seconds of the CPU comparison")
     ap.add_argument("--models", default="calibrated,paper", help="crowd_fom models of crowd1000 and bottleneck")
