@@ -47,6 +47,10 @@ CALIBRATED = {"social_distance": 0.1, "speed_model": "weidmann", "density_sigma"
 PAPER = {"social_distance": 0.0, "speed_model": "constant", "density_sigma": 0.7}
 
 
+# JuPedSim's obstacles: every HOLE_STRIDE-th vertex of crowd_fom's 32-gons (--jps-hole-stride)
+HOLE_STRIDE = 1
+
+
 class MissingOptional(Exception):
     """An optional dependency of the validation is not installed."""
 
@@ -271,6 +275,13 @@ def run_jupedsim(sc, wkt, q0, radius, speeds, t_max, dt=0.01, frame_dt=0.1, samp
     at every frame after the first ({id: (x, y)} per frame)."""
     need_jupedsim()
     import jupedsim as jps
+    if HOLE_STRIDE > 1:
+        # coarser obstacle polygons (every k-th vertex of each hole: JuPedSim's cost per
+        # iteration grows with the vertices)
+        import shapely
+        poly = shapely.from_wkt(wkt)
+        wkt = shapely.Polygon(poly.exterior.coords,
+                              [list(r.coords)[:-1][::HOLE_STRIDE] for r in poly.interiors]).wkt
     sim = jps.Simulation(model=jps.CollisionFreeSpeedModel(), geometry=wkt, dt=dt)
     journeys = []
     for poly in exit_polygons(sc, radius):
@@ -584,7 +595,7 @@ def figures(results, out):
 
 
 def main(argv=None):
-    global FOM
+    global FOM, HOLE_STRIDE
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("parts", nargs="*", default=["bottleneck", "corridor", "crowd1000", "convergence"])
     ap.add_argument("--out", default=os.path.join(ROOT, "results", "calibration"))
@@ -597,10 +608,13 @@ def main(argv=None):
     ap.add_argument("--bottleneck-agents", type=int, default=150)
     ap.add_argument("--t-max-bottleneck", type=float, default=200.0)
     ap.add_argument("--t-max-1000", type=float, default=400.0)
+    ap.add_argument("--jps-hole-stride", type=int, default=1,
+                    help="JuPedSim obstacles: every k-th vertex of the 32-gons (2: 16-gons)")
     ap.add_argument("--cpu-window", type=float, default=20.0, help="simulated seconds of the CPU comparison")
     ap.add_argument("--models", default="calibrated,paper", help="crowd_fom models of crowd1000 and bottleneck")
     args = ap.parse_args(argv)
     FOM = args.fom
+    HOLE_STRIDE = args.jps_hole_stride
     if args.jupedsim:
         try:
             need_jupedsim()
