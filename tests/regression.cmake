@@ -40,6 +40,10 @@ cr_bad_input(desired_exact "&desired: field = 'exact' does not apply to this sce
 cr_bad_input(dt "&time: dt must be > 0")
 cr_bad_input(dense_rows "&solver: .*dense_rows must be >= 0")
 cr_bad_input(refresh_every "&solver: .*refresh_every must be >= 1")
+cr_bad_input(social_negative "&agents: social_distance must be >= 0 \\(got -1.0")
+cr_bad_input(social_exit "&agents: social_distance = 2.5.* leaves no passage through the exit \\(2 radius")
+cr_bad_input(diagram_speed "&agents: speed = 0.* is the free speed of &desired speed_model = 'weidmann' and must be > 0")
+cr_bad_input(diagram_model "&desired: speed_model must be 'constant' or 'weidmann' \\(got 'weidman'\\)")
 add_test(NAME bad_input_missing_namelist
   COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/expect_fail.sh "no_such_input.nml: cannot open input file" bad_out.h5
     $<TARGET_FILE:crowd_fom> no_such_input.nml

@@ -10,6 +10,7 @@ module cr_fom_run
   use cr_fom, only: fom_t, step_record_t
   use cr_fom_file, only: fom_writer_t
   use cr_qoi, only: qoi_t, qoi_acc_t
+  use cr_pdda_file, only: pdda_writer_t
   use cr_json, only: json_writer_t
   implicit none
   private
@@ -26,6 +27,8 @@ contains
     type(error_t), allocatable, intent(out) :: error
     type(fom_t) :: fom
     type(fom_writer_t) :: out
+    type(pdda_writer_t) :: pdda
+    logical :: with_pdda
     type(step_record_t), allocatable :: recs(:)
     type(step_record_t) :: rec
     type(qoi_acc_t) :: acc
@@ -52,6 +55,15 @@ contains
     ! the quantities of interest of every step's positions (not only the output states)
     call acc%init(fom%n_agents)
     call acc%add(fom%scene, fom%radius, fom%q)
+    with_pdda = len_trim(cfg%output%pdda_file) > 0
+    if (with_pdda) then
+      call pdda%open(trim(cfg%output%pdda_file), fom%scene, fom%radius, fom%n_agents, &
+        cfg%time%dt * cfg%output%every, error)
+      if (.not. allocated(error)) call pdda%write_frame(fom%scene, 0, fom%q, error)
+      if (allocated(error)) then
+        call out%abort(); call pdda%abort(); return
+      end if
+    end if
     call log%stage_end()
 
     n_target = cfg%time%n_steps
@@ -67,7 +79,7 @@ contains
       if (cfg%time%until_empty .and. fom%n_inside() == 0) exit
       call fom%advance(rec, error)
       if (allocated(error)) then
-        call out%abort(); return
+        call out%abort(); call pdda%abort(); return
       end if
       k = k + 1
       recs(k) = rec
@@ -92,7 +104,14 @@ contains
       if (mod(k, cfg%output%every) == 0 .or. k == n_target) then
         call out%write_step(fom, error)
         if (allocated(error)) then
-          call out%abort(); return
+          call out%abort(); call pdda%abort(); return
+        end if
+      end if
+      ! the archive layout holds equally spaced frames only
+      if (with_pdda .and. mod(k, cfg%output%every) == 0) then
+        call pdda%write_frame(fom%scene, k / cfg%output%every, fom%q, error)
+        if (allocated(error)) then
+          call out%abort(); call pdda%abort(); return
         end if
       end if
       call log%progress("step", k, n_target)
@@ -103,12 +122,20 @@ contains
 
     call acc%finish(fom%scene, fom%radius, fom%dt, qoi, error)
     if (allocated(error)) then
-      call out%abort(); return
+      call out%abort(); call pdda%abort(); return
     end if
     call out%close(recs(1:k), error, qoi=qoi)
-    if (allocated(error)) return
+    if (allocated(error)) then
+      call pdda%abort(); return
+    end if
     call log%info("quantities of interest (group 'qoi' of the output): t50 / t90 / t100 " // t_text(1) // " / " // &
       t_text(2) // " / " // t_text(3) // " s")
+    if (with_pdda) then
+      call pdda%close(error)
+      if (allocated(error)) return
+      call log%info("trajectories (Pedestrian Dynamics Data Archive layout) written to " // &
+        trim(cfg%output%pdda_file))
+    end if
 
     n_failed = count(.not. recs(1:k)%converged)
     min_gap = huge(1.0_wp); kkt_max = 0; it_max = 0; it_mean = 0

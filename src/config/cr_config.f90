@@ -60,6 +60,10 @@ module cr_config
     real(wp) :: region(4) = 0.0_wp
     integer :: seed = 1
     integer :: placement_max_iter = 1000
+    !> social distance d_s [m]: each agent carries an exclusion ring of width d_s / 2, so two
+    !> agents stop at gap d_s and an agent stops at d_s / 2 from a wall or pillar (0: the
+    !> paper's model, contact at gap 0)
+    real(wp) :: social_distance = 0.0_wp
   end type agents_cfg_t
 
   !> &desired: the spontaneous velocity.
@@ -72,6 +76,18 @@ module cr_config
     character(len=16) :: field = 'auto'
     !> grid spacing of the distance field; 0 means radius / 4
     real(wp) :: grid_dx = 0.0_wp
+    !> desired speed: 'constant' (each agent's speed, the paper's model) or 'weidmann' (each
+    !> agent's speed times Weidmann's fundamental diagram of its local density, cr_density_speed)
+    character(len=16) :: speed_model = 'constant'
+    !> width sigma [m] of the Gaussian kernel of the local density (cut at 3 sigma)
+    real(wp) :: density_sigma = 0.7_wp
+    !> look-ahead beta in [0, 1]: a neighbour counts with weight (1 + beta cos theta), theta its
+    !> angle from the agent's desired direction (0: isotropic)
+    real(wp) :: density_anisotropy = 0.0_wp
+    !> the diagram v(rho) = v0 (1 - exp(-fd_gamma (1/rho - 1/fd_rho_max))): gamma [1/m2] and
+    !> the jam density [1/m2] (Weidmann 1993: 1.913 and 5.4)
+    real(wp) :: fd_gamma = 1.913_wp
+    real(wp) :: fd_rho_max = 5.4_wp
   end type desired_cfg_t
 
   !> &time: step and horizon.
@@ -98,6 +114,9 @@ module cr_config
     integer :: every = 1
     logical :: store_multipliers = .true.
     character(len=16) :: log_level = 'info'
+    !> trajectories in the Pedestrian Dynamics Data Archive HDF5 layout (PedPy reads it in one
+    !> call); empty: none
+    character(len=MAX_PATH) :: pdda_file = ''
   end type output_cfg_t
 
   !> Everything a run needs, read from one namelist file.
@@ -167,6 +186,7 @@ contains
     call paths%input("file", input)
     call model_inputs(cfg, paths)
     call paths%output("&output file", cfg%output%file)
+    if (len_trim(cfg%output%pdda_file) > 0) call paths%output("&output pdda_file", cfg%output%pdda_file)
     call paths%output("--summary", summary)
     call paths%check(input, error)
   end subroutine check_fom_paths
@@ -215,39 +235,44 @@ contains
     type(agents_cfg_t), intent(inout) :: c
     type(error_t), allocatable, intent(out) :: error
     integer :: n_agents, seed, placement_max_iter
-    real(wp) :: radius, speed, region(4)
+    real(wp) :: radius, speed, region(4), social_distance
     character(len=MAX_PATH) :: speed_file, init_file
     character(len=16) :: init
     namelist /agents/ n_agents, radius, speed, speed_file, init, init_file, region, seed, &
-      placement_max_iter
+      placement_max_iter, social_distance
     integer :: ios
     character(len=512) :: msg
     n_agents = c%n_agents; radius = c%radius; speed = c%speed; speed_file = c%speed_file
     init = c%init; init_file = c%init_file; region = c%region; seed = c%seed
-    placement_max_iter = c%placement_max_iter
+    placement_max_iter = c%placement_max_iter; social_distance = c%social_distance
     msg = ''
     read(t%lines, nml=agents, iostat=ios, iomsg=msg)
     call nml_status(t, 'agents', ios, msg, error); if (allocated(error)) return
     c%n_agents = n_agents; c%radius = radius; c%speed = speed; c%speed_file = speed_file
     c%init = init; c%init_file = init_file; c%region = region; c%seed = seed
-    c%placement_max_iter = placement_max_iter
+    c%placement_max_iter = placement_max_iter; c%social_distance = social_distance
   end subroutine read_agents
 
   subroutine read_desired(t, c, error)
     type(namelist_text_t), intent(in) :: t
     type(desired_cfg_t), intent(inout) :: c
     type(error_t), allocatable, intent(out) :: error
-    character(len=16) :: mode, field
+    character(len=16) :: mode, field, speed_model
     character(len=MAX_PATH) :: file
-    real(wp) :: grid_dx
-    namelist /desired/ mode, file, field, grid_dx
+    real(wp) :: grid_dx, density_sigma, fd_gamma, fd_rho_max, density_anisotropy
+    namelist /desired/ mode, file, field, grid_dx, speed_model, density_sigma, fd_gamma, fd_rho_max, &
+      density_anisotropy
     integer :: ios
     character(len=512) :: msg
     mode = c%mode; file = c%file; field = c%field; grid_dx = c%grid_dx
+    speed_model = c%speed_model; density_sigma = c%density_sigma; fd_gamma = c%fd_gamma
+    fd_rho_max = c%fd_rho_max; density_anisotropy = c%density_anisotropy
     msg = ''
     read(t%lines, nml=desired, iostat=ios, iomsg=msg)
     call nml_status(t, 'desired', ios, msg, error); if (allocated(error)) return
     c%mode = mode; c%file = file; c%field = field; c%grid_dx = grid_dx
+    c%speed_model = speed_model; c%density_sigma = density_sigma; c%fd_gamma = fd_gamma
+    c%fd_rho_max = fd_rho_max; c%density_anisotropy = density_anisotropy
   end subroutine read_desired
 
   subroutine read_time(t, c, error)
@@ -313,16 +338,17 @@ contains
     integer :: every
     logical :: store_multipliers
     character(len=16) :: log_level
-    namelist /output/ file, every, store_multipliers, log_level
+    character(len=MAX_PATH) :: pdda_file
+    namelist /output/ file, every, store_multipliers, log_level, pdda_file
     integer :: ios
     character(len=512) :: msg
     file = c%file; every = c%every; store_multipliers = c%store_multipliers
-    log_level = c%log_level
+    log_level = c%log_level; pdda_file = c%pdda_file
     msg = ''
     read(t%lines, nml=output, iostat=ios, iomsg=msg)
     call nml_status(t, 'output', ios, msg, error); if (allocated(error)) return
     c%file = file; c%every = every; c%store_multipliers = store_multipliers
-    c%log_level = log_level
+    c%log_level = log_level; c%pdda_file = pdda_file
   end subroutine read_output
 
   !> The effective configuration as a namelist file that crowdrom can read back.
@@ -343,11 +369,20 @@ contains
       s = s // "&agents n_agents = " // str(a%n_agents) // ", radius = " // echo_real(a%radius) // ", speed = " // &
         echo_real(a%speed) // ", speed_file = '" // trim(a%speed_file) // "', init = '" // trim(a%init) // &
         "', init_file = '" // trim(a%init_file) // "', region = " // echo_reals(a%region) // ", seed = " // &
-        str(a%seed) // ", placement_max_iter = " // str(a%placement_max_iter) // " /" // new_line('a')
+        str(a%seed) // ", placement_max_iter = " // str(a%placement_max_iter)
+      ! the social distance only when set (the paper's configurations keep their text and hash)
+      if (a%social_distance /= 0) s = s // ", social_distance = " // echo_real(a%social_distance)
+      s = s // " /" // new_line('a')
     end associate
     associate (d => cfg%desired)
       s = s // "&desired mode = '" // trim(d%mode) // "', file = '" // trim(d%file) // "', field = '" // &
-        trim(d%field) // "', grid_dx = " // echo_real(d%grid_dx) // " /" // new_line('a')
+        trim(d%field) // "', grid_dx = " // echo_real(d%grid_dx)
+      ! the speed model only when not the paper's (its configurations keep their text and hash)
+      if (d%speed_model /= 'constant') s = s // ", speed_model = '" // trim(d%speed_model) // &
+        "', density_sigma = " // echo_real(d%density_sigma) // ", fd_gamma = " // echo_real(d%fd_gamma) // &
+        ", fd_rho_max = " // echo_real(d%fd_rho_max) // ", density_anisotropy = " // &
+        echo_real(d%density_anisotropy)
+      s = s // " /" // new_line('a')
     end associate
     associate (t => cfg%time)
       s = s // "&time dt = " // echo_real(t%dt) // ", n_steps = " // str(t%n_steps) // ", until_empty = " // &
@@ -363,8 +398,9 @@ contains
     s = s // "&contacts cutoff_factor = " // echo_real(cfg%contacts%cutoff_factor) // " /" // new_line('a')
     associate (o => cfg%output)
       s = s // "&output file = '" // trim(o%file) // "', every = " // str(o%every) // ", store_multipliers = " // &
-        echo_logical(o%store_multipliers) // ", log_level = '" // trim(o%log_level) // "' /" // &
-        new_line('a')
+        echo_logical(o%store_multipliers) // ", log_level = '" // trim(o%log_level) // "'"
+      if (len_trim(o%pdda_file) > 0) s = s // ", pdda_file = '" // trim(o%pdda_file) // "'"
+      s = s // " /" // new_line('a')
     end associate
 
   end function config_echo

@@ -153,8 +153,46 @@ contains
       call probs%need(any(out%log_level == [character(len=16) :: 'error', 'warn', 'info', 'debug']), &
         "&output: log_level must be 'error', 'warn', 'info' or 'debug'")
     end associate
+    call check_behaviour(cfg, probs)
     call probs%to_error(cfg%source, error)
 
   end subroutine check_config
+
+  !> The behaviour options: social distance (&agents) and the density-dependent desired speed
+  !> (&desired speed_model, its kernel and its fundamental diagram).
+  subroutine check_behaviour(cfg, probs)
+    type(config_t), intent(in) :: cfg
+    type(problems_t), intent(inout) :: probs
+    real(wp) :: ds, need
+    associate (s => cfg%scene, a => cfg%agents, d => cfg%desired)
+      ds = a%social_distance
+      call need_sane(probs, ds, "&agents: social_distance", MAX_LENGTH)
+      call probs%need(.not. (ds < 0), "&agents: social_distance must be >= 0 (got " // str(ds) // ")")
+      if (ds > 0 .and. ieee_is_finite(ds)) then
+        need = 2 * a%radius + ds
+        call probs%need(need < s%l_exit, "&agents: social_distance = " // str(ds) // " leaves no passage through " // &
+          "the exit (2 radius + social_distance = " // str(need) // " >= &scene l_exit = " // str(s%l_exit) // ")")
+        if (s%l_exit2 > 0) call probs%need(need < s%l_exit2, "&agents: social_distance = " // str(ds) // &
+          " leaves no passage through the second exit (2 radius + social_distance = " // str(need) // &
+          " >= &scene l_exit2 = " // str(s%l_exit2) // ")")
+      end if
+      call probs%need(d%speed_model == 'constant' .or. d%speed_model == 'weidmann', &
+        "&desired: speed_model must be 'constant' or 'weidmann' (got '" // trim(d%speed_model) // "')")
+      if (d%speed_model /= 'weidmann') return
+      call need_sane(probs, d%density_sigma, "&desired: density_sigma", MAX_LENGTH, MIN_LENGTH)
+      call need_sane(probs, d%fd_gamma, "&desired: fd_gamma", 1.0e6_wp)
+      call need_sane(probs, d%fd_rho_max, "&desired: fd_rho_max", 1.0e6_wp)
+      call probs%need(d%density_sigma > 0, "&desired: density_sigma must be > 0 (got " // str(d%density_sigma) // ")")
+      call probs%need(d%fd_gamma > 0, "&desired: fd_gamma must be > 0 (got " // str(d%fd_gamma) // ")")
+      call probs%need(d%fd_rho_max > 0, "&desired: fd_rho_max must be > 0 (got " // str(d%fd_rho_max) // ")")
+      call need_sane(probs, d%density_anisotropy, "&desired: density_anisotropy", 1.0_wp)
+      call probs%need(d%density_anisotropy >= 0 .and. d%density_anisotropy <= 1, &
+        "&desired: density_anisotropy must be in [0, 1] (got " // str(d%density_anisotropy) // ")")
+      call probs%need(d%mode == 'geodesic', "&desired: speed_model = 'weidmann' needs mode = 'geodesic' " // &
+        "(prescribed vectors have no speed to scale)")
+      if (len_trim(a%speed_file) == 0) call probs%need(a%speed > 0, "&agents: speed = " // str(a%speed) // &
+        " is the free speed of &desired speed_model = 'weidmann' and must be > 0")
+    end associate
+  end subroutine check_behaviour
 
 end module cr_config_check

@@ -13,13 +13,20 @@
 !> re-solved (warm started), so that the linearised constraint holds for *every* pair and
 !> obstacle.
 !> Multipliers are warm-started across steps by contact identity.
+!>
+!> Behaviour options (defaults off: the paper's model): with a social distance d_s (&agents)
+!> the contacts use the radius r + d_s / 2 (two agents stop at gap d_s, an agent stops at d_s / 2
+!> from an obstacle), and so do the aiming at the exits and the random placement; "out of the
+!> hall" keeps the body radius r. With &desired speed_model = 'weidmann' each agent's desired velocity is scaled by
+!> the fundamental diagram of its local density at the start of the step (cr_density_speed).
 module cr_fom
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
-  use cr_config, only: config_t
+  use cr_config, only: config_t, agents_cfg_t
   use cr_scene, only: scene_t
   use cr_desired, only: desired_t
+  use cr_density_speed, only: density_speed_t
   use cr_contact_set, only: contact_set_t
   use cr_neighbours, only: cell_list_t, build_contacts, rows_missing
   use cr_placement, only: place_agents
@@ -58,7 +65,10 @@ module cr_fom
     type(contact_set_t) :: cs
     type(cell_list_t) :: cells
     integer :: n_agents = 0, step = 0
-    real(wp) :: radius = 0, dt = 0, cutoff_factor = 1.5_wp
+    !> body radius r and contact radius r + d_s / 2 (d_s: social distance)
+    real(wp) :: radius = 0, contact_radius = 0, dt = 0, cutoff_factor = 1.5_wp
+    !> density-dependent desired speed (off: the speeds c_i as given)
+    type(density_speed_t) :: density
     !> share of the desired speed added to the previous speed in the margins (a predictor only: any
     !> value >= 0 is exact, the check after the solve adds what it misses). Measured
     !> (docs/benchmarks.md#tuned-parameters-of-sparse_active_set, speed_allowance): 0.4-0.6 take the
@@ -101,15 +111,17 @@ contains
     !> per-agent speeds [n_agents] (default: &agents speed / speed_file)
     real(wp), intent(in), optional :: speeds(:)
     integer :: i
+    type(agents_cfg_t) :: agents_cfg
     this%n_agents = cfg%agents%n_agents
     this%radius = cfg%agents%radius
+    this%contact_radius = cfg%agents%radius + cfg%agents%social_distance / 2
     this%dt = cfg%time%dt
     this%cutoff_factor = cfg%contacts%cutoff_factor
     this%warm_start = cfg%solver%warm_start
     this%step = 0
     call this%scene%init(cfg%scene, cfg%obstacles, error)
     if (allocated(error)) return
-    call this%desired%init(cfg%desired, this%scene, this%radius, this%n_agents, error)
+    call this%desired%init(cfg%desired, this%scene, this%contact_radius, this%n_agents, error)
     if (allocated(error)) return
     call make_projection_solver(cfg%solver, this%solver, error)
     if (allocated(error)) return
@@ -120,7 +132,11 @@ contains
       end if
       this%q = q0
     else
-      call place_agents(cfg%agents, this%scene, this%q, this%placement_iterations, error)
+      ! with a social distance the agents are placed with their contact radius (a start
+      ! that keeps d_s: from a start that does not, the first steps push a dense crowd apart)
+      agents_cfg = cfg%agents
+      agents_cfg%radius = this%contact_radius
+      call place_agents(agents_cfg, this%scene, this%q, this%placement_iterations, error)
       if (allocated(error)) return
     end if
     allocate(this%speeds(this%n_agents))
@@ -136,6 +152,7 @@ contains
     else
       this%speeds = cfg%agents%speed
     end if
+    call this%density%init(cfg%desired, this%n_agents)
     allocate(this%v(2 * this%n_agents), this%u(2 * this%n_agents), this%inside(this%n_agents))
     allocate(this%margin(this%n_agents), this%need(this%n_agents))
     this%v = 0; this%u = 0
@@ -166,6 +183,7 @@ contains
     this%step = this%step + 1
     rec%step = this%step
     call this%desired%evaluate(this%q, this%speeds, this%v)
+    if (this%density%on) call this%density%apply(this%q, this%v)
     ! each agent's margin: how far it may close a gap in this step, bounded from its speed in
     ! the previous step (cutoff_factor * h * (|u_i| + speed_allowance |v_i|)); on the first
     ! step, from the fastest desired speed (cutoff_factor * h * max |v|)
@@ -173,7 +191,7 @@ contains
     do i = 1, this%n_agents
       vmax = max(vmax, norm2(this%v(2*i-1:2*i)))
     end do
-    floor_m = 0.5e-12_wp * this%radius
+    floor_m = 0.5e-12_wp * this%contact_radius
     do i = 1, this%n_agents
       if (this%step == 1) then
         this%margin(i) = this%cutoff_factor * this%dt * vmax
@@ -185,7 +203,7 @@ contains
     end do
     rec%t_solve = 0
     do
-      call build_contacts(this%scene, this%q, this%radius, 2 * maxval(this%margin), this%cells, this%cs, &
+      call build_contacts(this%scene, this%q, this%contact_radius, 2 * maxval(this%margin), this%cells, this%cs, &
         margin=this%margin)
       call warm_start_multipliers(this)
       this%lambda_warm = this%lambda(1:this%cs%n)
@@ -206,7 +224,7 @@ contains
       do i = 1, this%n_agents
         this%need(i) = this%dt * norm2(this%u(2*i-1:2*i))
       end do
-      if (.not. rows_missing(this%scene, this%q, this%radius, this%cells, this%margin, this%need)) exit
+      if (.not. rows_missing(this%scene, this%q, this%contact_radius, this%cells, this%margin, this%need)) exit
       rec%resolves = rec%resolves + 1
       do i = 1, this%n_agents
         this%margin(i) = max(this%margin(i), 1.05_wp * this%need(i))
@@ -224,13 +242,13 @@ contains
     rec%n_active = count(this%lambda(1:this%cs%n) > 0)
     call remember_multipliers(this)
     this%q = this%q + this%dt * this%u
-    ! true gaps of the candidate rows after the step
+    ! true gaps of the candidate rows after the step (of the contact radius)
     rec%min_gap = huge(1.0_wp)
     do l = 1, this%cs%n
       a = this%cs%ia(l); b = this%cs%ib(l)
       if (b > 0) then
         d = this%q(2*a-1:2*a) - this%q(2*b-1:2*b)
-        dist = norm2(d) - 2 * this%radius
+        dist = norm2(d) - 2 * this%contact_radius
         rec%min_gap = min(rec%min_gap, dist)
       end if
     end do
@@ -254,7 +272,7 @@ contains
       if (this%cs%ib(l) == 0) then
         a = this%cs%ia(l)
         call obstacle_distance(this%scene%obstacles(this%cs%ob(l)), this%q(2*a-1:2*a), dist, nrm)
-        gmin = min(gmin, dist - this%radius)
+        gmin = min(gmin, dist - this%contact_radius)
       end if
     end do
   end subroutine obstacle_gaps

@@ -90,6 +90,7 @@ module cr_h5file
     procedure :: abort => h5_abort
     procedure :: is_open => h5_is_open
     procedure :: path_on_disk => h5_path_on_disk
+    procedure :: file_id => h5_file_id
     procedure :: make_group
     procedure :: exists
     procedure :: get_dims
@@ -578,6 +579,13 @@ contains
     character(len=:), allocatable :: s
     s = where_str(this)
   end function h5_path_on_disk
+
+  !> The HDF5 identifier of the open file (-1 when closed), for writers of layouts the
+  !> handle does not offer (e.g. compound datasets); they check their own return codes.
+  integer(hid_t) function h5_file_id(this) result(fid)
+    class(h5file_t), intent(in) :: this
+    fid = this%fid
+  end function h5_file_id
 
   !> Close the HDF5 file (no rename); hdferr of h5fclose_f.
   subroutine close_file(this, hdferr)

@@ -60,11 +60,14 @@ contains
     data%radius = hdr%radius; data%dt = hdr%dt
     data%config_hash = hdr%hash; data%param_names = hdr%param_names
     data%config_text = hdr%config_text; data%q0 = hdr%q0
-    if (data%n_agents /= cfg%agents%n_agents .or. abs(data%radius - cfg%agents%radius) > 0 .or. &
+    ! the database holds the contact radius (body radius + social distance / 2)
+    if (data%n_agents /= cfg%agents%n_agents .or. &
+        abs(data%radius - (cfg%agents%radius + cfg%agents%social_distance / 2)) > 0 .or. &
         abs(data%dt - cfg%time%dt) > 0) then
       call set_error(error, "&offline: database '" // path // "' is from another scene (n_agents " // &
         str(data%n_agents) // ", radius " // str(data%radius) // ", dt " // str(data%dt) // &
-        ") than the input (n_agents " // str(cfg%agents%n_agents) // ", radius " // str(cfg%agents%radius) // &
+        ") than the input (n_agents " // str(cfg%agents%n_agents) // ", radius " // &
+        str(cfg%agents%radius + cfg%agents%social_distance / 2) // &
         ", dt " // str(cfg%time%dt) // ")", 2); return
     end if
     data%n_dof = hdr%n_dof

@@ -23,6 +23,7 @@ module cr_fom_file
   use cr_config, only: config_t, config_echo
   use cr_fom, only: fom_t, step_record_t
   use cr_scene, only: scene_t
+  use cr_pdda_file, only: exit_segments
   use cr_h5file, only: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64
   use cr_strings, only: str
   use cr_grow, only: grow_kept_int, grow_kept_real
@@ -439,6 +440,7 @@ contains
     integer, allocatable :: kind(:), start(:)
     real(wp), allocatable :: rad(:), verts(:,:)
     real(wp) :: ex(2, 2), dom(4)
+    real(wp), allocatable :: exits(:,:)
     n = scene%n_obstacles()
     allocate(kind(n), start(n + 1), rad(n))
     start(1) = 0
@@ -460,6 +462,9 @@ contains
     ex(:, 1) = [scene%x_lo, scene%width]
     ex(:, 2) = [scene%x_hi, scene%width]
     call h5%write("scene/exit_segment", ex, error); if (allocated(error)) return
+    ! every exit: x0, y0, x1, y1 of each opening [4, n_exits] (exit 1 top wall, exit 2 right wall)
+    call exit_segments(scene, exits)
+    call h5%write("scene/exit_segments", exits, error); if (allocated(error)) return
     dom = [-scene%wall, -scene%wall, scene%length + scene%wall, &
       scene%width + scene%wall + 0.3_wp * scene%width]
     call h5%write("scene/domain", dom, error); if (allocated(error)) return
@@ -467,6 +472,7 @@ contains
     call h5%write_attr("scene", "hall_width", scene%width, error); if (allocated(error)) return
     call h5%write_attr("scene", "wall_thickness", scene%wall, error); if (allocated(error)) return
     call h5%write_attr("scene", "l_exit", scene%l_exit, error); if (allocated(error)) return
+    call h5%write_attr("scene", "n_exits", size(exits, 2), error); if (allocated(error)) return
     call h5%write_attr("scene", "n_walls", scene%n_walls, error)
   end subroutine write_scene
 end module cr_fom_file

@@ -559,7 +559,9 @@ contains
       meta%n_expanded = space%n_expanded
       meta%n_train = sets(1)%n
       meta%n_valid = sets(2)%n
-      meta%radius = fom_ref%radius
+      ! the contact radius (the body radius plus half the social distance): the reduced stages
+      ! evaluate their contacts with the database's radius
+      meta%radius = fom_ref%contact_radius
       meta%dt = fom_ref%dt
     end subroutine fill_meta
   end subroutine execute
