@@ -65,6 +65,11 @@ contains
       "heterogeneous population: components (the spread brings its seed)")
     call h2%init_from_components(h%component_names(), n, err)
     call check(.not. allocated(err), "heterogeneous components read back")
+    call h2%init_from_components("speed_mean,speed_seed,speed_spread", n, err)
+    call check(allocated(err), "a seed component not after its spread refused")
+    call h2%init_from_components("l_exit,speed_mean", n, err)
+    call check(allocated(err), "speed_mean without speed_spread refused")
+    call h2%init_from_components(h%component_names(), n, err)
     m = 1.2_wp; sp = 0.3_wp
     mu = [0.3_wp, m, sp, 4321.0_wp]
     s1 = 9; s2 = 7

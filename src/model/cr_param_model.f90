@@ -101,7 +101,7 @@ contains
         tok == 'speed_spread') then
         n = n + 1; names(n) = tok
       else if (tok == 'speed_seed') then
-        ! the second component of 'speed_spread' (the check below refuses it elsewhere)
+        ! the second component of 'speed_spread' (the comparison at the end refuses it anywhere else)
       else if (index(tok, 'speed_') == 1) then
         read(tok(7:), *, iostat=ios) j
         if (ios /= 0) then
