@@ -223,6 +223,11 @@ def fig_curves(meta, runs, settings, samples, ml, out, dpi):
     plt.close(fig)
 
 
+def unit(name):
+    """The unit of a parameter component (speeds m/s, widths m, the speed draw's seed none)."""
+    return "m/s" if name.startswith("speed") and name != "speed_seed" else ("-" if name == "speed_seed" else "m")
+
+
 def fig_t90_map(meta, runs, setting, out, dpi):
     plt = _plt()
     names = meta["param_names"]
@@ -230,7 +235,7 @@ def fig_t90_map(meta, runs, setting, out, dpi):
     ix = [names.index(n) for n in ("l_exit", "l_exit2") if n in names]
     if len(ix) < 2:
         ix = [0, 1] if len(names) > 1 else [0, 0]
-    isp = names.index("speed") if "speed" in names else None
+    isp = next((names.index(n) for n in ("speed", "speed_mean") if n in names), None)
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
     pts = []
     for name, marker in (("train", "o"), ("valid", "^")):
@@ -267,8 +272,8 @@ def fig_t90_map(meta, runs, setting, out, dpi):
     titles = ("full model t90", f"ROM t90: ({s['n']}, {s['r']}) {s['hyper']}/{mode(s)}",
               "relative error of t90 (x: not reached)")
     for ax, title in zip(axes, titles):
-        ax.set_xlabel(f"{names[ix[0]]} [m]")
-        ax.set_ylabel(f"{names[ix[1]]} [m]")
+        ax.set_xlabel(f"{names[ix[0]]} [{unit(names[ix[0]])}]")
+        ax.set_ylabel(f"{names[ix[1]]} [{unit(names[ix[1]])}]")
         ax.set_title(title, fontsize=10)
         ax.grid(alpha=0.3)
     if isp is not None:

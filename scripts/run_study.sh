@@ -2,7 +2,9 @@
 # The whole parametric study on one case: set up (packages, venv, Release build), snapshots on
 # 2 ranks, offline bases on 2 ranks, the online ROM sweep, the ML correction, all figures, and
 # the accuracy/speed table.
-#   scripts/run_study.sh [hall20|congested150|crowd1000]        (default: hall20)
+#   scripts/run_study.sh [CASE]        (default: hall20)
+# CASE: hall20, congested150, crowd1000 (the paper's two studies and the 1 000-agent hall), or the
+# evacuation scenes congested150_evac, hetero1000 (docs/scenes.md)
 # Inputs: inputs/<case>_study.nml (&study + &offline), inputs/<case>_rom.nml (&rom),
 # inputs/<case>_ml.json (ML settings). Results in results/: <case>_snapshots.h5, <case>_rom.h5,
 # <case>_romrun.h5, <case>_table.csv, <case>_ml.h5, figures in results/<case>_figures/
@@ -13,12 +15,13 @@
 set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 CASE=${1:-hall20}
+CASES="hall20, congested150, congested150_evac, crowd1000, hetero1000"
 NP=${NP:-2}
 if [ -z "${CROWDROM_BIN:-}" ]; then "$ROOT/scripts/setup.sh"; fi
 BIN=${CROWDROM_BIN:-$ROOT/build/bin}
 cd "${CROWDROM_WORK:-$ROOT}"
 for f in "inputs/${CASE}_study.nml" "inputs/${CASE}_rom.nml" "inputs/${CASE}_ml.json"; do
-  [ -f "$f" ] || { echo "run_study: error: $f not found (cases: hall20, congested150, crowd1000)" >&2; exit 2; }
+  [ -f "$f" ] || { echo "run_study: error: $f not found (cases: $CASES)" >&2; exit 2; }
 done
 mkdir -p results
 export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1

@@ -43,6 +43,8 @@ if(EXISTS ${CR_VENV_PY})
   cr_pytest(pytest_answers TIMEOUT 600 FILES test_answers.py)
   # the scaled-down 1 000-agent study end to end (two exits, run_study.sh on 2 ranks): its own test
   cr_pytest(pytest_crowd1000_mini TIMEOUT 1500 PROCESSORS 2 FILES test_crowd1000_mini.py)
+  # the heterogeneous population (speed_mean, speed_spread) end to end at test size
+  cr_pytest(pytest_hetero TIMEOUT 900 PROCESSORS 2 FILES test_hetero.py)
 
   # any test file not named above
   file(GLOB CR_PY_ALL RELATIVE ${CMAKE_SOURCE_DIR}/scripts/tests CONFIGURE_DEPENDS

@@ -57,6 +57,7 @@ cr_snap_bad(range "&study: empty range for parameter 1 'l_exit'")
 cr_snap_bad(zero "&study: n_train must be >= 1 \\(got 0: zero samples\\)")
 cr_snap_bad(grid "&study: grid_n gives 6 training samples but n_train = 5")
 cr_snap_bad(until_empty "&time: until_empty = .true. is not allowed in a study")
+cr_snap_bad(spread "&study: param_min\\(2\\) = -1.00000E-01: the speed_spread range must be >= 0")
 add_test(NAME snapshots_bad_stop_after_fom
   COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/expect_fail.sh "unknown option '--stop-after'" bad_out.h5
     $<TARGET_FILE:crowd_fom> ${CR_INPUTS}/bad_dt.nml --stop-after 2

@@ -6,8 +6,16 @@
 !> stores each sample's mapped scene, so the Python side never re-implements the geometry.
 !>
 !> mu has n_expanded components: one per parameter, except 'speeds' which contributes n_agents
-!> (speed_1..speed_N). The component names ("l_exit,speed_1,...") are stored in the files and
-!> `init_from_components` rebuilds the same mapping from them.
+!> (speed_1..speed_N) and 'speed_spread' which contributes two (speed_spread, speed_seed). The
+!> component names ("l_exit,speed_1,...") are stored in the files and `init_from_components`
+!> rebuilds the same mapping from them.
+!>
+!> A heterogeneous population: 'speed_mean' m and 'speed_spread' s (always together) give agent
+!> i the desired speed c_i = m + s (2 u_i - 1), the u_i uniform in (0, 1) drawn in agent order
+!> from the generator cr_random seeded with the sample's 'speed_seed' component (an integer in
+!> 0..SPEED_SEED_MAX that the sampling draws and the files store): c_i uniform on (m - s, m + s),
+!> mean m, standard deviation s / sqrt(3), independent between agents, and the same speeds from
+!> the same (m, s, seed) in every program and on every rank.
 module cr_param_model
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error, prefix_error
@@ -15,13 +23,19 @@ module cr_param_model
   use cr_config, only: config_t
   use cr_scene, only: scene_t
   use cr_desired, only: desired_t
+  use cr_random, only: rng_t
   implicit none
   private
-  public :: param_model_t, KNOWN_PARAMS, KNOWN_PARAMS_TEXT
+  public :: param_model_t, KNOWN_PARAMS, KNOWN_PARAMS_TEXT, SPEED_SEED_MAX, draw_speeds
 
   !> parameter names a study may vary
-  character(len=8), parameter :: KNOWN_PARAMS(4) = [character(len=8) :: 'l_exit', 'speed', 'speeds', 'l_exit2']
-  character(len=*), parameter :: KNOWN_PARAMS_TEXT = "l_exit, speed, speeds, l_exit2"
+  character(len=12), parameter :: KNOWN_PARAMS(6) = [character(len=12) :: 'l_exit', 'speed', 'speeds', &
+    'l_exit2', 'speed_mean', 'speed_spread']
+  character(len=*), parameter :: KNOWN_PARAMS_TEXT = "l_exit, speed, speeds, l_exit2, speed_mean, speed_spread"
+  !> the largest per-sample seed of the speed draw (a component within the sane magnitudes)
+  integer, parameter :: SPEED_SEED_MAX = 999999
+  !> the generator stream of the per-agent speed draw
+  integer, parameter :: SPEED_STREAM = 7
 
   !> The parameters of a study, expanded to components.
   type :: param_model_t
@@ -57,6 +71,7 @@ contains
       this%first(k) = m + 1
       this%width(k) = 1
       if (names(k) == 'speeds') this%width(k) = n_agents
+      if (names(k) == 'speed_spread') this%width(k) = 2
       m = m + this%width(k)
     end do
     this%n_expanded = m
@@ -82,8 +97,11 @@ contains
       end if
       tok = trim(adjustl(csv(i0:i1 - 1)))
       i0 = i1 + 1
-      if (tok == 'l_exit' .or. tok == 'speed' .or. tok == 'l_exit2') then
+      if (tok == 'l_exit' .or. tok == 'speed' .or. tok == 'l_exit2' .or. tok == 'speed_mean' .or. &
+        tok == 'speed_spread') then
         n = n + 1; names(n) = tok
+      else if (tok == 'speed_seed') then
+        ! the second component of 'speed_spread' (the comparison at the end refuses it anywhere else)
       else if (index(tok, 'speed_') == 1) then
         read(tok(7:), *, iostat=ios) j
         if (ios /= 0) then
@@ -99,6 +117,10 @@ contains
       if (n >= size(names)) exit
     end do
     call this%init_model(names(1:n), n_agents)
+    if (any(names(1:n) == 'speed_mean') .neqv. any(names(1:n) == 'speed_spread')) then
+      call set_error(error, "parameter components '" // csv // "': speed_mean and speed_spread go together", 2)
+      return
+    end if
     if (this%component_names() /= csv) call set_error(error, "parameter components '" // csv // &
       "' do not describe " // str(n_agents) // " agents", 2)
   end subroutine init_from_components
@@ -110,7 +132,9 @@ contains
     integer :: k, i
     s = ""
     do k = 1, this%n_params
-      if (this%names(k) /= 'speeds') then
+      if (this%names(k) == 'speed_spread') then
+        s = s // "speed_spread,speed_seed,"
+      else if (this%names(k) /= 'speeds') then
         s = s // trim(this%names(k)) // ","
       else
         do i = 1, this%width(k)
@@ -130,7 +154,8 @@ contains
     type(config_t), intent(inout) :: cfg
     !> speeds [n_agents]: reference speeds on entry, the sample's speeds on return
     real(wp), intent(inout) :: speeds(:)
-    integer :: k, j
+    integer :: k, j, js, jm
+    js = 0; jm = 0
     do k = 1, this%n_params
       j = this%first(k)
       select case (trim(this%names(k)))
@@ -140,11 +165,37 @@ contains
         cfg%scene%l_exit2 = mu(j)
       case ('speed')
         speeds = mu(j)
+      case ('speed_mean')
+        jm = j
       case ('speeds')
         speeds = mu(j:j + this%width(k) - 1)
+      case ('speed_spread')
+        js = j
       end select
     end do
+    ! 'speed_mean' and 'speed_spread' come together (check_study, init_from_components)
+    if (jm > 0 .and. js > 0) then
+      call draw_speeds(mu(jm), mu(js), nint(mu(js + 1)), speeds)
+    else if (jm > 0) then
+      speeds = mu(jm)
+    end if
   end subroutine apply
+
+  !> Each agent's desired speed c_i = mean + spread (2 u_i - 1), u_i uniform in (0, 1) drawn in
+  !> agent order from the generator seeded with (seed, SPEED_STREAM): uniform on
+  !> (mean - spread, mean + spread).
+  subroutine draw_speeds(mean, spread, seed, speeds)
+    real(wp), intent(in) :: mean, spread
+    integer, intent(in) :: seed
+    !> the agents' speeds [n_agents]
+    real(wp), intent(out) :: speeds(:)
+    type(rng_t) :: rng
+    integer :: i
+    call rng%seed(seed, SPEED_STREAM)
+    do i = 1, size(speeds)
+      speeds(i) = mean + spread * (2.0_wp * rng%uniform() - 1.0_wp)
+    end do
+  end subroutine draw_speeds
 
   !> The scene of sample mu (reference configuration cfg_ref).
   subroutine scene_of(this, mu, cfg_ref, scene, error)

@@ -4,14 +4,16 @@
 !> (sample k of a set uses its own random stream), so the samples never depend on the number
 !> of ranks. Training: uniform random in the box or a tensor grid (first parameter fastest,
 !> end points included; one point means the midpoint). Validation: uniform random in the box
-!> (streams disjoint from training), checked to be disjoint from the training samples.
+!> (streams disjoint from training), checked to be disjoint from the training samples. The
+!> speed_seed component of 'speed_spread' is an integer drawn uniformly in 0..SPEED_SEED_MAX from
+!> the same stream (its box is that range).
 module cr_sampling
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error, problems_t, prefix_error
   use cr_config_check, only: check_config, need_sane, MAX_SPEED
   use cr_strings, only: str
   use cr_random, only: rng_t
-  use cr_param_model, only: param_model_t
+  use cr_param_model, only: param_model_t, SPEED_SEED_MAX
   use cr_config, only: config_t
   use cr_study_config, only: study_cfg_t
   implicit none
@@ -22,6 +24,8 @@ module cr_sampling
   type, extends(param_model_t) :: param_space_t
     !> bounds of each component [n_expanded]
     real(wp), allocatable :: lo(:), hi(:)
+    !> components that take integer values (the speed_seed components) [n_expanded]
+    logical, allocatable :: integral(:)
   contains
     procedure :: init => space_init
     procedure :: check_values
@@ -45,10 +49,16 @@ contains
     integer :: k, m
     call this%init_model(s%param_name(1:s%n_params), n_agents)
     m = this%n_expanded
-    allocate(this%lo(m), this%hi(m))
+    allocate(this%lo(m), this%hi(m), this%integral(m))
+    this%integral = .false.
     do k = 1, s%n_params
       this%lo(this%first(k):this%first(k) + this%width(k) - 1) = s%param_min(k)
       this%hi(this%first(k):this%first(k) + this%width(k) - 1) = s%param_max(k)
+      if (this%names(k) == 'speed_spread') then
+        this%lo(this%first(k) + 1) = 0
+        this%hi(this%first(k) + 1) = SPEED_SEED_MAX
+        this%integral(this%first(k) + 1) = .true.
+      end if
     end do
   end subroutine space_init
 
@@ -72,6 +82,9 @@ contains
     end do
     call probs%to_error(what, error)
     if (allocated(error)) return
+    call check_spread_values(this, mu, probs)
+    call probs%to_error(what, error)
+    if (allocated(error)) return
     c = cfg
     allocate(speeds(max(cfg%agents%n_agents, 0)))
     speeds = cfg%agents%speed
@@ -84,6 +97,26 @@ contains
     call check_config(c, error)
     if (allocated(error)) call prefix_error(error, what // " gives an invalid scene")
   end subroutine check_values
+
+  !> The heterogeneous population's components: mean > 0, 0 <= spread <= mean, the seed an
+  !> integer in 0..SPEED_SEED_MAX.
+  subroutine check_spread_values(this, mu, probs)
+    class(param_space_t), intent(in) :: this
+    real(wp), intent(in) :: mu(:)
+    type(problems_t), intent(inout) :: probs
+    integer :: km, ks
+    real(wp) :: mean, spread, seed
+    km = findloc(this%names, 'speed_mean', dim=1)
+    ks = findloc(this%names, 'speed_spread', dim=1)
+    if (km == 0 .or. ks == 0) return
+    mean = mu(this%first(km)); spread = mu(this%first(ks)); seed = mu(this%first(ks) + 1)
+    call probs%need(mean > 0, "speed_mean = " // str(mean) // " must be > 0")
+    call probs%need(spread >= 0, "speed_spread = " // str(spread) // " must be >= 0")
+    if (mean > 0 .and. spread >= 0) call probs%need(spread <= mean, "speed_spread = " // str(spread) // &
+      " must not exceed speed_mean = " // str(mean) // " (a speed would be negative)")
+    call probs%need(seed == aint(seed) .and. seed >= 0 .and. seed <= SPEED_SEED_MAX, "speed_seed = " // &
+      str(seed) // " must be an integer in 0.." // str(SPEED_SEED_MAX))
+  end subroutine check_spread_values
 
   !> Training and validation samples of the study (identical on every rank).
   subroutine generate_samples(s, space, train, valid, error)
@@ -134,7 +167,11 @@ contains
       integer :: c
       call rng%seed(s%seed, stream)
       do c = 1, size(mu)
-        mu(c) = space%lo(c) + (space%hi(c) - space%lo(c)) * rng%uniform()
+        if (space%integral(c)) then
+          mu(c) = min(aint(space%lo(c) + (space%hi(c) - space%lo(c) + 1) * rng%uniform()), space%hi(c))
+        else
+          mu(c) = space%lo(c) + (space%hi(c) - space%lo(c)) * rng%uniform()
+        end if
       end do
     end subroutine draw
   end subroutine generate_samples

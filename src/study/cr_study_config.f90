@@ -7,7 +7,10 @@
 !>
 !> Parameter names: 'l_exit' (exit width, m), 'l_exit2' (second exit, right wall, m), 'speed' (one desired speed c shared by every
 !> agent, m/s), 'speeds' (each agent's speed c_i drawn independently in [param_min, param_max]:
-!> n_agents components). Bounds are absolute. Reading follows cr_config (defaults, iostat,
+!> n_agents components), 'speed_mean' and 'speed_spread' (together: each agent's speed drawn
+!> uniformly on [mean - spread, mean + spread] from a per-sample seed component, see
+!> cr_param_model; mean > 0, spread >= 0 and spread <= mean over the whole box, so that no speed
+!> is negative). Bounds are absolute. Reading follows cr_config (defaults, iostat,
 !> message naming file and group); check_study collects every problem.
 module cr_study_config
   use cr_kinds, only: wp, i8
@@ -108,7 +111,7 @@ contains
     character(len=:), allocatable :: nm
     np = min(max(s%n_params, 0), MAX_PARAMS)
     do k = 1, np
-      if (trim(s%param_name(k)) == 'speed' .or. trim(s%param_name(k)) == 'speeds') then
+      if (index(s%param_name(k), 'speed') == 1) then
         call need_sane(probs, s%param_min(k), "&study: param_min(" // str(k) // ")", MAX_SPEED)
         call need_sane(probs, s%param_max(k), "&study: param_max(" // str(k) // ")", MAX_SPEED)
       else
@@ -124,12 +127,8 @@ contains
       str(MAX_PARAMS) // " (got " // str(s%n_params) // ")")
     do k = 1, np
       nm = trim(s%param_name(k))
-      select case (nm)
-      case (KNOWN_PARAMS(1), KNOWN_PARAMS(2), KNOWN_PARAMS(3), KNOWN_PARAMS(4))
-      case default
-        call probs%need(.false., "&study: param_name(" // str(k) // ") = '" // nm // &
-          "' is not a known parameter (known: " // KNOWN_PARAMS_TEXT // ")")
-      end select
+      if (.not. any(KNOWN_PARAMS == nm)) call probs%need(.false., "&study: param_name(" // str(k) // ") = '" // &
+        nm // "' is not a known parameter (known: " // KNOWN_PARAMS_TEXT // ")")
       do j = 1, k - 1
         call probs%need(s%param_name(j) /= s%param_name(k), "&study: parameter '" // nm // "' is given twice")
       end do
@@ -152,16 +151,23 @@ contains
           cfg%scene%exit2_center + s%param_max(k) / 2 <= cfg%scene%hall_width, &
           "&study: l_exit2 up to " // str(s%param_max(k)) // " puts the second opening outside the right wall " // &
           "(exit2_center = " // str(cfg%scene%exit2_center) // ")")
+      else if (nm == 'speed_mean') then
+        call probs%need(s%param_min(k) > 0, "&study: param_min(" // str(k) // ") = " // str(s%param_min(k)) // &
+          ": the speed_mean range must be > 0")
+      else if (nm == 'speed_spread') then
+        call probs%need(s%param_min(k) >= 0, "&study: param_min(" // str(k) // ") = " // str(s%param_min(k)) // &
+          ": the speed_spread range must be >= 0")
       else if (nm == 'speed' .or. nm == 'speeds') then
         call probs%need(s%param_min(k) >= 0, "&study: " // nm // " range must be >= 0 (param_min = " // &
           str(s%param_min(k)) // ")")
-        ! prescribed desired velocities ignore the speeds: every sample would be the same
-        call probs%need(cfg%desired%mode /= 'file', "&study: parameter '" // nm // "' has no effect with " // &
-          "&desired mode = 'file' (prescribed velocities): every sample would be identical")
       end if
+      ! prescribed desired velocities ignore the speeds: every sample would be the same
+      if (index(nm, 'speed') == 1) call probs%need(cfg%desired%mode /= 'file', "&study: parameter '" // nm // &
+        "' has no effect with &desired mode = 'file' (prescribed velocities): every sample would be identical")
     end do
     if (any(s%param_name(1:np) == 'speed') .and. any(s%param_name(1:np) == 'speeds')) &
       call probs%need(.false., "&study: 'speed' (one common speed) and 'speeds' (one per agent) exclude each other")
+    call check_spread(s, np, probs)
     do k = np + 1, MAX_PARAMS
       call probs%need(len_trim(s%param_name(k)) == 0, "&study: param_name(" // str(k) // ") = '" // &
         trim(s%param_name(k)) // "' is beyond n_params = " // str(s%n_params))
@@ -185,6 +191,8 @@ contains
     case ('grid')
       call probs%need(.not. any(s%param_name(1:np) == 'speeds'), "&study: sampling = 'grid' cannot vary " // &
         "'speeds' (one component per agent); use 'speed' or sampling = 'random'")
+      call probs%need(.not. any(s%param_name(1:np) == 'speed_spread'), "&study: sampling = 'grid' cannot vary " // &
+        "'speed_spread' (its speed_seed component is drawn); use sampling = 'random'")
       call probs%need(all(s%grid_n(1:np) >= 1), "&study: sampling = 'grid' needs grid_n(1:n_params) >= 1")
       if (all(s%grid_n(1:np) >= 1) .and. np >= 1) then
         ngrid8 = product(int(s%grid_n(1:np), i8))
@@ -201,6 +209,27 @@ contains
     call probs%to_error("", error)
 
   end subroutine check_study
+
+  !> The heterogeneous population's parameters: 'speed_mean' and 'speed_spread' together, without
+  !> 'speed' / 'speeds', and spread <= mean everywhere in the box (no negative speed).
+  subroutine check_spread(s, np, probs)
+    type(study_cfg_t), intent(in) :: s
+    integer, intent(in) :: np
+    type(problems_t), intent(inout) :: probs
+    integer :: km, ks
+    km = findloc(s%param_name(1:np), 'speed_mean', dim=1)
+    ks = findloc(s%param_name(1:np), 'speed_spread', dim=1)
+    if (km == 0 .and. ks == 0) return
+    if (km == 0 .or. ks == 0) then
+      call probs%need(.false., "&study: param_name: 'speed_mean' and 'speed_spread' go together (the mean " // &
+        "and the spread of the agents' speeds)"); return
+    end if
+    call probs%need(.not. any(s%param_name(1:np) == 'speed' .or. s%param_name(1:np) == 'speeds'), &
+      "&study: param_name: 'speed_mean' / 'speed_spread' exclude 'speed' and 'speeds'")
+    call probs%need(s%param_max(ks) <= s%param_min(km), "&study: param_max(" // str(ks) // ") = " // &
+      str(s%param_max(ks)) // ": the speed_spread range must not exceed param_min(" // str(km) // ") = " // &
+      str(s%param_min(km)) // " of speed_mean (a speed mean - spread < 0)")
+  end subroutine check_spread
 
   !> &study as a re-readable namelist group (without database when with_database is false).
   function study_echo(s, with_database) result(t)
