@@ -129,3 +129,24 @@ def test_answers_qoi_the_product_lacks(study):
     assert r.stderr.count("\n") == 1 and "QoI 'flow_2': the product's scene has 1 exit" in r.stderr
     assert "model 'exact'" in r.stderr
     assert sorted(p.name for p in work.iterdir()) == ["models.json", "q.json"]
+
+
+def test_build_cost_from_stage_summaries(tmp_path):
+    """builds entries read from the stages' --summary JSON: crowd_snapshots' busy seconds summed
+    over the ranks, crowd_offline's stage times times its ranks; anything else refused."""
+    import crowd_answers
+    snap = tmp_path / "snap.json"
+    snap.write_text(json.dumps({"program": "crowd_snapshots", "samples_total": 9,
+                                "busy_time_per_rank": [1.5, 2.5], "wall_time": 3.0}))
+    off = tmp_path / "off.json"
+    off.write_text(json.dumps({"rom_file": "r.h5", "ranks": 2, "time_read": 0.5, "time_pod": 1.0,
+                               "pod_energy_retained": 0.99}))
+    assert crowd_answers.build_cost("m.json", "builds[0]", {"summary": str(snap)}) == (9, 4.0)
+    assert crowd_answers.build_cost("m.json", "builds[1]", {"summary": str(off)}) == (0, 3.0)
+    with pytest.raises(InputError, match=r"m.json: builds\[2\].summary: .* is neither"):
+        crowd_answers.build_cost("m.json", "builds[2]", {"summary": str(_write(tmp_path / "o.json", {"ranks": 2}))})
+
+
+def _write(path, doc):
+    path.write_text(json.dumps(doc))
+    return path
