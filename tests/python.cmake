@@ -39,6 +39,8 @@ if(EXISTS ${CR_VENV_PY})
   cr_pytest(pytest_ml TIMEOUT 300 FILES test_ml.py test_ml_project.py)
   # prediction for new parameters (crowd_predict, ml_correct.py --predict) on the tiny study
   cr_pytest(pytest_predict TIMEOUT 300 FILES test_predict.py)
+  # the answers engine on the real models (crowd_predict on the tiny study, M0 and M3)
+  cr_pytest(pytest_answers_predict TIMEOUT 180 FILES test_answers_predict.py)
   # answers with a stated error: estimators on synthetic models with known moments (no build needed)
   cr_pytest(pytest_answers TIMEOUT 600 FILES test_answers.py)
   # the scaled-down 1 000-agent study end to end (two exits, run_study.sh on 2 ranks): its own test

@@ -5,8 +5,8 @@ Modules (one concept each):
 
 * ``questions``  the questions file (JSON): parameter box, distributions, questions, accuracy;
 * ``backend``    models as backends: parameters [n, d] and seeds [n] in, QoI values [n] and CPU
-  seconds out (``SyntheticFamily`` of correlated models with known moments, ``CommandBackend``
-  running a program that writes the QoI product);
+  seconds out (``SyntheticFamily`` of correlated models with known moments, ``PredictBackend``
+  running crowd_predict on the exact model or a reduced setting of a ROM file);
 * ``ledger``     the cost ledger (CPU seconds per stage and model);
 * ``intervals``  the ``Answer`` record and the single-sample statistics with their intervals;
 * ``mfmc``       multi-fidelity Monte Carlo: allocation, estimators, variances;

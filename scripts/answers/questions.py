@@ -25,7 +25,7 @@ from scipy import stats
 from crowdrom_io import InputError
 
 #: quantities of interest a question may name (the scalar QoIs of the crowdrom-qoi product)
-QOI_NAMES = ("t50", "t90", "t100", "flow_1", "flow_2", "flow_rate_1", "flow_rate_2")
+QOI_NAMES = ("t50", "t90", "t100", "flow_1", "flow_2", "flow_rate_1", "flow_rate_2", "displacement")
 KINDS = ("map", "moments", "exceedance")
 DIST_KEYS = {"fixed": ("value",), "uniform": ("low", "high"),
              "truncnormal": ("mean", "std", "low", "high"), "triangular": ("low", "mode", "high")}

@@ -187,10 +187,17 @@ def _run_planned(q, stat, c, eps, pilot, pilot_ledger, exact_pilot, setup, conf,
     s = setup.seed * 1000 + 500
     for attempt in range(2):
         if c.method == "M0":
-            n = c.plan["n"] if a is None else int(math.ceil(c.plan["n"] * (a.stated_error / eps) ** 2 * 1.1))
+            if a is None:
+                n = c.plan["n"]
+            elif np.isfinite(a.stated_error):
+                n = int(math.ceil(c.plan["n"] * (a.stated_error / eps) ** 2 * 1.1))
+            else:       # an unbounded interval (too few runs for the quantile's order statistics)
+                n = 4 * c.plan["n"]
             a = methods.m0(q, stat, setup.exact, n, s, conf, spent, cache)
             a.ledger = exact_pilot.copy().extend(spent)
         else:
+            if a is not None and not np.isfinite(a.stated_error):
+                break
             plan = c.plan if a is None else methods.m3_plan(
                 pilot, stat, target_sd(stat, pilot.Y[:, 0], eps, z, q.threshold, q.percentile)
                 * eps / a.stated_error / 1.05, q)
