@@ -22,7 +22,7 @@ if [ ${#missing[@]} -gt 0 ]; then
 fi
 
 # Python post-processing environment
-if ! .venv/bin/python -c "import numpy, h5py, sklearn, matplotlib, pytest, joblib" >/dev/null 2>&1; then
+if ! .venv/bin/python -c "import numpy, scipy, h5py, sklearn, matplotlib, pytest, joblib, pedpy" >/dev/null 2>&1; then
   echo "setup: creating Python venv in .venv"
   python3 -m venv .venv
   .venv/bin/python -m pip install -q --upgrade pip >/dev/null
