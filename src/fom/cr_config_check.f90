@@ -13,7 +13,7 @@ module cr_config_check
   use cr_sane, only: need_sane, MAX_LENGTH, MIN_LENGTH, MAX_SPEED
   implicit none
   private
-  public :: check_config, PACKING_LIMIT, need_sane, MAX_LENGTH, MIN_LENGTH, MAX_SPEED, MAX_STEPS
+  public :: check_config, PACKING_LIMIT, MAX_STEPS
 
   !> the largest number of time steps (records of every step are kept in memory)
   integer, parameter :: MAX_STEPS = 10000000

@@ -32,41 +32,18 @@ module cr_fom
   use cr_placement, only: place_agents
   use cr_projection, only: projection_solver_t, solve_stats_t, make_projection_solver
   use cr_key_map, only: key_map_t
+  use cr_fom_state, only: fom_state_t, step_record_t
   implicit none
   private
   public :: fom_t, step_record_t
 
-  !> What one step did (stored per step in the output).
-  type :: step_record_t
-    integer :: step = 0
-    integer :: iterations = 0
-    !> the solver's stopping test was met *and* the scaled KKT residual is <= &solver tol
-    !> (a step whose stopping test was met with a larger residual is not counted as converged)
-    logical :: converged = .true.
-    real(wp) :: primal = 0, dual = 0, compl = 0, stat = 0, kkt = 0
-    integer :: n_rows = 0, n_active = 0, resolves = 0, n_inside = 0
-    !> smallest true gap over the candidate rows after the step
-    real(wp) :: min_gap = huge(1.0_wp)
-    real(wp) :: t_solve = 0, t_step = 0
-    !> sparse_active_set: numeric factorisations, factor row additions/deletions, solves handed
-    !> to the safe path (summed over the re-solves of the step)
-    integer :: n_factor = 0, n_modify = 0, n_fallback = 0
-    !> active-set changes of the step: candidate rows active (lambda > 0) in the solution but
-    !> not in the warm start, or the reverse (last solve of the step; any solver). An exact
-    !> solver that updates a factor needs at least this many row additions and deletions.
-    integer :: n_changes = 0
-  end type step_record_t
-
-  !> State of a full-order simulation.
-  type :: fom_t
-    type(scene_t) :: scene
+  !> State of a full-order simulation: what the output holds (fom_state_t: scene, rows,
+  !> positions, velocities, multipliers, inside flags) and what the stepping keeps.
+  type, extends(fom_state_t) :: fom_t
     type(desired_t) :: desired
     class(projection_solver_t), allocatable :: solver
-    type(contact_set_t) :: cs
     type(cell_list_t) :: cells
-    integer :: n_agents = 0, step = 0
-    !> body radius r and contact radius r + d_s / 2 (d_s: social distance)
-    real(wp) :: radius = 0, contact_radius = 0, dt = 0, cutoff_factor = 1.5_wp
+    real(wp) :: cutoff_factor = 1.5_wp
     !> density-dependent desired speed (off: the speeds c_i as given)
     type(density_speed_t) :: density
     !> share of the desired speed added to the previous speed in the margins (a predictor only: any
@@ -76,18 +53,10 @@ module cr_fom
     !> rows
     real(wp) :: speed_allowance = 0.5_wp
     logical :: warm_start = .true.
-    !> positions, desired and actual velocities [2*n_agents]
-    real(wp), allocatable :: q(:), v(:), u(:)
-    !> speeds c_i [n_agents]
-    real(wp), allocatable :: speeds(:)
     !> candidate-row margin of each agent in the current step, and h |u_i| [n_agents]
     real(wp), allocatable :: margin(:), need(:)
-    !> multipliers of the current rows [cs%n]
-    real(wp), allocatable :: lambda(:)
     !> the warm start of the current solve (for step_record_t%n_changes)
     real(wp), allocatable :: lambda_warm(:)
-    !> agents still in the hall [n_agents]
-    logical, allocatable :: inside(:)
     !> multipliers of the previous step's rows by identity (warm start), and the identities
     !> of the current rows [>= cs%n]
     type(key_map_t) :: prev

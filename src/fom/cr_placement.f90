@@ -20,13 +20,14 @@ module cr_placement
   use cr_shapes, only: make_rectangle, obstacle_bbox
   use cr_random, only: rng_t
   use cr_h5file, only: h5file_t
+  use cr_xy_text, only: read_xy_text
   use cr_contact_set, only: contact_set_t
   use cr_neighbours, only: cell_list_t, build_contacts
   use cr_projection, only: projection_solver_t, projection_settings_t, solve_stats_t, &
     make_projection_solver
   implicit none
   private
-  public :: place_agents, read_positions_text, read_positions_h5, check_feasible
+  public :: place_agents, read_positions_h5, check_feasible
 
   !> projections without a 1% decrease of the largest overlap before placement gives up
   integer, parameter :: STALL_ITER = 60
@@ -50,7 +51,7 @@ contains
       if (is_hdf5_name(trim(cfg%init_file))) then
         call read_positions_h5(trim(cfg%init_file), cfg%n_agents, q, error)
       else
-        call read_positions_text(trim(cfg%init_file), cfg%n_agents, q, error)
+        call read_xy_text(trim(cfg%init_file), cfg%n_agents, "&agents: init_file", "x y", q, error)
       end if
       if (allocated(error)) return
       call check_feasible(scene, q, cfg%radius, "&agents: init_file '" // trim(cfg%init_file) // "'", error)
@@ -170,33 +171,6 @@ contains
         " projection iterations (" // why // "); use fewer agents or a larger region", 2)
     end if
   end subroutine separate
-
-  !> Read n lines "x y" from a plain text file into q [2n].
-  subroutine read_positions_text(path, n, q, error)
-    character(len=*), intent(in) :: path
-    integer, intent(in) :: n
-    real(wp), allocatable, intent(out) :: q(:)
-    type(error_t), allocatable, intent(out) :: error
-    integer :: u, ios, k
-    character(len=256) :: msg
-    allocate(q(2 * n))
-    open(newunit=u, file=path, status='old', action='read', iostat=ios, iomsg=msg)
-    if (ios /= 0) then
-      call set_error(error, "&agents: init_file: cannot open '" // path // "' (" // trim(msg) // ")", 2)
-      return
-    end if
-    do k = 1, n
-      read(u, *, iostat=ios, iomsg=msg) q(2*k-1), q(2*k)
-      if (ios /= 0) then
-        call set_error(error, "&agents: init_file: '" // path // "' line " // str(k) // &
-          ": expected two numbers 'x y' per agent for n_agents = " // str(n) // " (" // trim(msg) // ")", 2)
-        close(u); return
-      end if
-    end do
-    close(u)
-    if (any(q /= q) .or. any(abs(q) > huge(1.0_wp) / 4)) &
-      call set_error(error, "&agents: init_file: '" // path // "' has a non-finite value", 2)
-  end subroutine read_positions_text
 
   logical function is_hdf5_name(path)
     character(len=*), intent(in) :: path

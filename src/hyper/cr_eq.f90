@@ -154,7 +154,9 @@ contains
   !> Greedy empirical quadrature on the Gramian h [p, p] (serial; see the module header).
   !> Errors (code 2): m_max < 0 or m_max > p, tol < 0, h not square or not finite, an unknown
   !> rule, 1^T H 1 < 0 (not a Gramian). A zero target (1^T H 1 = 0 up to rounding, p eps
-!> sum |H_ij|) gives m = 0 and a note.
+!> sum |H_ij|) gives m = 0 and a note. Steps: the arguments (eq_check), the target and the
+  !> admissible candidates (eq_target), then per selection the candidate (eq_pick), the
+  !> weights (eq_weights), the residual and the error.
   subroutine eq_build(h, signed, m_max, tol, eq, error, rule, dep_tol)
     !> Gramian (symmetric positive semi-definite), replicated [p, p]
     real(wp), contiguous, intent(in) :: h(:, :)
@@ -170,17 +172,15 @@ contains
     character(len=*), intent(in), optional :: rule
     !> dependence threshold on the squared sine (default EQ_DEP_TOL)
     real(wp), intent(in), optional :: dep_tol
-    real(wp), allocatable :: c(:), dinv(:), r(:), rs(:), lf(:, :), y(:), wh(:), wk(:), col(:)
-    real(wp), allocatable :: a(:, :), score(:)
+    real(wp), allocatable :: c(:), dinv(:), r(:), rs(:), lf(:, :), y(:), wh(:), col(:)
+    real(wp), allocatable :: score(:)
     logical, allocatable :: usable(:), passive(:)
     integer, allocatable :: idx(:)
     real(wp), allocatable :: wall(:, :), errk(:)
     real(wp) :: total, dtol, dpiv, e2
     character(len=:), allocatable :: rl
-    integer :: p, k, i, j, ibest, n_refused, n_zero
-    logical :: paper
+    integer :: p, k, j, ibest, n_refused, n_zero
     type(nnls_work_t) :: nwork
-    type(nnls_stats_t) :: nstats
 
     p = size(h, 1)
     eq%p = p
@@ -190,54 +190,10 @@ contains
     if (present(rule)) rl = rule
     dtol = EQ_DEP_TOL
     if (present(dep_tol)) dtol = dep_tol
-    if (size(h, 2) /= p) then
-      call set_error(error, "eq_build: the Gramian is " // str(p) // " x " // str(size(h, 2)) // &
-        & ", expected a square matrix", 2)
-      return
-    end if
-    if (m_max < 0 .or. m_max > p) then
-      call set_error(error, "eq_build: m = " // str(m_max) // " candidates requested but there are p = " // &
-        & str(p) // " candidates (need 0 <= m <= p)", 2)
-      return
-    end if
-    if (.not. (tol >= 0.0_wp)) then
-      call set_error(error, "eq_build: tolerance " // str(tol) // " is negative", 2)
-      return
-    end if
-    if (.not. (dtol > 0.0_wp .and. dtol < 1.0_wp)) then
-      call set_error(error, "eq_build: dependence threshold " // str(dtol) // " is not in (0, 1)", 2)
-      return
-    end if
-    if (rl /= "residual" .and. rl /= "paper") then
-      call set_error(error, "eq_build: unknown selection rule '" // rl // "' (known: residual, paper)", 2)
-      return
-    end if
-    paper = rl == "paper"
-    if (.not. all(abs(h) <= huge(1.0_wp))) then
-      call set_error(error, "eq_build: the Gramian has non-finite entries (p = " // str(p) // ")", 2)
-      return
-    end if
-
-    ! target c = H 1, scaling, admissible candidates
-    allocate(c(p), dinv(p), usable(p))
-    c = 0.0_wp
-    do j = 1, p
-      c = c + h(:, j)
-    end do
-    total = sum(c)
-    n_zero = 0
-    do i = 1, p
-      usable(i) = h(i, i) > 0.0_wp
-      if (usable(i)) then
-        dinv(i) = 1.0_wp / sqrt(h(i, i))
-      else
-        dinv(i) = 0.0_wp
-        n_zero = n_zero + 1
-      end if
-    end do
+    call eq_check(h, m_max, tol, dtol, rl, error)
+    if (allocated(error)) return
+    call eq_target(h, c, dinv, usable, n_zero, total)
     allocate(eq%idx(0), eq%w(0, 0), eq%err(0))
-    ! 1^T H 1 = sum_sigma |Pi|^2 at the rounding level of the sum is a zero target
-    if (abs(total) <= real(p, wp) * epsilon(1.0_wp) * sum(abs(h))) total = 0.0_wp
     if (total < 0.0_wp) then
       call set_error(error, "eq_build: 1^T H 1 = " // str(total) // " < 0: H is not a Gramian " // &
         & "(not positive semi-definite)", 2)
@@ -259,71 +215,21 @@ contains
     select_loop: do while (k < m_max)
       ! scores of the admissible candidates (r and the score are in normalised variables)
       rs = dinv * r
-      if (paper) then
+      if (rl == "paper") then
         score = dinv * matmul(h, dinv * rs)
       else
         score = rs
       end if
-      ! best admissible candidate that is independent of the selected ones. Ties: scores
-      ! within a relative sqrt(eps) of the best count as equal and the lowest index wins.
-      ! Symmetric data has candidates whose scores are equal in exact arithmetic; they come out
-      ! a few eps apart in an order set by the BLAS kernels (CPU) and the number of ranks, and
-      ! a strict "largest" then took them in another order on another machine (rom_tiny s2:
-      ! 9 candidates, the same error history, the order different at 1 and 2 ranks and under
-      ! each kernel). sqrt(eps) is far above that rounding and far below real differences.
-      pick: do
-        if (signed) then
-          ibest = near_max_index(abs(score(1:p)), mask=usable(1:p))
-        else
-          ibest = near_max_index(score(1:p), mask=usable(1:p))
-        end if
-        ! only a positive score is a descent direction
-        if (ibest > 0) then
-          if (.not. merge(abs(score(ibest)), score(ibest), signed) > 0.0_wp) ibest = 0
-        end if
-        if (ibest == 0) exit select_loop
-        ! new Cholesky row: L(1:k,1:k) col = H^(I, ibest), pivot^2 = H^_ii - |col|^2
-        do j = 1, k
-          col(j) = (h(idx(j), ibest) * dinv(idx(j)) * dinv(ibest) - &
-            & dot_product(lf(j, 1:j - 1), col(1:j - 1))) / lf(j, j)
-        end do
-        dpiv = h(ibest, ibest) * dinv(ibest)**2 - dot_product(col(1:k), col(1:k))
-        usable(ibest) = .false.
-        if (dpiv > dtol) exit pick
-        n_refused = n_refused + 1
-      end do pick
+      call eq_pick(h, signed, score, dinv, idx, lf, k, dtol, usable, col, dpiv, n_refused, ibest)
+      if (ibest == 0) exit select_loop
       k = k + 1
       idx(k) = ibest
       lf(k, 1:k - 1) = col(1:k - 1)
       lf(k, k) = sqrt(dpiv)
       ! y = L^{-1} c^_I (one new entry)
       y(k) = (c(ibest) * dinv(ibest) - dot_product(lf(k, 1:k - 1), y(1:k - 1))) / lf(k, k)
-
-      if (signed) then
-        ! L^T w^ = y
-        do j = k, 1, -1
-          wh(j) = (y(j) - dot_product(lf(j + 1:k, j), wh(j + 1:k))) / lf(j, j)
-        end do
-      else
-        ! min |L^T w^ - y|, w^ >= 0, warm started from the previous positive set
-        a = transpose(lf(1:k, 1:k))
-        passive(1:k - 1) = wh(1:k - 1) > 0.0_wp
-        passive(k) = .true.
-        allocate(wk(k))
-        call nnls_solve(a, y(1:k), wk, nstats, error, passive0=passive(1:k), &
-          & max_iter=10 * k + 100, work=nwork)
-        if (allocated(error)) then
-          call prefix_error(error, "eq_build: weights after " // str(k) // " selections"); return
-        end if
-        if (.not. nstats%converged) then
-          call set_error(error, "eq_build: the non-negative least-squares solve for the weights " // &
-            & "did not converge after " // str(k) // " selections (" // str(nstats%iterations) // &
-            & " iterations)")
-          return
-        end if
-        wh(1:k) = wk
-        deallocate(wk)
-      end if
+      call eq_weights(signed, lf, y, k, wh, passive, nwork, error)
+      if (allocated(error)) return
       do j = 1, k
         wall(j, k) = wh(j) * dinv(idx(j))
       end do
@@ -360,4 +266,153 @@ contains
     eq%w = wall(1:k, 1:k)
     eq%err = errk(1:k)
   end subroutine eq_build
+
+  !> The arguments of eq_build checked (code 2 on failure).
+  subroutine eq_check(h, m_max, tol, dtol, rl, error)
+    real(wp), intent(in) :: h(:, :)
+    integer, intent(in) :: m_max
+    real(wp), intent(in) :: tol, dtol
+    character(len=*), intent(in) :: rl
+    type(error_t), allocatable, intent(out) :: error
+    integer :: p
+    p = size(h, 1)
+    if (size(h, 2) /= p) then
+      call set_error(error, "eq_build: the Gramian is " // str(p) // " x " // str(size(h, 2)) // &
+        & ", expected a square matrix", 2)
+      return
+    end if
+    if (m_max < 0 .or. m_max > p) then
+      call set_error(error, "eq_build: m = " // str(m_max) // " candidates requested but there are p = " // &
+        & str(p) // " candidates (need 0 <= m <= p)", 2)
+      return
+    end if
+    if (.not. (tol >= 0.0_wp)) then
+      call set_error(error, "eq_build: tolerance " // str(tol) // " is negative", 2)
+      return
+    end if
+    if (.not. (dtol > 0.0_wp .and. dtol < 1.0_wp)) then
+      call set_error(error, "eq_build: dependence threshold " // str(dtol) // " is not in (0, 1)", 2)
+      return
+    end if
+    if (rl /= "residual" .and. rl /= "paper") then
+      call set_error(error, "eq_build: unknown selection rule '" // rl // "' (known: residual, paper)", 2)
+      return
+    end if
+    if (.not. all(abs(h) <= huge(1.0_wp))) then
+      call set_error(error, "eq_build: the Gramian has non-finite entries (p = " // str(p) // ")", 2)
+      return
+    end if
+  end subroutine eq_check
+
+  !> The target c = H 1 and total = 1^T H 1 (0 at the rounding level of the sum: a zero
+  !> target), the scaling dinv = 1 / sqrt(H_ii) and the admissible candidates (H_ii > 0; n_zero
+  !> are not).
+  subroutine eq_target(h, c, dinv, usable, n_zero, total)
+    real(wp), intent(in) :: h(:, :)
+    real(wp), allocatable, intent(out) :: c(:), dinv(:)
+    logical, allocatable, intent(out) :: usable(:)
+    integer, intent(out) :: n_zero
+    real(wp), intent(out) :: total
+    integer :: i, j, p
+    p = size(h, 1)
+    allocate(c(p), dinv(p), usable(p))
+    c = 0.0_wp
+    do j = 1, p
+      c = c + h(:, j)
+    end do
+    total = sum(c)
+    n_zero = 0
+    do i = 1, p
+      usable(i) = h(i, i) > 0.0_wp
+      if (usable(i)) then
+        dinv(i) = 1.0_wp / sqrt(h(i, i))
+      else
+        dinv(i) = 0.0_wp
+        n_zero = n_zero + 1
+      end if
+    end do
+    ! 1^T H 1 = sum_sigma |Pi|^2 at the rounding level of the sum is a zero target
+    if (abs(total) <= real(p, wp) * epsilon(1.0_wp) * sum(abs(h))) total = 0.0_wp
+  end subroutine eq_target
+
+  !> The best admissible candidate ibest (0: none) that is independent of the k selected ones
+  !> idx(1:k) (Cholesky factor lf): its new Cholesky row col(1:k) and squared pivot dpiv;
+  !> candidates found dependent are refused (n_refused) and every one tried leaves usable.
+  !> Ties: scores within a relative sqrt(eps) of the best count as equal and the lowest index
+  !> wins. Symmetric data has candidates whose scores are equal in exact arithmetic; they come
+  !> out a few eps apart in an order set by the BLAS kernels (CPU) and the number of ranks, and
+  !> a strict "largest" then took them in another order on another machine (rom_tiny s2:
+  !> 9 candidates, the same error history, the order different at 1 and 2 ranks and under
+  !> each kernel). sqrt(eps) is far above that rounding and far below real differences.
+  subroutine eq_pick(h, signed, score, dinv, idx, lf, k, dtol, usable, col, dpiv, n_refused, ibest)
+    real(wp), intent(in) :: h(:, :), score(:), dinv(:), lf(:, :), dtol
+    logical, intent(in) :: signed
+    integer, intent(in) :: idx(:), k
+    logical, intent(inout) :: usable(:)
+    real(wp), intent(inout) :: col(:)
+    real(wp), intent(out) :: dpiv
+    integer, intent(inout) :: n_refused
+    integer, intent(out) :: ibest
+    integer :: j, p
+    p = size(h, 1)
+    dpiv = 0
+    do
+      if (signed) then
+        ibest = near_max_index(abs(score(1:p)), mask=usable(1:p))
+      else
+        ibest = near_max_index(score(1:p), mask=usable(1:p))
+      end if
+      ! only a positive score is a descent direction
+      if (ibest > 0) then
+        if (.not. merge(abs(score(ibest)), score(ibest), signed) > 0.0_wp) ibest = 0
+      end if
+      if (ibest == 0) return
+      ! new Cholesky row: L(1:k,1:k) col = H^(I, ibest), pivot^2 = H^_ii - |col|^2
+      do j = 1, k
+        col(j) = (h(idx(j), ibest) * dinv(idx(j)) * dinv(ibest) - &
+          & dot_product(lf(j, 1:j - 1), col(1:j - 1))) / lf(j, j)
+      end do
+      dpiv = h(ibest, ibest) * dinv(ibest)**2 - dot_product(col(1:k), col(1:k))
+      usable(ibest) = .false.
+      if (dpiv > dtol) return
+      n_refused = n_refused + 1
+    end do
+  end subroutine eq_pick
+
+  !> The normalised weights wh(1:k) of the k selected candidates: signed, L^T w^ = y; else
+  !> min |L^T w^ - y|, w^ >= 0, warm started from the previous positive set.
+  subroutine eq_weights(signed, lf, y, k, wh, passive, nwork, error)
+    logical, intent(in) :: signed
+    real(wp), intent(in) :: lf(:, :), y(:)
+    integer, intent(in) :: k
+    real(wp), intent(inout) :: wh(:)
+    logical, intent(inout) :: passive(:)
+    type(nnls_work_t), intent(inout) :: nwork
+    type(error_t), allocatable, intent(out) :: error
+    real(wp), allocatable :: a(:, :), wk(:)
+    type(nnls_stats_t) :: nstats
+    integer :: j
+    if (signed) then
+      do j = k, 1, -1
+        wh(j) = (y(j) - dot_product(lf(j + 1:k, j), wh(j + 1:k))) / lf(j, j)
+      end do
+      return
+    end if
+    a = transpose(lf(1:k, 1:k))
+    passive(1:k - 1) = wh(1:k - 1) > 0.0_wp
+    passive(k) = .true.
+    allocate(wk(k))
+    call nnls_solve(a, y(1:k), wk, nstats, error, passive0=passive(1:k), &
+      & max_iter=10 * k + 100, work=nwork)
+    if (allocated(error)) then
+      call prefix_error(error, "eq_build: weights after " // str(k) // " selections"); return
+    end if
+    if (.not. nstats%converged) then
+      call set_error(error, "eq_build: the non-negative least-squares solve for the weights " // &
+        & "did not converge after " // str(k) // " selections (" // str(nstats%iterations) // &
+        & " iterations)")
+      return
+    end if
+    wh(1:k) = wk
+  end subroutine eq_weights
 end module cr_eq

@@ -46,7 +46,8 @@ module cr_h5file
     h5tcopy_f, h5tclose_f, h5tset_size_f, h5tset_strpad_f, h5tget_class_f, h5tget_size_f, &
     h5tis_variable_str_f, h5aexists_f, h5adelete_f, h5acreate_f, h5aopen_f, h5aclose_f, &
     h5awrite_f, h5aread_f, h5aget_space_f, h5aget_type_f, &
-    h5pset_alloc_time_f, h5pset_fill_time_f, h5dget_offset_f, H5D_ALLOC_TIME_EARLY_F, H5D_FILL_TIME_NEVER_F
+    h5pset_alloc_time_f, h5pset_fill_time_f, h5dget_offset_f, H5D_ALLOC_TIME_EARLY_F, H5D_FILL_TIME_NEVER_F, &
+    h5get_libversion_f
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, set_error
   use cr_env, only: env_t, mpi_failed
@@ -55,7 +56,7 @@ module cr_h5file
     reserve_space, errno_name, file_size, truncate_to
   implicit none
   private
-  public :: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64, h5_library_close
+  public :: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64, h5_library_close, h5_library_version
 
   !> element kinds for `create_extendible` / `create_dataset`: real(wp), integer, integer(int64)
   integer, parameter :: cr_h5_real = 1, cr_h5_int = 2, cr_h5_int64 = 3
@@ -228,6 +229,15 @@ contains
     call h5close_f(hdferr)
     h5_ready = .false.
   end subroutine h5_library_close
+
+  !> The version of the HDF5 library ("1.10.8"), "unknown" when the library does not say.
+  function h5_library_version() result(v)
+    character(len=:), allocatable :: v
+    integer :: maj, mnr, rel, ierr
+    call h5get_libversion_f(maj, mnr, rel, ierr)
+    v = "unknown"
+    if (ierr == 0) v = str(maj) // "." // str(mnr) // "." // str(rel)
+  end function h5_library_version
 
   !> HDF5 memory type of a crowdrom element kind code
   integer(hid_t) function type_of(kind_code)

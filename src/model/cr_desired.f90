@@ -28,6 +28,7 @@ module cr_desired
   use cr_shapes, only: obstacle_t, make_segment, segment_obstacle_distance, OBST_DISK, OBST_SEGMENT
   use cr_distance_field, only: distance_field_t
   use cr_geodesic, only: geodesic_t, GEODESIC_MAX_CIRCLES
+  use cr_xy_text, only: read_xy_text
   implicit none
   private
   public :: desired_t, exact_applies
@@ -91,7 +92,7 @@ contains
     this%centre2 = scene%exit2_center()
     this%from_file = cfg%mode == 'file'
     if (this%from_file) then
-      call read_vectors(trim(cfg%file), n_agents, this%fixed, error)
+      call read_xy_text(trim(cfg%file), n_agents, "&desired: file", "vx vy", this%fixed, error)
       return
     end if
     select case (trim(cfg%field))
@@ -290,32 +291,4 @@ contains
     end do
     ok = .true.
   end function exact_applies
-
-  !> Read n lines "vx vy" from a plain text file.
-  subroutine read_vectors(path, n, vec, error)
-    character(len=*), intent(in) :: path
-    integer, intent(in) :: n
-    real(wp), allocatable, intent(out) :: vec(:)
-    type(error_t), allocatable, intent(out) :: error
-    integer :: u, ios, k
-    character(len=256) :: msg
-    allocate(vec(2 * n))
-    open(newunit=u, file=path, status='old', action='read', iostat=ios, iomsg=msg)
-    if (ios /= 0) then
-      call set_error(error, "&desired: file: cannot open '" // path // "' (" // trim(msg) // ")", 2)
-      return
-    end if
-    do k = 1, n
-      read(u, *, iostat=ios, iomsg=msg) vec(2*k-1), vec(2*k)
-      if (ios /= 0) then
-        call set_error(error, "&desired: file: '" // path // "' line " // str(k) // &
-          ": expected two numbers 'vx vy' per agent for " // str(n) // " agents (" // trim(msg) // ")", 2)
-        close(u); return
-      end if
-    end do
-    close(u)
-    if (any(vec /= vec) .or. any(abs(vec) > huge(1.0_wp) / 4)) then
-      call set_error(error, "&desired: file: '" // path // "' has a non-finite value", 2)
-    end if
-  end subroutine read_vectors
 end module cr_desired

@@ -9,7 +9,7 @@ module cr_offline_config
   use cr_config, only: nml_status
   use cr_pod, only: POD_METHODS
   use cr_paths, only: io_paths_t
-  use cr_config_check, only: need_sane
+  use cr_sane, only: need_sane
   implicit none
   private
   public :: check_offline_paths

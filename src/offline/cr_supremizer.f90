@@ -53,6 +53,17 @@ module cr_supremizer
     character(len=:), allocatable :: note
   end type pga_result_t
 
+  !> What the steps of pga_enrich share: the cone's support rows and each one's place among
+  !> them, the normals of the support rows at every local configuration [2, ns, nl], each
+  !> candidate's squared norm and squared residual [R, nl], scratch [ns], the candidate
+  !> supremizer [nd], the sizes and the exact phase's route.
+  type :: pga_state_t
+    integer, allocatable :: sup(:), pos(:)
+    real(wp), allocatable :: gq(:,:,:), nrm2(:,:), res2(:,:), t(:), s(:)
+    integer :: nd = 0, nl = 0, ns = 0
+    character(len=16) :: route = 'auto'
+  end type pga_state_t
+
 contains
 
   !> s = B(q)^T psi_r as a dense vector [2*n_agents] (B = -h G over the dictionary rows).
@@ -79,7 +90,10 @@ contains
   !> Enrich the orthonormal basis v [n_dof, N] (replicated) with supremizers of the local
   !> configurations q_local [n_dof, n_local] (global columns col_offset+1..col_offset+n_local).
   !> scenes(scene_of(k)) is the scene of local configuration k (studies that vary the exit
-  !> width have one scene per sample).
+  !> width have one scene per sample). The greedy loop: the largest relative residual over
+  !> every rank's candidates (pga_argmax), the stops, and the chosen supremizer formed by its
+  !> owner and orthonormalised into v by every rank (pga_add); the residuals are updated
+  !> (pga_subtract) or, once their relative accuracy is exhausted, recomputed (pga_recompute).
   subroutine pga_enrich(env, scenes, scene_of, radius, h, dict_ia, dict_ib, dict_ob, cone, q_local, col_offset, &
       v, delta, max_add, res, error, exact_route)
     type(env_t), intent(in) :: env
@@ -98,13 +112,83 @@ contains
     !> how the exact phase projects: 'auto' (default: the cheaper), 'rows' (through the
     !> projected support rows W_l) or 'candidates' (one candidate at a time); for tests
     character(len=*), intent(in), optional :: exact_route
-    integer, allocatable :: sup(:), pos(:)
-    real(wp), allocatable :: gq(:,:,:), nrm2(:,:), res2(:,:), t(:), s(:), vn(:,:), hist(:)
+    type(pga_state_t) :: st
+    real(wp), allocatable :: hist(:)
     integer(i8), allocatable :: chosen(:)
     logical :: exact
-    integer :: nd, nl, ns, k, j, r, added, owner, rr
+    integer :: j, added
     integer(i8) :: gid
-    real(wp) :: gap, best(2), err
+    real(wp) :: best(2), err
+    character(len=:), allocatable :: why
+    call pga_check(scene_of, q_local, v, delta, max_add, error, exact_route)
+    if (allocated(error)) return
+    st%route = 'auto'
+    if (present(exact_route)) st%route = exact_route
+    allocate(hist(max_add + 1), chosen(max_add))
+    res%n_added = 0
+    if (cone%r == 0) then
+      res%err = [0.0_wp]; allocate(res%chosen(0)); return
+    end if
+    call pga_normals(scenes, scene_of, radius, h, dict_ia, dict_ib, dict_ob, cone, q_local, st)
+    do j = 1, size(v, 2)
+      call pga_subtract(st, h, dict_ia, dict_ib, cone, v(:, j))
+    end do
+    exact = .false.
+    added = 0
+    do
+      call pga_argmax(env, st, cone, col_offset, best, error)
+      if (allocated(error)) return
+      err = sqrt(max(best(1), 0.0_wp))
+      if (.not. exact .and. err < 1.0e-5_wp) then
+        ! relative accuracy of |s|^2 - |V^T s|^2 is exhausted: recompute exactly
+        exact = .true.
+        call pga_recompute(st, scenes, scene_of, radius, h, dict_ia, dict_ib, dict_ob, cone, q_local, v)
+        cycle
+      end if
+      hist(added + 1) = err
+      if (err <= delta .or. best(1) < 0) exit
+      if (added == max_add) then
+        res%note = "stopped at pga_max_add = " // str(max_add) // " before reaching delta"
+        exit
+      end if
+      if (size(v, 2) >= st%nd) then
+        res%note = "the basis spans the whole velocity space (N = " // str(st%nd) // ")"
+        exit
+      end if
+      if (exact .and. err <= ROUNDOFF_FLOOR) then
+        res%note = "every remaining supremizer lies in the span up to round-off (relative residual " // &
+          str(err) // " <= " // str(ROUNDOFF_FLOOR) // "): delta is below the round-off level"
+        exit
+      end if
+      gid = nint(best(2), i8)
+      call pga_add(env, st, scenes, scene_of, radius, h, dict_ia, dict_ib, dict_ob, cone, q_local, col_offset, &
+        gid, v, why, error)
+      if (allocated(error)) return
+      if (len(why) > 0) then
+        res%note = why
+        exit
+      end if
+      added = added + 1
+      chosen(added) = gid
+      if (exact) then
+        call pga_recompute(st, scenes, scene_of, radius, h, dict_ia, dict_ib, dict_ob, cone, q_local, v)
+      else
+        call pga_subtract(st, h, dict_ia, dict_ib, cone, st%s)
+      end if
+    end do
+    res%n_added = added
+    res%err = hist(1:added + 1)
+    res%chosen = chosen(1:added)
+  end subroutine pga_enrich
+
+  !> The arguments of pga_enrich checked (sizes, exact_route, delta and max_add).
+  subroutine pga_check(scene_of, q_local, v, delta, max_add, error, exact_route)
+    integer, intent(in) :: scene_of(:)
+    real(wp), intent(in) :: q_local(:,:), v(:,:), delta
+    integer, intent(in) :: max_add
+    type(error_t), allocatable, intent(out) :: error
+    character(len=*), intent(in), optional :: exact_route
+    integer :: nd, nl
     nd = size(v, 1); nl = size(q_local, 2)
     if (size(scene_of) /= nl) then
       call set_error(error, "pga: scene_of has " // str(size(scene_of)) // " entries, expected " // str(nl)); return
@@ -120,204 +204,221 @@ contains
     if (delta < 0 .or. max_add < 0) then
       call set_error(error, "pga: delta must be >= 0 and max_add >= 0", 2); return
     end if
-    allocate(hist(max_add + 1), chosen(max_add))
-    res%n_added = 0
-    if (cone%r == 0) then
-      res%err = [0.0_wp]; allocate(res%chosen(0)); return
-    end if
-    sup = cone%support(); ns = size(sup)
-    allocate(pos(cone%n_dict)); pos = 0
-    do j = 1, ns
-      pos(sup(j)) = j
+  end subroutine pga_check
+
+  !> The support rows of the cone and the normals of each at every local configuration (st%gq),
+  !> with every candidate's squared norm (st%nrm2, the first residuals st%res2).
+  subroutine pga_normals(scenes, scene_of, radius, h, dict_ia, dict_ib, dict_ob, cone, q_local, st)
+    type(scene_t), intent(in) :: scenes(:)
+    integer, intent(in) :: scene_of(:)
+    real(wp), intent(in) :: radius, h
+    integer, intent(in) :: dict_ia(:), dict_ib(:), dict_ob(:)
+    type(sparse_cone_t), intent(in) :: cone
+    real(wp), intent(in) :: q_local(:,:)
+    type(pga_state_t), intent(inout) :: st
+    integer :: j, k, r
+    real(wp) :: gap
+    st%nd = size(q_local, 1); st%nl = size(q_local, 2)
+    st%sup = cone%support(); st%ns = size(st%sup)
+    allocate(st%pos(cone%n_dict)); st%pos = 0
+    do j = 1, st%ns
+      st%pos(st%sup(j)) = j
     end do
-    ! normals of the support rows at every local configuration
-    allocate(gq(2, ns, max(nl, 1)), nrm2(cone%r, max(nl, 1)), res2(cone%r, max(nl, 1)), t(ns), s(nd))
-    do k = 1, nl
-      do j = 1, ns
-        call eval_contact(scenes(scene_of(k)), q_local(:, k), radius, dict_ia(sup(j)), dict_ib(sup(j)), &
-          dict_ob(sup(j)), gap, gq(:, j, k))
+    allocate(st%gq(2, st%ns, max(st%nl, 1)), st%nrm2(cone%r, max(st%nl, 1)), st%res2(cone%r, max(st%nl, 1)), &
+      st%t(st%ns), st%s(st%nd))
+    do k = 1, st%nl
+      do j = 1, st%ns
+        call eval_contact(scenes(scene_of(k)), q_local(:, k), radius, dict_ia(st%sup(j)), dict_ib(st%sup(j)), &
+          dict_ob(st%sup(j)), gap, st%gq(:, j, k))
       end do
       do r = 1, cone%r
-        call supremizer(scenes(scene_of(k)), radius, h, dict_ia, dict_ib, dict_ob, cone, r, q_local(:, k), s)
-        nrm2(r, k) = sum(s**2)
+        call supremizer(scenes(scene_of(k)), radius, h, dict_ia, dict_ib, dict_ob, cone, r, q_local(:, k), st%s)
+        st%nrm2(r, k) = sum(st%s**2)
       end do
     end do
-    res2 = nrm2
-    do j = 1, size(v, 2)
-      call subtract_projection(v(:, j))
+    st%res2 = st%nrm2
+  end subroutine pga_normals
+
+  !> Candidate gid (a global id of pga_argmax): formed by the rank that owns it, broadcast, and
+  !> orthonormalised into v by every rank (twice Gram-Schmidt; st%s holds it). note: why it was
+  !> not added ('' when it was).
+  subroutine pga_add(env, st, scenes, scene_of, radius, h, dict_ia, dict_ib, dict_ob, cone, q_local, col_offset, &
+      gid, v, note, error)
+    type(env_t), intent(in) :: env
+    type(pga_state_t), intent(inout) :: st
+    type(scene_t), intent(in) :: scenes(:)
+    integer, intent(in) :: scene_of(:)
+    real(wp), intent(in) :: radius, h
+    integer, intent(in) :: dict_ia(:), dict_ib(:), dict_ob(:)
+    type(sparse_cone_t), intent(in) :: cone
+    real(wp), intent(in) :: q_local(:,:)
+    integer(i8), intent(in) :: col_offset, gid
+    real(wp), allocatable, intent(inout) :: v(:,:)
+    character(len=:), allocatable, intent(out) :: note
+    type(error_t), allocatable, intent(out) :: error
+    real(wp), allocatable :: vn(:,:)
+    integer :: k, rr, owner, j
+    note = ""
+    k = int((gid - 1) / cone%r - col_offset) + 1
+    rr = int(mod(gid - 1, int(cone%r, i8))) + 1
+    owner = -1
+    if (k >= 1 .and. k <= st%nl) owner = env%rank
+    call env%allreduce(owner, 'max', error)
+    if (allocated(error)) then
+      call prefix_error(error, "pga: owner of a supremizer"); return
+    end if
+    if (env%rank == owner) call supremizer(scenes(scene_of(k)), radius, h, dict_ia, dict_ib, dict_ob, cone, rr, &
+      q_local(:, k), st%s)
+    call env%bcast(st%s, error, root=owner)
+    if (allocated(error)) then
+      call prefix_error(error, "pga: a supremizer"); return
+    end if
+    do j = 1, 2
+      st%s = st%s - matmul(v, matmul(st%s, v))
     end do
-    exact = .false.
-    added = 0
-    do
-      call argmax(best, error)
-      if (allocated(error)) return
-      err = sqrt(max(best(1), 0.0_wp))
-      if (.not. exact .and. err < 1.0e-5_wp) then
-        ! relative accuracy of |s|^2 - |V^T s|^2 is exhausted: recompute exactly
-        exact = .true.
-        call recompute_all()
-        cycle
-      end if
-      hist(added + 1) = err
-      if (err <= delta .or. best(1) < 0) exit
-      if (added == max_add) then
-        res%note = "stopped at pga_max_add = " // str(max_add) // " before reaching delta"
-        exit
-      end if
-      if (size(v, 2) >= nd) then
-        res%note = "the basis spans the whole velocity space (N = " // str(nd) // ")"
-        exit
-      end if
-      if (exact .and. err <= ROUNDOFF_FLOOR) then
-        res%note = "every remaining supremizer lies in the span up to round-off (relative residual " // &
-          str(err) // " <= " // str(ROUNDOFF_FLOOR) // "): delta is below the round-off level"
-        exit
-      end if
-      gid = nint(best(2), i8)
-      ! the owner forms the candidate, everybody orthonormalises it into v
-      k = int((gid - 1) / cone%r - col_offset) + 1
-      rr = int(mod(gid - 1, int(cone%r, i8))) + 1
-      owner = -1
-      if (k >= 1 .and. k <= nl) owner = env%rank
-      call env%allreduce(owner, 'max', error)
-      if (allocated(error)) then
-        call prefix_error(error, "pga: owner of a supremizer"); return
-      end if
-      if (env%rank == owner) call supremizer(scenes(scene_of(k)), radius, h, dict_ia, dict_ib, dict_ob, cone, rr, &
-        q_local(:, k), s)
-      call env%bcast(s, error, root=owner)
-      if (allocated(error)) then
-        call prefix_error(error, "pga: a supremizer"); return
-      end if
-      do j = 1, 2
-        s = s - matmul(v, matmul(s, v))
+    if (.not. (norm2(st%s) > 0)) then
+      note = "the selected supremizer lies in the span of the basis"
+      return
+    end if
+    st%s = st%s / norm2(st%s)
+    allocate(vn(st%nd, size(v, 2) + 1))
+    vn(:, 1:size(v, 2)) = v
+    vn(:, size(v, 2) + 1) = st%s
+    call move_alloc(vn, v)
+  end subroutine pga_add
+
+  !> st%res2 -= (phi^T s)^2 for every local candidate (O(nnz) each).
+  subroutine pga_subtract(st, h, dict_ia, dict_ib, cone, phi)
+    type(pga_state_t), intent(inout) :: st
+    real(wp), intent(in) :: h
+    integer, intent(in) :: dict_ia(:), dict_ib(:)
+    type(sparse_cone_t), intent(in) :: cone
+    real(wp), intent(in) :: phi(:)
+    integer :: kk, jj, p, a, b, r2
+    real(wp) :: pr
+    associate (t => st%t, gq => st%gq, sup => st%sup, pos => st%pos)
+    do kk = 1, st%nl
+      do jj = 1, st%ns
+        a = dict_ia(sup(jj)); b = dict_ib(sup(jj))
+        t(jj) = gq(1, jj, kk) * phi(2*a-1) + gq(2, jj, kk) * phi(2*a)
+        if (b > 0) t(jj) = t(jj) - gq(1, jj, kk) * phi(2*b-1) - gq(2, jj, kk) * phi(2*b)
+        t(jj) = -h * t(jj)
       end do
-      if (.not. (norm2(s) > 0)) then
-        res%note = "the selected supremizer lies in the span of the basis"
-        exit
-      end if
-      s = s / norm2(s)
-      allocate(vn(nd, size(v, 2) + 1))
-      vn(:, 1:size(v, 2)) = v
-      vn(:, size(v, 2) + 1) = s
-      call move_alloc(vn, v)
-      added = added + 1
-      chosen(added) = gid
-      if (exact) then
-        call recompute_all()
-      else
-        call subtract_projection(s)
-      end if
+      do r2 = 1, cone%r
+        pr = 0
+        do p = cone%ptr(r2) + 1, cone%ptr(r2 + 1)
+          pr = pr + cone%val(p) * t(pos(cone%idx(p)))
+        end do
+        st%res2(r2, kk) = st%res2(r2, kk) - pr * pr
+      end do
     end do
-    res%n_added = added
-    res%err = hist(1:added + 1)
-    res%chosen = chosen(1:added)
+    end associate
+  end subroutine pga_subtract
 
-  contains
-
-    !> res2 -= (phi^T s)^2 for every local candidate (O(nnz) each).
-    subroutine subtract_projection(phi)
-      real(wp), intent(in) :: phi(:)
-      integer :: kk, jj, p, a, b, r2
-      real(wp) :: pr
+  !> Exact squared residuals of every local candidate: through the projected rows W_l when
+  !> that is cheaper (see the module's header) or st%route = 'rows', else candidate by candidate.
+  subroutine pga_recompute(st, scenes, scene_of, radius, h, dict_ia, dict_ib, dict_ob, cone, q_local, v)
+    type(pga_state_t), intent(inout) :: st
+    type(scene_t), intent(in) :: scenes(:)
+    integer, intent(in) :: scene_of(:)
+    real(wp), intent(in) :: radius, h
+    integer, intent(in) :: dict_ia(:), dict_ib(:), dict_ob(:)
+    type(sparse_cone_t), intent(in) :: cone
+    real(wp), intent(in) :: q_local(:,:), v(:,:)
+    integer :: kk, r2, m, nd, nl, ns, nb
+    real(wp), allocatable :: w(:)
+    real(wp) :: cost_rows, cost_cand
+    logical :: use_rows
+    nd = st%nd; nl = st%nl; ns = st%ns
+    allocate(w(nd))
+    nb = size(v, 2)
+    ! multiply-adds: rows: 2 ns projections of 4 nd nb + per candidate 2 nd per non-zero;
+    ! candidates: 4 nd nb each
+    cost_rows = 8.0_wp * ns * nd * nb + 2.0_wp * nd * real(nl, wp) * size(cone%idx)
+    cost_cand = 4.0_wp * nd * nb * real(nl, wp) * cone%r
+    use_rows = cost_rows < cost_cand .and. 16.0_wp * nd * ns <= PGA_ROWS_MAX_BYTES
+    if (st%route == 'rows') use_rows = .true.
+    if (st%route == 'candidates') use_rows = .false.
+    if (use_rows) then
+      call pga_recompute_rows(st, h, dict_ia, dict_ib, cone, v)
+    else
       do kk = 1, nl
-        do jj = 1, ns
-          a = dict_ia(sup(jj)); b = dict_ib(sup(jj))
-          t(jj) = gq(1, jj, kk) * phi(2*a-1) + gq(2, jj, kk) * phi(2*a)
-          if (b > 0) t(jj) = t(jj) - gq(1, jj, kk) * phi(2*b-1) - gq(2, jj, kk) * phi(2*b)
-          t(jj) = -h * t(jj)
-        end do
         do r2 = 1, cone%r
-          pr = 0
-          do p = cone%ptr(r2) + 1, cone%ptr(r2 + 1)
-            pr = pr + cone%val(p) * t(pos(cone%idx(p)))
-          end do
-          res2(r2, kk) = res2(r2, kk) - pr * pr
-        end do
-      end do
-    end subroutine subtract_projection
-
-    !> Exact squared residuals of every local candidate: through the projected rows W_l when
-    !> that is cheaper (see the module's header), else candidate by candidate.
-    subroutine recompute_all()
-      integer :: kk, r2, m, jj, p, a, b, nb
-      real(wp), allocatable :: w(:), wl(:,:,:)
-      real(wp) :: cost_rows, cost_cand, c
-      logical :: use_rows
-      allocate(w(nd))
-      nb = size(v, 2)
-      ! multiply-adds: rows: 2 ns projections of 4 nd nb + per candidate 2 nd per non-zero;
-      ! candidates: 4 nd nb each
-      cost_rows = 8.0_wp * ns * nd * nb + 2.0_wp * nd * real(nl, wp) * size(cone%idx)
-      cost_cand = 4.0_wp * nd * nb * real(nl, wp) * cone%r
-      use_rows = cost_rows < cost_cand .and. 16.0_wp * nd * ns <= PGA_ROWS_MAX_BYTES
-      if (present(exact_route)) then
-        if (exact_route == 'rows') use_rows = .true.
-        if (exact_route == 'candidates') use_rows = .false.
-      end if
-      if (use_rows) then
-        ! W_l = (I - V V^T) M_l for every support row, twice Gram-Schmidt
-        allocate(wl(nd, 2, ns))
-        wl = 0
-        do jj = 1, ns
-          a = dict_ia(sup(jj)); b = dict_ib(sup(jj))
-          wl(2*a-1, 1, jj) = 1; wl(2*a, 2, jj) = 1
-          if (b > 0) then
-            wl(2*b-1, 1, jj) = -1; wl(2*b, 2, jj) = -1
-          end if
+          call supremizer(scenes(scene_of(kk)), radius, h, dict_ia, dict_ib, dict_ob, cone, r2, q_local(:, kk), w)
           do m = 1, 2
-            wl(:, :, jj) = wl(:, :, jj) - matmul(v, matmul(transpose(v), wl(:, :, jj)))
+            w = w - matmul(v, matmul(w, v))
           end do
-        end do
-        do r2 = 1, cone%r
-          do kk = 1, nl
-            w = 0
-            do p = cone%ptr(r2) + 1, cone%ptr(r2 + 1)
-              jj = pos(cone%idx(p))
-              c = -h * cone%val(p)
-              w = w + (c * gq(1, jj, kk)) * wl(:, 1, jj) + (c * gq(2, jj, kk)) * wl(:, 2, jj)
-            end do
-            res2(r2, kk) = sum(w**2)
-          end do
-        end do
-      else
-        do kk = 1, nl
-          do r2 = 1, cone%r
-            call supremizer(scenes(scene_of(kk)), radius, h, dict_ia, dict_ib, dict_ob, cone, r2, q_local(:, kk), w)
-            do m = 1, 2
-              w = w - matmul(v, matmul(w, v))
-            end do
-            res2(r2, kk) = sum(w**2)
-          end do
-        end do
-      end if
-    end subroutine recompute_all
-
-    !> Global (max relative squared residual, candidate id) over the candidates with a non-zero
-    !> supremizer; near ties (relative sqrt(eps), the rule of cr_sort::near_max_index) go to the
-    !> lowest id, so the choice does not depend on the number of ranks. (-huge, 0) when no rank
-    !> has a candidate. Candidate (r2, kk) has the id (col_offset + kk - 1) * cone%r + r2.
-    subroutine argmax(out, error)
-      real(wp), intent(out) :: out(2)
-      type(error_t), allocatable, intent(out) :: error
-      real(wp), allocatable :: rel(:)
-      logical, allocatable :: has(:)
-      integer(i8) :: gid_best
-      integer :: kk, r2, j
-      ! candidate (r2, kk) at position (kk - 1) R + r2: its local id
-      allocate(rel(cone%r * nl), has(cone%r * nl))
-      j = 0
-      do kk = 1, nl
-        do r2 = 1, cone%r
-          j = j + 1
-          has(j) = nrm2(r2, kk) > 0
-          rel(j) = 0
-          if (has(j)) rel(j) = max(res2(r2, kk), 0.0_wp) / nrm2(r2, kk)
+          st%res2(r2, kk) = sum(w**2)
         end do
       end do
-      call env%allreduce_near_maxloc(rel, col_offset * cone%r, out(1), gid_best, error, mask=has)
-      if (allocated(error)) call prefix_error(error, "pga: the largest projection error")
-      out(2) = real(gid_best, wp)
-    end subroutine argmax
-  end subroutine pga_enrich
+    end if
+  end subroutine pga_recompute
+
+  !> pga_recompute through the projected rows: W_l = (I - V V^T) M_l for every support row,
+  !> twice Gram-Schmidt, then each candidate's residual from the W_l of its rows.
+  subroutine pga_recompute_rows(st, h, dict_ia, dict_ib, cone, v)
+    type(pga_state_t), intent(inout) :: st
+    real(wp), intent(in) :: h
+    integer, intent(in) :: dict_ia(:), dict_ib(:)
+    type(sparse_cone_t), intent(in) :: cone
+    real(wp), intent(in) :: v(:,:)
+    integer :: kk, r2, m, jj, p, a, b
+    real(wp), allocatable :: w(:), wl(:,:,:)
+    real(wp) :: c
+    allocate(w(st%nd))
+    allocate(wl(st%nd, 2, st%ns))
+    wl = 0
+    do jj = 1, st%ns
+      a = dict_ia(st%sup(jj)); b = dict_ib(st%sup(jj))
+      wl(2*a-1, 1, jj) = 1; wl(2*a, 2, jj) = 1
+      if (b > 0) then
+        wl(2*b-1, 1, jj) = -1; wl(2*b, 2, jj) = -1
+      end if
+      do m = 1, 2
+        wl(:, :, jj) = wl(:, :, jj) - matmul(v, matmul(transpose(v), wl(:, :, jj)))
+      end do
+    end do
+    do r2 = 1, cone%r
+      do kk = 1, st%nl
+        w = 0
+        do p = cone%ptr(r2) + 1, cone%ptr(r2 + 1)
+          jj = st%pos(cone%idx(p))
+          c = -h * cone%val(p)
+          w = w + (c * st%gq(1, jj, kk)) * wl(:, 1, jj) + (c * st%gq(2, jj, kk)) * wl(:, 2, jj)
+        end do
+        st%res2(r2, kk) = sum(w**2)
+      end do
+    end do
+  end subroutine pga_recompute_rows
+
+  !> Global (max relative squared residual, candidate id) over the candidates with a non-zero
+  !> supremizer; near ties (relative sqrt(eps), the rule of cr_sort::near_max_index) go to the
+  !> lowest id, so the choice does not depend on the number of ranks. (-huge, 0) when no rank
+  !> has a candidate. Candidate (r2, kk) has the id (col_offset + kk - 1) * cone%r + r2.
+  subroutine pga_argmax(env, st, cone, col_offset, out, error)
+    type(env_t), intent(in) :: env
+    type(pga_state_t), intent(in) :: st
+    type(sparse_cone_t), intent(in) :: cone
+    integer(i8), intent(in) :: col_offset
+    real(wp), intent(out) :: out(2)
+    type(error_t), allocatable, intent(out) :: error
+    real(wp), allocatable :: rel(:)
+    logical, allocatable :: has(:)
+    integer(i8) :: gid_best
+    integer :: kk, r2, j
+    ! candidate (r2, kk) at position (kk - 1) R + r2: its local id
+    allocate(rel(cone%r * st%nl), has(cone%r * st%nl))
+    j = 0
+    do kk = 1, st%nl
+      do r2 = 1, cone%r
+        j = j + 1
+        has(j) = st%nrm2(r2, kk) > 0
+        rel(j) = 0
+        if (has(j)) rel(j) = max(st%res2(r2, kk), 0.0_wp) / st%nrm2(r2, kk)
+      end do
+    end do
+    call env%allreduce_near_maxloc(rel, col_offset * cone%r, out(1), gid_best, error, mask=has)
+    if (allocated(error)) call prefix_error(error, "pga: the largest projection error")
+    out(2) = real(gid_best, wp)
+  end subroutine pga_argmax
 end module cr_supremizer

@@ -21,7 +21,7 @@ module cr_fom_file
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, prefix_error, set_error
   use cr_config, only: config_t, config_echo
-  use cr_fom, only: fom_t, step_record_t
+  use cr_fom_state, only: fom_state_t, step_record_t
   use cr_scene, only: scene_t
   use cr_pdda_file, only: exit_segments
   use cr_h5file, only: h5file_t, cr_h5_real, cr_h5_int, cr_h5_int64
@@ -103,7 +103,7 @@ contains
     class(fom_writer_t), intent(inout) :: this
     character(len=*), intent(in) :: path
     type(config_t), intent(in) :: cfg
-    type(fom_t), intent(in) :: fom
+    class(fom_state_t), intent(in) :: fom
     type(error_t), allocatable, intent(out) :: error
     !> output states held in memory before they go to the file (>= 1; default: as many as
     !> fit BUFFER_BYTES, at most the number of steps + 1)
@@ -174,7 +174,7 @@ contains
   !> it into the buffer, which goes to the file when full. On an error the caller aborts.
   subroutine write_step(this, fom, error)
     class(fom_writer_t), intent(inout) :: this
-    type(fom_t), intent(in) :: fom
+    class(fom_state_t), intent(in) :: fom
     type(error_t), allocatable, intent(out) :: error
     integer :: n, l, k, j
     if (.not. this%h5%is_open() .or. .not. allocated(this%b_q)) then

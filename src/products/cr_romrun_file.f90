@@ -345,7 +345,9 @@ contains
 
   ! ------------------------------------------------------------------ read
 
-  !> Read and validate a ROM-run file (serial).
+  !> Read and validate a ROM-run file (serial): the root and fom_timing attributes
+  !> (read_romrun_header), each setting's sets (read_romrun_set) and the table
+  !> (read_romrun_table).
   subroutine read_romrun(path, run, error)
     character(len=*), intent(in) :: path
     type(romrun_t), intent(out) :: run
@@ -354,55 +356,15 @@ contains
     type(error_t), allocatable :: e2
     type(romrun_set_t), allocatable :: tmp(:)
     character(len=:), allocatable :: g, sv
-    integer :: version, ks, is, nset, n, nt, nd
-    integer(i8), allocatable :: d(:)
+    integer :: version, ks, is, nset
     call h5%open(path, error)
     if (allocated(error)) then
       error%code = 2; return
     end if
     call check_schema(h5, path, ROMRUN_SCHEMA, ROMRUN_VERSIONS_READ, "ROM-run file", version, error)
     if (allocated(error)) goto 9
-    associate (h => run%hdr)
-      call h5%read_attr("/", "config", h%config, error); if (allocated(error)) goto 9
-      call h5%read_attr("/", "rom_file", h%rom_file, error); if (allocated(error)) goto 9
-      call h5%read_attr("/", "database", h%database, error); if (allocated(error)) goto 9
-      call h5%read_attr("/", "database_config_hash", h%db_hash, error); if (allocated(error)) goto 9
-      call h5%read_attr("/", "n_agents", h%n_agents, error); if (allocated(error)) goto 9
-      call h5%read_attr("/", "n_steps", h%n_steps, error); if (allocated(error)) goto 9
-      call h5%read_attr("/", "dt", h%dt, error); if (allocated(error)) goto 9
-      call h5%read_attr("/", "agent_radius", h%radius, error); if (allocated(error)) goto 9
-      call h5%read_attr("/", "param_names", h%param_names, error); if (allocated(error)) goto 9
-      call h5%read_attr("/", "param_min", h%param_min, error); if (allocated(error)) goto 9
-      call h5%read_attr("/", "param_max", h%param_max, error); if (allocated(error)) goto 9
-      call h5%read_attr("/", "n_settings", h%n_settings, error); if (allocated(error)) goto 9
-      call h5%read_attr("fom_timing", "t_step_uzawa", h%t_uz, error); if (allocated(error)) goto 9
-      call h5%read_attr("fom_timing", "t_step_exact", h%t_ex, error); if (allocated(error)) goto 9
-      call h5%read_attr("fom_timing", "exact_solver", h%exact_solver, error); if (allocated(error)) goto 9
-      call h5%read_attr("fom_timing", "tolerance", h%tolerance, error); if (allocated(error)) goto 9
-      call h5%read_attr("fom_timing", "uzawa_eps", h%uzawa_eps, error); if (allocated(error)) goto 9
-      call h5%read_attr("fom_timing", "uzawa_steps", h%uzawa_steps, error); if (allocated(error)) goto 9
-      call h5%read_attr("fom_timing", "uzawa_rows", h%uzawa_rows, error); if (allocated(error)) goto 9
-      call h5%read_attr("fom_timing", "samples", h%timing_samples, error); if (allocated(error)) goto 9
-      call h5%read_attr("fom_timing", "kkt_max_uzawa", h%kkt_uz, error); if (allocated(error)) goto 9
-      call h5%read_attr("fom_timing", "kkt_max_exact", h%kkt_ex, error); if (allocated(error)) goto 9
-      call h5%read_attr("fom_timing", "nonconverged_steps_uzawa", h%nc_uz, error); if (allocated(error)) goto 9
-      ! written since the 'fastest' reference (absent from older files of the same version)
-      call h5%read_attr("fom_timing", "exact_solver_asked", h%exact_asked, e2)
-      if (allocated(e2)) then
-        h%exact_asked = h%exact_solver; deallocate(e2)
-      end if
-      call h5%read_attr("fom_timing", "exact_solver_timings", h%exact_timings, e2)
-      if (allocated(e2)) then
-        h%exact_timings = ''; deallocate(e2)
-      end if
-      if (h%n_agents < 1 .or. h%n_steps < 1 .or. h%n_settings < 0 .or. size(h%param_min) /= size(h%param_max)) then
-        call product_error(path, "root attributes out of range (n_agents " // str(h%n_agents) // ", n_steps " // &
-          str(h%n_steps) // ", n_settings " // str(h%n_settings) // ")", error); goto 9
-      end if
-      call need_finite(path, "param_min", h%param_min, error); if (allocated(error)) goto 9
-      call need_finite(path, "param_max", h%param_max, error); if (allocated(error)) goto 9
-      nt = h%n_steps; nd = 2 * h%n_agents
-    end associate
+    call read_romrun_header(h5, path, run%hdr, error)
+    if (allocated(error)) goto 9
     allocate(tmp(2 * run%hdr%n_settings))
     nset = 0
     do ks = 1, run%hdr%n_settings
@@ -416,178 +378,273 @@ contains
         if (is == 3) sv = 'given'
         if (.not. h5%exists(g // "/" // sv)) cycle
         nset = nset + 1
-        associate (s => tmp(nset))
-          s%setting = ks; s%name = sv
-          call h5%read_attr(g, "n", s%n, error); if (allocated(error)) goto 9
-          call h5%read_attr(g, "r", s%r, error); if (allocated(error)) goto 9
-          call h5%read_attr(g, "n_basis", s%nb, error); if (allocated(error)) goto 9
-          call h5%read_attr(g, "pair", s%pair, error); if (allocated(error)) goto 9
-          call read_string(g, "hyper", s%hyper); if (allocated(error)) goto 9
-          call read_string(g, "contacts", s%contacts); if (allocated(error)) goto 9
-          call read_string(g, "solver", s%solver); if (allocated(error)) goto 9
-          call h5%read_attr(g, "m_v", s%m(1), error); if (allocated(error)) goto 9
-          call h5%read_attr(g, "m_b", s%m(2), error); if (allocated(error)) goto 9
-          call h5%read_attr(g, "m_d", s%m(3), error); if (allocated(error)) goto 9
-          ! written since the local correction (absent from older files: 'none')
-          call read_string(g, "correction", s%correction)
-          if (allocated(error)) then
-            s%correction = 'none'; deallocate(error)
-          end if
-          call h5%read_attr(g, "E_avg", s%e_avg, e2)
-          s%summary = .not. allocated(e2)
-          if (allocated(e2)) deallocate(e2)
-          if (s%summary) then
-            call h5%read_attr(g, "samples_diverged", s%samples_diverged, error); if (allocated(error)) goto 9
-            call h5%read_attr(g, "t_step", s%t_step, error); if (allocated(error)) goto 9
-            call h5%read_attr(g, "speedup_uzawa", s%speedup_uzawa, error); if (allocated(error)) goto 9
-            call h5%read_attr(g, "speedup_exact", s%speedup_exact, error); if (allocated(error)) goto 9
-          end if
-          g = g // "/" // sv
-          call h5%read(g // "/params", s%params, error); if (allocated(error)) goto 9
-          n = size(s%params, 2)
-          call need_finite(path, g // "/params", s%params, error); if (allocated(error)) goto 9
-          call need_dims(h5, path, g // "/alpha", [int(s%nb, i8), int(nt, i8) * n], "n_basis x n_steps n_samples", &
-            error); if (allocated(error)) goto 9
-          call need_dims(h5, path, g // "/positions", [int(nd, i8), int(nt + 1, i8) * n], &
-            "2 n_agents x (n_steps + 1) n_samples", error); if (allocated(error)) goto 9
-          call need_dims(h5, path, g // "/err_time", [int(nt + 1, i8), int(n, i8)], "(n_steps + 1) x n_samples", &
-            error); if (allocated(error)) goto 9
-          call h5%read(g // "/alpha", s%alpha, error); if (allocated(error)) goto 9
-          if (h5%exists(g // "/beta")) then
-            call h5%read(g // "/beta", s%beta, error); if (allocated(error)) goto 9
-          else
-            allocate(s%beta(0, nt * n))
-          end if
-          call h5%read(g // "/positions", s%positions, error); if (allocated(error)) goto 9
-          call h5%read(g // "/err_time", s%err_time, error); if (allocated(error)) goto 9
-          call read_vec(g // "/E_mu", s%e_mu); if (allocated(error)) goto 9
-          call read_vec(g // "/E_proj", s%e_proj); if (allocated(error)) goto 9
-          call read_vec(g // "/max_overlap", s%max_overlap); if (allocated(error)) goto 9
-          call read_vec(g // "/mobility", s%mobility); if (allocated(error)) goto 9
-          call read_vec(g // "/time", s%time); if (allocated(error)) goto 9
-          call read_ivec(g // "/n_not_left", s%n_not_left); if (allocated(error)) goto 9
-          call read_ivec(g // "/n_not_left_fom", s%n_not_left_fom); if (allocated(error)) goto 9
-          call read_ivec(g // "/n_infeasible", s%n_infeasible); if (allocated(error)) goto 9
-          call read_ivec(g // "/n_capped", s%n_capped); if (allocated(error)) goto 9
-          call read_ivec(g // "/extrapolating", s%extrapolating); if (allocated(error)) goto 9
-          call read_ivec(g // "/diverged_step", s%diverged_step); if (allocated(error)) goto 9
-          call read_vec(g // "/E_disp", s%e_disp); if (allocated(error)) goto 9
-          call read_vec(g // "/max_overlap_agents", s%overlap_aa); if (allocated(error)) goto 9
-          call read_vec(g // "/max_overlap_walls", s%overlap_aw); if (allocated(error)) goto 9
-          call need_dims(h5, path, g // "/evac_rom", [int(nt + 1, i8), int(n, i8)], "(n_steps + 1) x n_samples", &
-            error); if (allocated(error)) goto 9
-          call h5%read(g // "/evac_rom", s%evac_rom, error); if (allocated(error)) goto 9
-          call h5%read(g // "/t_out_rom", s%t_out_rom, error); if (allocated(error)) goto 9
-          if (h5%exists(g // "/evac_fom")) then
-            call need_dims(h5, path, g // "/evac_fom", [int(nt + 1, i8), int(n, i8)], "(n_steps + 1) x n_samples", &
-              error); if (allocated(error)) goto 9
-            call h5%read(g // "/evac_fom", s%evac_fom, error); if (allocated(error)) goto 9
-            call h5%read(g // "/t_out_fom", s%t_out_fom, error); if (allocated(error)) goto 9
-          end if
-          if (h5%exists(g // "/n_corrected")) then
-            call need_dims(h5, path, g // "/n_corrected", [int(nt, i8), int(n, i8)], "n_steps x n_samples", &
-              error); if (allocated(error)) goto 9
-            call h5%read(g // "/n_corrected", s%n_corrected, error); if (allocated(error)) goto 9
-            call read_vec(g // "/t_correct", s%t_correct); if (allocated(error)) goto 9
-          end if
-          if (h5%exists(g // "/qoi")) then
-            call read_qoi_group(h5, path, g // "/qoi", s%qoi, error); if (allocated(error)) goto 9
-            if (size(s%qoi) /= n) then
-              call product_error(path, "group '" // g // "/qoi' has " // str(size(s%qoi)) // " rows for " // &
-                str(n) // " samples", error); goto 9
-            end if
-          end if
-          g = "setting_" // str(ks)
-        end associate
+        call read_romrun_set(h5, path, ks, sv, run%hdr%n_steps, 2 * run%hdr%n_agents, tmp(nset), error)
+        if (allocated(error)) goto 9
       end do
     end do
     run%sets = tmp(1:nset)
-    call read_table(error)
+    call read_romrun_table(h5, path, run, error)
 9   call h5%close(e2)
     if (allocated(error)) then
       if (error%code /= 2) call prefix_error(error, "ROM-run file '" // path // "'")
       return
     end if
     if (allocated(e2)) call move_alloc(e2, error)
-
-  contains
-
-    subroutine read_string(obj, name, out)
-      character(len=*), intent(in) :: obj, name
-      character(len=8), intent(out) :: out
-      character(len=:), allocatable :: v
-      call h5%read_attr(obj, name, v, error)
-      if (.not. allocated(error)) out = v
-    end subroutine read_string
-
-    subroutine read_vec(name, x)
-      character(len=*), intent(in) :: name
-      real(wp), allocatable, intent(out) :: x(:)
-      call need_dims(h5, path, name, [int(n, i8)], "n_samples", error); if (allocated(error)) return
-      call h5%read(name, x, error)
-    end subroutine read_vec
-
-    subroutine read_ivec(name, x)
-      character(len=*), intent(in) :: name
-      integer, allocatable, intent(out) :: x(:)
-      call need_dims(h5, path, name, [int(n, i8)], "n_samples", error); if (allocated(error)) return
-      call h5%read(name, x, error)
-    end subroutine read_ivec
-
-    subroutine read_table(error)
-      type(error_t), allocatable, intent(out) :: error
-      integer, allocatable :: iv(:)
-      real(wp), allocatable :: rv(:)
-      integer :: nr, k
-      call h5%get_dims("table/setting", d, error); if (allocated(error)) return
-      nr = int(d(1))
-      allocate(run%rows(nr))
-      call h5%read("table/setting", iv, error); if (allocated(error)) return
-      run%rows%setting = iv
-      call h5%read("table/n", iv, error); if (allocated(error)) return
-      run%rows%n = iv
-      call h5%read("table/r", iv, error); if (allocated(error)) return
-      run%rows%r = iv
-      call h5%read("table/n_basis", iv, error); if (allocated(error)) return
-      run%rows%nb = iv
-      call h5%read("table/E_avg", rv, error); if (allocated(error)) return
-      run%rows%e_avg = rv
-      call h5%read("table/E_max", rv, error); if (allocated(error)) return
-      run%rows%e_max = rv
-      call h5%read("table/E_proj_avg", rv, error); if (allocated(error)) return
-      run%rows%e_proj = rv
-      call h5%read("table/max_overlap", rv, error); if (allocated(error)) return
-      run%rows%overlap = rv
-      call h5%read("table/mobility", rv, error); if (allocated(error)) return
-      run%rows%mobility = rv
-      call h5%read("table/agents_not_left", iv, error); if (allocated(error)) return
-      run%rows%not_left = iv
-      call h5%read("table/agents_not_left_fom", iv, error); if (allocated(error)) return
-      run%rows%not_left_fom = iv
-      call h5%read("table/infeasible_steps", iv, error); if (allocated(error)) return
-      run%rows%infeasible = iv
-      call h5%read("table/capped_steps", iv, error); if (allocated(error)) return
-      run%rows%capped = iv
-      call h5%read("table/t_step_rom", rv, error); if (allocated(error)) return
-      run%rows%t_step = rv
-      call h5%read("table/samples_diverged", iv, error); if (allocated(error)) return
-      run%rows%diverged = iv
-      call h5%read("table/E_disp", rv, error); if (allocated(error)) return
-      run%rows%meas%e_disp = rv
-      if (h5%exists("table/corrected_fraction")) then
-        call h5%read("table/corrected_fraction", rv, error); if (allocated(error)) return
-        run%rows%corr_frac = rv
-        call h5%read("table/corrected_fraction_max", rv, error); if (allocated(error)) return
-        run%rows%corr_frac_max = rv
-        call h5%read("table/t_correct_step", rv, error); if (allocated(error)) return
-        run%rows%t_correct = rv
-      end if
-      do k = 1, nr
-        if (run%rows(k)%setting < 1 .or. run%rows(k)%setting > run%hdr%n_settings) then
-          call product_error(path, "dataset 'table/setting': setting " // str(run%rows(k)%setting) // &
-            " at row " // str(k) // " outside 1.." // str(run%hdr%n_settings), error); return
-        end if
-      end do
-    end subroutine read_table
   end subroutine read_romrun
+
+  !> The root and fom_timing attributes of a ROM-run file, checked.
+  subroutine read_romrun_header(h5, path, h, error)
+    type(h5file_t), intent(inout) :: h5
+    character(len=*), intent(in) :: path
+    type(romrun_header_t), intent(inout) :: h
+    type(error_t), allocatable, intent(out) :: error
+    type(error_t), allocatable :: e2
+    call h5%read_attr("/", "config", h%config, error); if (allocated(error)) return
+    call h5%read_attr("/", "rom_file", h%rom_file, error); if (allocated(error)) return
+    call h5%read_attr("/", "database", h%database, error); if (allocated(error)) return
+    call h5%read_attr("/", "database_config_hash", h%db_hash, error); if (allocated(error)) return
+    call h5%read_attr("/", "n_agents", h%n_agents, error); if (allocated(error)) return
+    call h5%read_attr("/", "n_steps", h%n_steps, error); if (allocated(error)) return
+    call h5%read_attr("/", "dt", h%dt, error); if (allocated(error)) return
+    call h5%read_attr("/", "agent_radius", h%radius, error); if (allocated(error)) return
+    call h5%read_attr("/", "param_names", h%param_names, error); if (allocated(error)) return
+    call h5%read_attr("/", "param_min", h%param_min, error); if (allocated(error)) return
+    call h5%read_attr("/", "param_max", h%param_max, error); if (allocated(error)) return
+    call h5%read_attr("/", "n_settings", h%n_settings, error); if (allocated(error)) return
+    call h5%read_attr("fom_timing", "t_step_uzawa", h%t_uz, error); if (allocated(error)) return
+    call h5%read_attr("fom_timing", "t_step_exact", h%t_ex, error); if (allocated(error)) return
+    call h5%read_attr("fom_timing", "exact_solver", h%exact_solver, error); if (allocated(error)) return
+    call h5%read_attr("fom_timing", "tolerance", h%tolerance, error); if (allocated(error)) return
+    call h5%read_attr("fom_timing", "uzawa_eps", h%uzawa_eps, error); if (allocated(error)) return
+    call h5%read_attr("fom_timing", "uzawa_steps", h%uzawa_steps, error); if (allocated(error)) return
+    call h5%read_attr("fom_timing", "uzawa_rows", h%uzawa_rows, error); if (allocated(error)) return
+    call h5%read_attr("fom_timing", "samples", h%timing_samples, error); if (allocated(error)) return
+    call h5%read_attr("fom_timing", "kkt_max_uzawa", h%kkt_uz, error); if (allocated(error)) return
+    call h5%read_attr("fom_timing", "kkt_max_exact", h%kkt_ex, error); if (allocated(error)) return
+    call h5%read_attr("fom_timing", "nonconverged_steps_uzawa", h%nc_uz, error); if (allocated(error)) return
+    ! written since the 'fastest' reference (absent from older files of the same version)
+    call h5%read_attr("fom_timing", "exact_solver_asked", h%exact_asked, e2)
+    if (allocated(e2)) then
+      h%exact_asked = h%exact_solver; deallocate(e2)
+    end if
+    call h5%read_attr("fom_timing", "exact_solver_timings", h%exact_timings, e2)
+    if (allocated(e2)) then
+      h%exact_timings = ''; deallocate(e2)
+    end if
+    if (h%n_agents < 1 .or. h%n_steps < 1 .or. h%n_settings < 0 .or. size(h%param_min) /= size(h%param_max)) then
+      call product_error(path, "root attributes out of range (n_agents " // str(h%n_agents) // ", n_steps " // &
+        str(h%n_steps) // ", n_settings " // str(h%n_settings) // ")", error); return
+    end if
+    call need_finite(path, "param_min", h%param_min, error); if (allocated(error)) return
+    call need_finite(path, "param_max", h%param_max, error)
+  end subroutine read_romrun_header
+
+  !> Set sv ('train', 'valid', 'given') of setting ks: the setting's attributes and the set's
+  !> datasets (nt steps, nd degrees of freedom), each checked against the sizes.
+  subroutine read_romrun_set(h5, path, ks, sv, nt, nd, s, error)
+    type(h5file_t), intent(inout) :: h5
+    character(len=*), intent(in) :: path, sv
+    integer, intent(in) :: ks, nt, nd
+    type(romrun_set_t), intent(inout) :: s
+    type(error_t), allocatable, intent(out) :: error
+    type(error_t), allocatable :: e2
+    character(len=:), allocatable :: g
+    integer :: n
+    g = "setting_" // str(ks)
+    s%setting = ks; s%name = sv
+    call h5%read_attr(g, "n", s%n, error); if (allocated(error)) return
+    call h5%read_attr(g, "r", s%r, error); if (allocated(error)) return
+    call h5%read_attr(g, "n_basis", s%nb, error); if (allocated(error)) return
+    call h5%read_attr(g, "pair", s%pair, error); if (allocated(error)) return
+    call read_str8(h5, g, "hyper", s%hyper, error); if (allocated(error)) return
+    call read_str8(h5, g, "contacts", s%contacts, error); if (allocated(error)) return
+    call read_str8(h5, g, "solver", s%solver, error); if (allocated(error)) return
+    call h5%read_attr(g, "m_v", s%m(1), error); if (allocated(error)) return
+    call h5%read_attr(g, "m_b", s%m(2), error); if (allocated(error)) return
+    call h5%read_attr(g, "m_d", s%m(3), error); if (allocated(error)) return
+    ! written since the local correction (absent from older files: 'none')
+    call read_str8(h5, g, "correction", s%correction, error)
+    if (allocated(error)) then
+      s%correction = 'none'; deallocate(error)
+    end if
+    call h5%read_attr(g, "E_avg", s%e_avg, e2)
+    s%summary = .not. allocated(e2)
+    if (allocated(e2)) deallocate(e2)
+    if (s%summary) then
+      call h5%read_attr(g, "samples_diverged", s%samples_diverged, error); if (allocated(error)) return
+      call h5%read_attr(g, "t_step", s%t_step, error); if (allocated(error)) return
+      call h5%read_attr(g, "speedup_uzawa", s%speedup_uzawa, error); if (allocated(error)) return
+      call h5%read_attr(g, "speedup_exact", s%speedup_exact, error); if (allocated(error)) return
+    end if
+    g = g // "/" // sv
+    call h5%read(g // "/params", s%params, error); if (allocated(error)) return
+    n = size(s%params, 2)
+    call need_finite(path, g // "/params", s%params, error); if (allocated(error)) return
+    call need_dims(h5, path, g // "/alpha", [int(s%nb, i8), int(nt, i8) * n], "n_basis x n_steps n_samples", &
+      error); if (allocated(error)) return
+    call need_dims(h5, path, g // "/positions", [int(nd, i8), int(nt + 1, i8) * n], &
+      "2 n_agents x (n_steps + 1) n_samples", error); if (allocated(error)) return
+    call need_dims(h5, path, g // "/err_time", [int(nt + 1, i8), int(n, i8)], "(n_steps + 1) x n_samples", &
+      error); if (allocated(error)) return
+    call h5%read(g // "/alpha", s%alpha, error); if (allocated(error)) return
+    if (h5%exists(g // "/beta")) then
+      call h5%read(g // "/beta", s%beta, error); if (allocated(error)) return
+    else
+      allocate(s%beta(0, nt * n))
+    end if
+    call h5%read(g // "/positions", s%positions, error); if (allocated(error)) return
+    call h5%read(g // "/err_time", s%err_time, error); if (allocated(error)) return
+    call read_sample_vectors(h5, path, g, n, s, error); if (allocated(error)) return
+    call read_romrun_extras(h5, path, g, nt, n, s, error)
+  end subroutine read_romrun_set
+
+  !> The per-sample vectors [n] of set group g.
+  subroutine read_sample_vectors(h5, path, g, n, s, error)
+    type(h5file_t), intent(inout) :: h5
+    character(len=*), intent(in) :: path, g
+    integer, intent(in) :: n
+    type(romrun_set_t), intent(inout) :: s
+    type(error_t), allocatable, intent(out) :: error
+    call read_vec(h5, path, g // "/E_mu", n, s%e_mu, error); if (allocated(error)) return
+    call read_vec(h5, path, g // "/E_proj", n, s%e_proj, error); if (allocated(error)) return
+    call read_vec(h5, path, g // "/max_overlap", n, s%max_overlap, error); if (allocated(error)) return
+    call read_vec(h5, path, g // "/mobility", n, s%mobility, error); if (allocated(error)) return
+    call read_vec(h5, path, g // "/time", n, s%time, error); if (allocated(error)) return
+    call read_ivec(h5, path, g // "/n_not_left", n, s%n_not_left, error); if (allocated(error)) return
+    call read_ivec(h5, path, g // "/n_not_left_fom", n, s%n_not_left_fom, error); if (allocated(error)) return
+    call read_ivec(h5, path, g // "/n_infeasible", n, s%n_infeasible, error); if (allocated(error)) return
+    call read_ivec(h5, path, g // "/n_capped", n, s%n_capped, error); if (allocated(error)) return
+    call read_ivec(h5, path, g // "/extrapolating", n, s%extrapolating, error); if (allocated(error)) return
+    call read_ivec(h5, path, g // "/diverged_step", n, s%diverged_step, error); if (allocated(error)) return
+    call read_vec(h5, path, g // "/E_disp", n, s%e_disp, error); if (allocated(error)) return
+    call read_vec(h5, path, g // "/max_overlap_agents", n, s%overlap_aa, error); if (allocated(error)) return
+    call read_vec(h5, path, g // "/max_overlap_walls", n, s%overlap_aw, error)
+  end subroutine read_sample_vectors
+
+  !> The evacuation curves, the local correction's figures and the QoIs of set group g (the
+  !> full-order curves, the correction and the QoIs where the file has them).
+  subroutine read_romrun_extras(h5, path, g, nt, n, s, error)
+    type(h5file_t), intent(inout) :: h5
+    character(len=*), intent(in) :: path, g
+    integer, intent(in) :: nt, n
+    type(romrun_set_t), intent(inout) :: s
+    type(error_t), allocatable, intent(out) :: error
+    call need_dims(h5, path, g // "/evac_rom", [int(nt + 1, i8), int(n, i8)], "(n_steps + 1) x n_samples", &
+      error); if (allocated(error)) return
+    call h5%read(g // "/evac_rom", s%evac_rom, error); if (allocated(error)) return
+    call h5%read(g // "/t_out_rom", s%t_out_rom, error); if (allocated(error)) return
+    if (h5%exists(g // "/evac_fom")) then
+      call need_dims(h5, path, g // "/evac_fom", [int(nt + 1, i8), int(n, i8)], "(n_steps + 1) x n_samples", &
+        error); if (allocated(error)) return
+      call h5%read(g // "/evac_fom", s%evac_fom, error); if (allocated(error)) return
+      call h5%read(g // "/t_out_fom", s%t_out_fom, error); if (allocated(error)) return
+    end if
+    if (h5%exists(g // "/n_corrected")) then
+      call need_dims(h5, path, g // "/n_corrected", [int(nt, i8), int(n, i8)], "n_steps x n_samples", &
+        error); if (allocated(error)) return
+      call h5%read(g // "/n_corrected", s%n_corrected, error); if (allocated(error)) return
+      call read_vec(h5, path, g // "/t_correct", n, s%t_correct, error); if (allocated(error)) return
+    end if
+    if (h5%exists(g // "/qoi")) then
+      call read_qoi_group(h5, path, g // "/qoi", s%qoi, error); if (allocated(error)) return
+      if (size(s%qoi) /= n) then
+        call product_error(path, "group '" // g // "/qoi' has " // str(size(s%qoi)) // " rows for " // &
+          str(n) // " samples", error); return
+      end if
+    end if
+  end subroutine read_romrun_extras
+
+  !> A string attribute of at most 8 characters.
+  subroutine read_str8(h5, obj, name, out, error)
+    type(h5file_t), intent(inout) :: h5
+    character(len=*), intent(in) :: obj, name
+    character(len=8), intent(inout) :: out
+    type(error_t), allocatable, intent(out) :: error
+    character(len=:), allocatable :: v
+    call h5%read_attr(obj, name, v, error)
+    if (.not. allocated(error)) out = v
+  end subroutine read_str8
+
+  !> A real vector of n entries (one per sample).
+  subroutine read_vec(h5, path, name, n, x, error)
+    type(h5file_t), intent(inout) :: h5
+    character(len=*), intent(in) :: path, name
+    integer, intent(in) :: n
+    real(wp), allocatable, intent(out) :: x(:)
+    type(error_t), allocatable, intent(out) :: error
+    call need_dims(h5, path, name, [int(n, i8)], "n_samples", error); if (allocated(error)) return
+    call h5%read(name, x, error)
+  end subroutine read_vec
+
+  !> An integer vector of n entries (one per sample).
+  subroutine read_ivec(h5, path, name, n, x, error)
+    type(h5file_t), intent(inout) :: h5
+    character(len=*), intent(in) :: path, name
+    integer, intent(in) :: n
+    integer, allocatable, intent(out) :: x(:)
+    type(error_t), allocatable, intent(out) :: error
+    call need_dims(h5, path, name, [int(n, i8)], "n_samples", error); if (allocated(error)) return
+    call h5%read(name, x, error)
+  end subroutine read_ivec
+
+  !> The table of a ROM-run file (one row per setting and set), its settings checked.
+  subroutine read_romrun_table(h5, path, run, error)
+    type(h5file_t), intent(inout) :: h5
+    character(len=*), intent(in) :: path
+    type(romrun_t), intent(inout) :: run
+    type(error_t), allocatable, intent(out) :: error
+    integer(i8), allocatable :: d(:)
+    integer, allocatable :: iv(:)
+    real(wp), allocatable :: rv(:)
+    integer :: nr, k
+    call h5%get_dims("table/setting", d, error); if (allocated(error)) return
+    nr = int(d(1))
+    allocate(run%rows(nr))
+    call h5%read("table/setting", iv, error); if (allocated(error)) return
+    run%rows%setting = iv
+    call h5%read("table/n", iv, error); if (allocated(error)) return
+    run%rows%n = iv
+    call h5%read("table/r", iv, error); if (allocated(error)) return
+    run%rows%r = iv
+    call h5%read("table/n_basis", iv, error); if (allocated(error)) return
+    run%rows%nb = iv
+    call h5%read("table/E_avg", rv, error); if (allocated(error)) return
+    run%rows%e_avg = rv
+    call h5%read("table/E_max", rv, error); if (allocated(error)) return
+    run%rows%e_max = rv
+    call h5%read("table/E_proj_avg", rv, error); if (allocated(error)) return
+    run%rows%e_proj = rv
+    call h5%read("table/max_overlap", rv, error); if (allocated(error)) return
+    run%rows%overlap = rv
+    call h5%read("table/mobility", rv, error); if (allocated(error)) return
+    run%rows%mobility = rv
+    call h5%read("table/agents_not_left", iv, error); if (allocated(error)) return
+    run%rows%not_left = iv
+    call h5%read("table/agents_not_left_fom", iv, error); if (allocated(error)) return
+    run%rows%not_left_fom = iv
+    call h5%read("table/infeasible_steps", iv, error); if (allocated(error)) return
+    run%rows%infeasible = iv
+    call h5%read("table/capped_steps", iv, error); if (allocated(error)) return
+    run%rows%capped = iv
+    call h5%read("table/t_step_rom", rv, error); if (allocated(error)) return
+    run%rows%t_step = rv
+    call h5%read("table/samples_diverged", iv, error); if (allocated(error)) return
+    run%rows%diverged = iv
+    call h5%read("table/E_disp", rv, error); if (allocated(error)) return
+    run%rows%meas%e_disp = rv
+    if (h5%exists("table/corrected_fraction")) then
+      call h5%read("table/corrected_fraction", rv, error); if (allocated(error)) return
+      run%rows%corr_frac = rv
+      call h5%read("table/corrected_fraction_max", rv, error); if (allocated(error)) return
+      run%rows%corr_frac_max = rv
+      call h5%read("table/t_correct_step", rv, error); if (allocated(error)) return
+      run%rows%t_correct = rv
+    end if
+    do k = 1, nr
+      if (run%rows(k)%setting < 1 .or. run%rows(k)%setting > run%hdr%n_settings) then
+        call product_error(path, "dataset 'table/setting': setting " // str(run%rows(k)%setting) // &
+          " at row " // str(k) // " outside 1.." // str(run%hdr%n_settings), error); return
+      end if
+    end do
+  end subroutine read_romrun_table
 end module cr_romrun_file

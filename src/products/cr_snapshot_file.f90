@@ -187,6 +187,42 @@ module cr_snapshot_file
     procedure :: discard => writer_discard
   end type snap_writer_t
 
+  !> One sample's multipliers in the set's CSR arrays: offsets [ns], dictionary indices [nnz].
+  type :: csr_t
+    integer(i8), allocatable :: off8(:)
+    integer, allocatable :: li(:)
+  end type csr_t
+
+  !> What the steps of the writer's finish pass on: this rank's contacts [4, n] and CSR arrays
+  !> [nl], the contact dictionary (keys and ids), every rank's contact entries [P], the report
+  !> to rank 0 (checksum parts, failed flag, block digests), rank 0's places of the multiplier
+  !> datasets [2, 2] and its status (m: '' or its message); ended: rank 0's failure shared.
+  type :: finish_state_t
+    integer(i8), allocatable :: pack4(:,:), dkey(:)
+    type(csr_t), allocatable :: csr(:)
+    integer, allocatable :: dia(:), dib(:), dob(:), counts(:)
+    real(wp), allocatable :: dl(:)
+    integer(i8) :: lplace(2, 2) = -1
+    character(len=:), allocatable :: m
+    integer :: ntot = 0
+    real(wp) :: t0 = 0
+    logical :: ended = .false.
+  end type finish_state_t
+
+  !> What the steps of read_snap_block share: the request (set, first sample, count, what to
+  !> read), the set's size, the file and group, the sizes (steps, degrees of freedom, all the
+  !> set's multipliers), whether the file has per-sample checksums (version 2) and this block's
+  !> columns of the block table [34, nloc], the multiplier offsets read [nt nloc + 1], their
+  !> first (base) and a fault found in them (bad: '' if none).
+  type :: block_read_t
+    character(len=:), allocatable :: name, path, g, bad
+    integer :: k0 = 1, nloc = 0, n = 0, nt = 0, nd = 0
+    logical :: desired = .false., multipliers = .false., blocks = .false.
+    integer(i8) :: nnz_all = 0, base = 0
+    integer, allocatable :: tab(:,:)
+    integer(i8), allocatable :: off(:)
+  end type block_read_t
+
   !> What a reader learns from the root of a complete database.
   type :: snap_header_t
     character(len=:), allocatable :: path
@@ -709,14 +745,15 @@ contains
   !> Steps (collectives in brackets): the places are awaited and the samples held meanwhile
   !> written; this rank's contacts; [one MPI_Allreduce: failures, each sample's holder and
   !> number of multipliers, every rank's number of contacts, the checksum parts of the datasets
-  !> the study sizes, extra]; rank 0 places lambda_index and lambda_value (HDF5) while the
-  !> others compute their CSR offsets and checksum parts; [one MPI_Allgatherv: the contacts,
-  !> and rank 0's status and places first]: the dictionary, the sorted union of the contacts;
-  !> each rank's dictionary indices, the multipliers' checksum parts and its multiplier blocks;
-  !> [one MPI_Reduce to rank 0: every rank's blocks are in (or it failed), with the checksum
-  !> parts]; rank 0 then adds the dictionary, every checksum and complete = 1, closes the file
-  !> and renames it (the commit) [one broadcast of its status; on failure an agreement on the
-  !> failing rank's message]. On failure the temporary is removed.
+  !> the study sizes, extra] (end_reduction); rank 0 places lambda_index and lambda_value (HDF5)
+  !> while the others compute their CSR offsets and checksum parts (csr_offsets); [one
+  !> MPI_Allgatherv: the contacts, and rank 0's status and places first]: the dictionary, the
+  !> sorted union of the contacts (share_dictionary); each rank's dictionary indices, the
+  !> multipliers' checksum parts (dictionary_indices) and its multiplier blocks; [one MPI_Reduce
+  !> to rank 0: every rank's blocks are in (or it failed), with the checksum parts]
+  !> (write_multipliers); rank 0 then adds the dictionary, every checksum and complete = 1,
+  !> closes the file and renames it (the commit) [one broadcast of its status; on failure an
+  !> agreement on the failing rank's message] (seal). On failure the temporary is removed.
   subroutine writer_finish(this, error, extra, qois)
     class(snap_writer_t), intent(inout) :: this
     type(error_t), allocatable, intent(inout) :: error
@@ -724,38 +761,52 @@ contains
     !> rank 0: the quantities of interest of every sample, train then valid [n_train + n_valid],
     !> written as the QoI group <set>/qoi (cr_qoi_file)
     type(qoi_t), intent(in), optional :: qois(:)
-    !> one sample's multipliers in the set's CSR arrays: offsets [ns], dictionary indices [nnz]
-    type :: csr_t
-      integer(i8), allocatable :: off8(:)
-      integer, allocatable :: li(:)
-    end type csr_t
-    type(csr_t), allocatable :: csr(:)
-    integer(i8), allocatable :: dkey(:), pack4(:, :), sendb(:), allk(:), all4(:, :)
-    integer, allocatable :: dia(:), dib(:), dob(:), counts(:), displs(:), ids(:, :)
-    real(wp), allocatable :: red(:), dl(:)
-    integer :: ntot, g, is, j, ns, p, ne, q, k, nc, head, mm
-    integer(i8) :: o(17), at(17), lplace(2, 2)
-    integer :: stat1(1)
-    character(len=:), allocatable :: m
-    real(wp) :: t0, t1
-    type(error_t), allocatable :: e2
-    logical :: failed
-    t0 = this%env%wtime()
-    this%stats%marks(2:) = t0
-    associate (env => this%env)
-    ns = this%ns
-    ntot = sum(this%nset)
-    p = env%size
-    ne = 0
-    if (present(extra)) ne = size(extra)
+    type(finish_state_t) :: fs
+    fs%t0 = this%env%wtime()
+    this%stats%marks(2:) = fs%t0
+    fs%ntot = sum(this%nset)
     ! the places, the samples held meanwhile and this rank's contacts (if the caller has not
     ! asked for them before)
     if (.not. this%local_done) call this%end_local(error)
+    call move_alloc(this%pack4, fs%pack4)
+    call end_reduction(this, fs, error, extra)
+    if (.not. allocated(error)) then
+      call csr_offsets(this, fs)
+      call share_dictionary(this, fs, error)
+    end if
+    if (.not. (allocated(error) .or. fs%ended)) then
+      call dictionary_indices(this, fs)
+      this%stats%t_dict = this%env%wtime() - fs%t0
+      call write_multipliers(this, fs, error)
+      call seal(this, fs, error, qois)
+    end if
+    this%active = .false.
+    if (allocated(error)) then
+      call this%discard()
+      if (index(error%message, "database '") /= 1) error%message = "database '" // this%path // "': " // &
+        error%message
+    end if
+  end subroutine writer_finish
+
+  !> finish, the end reduction: [failed, (held, multipliers) per sample, data bytes, contact
+  !> entries per rank [P], checksum parts [2, 17, 2] (those of the multipliers are still 0),
+  !> extra]; every value is an integer below 2^53 (exact in real(wp)) but extra's. Then each
+  !> sample's place in its set's CSR arrays, the contact counts and the summed checksums.
+  subroutine end_reduction(this, fs, error, extra)
+    type(snap_writer_t), intent(inout) :: this
+    type(finish_state_t), intent(inout) :: fs
+    type(error_t), allocatable, intent(inout) :: error
+    real(wp), intent(inout), optional :: extra(:)
+    real(wp), allocatable :: red(:)
+    type(error_t), allocatable :: e2
+    integer :: ntot, p, ne, j, k, is, q, g
+    logical :: failed
+    associate (env => this%env)
+    ntot = fs%ntot
+    p = env%size
+    ne = 0
+    if (present(extra)) ne = size(extra)
     failed = allocated(error)
-    call move_alloc(this%pack4, pack4)
-    ! the end reduction: [failed, (held, multipliers) per sample, data bytes, contact entries per
-    ! rank [P], checksum parts [2, 17, 2] (those of the multipliers are still 0), extra]; every
-    ! value is an integer below 2^53 (exact in real(wp)) but extra's
     allocate(red(1 + 2 * ntot + 1 + p + 68 + ne))
     red = 0
     red(1) = merge(1, 0, failed)
@@ -764,7 +815,7 @@ contains
       red(1 + 2 * this%gl(j)) = size(this%lam(j)%value)
     end do
     red(2 + 2 * ntot) = real(this%stats%bytes, wp)
-    red(3 + 2 * ntot + env%rank) = size(pack4)
+    red(3 + 2 * ntot + env%rank) = size(fs%pack4)
     k = 2 + 2 * ntot + p
     do is = 1, 2
       do q = 1, 17
@@ -778,17 +829,17 @@ contains
     if (allocated(e2)) then
       if (allocated(error)) deallocate(error)
       call move_alloc(e2, error)
-      goto 9
+      return
     end if
     if (ne > 0) extra = red(k + 1:)
     if (red(1) > 0) then
-      call env%agree_error(error); goto 9
+      call env%agree_error(error); return
     end if
     this%stats%bytes = nint(red(2 + 2 * ntot), i8)
     do g = 1, ntot
       if (nint(red(2 * g)) /= 1) then
         call set_error(error, "sample " // str(g) // " of the study was written by " // str(nint(red(2 * g))) // &
-          " ranks (expected exactly one)"); goto 9
+          " ranks (expected exactly one)"); return
       end if
     end do
     allocate(this%base(ntot))
@@ -800,12 +851,12 @@ contains
     end do
     if (any(this%total > huge(1))) then
       call set_error(error, str(maxval(this%total)) // " multipliers in one set exceed the 32-bit dataset sizes")
-      goto 9
+      return
     end if
-    counts = nint(red(3 + 2 * ntot:2 + 2 * ntot + p))
-    if (sum(real(counts, wp)) + 5 > huge(1)) then
-      call set_error(error, str(sum(int(counts, i8)) / 4) // " contact entries exceed the 32-bit MPI counts")
-      goto 9
+    fs%counts = nint(red(3 + 2 * ntot:2 + 2 * ntot + p))
+    if (sum(real(fs%counts, wp)) + 5 > huge(1)) then
+      call set_error(error, str(sum(int(fs%counts, i8)) / 4) // " contact entries exceed the 32-bit MPI counts")
+      return
     end if
     this%stats%nnz = sum(this%total)
     k = 2 + 2 * ntot + p
@@ -816,22 +867,32 @@ contains
       end do
       this%dg(LAMBDA_DS, is) = digest_t()
     end do
-    ! rank 0 places the multiplier datasets; every rank meanwhile computes the global CSR offsets
-    ! of its samples and the checksum parts of the offsets and values
-    m = ""
-    lplace = -1
+    end associate
+  end subroutine end_reduction
+
+  !> finish: rank 0 places the multiplier datasets; every rank meanwhile computes the global
+  !> CSR offsets of its samples and the checksum parts of the offsets and values.
+  subroutine csr_offsets(this, fs)
+    type(snap_writer_t), intent(inout) :: this
+    type(finish_state_t), intent(inout) :: fs
+    integer :: j, is
+    integer(i8) :: o(17)
+    real(wp) :: t1
+    associate (env => this%env)
+    fs%m = ""
+    fs%lplace = -1
     if (env%is_root()) then
       t1 = env%wtime()
-      call place_multipliers(m)
+      call place_multipliers(this, fs)
       this%stats%t_serial = this%stats%t_serial + (env%wtime() - t1)
     end if
     t1 = env%wtime()
-    allocate(csr(this%nl))
+    allocate(fs%csr(this%nl))
     do j = 1, this%nl
       is = findloc(SNAP_SET_NAMES, this%lam(j)%set, dim=1)
-      csr(j)%off8 = this%base(this%gl(j)) + this%lam(j)%offset(2:ns + 1)
+      fs%csr(j)%off8 = this%base(this%gl(j)) + this%lam(j)%offset(2:this%ns + 1)
       o = elem_offsets(this, this%lam(j), this%base(this%gl(j)))
-      this%sdg(5, j) = digest_of(csr(j)%off8, o(5))
+      this%sdg(5, j) = digest_of(fs%csr(j)%off8, o(5))
       this%sdg(7, j) = digest_of(this%lam(j)%value, o(7))
       this%dg(5, is) = digest_add(this%dg(5, is), this%sdg(5, j))
       this%dg(7, is) = digest_add(this%dg(7, is), this%sdg(7, j))
@@ -844,123 +905,169 @@ contains
       end do
     end if
     this%stats%t_blocks = this%stats%t_blocks + (env%wtime() - t1)
-    ! the contacts of every rank, rank 0's status and places first: [len(m), places [2, 2]]
+    end associate
+  end subroutine csr_offsets
+
+  !> finish: the contacts of every rank, rank 0's status and places first ([len(m), places
+  !> [2, 2]], one MPI_Allgatherv); the contact dictionary, their sorted union. fs%ended: rank
+  !> 0 failed (error holds its message).
+  subroutine share_dictionary(this, fs, error)
+    type(snap_writer_t), intent(inout) :: this
+    type(finish_state_t), intent(inout) :: fs
+    type(error_t), allocatable, intent(inout) :: error
+    integer(i8), allocatable :: sendb(:), allk(:), all4(:, :)
+    integer, allocatable :: displs(:), ids(:, :)
+    integer :: head, q, p, nc, mm, is
+    associate (env => this%env)
+    p = env%size
     head = 5
-    counts(1) = counts(1) + head
+    fs%counts(1) = fs%counts(1) + head
     allocate(displs(p))
     displs(1) = 0
     do q = 2, p
-      displs(q) = displs(q - 1) + counts(q - 1)
+      displs(q) = displs(q - 1) + fs%counts(q - 1)
     end do
-    nc = size(pack4)
+    nc = size(fs%pack4)
     if (env%is_root()) then
-      sendb = [int(len(m), i8), reshape(lplace, [4]), reshape(pack4, [nc])]
+      sendb = [int(len(fs%m), i8), reshape(fs%lplace, [4]), reshape(fs%pack4, [nc])]
     else
-      sendb = reshape(pack4, [nc])
+      sendb = reshape(fs%pack4, [nc])
     end if
-    allocate(allk(sum(counts)))
-    call env%allgatherv(sendb, allk, counts, displs, error)
+    allocate(allk(sum(fs%counts)))
+    call env%allgatherv(sendb, allk, fs%counts, displs, error)
     this%stats%marks(3) = env%wtime()
-    if (allocated(error)) goto 9
+    if (allocated(error)) return
     if (allk(1) /= 0) then
-      call share_status(this, m, error); goto 9
+      call share_status(this, fs%m, error)
+      fs%ended = .true.; return
     end if
     do is = 1, 2
       this%place(LATE_DS, is) = allk(2 + 2 * (is - 1):3 + 2 * (is - 1))
     end do
     mm = (size(allk) - head) / 4
     all4 = reshape(allk(head + 1:), [4, mm])
-    dkey = all4(1, :)
+    fs%dkey = all4(1, :)
     ids = int(all4(2:4, :))
     deallocate(all4, allk)
-    call unique_contacts(dkey, ids, mm)
-    dkey = dkey(1:mm)
-    dia = ids(1, 1:mm); dib = ids(2, 1:mm); dob = ids(3, 1:mm)
+    call unique_contacts(fs%dkey, ids, mm)
+    fs%dkey = fs%dkey(1:mm)
+    fs%dia = ids(1, 1:mm); fs%dib = ids(2, 1:mm); fs%dob = ids(3, 1:mm)
     this%stats%n_dict = mm
-    ! each rank's dictionary indices and their checksum parts; the multipliers' checksums summed
-    ! on rank 0
-    t1 = env%wtime()
+    end associate
+  end subroutine share_dictionary
+
+  !> finish: each rank's dictionary indices and their checksum parts; the report to rank 0
+  !> packed (fs%dl: [multipliers' checksum parts [2, 3, 2], failed, block digests [34, ntot]]).
+  subroutine dictionary_indices(this, fs)
+    type(snap_writer_t), intent(inout) :: this
+    type(finish_state_t), intent(inout) :: fs
+    integer :: j, k, is, q
+    integer(i8) :: o(17)
+    real(wp) :: t1
+    t1 = this%env%wtime()
     do j = 1, this%nl
       is = findloc(SNAP_SET_NAMES, this%lam(j)%set, dim=1)
-      allocate(csr(j)%li(size(this%lam(j)%key)))
+      allocate(fs%csr(j)%li(size(this%lam(j)%key)))
       do k = 1, size(this%lam(j)%key)
-        csr(j)%li(k) = bsearch_i8(dkey, this%lam(j)%key(k))
+        fs%csr(j)%li(k) = bsearch_i8(fs%dkey, this%lam(j)%key(k))
       end do
       o = elem_offsets(this, this%lam(j), this%base(this%gl(j)))
-      this%sdg(6, j) = digest_of(csr(j)%li, o(6))
+      this%sdg(6, j) = digest_of(fs%csr(j)%li, o(6))
       this%dg(6, is) = digest_add(this%dg(6, is), this%sdg(6, j))
     end do
-    ! [multipliers' checksum parts [2, 3, 2], failed, block digests [34, ntot]]
-    allocate(dl(13 + 34 * ntot))
-    dl = 0
+    allocate(fs%dl(13 + 34 * fs%ntot))
+    fs%dl = 0
     do j = 1, this%nl
       k = 13 + 34 * (this%gl(j) - 1)
-      dl(k + 1:k + 34) = real(reshape(digest_pack_all(this%sdg(:, j)), [34]), wp)
+      fs%dl(k + 1:k + 34) = real(reshape(digest_pack_all(this%sdg(:, j)), [34]), wp)
       ! the run's wall times and ranks (different in every run) have whole checksums only, so
       ! that the same study gives the same table
       do q = 1, size(RUN_DS)
-        dl(k + 2 * RUN_DS(q) - 1:k + 2 * RUN_DS(q)) = 0
+        fs%dl(k + 2 * RUN_DS(q) - 1:k + 2 * RUN_DS(q)) = 0
       end do
     end do
     k = 0
     do is = 1, 2
       do q = 1, 3
-        dl(k + 1) = real(this%dg(LAMBDA_DS(q), is)%s1, wp); dl(k + 2) = real(this%dg(LAMBDA_DS(q), is)%s2, wp)
+        fs%dl(k + 1) = real(this%dg(LAMBDA_DS(q), is)%s1, wp); fs%dl(k + 2) = real(this%dg(LAMBDA_DS(q), is)%s2, wp)
         k = k + 2
       end do
     end do
-    this%stats%t_blocks = this%stats%t_blocks + (env%wtime() - t1)
-    this%stats%t_dict = env%wtime() - t0
-    ! the ranks' multiplier blocks, then the file handle of begin is closed
+    this%stats%t_blocks = this%stats%t_blocks + (this%env%wtime() - t1)
+  end subroutine dictionary_indices
+
+  !> finish: this rank's multiplier blocks, the file handle of begin closed, then every rank's
+  !> report to rank 0 (MPI_Reduce: a rank other than 0 does not wait for it): its blocks are in,
+  !> or it failed, with the multipliers' checksum parts [failed, 2, 3, 2].
+  subroutine write_multipliers(this, fs, error)
+    type(snap_writer_t), intent(inout) :: this
+    type(finish_state_t), intent(inout) :: fs
+    type(error_t), allocatable, intent(inout) :: error
+    type(error_t), allocatable :: e2
+    integer :: j, is
+    integer(i8) :: o(17), at(17)
+    real(wp) :: t1
+    associate (env => this%env)
     t1 = env%wtime()
     do j = 1, this%nl
       if (allocated(error)) exit
       is = findloc(SNAP_SET_NAMES, this%lam(j)%set, dim=1)
       o = elem_offsets(this, this%lam(j), this%base(this%gl(j)))
       at = this%place(:, is) + o * ESZ
-      call this%pf%write_at(at(5), csr(j)%off8, 8_i8 * ns, error)
-      if (.not. allocated(error) .and. size(csr(j)%li) > 0) &
-        call this%pf%write_at(at(6), csr(j)%li, 4_i8 * size(csr(j)%li), error)
-      if (.not. allocated(error) .and. size(csr(j)%li) > 0) &
-        call this%pf%write_at(at(7), this%lam(j)%value, 8_i8 * size(csr(j)%li), error)
+      call this%pf%write_at(at(5), fs%csr(j)%off8, 8_i8 * this%ns, error)
+      if (.not. allocated(error) .and. size(fs%csr(j)%li) > 0) &
+        call this%pf%write_at(at(6), fs%csr(j)%li, 4_i8 * size(fs%csr(j)%li), error)
+      if (.not. allocated(error) .and. size(fs%csr(j)%li) > 0) &
+        call this%pf%write_at(at(7), this%lam(j)%value, 8_i8 * size(fs%csr(j)%li), error)
     end do
     call this%pf%close(e2)
     if (allocated(e2) .and. .not. allocated(error)) call move_alloc(e2, error)
     this%stats%t_blocks = this%stats%t_blocks + (env%wtime() - t1)
     this%stats%t_write = env%wtime() - t1
     this%stats%marks(4) = env%wtime()
-    ! every rank's report to rank 0 (MPI_Reduce: a rank other than 0 does not wait for it): its
-    ! blocks are in, or it failed, with the multipliers' checksum parts [failed, 2, 3, 2]
-    dl(13) = merge(1, 0, allocated(error))
-    call env%reduce_sum_root(dl, e2)
+    fs%dl(13) = merge(1, 0, allocated(error))
+    call env%reduce_sum_root(fs%dl, e2)
     if (allocated(e2) .and. .not. allocated(error)) call move_alloc(e2, error)
     this%stats%marks(5) = env%wtime()
-    ! rank 0, once every rank's blocks are in: dictionary, every checksum, complete = 1, the file
-    ! closed and renamed (the commit); its status to every rank (one broadcast: 0 committed, 1
-    ! some rank failed, whose message every rank then agrees on)
+    end associate
+  end subroutine write_multipliers
+
+  !> finish: rank 0, once every rank's blocks are in: dictionary, every checksum, complete = 1,
+  !> the file closed and renamed (the commit); its status to every rank (one broadcast: 0
+  !> committed, 1 some rank failed, whose message every rank then agrees on).
+  subroutine seal(this, fs, error, qois)
+    type(snap_writer_t), intent(inout) :: this
+    type(finish_state_t), intent(inout) :: fs
+    type(error_t), allocatable, intent(inout) :: error
+    type(qoi_t), intent(in), optional :: qois(:)
+    type(error_t), allocatable :: e2
+    integer :: stat1(1), k, is, q
+    real(wp) :: t1
+    associate (env => this%env)
     t1 = env%wtime()
     stat1 = 0
     if (env%is_root()) then
-      if (.not. allocated(error) .and. nint(dl(13)) == 0) then
+      if (.not. allocated(error) .and. nint(fs%dl(13)) == 0) then
         k = 0
         do is = 1, 2
           do q = 1, 3
-            this%dg(LAMBDA_DS(q), is) = digest_add(digest_t(nint(dl(k + 1), i8), nint(dl(k + 2), i8)), digest_t())
+            this%dg(LAMBDA_DS(q), is) = digest_add(digest_t(nint(fs%dl(k + 1), i8), nint(fs%dl(k + 2), i8)), &
+              digest_t())
             k = k + 2
           end do
         end do
-        m = ""
-        call add_block_table(m)
-        if (len(m) == 0) call add_rest(m)
-        if (len(m) == 0) then
+        fs%m = ""
+        call add_block_table(this, fs)
+        if (len(fs%m) == 0) call add_rest(this, fs, qois)
+        if (len(fs%m) == 0) then
           if (rename_file(this%path // ".partial", this%path) /= 0) &
-            m = "rename '" // this%path // ".partial' -> '" // this%path // "' failed"
+            fs%m = "rename '" // this%path // ".partial' -> '" // this%path // "' failed"
         end if
-        if (len(m) > 0) call set_error(error, m)
+        if (len(fs%m) > 0) call set_error(error, fs%m)
       end if
       this%stats%t_serial = this%stats%t_serial + (env%wtime() - t1)
       this%stats%t_layout = this%stats%t_layout + (env%wtime() - t1)
-      stat1 = merge(1, 0, allocated(error) .or. nint(dl(13)) > 0)
+      stat1 = merge(1, 0, allocated(error) .or. nint(fs%dl(13)) > 0)
     end if
     call env%bcast(stat1, e2)
     if (allocated(e2)) then
@@ -973,120 +1080,118 @@ contains
     this%stats%t_seal = env%wtime() - t1
     this%stats%marks(6) = env%wtime()
     end associate
-9   this%active = .false.
-    if (allocated(error)) then
-      call this%discard()
-      if (index(error%message, "database '") /= 1) error%message = "database '" // this%path // "': " // &
-        error%message
-    end if
+  end subroutine seal
 
-  contains
-
-    !> Rank 0 (before add_rest closes the file): each set's block table <set>/sample_checksums
-    !> [34, n] from the reduced block digests, with its own checksum; each column's sum over the
-    !> samples must give the dataset checksums (a slip in the bookkeeping fails here).
-    subroutine add_block_table(m)
-      character(len=:), allocatable, intent(inout) :: m
-      type(error_t), allocatable :: e
-      integer, allocatable :: tab(:,:)
-      integer :: iss, q2, g0
-      character(len=:), allocatable :: g, names
-      names = ""
+  !> Rank 0 (before add_rest closes the file): each set's block table <set>/sample_checksums
+  !> [34, n] from the reduced block digests, with its own checksum; each column's sum over the
+  !> samples must give the dataset checksums (a slip in the bookkeeping fails here; fs%m).
+  subroutine add_block_table(this, fs)
+    type(snap_writer_t), intent(inout) :: this
+    type(finish_state_t), intent(inout) :: fs
+    type(error_t), allocatable :: e
+    integer, allocatable :: tab(:,:)
+    integer :: iss, q2, g0
+    character(len=:), allocatable :: g, names
+    names = ""
+    do q2 = 1, 17
+      if (q2 > 1) names = names // ","
+      names = names // trim(DS(q2))
+    end do
+    g0 = 0
+    do iss = 1, 2
+      g = trim(SNAP_SET_NAMES(iss))
+      tab = reshape(nint(fs%dl(13 + 34 * g0 + 1:13 + 34 * (g0 + this%nset(iss)))), [34, this%nset(iss)])
+      g0 = g0 + this%nset(iss)
+      if (this%nset(iss) == 0) cycle
       do q2 = 1, 17
-        if (q2 > 1) names = names // ","
-        names = names // trim(DS(q2))
-      end do
-      g0 = 0
-      do iss = 1, 2
-        g = trim(SNAP_SET_NAMES(iss))
-        tab = reshape(nint(dl(13 + 34 * g0 + 1:13 + 34 * (g0 + this%nset(iss)))), [34, this%nset(iss)])
-        g0 = g0 + this%nset(iss)
-        if (this%nset(iss) == 0) cycle
-        do q2 = 1, 17
-          if (any(q2 == RUN_DS)) cycle
-          if (digest_hex(digest_table_sum(tab, q2)) /= digest_hex(this%dg(q2, iss))) then
-            m = "block digests of " // g // "/" // trim(DS(q2)) // " do not add up to its checksum"; return
-          end if
-        end do
-        call this%h5%write(g // "/" // SAMPLE_CHECKSUMS, tab, e); if (allocated(e)) exit
-        call put_digest(this%h5, g // "/" // SAMPLE_CHECKSUMS, digest_of(tab, 0_i8), e); if (allocated(e)) exit
-        call this%h5%write_attr(g // "/" // SAMPLE_CHECKSUMS, "datasets", names, e); if (allocated(e)) exit
-        call this%h5%write_attr(g // "/" // SAMPLE_CHECKSUMS, "description", "per sample (column), the " // &
-          "two residues of the digest of that sample's block of each dataset named in 'datasets' " // &
-          "(src/io/cr_digest.f90); lambda_offset's block of the first sample includes the leading 0; " // &
-          "0 for stats/time, stats/rank, stats/start (they differ from run to run: whole checksums only)", e)
-        if (allocated(e)) exit
-      end do
-      if (allocated(e)) then
-        m = e%message; call this%h5%abort()
-      end if
-    end subroutine add_block_table
-
-    !> Rank 0: create lambda_index and lambda_value of both sets (their places in lplace [2, 2]).
-    subroutine place_multipliers(m)
-      character(len=:), allocatable, intent(inout) :: m
-      type(error_t), allocatable :: e
-      integer :: iss, q2, dims(2, 17)
-      character(len=:), allocatable :: g
-      if (.not. this%h5%is_open()) then
-        m = "the file is not open on rank 0"; return
-      end if
-      do iss = 1, 2
-        g = trim(SNAP_SET_NAMES(iss))
-        call set_dims(this, iss, dims)
-        do q2 = 1, 2
-          call this%h5%create_placed(g // "/" // trim(DS(LATE_DS(q2))), dims(1:1, LATE_DS(q2)), KIND_OF(LATE_DS(q2)), &
-            lplace(q2, iss), e)
-          if (allocated(e)) then
-            m = e%message; return
-          end if
-        end do
-      end do
-    end subroutine place_multipliers
-
-    !> Rank 0: contact dictionary, every checksum and complete = 1, serially; the file closed.
-    subroutine add_rest(m)
-      character(len=:), allocatable, intent(inout) :: m
-      type(error_t), allocatable :: e, e3
-      integer :: iss, q2
-      character(len=:), allocatable :: g
-      associate (h5 => this%h5)
-      ops: block
-        call h5%make_group("contacts", e); if (allocated(e)) exit ops
-        call h5%write("contacts/key", dkey, e); if (allocated(e)) exit ops
-        call put_digest(h5, "contacts/key", digest_of(dkey, 0_i8), e); if (allocated(e)) exit ops
-        call h5%write("contacts/ia", dia, e); if (allocated(e)) exit ops
-        call put_digest(h5, "contacts/ia", digest_of(dia, 0_i8), e); if (allocated(e)) exit ops
-        call h5%write("contacts/ib", dib, e); if (allocated(e)) exit ops
-        call put_digest(h5, "contacts/ib", digest_of(dib, 0_i8), e); if (allocated(e)) exit ops
-        call h5%write("contacts/ob", dob, e); if (allocated(e)) exit ops
-        call put_digest(h5, "contacts/ob", digest_of(dob, 0_i8), e); if (allocated(e)) exit ops
-        call h5%write_attr("contacts", "description", "global contact dictionary: every contact " // &
-          "with lambda > 0 in some sample and step, sorted by key; ib = 0 for agent-obstacle " // &
-          "contacts (ob = obstacle index), ob = 0 for agent pairs", e); if (allocated(e)) exit ops
-        do iss = 1, 2
-          g = trim(SNAP_SET_NAMES(iss))
-          do q2 = 1, 17
-            call put_digest(h5, g // "/" // trim(DS(q2)), this%dg(q2, iss), e); if (allocated(e)) exit ops
-          end do
-        end do
-        if (present(qois)) then
-          call write_qoi_group(h5, "train/qoi", qois(1:this%nset(1)), e); if (allocated(e)) exit ops
-          call write_qoi_group(h5, "valid/qoi", qois(this%nset(1) + 1:), e); if (allocated(e)) exit ops
+        if (any(q2 == RUN_DS)) cycle
+        if (digest_hex(digest_table_sum(tab, q2)) /= digest_hex(this%dg(q2, iss))) then
+          fs%m = "block digests of " // g // "/" // trim(DS(q2)) // " do not add up to its checksum"; return
         end if
-        ! (the file keeps its temporary name until every rank's multiplier blocks are in)
-        call h5%write_attr("/", "complete", 1, e)
-      end block ops
-      if (allocated(e)) then
-        m = e%message
-        call h5%abort()
-        return
+      end do
+      call this%h5%write(g // "/" // SAMPLE_CHECKSUMS, tab, e); if (allocated(e)) exit
+      call put_digest(this%h5, g // "/" // SAMPLE_CHECKSUMS, digest_of(tab, 0_i8), e); if (allocated(e)) exit
+      call this%h5%write_attr(g // "/" // SAMPLE_CHECKSUMS, "datasets", names, e); if (allocated(e)) exit
+      call this%h5%write_attr(g // "/" // SAMPLE_CHECKSUMS, "description", "per sample (column), the " // &
+        "two residues of the digest of that sample's block of each dataset named in 'datasets' " // &
+        "(src/io/cr_digest.f90); lambda_offset's block of the first sample includes the leading 0; " // &
+        "0 for stats/time, stats/rank, stats/start (they differ from run to run: whole checksums only)", e)
+      if (allocated(e)) exit
+    end do
+    if (allocated(e)) then
+      fs%m = e%message; call this%h5%abort()
+    end if
+  end subroutine add_block_table
+
+  !> Rank 0: create lambda_index and lambda_value of both sets (their places in fs%lplace
+  !> [2, 2]; a failure in fs%m).
+  subroutine place_multipliers(this, fs)
+    type(snap_writer_t), intent(inout) :: this
+    type(finish_state_t), intent(inout) :: fs
+    type(error_t), allocatable :: e
+    integer :: iss, q2, dims(2, 17)
+    character(len=:), allocatable :: g
+    if (.not. this%h5%is_open()) then
+      fs%m = "the file is not open on rank 0"; return
+    end if
+    do iss = 1, 2
+      g = trim(SNAP_SET_NAMES(iss))
+      call set_dims(this, iss, dims)
+      do q2 = 1, 2
+        call this%h5%create_placed(g // "/" // trim(DS(LATE_DS(q2))), dims(1:1, LATE_DS(q2)), KIND_OF(LATE_DS(q2)), &
+          fs%lplace(q2, iss), e)
+        if (allocated(e)) then
+          fs%m = e%message; return
+        end if
+      end do
+    end do
+  end subroutine place_multipliers
+
+  !> Rank 0: contact dictionary, every checksum, the QoI groups and complete = 1, serially; the
+  !> file closed (a failure in fs%m).
+  subroutine add_rest(this, fs, qois)
+    type(snap_writer_t), intent(inout) :: this
+    type(finish_state_t), intent(inout) :: fs
+    type(qoi_t), intent(in), optional :: qois(:)
+    type(error_t), allocatable :: e, e3
+    integer :: iss, q2
+    character(len=:), allocatable :: g
+    associate (h5 => this%h5)
+    ops: block
+      call h5%make_group("contacts", e); if (allocated(e)) exit ops
+      call h5%write("contacts/key", fs%dkey, e); if (allocated(e)) exit ops
+      call put_digest(h5, "contacts/key", digest_of(fs%dkey, 0_i8), e); if (allocated(e)) exit ops
+      call h5%write("contacts/ia", fs%dia, e); if (allocated(e)) exit ops
+      call put_digest(h5, "contacts/ia", digest_of(fs%dia, 0_i8), e); if (allocated(e)) exit ops
+      call h5%write("contacts/ib", fs%dib, e); if (allocated(e)) exit ops
+      call put_digest(h5, "contacts/ib", digest_of(fs%dib, 0_i8), e); if (allocated(e)) exit ops
+      call h5%write("contacts/ob", fs%dob, e); if (allocated(e)) exit ops
+      call put_digest(h5, "contacts/ob", digest_of(fs%dob, 0_i8), e); if (allocated(e)) exit ops
+      call h5%write_attr("contacts", "description", "global contact dictionary: every contact " // &
+        "with lambda > 0 in some sample and step, sorted by key; ib = 0 for agent-obstacle " // &
+        "contacts (ob = obstacle index), ob = 0 for agent pairs", e); if (allocated(e)) exit ops
+      do iss = 1, 2
+        g = trim(SNAP_SET_NAMES(iss))
+        do q2 = 1, 17
+          call put_digest(h5, g // "/" // trim(DS(q2)), this%dg(q2, iss), e); if (allocated(e)) exit ops
+        end do
+      end do
+      if (present(qois)) then
+        call write_qoi_group(h5, "train/qoi", qois(1:this%nset(1)), e); if (allocated(e)) exit ops
+        call write_qoi_group(h5, "valid/qoi", qois(this%nset(1) + 1:), e); if (allocated(e)) exit ops
       end if
-      call h5%close(e3)
-      if (allocated(e3)) m = e3%message
-      end associate
-    end subroutine add_rest
-  end subroutine writer_finish
+      ! (the file keeps its temporary name until every rank's multiplier blocks are in)
+      call h5%write_attr("/", "complete", 1, e)
+    end block ops
+    if (allocated(e)) then
+      fs%m = e%message
+      call h5%abort()
+      return
+    end if
+    call h5%close(e3)
+    if (allocated(e3)) fs%m = e3%message
+    end associate
+  end subroutine add_rest
 
   !> Collective: give up a database being written (after begin): each rank completes the
   !> broadcast of the places and closes its file, and rank 0 removes the temporary. Nothing
@@ -1340,7 +1445,10 @@ contains
 
   !> Read samples k0..k0+nloc-1 of set `name` ('train' or 'valid') and validate them. With env
   !> the file is opened in parallel and every rank of env calls with its own block (nloc may be
-  !> 0). desired / multipliers: also read the desired velocities / the multipliers.
+  !> 0). desired / multipliers: also read the desired velocities / the multipliers. Steps: the
+  !> request (block_request), the shapes and the block table (block_shapes), the collective
+  !> reads (block_read), this rank's checks (block_checks), agreed over the ranks, then the
+  !> whole-dataset checksums of version 1 (block_verify).
   subroutine read_snap_block(hdr, name, k0, nloc, desired, multipliers, blk, error, env)
     type(snap_header_t), intent(in) :: hdr
     character(len=*), intent(in) :: name
@@ -1351,203 +1459,239 @@ contains
     type(env_t), intent(in), optional :: env
     type(h5file_t) :: h5
     type(error_t), allocatable :: e2
-    character(len=:), allocatable :: path, g, bad
-    integer(i8), allocatable :: off(:), d(:)
-    integer(i8) :: ns8, nt8, base, nnz_all
-    integer :: nt, nd, c, n
-    !> the block table's columns of this block [34, nloc] (version 2)
-    integer, allocatable :: tab(:,:)
-    logical :: blocks
-    nnz_all = 0
-    path = hdr%path
-    nt = hdr%n_steps; nd = hdr%n_dof
-    n = merge(hdr%n_train, hdr%n_valid, name == 'train')
-    if (k0 < 1 .or. nloc < 0 .or. k0 - 1 + nloc > n) then
-      call set_error(error, "'" // path // "': samples " // str(k0) // ".." // str(k0 + nloc - 1) // " of set " // &
-        name // " requested, the set has " // str(n)); return
-    end if
-    ! version 1 has only whole-dataset checksums: a part of a set read serially cannot be verified
-    blocks = hdr%version >= 2 .and. n > 0
-    if (.not. blocks .and. .not. present(env) .and. n > 0 .and. (k0 /= 1 .or. nloc /= n)) then
-      call set_error(error, "'" // path // "': snapshot database schema version " // str(hdr%version) // &
-        " has no per-sample checksums: samples " // str(k0) // ".." // str(k0 + nloc - 1) // " of the " // &
-        str(n) // " of set " // name // " cannot be verified (read the whole set, or rerun crowd_snapshots " // &
-        "to write version " // str(SNAP_SCHEMA_VERSION) // ")", 2); return
-    end if
-    call h5%open(path, error, env=env)
+    type(block_read_t) :: rc
+    rc%name = name; rc%k0 = k0; rc%nloc = nloc; rc%desired = desired; rc%multipliers = multipliers
+    call block_request(hdr, rc, present(env), error)
     if (allocated(error)) return
-    g = name // "/"
-    blk%name = name; blk%n = n; blk%k0 = k0; blk%nloc = nloc
-    ns8 = n; nt8 = nt
-    ! shapes against the root attributes (before anything is allocated from them)
-    call need_dims(h5, path, g // "params", [int(hdr%n_params, i8), ns8], "n_params x n_" // name, error)
-    if (allocated(error)) goto 9
-    call need_dims(h5, path, g // "positions", [int(nd, i8), (nt8 + 1) * ns8], "2 n_agents x (n_steps + 1) n_" // &
-      name, error); if (allocated(error)) goto 9
-    call need_dims(h5, path, g // "velocities", [int(nd, i8), nt8 * ns8], "2 n_agents x n_steps n_" // name, error)
-    if (allocated(error)) goto 9
-    if (desired) then
-      call need_dims(h5, path, g // "desired", [int(nd, i8), nt8 * ns8], "2 n_agents x n_steps n_" // name, error)
-      if (allocated(error)) goto 9
-    end if
-    if (multipliers) then
-      call need_dims(h5, path, g // "lambda_offset", [nt8 * ns8 + 1], "n_steps n_" // name // " + 1", error)
-      if (allocated(error)) goto 9
-      call h5%get_dims(g // "lambda_index", d, error); if (allocated(error)) goto 9
-      nnz_all = d(1)
-      call need_dims(h5, path, g // "lambda_value", [nnz_all], "lambda_index", error); if (allocated(error)) goto 9
-    end if
-    if (blocks) then
-      call read_table(error); if (allocated(error)) goto 9
-    end if
-    ! collective reads (every rank makes the same calls, whatever its block holds) ...
-    allocate(blk%mu(hdr%n_params, nloc), blk%q(nd, (nt + 1) * nloc), blk%u(nd, nt * nloc))
-    call h5%read_block(g // "params", blk%mu, k0 - 1, error); if (allocated(error)) goto 9
-    call h5%read_block(g // "positions", blk%q, (k0 - 1) * (nt + 1), error); if (allocated(error)) goto 9
-    call h5%read_block(g // "velocities", blk%u, (k0 - 1) * nt, error); if (allocated(error)) goto 9
-    if (desired) then
-      allocate(blk%v(nd, nt * nloc))
-      call h5%read_block(g // "desired", blk%v, (k0 - 1) * nt, error); if (allocated(error)) goto 9
-    end if
-    bad = ""
-    if (multipliers) then
-      allocate(off(nt * nloc + 1))
-      call h5%read_block(g // "lambda_offset", off, (k0 - 1) * nt, error); if (allocated(error)) goto 9
-      if (k0 == 1 .and. off(1) /= 0) bad = "first offset " // str(off(1)) // ", expected 0"
-      do c = 1, nt * nloc
-        if (len(bad) > 0) exit
-        if (off(c + 1) < off(c)) bad = "offsets decrease at column " // str(int((k0 - 1) * nt8 + c))
-      end do
-      if (len(bad) == 0 .and. (off(1) < 0 .or. off(nt * nloc + 1) > nnz_all)) bad = "offsets " // str(off(1)) // &
-        ".." // str(off(nt * nloc + 1)) // " outside 0.." // str(nnz_all) // " (size of lambda_index)"
-      base = 0
-      if (len(bad) == 0) then
-        base = off(1)
-        blk%lam_ptr = off - base
-      else
-        allocate(blk%lam_ptr(1)); blk%lam_ptr = 0
-      end if
-      allocate(blk%lam_idx(int(blk%lam_ptr(size(blk%lam_ptr)))), blk%lam_val(int(blk%lam_ptr(size(blk%lam_ptr)))))
-      call h5%read_block(g // "lambda_index", blk%lam_idx, int(base), error); if (allocated(error)) goto 9
-      call h5%read_block(g // "lambda_value", blk%lam_val, int(base), error); if (allocated(error)) goto 9
-    end if
-    ! ... then this rank's checks (made collective before the collective checksums)
-    checks: block
-    if (len(bad) > 0) then
-      call product_error(path, "dataset '" // g // "lambda_offset': " // bad, error); exit checks
-    end if
-    call need_finite(path, g // "params", blk%mu, error); if (allocated(error)) exit checks
-    call need_finite(path, g // "positions", blk%q, error); if (allocated(error)) exit checks
-    call need_finite(path, g // "velocities", blk%u, error); if (allocated(error)) exit checks
-    if (desired) then
-      call need_finite(path, g // "desired", blk%v, error); if (allocated(error)) exit checks
-    end if
-    if (multipliers) then
-      call need_range(path, g // "lambda_index", blk%lam_idx, 1, hdr%n_dict, error); if (allocated(error)) exit checks
-      call need_finite(path, g // "lambda_value", blk%lam_val, error); if (allocated(error)) exit checks
-    end if
-    if (blocks .and. nloc > 0) call verify_blocks(error)
-    end block checks
+    call h5%open(rc%path, error, env=env)
+    if (allocated(error)) return
+    blk%name = name; blk%n = rc%n; blk%k0 = k0; blk%nloc = nloc
+    call block_shapes(h5, hdr, rc, error); if (allocated(error)) goto 9
+    call block_read(h5, hdr, rc, blk, error); if (allocated(error)) goto 9
+    call block_checks(hdr, rc, blk, error)
     ! every rank returns the lowest failing rank's message (the block checksums are checked by
     ! each rank on its own samples)
     if (present(env)) call env%agree_error(error)
     if (allocated(error)) goto 9
     ! version 1 checksums: in parallel every rank's block is a part of the whole; serially only a
-    ! whole set (version 2: each block against its samples' block digests, above)
-    if (blocks) then
+    ! whole set (version 2: each block against its samples' block digests, in block_checks)
+    if (rc%blocks) then
       continue
-    else if (present(env) .and. n > 0) then
-      call verify(.true., error); if (allocated(error)) goto 9
-    else if (k0 == 1 .and. nloc == n .and. n > 0) then
-      call verify(.false., error); if (allocated(error)) goto 9
+    else if (present(env) .and. rc%n > 0) then
+      call block_verify(h5, hdr, rc, blk, .true., error, env); if (allocated(error)) goto 9
+    else if (k0 == 1 .and. nloc == rc%n .and. rc%n > 0) then
+      call block_verify(h5, hdr, rc, blk, .false., error); if (allocated(error)) goto 9
     end if
 9   call h5%close(e2)
     if (allocated(error)) then
-      if (error%code /= 2) call prefix_error(error, "database '" // path // "', set " // name)
+      if (error%code /= 2) call prefix_error(error, "database '" // rc%path // "', set " // name)
       error%code = 2
       return
     end if
     if (allocated(e2)) call move_alloc(e2, error)
+  end subroutine read_snap_block
 
-  contains
+  !> The request of read_snap_block checked: the samples exist, and a part of a set read
+  !> serially can be verified (version 1 has only whole-dataset checksums).
+  subroutine block_request(hdr, rc, parallel, error)
+    type(snap_header_t), intent(in) :: hdr
+    type(block_read_t), intent(inout) :: rc
+    logical, intent(in) :: parallel
+    type(error_t), allocatable, intent(out) :: error
+    rc%path = hdr%path
+    rc%nt = hdr%n_steps; rc%nd = hdr%n_dof
+    rc%n = merge(hdr%n_train, hdr%n_valid, rc%name == 'train')
+    rc%g = rc%name // "/"
+    associate (k0 => rc%k0, nloc => rc%nloc, n => rc%n, path => rc%path, name => rc%name)
+    if (k0 < 1 .or. nloc < 0 .or. k0 - 1 + nloc > n) then
+      call set_error(error, "'" // path // "': samples " // str(k0) // ".." // str(k0 + nloc - 1) // " of set " // &
+        name // " requested, the set has " // str(n)); return
+    end if
+    rc%blocks = hdr%version >= 2 .and. n > 0
+    if (.not. rc%blocks .and. .not. parallel .and. n > 0 .and. (k0 /= 1 .or. nloc /= n)) then
+      call set_error(error, "'" // path // "': snapshot database schema version " // str(hdr%version) // &
+        " has no per-sample checksums: samples " // str(k0) // ".." // str(k0 + nloc - 1) // " of the " // &
+        str(n) // " of set " // name // " cannot be verified (read the whole set, or rerun crowd_snapshots " // &
+        "to write version " // str(SNAP_SCHEMA_VERSION) // ")", 2); return
+    end if
+    end associate
+  end subroutine block_request
 
-    !> The set's block table (whole: it is small, 34 integers per sample), checked against its
-    !> own checksum and shape; this block's columns kept in tab.
-    subroutine read_table(error)
-      type(error_t), allocatable, intent(out) :: error
-      integer, allocatable :: all(:,:)
+  !> The shapes of the set's datasets against the root attributes (before anything is
+  !> allocated from them); version 2: the set's block table (whole: it is small, 34 integers
+  !> per sample), checked against its own checksum and shape, this block's columns kept.
+  subroutine block_shapes(h5, hdr, rc, error)
+    type(h5file_t), intent(inout) :: h5
+    type(snap_header_t), intent(in) :: hdr
+    type(block_read_t), intent(inout) :: rc
+    type(error_t), allocatable, intent(out) :: error
+    integer(i8), allocatable :: d(:)
+    integer, allocatable :: all(:,:)
+    integer(i8) :: ns8, nt8
+    associate (path => rc%path, g => rc%g, name => rc%name, nd => rc%nd)
+    ns8 = rc%n; nt8 = rc%nt
+    call need_dims(h5, path, g // "params", [int(hdr%n_params, i8), ns8], "n_params x n_" // name, error)
+    if (allocated(error)) return
+    call need_dims(h5, path, g // "positions", [int(nd, i8), (nt8 + 1) * ns8], "2 n_agents x (n_steps + 1) n_" // &
+      name, error); if (allocated(error)) return
+    call need_dims(h5, path, g // "velocities", [int(nd, i8), nt8 * ns8], "2 n_agents x n_steps n_" // name, error)
+    if (allocated(error)) return
+    if (rc%desired) then
+      call need_dims(h5, path, g // "desired", [int(nd, i8), nt8 * ns8], "2 n_agents x n_steps n_" // name, error)
+      if (allocated(error)) return
+    end if
+    if (rc%multipliers) then
+      call need_dims(h5, path, g // "lambda_offset", [nt8 * ns8 + 1], "n_steps n_" // name // " + 1", error)
+      if (allocated(error)) return
+      call h5%get_dims(g // "lambda_index", d, error); if (allocated(error)) return
+      rc%nnz_all = d(1)
+      call need_dims(h5, path, g // "lambda_value", [rc%nnz_all], "lambda_index", error); if (allocated(error)) return
+    end if
+    if (rc%blocks) then
       call need_dims(h5, path, g // SAMPLE_CHECKSUMS, [34_i8, ns8], "34 x n_" // name, error)
       if (allocated(error)) return
       call h5%read(g // SAMPLE_CHECKSUMS, all, error); if (allocated(error)) return
       call check_digest(h5, g // SAMPLE_CHECKSUMS, digest_of(all, 0_i8), "'" // path // "'", error)
       if (allocated(error)) return
-      tab = all(:, k0:k0 + nloc - 1)
-    end subroutine read_table
+      rc%tab = all(:, rc%k0:rc%k0 + rc%nloc - 1)
+    end if
+    end associate
+  end subroutine block_shapes
 
-    !> Version 2: the digest of each dataset read against the sum of its samples' block digests
-    !> (no collective: every rank checks its own samples). DS order: 1 params, 2 positions,
-    !> 3 velocities, 4 desired, 5 lambda_offset, 6 lambda_index, 7 lambda_value.
-    subroutine verify_blocks(error)
-      type(error_t), allocatable, intent(out) :: error
-      character(len=:), allocatable :: w
-      type(digest_t) :: d
-      integer(i8) :: o
-      w = "'" // path // "'"
-      o = int(k0 - 1, i8)
-      call check_digest_blocks(tab, 1, g // "params", digest_of(blk%mu, o * hdr%n_params), w, error)
-      if (allocated(error)) return
-      call check_digest_blocks(tab, 2, g // "positions", digest_of(blk%q, o * (nt + 1) * nd), w, error)
-      if (allocated(error)) return
-      call check_digest_blocks(tab, 3, g // "velocities", digest_of(blk%u, o * nt * nd), w, error)
-      if (allocated(error)) return
-      if (desired) then
-        call check_digest_blocks(tab, 4, g // "desired", digest_of(blk%v, o * nt * nd), w, error)
-        if (allocated(error)) return
+  !> The collective reads (every rank makes the same calls, whatever its block holds); the
+  !> multiplier offsets checked as they come (a fault kept in rc%bad, reported by block_checks).
+  subroutine block_read(h5, hdr, rc, blk, error)
+    type(h5file_t), intent(inout) :: h5
+    type(snap_header_t), intent(in) :: hdr
+    type(block_read_t), intent(inout) :: rc
+    type(snap_block_t), intent(inout) :: blk
+    type(error_t), allocatable, intent(out) :: error
+    integer :: c
+    associate (g => rc%g, nd => rc%nd, nt => rc%nt, k0 => rc%k0, nloc => rc%nloc, off => rc%off, bad => rc%bad)
+    allocate(blk%mu(hdr%n_params, nloc), blk%q(nd, (nt + 1) * nloc), blk%u(nd, nt * nloc))
+    call h5%read_block(g // "params", blk%mu, k0 - 1, error); if (allocated(error)) return
+    call h5%read_block(g // "positions", blk%q, (k0 - 1) * (nt + 1), error); if (allocated(error)) return
+    call h5%read_block(g // "velocities", blk%u, (k0 - 1) * nt, error); if (allocated(error)) return
+    if (rc%desired) then
+      allocate(blk%v(nd, nt * nloc))
+      call h5%read_block(g // "desired", blk%v, (k0 - 1) * nt, error); if (allocated(error)) return
+    end if
+    bad = ""
+    if (rc%multipliers) then
+      allocate(off(nt * nloc + 1))
+      call h5%read_block(g // "lambda_offset", off, (k0 - 1) * nt, error); if (allocated(error)) return
+      if (k0 == 1 .and. off(1) /= 0) bad = "first offset " // str(off(1)) // ", expected 0"
+      do c = 1, nt * nloc
+        if (len(bad) > 0) exit
+        if (off(c + 1) < off(c)) bad = "offsets decrease at column " // str(int((k0 - 1) * int(nt, i8) + c))
+      end do
+      if (len(bad) == 0 .and. (off(1) < 0 .or. off(nt * nloc + 1) > rc%nnz_all)) bad = "offsets " // str(off(1)) // &
+        ".." // str(off(nt * nloc + 1)) // " outside 0.." // str(rc%nnz_all) // " (size of lambda_index)"
+      rc%base = 0
+      if (len(bad) == 0) then
+        rc%base = off(1)
+        blk%lam_ptr = off - rc%base
+      else
+        allocate(blk%lam_ptr(1)); blk%lam_ptr = 0
       end if
-      if (.not. multipliers) return
-      ! a sample's offsets block: the ends of its steps (and the leading 0 for the first sample)
-      d = digest_of(off(2:), o * nt + 1)
-      if (k0 == 1) d = digest_add(d, digest_of(off(1:1), 0_i8))
-      call check_digest_blocks(tab, 5, g // "lambda_offset", d, w, error); if (allocated(error)) return
-      call check_digest_blocks(tab, 6, g // "lambda_index", digest_of(blk%lam_idx, base), w, error)
-      if (allocated(error)) return
-      call check_digest_blocks(tab, 7, g // "lambda_value", digest_of(blk%lam_val, base), w, error)
-    end subroutine verify_blocks
+      allocate(blk%lam_idx(int(blk%lam_ptr(size(blk%lam_ptr)))), blk%lam_val(int(blk%lam_ptr(size(blk%lam_ptr)))))
+      call h5%read_block(g // "lambda_index", blk%lam_idx, int(rc%base), error); if (allocated(error)) return
+      call h5%read_block(g // "lambda_value", blk%lam_val, int(rc%base), error); if (allocated(error)) return
+    end if
+    end associate
+  end subroutine block_read
 
-    !> Compare the checksums of the datasets read (parts: this rank's block is one part).
-    subroutine verify(parts, error)
-      logical, intent(in) :: parts
-      type(error_t), allocatable, intent(out) :: error
-      character(len=:), allocatable :: w
-      type(digest_t) :: d
-      integer(i8) :: o
-      w = "'" // path // "'"
-      o = int(k0 - 1, i8)
-      call one(g // "params", digest_of(blk%mu, o * hdr%n_params), parts, error); if (allocated(error)) return
-      call one(g // "positions", digest_of(blk%q, o * (nt + 1) * nd), parts, error); if (allocated(error)) return
-      call one(g // "velocities", digest_of(blk%u, o * nt * nd), parts, error); if (allocated(error)) return
-      if (desired) then
-        call one(g // "desired", digest_of(blk%v, o * nt * nd), parts, error); if (allocated(error)) return
-      end if
-      if (multipliers) then
-        d = digest_of(off(1:nt * nloc), o * nt)
-        if (nloc > 0 .and. k0 - 1 + nloc == n) d = digest_add(d, digest_of(off(nt * nloc + 1:), int(nt, i8) * n))
-        call one(g // "lambda_offset", d, parts, error); if (allocated(error)) return
-        call one(g // "lambda_index", digest_of(blk%lam_idx, base), parts, error); if (allocated(error)) return
-        call one(g // "lambda_value", digest_of(blk%lam_val, base), parts, error); if (allocated(error)) return
-      end if
-    end subroutine verify
+  !> This rank's checks of its block (made collective by the caller before the collective
+  !> checksums): the offsets, finite values, indices in range, and (version 2) the digest of
+  !> each dataset read against the sum of its samples' block digests (no collective: every rank
+  !> checks its own samples). DS order: 1 params, 2 positions, 3 velocities, 4 desired,
+  !> 5 lambda_offset, 6 lambda_index, 7 lambda_value.
+  subroutine block_checks(hdr, rc, blk, error)
+    type(snap_header_t), intent(in) :: hdr
+    type(block_read_t), intent(in) :: rc
+    type(snap_block_t), intent(in) :: blk
+    type(error_t), allocatable, intent(out) :: error
+    character(len=:), allocatable :: w
+    type(digest_t) :: d
+    integer(i8) :: o
+    associate (path => rc%path, g => rc%g, tab => rc%tab, nt => rc%nt, nd => rc%nd)
+    if (len(rc%bad) > 0) then
+      call product_error(path, "dataset '" // g // "lambda_offset': " // rc%bad, error); return
+    end if
+    call need_finite(path, g // "params", blk%mu, error); if (allocated(error)) return
+    call need_finite(path, g // "positions", blk%q, error); if (allocated(error)) return
+    call need_finite(path, g // "velocities", blk%u, error); if (allocated(error)) return
+    if (rc%desired) then
+      call need_finite(path, g // "desired", blk%v, error); if (allocated(error)) return
+    end if
+    if (rc%multipliers) then
+      call need_range(path, g // "lambda_index", blk%lam_idx, 1, hdr%n_dict, error); if (allocated(error)) return
+      call need_finite(path, g // "lambda_value", blk%lam_val, error); if (allocated(error)) return
+    end if
+    if (.not. (rc%blocks .and. rc%nloc > 0)) return
+    w = "'" // path // "'"
+    o = int(rc%k0 - 1, i8)
+    call check_digest_blocks(tab, 1, g // "params", digest_of(blk%mu, o * hdr%n_params), w, error)
+    if (allocated(error)) return
+    call check_digest_blocks(tab, 2, g // "positions", digest_of(blk%q, o * (nt + 1) * nd), w, error)
+    if (allocated(error)) return
+    call check_digest_blocks(tab, 3, g // "velocities", digest_of(blk%u, o * nt * nd), w, error)
+    if (allocated(error)) return
+    if (rc%desired) then
+      call check_digest_blocks(tab, 4, g // "desired", digest_of(blk%v, o * nt * nd), w, error)
+      if (allocated(error)) return
+    end if
+    if (.not. rc%multipliers) return
+    ! a sample's offsets block: the ends of its steps (and the leading 0 for the first sample)
+    d = digest_of(rc%off(2:), o * nt + 1)
+    if (rc%k0 == 1) d = digest_add(d, digest_of(rc%off(1:1), 0_i8))
+    call check_digest_blocks(tab, 5, g // "lambda_offset", d, w, error); if (allocated(error)) return
+    call check_digest_blocks(tab, 6, g // "lambda_index", digest_of(blk%lam_idx, rc%base), w, error)
+    if (allocated(error)) return
+    call check_digest_blocks(tab, 7, g // "lambda_value", digest_of(blk%lam_val, rc%base), w, error)
+    end associate
+  end subroutine block_checks
 
-    subroutine one(name, d, parts, error)
+  !> Version 1: the checksums of the datasets read (parts: this rank's block is one part of
+  !> the whole, compared collectively over env; else the whole set).
+  subroutine block_verify(h5, hdr, rc, blk, parts, error, env)
+    type(h5file_t), intent(inout) :: h5
+    type(snap_header_t), intent(in) :: hdr
+    type(block_read_t), intent(in) :: rc
+    type(snap_block_t), intent(in) :: blk
+    logical, intent(in) :: parts
+    type(error_t), allocatable, intent(out) :: error
+    type(env_t), intent(in), optional :: env
+    type(digest_t) :: d
+    integer(i8) :: o
+    associate (g => rc%g, nt => rc%nt, nd => rc%nd, nloc => rc%nloc, off => rc%off)
+    o = int(rc%k0 - 1, i8)
+    call one(g // "params", digest_of(blk%mu, o * hdr%n_params), error); if (allocated(error)) return
+    call one(g // "positions", digest_of(blk%q, o * (nt + 1) * nd), error); if (allocated(error)) return
+    call one(g // "velocities", digest_of(blk%u, o * nt * nd), error); if (allocated(error)) return
+    if (rc%desired) then
+      call one(g // "desired", digest_of(blk%v, o * nt * nd), error); if (allocated(error)) return
+    end if
+    if (rc%multipliers) then
+      d = digest_of(off(1:nt * nloc), o * nt)
+      if (nloc > 0 .and. rc%k0 - 1 + nloc == rc%n) d = digest_add(d, digest_of(off(nt * nloc + 1:), int(nt, i8) * rc%n))
+      call one(g // "lambda_offset", d, error); if (allocated(error)) return
+      call one(g // "lambda_index", digest_of(blk%lam_idx, rc%base), error); if (allocated(error)) return
+      call one(g // "lambda_value", digest_of(blk%lam_val, rc%base), error); if (allocated(error)) return
+    end if
+    end associate
+
+  contains
+
+    subroutine one(name, d, error)
       character(len=*), intent(in) :: name
       type(digest_t), intent(in) :: d
-      logical, intent(in) :: parts
       type(error_t), allocatable, intent(out) :: error
       if (parts) then
-        call check_digest_parts(h5, env, name, d, "'" // path // "'", error)
+        call check_digest_parts(h5, env, name, d, "'" // rc%path // "'", error)
       else
-        call check_digest(h5, name, d, "'" // path // "'", error)
+        call check_digest(h5, name, d, "'" // rc%path // "'", error)
       end if
     end subroutine one
-  end subroutine read_snap_block
+  end subroutine block_verify
 end module cr_snapshot_file

@@ -19,7 +19,7 @@ module cr_rom_config
   use cr_namelist_text, only: namelist_text_t
   use cr_config, only: nml_status
   use cr_paths, only: io_paths_t
-  use cr_config_check, only: need_sane, MAX_SPEED
+  use cr_sane, only: need_sane, MAX_SPEED
   use cr_hyper_factory, only: hyper_known, hyper_name_list
   implicit none
   private

@@ -82,6 +82,31 @@ module cr_rom_sweep
     procedure :: free
   end type rom_sweep_t
 
+  !> What run_setting carries from sample to sample of one block: the work of a query
+  !> (context, guard, trajectories, checked positions) and every per-sample figure [n] or
+  !> column block, then the sums over the block.
+  type :: setting_acc_t
+    type(eval_ctx_t) :: ctx
+    type(rom_guard_t) :: guard
+    type(rom_traj_t) :: traj, tr2
+    real(wp), allocatable :: qr(:,:)
+    !> reduced coefficients [nb, nt n] and [r, nt n], positions [n_dof, (nt + 1) n], error in
+    !> time [nt + 1, n]
+    real(wp), allocatable :: alpha(:,:), beta(:,:), pos(:,:), err_time(:,:)
+    real(wp), allocatable :: e_mu(:), e_proj(:), overlap(:), time(:), mobility(:), query(:)
+    !> step where the trajectory diverged (0: never), steps done
+    integer, allocatable :: div_step(:), n_done(:)
+    integer, allocatable :: not_left(:), not_left_fom(:), infeas(:), capped(:), extrap(:)
+    type(sample_measures_t), allocatable :: ms(:)
+    !> the local correction: agents corrected [nt, n] and its time [n]
+    integer, allocatable :: ncorr(:,:)
+    real(wp), allocatable :: tcorr(:)
+    !> sums over the block: NNLS fall-backs of the dual active set, active rows, rows added and
+    !> dropped, reasons; the correction's conflict steps and seed agents; time per part
+    integer :: n_fallback = 0, active_sum = 0, n_adds = 0, n_drops = 0, why(3) = 0, n_conflict = 0, n_seed = 0
+    real(wp) :: t_parts(3) = 0
+  end type setting_acc_t
+
 contains
 
   !> Read the ROM file (&rom rom_file) and the study it was built from, the parameter sets
@@ -294,7 +319,10 @@ contains
     rhdr%kkt_uz = this%ref%kkt_uz; rhdr%kkt_ex = this%ref%kkt_ex; rhdr%nc_uz = this%ref%nc_uz
   end subroutine make_header
 
-  !> Run setting ks (index kset in the &sweep arrays) on one block of samples; write its group.
+  !> Run setting ks (index kset in the &sweep arrays) on one block of samples; write its group:
+  !> the reduced operators and solver (prepare), every sample stepped and measured (run_sample),
+  !> the row of the table (aggregate_row), its log lines (report_row) and the output group
+  !> (pack_set).
   subroutine run_setting(this, env, log, out, ks, kset, pair, blk, row, error)
     type(rom_sweep_t), intent(in) :: this
     type(env_t), intent(in) :: env
@@ -307,24 +335,46 @@ contains
     type(error_t), allocatable, intent(out) :: error
     class(reduced_ops_t), allocatable :: ops
     type(rom_solver_cfg_t) :: scfg
-    type(rom_traj_t) :: traj, tr2
-    type(eval_ctx_t) :: ctx
-    type(rom_guard_t) :: guard
-    logical, allocatable :: ok(:)
-    integer, allocatable :: div_step(:), n_done(:)
-    real(wp), allocatable :: alpha(:,:), beta(:,:), pos(:,:), qr(:,:), err_time(:,:)
-    real(wp), allocatable :: e_mu(:), e_proj(:), overlap(:), time(:), mobility(:), query(:)
-    real(wp) :: w0, w_setup, w_run
-    integer, allocatable :: not_left(:), not_left_fom(:), infeas(:), capped(:), extrap(:)
-    type(sample_measures_t), allocatable :: ms(:)
-    type(romrun_set_t) :: out_set
-    integer :: k, nt, nb, rep, n_fallback, active_sum, n_adds, n_drops, why(3), j, n_conflict, n_seed
-    real(wp) :: t_parts(3)
     type(local_correction_t), allocatable :: corr
+    type(setting_acc_t) :: acc
+    type(romrun_set_t) :: out_set
+    integer :: k
+    call prepare_setting(this, kset, pair, blk, ops, scfg, corr, acc, error)
+    if (allocated(error)) return
+    call log%progress_start()
+    do k = 1, blk%n
+      call run_sample(this, env, ks, k, pair, blk, ops, scfg, corr, acc, row, error)
+      if (allocated(error)) return
+      if (acc%div_step(k) > 0) call log%warn("setting " // str(ks) // ", " // trim(blk%name) // " sample " // &
+        str(k) // ": the reduced trajectory diverged at step " // str(acc%div_step(k)) // " (non-finite values " // &
+        "or an agent outside the hall's box inflated by its diagonal + 2 c_max T): stopped there, positions " // &
+        "frozen, sample excluded from the averages")
+      call log%progress(trim(blk%name) // " sample", k, blk%n)
+    end do
+    call aggregate_row(this, ks, kset, pair, blk, ops, allocated(corr), acc, row)
+    call report_row(this, log, pair, blk, ops, allocated(corr), acc, row)
+    call pack_set(this, ks, kset, pair, blk, ops, acc, row, out_set)
+    if (allocated(corr)) call corr%free()
+    call out%write_set(out_set, error)
+  end subroutine run_setting
+
+  !> The reduced operators of setting kset, the reduced solver's settings, the local correction
+  !> (with &sweep correction = 'local': the exact full-order solver of the reference, at the
+  !> reference's tolerance) and the accumulators of the block's samples.
+  subroutine prepare_setting(this, kset, pair, blk, ops, scfg, corr, acc, error)
+    type(rom_sweep_t), intent(in) :: this
+    integer, intent(in) :: kset
+    type(rom_pair_t), intent(in) :: pair
+    type(sample_block_t), intent(in) :: blk
+    class(reduced_ops_t), allocatable, intent(out) :: ops
+    type(rom_solver_cfg_t), intent(out) :: scfg
+    type(local_correction_t), allocatable, intent(inout) :: corr
+    type(setting_acc_t), intent(out) :: acc
+    type(error_t), allocatable, intent(out) :: error
     type(projection_settings_t) :: psett
-    integer, allocatable :: ncorr(:,:)
-    real(wp), allocatable :: tcorr(:)
+    integer :: nt, n
     nt = this%st%n_steps
+    n = blk%n
     call make_reduced_ops(trim(this%cfg%hyper(kset)), trim(this%cfg%contacts(kset)), pair, &
       [this%cfg%m_v(kset), this%cfg%m_b(kset), this%cfg%m_d(kset)], this%st%cfg%contacts%cutoff_factor, &
       this%where // ": setting " // str(kset), ops, error)
@@ -335,7 +385,6 @@ contains
     scfg%uzawa_eps = this%cfg%uzawa_eps
     scfg%uzawa_max_iter = this%cfg%uzawa_max_iter
     if (this%cfg%correction(kset) == 'local') then
-      ! the exact full-order solver of the reference, at the reference's tolerance
       allocate(corr)
       psett = this%st%cfg%solver
       psett%name = this%ref%exact_solver
@@ -344,122 +393,179 @@ contains
       if (allocated(error)) then
         call prefix_error(error, this%where // ": setting " // str(kset)); return
       end if
-      allocate(ncorr(nt, blk%n), tcorr(blk%n))
-      ncorr = 0; tcorr = 0
+      allocate(acc%ncorr(nt, n), acc%tcorr(n))
+      acc%ncorr = 0; acc%tcorr = 0
     end if
-    n_conflict = 0; n_seed = 0
-    nb = pair%nb
-    allocate(alpha(nb, nt * blk%n), beta(merge(pair%r, 0, ops%fixed_rows), nt * blk%n), &
-      pos(this%st%n_dof, (nt + 1) * blk%n), err_time(nt + 1, blk%n), e_mu(blk%n), e_proj(blk%n), &
-      overlap(blk%n), time(blk%n), mobility(blk%n), not_left(blk%n), not_left_fom(blk%n), infeas(blk%n), capped(blk%n), &
-      extrap(blk%n), div_step(blk%n), n_done(blk%n), ms(blk%n), query(blk%n))
-    div_step = 0
-    err_time = -1; e_mu = -1; e_proj = -1; not_left_fom = -1; mobility = -1
-    n_fallback = 0; active_sum = 0; n_adds = 0; n_drops = 0; t_parts = 0; why = 0
-    call log%progress_start()
-    do k = 1, blk%n
-      ! the whole query as a user pays it: the per-parameter setup (scene, speeds, desired
-      ! velocity, divergence guard) plus the trajectory (fastest repeat, per-trajectory setup included)
+    allocate(acc%alpha(pair%nb, nt * n), acc%beta(merge(pair%r, 0, ops%fixed_rows), nt * n), &
+      acc%pos(this%st%n_dof, (nt + 1) * n), acc%err_time(nt + 1, n), acc%e_mu(n), acc%e_proj(n), &
+      acc%overlap(n), acc%time(n), acc%mobility(n), acc%not_left(n), acc%not_left_fom(n), acc%infeas(n), &
+      acc%capped(n), acc%extrap(n), acc%div_step(n), acc%n_done(n), acc%ms(n), acc%query(n))
+    acc%div_step = 0
+    acc%err_time = -1; acc%e_mu = -1; acc%e_proj = -1; acc%not_left_fom = -1; acc%mobility = -1
+  end subroutine prepare_setting
+
+  !> Sample k of blk: the whole query as a user pays it (the per-parameter setup: scene,
+  !> speeds, desired velocity, divergence guard; plus the trajectory: fastest repeat,
+  !> per-trajectory setup included), every agent checked (cr_rom_query), its figures kept in
+  !> acc and its measures against the full-order trajectory where there is one.
+  subroutine run_sample(this, env, ks, k, pair, blk, ops, scfg, corr, acc, row, error)
+    type(rom_sweep_t), intent(in) :: this
+    type(env_t), intent(in) :: env
+    integer, intent(in) :: ks, k
+    type(rom_pair_t), intent(in) :: pair
+    type(sample_block_t), intent(in) :: blk
+    class(reduced_ops_t), intent(inout) :: ops
+    type(rom_solver_cfg_t), intent(in) :: scfg
+    type(local_correction_t), allocatable, intent(inout) :: corr
+    type(setting_acc_t), intent(inout) :: acc
+    type(romrun_row_t), intent(inout) :: row
+    type(error_t), allocatable, intent(out) :: error
+    real(wp) :: w0, w_setup, w_run
+    integer :: nt, rep
+    nt = this%st%n_steps
+    associate (traj => acc%traj, tr2 => acc%tr2, ctx => acc%ctx, guard => acc%guard)
+    w0 = env%wtime()
+    call query_setup(this%st, blk%mu(:, k), ctx, guard, error)
+    if (allocated(error)) return
+    w_setup = env%wtime() - w0
+    w0 = env%wtime()
+    call run_trajectory(ops, ctx, this%st%q0, nt, scfg, traj, error, guard=guard, corr=corr)
+    w_run = env%wtime() - w0
+    if (allocated(error)) then
+      call prefix_error(error, "setting " // str(ks) // ", " // trim(blk%name) // " sample " // str(k)); return
+    end if
+    do rep = 2, this%cfg%timing_repeats
       w0 = env%wtime()
-      call query_setup(this%st, blk%mu(:, k), ctx, guard, error)
+      call run_trajectory(ops, ctx, this%st%q0, nt, scfg, tr2, error, guard=guard, corr=corr)
+      w_run = min(w_run, env%wtime() - w0)
       if (allocated(error)) return
-      w_setup = env%wtime() - w0
-      w0 = env%wtime()
-      call run_trajectory(ops, ctx, this%st%q0, nt, scfg, traj, error, guard=guard, corr=corr)
-      w_run = env%wtime() - w0
-      if (allocated(error)) then
-        call prefix_error(error, "setting " // str(ks) // ", " // trim(blk%name) // " sample " // str(k)); return
+      if (tr2%time < traj%time) then
+        traj%time = tr2%time; traj%time_positions = tr2%time_positions
+        traj%time_assemble = tr2%time_assemble; traj%time_solve = tr2%time_solve
+        traj%time_correct = tr2%time_correct
       end if
-      do rep = 2, this%cfg%timing_repeats
-        w0 = env%wtime()
-        call run_trajectory(ops, ctx, this%st%q0, nt, scfg, tr2, error, guard=guard, corr=corr)
-        w_run = min(w_run, env%wtime() - w0)
-        if (allocated(error)) return
-        if (tr2%time < traj%time) then
-          traj%time = tr2%time; traj%time_positions = tr2%time_positions
-          traj%time_assemble = tr2%time_assemble; traj%time_solve = tr2%time_solve
-          traj%time_correct = tr2%time_correct
-        end if
-      end do
-      ! every agent checked (cr_rom_query)
-      call query_positions(this%st, pair%v, guard, traj, qr)
-      if (allocated(corr)) then
-        ncorr(:, k) = traj%n_corrected
-        tcorr(k) = traj%time_correct
-        n_conflict = n_conflict + traj%conflict_steps
-        n_seed = n_seed + traj%n_conflict_agents
-        row%corr_unsolved = row%corr_unsolved + traj%corr_unsolved
-      end if
-      div_step(k) = traj%diverged_step
-      n_done(k) = merge(traj%diverged_step, nt, traj%diverged_step > 0)
-      if (div_step(k) > 0) call log%warn("setting " // str(ks) // ", " // trim(blk%name) // " sample " // str(k) // &
-        ": the reduced trajectory diverged at step " // str(div_step(k)) // " (non-finite values or an agent " // &
-        "outside the hall's box inflated by its diagonal + 2 c_max T): stopped there, positions frozen, " // &
-        "sample excluded from the averages")
-      alpha(:, (k - 1) * nt + 1:k * nt) = traj%alpha
-      if (size(beta, 1) > 0) beta(:, (k - 1) * nt + 1:k * nt) = traj%beta
-      pos(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)) = qr
-      time(k) = traj%time
-      query(k) = w_setup + max(w_run, traj%time)
-      infeas(k) = traj%n_infeasible
-      capped(k) = traj%n_capped
-      n_fallback = n_fallback + traj%n_fallback; active_sum = active_sum + traj%active_sum
-      n_adds = n_adds + traj%dual_adds; n_drops = n_drops + traj%dual_drops; why = why + traj%dual_why
-      t_parts = t_parts + [traj%time_positions, traj%time_assemble, traj%time_solve]
-      extrap(k) = merge(1, 0, any(blk%mu(:, k) < this%st%space%lo - 1.0e-12_wp * abs(this%st%space%lo)) .or. &
-        any(blk%mu(:, k) > this%st%space%hi + 1.0e-12_wp * abs(this%st%space%hi)))
-      if (blk%has_fom) then
-        if (allocated(blk%qoi)) then
-          ! the full-order QoIs as crowd_snapshots stored them (the same definitions)
-          call measure_sample(ctx%scene, this%st%radius, this%st%dt, qr, ms(k), error, &
-            q=blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), err=err_time(:, k), qoi_fom=blk%qoi(k))
-        else
-          call measure_sample(ctx%scene, this%st%radius, this%st%dt, qr, ms(k), error, &
-            q=blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), err=err_time(:, k))
-        end if
-        e_proj(k) = projection_error(blk%u(:, (k - 1) * nt + 1:k * nt), pair%v)
-      else
-        call measure_sample(ctx%scene, this%st%radius, this%st%dt, qr, ms(k), error)
-      end if
-      if (allocated(error)) then
-        call prefix_error(error, "setting " // str(ks) // ", " // trim(blk%name) // " sample " // str(k)); return
-      end if
-      ms(k)%diverged = div_step(k) > 0
-      e_mu(k) = ms(k)%e_mu
-      mobility(k) = ms(k)%mobility
-      overlap(k) = max(ms(k)%overlap_aa, ms(k)%overlap_aw)
-      not_left(k) = ms(k)%not_left
-      not_left_fom(k) = ms(k)%not_left_fom
-      call log%progress(trim(blk%name) // " sample", k, blk%n)
     end do
-    row%setting = ks; row%n = pair%n; row%r = pair%r; row%nb = nb; row%m = ops%m
-    row%set = blk%name; row%hyper = this%cfg%hyper(kset); row%contacts = this%cfg%contacts(kset); row%solver = this%cfg%solver
-    row%correction = this%cfg%correction(kset)
-    row%t_step = sum(time) / max(1, sum(n_done))
-    ! every aggregate over the samples that did not diverge (their count is reported)
-    call aggregate_measures(ms, this%st%dt, row%meas)
-    ok = div_step == 0
-    if (any(ok)) then
-      row%t_query = sum(query, mask=ok) / count(ok)
+    call query_positions(this%st, pair%v, guard, traj, acc%qr)
+    if (allocated(corr)) then
+      acc%ncorr(:, k) = traj%n_corrected
+      acc%tcorr(k) = traj%time_correct
+      acc%n_conflict = acc%n_conflict + traj%conflict_steps
+      acc%n_seed = acc%n_seed + traj%n_conflict_agents
+      row%corr_unsolved = row%corr_unsolved + traj%corr_unsolved
+    end if
+    acc%div_step(k) = traj%diverged_step
+    acc%n_done(k) = merge(traj%diverged_step, nt, traj%diverged_step > 0)
+    acc%alpha(:, (k - 1) * nt + 1:k * nt) = traj%alpha
+    if (size(acc%beta, 1) > 0) acc%beta(:, (k - 1) * nt + 1:k * nt) = traj%beta
+    acc%pos(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)) = acc%qr
+    acc%time(k) = traj%time
+    acc%query(k) = w_setup + max(w_run, traj%time)
+    acc%infeas(k) = traj%n_infeasible
+    acc%capped(k) = traj%n_capped
+    acc%n_fallback = acc%n_fallback + traj%n_fallback; acc%active_sum = acc%active_sum + traj%active_sum
+    acc%n_adds = acc%n_adds + traj%dual_adds; acc%n_drops = acc%n_drops + traj%dual_drops
+    acc%why = acc%why + traj%dual_why
+    acc%t_parts = acc%t_parts + [traj%time_positions, traj%time_assemble, traj%time_solve]
+    end associate
+    acc%extrap(k) = merge(1, 0, any(blk%mu(:, k) < this%st%space%lo - 1.0e-12_wp * abs(this%st%space%lo)) .or. &
+      any(blk%mu(:, k) > this%st%space%hi + 1.0e-12_wp * abs(this%st%space%hi)))
+    call measure_one(this, k, pair, blk, acc, error)
+    if (allocated(error)) then
+      call prefix_error(error, "setting " // str(ks) // ", " // trim(blk%name) // " sample " // str(k)); return
+    end if
+  end subroutine run_sample
+
+  !> The measures of sample k's reduced positions acc%qr (against the full-order trajectory
+  !> and QoIs where blk has them) into acc.
+  subroutine measure_one(this, k, pair, blk, acc, error)
+    type(rom_sweep_t), intent(in) :: this
+    integer, intent(in) :: k
+    type(rom_pair_t), intent(in) :: pair
+    type(sample_block_t), intent(in) :: blk
+    type(setting_acc_t), intent(inout) :: acc
+    type(error_t), allocatable, intent(out) :: error
+    integer :: nt
+    nt = this%st%n_steps
+    if (blk%has_fom) then
+      if (allocated(blk%qoi)) then
+        ! the full-order QoIs as crowd_snapshots stored them (the same definitions)
+        call measure_sample(acc%ctx%scene, this%st%radius, this%st%dt, acc%qr, acc%ms(k), error, &
+          q=blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), err=acc%err_time(:, k), qoi_fom=blk%qoi(k))
+      else
+        call measure_sample(acc%ctx%scene, this%st%radius, this%st%dt, acc%qr, acc%ms(k), error, &
+          q=blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), err=acc%err_time(:, k))
+      end if
+      acc%e_proj(k) = projection_error(blk%u(:, (k - 1) * nt + 1:k * nt), pair%v)
     else
-      row%t_query = sum(query) / blk%n
+      call measure_sample(acc%ctx%scene, this%st%radius, this%st%dt, acc%qr, acc%ms(k), error)
+    end if
+    if (allocated(error)) return
+    acc%ms(k)%diverged = acc%div_step(k) > 0
+    acc%e_mu(k) = acc%ms(k)%e_mu
+    acc%mobility(k) = acc%ms(k)%mobility
+    acc%overlap(k) = max(acc%ms(k)%overlap_aa, acc%ms(k)%overlap_aw)
+    acc%not_left(k) = acc%ms(k)%not_left
+    acc%not_left_fom(k) = acc%ms(k)%not_left_fom
+  end subroutine measure_one
+
+  !> The row of the table of setting ks on blk: every aggregate over the samples that did not
+  !> diverge (their count is reported); with the local correction (corrected), its fractions
+  !> over the same samples and its time per step.
+  subroutine aggregate_row(this, ks, kset, pair, blk, ops, corrected, acc, row)
+    type(rom_sweep_t), intent(in) :: this
+    integer, intent(in) :: ks, kset
+    type(rom_pair_t), intent(in) :: pair
+    type(sample_block_t), intent(in) :: blk
+    class(reduced_ops_t), intent(in) :: ops
+    logical, intent(in) :: corrected
+    type(setting_acc_t), intent(in) :: acc
+    type(romrun_row_t), intent(inout) :: row
+    logical, allocatable :: ok(:)
+    integer :: j
+    row%setting = ks; row%n = pair%n; row%r = pair%r; row%nb = pair%nb; row%m = ops%m
+    row%set = blk%name; row%hyper = this%cfg%hyper(kset); row%contacts = this%cfg%contacts(kset)
+    row%solver = this%cfg%solver
+    row%correction = this%cfg%correction(kset)
+    row%t_step = sum(acc%time) / max(1, sum(acc%n_done))
+    call aggregate_measures(acc%ms, this%st%dt, row%meas)
+    ok = acc%div_step == 0
+    if (any(ok)) then
+      row%t_query = sum(acc%query, mask=ok) / count(ok)
+    else
+      row%t_query = sum(acc%query) / blk%n
     end if
     row%diverged = row%meas%n_diverged
     row%overlap = max(row%meas%overlap_aa, row%meas%overlap_aw)
-    row%not_left = row%meas%not_left; row%infeasible = sum(infeas); row%capped = sum(capped)
-    row%extrapolating = sum(extrap)
+    row%not_left = row%meas%not_left; row%infeasible = sum(acc%infeas); row%capped = sum(acc%capped)
+    row%extrapolating = sum(acc%extrap)
     row%e_avg = row%meas%e_avg; row%e_max = row%meas%e_max; row%mobility = row%meas%mobility
     row%not_left_fom = row%meas%not_left_fom
-    if (blk%has_fom .and. any(ok)) row%e_proj = sum(e_proj, mask=ok) / count(ok)
-    if (allocated(corr)) then
-      ! fractions over the samples that did not diverge (as the measures), time as t_step
+    if (blk%has_fom .and. any(ok)) row%e_proj = sum(acc%e_proj, mask=ok) / count(ok)
+    if (corrected) then
       if (any(ok)) then
-        row%corr_frac = real(sum(ncorr(:, pack([(j, j = 1, blk%n)], ok))), wp) / &
-          (real(this%st%n_agents, wp) * max(1, sum(n_done, mask=ok)))
-        row%corr_frac_max = real(maxval(ncorr(:, pack([(j, j = 1, blk%n)], ok))), wp) / this%st%n_agents
+        row%corr_frac = real(sum(acc%ncorr(:, pack([(j, j = 1, blk%n)], ok))), wp) / &
+          (real(this%st%n_agents, wp) * max(1, sum(acc%n_done, mask=ok)))
+        row%corr_frac_max = real(maxval(acc%ncorr(:, pack([(j, j = 1, blk%n)], ok))), wp) / this%st%n_agents
       end if
-      row%t_correct = sum(tcorr) / max(1, sum(n_done))
+      row%t_correct = sum(acc%tcorr) / max(1, sum(acc%n_done))
     end if
+  end subroutine aggregate_row
+
+  !> The log lines of the row of setting ks on blk: its accuracy and speed, the EIM's exact
+  !> rows, the dual active set's and the local correction's figures, the time per step by part
+  !> and the warnings (diverged, infeasible, capped, extrapolating).
+  subroutine report_row(this, log, pair, blk, ops, corrected, acc, row)
+    type(rom_sweep_t), intent(in) :: this
+    type(logger_t), intent(inout) :: log
+    type(rom_pair_t), intent(in) :: pair
+    type(sample_block_t), intent(in) :: blk
+    class(reduced_ops_t), intent(in) :: ops
+    logical, intent(in) :: corrected
+    type(setting_acc_t), intent(in) :: acc
+    type(romrun_row_t), intent(in) :: row
+    integer :: nt, steps
+    nt = this%st%n_steps
+    steps = max(1, nt * blk%n)
     call log%info("   " // trim(blk%name) // ": E_avg " // str(row%e_avg, "es9.2") // ", E_max " // &
       str(row%e_max, "es9.2") // ", best approximation " // str(row%e_proj, "es9.2") // ", deepest overlap " // &
       str(row%overlap, "es9.2") // ", agents not out " // str(row%not_left) // " (FOM " // str(row%not_left_fom) // &
@@ -471,43 +577,55 @@ contains
       str(row%meas%overlap_aw, "es9.2") // ", evacuation-time error " // evac_text(row%meas, 1) // "; " // &
       evac_text(row%meas, 2))
     if (eim_exact_rows(ops) > 0) call log%info("   EIM: " // str(eim_exact_rows(ops)) // " row evaluations " // &
-      "were exact (interpolated normal shorter than 1/2), over " // str(sum(n_done) * this%cfg%timing_repeats) // &
+      "were exact (interpolated normal shorter than 1/2), over " // str(sum(acc%n_done) * this%cfg%timing_repeats) // &
       " steps of " // str(pair%r) // " rows")
     if (row%diverged > 0) call log%warn(str(row%diverged) // " of " // str(blk%n) // " " // trim(blk%name) // &
       " reduced trajectories diverged: E_avg and every other aggregate of this row are over the other " // &
       str(blk%n - row%diverged) // " samples (column samples_diverged)")
-    if (this%cfg%solver == 'dual') call log%info("   dual active set: " // str(n_fallback) // " of " // &
-      str(nt * blk%n) // " steps fell back to the NNLS (found infeasible " // str(why(1)) // ", capped or > 3/4 Nb active " // &
-      str(why(2)) // ", not certified " // str(why(3)) // "); per step: active rows " // &
-      str(real(active_sum, wp) / max(1, nt * blk%n), "f6.1") // ", rows added " // &
-      str(real(n_adds, wp) / max(1, nt * blk%n), "f6.2") // ", dropped " // &
-      str(real(n_drops, wp) / max(1, nt * blk%n), "f6.2"))
-    if (allocated(corr)) call log%info("   local correction (" // trim(this%ref%exact_solver) // "): " // &
+    if (this%cfg%solver == 'dual') call log%info("   dual active set: " // str(acc%n_fallback) // " of " // &
+      str(nt * blk%n) // " steps fell back to the NNLS (found infeasible " // str(acc%why(1)) // &
+      ", capped or > 3/4 Nb active " // str(acc%why(2)) // ", not certified " // str(acc%why(3)) // &
+      "); per step: active rows " // str(real(acc%active_sum, wp) / steps, "f6.1") // ", rows added " // &
+      str(real(acc%n_adds, wp) / steps, "f6.2") // ", dropped " // str(real(acc%n_drops, wp) / steps, "f6.2"))
+    if (corrected) call log%info("   local correction (" // trim(this%ref%exact_solver) // "): " // &
       str(100 * row%corr_frac, "f7.3") // "% of the agents corrected per step (largest " // &
       str(100 * row%corr_frac_max, "f7.3") // "%), of which in a violated row " // &
-      str(100 * real(n_seed, wp) / (real(this%st%n_agents, wp) * max(1, sum(n_done))), "f7.3") // &
-      "% (the rest: their neighbours); conflicts on " // str(n_conflict) // " of " // &
-      str(sum(n_done)) // " steps, " // str(row%t_correct, "es9.2") // " s per step")
+      str(100 * real(acc%n_seed, wp) / (real(this%st%n_agents, wp) * max(1, sum(acc%n_done))), "f7.3") // &
+      "% (the rest: their neighbours); conflicts on " // str(acc%n_conflict) // " of " // &
+      str(sum(acc%n_done)) // " steps, " // str(row%t_correct, "es9.2") // " s per step")
     if (row%corr_unsolved > 0) call log%warn(str(row%corr_unsolved) // " corrected steps were not solved to the " // &
       "tolerance even by the projection with every agent free (infeasible step): the exact solver's best " // &
       "iterate was used (column correction_unsolved_steps)")
     call log%info("   time per step (fastest repeat of each sample): positions " // &
-      str(t_parts(1) / max(1, nt * blk%n), "es9.2") // " s, assembly " // str(t_parts(2) / max(1, nt * blk%n), "es9.2") // &
-      " s, solve " // str(t_parts(3) / max(1, nt * blk%n), "es9.2") // " s")
+      str(acc%t_parts(1) / steps, "es9.2") // " s, assembly " // str(acc%t_parts(2) / steps, "es9.2") // &
+      " s, solve " // str(acc%t_parts(3) / steps, "es9.2") // " s")
     if (row%infeasible > 0) call log%warn(str(row%infeasible) // " reduced steps were infeasible (the reduced " // &
       "positions already overlap): least-violation coefficients used")
     if (row%capped > 0) call log%warn(str(row%capped) // " reduced solves stopped at their iteration cap " // &
       "(nnls_max_iter / uzawa_max_iter): those steps are not converged")
     if (row%extrapolating > 0) call log%warn(str(row%extrapolating) // " of " // str(blk%n) // " " // &
       trim(blk%name) // " parameters lie outside the training box: the reduced model extrapolates")
-    ! output group
-    out_set%setting = ks; out_set%n = pair%n; out_set%r = pair%r; out_set%nb = nb; out_set%pair = pair%index
+  end subroutine report_row
+
+  !> The output group of setting ks on blk (the romrun file's set): the setting, the row's
+  !> summary figures and every per-sample array, moved out of acc.
+  subroutine pack_set(this, ks, kset, pair, blk, ops, acc, row, out_set)
+    type(rom_sweep_t), intent(in) :: this
+    integer, intent(in) :: ks, kset
+    type(rom_pair_t), intent(in) :: pair
+    type(sample_block_t), intent(in) :: blk
+    class(reduced_ops_t), intent(in) :: ops
+    type(setting_acc_t), intent(inout) :: acc
+    type(romrun_row_t), intent(in) :: row
+    type(romrun_set_t), intent(out) :: out_set
+    integer :: k, nt
+    nt = this%st%n_steps
+    out_set%setting = ks; out_set%n = pair%n; out_set%r = pair%r; out_set%nb = pair%nb; out_set%pair = pair%index
     out_set%m = ops%m
     out_set%hyper = this%cfg%hyper(kset); out_set%contacts = this%cfg%contacts(kset); out_set%solver = this%cfg%solver
     out_set%correction = this%cfg%correction(kset)
-    if (allocated(corr)) then
-      call move_alloc(ncorr, out_set%n_corrected); call move_alloc(tcorr, out_set%t_correct)
-      call corr%free()
+    if (allocated(acc%ncorr)) then
+      call move_alloc(acc%ncorr, out_set%n_corrected); call move_alloc(acc%tcorr, out_set%t_correct)
     end if
     out_set%name = blk%name
     out_set%summary = trim(blk%name) == trim(this%blocks(size(this%blocks))%name) .or. &
@@ -515,33 +633,32 @@ contains
     out_set%e_avg = row%e_avg; out_set%samples_diverged = row%diverged; out_set%t_step = row%t_step
     out_set%speedup_uzawa = speedup(this%ref%t_uz, row%t_step); out_set%speedup_exact = speedup(this%ref%t_ex, row%t_step)
     out_set%params = blk%mu
-    call move_alloc(alpha, out_set%alpha); call move_alloc(beta, out_set%beta)
-    call move_alloc(pos, out_set%positions); call move_alloc(err_time, out_set%err_time)
-    call move_alloc(e_mu, out_set%e_mu); call move_alloc(e_proj, out_set%e_proj)
-    call move_alloc(overlap, out_set%max_overlap); call move_alloc(mobility, out_set%mobility)
-    call move_alloc(not_left, out_set%n_not_left); call move_alloc(not_left_fom, out_set%n_not_left_fom)
-    call move_alloc(infeas, out_set%n_infeasible); call move_alloc(capped, out_set%n_capped)
-    call move_alloc(extrap, out_set%extrapolating); call move_alloc(time, out_set%time)
-    call move_alloc(div_step, out_set%diverged_step)
-    out_set%e_disp = ms%e_disp; out_set%overlap_aa = ms%overlap_aa; out_set%overlap_aw = ms%overlap_aw
+    call move_alloc(acc%alpha, out_set%alpha); call move_alloc(acc%beta, out_set%beta)
+    call move_alloc(acc%pos, out_set%positions); call move_alloc(acc%err_time, out_set%err_time)
+    call move_alloc(acc%e_mu, out_set%e_mu); call move_alloc(acc%e_proj, out_set%e_proj)
+    call move_alloc(acc%overlap, out_set%max_overlap); call move_alloc(acc%mobility, out_set%mobility)
+    call move_alloc(acc%not_left, out_set%n_not_left); call move_alloc(acc%not_left_fom, out_set%n_not_left_fom)
+    call move_alloc(acc%infeas, out_set%n_infeasible); call move_alloc(acc%capped, out_set%n_capped)
+    call move_alloc(acc%extrap, out_set%extrapolating); call move_alloc(acc%time, out_set%time)
+    call move_alloc(acc%div_step, out_set%diverged_step)
+    out_set%e_disp = acc%ms%e_disp; out_set%overlap_aa = acc%ms%overlap_aa; out_set%overlap_aw = acc%ms%overlap_aw
     allocate(out_set%evac_rom(nt + 1, blk%n), out_set%t_out_rom(size(EVAC_PCT), blk%n))
     do k = 1, blk%n
-      out_set%evac_rom(:, k) = ms(k)%evac_rom
-      out_set%t_out_rom(:, k) = ms(k)%t_rom
+      out_set%evac_rom(:, k) = acc%ms(k)%evac_rom
+      out_set%t_out_rom(:, k) = acc%ms(k)%t_rom
     end do
     allocate(out_set%qoi(blk%n))
     do k = 1, blk%n
-      out_set%qoi(k) = ms(k)%qoi_rom
+      out_set%qoi(k) = acc%ms(k)%qoi_rom
     end do
     if (blk%has_fom) then
       allocate(out_set%evac_fom(nt + 1, blk%n), out_set%t_out_fom(size(EVAC_PCT), blk%n))
       do k = 1, blk%n
-        out_set%evac_fom(:, k) = ms(k)%evac_fom
-        out_set%t_out_fom(:, k) = ms(k)%t_fom
+        out_set%evac_fom(:, k) = acc%ms(k)%evac_fom
+        out_set%t_out_fom(:, k) = acc%ms(k)%t_fom
       end do
     end if
-    call out%write_set(out_set, error)
-  end subroutine run_setting
+  end subroutine pack_set
 
   !> "t50: error e over n samples (ROM misses a, no FOM reference b)".
   function evac_text(m, j) result(s)

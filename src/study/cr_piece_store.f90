@@ -46,6 +46,14 @@ module cr_piece_store
     procedure :: path_of
   end type piece_index_t
 
+  !> What the steps of scan_pieces pass on: each piece's flag (1: bad) [n], this rank's
+  !> messages on its bad pieces, the pieces found, the verified samples held.
+  type :: scan_state_t
+    integer, allocatable :: bad(:)
+    character(len=:), allocatable :: bad_msg
+    integer :: n = 0, nh = 0
+  end type scan_state_t
+
   !> The samples a rank computed in the current time slice, written together as one piece.
   type :: piece_batch_t
     type(env_t) :: env
@@ -126,7 +134,10 @@ contains
     if (rename_file(path, dest) /= 0) dest = ""
   end function quarantine_piece
 
-  !> Collective: find and verify the pieces in `dir` (see the module header).
+  !> Collective: find and verify the pieces in `dir` (see the module header): rank 0 reads
+  !> the headers (scan_headers), the index goes to every rank (share_index), the pieces with
+  !> good headers are verified round-robin (verify_pieces), and the bad ones stop the run or
+  !> are moved aside (settle_bad).
   subroutine scan_pieces(env, dir, hash, sets, n_dof, n_steps, quarantine, idx, held, warnings, error)
     type(env_t), intent(in) :: env
     character(len=*), intent(in) :: dir, hash
@@ -141,79 +152,108 @@ contains
     !> one line per quarantined piece (rank 0; '' if none)
     character(len=:), allocatable, intent(out) :: warnings
     type(error_t), allocatable, intent(out) :: error
-    character(len=:), allocatable :: fatal, bad_msg, h, path, all_msg, m
-    character(len=8), allocatable :: hsets(:)
-    integer, allocatable :: hidx(:), bad(:), claimed(:), lens(:), buf(:)
-    integer :: head(2)
-    type(sample_result_t), allocatable :: res(:)
-    type(error_t), allocatable :: e
-    type(path_t), allocatable :: tmp(:)
-    integer :: g, is, k, j, p, n, gj, nbad, nh
+    type(scan_state_t) :: st
+    character(len=:), allocatable :: fatal
     warnings = ""
-    nh = 0
     allocate(held(0))
     idx%n_tot = sets(1)%n + sets(2)%n
     allocate(idx%piece_of(idx%n_tot), idx%slot_of(idx%n_tot), idx%path(0))
     idx%piece_of = 0; idx%slot_of = 0
+    allocate(st%bad(0))
+    st%bad_msg = ""
     fatal = ""
-    ! 1. headers, on rank 0
-    if (env%is_root()) then
-      ! (the directory is created with the first piece: a study too short to write one never
-      ! has one)
-      idx%fresh = .not. file_exists(dir // "/.")
-      if (idx%fresh .and. file_exists(dir)) fatal = "'" // dir // "' exists and is not a directory: " // &
-        "it cannot hold the pieces of '" // dir(1:len(dir) - 7) // "'"
-      allocate(claimed(idx%n_tot))
-      claimed = 0
-      do g = 1, idx%n_tot
-        if (len(fatal) > 0 .or. idx%fresh) exit
-        if (idx%piece_of(g) > 0) cycle
-        call set_of_sample(sets, g, is, k)
-        path = piece_path(dir, sets(is)%name, k)
-        if (.not. file_exists(path)) cycle
-        ! every piece found gets a number, good or bad (bad ones are marked below)
-        call append_path(path)
-        p = idx%n_pieces
-        call piece_header(path, h, hsets, hidx, e)
-        if (allocated(e)) then
-          call mark_bad(p, e%message // " (unreadable or incomplete piece)")
-          deallocate(e)
-          cycle
+    if (env%is_root()) call scan_headers(dir, hash, sets, idx, st, fatal)
+    call share_index(env, idx, st, fatal, error)
+    if (allocated(error) .or. st%n == 0) return
+    call verify_pieces(env, sets, n_dof, n_steps, idx, st, held)
+    call env%allreduce(st%bad, 'max', error)
+    if (allocated(error)) return
+    held = held(1:st%nh)
+    if (count(st%bad /= 0) == 0) return
+    call settle_bad(env, dir, quarantine, idx, st, warnings, error)
+  end subroutine scan_pieces
+
+  !> Rank 0: the headers of the pieces in dir, each sample claimed by one piece; every piece
+  !> found gets a number, good or bad (bad ones marked in st). fatal: why the run cannot go on
+  !> ('' if it can).
+  subroutine scan_headers(dir, hash, sets, idx, st, fatal)
+    character(len=*), intent(in) :: dir, hash
+    type(sample_set_t), intent(in) :: sets(2)
+    type(piece_index_t), intent(inout) :: idx
+    type(scan_state_t), intent(inout) :: st
+    character(len=:), allocatable, intent(inout) :: fatal
+    character(len=:), allocatable :: h, path, m
+    character(len=8), allocatable :: hsets(:)
+    integer, allocatable :: hidx(:), claimed(:)
+    type(error_t), allocatable :: e
+    integer :: g, is, k, j, p, gj
+    ! (the directory is created with the first piece: a study too short to write one never
+    ! has one)
+    idx%fresh = .not. file_exists(dir // "/.")
+    if (idx%fresh .and. file_exists(dir)) fatal = "'" // dir // "' exists and is not a directory: " // &
+      "it cannot hold the pieces of '" // dir(1:len(dir) - 7) // "'"
+    allocate(claimed(idx%n_tot))
+    claimed = 0
+    do g = 1, idx%n_tot
+      if (len(fatal) > 0 .or. idx%fresh) exit
+      if (idx%piece_of(g) > 0) cycle
+      call set_of_sample(sets, g, is, k)
+      path = piece_path(dir, sets(is)%name, k)
+      if (.not. file_exists(path)) cycle
+      call append_path(idx, path)
+      p = idx%n_pieces
+      call piece_header(path, h, hsets, hidx, e)
+      if (allocated(e)) then
+        call mark_bad(st, p, e%message // " (unreadable or incomplete piece)")
+        deallocate(e)
+        cycle
+      end if
+      if (h /= hash) then
+        fatal = "'" // dir // "' holds pieces of a different configuration (piece config_hash " // h // &
+          ", this input " // trim(hash) // "): refusing to mix them; remove the directory or restore the input"
+        exit
+      end if
+      if (trim(hsets(1)) /= trim(sets(is)%name) .or. hidx(1) /= k) then
+        call mark_bad(st, p, "piece '" // path // "' holds " // trim(hsets(1)) // " sample " // str(hidx(1)) // &
+          " where " // trim(sets(is)%name) // " sample " // str(k) // " belongs (renamed or copied piece)")
+        cycle
+      end if
+      m = ""
+      do j = 1, size(hidx)
+        gj = global_sample(sets, hsets(j), hidx(j))
+        if (gj == 0) then
+          m = "piece '" // path // "' holds " // trim(hsets(j)) // " sample " // str(hidx(j)) // &
+            ", which this study does not have"
+        else if (claimed(gj) /= 0) then
+          m = "piece '" // path // "' holds " // trim(hsets(j)) // " sample " // str(hidx(j)) // &
+            ", already held by piece '" // idx%path(claimed(gj))%s // "'"
         end if
-        if (h /= hash) then
-          fatal = "'" // dir // "' holds pieces of a different configuration (piece config_hash " // h // &
-            ", this input " // trim(hash) // "): refusing to mix them; remove the directory or restore the input"
-          exit
-        end if
-        if (trim(hsets(1)) /= trim(sets(is)%name) .or. hidx(1) /= k) then
-          call mark_bad(p, "piece '" // path // "' holds " // trim(hsets(1)) // " sample " // str(hidx(1)) // &
-            " where " // trim(sets(is)%name) // " sample " // str(k) // " belongs (renamed or copied piece)")
-          cycle
-        end if
-        m = ""
-        do j = 1, size(hidx)
-          gj = global_sample(sets, hsets(j), hidx(j))
-          if (gj == 0) then
-            m = "piece '" // path // "' holds " // trim(hsets(j)) // " sample " // str(hidx(j)) // &
-              ", which this study does not have"
-          else if (claimed(gj) /= 0) then
-            m = "piece '" // path // "' holds " // trim(hsets(j)) // " sample " // str(hidx(j)) // &
-              ", already held by piece '" // idx%path(claimed(gj))%s // "'"
-          end if
-          if (len(m) > 0) exit
-        end do
-        if (len(m) > 0) then
-          call mark_bad(p, m); cycle
-        end if
-        do j = 1, size(hidx)
-          gj = global_sample(sets, hsets(j), hidx(j))
-          claimed(gj) = p
-          idx%piece_of(gj) = p
-          idx%slot_of(gj) = j
-        end do
+        if (len(m) > 0) exit
       end do
-    end if
-    ! share the outcome: [message length, pieces found] (a fresh study ends here: one broadcast)
+      if (len(m) > 0) then
+        call mark_bad(st, p, m); cycle
+      end if
+      do j = 1, size(hidx)
+        gj = global_sample(sets, hsets(j), hidx(j))
+        claimed(gj) = p
+        idx%piece_of(gj) = p
+        idx%slot_of(gj) = j
+      end do
+    end do
+  end subroutine scan_headers
+
+  !> Collective: rank 0's outcome [message length, pieces found] (a fresh study ends here: one
+  !> broadcast; st%n = 0), then the index [piece_of, slot_of, bad, path lengths] and the paths
+  !> in one text.
+  subroutine share_index(env, idx, st, fatal, error)
+    type(env_t), intent(in) :: env
+    type(piece_index_t), intent(inout) :: idx
+    type(scan_state_t), intent(inout) :: st
+    character(len=:), allocatable, intent(inout) :: fatal
+    type(error_t), allocatable, intent(out) :: error
+    integer, allocatable :: lens(:), buf(:)
+    character(len=:), allocatable :: all_msg
+    integer :: head(2), p, j, k, n
     head = [len(fatal), idx%n_pieces]
     call env%bcast(head, error)
     if (allocated(error)) return
@@ -223,10 +263,9 @@ contains
       return
     end if
     n = head(2)
+    st%n = n
     if (n == 0) return
-    ! ... and the index: [piece_of, slot_of, bad, path lengths], then the paths in one text
-    if (.not. allocated(bad_msg)) bad_msg = ""
-    call resize_bad(n)
+    call resize_bad(st, n)
     allocate(lens(n))
     lens = 0
     all_msg = ""
@@ -236,13 +275,13 @@ contains
         all_msg = all_msg // idx%path(p)%s
       end do
     end if
-    buf = [idx%piece_of, idx%slot_of, bad, lens]
+    buf = [idx%piece_of, idx%slot_of, st%bad, lens]
     call env%bcast(buf, error)
     if (.not. allocated(error)) call env%bcast(all_msg, error)
     if (allocated(error)) return
     j = 2 * idx%n_tot
     idx%piece_of = buf(1:idx%n_tot); idx%slot_of = buf(idx%n_tot + 1:j)
-    bad = buf(j + 1:j + n); lens = buf(j + n + 1:j + 2 * n)
+    st%bad = buf(j + 1:j + n); lens = buf(j + n + 1:j + 2 * n)
     if (.not. env%is_root()) then
       deallocate(idx%path); allocate(idx%path(n))
       idx%n_pieces = n
@@ -252,10 +291,22 @@ contains
         k = k + lens(p)
       end do
     end if
-    all_msg = ""
-    ! 2. full verification of the pieces with good headers, round-robin over the ranks
-    do p = 1, n
-      if (bad(p) /= 0 .or. mod(p - 1, env%size) /= env%rank) cycle
+  end subroutine share_index
+
+  !> Full verification of the pieces with good headers, round-robin over the ranks: the good
+  !> ones' samples kept in held, the bad ones marked in st.
+  subroutine verify_pieces(env, sets, n_dof, n_steps, idx, st, held)
+    type(env_t), intent(in) :: env
+    type(sample_set_t), intent(in) :: sets(2)
+    integer, intent(in) :: n_dof, n_steps
+    type(piece_index_t), intent(in) :: idx
+    type(scan_state_t), intent(inout) :: st
+    type(sample_result_t), allocatable, intent(inout) :: held(:)
+    type(sample_result_t), allocatable :: res(:)
+    type(error_t), allocatable :: e
+    integer :: p, j, gj, is, k
+    do p = 1, st%n
+      if (st%bad(p) /= 0 .or. mod(p - 1, env%size) /= env%rank) cycle
       call read_piece(idx%path(p)%s, res, e)
       if (.not. allocated(e)) then
         do j = 1, size(res)
@@ -274,22 +325,32 @@ contains
         end do
       end if
       if (allocated(e)) then
-        call mark_bad(p, e%message); deallocate(e)
+        call mark_bad(st, p, e%message); deallocate(e)
       else
-        call keep(res)
+        call keep(st, held, res)
       end if
     end do
-    call env%allreduce(bad, 'max', error)
-    if (allocated(error)) return
-    held = held(1:nh)
-    nbad = count(bad /= 0)
-    if (nbad == 0) return
-    ! every rank's messages, in rank order
-    call env%gather_text(bad_msg, all_msg, error)
+  end subroutine verify_pieces
+
+  !> Collective, when some piece is bad: every rank's messages in rank order, the bad pieces'
+  !> samples back to be computed, and then either the run stopped (error, code 2) or, with
+  !> quarantine, the bad pieces moved aside by rank 0 (warnings) and dropped from the index.
+  subroutine settle_bad(env, dir, quarantine, idx, st, warnings, error)
+    type(env_t), intent(in) :: env
+    character(len=*), intent(in) :: dir
+    logical, intent(in) :: quarantine
+    type(piece_index_t), intent(inout) :: idx
+    type(scan_state_t), intent(inout) :: st
+    character(len=:), allocatable, intent(inout) :: warnings
+    type(error_t), allocatable, intent(out) :: error
+    character(len=:), allocatable :: all_msg, m, h
+    integer :: g, p, nbad
+    nbad = count(st%bad /= 0)
+    call env%gather_text(st%bad_msg, all_msg, error)
     if (allocated(error)) return
     do g = 1, idx%n_tot
       if (idx%piece_of(g) > 0) then
-        if (bad(idx%piece_of(g)) /= 0) then
+        if (st%bad(idx%piece_of(g)) /= 0) then
           idx%piece_of(g) = 0; idx%slot_of(g) = 0
         end if
       end if
@@ -302,8 +363,8 @@ contains
     end if
     m = ""
     if (env%is_root()) then
-      do p = 1, n
-        if (bad(p) == 0) cycle
+      do p = 1, st%n
+        if (st%bad(p) == 0) cycle
         h = quarantine_piece(dir, idx%path(p)%s)
         if (len(h) == 0) then
           m = "cannot move the bad piece '" // idx%path(p)%s // "' to '" // dir // "/quarantine'"
@@ -319,82 +380,88 @@ contains
       call set_error(error, m, 2); return
     end if
     idx%n_quarantined = nbad
-    call drop_bad()
+    call drop_bad(idx, st, nbad)
+  end subroutine settle_bad
 
-  contains
+  !> Remove the nbad bad pieces from the index (renumbering the good ones).
+  subroutine drop_bad(idx, st, nbad)
+    type(piece_index_t), intent(inout) :: idx
+    type(scan_state_t), intent(in) :: st
+    integer, intent(in) :: nbad
+    integer, allocatable :: newnum(:)
+    type(path_t), allocatable :: t2(:)
+    integer :: q, m2
+    allocate(newnum(st%n), t2(st%n - nbad))
+    m2 = 0
+    do q = 1, st%n
+      newnum(q) = 0
+      if (st%bad(q) /= 0) cycle
+      m2 = m2 + 1
+      newnum(q) = m2
+      call move_alloc(idx%path(q)%s, t2(m2)%s)
+    end do
+    do q = 1, idx%n_tot
+      if (idx%piece_of(q) > 0) idx%piece_of(q) = newnum(idx%piece_of(q))
+    end do
+    call move_alloc(t2, idx%path)
+    idx%n_pieces = m2
+  end subroutine drop_bad
 
-    !> Remove the bad pieces from the index (renumbering the good ones).
-    subroutine drop_bad()
-      integer, allocatable :: newnum(:)
-      type(path_t), allocatable :: t2(:)
-      integer :: q, m2
-      allocate(newnum(n), t2(n - nbad))
-      m2 = 0
-      do q = 1, n
-        newnum(q) = 0
-        if (bad(q) /= 0) cycle
-        m2 = m2 + 1
-        newnum(q) = m2
-        call move_alloc(idx%path(q)%s, t2(m2)%s)
+  !> Add path s to the index's pieces.
+  subroutine append_path(idx, s)
+    type(piece_index_t), intent(inout) :: idx
+    character(len=*), intent(in) :: s
+    type(path_t), allocatable :: tmp(:)
+    integer :: q
+    allocate(tmp(idx%n_pieces + 1))
+    do q = 1, idx%n_pieces
+      call move_alloc(idx%path(q)%s, tmp(q)%s)
+    end do
+    tmp(idx%n_pieces + 1)%s = s
+    call move_alloc(tmp, idx%path)
+    idx%n_pieces = idx%n_pieces + 1
+  end subroutine append_path
+
+  !> st%bad(1:m) (new entries 0)
+  subroutine resize_bad(st, m)
+    type(scan_state_t), intent(inout) :: st
+    integer, intent(in) :: m
+    integer, allocatable :: b2(:)
+    if (size(st%bad) == m) return
+    allocate(b2(m)); b2 = 0
+    b2(1:min(m, size(st%bad))) = st%bad(1:min(m, size(st%bad)))
+    call move_alloc(b2, st%bad)
+  end subroutine resize_bad
+
+  !> Piece p is bad, for the reason msg.
+  subroutine mark_bad(st, p, msg)
+    type(scan_state_t), intent(inout) :: st
+    integer, intent(in) :: p
+    character(len=*), intent(in) :: msg
+    if (size(st%bad) < p) call resize_bad(st, p)
+    st%bad(p) = 1
+    st%bad_msg = st%bad_msg // "  " // msg // new_line('a')
+  end subroutine mark_bad
+
+  !> Keep the verified samples r (moved) among held (st%nh of them in use).
+  subroutine keep(st, held, r)
+    type(scan_state_t), intent(inout) :: st
+    type(sample_result_t), allocatable, intent(inout) :: held(:)
+    type(sample_result_t), intent(inout) :: r(:)
+    type(sample_result_t), allocatable :: h2(:)
+    integer :: q
+    if (st%nh + size(r) > size(held)) then
+      allocate(h2(max(2 * size(held), st%nh + size(r), 8)))
+      do q = 1, st%nh
+        call move_sample(held(q), h2(q))
       end do
-      do q = 1, idx%n_tot
-        if (idx%piece_of(q) > 0) idx%piece_of(q) = newnum(idx%piece_of(q))
-      end do
-      call move_alloc(t2, idx%path)
-      idx%n_pieces = m2
-    end subroutine drop_bad
-
-    subroutine append_path(s)
-      character(len=*), intent(in) :: s
-      integer :: q
-      allocate(tmp(idx%n_pieces + 1))
-      do q = 1, idx%n_pieces
-        call move_alloc(idx%path(q)%s, tmp(q)%s)
-      end do
-      tmp(idx%n_pieces + 1)%s = s
-      call move_alloc(tmp, idx%path)
-      idx%n_pieces = idx%n_pieces + 1
-    end subroutine append_path
-
-    !> bad(1:m) (new entries 0)
-    subroutine resize_bad(m)
-      integer, intent(in) :: m
-      integer, allocatable :: b2(:)
-      if (.not. allocated(bad)) allocate(bad(0))
-      if (size(bad) == m) return
-      allocate(b2(m)); b2 = 0
-      b2(1:min(m, size(bad))) = bad(1:min(m, size(bad)))
-      call move_alloc(b2, bad)
-    end subroutine resize_bad
-
-    subroutine mark_bad(p, msg)
-      integer, intent(in) :: p
-      character(len=*), intent(in) :: msg
-      if (.not. allocated(bad)) allocate(bad(0))
-      if (size(bad) < p) call resize_bad(p)
-      bad(p) = 1
-      if (.not. allocated(bad_msg)) bad_msg = ""
-      bad_msg = bad_msg // "  " // msg // new_line('a')
-    end subroutine mark_bad
-
-    !> Keep the verified samples r (moved) among held.
-    subroutine keep(r)
-      type(sample_result_t), intent(inout) :: r(:)
-      type(sample_result_t), allocatable :: h2(:)
-      integer :: q
-      if (nh + size(r) > size(held)) then
-        allocate(h2(max(2 * size(held), nh + size(r), 8)))
-        do q = 1, nh
-          call move_sample(held(q), h2(q))
-        end do
-        call move_alloc(h2, held)
-      end if
-      do q = 1, size(r)
-        call move_sample(r(q), held(nh + q))
-      end do
-      nh = nh + size(r)
-    end subroutine keep
-  end subroutine scan_pieces
+      call move_alloc(h2, held)
+    end if
+    do q = 1, size(r)
+      call move_sample(r(q), held(st%nh + q))
+    end do
+    st%nh = st%nh + size(r)
+  end subroutine keep
 
   !> Start a batch: samples are kept until `slice` seconds have passed since the batch's first
   !> sample started (or the batch holds max_bytes of data), then written as one piece.

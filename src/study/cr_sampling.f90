@@ -10,7 +10,8 @@
 module cr_sampling
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error, problems_t, prefix_error
-  use cr_config_check, only: check_config, need_sane, MAX_SPEED
+  use cr_config_check, only: check_config
+  use cr_sane, only: need_sane, MAX_SPEED
   use cr_strings, only: str
   use cr_random, only: rng_t
   use cr_param_model, only: param_model_t, SPEED_SEED_MAX

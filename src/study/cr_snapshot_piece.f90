@@ -40,6 +40,17 @@ module cr_snapshot_piece
   character(len=*), parameter :: PIECE_SCHEMA = "crowdrom-snapshot-piece"
   integer, parameter :: PIECE_SCHEMA_VERSION = 2
 
+  !> The datasets of a piece as read (n samples of ns steps, nd degrees of freedom, nnz
+  !> multipliers) and the names of the piece for messages (what; w: with its samples).
+  type :: piece_data_t
+    character(len=:), allocatable :: what, w
+    integer :: n = 0, ns = 0, nd = 0
+    integer(i8) :: nnz = 0
+    integer, allocatable :: setid(:), idx(:), rk(:), iters(:,:), conv(:,:), nact(:,:), ia(:), ib(:), ob(:)
+    real(wp), allocatable :: tm(:), st(:), mu(:,:), q(:,:), u(:,:), v(:,:), kkt(:,:), gap(:,:), val(:)
+    integer(i8), allocatable :: off(:), key(:)
+  end type piece_data_t
+
 contains
 
   !> `<dir>/<set>_<k>.h5` with k zero-padded to 6 digits.
@@ -349,216 +360,239 @@ contains
 
   !> Read every sample of a piece, verifying each dataset's checksum and the internal
   !> consistency of each sample (shapes, finite values, multiplier layout). Identity against the
-  !> study is check_sample's job. Errors start with "piece '<path>'".
+  !> study is check_sample's job. Errors start with "piece '<path>'". Steps: the datasets
+  !> (read_piece_data), their shapes and CSR layout (check_piece_shapes), the contact indices
+  !> (check_piece_indices), the values (check_piece_values), the split into samples (split_piece).
   subroutine read_piece(path, res, error)
     character(len=*), intent(in) :: path
     type(sample_result_t), allocatable, intent(out) :: res(:)
     type(error_t), allocatable, intent(out) :: error
     type(h5file_t) :: h5
     type(error_t), allocatable :: e2
-    character(len=:), allocatable :: what, w
-    integer :: n, j, nd, ns, ne, c
-    integer(i8) :: m, nnz
-    integer, allocatable :: setid(:), idx(:), rk(:), iters(:,:), conv(:,:), nact(:,:), ia(:), ib(:), ob(:)
-    real(wp), allocatable :: tm(:), st(:), mu(:,:), q(:,:), u(:,:), v(:,:), kkt(:,:), gap(:,:), val(:)
-    integer(i8), allocatable :: off(:), key(:)
-    what = "piece '" // path // "'"
+    type(piece_data_t) :: pd
+    pd%what = "piece '" // path // "'"
     allocate(res(0))
     call h5%open(path, error)
     if (allocated(error)) then
-      call prefix_error(error, what); return
+      call prefix_error(error, pd%what); return
     end if
     ops: block
-      call h5%read_attr("/", "n_samples", n, error); if (allocated(error)) exit ops
-      call ri1("set_id", setid, error); if (allocated(error)) exit ops
-      call ri1("index", idx, error); if (allocated(error)) exit ops
-      if (n < 1 .or. size(setid) /= n .or. size(idx) /= n .or. any(setid < 1 .or. setid > 2)) then
-        call set_error(error, what // ": n_samples, set_id and index disagree"); exit ops
-      end if
-      w = what // " (" // samples_text(setid, idx) // ")"
-      call ri1("rank", rk, error); if (allocated(error)) exit ops
-      call rr1("time", tm, error); if (allocated(error)) exit ops
-      call rr1("start", st, error); if (allocated(error)) exit ops
-      call rr2("mu", mu, error); if (allocated(error)) exit ops
-      call rr2("positions", q, error); if (allocated(error)) exit ops
-      call rr2("velocities", u, error); if (allocated(error)) exit ops
-      call rr2("desired", v, error); if (allocated(error)) exit ops
-      call rr2("kkt", kkt, error); if (allocated(error)) exit ops
-      call rr2("min_gap", gap, error); if (allocated(error)) exit ops
-      call ri2("iterations", iters, error); if (allocated(error)) exit ops
-      call ri2("converged", conv, error); if (allocated(error)) exit ops
-      call ri2("n_active", nact, error); if (allocated(error)) exit ops
-      call rl1("lambda_offset", off, error); if (allocated(error)) exit ops
-      call rl1("lambda_key", key, error); if (allocated(error)) exit ops
-      call ri1("lambda_ia", ia, error); if (allocated(error)) exit ops
-      call ri1("lambda_ib", ib, error); if (allocated(error)) exit ops
-      call ri1("lambda_ob", ob, error); if (allocated(error)) exit ops
-      call rr1("lambda_value", val, error); if (allocated(error)) exit ops
-      ! shapes
-      ns = size(kkt, 1); nd = size(q, 1); ne = size(mu, 1)
-      if (ns < 1 .or. size(rk) /= n .or. size(tm) /= n .or. size(st) /= n .or. size(mu, 2) /= n .or. &
-          size(q, 2) /= (ns + 1) * n .or. any(shape(u) /= [nd, ns * n]) .or. any(shape(v) /= [nd, ns * n]) .or. &
-          any(shape(kkt) /= [ns, n]) .or. any(shape(gap) /= [ns, n]) .or. any(shape(iters) /= [ns, n]) .or. &
-          any(shape(conv) /= [ns, n]) .or. any(shape(nact) /= [ns, n]) .or. size(off) /= (ns + 1) * n) then
-        call set_error(error, w // ": inconsistent dataset shapes"); exit ops
-      end if
-      nnz = size(val, kind=i8)
-      if (size(key, kind=i8) /= nnz .or. size(ia, kind=i8) /= nnz .or. size(ib, kind=i8) /= nnz .or. &
-          size(ob, kind=i8) /= nnz) then
-        call set_error(error, w // ": multiplier arrays of different lengths"); exit ops
-      end if
-      m = 0
-      do j = 1, n
-        associate (o => off((j - 1) * (ns + 1) + 1:j * (ns + 1)))
-          if (o(1) /= 0 .or. any(o(2:) < o(:ns))) then
-            call set_error(error, w // ": lambda_offset is not a CSR layout"); exit ops
-          end if
-          m = m + o(ns + 1)
-        end associate
-      end do
-      if (m /= nnz) then
-        call set_error(error, w // ": lambda_offset counts " // str(m) // " multipliers, lambda_value holds " // &
-          str(nnz)); exit ops
-      end if
+      call read_piece_data(h5, pd, error); if (allocated(error)) exit ops
+      call check_piece_shapes(pd, error); if (allocated(error)) exit ops
       ! indices in range (a piece whose checksums were re-stamped over edited indices)
-      call check_indices(error); if (allocated(error)) exit ops
-      ! values
-      call need_finite(reshape(mu, [size(mu)]), "mu", error); if (allocated(error)) exit ops
-      call need_finite(reshape(q, [size(q)]), "positions", error); if (allocated(error)) exit ops
-      call need_finite(reshape(u, [size(u)]), "velocities", error); if (allocated(error)) exit ops
-      call need_finite(reshape(v, [size(v)]), "desired", error); if (allocated(error)) exit ops
-      call need_finite(reshape(kkt, [size(kkt)]), "kkt", error); if (allocated(error)) exit ops
-      call need_finite(val, "lambda_value", error); if (allocated(error)) exit ops
-      call need_finite([tm, st], "time", error); if (allocated(error)) exit ops
-      if (any(val <= 0)) then
-        call set_error(error, w // ": lambda_value holds multipliers <= 0 (only lambda > 0 are stored)"); exit ops
-      end if
-      if (any(conv /= 0 .and. conv /= 1)) then
-        call set_error(error, w // ": converged holds values other than 0 and 1"); exit ops
-      end if
-      ! split into samples
-      deallocate(res); allocate(res(n))
-      c = 0
-      do j = 1, n
-        res(j)%set = SET_NAMES(setid(j)); res(j)%index = idx(j); res(j)%rank = rk(j)
-        res(j)%time = tm(j); res(j)%start = st(j)
-        res(j)%mu = mu(:, j)
-        res(j)%q = q(:, (j - 1) * (ns + 1) + 1:j * (ns + 1))
-        res(j)%u = u(:, (j - 1) * ns + 1:j * ns)
-        res(j)%v = v(:, (j - 1) * ns + 1:j * ns)
-        res(j)%kkt = kkt(:, j); res(j)%min_gap = gap(:, j)
-        res(j)%iterations = iters(:, j); res(j)%converged = conv(:, j); res(j)%n_active = nact(:, j)
-        res(j)%offset = off((j - 1) * (ns + 1) + 1:j * (ns + 1))
-        m = res(j)%offset(ns + 1)
-        res(j)%key = key(c + 1:c + m); res(j)%ia = ia(c + 1:c + m); res(j)%ib = ib(c + 1:c + m)
-        res(j)%ob = ob(c + 1:c + m); res(j)%value = val(c + 1:c + m)
-        c = c + int(m)
-      end do
+      call check_piece_indices(pd, error); if (allocated(error)) exit ops
+      call check_piece_values(pd, error); if (allocated(error)) exit ops
+      deallocate(res)
+      call split_piece(pd, res)
     end block ops
     call h5%close(e2)
     if (allocated(error)) then
       if (size(res) > 0) deallocate(res)
       if (.not. allocated(res)) allocate(res(0))
-      if (index(error%message, what) /= 1) call prefix_error(error, what)
+      if (index(error%message, pd%what) /= 1) call prefix_error(error, pd%what)
     end if
-
-  contains
-
-    !> Contact indices of the multipliers: ia in 1..n_agents, ib in 0..n_agents (0: an obstacle
-    !> contact) and not ia, ob > 0 exactly when ib = 0, lambda_key the key of (ia, ib, ob);
-    !> solver counts and ranks >= 0.
-    subroutine check_indices(error)
-      type(error_t), allocatable, intent(out) :: error
-      character(len=:), allocatable :: bad
-      integer :: na
-      integer(i8) :: l
-      na = nd / 2
-      bad = ""
-      do l = 1, nnz
-        if (ia(l) < 1 .or. ia(l) > na) then
-          bad = "dataset 'lambda_ia': index " // str(ia(l)) // " outside 1.." // str(na)
-        else if (ib(l) < 0 .or. ib(l) > na .or. ib(l) == ia(l)) then
-          bad = "dataset 'lambda_ib': index " // str(ib(l)) // " outside 0.." // str(na) // " or equal to lambda_ia"
-        else if (ob(l) < 0 .or. (ob(l) > 0 .neqv. ib(l) == 0)) then
-          bad = "dataset 'lambda_ob': index " // str(ob(l)) // " negative, or not > 0 exactly where lambda_ib = 0"
-        else if (key(l) /= contact_key(ia(l), ib(l), ob(l))) then
-          bad = "dataset 'lambda_key': not the key of (lambda_ia, lambda_ib, lambda_ob)"
-        end if
-        if (len(bad) > 0) then
-          call set_error(error, w // ": " // bad // " at entry " // str(int(l))); return
-        end if
-      end do
-      if (any(rk < 0)) then
-        call set_error(error, w // ": dataset 'rank' holds a negative rank"); return
-      end if
-      if (any(iters < 0) .or. any(nact < 0)) then
-        call set_error(error, w // ": dataset 'iterations' or 'n_active' holds a negative count"); return
-      end if
-    end subroutine check_indices
-
-    subroutine rr1(name, x, error)
-      character(len=*), intent(in) :: name
-      real(wp), allocatable, intent(out) :: x(:)
-      type(error_t), allocatable, intent(out) :: error
-      call h5%read(name, x, error); if (allocated(error)) return
-      call check_digest(h5, name, digest_of(x, 0_i8), wdesc(), error)
-    end subroutine rr1
-
-    subroutine rr2(name, x, error)
-      character(len=*), intent(in) :: name
-      real(wp), allocatable, intent(out) :: x(:,:)
-      type(error_t), allocatable, intent(out) :: error
-      call h5%read(name, x, error); if (allocated(error)) return
-      call check_digest(h5, name, digest_of(x, 0_i8), wdesc(), error)
-    end subroutine rr2
-
-    subroutine ri1(name, x, error)
-      character(len=*), intent(in) :: name
-      integer, allocatable, intent(out) :: x(:)
-      type(error_t), allocatable, intent(out) :: error
-      call h5%read(name, x, error); if (allocated(error)) return
-      call check_digest(h5, name, digest_of(x, 0_i8), wdesc(), error)
-    end subroutine ri1
-
-    subroutine ri2(name, x, error)
-      character(len=*), intent(in) :: name
-      integer, allocatable, intent(out) :: x(:,:)
-      type(error_t), allocatable, intent(out) :: error
-      call h5%read(name, x, error); if (allocated(error)) return
-      call check_digest(h5, name, digest_of(x, 0_i8), wdesc(), error)
-    end subroutine ri2
-
-    subroutine rl1(name, x, error)
-      character(len=*), intent(in) :: name
-      integer(i8), allocatable, intent(out) :: x(:)
-      type(error_t), allocatable, intent(out) :: error
-      call h5%read(name, x, error); if (allocated(error)) return
-      call check_digest(h5, name, digest_of(x, 0_i8), wdesc(), error)
-    end subroutine rl1
-
-    !> the piece and, once known, its samples (for messages)
-    function wdesc() result(t)
-      character(len=:), allocatable :: t
-      if (allocated(w)) then
-        t = w
-      else
-        t = what
-      end if
-    end function wdesc
-
-    subroutine need_finite(x, name, error)
-      real(wp), intent(in) :: x(:)
-      character(len=*), intent(in) :: name
-      type(error_t), allocatable, intent(out) :: error
-      integer :: i
-      if (all(ieee_is_finite(x))) return
-      do i = 1, size(x)
-        if (.not. ieee_is_finite(x(i))) exit
-      end do
-      call set_error(error, w // ": dataset '" // name // "' holds a non-finite value (NaN or Inf) at element " // &
-        str(i))
-    end subroutine need_finite
   end subroutine read_piece
+
+  !> Every dataset of a piece, each against its checksum (messages name the piece and, once
+  !> known, its samples: pd%w).
+  subroutine read_piece_data(h5, pd, error)
+    type(h5file_t), intent(inout) :: h5
+    type(piece_data_t), intent(inout) :: pd
+    type(error_t), allocatable, intent(out) :: error
+    integer :: n
+    call h5%read_attr("/", "n_samples", pd%n, error); if (allocated(error)) return
+    n = pd%n
+    call read_checked(h5, "set_id", pd%what, error, i1=pd%setid); if (allocated(error)) return
+    call read_checked(h5, "index", pd%what, error, i1=pd%idx); if (allocated(error)) return
+    if (n < 1 .or. size(pd%setid) /= n .or. size(pd%idx) /= n .or. any(pd%setid < 1 .or. pd%setid > 2)) then
+      call set_error(error, pd%what // ": n_samples, set_id and index disagree"); return
+    end if
+    pd%w = pd%what // " (" // samples_text(pd%setid, pd%idx) // ")"
+    associate (w => pd%w)
+    call read_checked(h5, "rank", w, error, i1=pd%rk); if (allocated(error)) return
+    call read_checked(h5, "time", w, error, r1=pd%tm); if (allocated(error)) return
+    call read_checked(h5, "start", w, error, r1=pd%st); if (allocated(error)) return
+    call read_checked(h5, "mu", w, error, r2=pd%mu); if (allocated(error)) return
+    call read_checked(h5, "positions", w, error, r2=pd%q); if (allocated(error)) return
+    call read_checked(h5, "velocities", w, error, r2=pd%u); if (allocated(error)) return
+    call read_checked(h5, "desired", w, error, r2=pd%v); if (allocated(error)) return
+    call read_checked(h5, "kkt", w, error, r2=pd%kkt); if (allocated(error)) return
+    call read_checked(h5, "min_gap", w, error, r2=pd%gap); if (allocated(error)) return
+    call read_checked(h5, "iterations", w, error, i2=pd%iters); if (allocated(error)) return
+    call read_checked(h5, "converged", w, error, i2=pd%conv); if (allocated(error)) return
+    call read_checked(h5, "n_active", w, error, i2=pd%nact); if (allocated(error)) return
+    call read_checked(h5, "lambda_offset", w, error, l1=pd%off); if (allocated(error)) return
+    call read_checked(h5, "lambda_key", w, error, l1=pd%key); if (allocated(error)) return
+    call read_checked(h5, "lambda_ia", w, error, i1=pd%ia); if (allocated(error)) return
+    call read_checked(h5, "lambda_ib", w, error, i1=pd%ib); if (allocated(error)) return
+    call read_checked(h5, "lambda_ob", w, error, i1=pd%ob); if (allocated(error)) return
+    call read_checked(h5, "lambda_value", w, error, r1=pd%val); if (allocated(error)) return
+    end associate
+  end subroutine read_piece_data
+
+  !> Dataset `name` into the one array given (i1, i2, l1, r1 or r2), against its checksum;
+  !> desc names the piece in messages.
+  subroutine read_checked(h5, name, desc, error, i1, i2, l1, r1, r2)
+    type(h5file_t), intent(inout) :: h5
+    character(len=*), intent(in) :: name, desc
+    type(error_t), allocatable, intent(out) :: error
+    integer, allocatable, intent(inout), optional :: i1(:), i2(:,:)
+    integer(i8), allocatable, intent(inout), optional :: l1(:)
+    real(wp), allocatable, intent(inout), optional :: r1(:), r2(:,:)
+    if (present(i1)) then
+      call h5%read(name, i1, error); if (allocated(error)) return
+      call check_digest(h5, name, digest_of(i1, 0_i8), desc, error)
+    else if (present(i2)) then
+      call h5%read(name, i2, error); if (allocated(error)) return
+      call check_digest(h5, name, digest_of(i2, 0_i8), desc, error)
+    else if (present(l1)) then
+      call h5%read(name, l1, error); if (allocated(error)) return
+      call check_digest(h5, name, digest_of(l1, 0_i8), desc, error)
+    else if (present(r1)) then
+      call h5%read(name, r1, error); if (allocated(error)) return
+      call check_digest(h5, name, digest_of(r1, 0_i8), desc, error)
+    else if (present(r2)) then
+      call h5%read(name, r2, error); if (allocated(error)) return
+      call check_digest(h5, name, digest_of(r2, 0_i8), desc, error)
+    end if
+  end subroutine read_checked
+
+  !> The datasets' shapes agree (n samples of ns steps, nd degrees of freedom), the multiplier
+  !> arrays have one length and lambda_offset is a CSR layout of that many multipliers.
+  subroutine check_piece_shapes(pd, error)
+    type(piece_data_t), intent(inout) :: pd
+    type(error_t), allocatable, intent(out) :: error
+    integer :: j, n, ns, nd
+    integer(i8) :: m, nnz
+    n = pd%n
+    pd%ns = size(pd%kkt, 1); pd%nd = size(pd%q, 1)
+    ns = pd%ns; nd = pd%nd
+    associate (w => pd%w)
+    if (ns < 1 .or. size(pd%rk) /= n .or. size(pd%tm) /= n .or. size(pd%st) /= n .or. size(pd%mu, 2) /= n .or. &
+        size(pd%q, 2) /= (ns + 1) * n .or. any(shape(pd%u) /= [nd, ns * n]) .or. &
+        any(shape(pd%v) /= [nd, ns * n]) .or. any(shape(pd%kkt) /= [ns, n]) .or. &
+        any(shape(pd%gap) /= [ns, n]) .or. any(shape(pd%iters) /= [ns, n]) .or. &
+        any(shape(pd%conv) /= [ns, n]) .or. any(shape(pd%nact) /= [ns, n]) .or. size(pd%off) /= (ns + 1) * n) then
+      call set_error(error, w // ": inconsistent dataset shapes"); return
+    end if
+    nnz = size(pd%val, kind=i8)
+    pd%nnz = nnz
+    if (size(pd%key, kind=i8) /= nnz .or. size(pd%ia, kind=i8) /= nnz .or. size(pd%ib, kind=i8) /= nnz .or. &
+        size(pd%ob, kind=i8) /= nnz) then
+      call set_error(error, w // ": multiplier arrays of different lengths"); return
+    end if
+    m = 0
+    do j = 1, n
+      associate (o => pd%off((j - 1) * (ns + 1) + 1:j * (ns + 1)))
+        if (o(1) /= 0 .or. any(o(2:) < o(:ns))) then
+          call set_error(error, w // ": lambda_offset is not a CSR layout"); return
+        end if
+        m = m + o(ns + 1)
+      end associate
+    end do
+    if (m /= nnz) then
+      call set_error(error, w // ": lambda_offset counts " // str(m) // " multipliers, lambda_value holds " // &
+        str(nnz)); return
+    end if
+    end associate
+  end subroutine check_piece_shapes
+
+  !> Contact indices of the multipliers: ia in 1..n_agents, ib in 0..n_agents (0: an obstacle
+  !> contact) and not ia, ob > 0 exactly when ib = 0, lambda_key the key of (ia, ib, ob);
+  !> solver counts and ranks >= 0.
+  subroutine check_piece_indices(pd, error)
+    type(piece_data_t), intent(in) :: pd
+    type(error_t), allocatable, intent(out) :: error
+    character(len=:), allocatable :: bad
+    integer :: na
+    integer(i8) :: l
+    na = pd%nd / 2
+    bad = ""
+    associate (ia => pd%ia, ib => pd%ib, ob => pd%ob, key => pd%key)
+    do l = 1, pd%nnz
+      if (ia(l) < 1 .or. ia(l) > na) then
+        bad = "dataset 'lambda_ia': index " // str(ia(l)) // " outside 1.." // str(na)
+      else if (ib(l) < 0 .or. ib(l) > na .or. ib(l) == ia(l)) then
+        bad = "dataset 'lambda_ib': index " // str(ib(l)) // " outside 0.." // str(na) // " or equal to lambda_ia"
+      else if (ob(l) < 0 .or. (ob(l) > 0 .neqv. ib(l) == 0)) then
+        bad = "dataset 'lambda_ob': index " // str(ob(l)) // " negative, or not > 0 exactly where lambda_ib = 0"
+      else if (key(l) /= contact_key(ia(l), ib(l), ob(l))) then
+        bad = "dataset 'lambda_key': not the key of (lambda_ia, lambda_ib, lambda_ob)"
+      end if
+      if (len(bad) > 0) then
+        call set_error(error, pd%w // ": " // bad // " at entry " // str(int(l))); return
+      end if
+    end do
+    end associate
+    if (any(pd%rk < 0)) then
+      call set_error(error, pd%w // ": dataset 'rank' holds a negative rank"); return
+    end if
+    if (any(pd%iters < 0) .or. any(pd%nact < 0)) then
+      call set_error(error, pd%w // ": dataset 'iterations' or 'n_active' holds a negative count"); return
+    end if
+  end subroutine check_piece_indices
+
+  !> Finite values, positive multipliers, converged flags 0 or 1.
+  subroutine check_piece_values(pd, error)
+    type(piece_data_t), intent(in) :: pd
+    type(error_t), allocatable, intent(out) :: error
+    associate (w => pd%w)
+    call need_finite_in(w, reshape(pd%mu, [size(pd%mu)]), "mu", error); if (allocated(error)) return
+    call need_finite_in(w, reshape(pd%q, [size(pd%q)]), "positions", error); if (allocated(error)) return
+    call need_finite_in(w, reshape(pd%u, [size(pd%u)]), "velocities", error); if (allocated(error)) return
+    call need_finite_in(w, reshape(pd%v, [size(pd%v)]), "desired", error); if (allocated(error)) return
+    call need_finite_in(w, reshape(pd%kkt, [size(pd%kkt)]), "kkt", error); if (allocated(error)) return
+    call need_finite_in(w, pd%val, "lambda_value", error); if (allocated(error)) return
+    call need_finite_in(w, [pd%tm, pd%st], "time", error); if (allocated(error)) return
+    if (any(pd%val <= 0)) then
+      call set_error(error, w // ": lambda_value holds multipliers <= 0 (only lambda > 0 are stored)"); return
+    end if
+    if (any(pd%conv /= 0 .and. pd%conv /= 1)) then
+      call set_error(error, w // ": converged holds values other than 0 and 1"); return
+    end if
+    end associate
+  end subroutine check_piece_values
+
+  !> Record an error unless every element of x is finite (w names the piece).
+  subroutine need_finite_in(w, x, name, error)
+    character(len=*), intent(in) :: w
+    real(wp), intent(in) :: x(:)
+    character(len=*), intent(in) :: name
+    type(error_t), allocatable, intent(out) :: error
+    integer :: i
+    if (all(ieee_is_finite(x))) return
+    do i = 1, size(x)
+      if (.not. ieee_is_finite(x(i))) exit
+    end do
+    call set_error(error, w // ": dataset '" // name // "' holds a non-finite value (NaN or Inf) at element " // &
+      str(i))
+  end subroutine need_finite_in
+
+  !> The checked datasets of a piece split into its samples.
+  subroutine split_piece(pd, res)
+    type(piece_data_t), intent(in) :: pd
+    type(sample_result_t), allocatable, intent(out) :: res(:)
+    integer :: j, c, ns
+    integer(i8) :: m
+    ns = pd%ns
+    allocate(res(pd%n))
+    c = 0
+    do j = 1, pd%n
+      res(j)%set = SET_NAMES(pd%setid(j)); res(j)%index = pd%idx(j); res(j)%rank = pd%rk(j)
+      res(j)%time = pd%tm(j); res(j)%start = pd%st(j)
+      res(j)%mu = pd%mu(:, j)
+      res(j)%q = pd%q(:, (j - 1) * (ns + 1) + 1:j * (ns + 1))
+      res(j)%u = pd%u(:, (j - 1) * ns + 1:j * ns)
+      res(j)%v = pd%v(:, (j - 1) * ns + 1:j * ns)
+      res(j)%kkt = pd%kkt(:, j); res(j)%min_gap = pd%gap(:, j)
+      res(j)%iterations = pd%iters(:, j); res(j)%converged = pd%conv(:, j); res(j)%n_active = pd%nact(:, j)
+      res(j)%offset = pd%off((j - 1) * (ns + 1) + 1:j * (ns + 1))
+      m = res(j)%offset(ns + 1)
+      res(j)%key = pd%key(c + 1:c + m); res(j)%ia = pd%ia(c + 1:c + m); res(j)%ib = pd%ib(c + 1:c + m)
+      res(j)%ob = pd%ob(c + 1:c + m); res(j)%value = pd%val(c + 1:c + m)
+      c = c + int(m)
+    end do
+  end subroutine split_piece
 
   !> "train sample 3" or "train samples 3, 7, valid sample 2" (at most 6 listed).
   function samples_text(setid, idx) result(t)

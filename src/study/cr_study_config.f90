@@ -19,7 +19,7 @@ module cr_study_config
   use cr_namelist_text, only: namelist_text_t
   use cr_config, only: config_t, config_echo, MAX_PATH, model_inputs
   use cr_paths, only: io_paths_t
-  use cr_config_check, only: need_sane, MAX_LENGTH, MAX_SPEED
+  use cr_sane, only: need_sane, MAX_LENGTH, MAX_SPEED
   use cr_hash, only: hash_text
   use cr_param_model, only: KNOWN_PARAMS, KNOWN_PARAMS_TEXT
   use cr_snapshot_file, only: SNAP_SCHEMA
