@@ -1567,7 +1567,7 @@ contains
     type(snap_block_t), intent(inout) :: blk
     type(error_t), allocatable, intent(out) :: error
     integer :: c
-    associate (g => rc%g, nd => rc%nd, nt => rc%nt, k0 => rc%k0, nloc => rc%nloc, off => rc%off, bad => rc%bad)
+    associate (g => rc%g, nd => rc%nd, nt => rc%nt, k0 => rc%k0, nloc => rc%nloc)
     allocate(blk%mu(hdr%n_params, nloc), blk%q(nd, (nt + 1) * nloc), blk%u(nd, nt * nloc))
     call h5%read_block(g // "params", blk%mu, k0 - 1, error); if (allocated(error)) return
     call h5%read_block(g // "positions", blk%q, (k0 - 1) * (nt + 1), error); if (allocated(error)) return
@@ -1576,21 +1576,22 @@ contains
       allocate(blk%v(nd, nt * nloc))
       call h5%read_block(g // "desired", blk%v, (k0 - 1) * nt, error); if (allocated(error)) return
     end if
-    bad = ""
+    rc%bad = ""
     if (rc%multipliers) then
-      allocate(off(nt * nloc + 1))
-      call h5%read_block(g // "lambda_offset", off, (k0 - 1) * nt, error); if (allocated(error)) return
-      if (k0 == 1 .and. off(1) /= 0) bad = "first offset " // str(off(1)) // ", expected 0"
+      allocate(rc%off(nt * nloc + 1))
+      call h5%read_block(g // "lambda_offset", rc%off, (k0 - 1) * nt, error); if (allocated(error)) return
+      if (k0 == 1 .and. rc%off(1) /= 0) rc%bad = "first offset " // str(rc%off(1)) // ", expected 0"
       do c = 1, nt * nloc
-        if (len(bad) > 0) exit
-        if (off(c + 1) < off(c)) bad = "offsets decrease at column " // str(int((k0 - 1) * int(nt, i8) + c))
+        if (len(rc%bad) > 0) exit
+        if (rc%off(c + 1) < rc%off(c)) rc%bad = "offsets decrease at column " // str(int((k0 - 1) * int(nt, i8) + c))
       end do
-      if (len(bad) == 0 .and. (off(1) < 0 .or. off(nt * nloc + 1) > rc%nnz_all)) bad = "offsets " // str(off(1)) // &
-        ".." // str(off(nt * nloc + 1)) // " outside 0.." // str(rc%nnz_all) // " (size of lambda_index)"
+      if (len(rc%bad) == 0 .and. (rc%off(1) < 0 .or. rc%off(nt * nloc + 1) > rc%nnz_all)) &
+        rc%bad = "offsets " // str(rc%off(1)) // ".." // str(rc%off(nt * nloc + 1)) // " outside 0.." // &
+        str(rc%nnz_all) // " (size of lambda_index)"
       rc%base = 0
-      if (len(bad) == 0) then
-        rc%base = off(1)
-        blk%lam_ptr = off - rc%base
+      if (len(rc%bad) == 0) then
+        rc%base = rc%off(1)
+        blk%lam_ptr = rc%off - rc%base
       else
         allocate(blk%lam_ptr(1)); blk%lam_ptr = 0
       end if
