@@ -39,6 +39,23 @@ module cr_cone
     real(wp), allocatable :: val(:)
   end type sparse_columns_t
 
+  !> What the steps of mcpg_build share: the cone vectors psi [n_rows, r_max] with their Gram
+  !> matrix gm and the Cholesky factor rg of gm + reg I [r_max, r_max]; per local snapshot its
+  !> squared norm, residual and accuracy, its coefficients c and kk [r_max, n_cols] and whether
+  !> it was selected; the selected snapshots (sig), the history (worst error, mean, accuracy
+  !> [r_max + 1]); the current worst snapshot
+  !> (gcol, worst), n1 the norm of the first, r the vectors so far, t0 the start.
+  type :: mcpg_state_t
+    real(wp), allocatable :: psi(:,:), gm(:,:), rg(:,:), c(:,:), kk(:,:)
+    real(wp), allocatable :: x2(:), res2(:), acc2(:)
+    real(wp), allocatable :: tmp_err(:), tmp_mean(:), tmp_acc(:)
+    logical, allocatable :: used(:)
+    integer(i8), allocatable :: sig(:)
+    integer(i8) :: gcol = 0
+    real(wp) :: worst = 0, n1 = 0, t0 = 0
+    integer :: r = 0
+  end type mcpg_state_t
+
 contains
 
   ! ------------------------------------------------------------------ helpers
@@ -329,172 +346,213 @@ contains
     integer, intent(in) :: r_max
     type(cone_result_t), intent(out) :: res
     type(error_t), allocatable, intent(out) :: error
-    real(wp), allocatable :: x2(:), res2(:), c(:,:), kk(:,:), col(:), psi(:,:), rg(:,:), gm(:,:)
-    real(wp), allocatable :: tmp_err(:), tmp_mean(:), resid(:), acc2(:), tmp_acc(:)
-    integer(i8), allocatable :: sig(:)
-    logical, allocatable :: used(:)
+    type(mcpg_state_t) :: st
     type(nnls_work_t) :: work
-    real(wp) :: n1, worst, t0, nrm, acc_max
-    integer(i8) :: gcol
-    integer :: r, k, p, j
-    t0 = env%wtime()
+    real(wp), allocatable :: col(:), resid(:)
+    real(wp) :: nrm, e, acc_max
+    st%t0 = env%wtime()
     res%method = 'mcpg'
     call check_columns(lam, error); if (allocated(error)) return
     if (delta < 0 .or. r_max < 0) then
       call set_error(error, "mcpg: delta must be >= 0 and r_max >= 0", 2); return
     end if
-    allocate(x2(max(lam%n_cols, 1)), res2(max(lam%n_cols, 1)), used(max(lam%n_cols, 1)))
-    allocate(c(max(r_max, 1), max(lam%n_cols, 1)), kk(max(r_max, 1), max(lam%n_cols, 1)))
-    allocate(col(max(lam%n_rows, 1)), resid(max(lam%n_rows, 1)), psi(max(lam%n_rows, 1), max(r_max, 1)))
-    allocate(rg(max(r_max, 1), max(r_max, 1)), gm(max(r_max, 1), max(r_max, 1)), sig(r_max))
-    allocate(tmp_err(r_max + 1), tmp_mean(r_max + 1), tmp_acc(r_max + 1), acc2(max(lam%n_cols, 1)))
-    used = .false.; kk = 0; rg = 0; gm = 0
-    call column_norms2(lam, x2)
-    res2 = x2
-    ! r = 0: res2 = |x|^2 is a sum of at most n_rows squares
-    acc2 = 2 * real(lam%n_rows, wp) * epsilon(1.0_wp) * x2
-    call global_argmax(env, lam, res2, worst, gcol, error); if (allocated(error)) return
-    n1 = sqrt(max(worst, 0.0_wp))
-    r = 0
-    if (.not. (n1 > 0)) then
+    call mcpg_init(env, lam, r_max, st, error); if (allocated(error)) return
+    allocate(col(max(lam%n_rows, 1)), resid(max(lam%n_rows, 1)))
+    if (.not. (st%n1 > 0)) then
       res%note = "empty cone: no contact is ever active in the snapshots (all multipliers are zero)"
-      call finish(); return
+      call mcpg_finish(env, lam, st, res); return
     end if
-    tmp_err(1) = 1.0_wp
-    call mean_relative(env, lam, res2, n1, tmp_mean(1), error); if (allocated(error)) return
-    call global_max(acc_max, error); if (allocated(error)) return
-    tmp_acc(1) = acc_max
-    do while (r < r_max)
-      if (r > 0 .and. sqrt(max(worst, 0.0_wp)) / n1 <= delta) exit
-      if (r > 0 .and. sqrt(max(worst, 0.0_wp)) / n1 <= tmp_acc(r + 1)) then
-        res%note = "the worst projection error e_R = " // str(sqrt(max(worst, 0.0_wp)) / n1) // &
-          " reached the accuracy of the inner cone projections (" // str(tmp_acc(r + 1)) // &
+    st%tmp_err(1) = 1.0_wp
+    call mean_relative(env, lam, st%res2, st%n1, st%tmp_mean(1), error); if (allocated(error)) return
+    call mcpg_accuracy(env, lam, st, acc_max, error); if (allocated(error)) return
+    st%tmp_acc(1) = acc_max
+    do while (st%r < r_max)
+      e = sqrt(max(st%worst, 0.0_wp)) / st%n1
+      if (st%r > 0 .and. e <= delta) exit
+      if (st%r > 0 .and. e <= st%tmp_acc(st%r + 1)) then
+        res%note = "the worst projection error e_R = " // str(e) // &
+          " reached the accuracy of the inner cone projections (" // str(st%tmp_acc(st%r + 1)) // &
           "): further cone vectors would be fitted to rounding"
         exit
       end if
-      call fetch_column(env, lam, gcol, col, error); if (allocated(error)) return
-      call mark_used(gcol)
+      call fetch_column(env, lam, st%gcol, col, error); if (allocated(error)) return
+      if (st%gcol > lam%col_offset .and. st%gcol <= lam%col_offset + lam%n_cols) &
+        st%used(int(st%gcol - lam%col_offset)) = .true.
       ! gamma = Psi k*, k* = argmin |col - Psi k| s.t. k >= 0, col - Psi k >= 0
-      call lsi_residual(col, resid, error); if (allocated(error)) return
+      call lsi_residual(lam, st, col, resid, error); if (allocated(error)) return
       nrm = norm2(resid(1:lam%n_rows))
-      if (.not. (nrm > 1.0e-14_wp * n1)) then
+      if (.not. (nrm > 1.0e-14_wp * st%n1)) then
         res%note = "the worst-approximated snapshot already lies in the cone"
         exit
       end if
-      r = r + 1
-      psi(1:lam%n_rows, r) = resid(1:lam%n_rows) / nrm
-      sig(r) = gcol
-      ! Gram matrix and Cholesky column r of G + eps I (the psi are unit vectors: eps = 1e-12)
-      do j = 1, r
-        gm(j, r) = dot_product(psi(1:lam%n_rows, j), psi(1:lam%n_rows, r))
-        gm(r, j) = gm(j, r)
-      end do
-      rg(1:r, r) = gm(1:r, r)
-      rg(r, r) = rg(r, r) + reg
-      do j = 1, r - 1
-        rg(j, r) = (rg(j, r) - dot_product(rg(1:j-1, j), rg(1:j-1, r))) / rg(j, j)
-      end do
-      rg(r, r) = sqrt(max(rg(r, r) - sum(rg(1:r-1, r)**2), reg))
-      ! project every local snapshot onto the new cone
-      do k = 1, lam%n_cols
-        c(r, k) = 0
-        do p = int(lam%ptr(k)) + 1, int(lam%ptr(k + 1))
-          c(r, k) = c(r, k) + psi(lam%idx(p), r) * lam%val(p)
-        end do
-        call cone_project_gram(rg(1:r, 1:r), gm(1:r, 1:r), c(1:r, k), x2(k), kk(1:r, k), res2(k), error, &
-          passive0=kk(1:r, k) > 0, work=work, acc2=acc2(k), n_rows=lam%n_rows)
-        if (allocated(error)) then
-          call prefix_error(error, "mcpg: projection of snapshot " // str(lam%col_offset + k)); return
-        end if
-      end do
+      call mcpg_add(lam, st, resid, nrm)
+      call mcpg_project(lam, st, work, error); if (allocated(error)) return
       ! selected snapshots are excluded from the next selection (line 12)
-      call global_argmax(env, lam, merge(-1.0_wp, res2(1:max(lam%n_cols, 1)), used(1:max(lam%n_cols, 1))), &
-        worst, gcol, error); if (allocated(error)) return
-      worst = max(worst, 0.0_wp)
-      tmp_err(r + 1) = sqrt(worst) / n1
-      call mean_relative(env, lam, res2, n1, tmp_mean(r + 1), error); if (allocated(error)) return
-      call global_max(acc_max, error); if (allocated(error)) return
-      tmp_acc(r + 1) = acc_max
+      call global_argmax(env, lam, merge(-1.0_wp, st%res2(1:max(lam%n_cols, 1)), st%used(1:max(lam%n_cols, 1))), &
+        st%worst, st%gcol, error); if (allocated(error)) return
+      st%worst = max(st%worst, 0.0_wp)
+      st%tmp_err(st%r + 1) = sqrt(st%worst) / st%n1
+      call mean_relative(env, lam, st%res2, st%n1, st%tmp_mean(st%r + 1), error); if (allocated(error)) return
+      call mcpg_accuracy(env, lam, st, acc_max, error); if (allocated(error)) return
+      st%tmp_acc(st%r + 1) = acc_max
     end do
-    call finish()
-
-  contains
-
-    !> amax = max over all ranks' snapshots not yet selected of sqrt(acc2) / n1
-    subroutine global_max(amax, error)
-      real(wp), intent(out) :: amax
-      type(error_t), allocatable, intent(out) :: error
-      integer :: kk2
-      amax = 0
-      do kk2 = 1, lam%n_cols
-        if (.not. used(kk2)) amax = max(amax, sqrt(max(acc2(kk2), 0.0_wp)) / n1)
-      end do
-      call env%allreduce(amax, 'max', error)
-      if (allocated(error)) call prefix_error(error, "mcpg: the accuracy")
-    end subroutine global_max
-
-    subroutine mark_used(g)
-      integer(i8), intent(in) :: g
-      if (g > lam%col_offset .and. g <= lam%col_offset + lam%n_cols) used(int(g - lam%col_offset)) = .true.
-    end subroutine mark_used
-
-    !> resid = x - Psi k*,  k* = argmin |x - Psi k|, k >= 0, Psi k <= x   (LSI -> LDP)
-    subroutine lsi_residual(x, resid, error)
-      real(wp), intent(in) :: x(:)
-      real(wp), intent(out) :: resid(:)
-      type(error_t), allocatable, intent(out) :: error
-      ! Regularised (eps |k|^2, eps = 1e-12, as in the Gram projections) so that dependent
-      ! generators are allowed: [Psi; sqrt(eps) I] = [Q; Q2] R with R = rg, Q = Psi R^{-1}.
-      ! With z = R k - Q^T x:
-      ! min |z|^2 s.t. k = R^{-1}(z + Q^T x) >= 0 and Psi k <= x, an LDP in z:
-      !   -R^{-1} z <= R^{-1} Q^T x          (k >= 0)
-      !   Q z <= x - Q Q^T x                 (Psi k = Q (z + Q^T x) <= x)
-      real(wp), allocatable :: q(:,:), qtx(:), rinv(:,:), bm(:,:), d(:), z(:), lz(:), v0(:), kvec(:)
-      type(ldp_stats_t) :: st
-      integer :: n, i, jj
-      n = lam%n_rows
-      if (r == 0) then
-        resid(1:n) = x(1:n); return
-      end if
-      allocate(q(n, r), qtx(r), rinv(r, r), bm(r + n, r), d(r + n), z(r), lz(r + n), v0(r), kvec(r))
-      ! Q = Psi R^{-1}  (R upper triangular: column j of Q solves R^T)
-      do jj = 1, r
-        q(:, jj) = psi(1:n, jj)
-        do i = 1, jj - 1
-          q(:, jj) = q(:, jj) - rg(i, jj) * q(:, i)
-        end do
-        q(:, jj) = q(:, jj) / rg(jj, jj)
-      end do
-      qtx = matmul(x(1:n), q)
-      ! R^{-1}
-      rinv = 0
-      do jj = 1, r
-        rinv(jj, jj) = 1 / rg(jj, jj)
-        do i = jj - 1, 1, -1
-          rinv(i, jj) = -dot_product(rg(i, i+1:jj), rinv(i+1:jj, jj)) / rg(i, i)
-        end do
-      end do
-      bm(1:r, :) = -rinv
-      d(1:r) = matmul(rinv, qtx)
-      bm(r+1:r+n, :) = q
-      d(r+1:r+n) = x(1:n) - matmul(q, qtx)
-      v0 = 0; lz = 0
-      call ldp_solve(bm, d, v0, z, lz, st, error)
-      if (allocated(error)) return
-      kvec = matmul(rinv, z + qtx)
-      kvec = max(kvec, 0.0_wp)
-      resid(1:n) = x(1:n) - matmul(psi(1:n, 1:r), kvec)
-      resid(1:n) = max(resid(1:n), 0.0_wp)
-    end subroutine lsi_residual
-
-    subroutine finish()
-      res%psi = psi(1:lam%n_rows, 1:r)
-      call record_history(res, r, sig, tmp_err, tmp_mean, n1, env%wtime() - t0)
-      if (n1 > 0) then
-        res%err_acc = tmp_acc(1:r + 1)
-      else
-        res%err_acc = [0.0_wp]
-      end if
-    end subroutine finish
+    call mcpg_finish(env, lam, st, res)
   end subroutine mcpg_build
+
+  !> The state of mcpg_build before its first vector: every array sized for r_max, the squared
+  !> norms of the snapshots (the residuals of the empty cone) with their accuracy (a sum of at
+  !> most n_rows squares), and the worst snapshot over the ranks (n1 its norm).
+  subroutine mcpg_init(env, lam, r_max, st, error)
+    type(env_t), intent(in) :: env
+    type(sparse_columns_t), intent(in) :: lam
+    integer, intent(in) :: r_max
+    type(mcpg_state_t), intent(inout) :: st
+    type(error_t), allocatable, intent(out) :: error
+    allocate(st%x2(max(lam%n_cols, 1)), st%res2(max(lam%n_cols, 1)), st%used(max(lam%n_cols, 1)))
+    allocate(st%c(max(r_max, 1), max(lam%n_cols, 1)), st%kk(max(r_max, 1), max(lam%n_cols, 1)))
+    allocate(st%psi(max(lam%n_rows, 1), max(r_max, 1)))
+    allocate(st%rg(max(r_max, 1), max(r_max, 1)), st%gm(max(r_max, 1), max(r_max, 1)), st%sig(r_max))
+    allocate(st%tmp_err(r_max + 1), st%tmp_mean(r_max + 1), st%tmp_acc(r_max + 1), st%acc2(max(lam%n_cols, 1)))
+    st%used = .false.; st%kk = 0; st%rg = 0; st%gm = 0
+    call column_norms2(lam, st%x2)
+    st%res2 = st%x2
+    ! r = 0: res2 = |x|^2 is a sum of at most n_rows squares
+    st%acc2 = 2 * real(lam%n_rows, wp) * epsilon(1.0_wp) * st%x2
+    call global_argmax(env, lam, st%res2, st%worst, st%gcol, error); if (allocated(error)) return
+    st%n1 = sqrt(max(st%worst, 0.0_wp))
+    st%r = 0
+  end subroutine mcpg_init
+
+  !> The new cone vector psi_r = resid / nrm (from snapshot gcol), its Gram column and the
+  !> Cholesky column r of G + reg I (the psi are unit vectors).
+  subroutine mcpg_add(lam, st, resid, nrm)
+    type(sparse_columns_t), intent(in) :: lam
+    type(mcpg_state_t), intent(inout) :: st
+    real(wp), intent(in) :: resid(:), nrm
+    integer :: j, r
+    st%r = st%r + 1
+    r = st%r
+    associate (psi => st%psi, gm => st%gm, rg => st%rg)
+    psi(1:lam%n_rows, r) = resid(1:lam%n_rows) / nrm
+    st%sig(r) = st%gcol
+    do j = 1, r
+      gm(j, r) = dot_product(psi(1:lam%n_rows, j), psi(1:lam%n_rows, r))
+      gm(r, j) = gm(j, r)
+    end do
+    rg(1:r, r) = gm(1:r, r)
+    rg(r, r) = rg(r, r) + reg
+    do j = 1, r - 1
+      rg(j, r) = (rg(j, r) - dot_product(rg(1:j-1, j), rg(1:j-1, r))) / rg(j, j)
+    end do
+    rg(r, r) = sqrt(max(rg(r, r) - sum(rg(1:r-1, r)**2), reg))
+    end associate
+  end subroutine mcpg_add
+
+  !> Every local snapshot projected onto the cone of the r vectors (warm started from its
+  !> previous coefficients): its residual, coefficients and accuracy.
+  subroutine mcpg_project(lam, st, work, error)
+    type(sparse_columns_t), intent(in) :: lam
+    type(mcpg_state_t), intent(inout) :: st
+    type(nnls_work_t), intent(inout) :: work
+    type(error_t), allocatable, intent(out) :: error
+    integer :: k, p, r
+    r = st%r
+    do k = 1, lam%n_cols
+      st%c(r, k) = 0
+      do p = int(lam%ptr(k)) + 1, int(lam%ptr(k + 1))
+        st%c(r, k) = st%c(r, k) + st%psi(lam%idx(p), r) * lam%val(p)
+      end do
+      call cone_project_gram(st%rg(1:r, 1:r), st%gm(1:r, 1:r), st%c(1:r, k), st%x2(k), st%kk(1:r, k), st%res2(k), &
+        error, passive0=st%kk(1:r, k) > 0, work=work, acc2=st%acc2(k), n_rows=lam%n_rows)
+      if (allocated(error)) then
+        call prefix_error(error, "mcpg: projection of snapshot " // str(lam%col_offset + k)); return
+      end if
+    end do
+  end subroutine mcpg_project
+
+  !> amax = max over all ranks' snapshots not yet selected of sqrt(acc2) / n1
+  subroutine mcpg_accuracy(env, lam, st, amax, error)
+    type(env_t), intent(in) :: env
+    type(sparse_columns_t), intent(in) :: lam
+    type(mcpg_state_t), intent(in) :: st
+    real(wp), intent(out) :: amax
+    type(error_t), allocatable, intent(out) :: error
+    integer :: kk2
+    amax = 0
+    do kk2 = 1, lam%n_cols
+      if (.not. st%used(kk2)) amax = max(amax, sqrt(max(st%acc2(kk2), 0.0_wp)) / st%n1)
+    end do
+    call env%allreduce(amax, 'max', error)
+    if (allocated(error)) call prefix_error(error, "mcpg: the accuracy")
+  end subroutine mcpg_accuracy
+
+  !> resid = x - Psi k*,  k* = argmin |x - Psi k|, k >= 0, Psi k <= x   (LSI -> LDP), over the
+  !> st%r vectors of the cone.
+  subroutine lsi_residual(lam, st, x, resid, error)
+    type(sparse_columns_t), intent(in) :: lam
+    type(mcpg_state_t), intent(in) :: st
+    real(wp), intent(in) :: x(:)
+    real(wp), intent(out) :: resid(:)
+    type(error_t), allocatable, intent(out) :: error
+    ! Regularised (eps |k|^2, eps = 1e-12, as in the Gram projections) so that dependent
+    ! generators are allowed: [Psi; sqrt(eps) I] = [Q; Q2] R with R = rg, Q = Psi R^{-1}.
+    ! With z = R k - Q^T x:
+    ! min |z|^2 s.t. k = R^{-1}(z + Q^T x) >= 0 and Psi k <= x, an LDP in z:
+    !   -R^{-1} z <= R^{-1} Q^T x          (k >= 0)
+    !   Q z <= x - Q Q^T x                 (Psi k = Q (z + Q^T x) <= x)
+    real(wp), allocatable :: q(:,:), qtx(:), rinv(:,:), bm(:,:), d(:), z(:), lz(:), v0(:), kvec(:)
+    type(ldp_stats_t) :: lst
+    integer :: n, i, jj, r
+    n = lam%n_rows
+    r = st%r
+    if (r == 0) then
+      resid(1:n) = x(1:n); return
+    end if
+    associate (psi => st%psi, rg => st%rg)
+    allocate(q(n, r), qtx(r), rinv(r, r), bm(r + n, r), d(r + n), z(r), lz(r + n), v0(r), kvec(r))
+    ! Q = Psi R^{-1}  (R upper triangular: column j of Q solves R^T)
+    do jj = 1, r
+      q(:, jj) = psi(1:n, jj)
+      do i = 1, jj - 1
+        q(:, jj) = q(:, jj) - rg(i, jj) * q(:, i)
+      end do
+      q(:, jj) = q(:, jj) / rg(jj, jj)
+    end do
+    qtx = matmul(x(1:n), q)
+    ! R^{-1}
+    rinv = 0
+    do jj = 1, r
+      rinv(jj, jj) = 1 / rg(jj, jj)
+      do i = jj - 1, 1, -1
+        rinv(i, jj) = -dot_product(rg(i, i+1:jj), rinv(i+1:jj, jj)) / rg(i, i)
+      end do
+    end do
+    bm(1:r, :) = -rinv
+    d(1:r) = matmul(rinv, qtx)
+    bm(r+1:r+n, :) = q
+    d(r+1:r+n) = x(1:n) - matmul(q, qtx)
+    v0 = 0; lz = 0
+    call ldp_solve(bm, d, v0, z, lz, lst, error)
+    if (allocated(error)) return
+    kvec = matmul(rinv, z + qtx)
+    kvec = max(kvec, 0.0_wp)
+    resid(1:n) = x(1:n) - matmul(psi(1:n, 1:r), kvec)
+    resid(1:n) = max(resid(1:n), 0.0_wp)
+    end associate
+  end subroutine lsi_residual
+
+  !> The result of mcpg_build: the r vectors, the history and the accuracy of each step.
+  subroutine mcpg_finish(env, lam, st, res)
+    type(env_t), intent(in) :: env
+    type(sparse_columns_t), intent(in) :: lam
+    type(mcpg_state_t), intent(in) :: st
+    type(cone_result_t), intent(inout) :: res
+    res%psi = st%psi(1:lam%n_rows, 1:st%r)
+    call record_history(res, st%r, st%sig, st%tmp_err, st%tmp_mean, st%n1, env%wtime() - st%t0)
+    if (st%n1 > 0) then
+      res%err_acc = st%tmp_acc(1:st%r + 1)
+    else
+      res%err_acc = [0.0_wp]
+    end if
+  end subroutine mcpg_finish
 end module cr_cone
