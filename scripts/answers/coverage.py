@@ -5,7 +5,11 @@ truth.
 reports the fraction of intervals that contain the truth with its Wilson 95% interval (the
 sampling error of the coverage estimate itself: with R = 200 and a true coverage of 0.95 the
 estimate's standard deviation is 0.015), the mean stated relative error, the actual relative
-errors (root mean square and 95th percentile) and the mean cost.
+errors (root mean square and 95th percentile) and the mean cost. For a map the interval covers
+when it holds the truth at every point; the fraction of (repetition, point) pairs covered is
+reported too (``coverage_points``: each point's interval is a 95% one, not the set). With
+``pool_truth`` (the statistic of the pool the repetitions draw from) the coverage of that value
+is reported beside (``coverage_pool``).
 """
 import numpy as np
 from scipy import stats
@@ -20,20 +24,26 @@ def wilson(k, n, confidence=0.95):
     return c - h, c + h
 
 
-def coverage(estimate, truth, seeds):
+def coverage(estimate, truth, seeds, pool_truth=None):
     """Run ``estimate(seed)`` for each seed; a dict of the coverage figures."""
-    hits, stated, actual, cost = 0, [], [], []
+    hits, hits_pool, points, stated, actual, cost = 0, 0, [], [], [], []
     t = np.asarray(truth, float)
     for s in seeds:
         a = estimate(int(s))
         hits += a.covers(t)
+        if pool_truth is not None:
+            hits_pool += a.covers(pool_truth)
+        points.append(np.mean((a.lo <= t) & (t <= a.hi)))
         stated.append(a.stated_error)
         actual.append(float(np.max(np.abs(a.value - t) / np.abs(t))))
         cost.append(a.cost)
     R = len(seeds)
     lo, hi = wilson(hits, R)
     actual, stated = np.array(actual), np.array(stated)
-    return {"repetitions": R, "coverage": hits / R, "coverage_lo": lo, "coverage_hi": hi,
+    extra = {"coverage_points": float(np.mean(points))} if t.size > 1 else {}
+    if pool_truth is not None:
+        extra["coverage_pool"] = hits_pool / R
+    return {"repetitions": R, "coverage": hits / R, "coverage_lo": lo, "coverage_hi": hi, **extra,
             "stated_error_mean": float(np.mean(stated[np.isfinite(stated)])) if np.any(np.isfinite(stated)) else None,
             "actual_error_rms": float(np.sqrt(np.mean(actual ** 2))),
             "actual_error_p95": float(np.quantile(actual, 0.95)),
