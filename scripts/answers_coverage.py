@@ -133,6 +133,8 @@ def main(argv=None):
                     choices=["M0", "M1", "M2", "M3"])
     ap.add_argument("--questions-only", nargs="+", help="question ids (default: all)")
     ap.add_argument("--maps", action="store_true", help="the map questions too")
+    ap.add_argument("--designs-only", action="store_true",
+                    help="with --reference's models: only run the design points into --work, then stop")
     ap.add_argument("--out", required=True, help="output JSON")
     args = ap.parse_args(argv)
     args.n_train = args.n_train or args.n_exact
@@ -144,10 +146,15 @@ def main(argv=None):
     qs = load_questions(args.questions)
     exact, lows, builds = load_models(args.models, qs.box, sorted({q.qoi for q in qs.questions}))
     cio.check_outputs([("output", args.out)], [("questions", args.questions), ("models", args.models)])
-    truths = _truths(args, qs, exact)
     seeds = range(args.first_seed, args.first_seed + args.reps)
     chosen = [q for q in qs.questions if (args.questions_only is None or q.id in args.questions_only)
               and (q.kind != "map" or args.maps)]
+    if args.designs_only:
+        from answers import pool
+        pool.design_runs(qs, chosen, pool.sample_names(qs), exact, lows, seeds, args.n_train,
+                         args.methods, args.work)
+        return 0
+    truths = _truths(args, qs, exact)
     models = Models(exact, lows, builds)
     if args.reference:
         if not args.work:

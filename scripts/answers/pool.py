@@ -104,11 +104,49 @@ def design_points(question, box, seeds, n):
     return [reg.from_unit(sobol(len(reg.varying), n, [s, TRAINING])) for s in seeds]
 
 
+def design_runs(questions, chosen, of, exact, lows, seeds, n_train, methods, work):
+    """Run (or find in ``work``) the training points of M1 and of the maps' methods for every
+    repetition; {model name: [(params, Batch)]}. Questions sharing a distribution (``of``: the
+    same sample name) share their design."""
+    from .reference import Batch, ProductBackend
+    need = {}      # (sample name, model name) -> design rows
+    for q in chosen:
+        key = of[q.id]
+        if q.kind == "map" and any(x in methods for x in ("M1", "M2", "M3")):
+            pts = np.vstack(design_points(q, questions.box, seeds, n_train))
+            need[(key, exact.name)] = pts
+            if lows and ("M2" in methods or "M3" in methods):
+                need[(key, lows[0].name)] = pts
+        elif q.kind != "map" and "M1" in methods:
+            need[(key, exact.name)] = np.vstack(design_points(q, questions.box, seeds, n_train))
+    out = {}
+    for (key, name), rows in need.items():
+        m = next(x for x in [exact] + list(lows) if x.name == name)
+        real = ProductBackend(m.name, m.qoi, m.rom_file, m.param_names, model=m.model, setting=m.setting,
+                              program=m.program, ranks=m.ranks, launcher=m.launcher, cpu=m.cpu)
+        tag = f"design_{key}_n{n_train}_s{min(seeds)}-{max(seeds)}"
+        out.setdefault(name, []).append((rows, Batch(real, rows, work, tag, chunk=400)))
+    return out
+
+
+def sample_names(questions):
+    """{question id: sample name} as ``reference.plan`` names them (without drawing)."""
+    from .reference import dist_key
+    of, keys = {}, {}
+    for q in questions.questions:
+        if q.kind == "map":
+            of[q.id] = f"map_{q.id}"
+        else:
+            of[q.id] = keys.setdefault(dist_key(q), f"dist_{q.id}")
+    return of
+
+
 def served_models(ref_path, questions, chosen, exact, lows, builds, seeds, n_train, methods, work):
     """The coverage's models served from a reference file's pool and from design runs made
-    here first (M1 and the maps' training points, through crowd_predict, chunks in ``work``)."""
+    here first (M1 and the maps' training points, through crowd_predict, chunks in ``work``):
+    (exact, lows) LookupBackends, {question id: pool rows}, {question id: {statistic: the
+    pool's value}}."""
     from .intervals import sample_statistic
-    from .reference import Batch, ProductBackend
     qoi = chosen[0].qoi
     ref, of = read_reference(ref_path, qoi)
     models = [exact] + list(lows)
@@ -129,22 +167,8 @@ def served_models(ref_path, questions, chosen, exact, lows, builds, seeds, n_tra
             pool_truth[q.id] = {st: float(sample_statistic(y, st, questions.confidence, percentile=q.percentile,
                                                            threshold=q.threshold)[0])
                                 for st in q.statistics()}
-    need = {}      # (sample name, model name) -> design rows
-    for q in chosen:
-        key = of[q.id]
-        if q.kind == "map" and any(x in methods for x in ("M1", "M2", "M3")):
-            pts = np.vstack(design_points(q, questions.box, seeds, n_train))
-            need[(key, exact.name)] = pts
-            if lows and ("M2" in methods or "M3" in methods):
-                need[(key, lows[0].name)] = pts
-        elif q.kind != "map" and "M1" in methods:
-            need[(key, exact.name)] = np.vstack(design_points(q, questions.box, seeds, n_train))
-    for (key, name), rows in need.items():
-        m = next(x for x in models if x.name == name)
-        real = ProductBackend(m.name, m.qoi, m.rom_file, m.param_names, model=m.model, setting=m.setting,
-                              program=m.program, ranks=m.ranks, launcher=m.launcher, cpu=m.cpu)
-        tag = f"design_{key}_n{n_train}_s{min(seeds)}-{max(seeds)}"
-        b = Batch(real, rows, work, tag, chunk=400)
-        v, c = b.values(qoi)
-        look[name].add(rows, v, c, b.cpu)
+    for name, batches in design_runs(questions, chosen, of, exact, lows, seeds, n_train, methods, work).items():
+        for rows, b in batches:
+            v, c = b.values(qoi)
+            look[name].add(rows, v, c, b.cpu)
     return look[exact.name], [look[m.name] for m in lows], pools, pool_truth
