@@ -71,7 +71,9 @@ def estimator(method, q, stat, models, box, args, conf):
             return methods.m0(pq, stat, exact, args.n_exact, seed, conf, led)
         if method == "M1":
             tr = sampling.TrainingSet(q, box, [exact], seed, led)
-            return methods.m1(q, stat, tr, args.n_train, seed, conf, led, restarts=1)
+            n_large, n_draws, n_sub = args.m1_propagation
+            return methods.m1(q, stat, tr, args.n_train, seed, conf, led, restarts=1,
+                              n_large=n_large, n_draws=n_draws, n_sub=n_sub)
         if method == "M2":
             led = builds.builds_of([names[0]]).copy()
             return methods.m2(pq, stat, lows[0], exact, args.n_low, args.n_exact, seed, conf, led)
@@ -129,12 +131,15 @@ def main(argv=None):
     ap.add_argument("--n-low", type=int, default=2000, help="M2's low-fidelity runs")
     ap.add_argument("--eps", type=float, default=0.05)
     ap.add_argument("--m3-target", choices=["eps", "m0"], default="eps")
+    ap.add_argument("--m1-propagation", type=int, nargs=3, default=[20000, 200, 300],
+                    metavar=("N_LARGE", "N_DRAWS", "N_SUB"), help="M1's propagation sample sizes")
     ap.add_argument("--methods", nargs="+", default=["M0", "M1", "M2", "M3"],
                     choices=["M0", "M1", "M2", "M3"])
     ap.add_argument("--questions-only", nargs="+", help="question ids (default: all)")
     ap.add_argument("--maps", action="store_true", help="the map questions too")
     ap.add_argument("--designs-only", action="store_true",
                     help="with --reference's models: only run the design points into --work, then stop")
+    ap.add_argument("--rescore", help="an earlier output JSON: score its answers against --truth")
     ap.add_argument("--out", required=True, help="output JSON")
     args = ap.parse_args(argv)
     args.n_train = args.n_train or args.n_exact
@@ -144,6 +149,8 @@ def main(argv=None):
     from crowd_answers import load_models
 
     qs = load_questions(args.questions)
+    if args.rescore:
+        return rescore(args, qs)
     exact, lows, builds = load_models(args.models, qs.box, sorted({q.qoi for q in qs.questions}))
     cio.check_outputs([("output", args.out)], [("questions", args.questions), ("models", args.models)])
     seeds = range(args.first_seed, args.first_seed + args.reps)
@@ -175,21 +182,53 @@ def main(argv=None):
                 pt = models.pool_truth.get(q.id, {}).get(stat)
                 c = coverage(run, truths[q.id][stat], seeds, pool_truth=pt)
                 c.update(question=q.id, statistic=stat, method=m, truth=truths[q.id][stat],
-                         seconds=time.time() - t0)
+                         pool_truth=pt, seconds=time.time() - t0)
                 results.append(c)
-                cov = f"{c['coverage']:.3f} [{c['coverage_lo']:.3f}, {c['coverage_hi']:.3f}]"
-                if "coverage_points" in c:
-                    cov += f" (points {c['coverage_points']:.3f})"
-                print(f"| {q.id} | {stat} | {m} | {cov} | {_pc(c['stated_error_mean'])} | "
-                      f"{_pc(c['actual_error_rms'])} | {_pc(c['actual_error_p95'])} | {c['cost_mean']:.4g} |",
-                      flush=True)
+                _row(c)
+    _write(args.out, {"questions_file": qs.path, "command": " ".join([PROG] + (argv or sys.argv[1:])),
+                      "reps": args.reps, "n_exact": args.n_exact, "n_train": args.n_train,
+                      "n_low": args.n_low, "eps_m3": args.eps, "m3_target": args.m3_target,
+                      "load_average_end": list(os.getloadavg()), "results": results})
+    return 0
+
+
+def _row(c):
+    cov = f"{c['coverage']:.3f} [{c['coverage_lo']:.3f}, {c['coverage_hi']:.3f}]"
+    if "coverage_points" in c:
+        cov += f" (points {c['coverage_points']:.3f})"
+    print(f"| {c['question']} | {c['statistic']} | {c['method']} | {cov} | {_pc(c['stated_error_mean'])} | "
+          f"{_pc(c['actual_error_rms'])} | {_pc(c['actual_error_p95'])} | {c['cost_mean']:.4g} |", flush=True)
+
+
+def _write(path, doc):
     with cio.OutputSet() as out:
-        with open(out.tmp(args.out), "w", encoding="utf-8") as f:
-            json.dump({"questions_file": qs.path, "command": " ".join([PROG] + (argv or sys.argv[1:])),
-                       "reps": args.reps, "n_exact": args.n_exact, "n_train": args.n_train,
-                       "n_low": args.n_low, "eps_m3": args.eps, "m3_target": args.m3_target,
-                       "load_average_end": list(os.getloadavg()), "results": results}, f, indent=1)
+        with open(out.tmp(path), "w", encoding="utf-8") as f:
+            json.dump(doc, f, indent=1)
         out.commit()
+
+
+def rescore(args, qs):
+    """Score the answers of earlier output JSONs (--rescore, several joined by commas) against
+    --truth: the same table for another (e.g. a larger) truth sample."""
+    from answers.coverage import score
+    if not args.truth:
+        raise InputError("--rescore needs --truth")
+    args.maps = True
+    truths = _truths(args, qs, None)
+    results = []
+    for path in args.rescore.split(","):
+        try:
+            with open(path, encoding="utf-8") as f:
+                doc = json.load(f)
+        except (OSError, json.JSONDecodeError) as exc:
+            raise InputError(f"{path}: cannot read: {exc}") from None
+        for c in doc["results"]:
+            t = truths[c["question"]][c["statistic"]]
+            new = {**c, **score(c["answers"], t, c.get("pool_truth")), "truth": t}
+            results.append(new)
+            _row(new)
+    _write(args.out, {"questions_file": qs.path, "truth_file": args.truth, "rescored": args.rescore,
+                      "results": results})
     return 0
 
 

@@ -24,27 +24,42 @@ def wilson(k, n, confidence=0.95):
     return c - h, c + h
 
 
-def coverage(estimate, truth, seeds, pool_truth=None):
-    """Run ``estimate(seed)`` for each seed; a dict of the coverage figures."""
-    hits, hits_pool, points, stated, actual, cost = 0, 0, [], [], [], []
-    t = np.asarray(truth, float)
+def repeat(estimate, seeds):
+    """The answers of ``estimate(seed)`` for each seed: a list of {value, lo, hi, stated, cost}
+    (lists for a map), kept so that they can be scored against another truth later."""
+    out = []
     for s in seeds:
         a = estimate(int(s))
-        hits += a.covers(t)
-        if pool_truth is not None:
-            hits_pool += a.covers(pool_truth)
-        points.append(np.mean((a.lo <= t) & (t <= a.hi)))
-        stated.append(a.stated_error)
-        actual.append(float(np.max(np.abs(a.value - t) / np.abs(t))))
-        cost.append(a.cost)
-    R = len(seeds)
-    lo, hi = wilson(hits, R)
-    actual, stated = np.array(actual), np.array(stated)
-    extra = {"coverage_points": float(np.mean(points))} if t.size > 1 else {}
+        out.append({"seed": int(s), "value": a.value.tolist(), "lo": a.lo.tolist(), "hi": a.hi.tolist(),
+                    "stated": float(a.stated_error), "cost": float(a.cost)})
+    return out
+
+
+def score(answers, truth, pool_truth=None):
+    """The coverage figures of repeated answers against a truth (and a pool's value)."""
+    t = np.asarray(truth, float)
+    v, lo, hi = (np.array([np.atleast_1d(a[k]) for a in answers], float) for k in ("value", "lo", "hi"))
+    inside = (lo <= t) & (t <= hi)
+    hits = int(np.sum(np.all(inside, axis=1)))
+    stated = np.array([a["stated"] for a in answers])
+    actual = np.max(np.abs(v - t) / np.abs(t), axis=1)
+    R = len(answers)
+    c_lo, c_hi = wilson(hits, R)
+    extra = {"coverage_points": float(np.mean(inside))} if t.size > 1 else {}
     if pool_truth is not None:
-        extra["coverage_pool"] = hits_pool / R
-    return {"repetitions": R, "coverage": hits / R, "coverage_lo": lo, "coverage_hi": hi, **extra,
-            "stated_error_mean": float(np.mean(stated[np.isfinite(stated)])) if np.any(np.isfinite(stated)) else None,
+        p = np.asarray(pool_truth, float)
+        extra["coverage_pool"] = float(np.mean(np.all((lo <= p) & (p <= hi), axis=1)))
+    fin = stated[np.isfinite(stated)]
+    return {"repetitions": R, "coverage": hits / R, "coverage_lo": c_lo, "coverage_hi": c_hi, **extra,
+            "stated_error_mean": float(np.mean(fin)) if fin.size else None,
+            "stated_finite": int(fin.size),
             "actual_error_rms": float(np.sqrt(np.mean(actual ** 2))),
             "actual_error_p95": float(np.quantile(actual, 0.95)),
-            "cost_mean": float(np.mean(cost))}
+            "cost_mean": float(np.mean([a["cost"] for a in answers]))}
+
+
+def coverage(estimate, truth, seeds, pool_truth=None):
+    """Run ``estimate(seed)`` for each seed; a dict of the coverage figures (``score``) with the
+    answers themselves under ``answers``."""
+    answers = repeat(estimate, seeds)
+    return {**score(answers, truth, pool_truth), "answers": answers}

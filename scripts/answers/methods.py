@@ -14,7 +14,7 @@ import numpy as np
 from scipy import stats
 
 from . import mfmc
-from .intervals import Answer, mean_ci, sample_statistic, std_from_variance, z_value
+from .intervals import Answer, mean_ci, point_statistic, sample_statistic, std_from_variance, z_value
 from .sampling import (ESTIMATION, GRID, HELD_OUT, PROPAGATION, Clock, RunCache, draw,
                        indicator_cov, per_sample, run, stream)
 from .surrogate import AR1Surrogate, GPSurrogate, map_interval, propagate
@@ -98,13 +98,12 @@ def m2(question, statistic, low, exact, n_low, n_held, seed, confidence, ledger,
     yh = run(exact, hp, hs, ledger, "estimation")
     yl = run(low, hp, hs, ledger, "estimation")
     kw = _kw(question)
-    bias = sample_statistic(yh, statistic, confidence, **kw)[0] - sample_statistic(yl, statistic, confidence, **kw)[0]
+    bias = point_statistic(yh, statistic, **kw) - point_statistic(yl, statistic, **kw)
     rng = stream(seed, PROPAGATION)
     boot = []
     for _ in range(n_boot):
         i = rng.integers(0, n_held, n_held)
-        boot.append(sample_statistic(yh[i], statistic, confidence, **kw)[0]
-                    - sample_statistic(yl[i], statistic, confidence, **kw)[0])
+        boot.append(point_statistic(yh[i], statistic, **kw) - point_statistic(yl[i], statistic, **kw))
     se_b = float(np.std(boot, ddof=1))
     h = z * np.hypot(se_b, se_lo)
     lo, hi = min(s_lo, s_lo + bias - h), max(s_lo, s_lo + bias + h)

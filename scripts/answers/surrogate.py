@@ -24,7 +24,7 @@ from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 
-from .intervals import sample_statistic, z_value
+from .intervals import point_statistic, sample_statistic, z_value
 
 
 class GPSurrogate:
@@ -157,9 +157,8 @@ def propagate(gp, sample_params, statistic, confidence, rng, n_large=20000, n_dr
     draws = gp.latent_draws(Xs, n_draws, rng)
     mu_s, _ = gp.predict(Xs)
     eps_s = eps[:n_sub]
-    base = sample_statistic(mu_s + eps_s, statistic, confidence, **stat_kw)[0]
-    delta = np.array([sample_statistic(d + eps_s, statistic, confidence, **stat_kw)[0] - base
-                      for d in draws])
+    base = point_statistic(mu_s + eps_s, statistic, **stat_kw)
+    delta = np.array([point_statistic(d + eps_s, statistic, **stat_kw) - base for d in draws])
     a = 1.0 - confidence
     d_lo, d_hi = np.quantile(delta, [a / 2, 1 - a / 2]) * gp.calibration
     jk, bias = _jackknife(gp, X, eps, statistic, confidence, stat_kw, est)
@@ -176,8 +175,7 @@ def _jackknife(gp, X, eps, statistic, confidence, stat_kw, est):
     if K < 2:
         return 0.0, 0.0
     u = gp.unit(X)
-    s = np.array([sample_statistic(g.predict(u) + eps, statistic, confidence, **stat_kw)[0]
-                  for g in gp.fold_models])
+    s = np.array([point_statistic(g.predict(u) + eps, statistic, **stat_kw) for g in gp.fold_models])
     se = np.sqrt((K - 1) / K * np.sum((s - s.mean()) ** 2))
     return float(stats.t.ppf(0.5 + confidence / 2, K - 1) * se), float((K - 1) * (s.mean() - est))
 
