@@ -13,7 +13,11 @@ Modules (one concept each):
 * ``surrogate``  Gaussian-process surrogates (single- and multi-fidelity), posterior propagation;
 * ``methods``    M0 (exact Monte Carlo), M1 (GP), M2 (low fidelity alone), M3 (multi-fidelity);
 * ``select``     the cheapest method per question and accuracy; table, JSON, figure;
-* ``coverage``   repetitions of an estimator against a known truth.
+* ``coverage``   repetitions of an estimator against a known truth;
+* ``reference``  the honest reference: large exact samples in resumable chunks, the truth with
+  its Monte Carlo error;
+* ``pool``       models served from runs made beforehand (lookup, a pool drawn without
+  replacement) for the coverage repetitions.
 
 The command-line driver is ``scripts/crowd_answers.py``; the page is ``docs/answers.md``.
 """

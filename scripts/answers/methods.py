@@ -14,7 +14,7 @@ import numpy as np
 from scipy import stats
 
 from . import mfmc
-from .intervals import Answer, mean_ci, sample_statistic, std_from_variance, z_value
+from .intervals import Answer, mean_ci, point_statistic, sample_statistic, std_from_variance, z_value
 from .sampling import (ESTIMATION, GRID, HELD_OUT, PROPAGATION, Clock, RunCache, draw,
                        indicator_cov, per_sample, run, stream)
 from .surrogate import AR1Surrogate, GPSurrogate, map_interval, propagate
@@ -68,14 +68,16 @@ def m1(question, statistic, training, n, seed, confidence, ledger, restarts=2, *
 
 
 def m1_map(question, box, training, n, seed, confidence, ledger, restarts=2):
+    """GP on the first n exact training runs; at each grid point the posterior mean and the
+    interval of the model's value there (latent uncertainty and fitted noise, calibrated)."""
     training.grow(n)
     pts, shape = question.grid_points(box)
     with Clock() as c:
         reg = training.region
         gp = GPSurrogate(training.inputs(n), training.Y[:n, 0], reg.lo, reg.hi, seed,
                          restarts=restarts)
-        mu, sd = gp.predict(pts[:, reg.varying])
-        v, lo, hi = map_interval(mu, sd, gp.calibration, confidence)
+        mu, sd = gp.predict_value(pts[:, reg.varying])
+        v, lo, hi = map_interval(mu, sd, gp.calibration, confidence, gp.cv_rmse, n)
     ledger.add("fitting", "gp", 0, c.seconds)
     return Answer(question.id, "map", "M1", v, lo, hi, confidence, ledger, n_exact=n,
                   calibration=gp.calibration, cv_rel_rmse=gp.cv_rel_rmse, grid_shape=list(shape))
@@ -96,13 +98,12 @@ def m2(question, statistic, low, exact, n_low, n_held, seed, confidence, ledger,
     yh = run(exact, hp, hs, ledger, "estimation")
     yl = run(low, hp, hs, ledger, "estimation")
     kw = _kw(question)
-    bias = sample_statistic(yh, statistic, confidence, **kw)[0] - sample_statistic(yl, statistic, confidence, **kw)[0]
+    bias = point_statistic(yh, statistic, **kw) - point_statistic(yl, statistic, **kw)
     rng = stream(seed, PROPAGATION)
     boot = []
     for _ in range(n_boot):
         i = rng.integers(0, n_held, n_held)
-        boot.append(sample_statistic(yh[i], statistic, confidence, **kw)[0]
-                    - sample_statistic(yl[i], statistic, confidence, **kw)[0])
+        boot.append(point_statistic(yh[i], statistic, **kw) - point_statistic(yl[i], statistic, **kw))
     se_b = float(np.std(boot, ddof=1))
     h = z * np.hypot(se_b, se_lo)
     lo, hi = min(s_lo, s_lo + bias - h), max(s_lo, s_lo + bias + h)
@@ -211,8 +212,8 @@ def m3_map(question, box, low, training, n, seed, confidence, ledger, restarts=2
         reg = training.region
         ar = AR1Surrogate(training.inputs(n), training.Y[:n, 0], training.Y[:n, 1], reg.lo, reg.hi, seed,
                           restarts=restarts)
-        mu, sd = ar.predict(pts[:, reg.varying], ylo)
-        v, lo, hi = map_interval(mu, sd, ar.calibration, confidence)
+        mu, sd = ar.predict_value(pts[:, reg.varying], ylo)
+        v, lo, hi = map_interval(mu, sd, ar.calibration, confidence, ar.cv_rmse, n)
     ledger.add("fitting", "ar1-gp", 0, c.seconds)
     return Answer(question.id, "map", "M3", v, lo, hi, confidence, ledger, n_exact=n, model=low.name,
                   slope=ar.b, calibration=ar.calibration, cv_rel_rmse=ar.cv_rel_rmse,

@@ -24,7 +24,7 @@ from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 
-from .intervals import sample_statistic, z_value
+from .intervals import point_statistic, sample_statistic, z_value
 
 
 class GPSurrogate:
@@ -59,6 +59,15 @@ class GPSurrogate:
         mu, sd = self.gp.predict(self.unit(X), return_std=True)
         return mu, np.sqrt(np.maximum(sd ** 2 - self.noise_var(), 0.0))
 
+    def predict_value(self, X):
+        """Posterior mean [n] and standard deviation [n] of the model's value at X (not
+        calibrated): the latent one and the fitted white noise. A deterministic model whose output
+        jitters at scales far below the design's spacing (the congested crowd's t90 moves by 3%
+        when l_exit moves by one rounding unit) shows that jitter as noise, and its value at a
+        map point carries it."""
+        mu, sd = self.predict(X)
+        return mu, np.sqrt(sd ** 2 + self.noise_var())
+
     def latent_draws(self, X, n_draws, rng):
         """Joint posterior draws of the latent function at X [n]: [n_draws, n]."""
         mu, cov = self.gp.predict(self.unit(X), return_cov=True)
@@ -84,7 +93,8 @@ class GPSurrogate:
             mu, sd = g.predict(self.unit(self.X[part]), return_std=True)
             err[part] = self.y[part] - mu
             z[part] = err[part] / np.maximum(sd, 1e-300)
-        rel = np.sqrt(np.mean(err ** 2)) / max(np.mean(np.abs(self.y)), 1e-300)
+        self.cv_rmse = float(np.sqrt(np.mean(err ** 2)))
+        rel = self.cv_rmse / max(np.mean(np.abs(self.y)), 1e-300)
         return max(1.0, float(np.sqrt(np.mean(z ** 2)))), float(rel), z
 
 
@@ -103,7 +113,14 @@ class AR1Surrogate:
         return float(np.dot(yc, lc) / np.dot(lc, lc)) if np.dot(lc, lc) > 0 else 0.0
 
     def predict(self, X, y_low):
+        """Mean [n] and latent standard deviation [n] given the low fidelity's values y_low [n]."""
         mu, sd = self.delta.predict(X)
+        return self.b * np.asarray(y_low) + mu, sd
+
+    def predict_value(self, X, y_low):
+        """Mean [n] and standard deviation [n] of the exact model's value (the discrepancy's
+        fitted noise included, as ``GPSurrogate.predict_value``)."""
+        mu, sd = self.delta.predict_value(X)
         return self.b * np.asarray(y_low) + mu, sd
 
     def cross_validate(self, X, y, ylo, folds, seed):
@@ -119,7 +136,8 @@ class AR1Surrogate:
             mu, sd = g.predict(self.delta.unit(X[part]), return_std=True)
             err[part] = y[part] - (b * ylo[part] + mu)
             z[part] = err[part] / np.maximum(sd, 1e-300)
-        rel = np.sqrt(np.mean(err ** 2)) / max(np.mean(np.abs(y)), 1e-300)
+        self.cv_rmse = float(np.sqrt(np.mean(err ** 2)))
+        rel = self.cv_rmse / max(np.mean(np.abs(y)), 1e-300)
         return max(1.0, float(np.sqrt(np.mean(z ** 2)))), float(rel)
 
 
@@ -139,9 +157,8 @@ def propagate(gp, sample_params, statistic, confidence, rng, n_large=20000, n_dr
     draws = gp.latent_draws(Xs, n_draws, rng)
     mu_s, _ = gp.predict(Xs)
     eps_s = eps[:n_sub]
-    base = sample_statistic(mu_s + eps_s, statistic, confidence, **stat_kw)[0]
-    delta = np.array([sample_statistic(d + eps_s, statistic, confidence, **stat_kw)[0] - base
-                      for d in draws])
+    base = point_statistic(mu_s + eps_s, statistic, **stat_kw)
+    delta = np.array([point_statistic(d + eps_s, statistic, **stat_kw) - base for d in draws])
     a = 1.0 - confidence
     d_lo, d_hi = np.quantile(delta, [a / 2, 1 - a / 2]) * gp.calibration
     jk, bias = _jackknife(gp, X, eps, statistic, confidence, stat_kw, est)
@@ -158,13 +175,18 @@ def _jackknife(gp, X, eps, statistic, confidence, stat_kw, est):
     if K < 2:
         return 0.0, 0.0
     u = gp.unit(X)
-    s = np.array([sample_statistic(g.predict(u) + eps, statistic, confidence, **stat_kw)[0]
-                  for g in gp.fold_models])
+    s = np.array([point_statistic(g.predict(u) + eps, statistic, **stat_kw) for g in gp.fold_models])
     se = np.sqrt((K - 1) / K * np.sum((s - s.mean()) ** 2))
     return float(stats.t.ppf(0.5 + confidence / 2, K - 1) * se), float((K - 1) * (s.mean() - est))
 
 
-def map_interval(mu, sd, calibration, confidence):
-    """Pointwise interval of a surrogate's prediction: mu +- z c sd."""
+def map_interval(mu, sd, calibration, confidence, cv_rmse=0.0, n=None):
+    """Pointwise interval of the model's value at map points: mu +- the larger of z c sd (the
+    calibrated posterior, sd of the value: ``predict_value``) and the cross-validation prediction
+    half-width t_{n-1} cv_rmse sqrt(1 + 1/n) (n training runs). The second holds where maximum
+    likelihood on a few runs of a jittery model fits an interpolant without noise: its posterior
+    sd then vanishes at the training points, its held-out errors do not."""
     h = z_value(confidence) * calibration * np.asarray(sd)
+    if n is not None and n > 1:
+        h = np.maximum(h, stats.t.ppf(0.5 + confidence / 2, n - 1) * cv_rmse * np.sqrt(1 + 1 / n))
     return mu, mu - h, mu + h
