@@ -410,16 +410,19 @@ contains
         any(blk%mu(:, k) > this%st%space%hi + 1.0e-12_wp * abs(this%st%space%hi)))
       if (blk%has_fom) then
         if (allocated(blk%qoi)) then
-          ! the full-order QoIs as crowd_snapshots stored them (the same definitions)
-          call measure_sample(ctx%scene, this%st%radius, this%st%dt, qr, ms(k), error, &
-            q=blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), err=err_time(:, k), qoi_fom=blk%qoi(k))
+          ! the full-order QoIs as crowd_snapshots stored them (the same definitions, the body
+          ! radius)
+          call measure_sample(ctx%scene, this%st%body_radius, this%st%dt, qr, ms(k), error, &
+            q=blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), err=err_time(:, k), qoi_fom=blk%qoi(k), &
+            contact_radius=this%st%radius)
         else
-          call measure_sample(ctx%scene, this%st%radius, this%st%dt, qr, ms(k), error, &
-            q=blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), err=err_time(:, k))
+          call measure_sample(ctx%scene, this%st%body_radius, this%st%dt, qr, ms(k), error, &
+            q=blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), err=err_time(:, k), contact_radius=this%st%radius)
         end if
         e_proj(k) = projection_error(blk%u(:, (k - 1) * nt + 1:k * nt), pair%v)
       else
-        call measure_sample(ctx%scene, this%st%radius, this%st%dt, qr, ms(k), error)
+        call measure_sample(ctx%scene, this%st%body_radius, this%st%dt, qr, ms(k), error, &
+          contact_radius=this%st%radius)
       end if
       if (allocated(error)) then
         call prefix_error(error, "setting " // str(ks) // ", " // trim(blk%name) // " sample " // str(k)); return
