@@ -18,7 +18,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from test_rom import run, offline, rom_input, stored_m, STUDY  # noqa: E402
 
 # the hall is 0.6 m x 0.5 m with 8 agents (about 30 /m2): a kernel of width 0.1 m and a
-# diagram whose jam density lies above the crowd's keep the speeds between about 20% and 60%
+# diagram whose jam density lies above the crowd's keep 8-61% of the speeds
 DIAGRAM = ("&desired speed_model = 'weidmann', density_sigma = 0.1, density_anisotropy = 1.0, "
            "fd_gamma = 20.0, fd_rho_max = 80.0 /\n")
 DS = 0.02
