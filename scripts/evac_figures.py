@@ -90,7 +90,11 @@ def out_rule(db):
         length, width, wall = vals["hall_length"], vals["hall_width"], vals["wall_thickness"]
     except KeyError as exc:
         raise InputError(f"'{db}': &scene of the stored configuration lacks {exc}") from None
-    r = meta["agent_radius"]
+    # the body radius r of &agents (the database's agent_radius is the contact radius
+    # r + d_s / 2 with a social distance; the "has left" line uses r, as cr_scene%is_out)
+    agents = next((ln for ln in cfg.splitlines() if ln.strip().lower().startswith("&agents")), "")
+    body = re.search(r"\bradius\s*=\s*([-+0-9.eEdD]+)", agents, re.IGNORECASE)
+    r = float(body.group(1).replace("d", "e").replace("D", "e")) if body else meta["agent_radius"]
     has2 = vals.get("l_exit2", 0.0) > 0 or "l_exit2" in meta["param_names"]
 
     def is_out(q):

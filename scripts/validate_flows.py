@@ -10,6 +10,8 @@ Parts (any subset, in this order):
   convergence  t50, t90 and the exit flows of the calibrated crowd1000 scene at h, h/2, h/4
   cpu          CPU per simulated second over the first 20 s of crowd1000, crowd_fom calibrated
                and JuPedSim, back to back
+  variants     the calibration table: specific flow of each behaviour variant (social distance,
+               diagram, look-ahead, kernel width) on the bottleneck scene at w = 1.2 m
 
 Each part writes <out>/<part>.json and a figure <out>/calibration_<part>.png. JuPedSim is an
 OPTIONAL dependency (scripts/requirements-validation.txt): without it the script says so and
@@ -373,6 +375,29 @@ def part_bottleneck(args, work):
     return {"agents": n, "free_speed": v0, "dt": args.dt, "rows": rows}
 
 
+def part_variants(args, work):
+    """The calibration table: the specific flow of each behaviour variant on the bottleneck
+    scene at w = 1.2 m (the scene, start and step of part_bottleneck)."""
+    w, n, v0 = 1.2, args.bottleneck_agents, WEIDMANN[0]
+    sc = bottleneck_scene(w)
+    weid = {"speed_model": "weidmann", "density_sigma": 0.7}
+    variants = [("paper model", PAPER),
+                ("d_s = 0.1 m only", dict(PAPER, social_distance=0.1)),
+                ("Weidmann only (isotropic, sigma 0.7)", dict(weid, social_distance=0.0)),
+                ("Weidmann + d_s = 0.1 m", dict(weid, social_distance=0.1)),
+                ("Weidmann + d_s = 0.1 m + look-ahead 1 (chosen)", CALIBRATED),
+                ("the same with sigma = 0.5 m", dict(CALIBRATED, density_sigma=0.5))]
+    rows = []
+    for k, (name, model) in enumerate(variants):
+        r = run_fom_timed(model_text(model, sc, n, v0, args.dt, region=(0.3, 0.3, 7.7, 6.5), seed=7,
+                                     max_steps=int(round(args.t_max_bottleneck / args.dt))), work,
+                          "var_%d" % k, pdda=False)
+        q = qois(exit_curves(r["pos"], sc, r["radius"]), r["time"], sc, n)
+        rows.append({"variant": name, "model": model, "flow": q["flow"][0], "t90": q["t90"]})
+        log("variant %s: specific flow %s, t90 %s" % (name, fmt(q["flow"][0]), fmt(q["t90"])))
+    return {"width": w, "agents": n, "free_speed": v0, "dt": args.dt, "rows": rows}
+
+
 def walkable_wkt_of(sc, work, tag):
     """The walkable area crowd_fom writes for scene `sc` (one step of a one-agent run)."""
     import h5py
@@ -481,14 +506,15 @@ def part_crowd1000(args, work):
         with h5py.File(pdda, "r") as f:
             w = f.attrs["wkt_geometry"]
         wkt = w.decode() if isinstance(w, bytes) else str(w)
-        j = run_jupedsim(sc, wkt, q0, rad, speeds, t_max=args.t_max_1000)
+        j = run_jupedsim(sc, wkt, q0, rad, speeds, t_max=args.t_max_1000, dt=args.jps_dt)
         q = qois(j["curves"], j["time"], sc, len(q0))
         q["cpu"] = j["cpu"]
         q["cpu_per_s"] = j["cpu"] / j["t_end"]
-        q["dt"] = 0.01
+        q["dt"] = args.jps_dt
+        q["hole_stride"] = HOLE_STRIDE
         res["jupedsim"] = q
-        log("crowd1000 JuPedSim CFSM dt = 0.01: t50 %.1f t90 %.1f flows %s, CPU %.1f s (%.3f per simulated s)" % (
-            q["t50"], q["t90"], [fmt(x) for x in q["flow"]], q["cpu"], q["cpu_per_s"]))
+        log("crowd1000 JuPedSim CFSM dt = %g: t50 %.1f t90 %.1f flows %s, CPU %.1f s (%.3f per simulated s)" % (
+            args.jps_dt, q["t50"], q["t90"], [fmt(x) for x in q["flow"]], q["cpu"], q["cpu_per_s"]))
     return res
 
 
@@ -610,6 +636,8 @@ def main(argv=None):
     ap.add_argument("--t-max-1000", type=float, default=400.0)
     ap.add_argument("--jps-hole-stride", type=int, default=1,
                     help="JuPedSim obstacles: every k-th vertex of the 32-gons (2: 16-gons)")
+    ap.add_argument("--jps-dt", type=float, default=0.01,
+                    help="JuPedSim's step in the crowd1000 part (its default 0.01 s; the cpu part always uses 0.01)")
     ap.add_argument("--cpu-window", type=float, default=20.0, help="simulated seconds of the CPU comparison")
     ap.add_argument("--models", default="calibrated,paper", help="crowd_fom models of crowd1000 and bottleneck")
     args = ap.parse_args(argv)
@@ -626,7 +654,7 @@ def main(argv=None):
     with tempfile.TemporaryDirectory() as work:
         for part in args.parts:
             fn = {"bottleneck": part_bottleneck, "corridor": part_corridor, "crowd1000": part_crowd1000,
-                  "convergence": part_convergence, "cpu": part_cpu}.get(part)
+                  "convergence": part_convergence, "cpu": part_cpu, "variants": part_variants}.get(part)
             if fn is None:
                 ap.error("unknown part '%s'" % part)
             results[part] = fn(args, work)

@@ -9,6 +9,7 @@ module cr_reduced_base
   use cr_kinds, only: wp, i8
   use cr_scene, only: scene_t
   use cr_desired, only: desired_t
+  use cr_density_speed, only: density_speed_t
   use cr_dual_qp, only: gram_source_t
   implicit none
   private
@@ -16,12 +17,15 @@ module cr_reduced_base
     mark_agents
 
   !> What the terms depend on besides the positions: the sample's scene, desired-velocity
-  !> model and speeds, the agent radius and the time step.
+  !> model and speeds, the agent radius and the time step. With the density-dependent desired
+  !> speed (density%on, &desired speed_model = 'weidmann') the stepper hands the assembly a
+  !> copy whose speeds are those of the step (cr_rom_stepper).
   type :: eval_ctx_t
     type(scene_t) :: scene
     type(desired_t) :: desired
     real(wp), allocatable :: speeds(:)
     real(wp) :: radius = 0, h = 0
+    type(density_speed_t) :: density
   end type eval_ctx_t
 
   !> A way of assembling (vhat, bhat, dhat); also the source of the Gram entries of the

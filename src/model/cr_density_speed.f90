@@ -48,6 +48,7 @@ module cr_density_speed
     procedure :: free
     procedure :: density
     procedure :: apply
+    procedure :: scale_speeds
   end type density_speed_t
 
 contains
@@ -123,6 +124,19 @@ contains
       v(2*i-1:2*i) = f * v(2*i-1:2*i)
     end do
   end subroutine apply
+
+  !> speeds_out [n_agents] = speeds [n_agents] scaled by the diagram at each agent's local
+  !> density at positions q [2*n_agents], the look-ahead taking the directions of the desired
+  !> velocities v [2*n_agents] (speeds times the desired directions, as `apply` receives them):
+  !> the speeds whose desired velocities are those `apply` gives (to round-off: (f c) d against
+  !> f (c d)). The reduced models evaluate the density-dependent desired speed this way.
+  subroutine scale_speeds(this, q, v, speeds, speeds_out)
+    class(density_speed_t), intent(inout) :: this
+    real(wp), intent(in) :: q(:), v(:), speeds(:)
+    real(wp), intent(out) :: speeds_out(:)
+    call this%density(q, this%rho, v)
+    speeds_out = speeds * weidmann_factor(this%rho, this%gamma, this%rho_max)
+  end subroutine scale_speeds
 
   !> v(rho) / v0 of Weidmann's diagram: 1 - exp(-gamma (1/rho - 1/rho_max)) in [0, 1]; 1 at rho <= 0.
   elemental real(wp) function weidmann_factor(rho, gamma, rho_max) result(f)

@@ -225,11 +225,6 @@ contains
     type(desired_t), intent(out) :: desired
     type(error_t), allocatable, intent(out) :: error
     type(config_t) :: c
-    if (cfg_ref%desired%speed_model /= 'constant') then
-      call set_error(error, "&desired: speed_model = '" // trim(cfg_ref%desired%speed_model) // &
-        "' is not supported by the reduced models (their desired velocity has no density term)", 2)
-      return
-    end if
     c = cfg_ref
     speeds = ref_speeds
     call this%apply(mu, c, speeds)

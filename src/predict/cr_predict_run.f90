@@ -269,7 +269,8 @@ contains
       call given_query(this, k, qr, scene, error)
     end select
     if (allocated(error)) return
-    call r%measure(scene, this%st%radius, this%st%dt, qr, error)
+    ! the QoIs with the body radius (cr_rom_study: as crowd_fom and crowd_snapshots)
+    call r%measure(scene, this%st%body_radius, this%st%dt, qr, error)
     if (allocated(error)) return
     call cpu_time(c1)
     r%cpu = c1 - c0

@@ -118,8 +118,10 @@ contains
   !> Every measure of one reduced trajectory qr [n_dof, N_T + 1] (time step h), against
   !> the full-order one q [n_dof, N_T + 1] when present; err [N_T + 1] (optional) receives
   !> the per-step relative position error; qoi_fom (optional) are the full-order trajectory's
-  !> QoIs as stored (otherwise computed from q).
-  subroutine measure_sample(scene, radius, h, qr, m, error, q, err, qoi_fom)
+  !> QoIs as stored (otherwise computed from q). The QoIs use the body radius `radius`; the
+  !> overlaps m%overlap_aa / aw measure the model's constraints, at contact_radius (default
+  !> radius; r + d_s / 2 with a social distance: a reduced agent inside another's ring counts).
+  subroutine measure_sample(scene, radius, h, qr, m, error, q, err, qoi_fom, contact_radius)
     type(scene_t), intent(in) :: scene
     real(wp), intent(in) :: radius, h, qr(:,:)
     type(sample_measures_t), intent(out) :: m
@@ -127,12 +129,16 @@ contains
     real(wp), intent(in), optional :: q(:,:)
     real(wp), intent(out), optional :: err(:)
     type(qoi_t), intent(in), optional :: qoi_fom
+    real(wp), intent(in), optional :: contact_radius
     real(wp), allocatable :: e(:)
     call compute_qoi(scene, radius, h, qr, m%qoi_rom, error)
     if (allocated(error)) then
       call prefix_error(error, "reduced trajectory"); return
     end if
     m%overlap_aa = m%qoi_rom%overlap_aa; m%overlap_aw = m%qoi_rom%overlap_aw
+    if (present(contact_radius)) then
+      if (contact_radius /= radius) call max_overlaps(scene, contact_radius, qr, m%overlap_aa, m%overlap_aw)
+    end if
     call evac_times(m%qoi_rom, m%evac_rom, m%not_left, m%t_rom)
     m%has_fom = present(q)
     if (.not. m%has_fom) then

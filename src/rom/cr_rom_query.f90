@@ -28,6 +28,8 @@ contains
     if (allocated(error)) return
     ctx%radius = st%radius
     ctx%h = st%dt
+    ! the density-dependent desired speed (&desired speed_model = 'weidmann'), at every step
+    if (st%cfg%desired%speed_model == 'weidmann') call ctx%density%init(st%cfg%desired, st%n_agents)
     c_max = 0
     if (size(ctx%speeds) > 0) c_max = maxval(abs(ctx%speeds))
     if (ctx%desired%from_file) c_max = max(c_max, sqrt(2.0_wp) * maxval(abs(ctx%desired%fixed)))

@@ -23,6 +23,13 @@
 !> (the correction delta is not projected back onto the basis: a projection would lose the
 !> part of delta outside span(V), and with it the guarantee of no overlap). The positions of
 !> every step are then returned in traj%q (reduced_positions(alpha) no longer gives them).
+!>
+!> With the density-dependent desired speed (ctx%density%on, &desired speed_model = 'weidmann')
+!> each step first rebuilds every agent's position (an agent's density reads its neighbours,
+!> which the assembly's agents do not list; O(n_dof Nb)), evaluates every agent's local density
+!> there as the full-order model does (cell list and kernel, O(n_agents)) and hands the assembly
+!> the speeds scaled by the diagram (density_speed_t%scale_speeds): every hyper-reduction
+!> evaluates the desired velocity of the agents it reads at their density-dependent speed.
 module cr_rom_stepper
   use cr_kinds, only: wp, i8
   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
@@ -114,6 +121,10 @@ contains
     type(ldp_stats_t) :: st
     type(dual_qp_t) :: dqp
     type(dual_qp_stats_t) :: dst
+    !> with the density-dependent desired speed: ctx with the step's speeds, and the desired
+    !> velocities at the given speeds (the look-ahead's directions) [n_dof]
+    type(eval_ctx_t) :: dctx
+    real(wp), allocatable :: vdes(:)
     integer :: nu, j, nb, its
     integer(8) :: c0, c1, rate, t0, t1, t2, t3, t4
     logical :: capped, finite, carry
@@ -140,12 +151,20 @@ contains
       ! each trajectory's correction starts cold (reproducible whatever ran before)
       call corr%reset()
     end if
+    if (ctx%density%on) then
+      dctx = ctx
+      allocate(vdes(size(q0)))
+    end if
     call system_clock(c0, rate)
     do nu = 1, n_steps
       call system_clock(t0)
       ! positions at the start of the step, where needed: q0 + h V acc on those dofs (carried
       ! in full with a correction)
-      if (.not. carry) then
+      if (ctx%density%on .and. .not. carry) then
+        ! every agent (the density of an agent reads its neighbours)
+        q = q0
+        call la_gemv('N', ctx%h, ops%v, acc, 1.0_wp, q)
+      else if (.not. carry) then
         qsub = q0sub
         call la_gemv('N', ctx%h, vsub, acc, 1.0_wp, qsub)
         q(dofs) = qsub
@@ -163,7 +182,13 @@ contains
           traj%diverged_step = nu - 1; exit
         end if
       end if
-      call ops%assemble(ctx, q, vhat, bt, dhat)
+      if (ctx%density%on) then
+        call ctx%desired%evaluate(q, ctx%speeds, vdes)
+        call dctx%density%scale_speeds(q, vdes, ctx%speeds, dctx%speeds)
+        call ops%assemble(dctx, q, vhat, bt, dhat)
+      else
+        call ops%assemble(ctx, q, vhat, bt, dhat)
+      end if
       call system_clock(t2)
       traj%max_rows = max(traj%max_rows, size(dhat))
       if (allocated(lam)) then

@@ -44,7 +44,10 @@ module cr_rom_study
     type(study_cfg_t) :: study
     type(param_space_t) :: space
     integer :: n_agents = 0, n_dof = 0, n_steps = 0, n_train = 0, n_valid = 0
-    real(wp) :: radius = 0, dt = 0
+    !> contact radius r + d_s / 2 (the database's agent_radius: the gaps of every stage) and
+    !> body radius r (&agents radius: the QoIs' "has left" lines and overlaps, as crowd_fom
+    !> and crowd_snapshots measure them)
+    real(wp) :: radius = 0, body_radius = 0, dt = 0
     !> initial positions of every sample [n_dof]
     real(wp), allocatable :: q0(:)
     !> reference speeds (before parameters are applied) [n_agents]
@@ -130,6 +133,7 @@ contains
     call st%space%init(st%study, st%n_agents)
     allocate(st%speeds(st%n_agents))
     st%speeds = st%cfg%agents%speed
+    st%body_radius = st%cfg%agents%radius
   end subroutine parse_study
 
   !> Read the first n (0: all) samples of database set `name` ('train' or 'valid').

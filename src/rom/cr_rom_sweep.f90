@@ -489,15 +489,19 @@ contains
     if (blk%has_fom) then
       if (allocated(blk%qoi)) then
         ! the full-order QoIs as crowd_snapshots stored them (the same definitions)
-        call measure_sample(acc%ctx%scene, this%st%radius, this%st%dt, acc%qr, acc%ms(k), error, &
-          q=blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), err=acc%err_time(:, k), qoi_fom=blk%qoi(k))
+        ! the full-order QoIs as crowd_snapshots stored them (the same definitions, the body
+        ! radius)
+        call measure_sample(acc%ctx%scene, this%st%body_radius, this%st%dt, acc%qr, acc%ms(k), error, &
+          q=blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), err=acc%err_time(:, k), qoi_fom=blk%qoi(k), &
+          contact_radius=this%st%radius)
       else
-        call measure_sample(acc%ctx%scene, this%st%radius, this%st%dt, acc%qr, acc%ms(k), error, &
-          q=blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), err=acc%err_time(:, k))
+        call measure_sample(acc%ctx%scene, this%st%body_radius, this%st%dt, acc%qr, acc%ms(k), error, &
+          q=blk%q(:, (k - 1) * (nt + 1) + 1:k * (nt + 1)), err=acc%err_time(:, k), contact_radius=this%st%radius)
       end if
       acc%e_proj(k) = projection_error(blk%u(:, (k - 1) * nt + 1:k * nt), pair%v)
     else
-      call measure_sample(acc%ctx%scene, this%st%radius, this%st%dt, acc%qr, acc%ms(k), error)
+      call measure_sample(acc%ctx%scene, this%st%body_radius, this%st%dt, acc%qr, acc%ms(k), error, &
+        contact_radius=this%st%radius)
     end if
     if (allocated(error)) return
     acc%ms(k)%diverged = acc%div_step(k) > 0
