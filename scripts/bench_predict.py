@@ -4,7 +4,7 @@ queries per CPU second for reduced settings, the ML correction and the exact mod
 and the parallel efficiency of the query loop at 2 ranks; prints a Markdown table.
 
 Usage: .venv/bin/python scripts/bench_predict.py ROM [--queries 200] [--exact-queries 10]
-       [--setting N R HYPER CONTACTS CORRECTION ...] [--costly-queries K] [--costly-serial]
+       [--setting N R HYPER CONTACTS CORRECTION ...] [--costly-queries K] [--costly-serial] [--exact-serial]
        [--ml-output ML.h5 --ml-models DIR] [--ranks 2] [--seed 1] [--keep DIR] [--out FILE.md]
 
 ROM is a ROM file of version 3 (crowd_offline; scripts/run_study.sh CASE writes
@@ -12,7 +12,8 @@ results/CASE_rom.h5). The queries are drawn uniformly in the study's training bo
 n_queries, seed): the same list for every model. Default settings: every pair of the ROM file
 with 'eq' / 'cone' / no correction (--setting replaces them; repeatable). The costly settings (the
 local exact correction, online contacts) answer the first --costly-queries queries of the same
-rule (default --queries); --costly-serial skips their run at --ranks ranks.
+rule (default --queries); --costly-serial skips their run at --ranks ranks, --exact-serial that
+of the exact model.
 
 Figures (all from one run of this script, side by side; the machine is shared, so compare the
 ratios):
@@ -77,6 +78,7 @@ def main(argv=None):
     ap.add_argument("--costly-queries", type=int, help="queries of the settings with the local correction or "
                     "online contacts (default: --queries)")
     ap.add_argument("--costly-serial", action="store_true", help="no parallel run of those settings")
+    ap.add_argument("--exact-serial", action="store_true", help="no parallel run of the exact model")
     ap.add_argument("--ml-output", help="training output of ml_correct.py (its setting and best n)")
     ap.add_argument("--ml-models", help="the saved models of that training")
     ap.add_argument("--ml-config", help="the ML configuration of that training (JSON)")
@@ -128,8 +130,11 @@ def main(argv=None):
                 print(f"bench_predict: {rows[-1]['model']}: {rows[-1]['qps']:.3g} queries per CPU second", flush=True)
     ex = dict(model="'exact'", n_queries=args.exact_queries, seed=args.seed)
     d1, _, _ = predict(work, "exact", args.rom, 1, **ex)
-    dp, _, _ = predict(work, "exact", args.rom, args.ranks, **ex)
-    rows.append(row("exact (" + d1["model"].split(" ", 1)[1] + ")", d1, float(dp["wall_seconds"]), args.ranks))
+    wall_p = None
+    if not args.exact_serial:
+        dp, _, _ = predict(work, "exact", args.rom, args.ranks, **ex)
+        wall_p = float(dp["wall_seconds"])
+    rows.append(row("exact (" + d1["model"].split(" ", 1)[1] + ")", d1, wall_p, args.ranks))
     print(f"bench_predict: exact: {rows[-1]['qps']:.3g} queries per CPU second", flush=True)
     q_ex = rows[-1]["qps"]
     lines = [f"| model | queries | CPU s per query | queries per CPU s | vs exact | parallel efficiency "
