@@ -4,13 +4,16 @@ queries per CPU second for reduced settings, the ML correction and the exact mod
 and the parallel efficiency of the query loop at 2 ranks; prints a Markdown table.
 
 Usage: .venv/bin/python scripts/bench_predict.py ROM [--queries 200] [--exact-queries 10]
-       [--setting N R HYPER CONTACTS CORRECTION ...] [--ml-output ML.h5 --ml-models DIR]
-       [--ranks 2] [--seed 1] [--keep DIR] [--out FILE.md]
+       [--setting N R HYPER CONTACTS CORRECTION ...] [--costly-queries K] [--costly-serial] [--exact-serial]
+       [--ml-output ML.h5 --ml-models DIR] [--ranks 2] [--seed 1] [--keep DIR] [--out FILE.md]
 
 ROM is a ROM file of version 3 (crowd_offline; scripts/run_study.sh CASE writes
 results/CASE_rom.h5). The queries are drawn uniformly in the study's training box (&predict
 n_queries, seed): the same list for every model. Default settings: every pair of the ROM file
-with 'eq' / 'cone' / no correction (--setting replaces them; repeatable).
+with 'eq' / 'cone' / no correction (--setting replaces them; repeatable). The costly settings (the
+local exact correction, online contacts) answer the first --costly-queries queries of the same
+rule (default --queries); --costly-serial skips their run at --ranks ranks, --exact-serial that
+of the exact model.
 
 Figures (all from one run of this script, side by side; the machine is shared, so compare the
 ratios):
@@ -72,6 +75,10 @@ def main(argv=None):
     ap.add_argument("--exact-queries", type=int, default=10, help="queries of the exact model (default 10)")
     ap.add_argument("--setting", nargs=5, action="append", metavar=("N", "R", "HYPER", "CONTACTS", "CORRECTION"),
                     help="a reduced setting (repeatable; default: every pair, eq / cone / none)")
+    ap.add_argument("--costly-queries", type=int, help="queries of the settings with the local correction or "
+                    "online contacts (default: --queries)")
+    ap.add_argument("--costly-serial", action="store_true", help="no parallel run of those settings")
+    ap.add_argument("--exact-serial", action="store_true", help="no parallel run of the exact model")
     ap.add_argument("--ml-output", help="training output of ml_correct.py (its setting and best n)")
     ap.add_argument("--ml-models", help="the saved models of that training")
     ap.add_argument("--ml-config", help="the ML configuration of that training (JSON)")
@@ -85,6 +92,7 @@ def main(argv=None):
                  for k in cio.rom_pair_indices(f)]
         cio.read_rom_study(f)
     settings = args.setting or [(str(n), str(r), "eq", "cone", "none") for n, r in pairs]
+    load0 = os.getloadavg()
     work = args.keep or tempfile.mkdtemp(prefix="bench_predict_")
     os.makedirs(work, exist_ok=True)
     rows = []
@@ -92,10 +100,15 @@ def main(argv=None):
     for n, r, hyper, contacts, corr in settings:
         tag = f"rom_{n}_{r}_{hyper}_{contacts}_{corr}"
         s = dict(model="'rom'", n=n, r=r, hyper=f"'{hyper}'", contacts=f"'{contacts}'", correction=f"'{corr}'")
-        d1, _, _ = predict(work, tag, args.rom, 1, **s, **sample)
-        dp, _, _ = predict(work, tag, args.rom, args.ranks, **s, **sample)
+        costly = corr == "local" or contacts == "online"
+        smp = dict(sample, n_queries=args.costly_queries) if costly and args.costly_queries else sample
+        d1, _, _ = predict(work, tag, args.rom, 1, **s, **smp)
+        wall_p = None
+        if not (costly and args.costly_serial):
+            dp, _, _ = predict(work, tag, args.rom, args.ranks, **s, **smp)
+            wall_p = float(dp["wall_seconds"])
         rows.append(row(f"rom N={n} R={r} {hyper}/{contacts}" + ("" if corr == "none" else f"/{corr}"), d1,
-                        float(dp["wall_seconds"]), args.ranks))
+                        wall_p, args.ranks))
         print(f"bench_predict: {rows[-1]['model']}: {rows[-1]['qps']:.3g} queries per CPU second", flush=True)
     if args.ml_output:
         with cio.open_h5(args.ml_output, cio.ML_SCHEMA, "ML output") as f:
@@ -117,8 +130,11 @@ def main(argv=None):
                 print(f"bench_predict: {rows[-1]['model']}: {rows[-1]['qps']:.3g} queries per CPU second", flush=True)
     ex = dict(model="'exact'", n_queries=args.exact_queries, seed=args.seed)
     d1, _, _ = predict(work, "exact", args.rom, 1, **ex)
-    dp, _, _ = predict(work, "exact", args.rom, args.ranks, **ex)
-    rows.append(row("exact (" + d1["model"].split(" ", 1)[1] + ")", d1, float(dp["wall_seconds"]), args.ranks))
+    wall_p = None
+    if not args.exact_serial:
+        dp, _, _ = predict(work, "exact", args.rom, args.ranks, **ex)
+        wall_p = float(dp["wall_seconds"])
+    rows.append(row("exact (" + d1["model"].split(" ", 1)[1] + ")", d1, wall_p, args.ranks))
     print(f"bench_predict: exact: {rows[-1]['qps']:.3g} queries per CPU second", flush=True)
     q_ex = rows[-1]["qps"]
     lines = [f"| model | queries | CPU s per query | queries per CPU s | vs exact | parallel efficiency "
@@ -129,8 +145,9 @@ def main(argv=None):
                      f"{r['qps'] / q_ex:.3g} | {eff} |")
     load = os.getloadavg()
     lines.append("")
-    lines.append(f"1-minute load average at the end: {load[0]:.1f} on {os.cpu_count()} cores; "
-                 f"{args.queries} reduced / {args.exact_queries} exact queries drawn uniformly in the box, seed {args.seed}")
+    lines.append(f"1-minute load average at the start / end: {load0[0]:.1f} / {load[0]:.1f} on {os.cpu_count()} "
+                 f"cores; {args.queries} reduced / {args.exact_queries} exact queries drawn uniformly in the box, "
+                 f"seed {args.seed}")
     table = "\n".join(lines)
     print(table)
     if args.out:

@@ -5,7 +5,9 @@ Inputs (files only, read through crowdrom_io):
   --database   snapshot database (crowdrom-snapshots): the full-order trajectories, parameters
   --romrun     ROM run file of crowd_rom (crowdrom-romrun): evacuation curves and times per setting
   --csv        sweep table of crowd_rom (the table below; default: the romrun's name with .csv)
-  --ml         output of scripts/ml_correct.py (crowdrom-ml; optional): ML-corrected positions
+  --ml         output of scripts/ml_correct.py (crowdrom-ml; optional): the QoIs of the ML-corrected
+               trajectories (groups <regressor>/best/qoi and best/projected_qoi, computed by
+               crowd_predict from the one definition in src/model/cr_qoi.f90)
   -o/--outdir  output directory (created)
 
 Figures (PNG):
@@ -75,39 +77,10 @@ def _plt():
 
 # ------------------------------------------------------------------------------ inputs
 
-def out_rule(db):
-    """The 'agent has left' rule of the model (cr_scene%is_out) from the database's effective
-    configuration: a function q [..., n_dof] -> bool [..., n_agents]."""
+def database_meta(db):
+    """The database's attributes (agents, steps, step, parameter names)."""
     with cio.open_h5(db, cio.DB_SCHEMA, "snapshot database") as f:
-        meta = cio.read_database_meta(f)
-        cfg = cio.attr(f, "config", str)
-    line = next((ln for ln in cfg.splitlines() if ln.strip().lower().startswith("&scene")), None)
-    if line is None:
-        raise InputError(f"'{db}': no &scene group in the stored configuration")
-    vals = {k.lower(): float(v.replace("d", "e").replace("D", "e"))
-            for k, v in re.findall(r"(\w+)\s*=\s*([-+0-9.eEdD]+)", line)}
-    try:
-        length, width, wall = vals["hall_length"], vals["hall_width"], vals["wall_thickness"]
-    except KeyError as exc:
-        raise InputError(f"'{db}': &scene of the stored configuration lacks {exc}") from None
-    # the body radius r of &agents (the database's agent_radius is the contact radius
-    # r + d_s / 2 with a social distance; the "has left" line uses r, as cr_scene%is_out)
-    agents = next((ln for ln in cfg.splitlines() if ln.strip().lower().startswith("&agents")), "")
-    body = re.search(r"\bradius\s*=\s*([-+0-9.eEdD]+)", agents, re.IGNORECASE)
-    r = float(body.group(1).replace("d", "e").replace("D", "e")) if body else meta["agent_radius"]
-    has2 = vals.get("l_exit2", 0.0) > 0 or "l_exit2" in meta["param_names"]
-
-    def is_out(q):
-        """q [..., N_T + 1, n_dof] -> out [..., N_T + 1, n_agents]: an agent counts out from the
-        first frame beyond an exit's line on (cr_qoi's rule, for the ML trajectories, whose
-        output stores no QoIs)."""
-        q = np.asarray(q)
-        x, y = q[..., 0::2], q[..., 1::2]
-        out = y > width + wall + r
-        if has2:
-            out |= x > length + wall + r
-        return np.logical_or.accumulate(out, axis=-2)
-    return is_out, meta
+        return cio.read_database_meta(f)
 
 
 def read_rows(path):
@@ -140,8 +113,24 @@ def read_runs(romrun):
     return meta, out
 
 
-def read_ml(path, is_out, n_steps, n_dof):
-    """ML-corrected validation evacuation curves [n_S, N_T + 1] per regressor (best n)."""
+def ml_qoi(f, path, name, n_s, meta):
+    """The QoI group ``name`` of the ML output (the corrected validation trajectories' QoIs, as
+    crowd_predict computed them): one row per validation sample, the study's agents and steps."""
+    if name not in f:
+        raise InputError(f"'{path}': missing group '{name}' (the QoIs of the ML-corrected trajectories: "
+                         "rerun scripts/ml_correct.py without --no-qoi)")
+    q = cio.read_qoi_group(f, name)
+    if (q["n_rows"], q["n_agents"], q["n_steps"]) != (n_s, meta["n_agents"], meta["n_steps"]):
+        raise InputError(f"'{path}': group '{name}' has {q['n_rows']} rows, {q['n_agents']} agents and "
+                         f"{q['n_steps']} steps; expected {n_s} validation samples, {meta['n_agents']} agents "
+                         f"and {meta['n_steps']} steps")
+    return q
+
+
+def read_ml(path, meta):
+    """Per regressor (best n): the QoIs of the ML-corrected validation trajectories (``qoi``:
+    evacuation curves, times with their censoring, ...), and of the same after the exact
+    projection when the output has it, with the figures of the ML output."""
     res = {}
     with cio.open_h5(path, cio.ML_SCHEMA, "ML output") as f:
         params = cio.dataset(f, "valid_params", finite=True)
@@ -151,12 +140,6 @@ def read_ml(path, is_out, n_steps, n_dof):
             if reg not in f:
                 continue
             g = cio.group(f, reg)
-            q = cio.dataset(g, "best/positions", finite=True)
-            if q.ndim != 2 or q.shape[0] != n_s * (n_steps + 1) or q.shape[1] != n_dof:
-                raise InputError(f"'{path}': dataset '{reg}/best/positions' has shape {q.shape}, expected "
-                                 f"({n_s * (n_steps + 1)}, {n_dof}) for {n_s} validation samples of "
-                                 f"{n_steps} steps")
-            q = q.reshape(n_s, n_steps + 1, -1)
             best_n = int(cio.attr(g, "best_n", int))
             if best_n not in [int(x) for x in n_values]:
                 raise InputError(f"'{path}': attribute '{reg}/best_n' = {best_n} is not in n_values "
@@ -168,27 +151,16 @@ def read_ml(path, is_out, n_steps, n_dof):
             if sp.size != n_values.size:
                 raise InputError(f"'{path}': dataset '{reg}/speedup_exact' has {sp.size} entries, n_values "
                                  f"{n_values.size}")
-            res[reg] = {"evac": is_out(q).sum(axis=2), "best_n": best_n, "E_avg": e_avg,
+            res[reg] = {"qoi": ml_qoi(f, path, f"{reg}/best/qoi", n_s, meta), "best_n": best_n, "E_avg": e_avg,
                         "speedup_exact": sp, "n_values": n_values}
             if "best/projected_positions" in g:
                 # the same trajectories after the exact position projection (crowd_project)
-                qp = cio.dataset(g, "best/projected_positions", finite=True)
-                if qp.shape != (n_s * (n_steps + 1), q.shape[2]):
-                    raise InputError(f"'{path}': {reg}/best/projected_positions has shape {qp.shape}, "
-                                     f"positions {(n_s * (n_steps + 1), q.shape[2])}")
-                proj = {"evac": is_out(qp.reshape(n_s, n_steps + 1, -1)).sum(axis=2)}
+                proj = {"qoi": ml_qoi(f, path, f"{reg}/best/projected_qoi", n_s, meta)}
                 for name in ("E_avg_proj", "overlap_agents_proj", "overlap_walls_proj", "mobility_proj",
                              "speedup_exact_proj", "t_query", "speedup_query_exact"):
                     proj[name] = cio.dataset(g, name, finite=True).ravel() if name in g else None
                 res[reg]["projected"] = proj
     return params, res
-
-
-def t_frac(curve, n_agents, frac, h):
-    """First time at which ceil(frac n_agents) agents are out (-1: not within the horizon)."""
-    k = math.ceil(frac * n_agents)
-    idx = np.nonzero(np.asarray(curve) >= k)[0]
-    return idx[0] * h if idx.size else -1.0
 
 
 # ------------------------------------------------------------------------------ figures
@@ -209,9 +181,10 @@ def fig_curves(meta, runs, settings, samples, ml, out, dpi):
             ax.plot(t, 100 * d["evac_rom"][i] / na, lw=1.3,
                     label=f"ROM ({s['n']}, {s['r']}) {s['hyper']}/{mode(s)}")
         for reg, r in ml.items():
-            ax.plot(t, 100 * r["evac"][i] / na, "--", lw=1.5, label=f"ML-corrected ({reg}, n = {r['best_n']})")
+            ax.plot(t, 100 * r["qoi"]["curve_total"][i] / na, "--", lw=1.5,
+                    label=f"ML-corrected ({reg}, n = {r['best_n']})")
             if "projected" in r:
-                ax.plot(t, 100 * r["projected"]["evac"][i] / na, "-.", lw=1.5,
+                ax.plot(t, 100 * r["projected"]["qoi"]["curve_total"][i] / na, "-.", lw=1.5,
                         label=f"ML-corrected + exact projection ({reg}, n = {r['best_n']})")
         for p in (50, 90):
             ax.axhline(p, color="0.6", lw=0.8, ls=":")
@@ -339,15 +312,16 @@ def _f(x, fmt="%.2e"):
     return "n/a" if x < 0 else fmt % x
 
 
-def ml_times(curves, fom, n_agents, h, frac):
-    """Mean relative error of the time at which frac of the agents are out, ML vs full model,
-    over the samples where both reach it, as the table's 't50 err (n)' text."""
+def ml_times(qoi, t_fom, which):
+    """Mean relative error of t50 (which = 0) or t90 (1) of the ML-corrected trajectories (their
+    QoIs) against the full model's times t_fom [n_S, 2] (-1: not reached), over the samples where
+    both reach it, as the table's 't50 err (n)' text ('ML never k': censored in the ML
+    trajectories where the full model reaches it)."""
     errs, missed = [], 0
-    for c, f in zip(curves, fom):
-        t_f, t_m = t_frac(f, n_agents, frac, h), t_frac(c, n_agents, frac, h)
+    for t_m, cens, t_f in zip(qoi["t_evac"][:, which], qoi["censored"][:, which], t_fom[:, which]):
         if t_f <= 0:
             continue
-        if t_m < 0:
+        if cens:
             missed += 1
         else:
             errs.append(abs(t_m - t_f) / t_f)
@@ -355,10 +329,10 @@ def ml_times(curves, fom, n_agents, h, frac):
     return s + (", ML never %d" % missed if missed else "")
 
 
-def table_lines(rows, ml, fom=None, n_agents=0, h=0.0):
-    """The table's lines; ML rows get the evacuation-time errors of their positions when the full
-    model's validation curves ``fom`` are given: unprojected, and after the exact position
-    projection when the ML output has it (one more row)."""
+def table_lines(rows, ml, t_fom=None):
+    """The table's lines; ML rows get the evacuation-time errors of their QoIs when the full
+    model's validation times ``t_fom`` [n_S, 2] (t50, t90; -1 not reached) are given: unprojected,
+    and after the exact position projection when the ML output has it (one more row)."""
     def t(r, k):
         n = int(r[k + "_n"])
         s = "%.2e (%d)" % (float(r[k + "_err"]), n) if n > 0 else "n/a"
@@ -380,8 +354,8 @@ def table_lines(rows, ml, fom=None, n_agents=0, h=0.0):
     for reg, m in ml.items():
         sp = m["speedup_exact"]
         k = list(m["n_values"]).index(m["best_n"]) if m["best_n"] in list(m["n_values"]) else -1
-        t50 = ml_times(m["evac"], fom, n_agents, h, 0.5) if fom is not None else ""
-        t90 = ml_times(m["evac"], fom, n_agents, h, 0.9) if fom is not None else ""
+        t50 = ml_times(m["qoi"], t_fom, 0) if t_fom is not None else ""
+        t90 = ml_times(m["qoi"], t_fom, 1) if t_fom is not None else ""
         out.append(f"| ML {reg} (n = {m['best_n']}) | | | | | {m['E_avg']:.2e} | | {t50} | {t90} | "
                    f"not projected | | | | | {sp[k]:.1f} | | |")
         pr = m.get("projected")
@@ -389,8 +363,8 @@ def table_lines(rows, ml, fom=None, n_agents=0, h=0.0):
             def v(name, fmt="%.2e"):
                 a = pr[name]
                 return _f(a[k], fmt) if a is not None and a.size > k else "n/a"
-            t50 = ml_times(pr["evac"], fom, n_agents, h, 0.5) if fom is not None else ""
-            t90 = ml_times(pr["evac"], fom, n_agents, h, 0.9) if fom is not None else ""
+            t50 = ml_times(pr["qoi"], t_fom, 0) if t_fom is not None else ""
+            t90 = ml_times(pr["qoi"], t_fom, 1) if t_fom is not None else ""
             out.append(f"| ML {reg} (n = {m['best_n']}) + exact projection | | | | | {v('E_avg_proj')} | | {t50} | "
                        f"{t90} | {v('overlap_agents_proj')} / {v('overlap_walls_proj')} | | "
                        f"{v('mobility_proj', '%.3f')} | | | {v('speedup_exact_proj', '%.1f')} | {v('t_query')} | "
@@ -464,7 +438,7 @@ def main(argv=None):
             raise InputError(f"--outdir '{args.outdir}' is the input {what} '{p}'")
     cio.check_outputs([(n, os.path.join(args.outdir, n)) for n in names if os.path.isdir(args.outdir)], inputs)
     # every input read and checked before anything is drawn
-    is_out, dbmeta = out_rule(args.database)
+    dbmeta = database_meta(args.database)
     meta, runs = read_runs(args.romrun)
     rows = read_rows(csv_path)
     if meta["n_agents"] != dbmeta["n_agents"] or meta["n_steps"] != dbmeta["n_steps"]:
@@ -486,11 +460,9 @@ def main(argv=None):
     samples = [i - 1 for i in (args.samples or [k for k in (1, 2, 3) if k <= n_valid])]
     ml = {}
     if args.ml:
-        _, ml = read_ml(args.ml, is_out, meta["n_steps"], 2 * meta["n_agents"])
-        for reg, r in ml.items():
-            if r["evac"].shape[0] != n_valid:
-                raise InputError(f"'{args.ml}': {reg} has {r['evac'].shape[0]} validation samples, "
-                                 f"'{args.romrun}' {n_valid}")
+        ml_params, ml = read_ml(args.ml, meta)
+        if ml_params.shape[0] != n_valid:
+            raise InputError(f"'{args.ml}': {ml_params.shape[0]} validation samples, '{args.romrun}' {n_valid}")
     ms = args.map_setting
     if ms is None:
         cand = [r for r in rows if r["set"] == "valid" and int(r["t90_n"]) > 0 and int(r["setting"]) in valid_settings]
@@ -500,8 +472,7 @@ def main(argv=None):
     sizes = args.sizes or sorted({max(1, round(n_train * x)) for x in (0.05, 0.1, 0.2, 0.3, 0.45, 0.6, 0.8, 1.0)})
     modes = args.modes or [m for m in (10, 25, 50, 100) if m <= 2 * meta["n_agents"]] or [2 * meta["n_agents"]]
     sz, err = train_convergence(tr["velocities"], va["velocities"], modes, sizes, args.stride)
-    fom_valid = runs[valid_settings[0]]["data"]["valid"]["evac_fom"]
-    lines = table_lines(rows, ml, fom_valid, meta["n_agents"], meta["dt"])
+    lines = table_lines(rows, ml, runs[valid_settings[0]]["data"]["valid"]["t_out_fom"])
     conv = ["", "Validation velocity error of a POD basis vs training samples (strided snapshots):",
             "| samples | " + " | ".join(f"N = {m}" for m in modes) + " |", "|---|" + "---|" * len(modes)]
     conv += ["| %d | %s |" % (n, " | ".join("%.3e" % e for e in err[i])) for i, n in enumerate(sz)]

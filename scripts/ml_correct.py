@@ -28,6 +28,13 @@ model's kind with desired velocity 0 and h = 1, the full model's exact solver); 
 time per step and per query (each regressor's best n by default, --project-all: every n;
 --no-project skips it).
 
+The quantities of interest (evacuation curves, t50 / t90 / t100 with their censoring, steady
+flows, overlaps, agents through walls, displacement) of the corrected validation trajectories of
+each regressor's best n, and of the same after the projection, are computed by crowd_predict
+(model = 'positions': the one definition of the QoIs, src/model/cr_qoi.f90) and stored in the
+output as QoI groups <regressor>/best/qoi and <regressor>/best/projected_qoi (the layout of the
+QoI product, read by crowdrom_io.read_qoi_group); --no-qoi skips them (root attribute qoi = 0).
+
 The correction is a post-processing of the ROM coefficients: it is applied to all validation
 steps in one batch. Its cost per step (batch prediction time / number of steps) is added to the
 ROM step time to give the corrected speedups against the FOM (Uzawa and exact solver).
@@ -103,6 +110,11 @@ is the reverse); K = number of n values, n_S = validation samples, N_T = steps, 
     + N_T t_predict_step + t_project_query), speedup_query_exact [K] (t_query_fom_exact /
     t_query), speedup_exact_proj [K] (per step: t_step_fom_exact / (t_step + t_project_step));
     <regressor>/best/projected_positions [(N_T+1) n_S, n_dof], best/projected_err_time
+  quantities of interest (root attribute qoi = 1; 0 with --no-qoi): <regressor>/best/qoi, the QoI
+    group (docs/queries.md: curve [n_S, n_exits, N_T+1], curve_total, t_evac and censored [n_S, 3],
+    exit_width, flow_rate, flow, flow_defined, overlap_agents, overlap_obstacles, n_through,
+    displacement) of the corrected validation trajectories (best n), computed by crowd_predict
+    model = 'positions'; <regressor>/best/projected_qoi the same after the exact projection
 """
 
 
@@ -499,6 +511,7 @@ def csv_text(rows):
 
 
 def write_output(path, st, res, cfg, mode):
+    import h5py
     import sklearn
 
     s, p, m = st.setting, st.pair, st.meta
@@ -557,6 +570,10 @@ def write_output(path, st, res, cfg, mode):
                 qp = r["best_projected"]
                 b["projected_positions"] = qp.reshape(qp.shape[0] * qp.shape[1], qp.shape[2])
                 b["projected_err_time"] = r["best_projected_err_time"]
+            for key, product in sorted(r.get("qoi_products", {}).items()):
+                with h5py.File(product, "r") as src:
+                    src.copy("qoi", b, name=key)
+        a["qoi"] = 1 if any(res[reg].get("qoi_products") for reg in res["regressors"]) else 0
 
     _atomic_h5(path, write)
 
@@ -754,6 +771,72 @@ def no_projection(res):
             res[reg][key] = [-1.0] * len(res["n_values"])
 
 
+# ------------------------------------------------------------------------------ quantities of interest
+
+def predict_program():
+    """crowd_predict of $CROWDROM_BIN, else of this checkout's build (InputError if missing)."""
+    exe = os.path.join(os.environ.get("CROWDROM_BIN") or os.path.join(ROOT, "build", "bin"), "crowd_predict")
+    if not (os.path.isfile(exe) and os.access(exe, os.X_OK)):
+        raise InputError(f"crowd_predict not found or not executable: '{exe}' (set CROWDROM_BIN)")
+    return exe
+
+
+def measure_qoi(exe, rom_path, params, param_names, q, label, output, workdir, cpu_seconds=None):
+    """The QoIs of given trajectories q [n_Q, N_T + 1, n_dof] (parameters params [n_Q, n_mu], the
+    study's component names param_names) in the QoI product ``output``, by crowd_predict with
+    model = 'positions' on the ROM file's study (the one definition of the QoIs)."""
+    nq = q.shape[0]
+    stem = os.path.join(tempfile.mkdtemp(prefix="qoi_", dir=workdir), "positions")
+
+    def write(f):
+        d = f.create_dataset("params", data=params)
+        d.attrs["param_names"] = np.bytes_(",".join(param_names))
+        f.create_dataset("positions", data=q.reshape(nq * q.shape[1], -1))
+        if cpu_seconds is not None:
+            f.create_dataset("cpu_seconds", data=cpu_seconds)
+    cio.write_h5_atomic(stem + ".h5", write)
+    with open(stem + ".nml", "w") as fh:
+        fh.write(f"&predict rom_file = '{os.path.abspath(rom_path)}', model = 'positions', "
+                 f"label = '{label}', params_file = '{stem}.h5', output = '{os.path.abspath(output)}' /\n")
+    p = subprocess.run([exe, stem + ".nml"], capture_output=True, text=True)
+    if p.returncode != 0:
+        err = [ln for ln in p.stderr.splitlines() if ln.startswith("error:")]
+        raise RuntimeError(f"crowd_predict (QoIs of the corrected positions): "
+                           f"{err[0] if err else p.stderr.strip()[-300:]}")
+
+
+def qoi_study(rom_path):
+    """The ROM file's study (its component names) for crowd_predict; InputError naming --no-qoi."""
+    with cio.open_h5(rom_path, cio.ROM_SCHEMA, "ROM file") as f:
+        try:
+            return cio.read_rom_study(f)
+        except InputError as exc:
+            raise InputError(f"{exc}; the QoIs of the corrected trajectories need it (or skip them with "
+                             "--no-qoi)") from None
+
+
+def qoi_all(st, res, exe, workdir, quiet=False):
+    """QoIs of each regressor's corrected validation trajectories (best n) and of their exact
+    projection when made: products in ``workdir``, named in res[reg]["qoi_products"]."""
+    names = qoi_study(st.rom_path)["param_names"]
+    params = st.rom_valid["params"]
+    if len(names) != params.shape[1]:
+        raise InputError(f"'{st.rom_path}': its study names {len(names)} parameter components, the "
+                         f"validation parameters of '{st.romrun_path}' have {params.shape[1]}")
+    for reg in res["regressors"]:
+        r = res[reg]
+        r["qoi_products"] = {}
+        runs = [("qoi", r["best_positions"], f"ml {reg} n={r['best_n']}")]
+        if "best_projected" in r:
+            runs.append(("projected_qoi", r["best_projected"], f"ml {reg} n={r['best_n']} projected"))
+        for key, q, label in runs:
+            out = os.path.join(workdir, f"{reg}_{key}.h5")
+            measure_qoi(exe, st.rom_path, params, names, q, label, out, workdir)
+            r["qoi_products"][key] = out
+        log(f"{reg} n = {r['best_n']}: QoIs of the corrected trajectories by crowd_predict "
+            f"({', '.join(r['qoi_products'])})", quiet)
+
+
 # ------------------------------------------------------------------------------ any list of queries
 
 def predict_queries(args, cfg):
@@ -794,9 +877,7 @@ def predict_queries(args, cfg):
     outs = {reg: (out if len(regs) == 1 else f"{os.path.splitext(out)[0]}_{reg}.h5") for reg in regs}
     cio.check_outputs([(f"output ({r})", o) for r, o in outs.items()],
                       [("prediction", pred_path), ("ROM file", rom_path), ("--config", args.config)])
-    exe = os.path.join(os.environ.get("CROWDROM_BIN") or os.path.join(ROOT, "build", "bin"), "crowd_predict")
-    if not (os.path.isfile(exe) and os.access(exe, os.X_OK)):
-        raise InputError(f"crowd_predict not found or not executable: '{exe}' (set CROWDROM_BIN)")
+    exe = predict_program()
     nq, nt = alpha.shape[0], alpha.shape[1]
     with cio.OutputSet() as oset, tempfile.TemporaryDirectory(
             prefix=".ml_predict_", dir=os.path.dirname(os.path.abspath(out))) as work:
@@ -812,25 +893,9 @@ def predict_queries(args, cfg):
             dalpha = predict(bundle, make_features(alpha, params, n, cfg), n).reshape(nq, nt, n)
             q = cio.integrate_positions(study["q0"], (alpha[:, :, :n] + dalpha) @ Vn.T, h)
             t_ml = time.process_time() - t0
-            given = os.path.join(work, f"{reg}.h5")
-
-            def write(f, q=q, t_ml=t_ml):
-                d = f.create_dataset("params", data=params)
-                d.attrs["param_names"] = np.bytes_(",".join(pred["param_names"]))
-                f.create_dataset("positions", data=q.reshape(nq * (nt + 1), -1))
-                f.create_dataset("cpu_seconds", data=pred["cpu_seconds"] + t_ml / nq)
-            cio.write_h5_atomic(given, write)
-            nml = os.path.join(work, f"{reg}.nml")
-            with open(nml, "w") as fh:
-                fh.write(f"&predict rom_file = '{os.path.abspath(rom_path)}', model = 'positions', "
-                         f"label = 'ml {reg} n={n}', params_file = '{given}', "
-                         f"output = '{os.path.abspath(oset.tmp(outs[reg]))}' /\n")
             log(f"{reg} n = {n}: {nq} queries corrected in {t_ml:.2e} CPU s; QoIs by crowd_predict", args.quiet)
-            p = subprocess.run([exe, nml], capture_output=True, text=True)
-            if p.returncode != 0:
-                err = [ln for ln in p.stderr.splitlines() if ln.startswith("error:")]
-                raise RuntimeError(f"crowd_predict (QoIs of the corrected positions): "
-                                   f"{err[0] if err else p.stderr.strip()[-300:]}")
+            measure_qoi(exe, rom_path, params, pred["param_names"], q, f"ml {reg} n={n}",
+                        oset.tmp(outs[reg]), work, cpu_seconds=pred["cpu_seconds"] + t_ml / nq)
         oset.commit()
     for reg in regs:
         log(f"wrote {outs[reg]}", args.quiet)
@@ -872,6 +937,9 @@ def main(argv=None):
                     "first-order projection from the previous projected configuration; see docs/user-guide.md)")
     ap.add_argument("--crowd-project", help="the crowd_project program (default: $CROWDROM_BIN/crowd_project, "
                     "else build/bin/crowd_project of this checkout)")
+    ap.add_argument("--no-qoi", action="store_true",
+                    help="skip the quantities of interest of the corrected trajectories (crowd_predict "
+                    "model = 'positions' on the ROM file's study); the output then has qoi = 0")
     ap.add_argument("--quiet", action="store_true", help="no progress lines")
     ap.add_argument("--help-output", action="store_true", help="describe the output file and exit")
     args = ap.parse_args(argv)
@@ -939,6 +1007,13 @@ def main(argv=None):
                 raise InputError(f"crowd_project not found or not executable: '{exe}' (build it with "
                                  "scripts/setup.sh, name it with --crowd-project, or skip the projection "
                                  "with --no-project)")
+        exe_qoi = None
+        if not args.no_qoi:
+            qoi_study(st.rom_path)
+            try:
+                exe_qoi = predict_program()
+            except InputError as exc:
+                raise InputError(f"{exc}, or skip the QoIs of the corrected trajectories with --no-qoi") from None
     except InputError as exc:
         fail(str(exc))
     # the output file, the CSV and the trained models are one result: all written under
@@ -950,16 +1025,18 @@ def main(argv=None):
                 os.makedirs(models_dir)
                 made_dir = True
             res = run(st, cfg, n_values, models_dir, args.predict_only, args.quiet, outs=outs)
-            if exe:
-                with tempfile.TemporaryDirectory(prefix=".ml_project_",
-                                                 dir=os.path.dirname(os.path.abspath(out))) as work:
+            with tempfile.TemporaryDirectory(prefix=".ml_project_",
+                                             dir=os.path.dirname(os.path.abspath(out))) as work:
+                if exe:
                     project_all(st, res, exe, work, args.quiet, args.project_refine, args.project_all)
-            else:
-                no_projection(res)
-            for reg in res["regressors"]:
-                del res[reg]["_q"]
-            rows = table_rows(res)
-            write_output(outs.tmp(out), st, res, cfg, "predict-only" if args.predict_only else "train")
+                else:
+                    no_projection(res)
+                if exe_qoi:
+                    qoi_all(st, res, exe_qoi, work, args.quiet)
+                for reg in res["regressors"]:
+                    del res[reg]["_q"]
+                rows = table_rows(res)
+                write_output(outs.tmp(out), st, res, cfg, "predict-only" if args.predict_only else "train")
             if args.csv:
                 with open(outs.tmp(args.csv), "w") as fh:
                     fh.write(csv_text(rows))

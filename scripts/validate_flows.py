@@ -17,12 +17,13 @@ Each part writes <out>/<part>.json and a figure <out>/calibration_<part>.png. Ju
 OPTIONAL dependency (scripts/requirements-validation.txt): without it the script says so and
 measures crowd_fom alone (--no-jupedsim does the same on purpose).
 
-Quantities from trajectories (the definitions of the QoI contract, /scene's exits):
-  an agent is out through exit 1 (top wall) from the first frame at which y > H + t + r,
-  through exit 2 (right wall) from the first frame at which x > L + t + r;
-  specific flow of an exit = least-squares slope of its cumulative count against time between
-  the frames at which it first reaches 10% and 80% of its final count, divided by its width;
-  t_p = first frame time at which ceil(p n / 100) agents are out (censored at the horizon).
+Quantities of interest: crowd_fom's are read from the group `qoi` of its output (the one
+definition, src/model/cr_qoi.f90, computed from every step's positions; docs/queries.md), read
+through crowdrom_io. JuPedSim's, from its exit curves (agents counted when its exit stages remove
+them), follow the same definitions in `qois_of_curves`: specific flow of an exit = least-squares
+slope of its cumulative count against time between the frames at which it first reaches 10% and
+80% of its final count, divided by its width; t_p = first frame time at which ceil(p n / 100)
+agents are out (censored at the horizon).
 """
 import argparse
 import json
@@ -34,6 +35,9 @@ import tempfile
 import time
 
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import crowdrom_io as cio  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FOM = os.path.join(ROOT, "build", "bin", "crowd_fom")
@@ -95,7 +99,8 @@ def behaviour_text(model):
 
 def run_fom(text, workdir, tag, pdda=True, fom=None):
     """crowd_fom on namelist `text` (its &output is added); returns positions [T, N, 2], frame
-    times [T], radius, dt, scene attributes, the PDDA file and the run's CPU seconds."""
+    times [T], radius, dt, the run's QoIs (its group `qoi`, crowdrom_io.read_qoi_group), the
+    PDDA file and the run's wall seconds."""
     import h5py
     out = os.path.join(workdir, tag + ".h5")
     pd = os.path.join(workdir, tag + "_pdda.h5")
@@ -115,7 +120,8 @@ def run_fom(text, workdir, tag, pdda=True, fom=None):
         res = {"time": np.asarray(f["traj/time"], dtype=float).ravel(),
                "radius": float(f.attrs["agent_radius"]), "dt": float(f.attrs["dt"]),
                "n_agents": int(f.attrs["n_agents"]), "speed": np.asarray(f["agents/speed"], dtype=float),
-               "q0": np.asarray(f["agents/initial_positions"], dtype=float).reshape(-1, 2)}
+               "q0": np.asarray(f["agents/initial_positions"], dtype=float).reshape(-1, 2),
+               "qoi": cio.read_qoi_group(f, "qoi")}
     res["pos"] = pos.reshape(pos.shape[0], -1, 2)
     res["pdda"] = pd if pdda else None
     res["wall"] = wall
@@ -133,40 +139,19 @@ def run_fom_timed(text, workdir, tag, fom=None, pdda=False):
 
 # ------------------------------------------------------------------------------ QoIs
 
-def out_frames(pos, sc, radius):
-    """First frame at which each agent is out [N] (-1: never) and its exit (0-based) [N]."""
-    T, N, _ = pos.shape
-    first = np.full(N, -1)
-    which = np.full(N, -1)
-    for e, (_, axis, face) in enumerate(exits_of(sc)):
-        beyond = pos[:, :, axis] > face + sc["t"] + radius
-        has = beyond.any(axis=0)
-        f = np.where(has, beyond.argmax(axis=0), -1)
-        take = has & ((first < 0) | (f < first))
-        first[take] = f[take]
-        which[take] = e
-    return first, which
-
-
-def exit_curves(pos, sc, radius):
-    """Agents out through each exit at each frame [T, n_exits] (integers)."""
-    T = pos.shape[0]
-    first, which = out_frames(pos, sc, radius)
-    curves = np.zeros((T, len(exits_of(sc))), dtype=int)
-    for e in range(curves.shape[1]):
-        for f in first[(which == e)]:
-            curves[f:, e] += 1
-    return curves
+def ceil_pct(p, n):
+    """ceil(p n / 100) in integers (no rounding of p n / 100 in floating point)."""
+    return -(-int(p) * int(n) // 100)
 
 
 def flow_rate(curve, times):
     """Least-squares slope of a cumulative count between the frames at which it first reaches
     10% and 80% of its final count [1/s]; None when fewer than 3 frames or nobody out."""
-    final = curve[-1]
+    final = int(curve[-1])
     if final <= 0:
         return None
-    i10 = int(np.argmax(curve >= 0.1 * final))
-    i80 = int(np.argmax(curve >= 0.8 * final))
+    i10 = int(np.argmax(curve >= ceil_pct(10, final)))
+    i80 = int(np.argmax(curve >= ceil_pct(80, final)))
     if i80 - i10 + 1 < 3:
         return None
     t = times[i10:i80 + 1]
@@ -176,8 +161,7 @@ def flow_rate(curve, times):
 
 def t_percent(total, times, p, n_agents):
     """(first frame time at which ceil(p n / 100) agents are out, censored)."""
-    need = math.ceil(p * n_agents / 100.0)
-    hit = np.nonzero(total >= need)[0]
+    hit = np.nonzero(total >= ceil_pct(p, n_agents))[0]
     if hit.size == 0:
         return float(times[-1]), True
     return float(times[hit[0]]), False
@@ -208,8 +192,23 @@ def exit_densities(pos, sc, radius, depth=1.0):
     return out
 
 
-def qois(curves, times, sc, n_agents):
-    """t50, t90, t100 (with censoring) and the specific flow of each exit."""
+def fom_qois(r):
+    """t50, t90, t100 (with censoring), the steady and specific flow of each exit (None where
+    not defined) and the agents out at the end, from crowd_fom's QoI group of run_fom's result."""
+    g = r["qoi"]
+    q = {}
+    for k, p in enumerate((50, 90, 100)):
+        q["t%d" % p], q["t%d_censored" % p] = float(g["t_evac"][0, k]), bool(g["censored"][0, k])
+    ok = g["flow_defined"][0]
+    q["flow_rate"] = [float(x) if d else None for x, d in zip(g["flow_rate"][0], ok)]
+    q["flow"] = [float(x) if d else None for x, d in zip(g["flow"][0], ok)]
+    q["out"] = int(g["curve_total"][0, -1])
+    return q
+
+
+def qois_of_curves(curves, times, sc, n_agents):
+    """JuPedSim's t50, t90, t100 (with censoring) and the specific flow of each exit from its
+    exit curves [T, n_exits] at the frame times [T] (the definitions of fom_qois')."""
     total = curves.sum(axis=1)
     q = {}
     for p in (50, 90, 100):
@@ -360,14 +359,14 @@ def part_bottleneck(args, work):
             r = run_fom_timed(model_text(model, sc, n, v0, args.dt, region=region, seed=7,
                                          max_steps=int(round(args.t_max_bottleneck / args.dt))), work,
                               "bn_%s_%g" % (name, w), pdda=False)
-            q = qois(exit_curves(r["pos"], sc, r["radius"]), r["time"], sc, n)
+            q = fom_qois(r)
             row[name] = q
             if name == "calibrated":
                 q0, rad = r["q0"], r["radius"]
                 wkt = walkable_wkt_of(sc, work, "bn_%g" % w)
         if args.jupedsim:
             j = run_jupedsim(sc, wkt, q0, rad, np.full(n, v0), t_max=args.t_max_bottleneck)
-            row["jupedsim"] = qois(j["curves"], j["time"], sc, n)
+            row["jupedsim"] = qois_of_curves(j["curves"], j["time"], sc, n)
         rows.append(row)
         log("bottleneck w = %.1f m: specific flow calibrated %s, paper %s, JuPedSim %s" % (
             w, fmt(row["calibrated"]["flow"][0]), fmt(row["paper"]["flow"][0]),
@@ -392,7 +391,7 @@ def part_variants(args, work):
         r = run_fom_timed(model_text(model, sc, n, v0, args.dt, region=(0.3, 0.3, 7.7, 6.5), seed=7,
                                      max_steps=int(round(args.t_max_bottleneck / args.dt))), work,
                           "var_%d" % k, pdda=False)
-        q = qois(exit_curves(r["pos"], sc, r["radius"]), r["time"], sc, n)
+        q = fom_qois(r)
         rows.append({"variant": name, "model": model, "flow": q["flow"][0], "t90": q["t90"]})
         log("variant %s: specific flow %s, t90 %s" % (name, fmt(q["flow"][0]), fmt(q["t90"])))
     return {"width": w, "agents": n, "free_speed": v0, "dt": args.dt, "rows": rows}
@@ -492,7 +491,7 @@ def part_crowd1000(args, work):
         if name not in args.models.split(","):
             continue
         r = run_fom_timed(crowd1000_text(args.h1000, model), work, "c1000_" + name, pdda=(name == "calibrated"))
-        q = qois(exit_curves(r["pos"], sc, r["radius"]), r["time"], sc, r["n_agents"])
+        q = fom_qois(r)
         q["cpu"] = r["cpu"]
         q["cpu_per_s"] = r["cpu"] / r["time"][-1]
         q["dt"] = args.h1000
@@ -507,7 +506,7 @@ def part_crowd1000(args, work):
             w = f.attrs["wkt_geometry"]
         wkt = w.decode() if isinstance(w, bytes) else str(w)
         j = run_jupedsim(sc, wkt, q0, rad, speeds, t_max=args.t_max_1000, dt=args.jps_dt)
-        q = qois(j["curves"], j["time"], sc, len(q0))
+        q = qois_of_curves(j["curves"], j["time"], sc, len(q0))
         q["cpu"] = j["cpu"]
         q["cpu_per_s"] = j["cpu"] / j["t_end"]
         q["dt"] = args.jps_dt
@@ -529,7 +528,7 @@ def part_cpu(args, work):
         "until_empty = .true., max_steps = 200000", "n_steps = %d" % int(round(T / args.h1000)))
     r = run_fom_timed(text, work, "cpu_fom", pdda=True)
     res["crowd_fom"] = {"cpu": r["cpu"], "cpu_per_s": r["cpu"] / T, "dt": args.h1000,
-                        "inside_at_end": int(r["n_agents"] - exit_curves(r["pos"], sc, r["radius"])[-1].sum())}
+                        "inside_at_end": int(r["n_agents"] - fom_qois(r)["out"])}
     log("CPU crowd_fom calibrated h = %g over %g s: %.1f s (%.3f per simulated s)" % (
         args.h1000, T, r["cpu"], r["cpu"] / T))
     if args.jupedsim:
@@ -547,11 +546,10 @@ def part_cpu(args, work):
 
 
 def part_convergence(args, work):
-    sc = crowd1000_scene()
     rows = []
     for h in args.steps:
         r = run_fom_timed(crowd1000_text(h, CALIBRATED), work, "conv_%g" % h)
-        q = qois(exit_curves(r["pos"], sc, r["radius"]), r["time"], sc, r["n_agents"])
+        q = fom_qois(r)
         q["dt"] = h
         q["cpu"] = r["cpu"]
         rows.append(q)

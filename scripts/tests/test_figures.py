@@ -48,7 +48,7 @@ def study(tmp_path_factory):
                                "mlp": {"max_iter": 200}, "timing_repeats": 1}))
     st["ml"] = str(tmp / "ml.h5")
     assert ml_correct.main([st["romrun"], "--setting", "1", "--config", str(cfg), "-o", st["ml"],
-                            "--quiet", "--no-project"]) == 0
+                            "--quiet", "--no-project", "--no-qoi"]) == 0
     st["tmp"] = tmp
     return st
 
@@ -210,3 +210,19 @@ def test_tradeoff_diverged_rows_off_the_front(study, tmp_path):
     gone = [dict(r, E_avg=(-1.0 if r is best else r["E_avg"])) for r in rows]
     front = {_r["setting"] for _r in plot_tradeoff.plot_tradeoff(gone, tmp_path / "c.png")}
     assert best["setting"] not in front
+
+
+def test_evac_table_ml_times_are_read_from_the_qoi():
+    """evac_figures' ML rows take t50 / t90 and their censoring from the QoI group of the ML
+    output (crowd_predict's), not from positions: a censored ML time counts as 'ML never', a
+    sample the full model does not evacuate is left out."""
+    import evac_figures
+    qoi = {"t_evac": np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 5.0], [1.5, 5.0, 5.0]]),
+           "censored": np.array([[0, 0, 0], [0, 1, 1], [0, 1, 1]], dtype=bool)}
+    t_fom = np.array([[1.25, 2.5], [5.0, 4.0], [-1.0, -1.0]])
+    ml = {"mlp": {"qoi": qoi, "best_n": 4, "E_avg": 0.1, "speedup_exact": np.array([3.0]),
+                  "n_values": np.array([4])}}
+    row = evac_figures.table_lines([], ml, t_fom)[2]
+    # t50: |1 - 1.25| / 1.25 = |4 - 5| / 5 = 0.2 over two samples; t90: 0.2 on sample 1, sample 2
+    # censored in the ML trajectories although the full model evacuates it
+    assert "| 2.00e-01 (2) | 2.00e-01 (1), ML never 1 |" in row, row

@@ -37,7 +37,8 @@ HAVE_BIN = os.path.exists(os.path.join(BIN, "crowd_rom"))
 @pytest.fixture(scope="module")
 def real(tmp_path_factory):
     """A tiny real study: database, ROM run file and sweep table, an ML output made to match
-    read_ml's layout, and a good figure set (the 'earlier' set every refusal must leave alone)."""
+    read_ml's layout (its QoI group copied from the run file's), and a good figure set (the
+    'earlier' set every refusal must leave alone)."""
     if not HAVE_BIN:
         pytest.skip("needs the Fortran build")
     tmp = tmp_path_factory.mktemp("evac")
@@ -61,6 +62,8 @@ def real(tmp_path_factory):
         g.attrs["best_n"], g.attrs["best_E_avg"] = np.int32(4), 0.01
         g["speedup_exact"] = np.array([3.0, 2.5])
         g["best/positions"] = q + 1e-4
+        with h5py.File(tmp / "run.h5", "r") as src:     # a QoI group of the layout crowd_predict writes
+            src.copy("setting_1/valid/qoi", g["best"], name="qoi")
     cio.write_h5_atomic(ml, write)
     good = tmp / "figs"
     r = run("evac_figures.py", *base_args(tmp, ml), "-o", good)
@@ -176,17 +179,16 @@ H5_CASES = [
     ("run", "dt_nan", lambda f: f.attrs.__setitem__("dt", np.nan), "dt = nan"),
     ("run", "nan_positions", lambda f: _set(f, "setting_1/valid/positions", _nan_first),
      "dataset 'setting_1/valid/positions': non-finite"),
-    ("ml", "ml_nan", lambda f: _set(f, "random_forest/best/positions", _nan_first),
-     "dataset 'random_forest/best/positions': non-finite"),
+    ("ml", "ml_nan", lambda f: _set(f, "random_forest/best/qoi/t_evac", _nan_first),
+     "dataset 'random_forest/best/qoi/t_evac': non-finite"),
+    ("ml", "ml_without_qoi", lambda f: f["random_forest/best"].__delitem__("qoi"),
+     "missing group 'random_forest/best/qoi' (the QoIs of the ML-corrected trajectories"),
     ("ml", "ml_inf_speedup", lambda f: _set(f, "random_forest/speedup_exact", lambda a: a * np.inf),
      "dataset 'random_forest/speedup_exact': non-finite"),
     ("ml", "best_n_not_listed", lambda f: f["random_forest"].attrs.__setitem__("best_n", np.int32(7)),
      "best_n' = 7 is not in n_values"),
-    ("ml", "fewer_rows", lambda f: (f["random_forest/best"].__delitem__("positions"),
-                                    f["random_forest/best"].__setitem__("positions", np.ones((5, 16))),
-                                    f["random_forest/best/positions"].attrs.__setitem__(
-                                        "checksum", np.bytes_(cio.digest(np.ones((5, 16)))))),
-     "has shape (5, 16), expected"),
+    ("ml", "fewer_rows", lambda f: f["random_forest/best/qoi"].attrs.__setitem__("n_rows", np.int32(1)),
+     "dataset 'random_forest/best/qoi/curve' has shape"),
 ]
 
 

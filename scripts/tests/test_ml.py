@@ -26,9 +26,9 @@ SMALL = {"n_values": [3, 6], "random_forest": {"n_estimators": 20}, "mlp": {"max
 
 def run(*args):
     """The script as a separate process (the real command line). The synthetic database is not
-    a Fortran-readable study, so the exact projection (crowd_project, tested on a real tiny study
-    in test_ml_project.py) is skipped."""
-    return subprocess.run([sys.executable, SCRIPT, *map(str, args), "--no-project"], capture_output=True,
+    a Fortran-readable study, so the exact projection (crowd_project) and the QoIs of the corrected
+    trajectories (crowd_predict), both tested on a real tiny study in test_ml_project.py, are skipped."""
+    return subprocess.run([sys.executable, SCRIPT, *map(str, args), "--no-project", "--no-qoi"], capture_output=True,
                           text=True, timeout=300)
 
 
@@ -41,7 +41,7 @@ def call(capsys, *args):
     """ml_correct.main in this process (fast: sklearn is imported once); same exit codes."""
     capsys.readouterr()
     try:
-        code = ml_correct.main([str(a) for a in args] + ["--no-project"])
+        code = ml_correct.main([str(a) for a in args] + ["--no-project", "--no-qoi"])
     except SystemExit as exc:
         code = exc.code
     out, err = capsys.readouterr()
@@ -276,7 +276,7 @@ def test_in_process_with_mu_nu_features(study, tmp_path, capsys):
                                    features={"append_mu": True})))
     out = tmp_path / "f.h5"
     assert ml_correct.main([study["romrun"], "--setting", "2", "--config", str(cfg), "-o", str(out),
-                            "--append-nu", "--quiet", "--no-project"]) == 0
+                            "--append-nu", "--quiet", "--no-project", "--no-qoi"]) == 0
     text = capsys.readouterr().out
     assert "| random_forest | 4 |" in text
     with h5py.File(out, "r") as f:

@@ -5,6 +5,7 @@ bit for bit, refuses bad requests with one line; ml_correct.py reports the accur
 after the projection and its cost, and writes its outputs and models all together or not at all."""
 import csv
 import os
+import subprocess
 import sys
 
 import h5py
@@ -238,3 +239,63 @@ def test_ml_correct_reports_projection(study, tmp_path, capsys):
             for c in range(qp.shape[1]):
                 o_aa, o_aw = overlaps(qp[s, c], m["agent_radius"], sc)
                 assert o_aa <= TOL and o_aw <= TOL
+
+
+def test_ml_output_carries_the_qoi_of_the_corrected_trajectories(study, tmp_path):
+    """The training output holds, per regressor, the QoI groups of its corrected validation
+    trajectories (best n) and of their exact projection, as crowd_predict computes them; they
+    equal an independent numpy recomputation from the stored positions (test_qoi.qoi_numpy: curves,
+    times and censoring exactly, displacement to round-off). --no-qoi leaves them out (qoi = 0)."""
+    from test_qoi import check_row, qoi_numpy
+    cfg = tmp_path / "c.json"
+    cfg.write_text('{"n_values": [4], "regressors": ["random_forest"], "random_forest": {"n_estimators": 5}, '
+                   '"timing_repeats": 1}')
+    out = tmp_path / "ml.h5"
+    env = os.environ.get("CROWDROM_BIN")
+    os.environ["CROWDROM_BIN"] = BIN
+    try:
+        assert ml_correct.main([study["romrun"], "--setting", "1", "--config", str(cfg), "-o", str(out),
+                                "--models-dir", str(tmp_path / "models"), "--crowd-project", EXE, "--quiet"]) == 0
+        assert ml_correct.main([study["romrun"], "--setting", "1", "--config", str(cfg), "-o",
+                                str(tmp_path / "ml_noqoi.h5"), "--models-dir", str(tmp_path / "models2"),
+                                "--no-project", "--no-qoi", "--quiet"]) == 0
+    finally:
+        if env is None:
+            del os.environ["CROWDROM_BIN"]
+        else:
+            os.environ["CROWDROM_BIN"] = env
+    m = study["meta"]
+    nt, na = m["n_steps"], m["n_agents"]
+    with h5py.File(study["db"], "r") as f:
+        sc = f["scene"].attrs
+        y_line = float(sc["hall_width"]) + float(sc["wall_thickness"]) + m["agent_radius"]
+        exits = f["valid/scene_exit"][...]
+        db_params = f["valid/params"][...]
+    with h5py.File(out, "r") as f:
+        assert f.attrs["qoi"] == 1
+        params = f["valid_params"][...]
+        rows = [int(np.flatnonzero(np.all(np.isclose(db_params, p, rtol=0, atol=1e-14), axis=1))[0])
+                for p in params]
+        for pos_name, qoi_name in (("best/positions", "best/qoi"), ("best/projected_positions", "best/projected_qoi")):
+            got = cio.read_qoi_group(f, "random_forest/" + qoi_name)
+            assert (got["n_rows"], got["n_agents"], got["n_steps"]) == (len(params), na, nt)
+            pos = f["random_forest/" + pos_name][...].reshape(len(params), nt + 1, na, 2)
+            for k, row in enumerate(rows):
+                width = exits[row, 2] - exits[row, 0]
+                check_row(got, k, qoi_numpy(pos[k], m["dt"], y_line, width), f"{qoi_name} {k}")
+                np.testing.assert_allclose(got["exit_width"][k, 0], width, rtol=1e-15)
+            assert np.all(got["displacement"] > 0)
+        # the projected trajectories' QoIs carry the projection: no overlap left
+        assert f["random_forest/best/projected_qoi/overlap_agents"][...].max() <= TOL
+    with h5py.File(tmp_path / "ml_noqoi.h5", "r") as f:
+        assert f.attrs["qoi"] == 0 and "qoi" not in f["random_forest/best"]
+    # evac_figures draws and tabulates them; an output without them is refused by name
+    script = os.path.join(os.path.dirname(HERE), "evac_figures.py")
+    base = [sys.executable, script, "--database", study["db"], "--romrun", study["romrun"]]
+    p = subprocess.run(base + ["--ml", str(out), "-o", str(tmp_path / "evac"), "--dpi", "40"],
+                       capture_output=True, text=True)
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert "| ML random_forest (n = 4) + exact projection |" in (tmp_path / "evac" / "evac_table.md").read_text()
+    p = subprocess.run(base + ["--ml", str(tmp_path / "ml_noqoi.h5"), "-o", str(tmp_path / "evac2")],
+                       capture_output=True, text=True)
+    assert p.returncode == 2 and "missing group 'random_forest/best/qoi'" in p.stderr, p.stderr

@@ -1,10 +1,11 @@
 """crowd_fom's trajectories in the Pedestrian Dynamics Data Archive layout (&output pdda_file)
 read by PedPy in one call each (trajectory, walkable area), and the flow per exit and the
 density in front of each exit cross-checked against PedPy's on a small two-exit scene:
-PedPy's cumulative count at each exit's "has left" line equals the count of
-scripts/validate_flows.py (the QoI contract's definition) at every frame, so the specific
-flows are equal, and PedPy's classic density in the 1 m deep area in front of each exit
-equals the count of crowd_fom's own positions in it at every frame."""
+PedPy's cumulative count at each exit's "has left" line equals crowd_fom's own count (its QoI
+group, the one definition) at every output frame; scripts/validate_flows.py reads crowd_fom's
+QoIs from that group, and its flow of a curve (the path of JuPedSim's curves) equals crowd_fom's
+on crowd_fom's curve; PedPy's classic density in the 1 m deep area in front of each exit equals
+the count of crowd_fom's own positions in it at every frame."""
 import os
 import pathlib
 import subprocess
@@ -48,7 +49,18 @@ def run(tmp_path_factory):
         times = np.asarray(f["traj/time"], dtype=float).ravel()
         exits = np.asarray(f["scene/exit_segments"], dtype=float)
         radius = float(f.attrs["agent_radius"])
-    return {"pos": pos, "time": times, "exits": exits, "radius": radius, "pdda": pathlib.Path(pd)}
+    # crowd_fom's QoIs as validate_flows reads them (run_fom: the same run, every step stored)
+    r = vf.run_fom(text, str(tmp), "vf", pdda=False, fom=FOM)
+    np.testing.assert_array_equal(r["pos"][::EVERY], pos)
+    return {"pos": pos, "time": times, "exits": exits, "radius": radius, "pdda": pathlib.Path(pd),
+            "qoi": r["qoi"], "fom_qois": vf.fom_qois(r)}
+
+
+def first_out_frames(pos, radius):
+    """First output frame at which each agent is beyond an exit's 'has left' line [N] (-1: never)
+    (y > H + t + r through the top exit, x > L + t + r through the right one)."""
+    beyond = (pos[:, :, 1] > SCENE["W"] + SCENE["t"] + radius) | (pos[:, :, 0] > SCENE["L"] + SCENE["t"] + radius)
+    return np.where(beyond.any(axis=0), beyond.argmax(axis=0), -1)
 
 
 def test_layout_loads_in_one_call(run):
@@ -67,7 +79,7 @@ def test_layout_loads_in_one_call(run):
 
 def test_agents_removed_once_out(run):
     traj = pedpy.load_trajectory_from_ped_data_archive_hdf5(trajectory_file=run["pdda"])
-    first, _ = vf.out_frames(run["pos"], SCENE, run["radius"])
+    first = first_out_frames(run["pos"], run["radius"])
     assert (first > 0).sum() >= N - 5, "nearly everybody leaves within the horizon"
     last = traj.data.groupby("id").frame.max()
     for i in range(N):
@@ -99,16 +111,23 @@ def vf_exits():
 
 def test_flow_per_exit_matches_pedpy(run):
     traj = pedpy.load_trajectory_from_ped_data_archive_hdf5(trajectory_file=run["pdda"])
-    curves = vf.exit_curves(run["pos"], SCENE, run["radius"])
+    q, fq = run["qoi"], run["fom_qois"]
+    steps = DT * np.arange(q["n_steps"] + 1)
     for e, (w, _, _) in enumerate(vf.exits_of(SCENE)):
         nt, _ = pedpy.compute_n_t(traj_data=traj, measurement_line=has_left_line(e, run["radius"]))
-        mine = curves[nt.frame.to_numpy(), e]
+        # crowd_fom counts at every step; output frame k is step EVERY k
+        mine = q["curve"][0, e, EVERY * nt.frame.to_numpy()]
         np.testing.assert_array_equal(nt.cumulative_pedestrians.to_numpy(), mine,
                                       err_msg="cumulative count at exit %d" % (e + 1))
-        assert curves[-1, e] >= 10, "exit %d is used" % (e + 1)
-        f_mine = vf.flow_rate(curves[:, e], run["time"]) / w
-        f_pedpy = vf.flow_rate(nt.cumulative_pedestrians.to_numpy(), nt.time.to_numpy()) / w
-        assert f_pedpy == pytest.approx(f_mine, rel=1e-12)
+        assert q["curve"][0, e, -1] >= 10, "exit %d is used" % (e + 1)
+        # validate_flows' flows are crowd_fom's; its flow of a curve (JuPedSim's path) agrees
+        assert q["flow_defined"][0, e]
+        assert (fq["flow"][e], fq["flow_rate"][e]) == (q["flow"][0, e], q["flow_rate"][0, e])
+        assert vf.flow_rate(q["curve"][0, e], steps) / w == pytest.approx(fq["flow"][e], rel=1e-12)
+    assert fq["out"] == q["curve_total"][0, -1] == q["curve"][0, :, -1].sum()
+    for k, p in enumerate((50, 90, 100)):
+        t, cens = vf.t_percent(q["curve_total"][0], steps, p, N)
+        assert (fq["t%d" % p], fq["t%d_censored" % p]) == (t, cens) == (q["t_evac"][0, k], q["censored"][0, k])
 
 
 def test_density_at_exits_matches_pedpy(run):
