@@ -8,6 +8,7 @@
 !>    refuses the NaN with an error naming step 2;
 !>  - the first step is certified (no active row): the NaN step must not be accepted on the
 !>    stale certificate, it must go to the fallback and end in the same error.
+!> An unknown solver name is refused before any step is assembled.
 module test_rom_stepper_reset_ops
   use cr_kinds, only: wp
   use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t
@@ -100,6 +101,15 @@ program test_rom_stepper_reset
   call check(all(traj%dual_why == [0, 0, 1]), "certified then NaN: only step 2 uncertified, got " // why(traj%dual_why))
   call check(traj%n_fallback == 1, "certified then NaN: step 2 sent to the fallback, got " // str(traj%n_fallback))
   call check(traj%alpha(1, 1) == 0.1_wp, "certified then NaN: step 1 kept its answer")
+
+  ! an unknown solver name is refused (bad input) before any step is assembled
+  scfg%name = 'lbfgs'
+  ops%vh = [0.1_wp]; ops%calls = 0
+  call run_trajectory(ops, ctx, q0, 1, scfg, traj, error)
+  call check(allocated(error), "unknown solver: refused")
+  if (allocated(error)) call check(index(error%message, "'lbfgs'") > 0 .and. error%code == 2, &
+    "unknown solver: code 2 and the name in the message: " // error%message)
+  call check(ops%calls == 0, "unknown solver: no step assembled")
 
   call test_summary(0)
 

@@ -21,6 +21,7 @@ module cr_predict_config
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error, problems_t
   use cr_strings, only: str
+  use cr_reduced_solver, only: is_reduced_solver, known_reduced_solvers
   use cr_namelist_text, only: namelist_text_t, nml_status
   use cr_paths, only: io_paths_t
   use cr_sane, only: need_sane
@@ -152,8 +153,8 @@ contains
       call probs%need(c%m_v >= 0 .and. c%m_b >= 0 .and. c%m_d >= 0, "&predict: m_v, m_b, m_d must be >= 0 (0: defaults)")
       call probs%need(c%correction == 'none' .or. c%correction == 'local', "&predict: correction must be 'none' " // &
         "or 'local' (got '" // trim(c%correction) // "')")
-      call probs%need(c%solver == 'dual' .or. c%solver == 'nnls' .or. c%solver == 'uzawa', "&predict: solver " // &
-        "must be 'dual', 'nnls' or 'uzawa' (got '" // trim(c%solver) // "')")
+      call probs%need(is_reduced_solver(c%solver), "&predict: solver must be one of " // known_reduced_solvers // &
+        " (got '" // trim(c%solver) // "')")
     end if
     call probs%need(c%out_of_box == 'flag' .or. c%out_of_box == 'refuse', "&predict: out_of_box must be 'flag' " // &
       "or 'refuse' (got '" // trim(c%out_of_box) // "')")

@@ -16,6 +16,7 @@ module cr_rom_config
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error, problems_t
   use cr_strings, only: str
+  use cr_reduced_solver, only: is_reduced_solver, known_reduced_solvers
   use cr_namelist_text, only: namelist_text_t
   use cr_config, only: nml_status
   use cr_paths, only: io_paths_t
@@ -253,8 +254,8 @@ contains
         "&sweep: sets(" // str(k) // ") must be '' or one of the sets of &rom sets = '" // trim(c%sets) // &
         "' (got '" // trim(c%setting_sets(k)) // "')")
     end do
-    call probs%need(c%solver == 'dual' .or. c%solver == 'nnls' .or. c%solver == 'uzawa', &
-      "&reduced: solver must be 'dual', 'nnls' or 'uzawa'")
+    call probs%need(is_reduced_solver(c%solver), "&reduced: solver must be one of " // known_reduced_solvers // &
+      " (got '" // trim(c%solver) // "')")
     call probs%need(c%nnls_max_iter >= 0, "&reduced: nnls_max_iter must be >= 0 (0: default)")
     call probs%need(c%uzawa_rho_factor > 0, "&reduced: uzawa_rho_factor must be > 0")
     call probs%need(c%uzawa_eps > 0, "&reduced: uzawa_eps must be > 0")

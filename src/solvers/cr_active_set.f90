@@ -54,14 +54,11 @@ contains
     real(wp), intent(inout) :: lambda(:)
     type(solve_stats_t), intent(out) :: stats
     type(error_t), allocatable, intent(out) :: error
-    integer :: na, n, l, i, a, b, c, ncomp, mr, nd, maxr, maxa, j, n_infeas
-    type(ldp_stats_t) :: ls
-    type(contact_ldp_stats_t) :: cst
-    real(wp) :: h
+    integer :: na, n, c, ncomp, maxr, maxa, n_infeas
 
     call check_sizes("active_set", cs, v, u, lambda, error)
     if (allocated(error)) return
-    na = cs%n_agents; n = cs%n; h = cs%h
+    na = cs%n_agents; n = cs%n
     stats%note = ""
     stats%converged = .true.
     if (.not. this%settings%warm_start) lambda(1:n) = 0.0_wp
@@ -73,14 +70,43 @@ contains
     call igrow(this%parent, na); call igrow(this%comp, na); call igrow(this%local, na)
     call igrow(this%agents, na); call igrow(this%astart, na + 1)
     call igrow(this%rows, n); call igrow(this%rstart, na + 1)
+    call find_clusters(this, cs, ncomp)
+    call sort_clusters(this, cs, ncomp, maxr, maxa)
+    call rgrow(this%dl, maxr); call rgrow(this%ll, maxr)
+    call rgrow(this%vl, 2 * maxa); call rgrow(this%ul, 2 * maxa)
+    call igrow(this%ial, maxr); call igrow(this%ibl, maxr)
+    if (allocated(this%cl)) then
+      if (size(this%cl, 2) < maxr) deallocate(this%cl)
+    end if
+    if (.not. allocated(this%cl)) allocate(this%cl(2, max(maxr, 16)))
 
-    ! ---- connected components of the contact graph (union-find with path halving)
+    ! ---- one sparse dual active-set solve per component (dense LDP as fallback)
+    n_infeas = 0
+    do c = 1, ncomp
+      call solve_cluster(this, cs, c, maxr, maxa, v, u, lambda, stats, n_infeas, error)
+      if (allocated(error)) return
+    end do
+    if (n_infeas > 0) call add_note(stats, str(n_infeas) // " infeasible cluster(s): " // &
+      "least-violation velocities returned")
+    if (.not. stats%converged) call add_note(stats, "iteration cap reached (" // &
+      str(this%settings%max_iter) // ") in at least one cluster")
+    call finish_stats(cs, v, u, lambda, this%settings%tol, stats)
+  end subroutine active_set_solve
+
+  !> Connected components of the contact graph (union-find with path halving): comp(i) the
+  !> component of agent i (0 for agents without rows), ncomp the number of components.
+  subroutine find_clusters(this, cs, ncomp)
+    class(active_set_solver_t), intent(inout) :: this
+    type(contact_set_t), intent(in) :: cs
+    integer, intent(out) :: ncomp
+    integer :: na, n, l, i, a, b
+    na = cs%n_agents; n = cs%n
     do i = 1, na
       this%parent(i) = i
     end do
     do l = 1, n
       if (cs%ib(l) > 0) then
-        a = find(cs%ia(l)); b = find(cs%ib(l))
+        a = find(this, cs%ia(l)); b = find(this, cs%ib(l))
         if (a /= b) this%parent(max(a, b)) = min(a, b)
       end if
     end do
@@ -89,17 +115,28 @@ contains
     ncomp = 0
     this%local(1:na) = 0
     do l = 1, n
-      a = find(cs%ia(l))
+      a = find(this, cs%ia(l))
       if (this%local(a) == 0) then
         ncomp = ncomp + 1
         this%local(a) = ncomp
       end if
     end do
     do i = 1, na
-      a = find(i)
+      a = find(this, i)
       this%comp(i) = this%local(a)
     end do
-    ! agents and rows sorted by component (counting sort)
+  end subroutine find_clusters
+
+  !> Agents and rows sorted by component (counting sort): agents(astart(c):astart(c+1)-1),
+  !> rows(rstart(c):rstart(c+1)-1), local(i) the place of agent i in its component; maxr,
+  !> maxa the largest numbers of rows and agents of a component.
+  subroutine sort_clusters(this, cs, ncomp, maxr, maxa)
+    class(active_set_solver_t), intent(inout) :: this
+    type(contact_set_t), intent(in) :: cs
+    integer, intent(in) :: ncomp
+    integer, intent(out) :: maxr, maxa
+    integer :: na, n, l, i, c, j
+    na = cs%n_agents; n = cs%n
     this%astart(1:ncomp + 1) = 0
     do i = 1, na
       if (this%comp(i) > 0) this%astart(this%comp(i) + 1) = this%astart(this%comp(i) + 1) + 1
@@ -139,120 +176,134 @@ contains
         this%local(this%agents(j)) = j - this%astart(c) + 1
       end do
     end do
-    call rgrow(this%dl, maxr); call rgrow(this%ll, maxr)
-    call rgrow(this%vl, 2 * maxa); call rgrow(this%ul, 2 * maxa)
-    call igrow(this%ial, maxr); call igrow(this%ibl, maxr)
-    if (allocated(this%cl)) then
-      if (size(this%cl, 2) < maxr) deallocate(this%cl)
+  end subroutine sort_clusters
+
+  !> The sparse dual active-set solve of cluster c (the dense LDP when it does not finish):
+  !> its velocities into u, its multipliers into lambda.
+  subroutine solve_cluster(this, cs, c, maxr, maxa, v, u, lambda, stats, n_infeas, error)
+    class(active_set_solver_t), intent(inout) :: this
+    type(contact_set_t), intent(in) :: cs
+    integer, intent(in) :: c, maxr, maxa
+    real(wp), intent(in) :: v(:)
+    real(wp), intent(inout) :: u(:), lambda(:)
+    type(solve_stats_t), intent(inout) :: stats
+    integer, intent(inout) :: n_infeas
+    type(error_t), allocatable, intent(out) :: error
+    type(contact_ldp_stats_t) :: cst
+    integer :: mr, nd, j, l, a, i
+    real(wp) :: h
+    h = cs%h
+    mr = this%rstart(c + 1) - this%rstart(c)
+    nd = 2 * (this%astart(c + 1) - this%astart(c))
+    if (contact_ldp_bytes(mr, nd) > this%max_dense_bytes) then
+      call too_large(this, nd, mr, contact_ldp_bytes(mr, nd), error)
+      return
     end if
-    if (.not. allocated(this%cl)) allocate(this%cl(2, max(maxr, 16)))
-
-    ! ---- one sparse dual active-set solve per component (dense LDP as fallback)
-    n_infeas = 0
-    do c = 1, ncomp
-      mr = this%rstart(c + 1) - this%rstart(c)
-      nd = 2 * (this%astart(c + 1) - this%astart(c))
-      if (contact_ldp_bytes(mr, nd) > this%max_dense_bytes) then
-        call too_large(contact_ldp_bytes(mr, nd))
-        return
-      end if
-      do j = 1, mr
-        l = this%rows(this%rstart(c) + j - 1)
-        this%ial(j) = this%local(cs%ia(l))
-        this%ibl(j) = 0
-        if (cs%ib(l) > 0) this%ibl(j) = this%local(cs%ib(l))
-        this%cl(:, j) = -h * cs%g(:, l)
-        this%dl(j) = cs%gap(l)
-        this%ll(j) = lambda(l)
-      end do
-      do j = this%astart(c), this%astart(c + 1) - 1
-        a = this%agents(j); i = j - this%astart(c) + 1
-        this%vl(2*i - 1:2*i) = v(2*a - 1:2*a)
-      end do
-      call contact_ldp_solve(this%ial(1:mr), this%ibl(1:mr), this%cl(:, 1:mr), this%dl(1:mr), &
-        this%vl(1:nd), this%ul(1:nd), this%ll(1:mr), cst, error, warm=this%settings%warm_start, &
-        max_iter=min(this%settings%max_iter, 10 * mr + 100), &
-        tol=1.0e-3_wp * this%settings%tol, work=this%cwork)
-      if (allocated(error)) then
-        call prefix_error(error, "active_set: cluster " // str(c))
-        return
-      end if
-      stats%iterations = stats%iterations + cst%iterations
-      if (.not. cst%converged .or. cst%infeasible) then
-        call dense_cluster()
-        if (allocated(error)) return
-      end if
-      do j = this%astart(c), this%astart(c + 1) - 1
-        a = this%agents(j); i = j - this%astart(c) + 1
-        u(2*a - 1:2*a) = this%ul(2*i - 1:2*i)
-      end do
-      do j = 1, mr
-        lambda(this%rows(this%rstart(c) + j - 1)) = this%ll(j)
-      end do
+    do j = 1, mr
+      l = this%rows(this%rstart(c) + j - 1)
+      this%ial(j) = this%local(cs%ia(l))
+      this%ibl(j) = 0
+      if (cs%ib(l) > 0) this%ibl(j) = this%local(cs%ib(l))
+      this%cl(:, j) = -h * cs%g(:, l)
+      this%dl(j) = cs%gap(l)
+      this%ll(j) = lambda(l)
     end do
-    if (n_infeas > 0) call add_note(stats, str(n_infeas) // " infeasible cluster(s): " // &
-      "least-violation velocities returned")
-    if (.not. stats%converged) call add_note(stats, "iteration cap reached (" // &
-      str(this%settings%max_iter) // ") in at least one cluster")
-    call finish_stats(cs, v, u, lambda, this%settings%tol, stats)
+    do j = this%astart(c), this%astart(c + 1) - 1
+      a = this%agents(j); i = j - this%astart(c) + 1
+      this%vl(2*i - 1:2*i) = v(2*a - 1:2*a)
+    end do
+    call contact_ldp_solve(this%ial(1:mr), this%ibl(1:mr), this%cl(:, 1:mr), this%dl(1:mr), &
+      this%vl(1:nd), this%ul(1:nd), this%ll(1:mr), cst, error, warm=this%settings%warm_start, &
+      max_iter=min(this%settings%max_iter, 10 * mr + 100), &
+      tol=1.0e-3_wp * this%settings%tol, work=this%cwork)
+    if (allocated(error)) then
+      call prefix_error(error, "active_set: cluster " // str(c))
+      return
+    end if
+    stats%iterations = stats%iterations + cst%iterations
+    if (.not. cst%converged .or. cst%infeasible) then
+      call dense_cluster(this, cs, c, mr, nd, maxr, maxa, lambda, stats, n_infeas, error)
+      if (allocated(error)) return
+    end if
+    do j = this%astart(c), this%astart(c + 1) - 1
+      a = this%agents(j); i = j - this%astart(c) + 1
+      u(2*a - 1:2*a) = this%ul(2*i - 1:2*i)
+    end do
+    do j = 1, mr
+      lambda(this%rows(this%rstart(c) + j - 1)) = this%ll(j)
+    end do
+  end subroutine solve_cluster
 
-  contains
-
-    !> The dense LDP (cr_nnls) on cluster c, warm started from the rows on entry.
-    subroutine dense_cluster()
-      real(wp) :: need
-      ! bm [mr, nd], E and Q of the NNLS, and the least-violation NNLS of an infeasible
-      ! cluster (mr (2 nd + mr) + mr^2 reals)
-      need = 8.0_wp * (real(mr, wp) * nd + real(nd + 1, wp) * mr + real(nd + 1, wp)**2 + &
-        real(mr, wp) * (2 * nd + mr) + real(mr, wp)**2)
-      if (need > this%max_dense_bytes) then
-        call too_large(need)
-        return
+  !> The dense LDP (cr_nnls) on cluster c (mr rows, nd velocities), warm started from the
+  !> rows on entry.
+  subroutine dense_cluster(this, cs, c, mr, nd, maxr, maxa, lambda, stats, n_infeas, error)
+    class(active_set_solver_t), intent(inout) :: this
+    type(contact_set_t), intent(in) :: cs
+    integer, intent(in) :: c, mr, nd, maxr, maxa
+    real(wp), intent(in) :: lambda(:)
+    type(solve_stats_t), intent(inout) :: stats
+    integer, intent(inout) :: n_infeas
+    type(error_t), allocatable, intent(out) :: error
+    type(ldp_stats_t) :: ls
+    real(wp) :: need, h
+    integer :: j, l, a, b
+    h = cs%h
+    ! bm [mr, nd], E and Q of the NNLS, and the least-violation NNLS of an infeasible
+    ! cluster (mr (2 nd + mr) + mr^2 reals)
+    need = 8.0_wp * (real(mr, wp) * nd + real(nd + 1, wp) * mr + real(nd + 1, wp)**2 + &
+      real(mr, wp) * (2 * nd + mr) + real(mr, wp)**2)
+    if (need > this%max_dense_bytes) then
+      call too_large(this, nd, mr, need, error)
+      return
+    end if
+    call rgrow2(this%bm, maxr, 2 * maxa)
+    this%bm(1:mr, 1:nd) = 0.0_wp
+    do j = 1, mr
+      l = this%rows(this%rstart(c) + j - 1)
+      a = this%local(cs%ia(l))
+      this%bm(j, 2*a - 1) = -h * cs%g(1, l)
+      this%bm(j, 2*a) = -h * cs%g(2, l)
+      if (cs%ib(l) > 0) then
+        b = this%local(cs%ib(l))
+        this%bm(j, 2*b - 1) = h * cs%g(1, l)
+        this%bm(j, 2*b) = h * cs%g(2, l)
       end if
-      call rgrow2(this%bm, maxr, 2 * maxa)
-      this%bm(1:mr, 1:nd) = 0.0_wp
-      do j = 1, mr
-        l = this%rows(this%rstart(c) + j - 1)
-        a = this%local(cs%ia(l))
-        this%bm(j, 2*a - 1) = -h * cs%g(1, l)
-        this%bm(j, 2*a) = -h * cs%g(2, l)
-        if (cs%ib(l) > 0) then
-          b = this%local(cs%ib(l))
-          this%bm(j, 2*b - 1) = h * cs%g(1, l)
-          this%bm(j, 2*b) = h * cs%g(2, l)
-        end if
-        this%ll(j) = lambda(l)
-      end do
-      call ldp_solve(this%bm(1:mr, 1:nd), this%dl(1:mr), this%vl(1:nd), this%ul(1:nd), &
-        this%ll(1:mr), ls, error, warm=this%settings%warm_start, &
-        max_iter=this%settings%max_iter, work=this%work)
-      if (allocated(error)) then
-        call prefix_error(error, "active_set: cluster " // str(c))
-        return
-      end if
-      stats%iterations = stats%iterations + ls%nnls%iterations
-      if (.not. ls%nnls%converged) stats%converged = .false.
-      if (ls%infeasible) n_infeas = n_infeas + 1
-    end subroutine dense_cluster
+      this%ll(j) = lambda(l)
+    end do
+    call ldp_solve(this%bm(1:mr, 1:nd), this%dl(1:mr), this%vl(1:nd), this%ul(1:nd), &
+      this%ll(1:mr), ls, error, warm=this%settings%warm_start, &
+      max_iter=this%settings%max_iter, work=this%work)
+    if (allocated(error)) then
+      call prefix_error(error, "active_set: cluster " // str(c))
+      return
+    end if
+    stats%iterations = stats%iterations + ls%nnls%iterations
+    if (.not. ls%nnls%converged) stats%converged = .false.
+    if (ls%infeasible) n_infeas = n_infeas + 1
+  end subroutine dense_cluster
 
-    subroutine too_large(bytes)
-      real(wp), intent(in) :: bytes
-      call set_error(error, "active_set: a contact cluster of " // str(nd / 2) // " agents and " // &
-        str(mr) // " rows needs " // str(bytes / 1.0e9_wp, "f0.2") // " GB of dense storage " // &
-        "(limit " // str(this%max_dense_bytes / 1.0e9_wp, "f0.2") // " GB); use solver 'gpcg' " // &
-        "for crowds this large", 2)
-    end subroutine too_large
+  !> The error of a cluster of nd / 2 agents and mr rows that needs more than max_dense_bytes.
+  subroutine too_large(this, nd, mr, bytes, error)
+    class(active_set_solver_t), intent(in) :: this
+    integer, intent(in) :: nd, mr
+    real(wp), intent(in) :: bytes
+    type(error_t), allocatable, intent(out) :: error
+    call set_error(error, "active_set: a contact cluster of " // str(nd / 2) // " agents and " // &
+      str(mr) // " rows needs " // str(bytes / 1.0e9_wp, "f0.2") // " GB of dense storage " // &
+      "(limit " // str(this%max_dense_bytes / 1.0e9_wp, "f0.2") // " GB); use solver 'gpcg' " // &
+      "for crowds this large", 2)
+  end subroutine too_large
 
-    integer function find(x) result(r)
-      integer, intent(in) :: x
-      r = x
-      do while (this%parent(r) /= r)
-        this%parent(r) = this%parent(this%parent(r))
-        r = this%parent(r)
-      end do
-    end function find
-
-  end subroutine active_set_solve
+  !> Root of x in the union-find forest (path halving).
+  integer function find(this, x) result(r)
+    class(active_set_solver_t), intent(inout) :: this
+    integer, intent(in) :: x
+    r = x
+    do while (this%parent(r) /= r)
+      this%parent(r) = this%parent(this%parent(r))
+      r = this%parent(r)
+    end do
+  end function find
 
   subroutine active_set_free(this)
     class(active_set_solver_t), intent(inout) :: this

@@ -75,6 +75,17 @@ module cr_contact_ldp
     real(wp), allocatable :: c(:,:), dd(:), lam(:), slack(:), cc(:), rn(:)
   end type contact_ldp_work_t
 
+  !> The state of one solve shared by its parts (the work space holds the arrays).
+  type :: cldp_run_t
+    !> rows, unknowns, passive rows, their cap, iterations and their cap
+    integer :: m = 0, nd = 0, k = 0, kmax = 0, it = 0, itmax = 0
+    !> violation threshold (normalised rows)
+    real(wp) :: thr = 0.0_wp
+  end type cldp_run_t
+
+  !> what the main loop does after a row entered (enter_row)
+  integer, parameter :: NEXT_GO = 0, NEXT_CYCLE = 1, NEXT_STOP = 2
+
 contains
 
   !> Bytes of dense storage contact_ldp_solve needs for m rows and n_dof unknowns.
@@ -133,10 +144,65 @@ contains
     type(contact_ldp_work_t), intent(inout), optional, target :: work
     type(contact_ldp_work_t), target :: local
     type(contact_ldp_work_t), pointer :: wk
-    integer :: m, nd, na, j, k, p, t, it, itmax, pmin, kmax
-    real(wp) :: sv, thr, worst, tau, q, xmax, tolv
-    logical :: use_warm, ok, changed, refined
+    type(cldp_run_t) :: rs
+    integer :: m, nd
+    real(wp) :: sv, tolv
+    logical :: use_warm
 
+    call check_input(ia, ib, coef, d, v, u, lambda, error)
+    if (allocated(error)) return
+    m = size(d); nd = size(v)
+    rs%m = m; rs%nd = nd
+    use_warm = .true.
+    if (present(warm)) use_warm = warm
+    rs%itmax = 10 * m + 100
+    if (present(max_iter)) rs%itmax = max_iter
+    tolv = 1.0e-13_wp
+    if (present(tol)) tolv = tol
+    tolv = max(tolv, 256.0_wp * epsilon(1.0_wp))
+    if (present(work)) then
+      wk => work
+    else
+      wk => local
+    end if
+    rs%kmax = min(m, nd)
+    call reserve(wk, m, rs%kmax)
+    call normalise_rows(wk, ia, ib, coef, d, v, lambda, use_warm, sv)
+    rs%thr = tolv * sv
+    stats%infeasible = .false.
+    stats%converged = .false.
+    rs%k = 0
+    u = v
+    if (m == 0) then
+      stats%converged = .true.
+      return
+    end if
+    if (all(wk%cc(1:m) <= rs%thr)) then
+      ! v is feasible: it is its own projection
+      wk%lam(1:m) = 0.0_wp
+      wk%slack(1:m) = -wk%cc(1:m)
+      stats%converged = .true.
+      call finish(wk, rs, lambda, stats)
+      return
+    end if
+    call warm_start(wk, rs, ia, ib)
+    call ldp_iterate(wk, rs, ia, ib, v, u, stats)
+    stats%iterations = rs%it
+    if (stats%infeasible) return
+    call slacks(wk, rs, ia, ib, v, u)
+    ! the stopping test only looks at the rows outside P: B_P u = d_P must hold as well
+    if (stats%converged .and. rs%k > 0) then
+      if (maxval(abs(wk%slack(wk%plist(1:rs%k)))) > rs%thr) stats%converged = .false.
+    end if
+    call finish(wk, rs, lambda, stats)
+  end subroutine contact_ldp_solve
+
+  !> Sizes and rows of a contact_ldp_solve call (error names the first bad one).
+  subroutine check_input(ia, ib, coef, d, v, u, lambda, error)
+    integer, intent(in) :: ia(:), ib(:)
+    real(wp), intent(in) :: coef(:,:), d(:), v(:), u(:), lambda(:)
+    type(error_t), allocatable, intent(out) :: error
+    integer :: m, nd, na, j
     m = size(d); nd = size(v); na = nd / 2
     if (size(ia) /= m .or. size(ib) /= m .or. size(coef, 1) /= 2 .or. size(coef, 2) /= m .or. &
         size(u) /= nd .or. size(lambda) /= m .or. mod(nd, 2) /= 0) then
@@ -158,357 +224,425 @@ contains
         return
       end if
     end do
-    use_warm = .true.
-    if (present(warm)) use_warm = warm
-    itmax = 10 * m + 100
-    if (present(max_iter)) itmax = max_iter
-    tolv = 1.0e-13_wp
-    if (present(tol)) tolv = tol
-    tolv = max(tolv, 256.0_wp * epsilon(1.0_wp))
-    if (present(work)) then
-      wk => work
-    else
-      wk => local
-    end if
-    kmax = min(m, nd)
-    call reserve(wk, m, kmax)
+  end subroutine check_input
 
-    ! normalised rows, c = B v - d, scale of the velocities
+  !> Normalised rows c, rhs dd, c = B v - d, warm-start multipliers (normalised), empty
+  !> passive set; sv the scale of the velocities.
+  subroutine normalise_rows(wk, ia, ib, coef, d, v, lambda, use_warm, sv)
+    type(contact_ldp_work_t), intent(inout) :: wk
+    integer, intent(in) :: ia(:), ib(:)
+    real(wp), intent(in) :: coef(:,:), d(:), v(:), lambda(:)
+    logical, intent(in) :: use_warm
+    real(wp), intent(out) :: sv
+    integer :: j, nd
+    nd = size(v)
     sv = tiny(1.0_wp) * 1.0e10_wp
     if (nd > 0) sv = max(sv, maxval(abs(v)))
-    do j = 1, m
+    do j = 1, size(d)
       wk%rn(j) = norm2(coef(:, j))
       if (ib(j) > 0) wk%rn(j) = wk%rn(j) * sqrt(2.0_wp)
       wk%c(:, j) = coef(:, j) / wk%rn(j)
       wk%dd(j) = d(j) / wk%rn(j)
       sv = max(sv, -wk%dd(j))
-      wk%cc(j) = rowdot_v(j, v) - wk%dd(j)
+      wk%cc(j) = rowdot_v(wk, ia, ib, j, v) - wk%dd(j)
       wk%lam(j) = 0.0_wp
       if (use_warm .and. lambda(j) > 0.0_wp) wk%lam(j) = lambda(j) * wk%rn(j)
       wk%pos(j) = 0
       wk%refused(j) = .false.
     end do
-    thr = tolv * sv
-    stats%infeasible = .false.
-    stats%converged = .false.
-    k = 0
-    u = v
-    if (m == 0) then
-      stats%converged = .true.
-      return
-    end if
-    if (all(wk%cc(1:m) <= thr)) then
-      ! v is feasible: it is its own projection
-      wk%lam(1:m) = 0.0_wp
-      wk%slack(1:m) = -wk%cc(1:m)
-      stats%converged = .true.
-      call finish()
-      return
-    end if
+  end subroutine normalise_rows
 
-    ! ---- warm start: factor the guessed passive set, drop non-positive coefficients
-    do j = 1, m
+  !> Warm start: factor the guessed passive set, drop non-positive coefficients.
+  subroutine warm_start(wk, rs, ia, ib)
+    type(contact_ldp_work_t), intent(inout) :: wk
+    type(cldp_run_t), intent(inout) :: rs
+    integer, intent(in) :: ia(:), ib(:)
+    integer :: j, p
+    logical :: ok, changed
+    do j = 1, rs%m
       if (wk%lam(j) > 0.0_wp) then
-        call append(j, ok)
+        call append(wk, rs, ia, ib, j, ok)
         if (.not. ok) wk%lam(j) = 0.0_wp
       end if
     end do
     do
-      if (k == 0) exit
-      call solve_p()
+      if (rs%k == 0) exit
+      call solve_p(wk, rs)
       changed = .false.
-      do p = k, 1, -1
+      do p = rs%k, 1, -1
         if (wk%z(p) <= 0.0_wp) then
           wk%lam(wk%plist(p)) = 0.0_wp
-          call remove(p)
+          call remove(wk, rs, p)
           changed = .true.
         end if
       end do
       if (.not. changed) exit
       ! (the deletions rotated yc with L)
-      call refresh_yc()
+      call refresh_yc(wk, rs)
     end do
-    do p = 1, k
+    do p = 1, rs%k
       wk%lam(wk%plist(p)) = wk%z(p)
     end do
+  end subroutine warm_start
 
-    ! ---- main loop
-    it = 0
+  !> Main loop: the most violated row outside P enters (enter_row); when none is violated,
+  !> one step of iterative refinement on P and the test again.
+  subroutine ldp_iterate(wk, rs, ia, ib, v, u, stats)
+    type(contact_ldp_work_t), intent(inout) :: wk
+    type(cldp_run_t), intent(inout) :: rs
+    integer, intent(in) :: ia(:), ib(:)
+    real(wp), intent(in) :: v(:)
+    real(wp), intent(inout) :: u(:)
+    type(contact_ldp_stats_t), intent(inout) :: stats
+    integer :: j, t, next
+    real(wp) :: worst
+    logical :: refined
+    rs%it = 0
     refined = .false.
     outer: do
-      call slacks()
-      worst = -thr
+      call slacks(wk, rs, ia, ib, v, u)
+      worst = -rs%thr
       t = 0
-      do j = 1, m
+      do j = 1, rs%m
         if (wk%pos(j) /= 0 .or. wk%refused(j)) cycle
         if (wk%slack(j) < worst) then
           worst = wk%slack(j); t = j
         end if
       end do
       if (t == 0) then
-        if (refined .or. k == 0) then
+        if (refined .or. rs%k == 0) then
           stats%converged = .true.
           exit outer
         end if
         ! one step of iterative refinement on P, then test again
         refined = .true.
-        call refresh_yc()
-        do p = 1, k
-          wk%x(p) = wk%slack(wk%plist(p))
-        end do
-        call solve_rhs(wk%x)
-        if (all(wk%lam(wk%plist(1:k)) - wk%x(1:k) > 0.0_wp)) then
-          do p = 1, k
-            wk%lam(wk%plist(p)) = wk%lam(wk%plist(p)) - wk%x(p)
-          end do
-        end if
+        call refine(wk, rs)
         cycle outer
       end if
       refined = .false.
-      if (it >= itmax) exit outer
-      it = it + 1
-      call append(t, ok)
-      if (ok) then
-        call solve_p()
-        if (wk%z(k) <= 0.0_wp) then
-          ! round-off: the entering row does not help; refuse it
-          call remove(k)
-          wk%refused(t) = .true.
-          cycle outer
-        end if
-      else
-        ! dependent row: b_t = B_P^T alpha with L^T alpha = r (r left by append)
-        wk%x(1:k) = wk%r(1:k)
-        call back(wk%x)
-        xmax = maxval(abs(wk%x(1:k)))
-        tau = huge(1.0_wp); pmin = 0
-        do p = 1, k
-          if (wk%x(p) > 1.0e-12_wp * xmax) then
-            q = wk%lam(wk%plist(p)) / wk%x(p)
-            if (q < tau) then
-              tau = q; pmin = p
-            end if
-          end if
-        end do
-        if (pmin == 0) then
-          stats%infeasible = .true.
-          exit outer
-        end if
-        stats%n_exchanges = stats%n_exchanges + 1
-        do p = 1, k
-          wk%lam(wk%plist(p)) = max(0.0_wp, wk%lam(wk%plist(p)) - tau * wk%x(p))
-        end do
-        wk%lam(wk%plist(pmin)) = 0.0_wp
-        call remove(pmin)
-        wk%lam(t) = tau
-        call append(t, ok)
-        if (.not. ok) then
-          wk%lam(t) = 0.0_wp
-          wk%refused(t) = .true.
-        end if
-        ! rows at zero leave P (keeps lambda_P > 0 before the step-back loop)
-        do p = k, 1, -1
-          if (wk%lam(wk%plist(p)) <= 0.0_wp) then
-            wk%lam(wk%plist(p)) = 0.0_wp
-            call remove(p)
-          end if
-        end do
-        if (k == 0) cycle outer
-        call solve_p()
-        if (.not. ok) then
-          call step_back()
-          cycle outer
-        end if
-      end if
-      call step_back()
-      wk%refused(1:m) = .false.
+      if (rs%it >= rs%itmax) exit outer
+      rs%it = rs%it + 1
+      call enter_row(wk, rs, ia, ib, t, stats, next)
+      if (next == NEXT_STOP) exit outer
     end do outer
-    stats%iterations = it
-    if (stats%infeasible) return
-    call slacks()
-    ! the stopping test only looks at the rows outside P: B_P u = d_P must hold as well
-    if (stats%converged .and. k > 0) then
-      if (maxval(abs(wk%slack(wk%plist(1:k)))) > thr) stats%converged = .false.
+  end subroutine ldp_iterate
+
+  !> One step of iterative refinement on P: lambda_P <- lambda_P - (L L^T)^{-1} slack_P when
+  !> it keeps lambda_P > 0.
+  subroutine refine(wk, rs)
+    type(contact_ldp_work_t), intent(inout) :: wk
+    type(cldp_run_t), intent(inout) :: rs
+    integer :: p
+    call refresh_yc(wk, rs)
+    do p = 1, rs%k
+      wk%x(p) = wk%slack(wk%plist(p))
+    end do
+    call solve_rhs(wk, rs, wk%x)
+    if (all(wk%lam(wk%plist(1:rs%k)) - wk%x(1:rs%k) > 0.0_wp)) then
+      do p = 1, rs%k
+        wk%lam(wk%plist(p)) = wk%lam(wk%plist(p)) - wk%x(p)
+      end do
     end if
-    call finish()
+  end subroutine refine
 
-  contains
+  !> Row t enters P (a dependent row by exchange), then the step-back loop; next tells the
+  !> main loop to go on (NEXT_GO, NEXT_CYCLE) or stop (NEXT_STOP: infeasible).
+  subroutine enter_row(wk, rs, ia, ib, t, stats, next)
+    type(contact_ldp_work_t), intent(inout) :: wk
+    type(cldp_run_t), intent(inout) :: rs
+    integer, intent(in) :: ia(:), ib(:)
+    integer, intent(in) :: t
+    type(contact_ldp_stats_t), intent(inout) :: stats
+    integer, intent(out) :: next
+    logical :: ok
+    next = NEXT_CYCLE
+    call append(wk, rs, ia, ib, t, ok)
+    if (ok) then
+      call solve_p(wk, rs)
+      if (wk%z(rs%k) <= 0.0_wp) then
+        ! round-off: the entering row does not help; refuse it
+        call remove(wk, rs, rs%k)
+        wk%refused(t) = .true.
+        return
+      end if
+    else
+      call exchange(wk, rs, ia, ib, t, stats, next)
+      if (next /= NEXT_GO) return
+    end if
+    call step_back(wk, rs)
+    wk%refused(1:rs%m) = .false.
+    next = NEXT_GO
+  end subroutine enter_row
 
-    !> LH inner loop: move lambda towards z (the minimiser on P) until positive; on exit
-    !> lambda_P = z > 0.
-    subroutine step_back()
-      integer :: pp, jj
-      do
-        if (k == 0) return
-        if (all(wk%z(1:k) > 0.0_wp)) exit
-        if (it >= itmax) exit
-        it = it + 1
-        call lh_step_back(wk%lam, wk%z(1:k), wk%plist(1:k))
-        do pp = k, 1, -1
-          jj = wk%plist(pp)
-          if (wk%lam(jj) <= 0.0_wp) then
-            wk%lam(jj) = 0.0_wp
-            call remove(pp)
-          end if
-        end do
-        if (k == 0) return
-        call solve_p()
-      end do
-      do pp = 1, k
-        wk%lam(wk%plist(pp)) = max(wk%z(pp), 0.0_wp)
-      end do
-    end subroutine step_back
+  !> Dependent row t: b_t = B_P^T alpha with L^T alpha = r (r left by append); the ratio test
+  !> over alpha_i > 0 gives the row that leaves (Goldfarb-Idnani partial step); none: the
+  !> constraints are infeasible (NEXT_STOP).
+  subroutine exchange(wk, rs, ia, ib, t, stats, next)
+    type(contact_ldp_work_t), intent(inout) :: wk
+    type(cldp_run_t), intent(inout) :: rs
+    integer, intent(in) :: ia(:), ib(:)
+    integer, intent(in) :: t
+    type(contact_ldp_stats_t), intent(inout) :: stats
+    integer, intent(out) :: next
+    integer :: p, pmin
+    real(wp) :: tau, q, xmax
+    logical :: ok
+    next = NEXT_CYCLE
+    wk%x(1:rs%k) = wk%r(1:rs%k)
+    call back(wk, rs, wk%x)
+    xmax = maxval(abs(wk%x(1:rs%k)))
+    tau = huge(1.0_wp); pmin = 0
+    do p = 1, rs%k
+      if (wk%x(p) > 1.0e-12_wp * xmax) then
+        q = wk%lam(wk%plist(p)) / wk%x(p)
+        if (q < tau) then
+          tau = q; pmin = p
+        end if
+      end if
+    end do
+    if (pmin == 0) then
+      stats%infeasible = .true.
+      next = NEXT_STOP
+      return
+    end if
+    stats%n_exchanges = stats%n_exchanges + 1
+    do p = 1, rs%k
+      wk%lam(wk%plist(p)) = max(0.0_wp, wk%lam(wk%plist(p)) - tau * wk%x(p))
+    end do
+    wk%lam(wk%plist(pmin)) = 0.0_wp
+    call remove(wk, rs, pmin)
+    wk%lam(t) = tau
+    call append(wk, rs, ia, ib, t, ok)
+    if (.not. ok) then
+      wk%lam(t) = 0.0_wp
+      wk%refused(t) = .true.
+    end if
+    ! rows at zero leave P (keeps lambda_P > 0 before the step-back loop)
+    do p = rs%k, 1, -1
+      if (wk%lam(wk%plist(p)) <= 0.0_wp) then
+        wk%lam(wk%plist(p)) = 0.0_wp
+        call remove(wk, rs, p)
+      end if
+    end do
+    if (rs%k == 0) return
+    call solve_p(wk, rs)
+    if (.not. ok) then
+      call step_back(wk, rs)
+      return
+    end if
+    next = NEXT_GO
+  end subroutine exchange
 
-    !> u = v - B_P^T lambda_P, slack = d - B u (normalised rows)
-    subroutine slacks()
-      integer :: pp, jj, a, b
-      u = v
-      do pp = 1, k
+  !> LH inner loop: move lambda towards z (the minimiser on P) until positive; on exit
+  !> lambda_P = z > 0.
+  subroutine step_back(wk, rs)
+    type(contact_ldp_work_t), intent(inout) :: wk
+    type(cldp_run_t), intent(inout) :: rs
+    integer :: pp, jj
+    do
+      if (rs%k == 0) return
+      if (all(wk%z(1:rs%k) > 0.0_wp)) exit
+      if (rs%it >= rs%itmax) exit
+      rs%it = rs%it + 1
+      call lh_step_back(wk%lam, wk%z(1:rs%k), wk%plist(1:rs%k))
+      do pp = rs%k, 1, -1
         jj = wk%plist(pp)
-        a = ia(jj); b = ib(jj)
-        u(2*a - 1:2*a) = u(2*a - 1:2*a) - wk%lam(jj) * wk%c(:, jj)
-        if (b > 0) u(2*b - 1:2*b) = u(2*b - 1:2*b) + wk%lam(jj) * wk%c(:, jj)
-      end do
-      do jj = 1, m
-        wk%slack(jj) = wk%dd(jj) - rowdot_v(jj, u)
-      end do
-    end subroutine slacks
-
-    subroutine finish()
-      integer :: jj
-      stats%n_passive = k
-      stats%max_violation = 0.0_wp
-      do jj = 1, m
-        lambda(jj) = wk%lam(jj) / wk%rn(jj)
-        stats%max_violation = max(stats%max_violation, -wk%slack(jj) * wk%rn(jj))
-      end do
-    end subroutine finish
-
-    !> yc = L^{-1} (B v - d)_P from scratch (the updates of remove lose accuracy when yc is large)
-    subroutine refresh_yc()
-      integer :: pp
-      do pp = 1, k
-        wk%yc(pp) = wk%cc(wk%plist(pp))
-      end do
-      call forward(wk%yc)
-    end subroutine refresh_yc
-
-    !> z = (B_P B_P^T)^{-1} (B v - d)_P = L^{-T} yc
-    subroutine solve_p()
-      wk%z(1:k) = wk%yc(1:k)
-      call back(wk%z)
-    end subroutine solve_p
-
-    !> b = (L L^T)^{-1} b
-    subroutine solve_rhs(b)
-      real(wp), intent(inout) :: b(:)
-      call forward(b)
-      call back(b)
-    end subroutine solve_rhs
-
-    !> b = L^{-1} b (column oriented, skips zeros)
-    subroutine forward(b)
-      real(wp), intent(inout) :: b(:)
-      integer :: ii
-      do ii = 1, k
-        if (b(ii) /= 0.0_wp) then
-          b(ii) = b(ii) / wk%l(ii, ii)
-          b(ii + 1:k) = b(ii + 1:k) - b(ii) * wk%l(ii + 1:k, ii)
+        if (wk%lam(jj) <= 0.0_wp) then
+          wk%lam(jj) = 0.0_wp
+          call remove(wk, rs, pp)
         end if
       end do
-    end subroutine forward
+      if (rs%k == 0) return
+      call solve_p(wk, rs)
+    end do
+    do pp = 1, rs%k
+      wk%lam(wk%plist(pp)) = max(wk%z(pp), 0.0_wp)
+    end do
+  end subroutine step_back
 
-    !> b = L^{-T} b
-    subroutine back(b)
-      real(wp), intent(inout) :: b(:)
-      integer :: ii
-      do ii = k, 1, -1
-        b(ii) = (b(ii) - dot_product(wk%l(ii + 1:k, ii), b(ii + 1:k))) / wk%l(ii, ii)
-      end do
-    end subroutine back
+  !> u = v - B_P^T lambda_P, slack = d - B u (normalised rows)
+  subroutine slacks(wk, rs, ia, ib, v, u)
+    type(contact_ldp_work_t), intent(inout) :: wk
+    type(cldp_run_t), intent(in) :: rs
+    integer, intent(in) :: ia(:), ib(:)
+    real(wp), intent(in) :: v(:)
+    real(wp), intent(inout) :: u(:)
+    integer :: pp, jj, a, b
+    u = v
+    do pp = 1, rs%k
+      jj = wk%plist(pp)
+      a = ia(jj); b = ib(jj)
+      u(2*a - 1:2*a) = u(2*a - 1:2*a) - wk%lam(jj) * wk%c(:, jj)
+      if (b > 0) u(2*b - 1:2*b) = u(2*b - 1:2*b) + wk%lam(jj) * wk%c(:, jj)
+    end do
+    do jj = 1, rs%m
+      wk%slack(jj) = wk%dd(jj) - rowdot_v(wk, ia, ib, jj, u)
+    end do
+  end subroutine slacks
 
-    !> Append row jt to P (k -> k + 1) unless dependent (okk = .false.; then wk%r(1:k) holds
-    !> L^{-1} B_P b_jt).
-    subroutine append(jt, okk)
-      integer, intent(in) :: jt
-      logical, intent(out) :: okk
-      integer :: pp
-      real(wp) :: delta, btt
-      okk = .false.
-      do pp = 1, k
-        wk%r(pp) = rowdot(wk%plist(pp), jt)
-      end do
-      call forward(wk%r)
-      btt = rowdot(jt, jt)
-      delta = btt - sum(wk%r(1:k)**2)
-      if (delta <= dep_tol * btt .or. k >= kmax) return
-      k = k + 1
-      wk%l(k, 1:k - 1) = wk%r(1:k - 1)
-      wk%l(k, k) = sqrt(delta)
-      wk%yc(k) = (wk%cc(jt) - dot_product(wk%r(1:k - 1), wk%yc(1:k - 1))) / wk%l(k, k)
-      wk%plist(k) = jt
-      wk%pos(jt) = k
-      okk = .true.
-    end subroutine append
+  !> Multipliers in the original units, passive rows and largest violation.
+  subroutine finish(wk, rs, lambda, stats)
+    type(contact_ldp_work_t), intent(in) :: wk
+    type(cldp_run_t), intent(in) :: rs
+    real(wp), intent(inout) :: lambda(:)
+    type(contact_ldp_stats_t), intent(inout) :: stats
+    integer :: jj
+    stats%n_passive = rs%k
+    stats%max_violation = 0.0_wp
+    do jj = 1, rs%m
+      lambda(jj) = wk%lam(jj) / wk%rn(jj)
+      stats%max_violation = max(stats%max_violation, -wk%slack(jj) * wk%rn(jj))
+    end do
+  end subroutine finish
 
-    !> Remove passive position pr (k -> k - 1): delete row and column pr of L and restore the
-    !> factor of the trailing block by a rank-one update with the deleted column.
-    subroutine remove(pr)
-      integer, intent(in) :: pr
-      integer :: cc2, ii
-      real(wp) :: rr, cg, sg, eta, t1
-      wk%pos(wk%plist(pr)) = 0
-      ! yc: the trailing part goes through the same rotations as [L33, l32] (eta = old yc(pr))
-      eta = wk%yc(pr)
-      wk%yc(pr:k - 1) = wk%yc(pr + 1:k)
-      wk%y(pr:k - 1) = wk%l(pr + 1:k, pr)
-      do cc2 = 1, pr - 1
-        wk%l(pr:k - 1, cc2) = wk%l(pr + 1:k, cc2)
-      end do
-      do cc2 = pr + 1, k
-        wk%l(cc2 - 1:k - 1, cc2 - 1) = wk%l(cc2:k, cc2)
-        wk%plist(cc2 - 1) = wk%plist(cc2)
-        wk%pos(wk%plist(cc2 - 1)) = cc2 - 1
-      end do
-      k = k - 1
-      do ii = pr, k
-        rr = hypot(wk%l(ii, ii), wk%y(ii))
-        t1 = wk%yc(ii)
-        wk%yc(ii) = (wk%l(ii, ii) * t1 + wk%y(ii) * eta) / rr
-        eta = (-wk%y(ii) * t1 + wk%l(ii, ii) * eta) / rr
-        cg = rr / wk%l(ii, ii); sg = wk%y(ii) / wk%l(ii, ii)
-        wk%l(ii, ii) = rr
-        wk%l(ii + 1:k, ii) = (wk%l(ii + 1:k, ii) + sg * wk%y(ii + 1:k)) / cg
-        wk%y(ii + 1:k) = cg * wk%y(ii + 1:k) - sg * wk%l(ii + 1:k, ii)
-      end do
-    end subroutine remove
+  !> yc = L^{-1} (B v - d)_P from scratch (the updates of remove lose accuracy when yc is large)
+  subroutine refresh_yc(wk, rs)
+    type(contact_ldp_work_t), intent(inout) :: wk
+    type(cldp_run_t), intent(in) :: rs
+    integer :: pp
+    do pp = 1, rs%k
+      wk%yc(pp) = wk%cc(wk%plist(pp))
+    end do
+    call forward(wk, rs, wk%yc)
+  end subroutine refresh_yc
 
-    !> b_j1 . b_j2 (normalised rows)
-    pure real(wp) function rowdot(j1, j2) result(s)
-      integer, intent(in) :: j1, j2
-      real(wp) :: cd
-      s = 0.0_wp
-      cd = wk%c(1, j1) * wk%c(1, j2) + wk%c(2, j1) * wk%c(2, j2)
-      if (ia(j1) == ia(j2)) s = s + cd
-      if (ib(j1) > 0) then
-        if (ib(j1) == ia(j2)) s = s - cd
-        if (ib(j1) == ib(j2)) s = s + cd
+  !> z = (B_P B_P^T)^{-1} (B v - d)_P = L^{-T} yc
+  subroutine solve_p(wk, rs)
+    type(contact_ldp_work_t), intent(inout) :: wk
+    type(cldp_run_t), intent(in) :: rs
+    wk%z(1:rs%k) = wk%yc(1:rs%k)
+    call back(wk, rs, wk%z)
+  end subroutine solve_p
+
+  !> b = (L L^T)^{-1} b
+  subroutine solve_rhs(wk, rs, b)
+    type(contact_ldp_work_t), intent(in) :: wk
+    type(cldp_run_t), intent(in) :: rs
+    real(wp), intent(inout) :: b(:)
+    call forward(wk, rs, b)
+    call back(wk, rs, b)
+  end subroutine solve_rhs
+
+  !> b = L^{-1} b (column oriented, skips zeros)
+  subroutine forward(wk, rs, b)
+    type(contact_ldp_work_t), intent(in) :: wk
+    type(cldp_run_t), intent(in) :: rs
+    real(wp), intent(inout) :: b(:)
+    integer :: ii, k
+    k = rs%k
+    do ii = 1, k
+      if (b(ii) /= 0.0_wp) then
+        b(ii) = b(ii) / wk%l(ii, ii)
+        b(ii + 1:k) = b(ii + 1:k) - b(ii) * wk%l(ii + 1:k, ii)
       end if
-      if (ib(j2) > 0) then
-        if (ia(j1) == ib(j2)) s = s - cd
-      end if
-    end function rowdot
+    end do
+  end subroutine forward
 
-    !> b_j . w (normalised row)
-    pure real(wp) function rowdot_v(j, w) result(s)
-      integer, intent(in) :: j
-      real(wp), intent(in) :: w(:)
-      integer :: a, b
-      a = ia(j); b = ib(j)
-      s = wk%c(1, j) * w(2*a - 1) + wk%c(2, j) * w(2*a)
-      if (b > 0) s = s - wk%c(1, j) * w(2*b - 1) - wk%c(2, j) * w(2*b)
-    end function rowdot_v
+  !> b = L^{-T} b
+  subroutine back(wk, rs, b)
+    type(contact_ldp_work_t), intent(in) :: wk
+    type(cldp_run_t), intent(in) :: rs
+    real(wp), intent(inout) :: b(:)
+    integer :: ii, k
+    k = rs%k
+    do ii = k, 1, -1
+      b(ii) = (b(ii) - dot_product(wk%l(ii + 1:k, ii), b(ii + 1:k))) / wk%l(ii, ii)
+    end do
+  end subroutine back
 
-  end subroutine contact_ldp_solve
+  !> Append row jt to P (k -> k + 1) unless dependent (okk = .false.; then wk%r(1:k) holds
+  !> L^{-1} B_P b_jt).
+  subroutine append(wk, rs, ia, ib, jt, okk)
+    type(contact_ldp_work_t), intent(inout) :: wk
+    type(cldp_run_t), intent(inout) :: rs
+    integer, intent(in) :: ia(:), ib(:)
+    integer, intent(in) :: jt
+    logical, intent(out) :: okk
+    integer :: pp, k
+    real(wp) :: delta, btt
+    okk = .false.
+    k = rs%k
+    do pp = 1, k
+      wk%r(pp) = rowdot(wk, ia, ib, wk%plist(pp), jt)
+    end do
+    call forward(wk, rs, wk%r)
+    btt = rowdot(wk, ia, ib, jt, jt)
+    delta = btt - sum(wk%r(1:k)**2)
+    if (delta <= dep_tol * btt .or. k >= rs%kmax) return
+    k = k + 1
+    rs%k = k
+    wk%l(k, 1:k - 1) = wk%r(1:k - 1)
+    wk%l(k, k) = sqrt(delta)
+    wk%yc(k) = (wk%cc(jt) - dot_product(wk%r(1:k - 1), wk%yc(1:k - 1))) / wk%l(k, k)
+    wk%plist(k) = jt
+    wk%pos(jt) = k
+    okk = .true.
+  end subroutine append
+
+  !> Remove passive position pr (k -> k - 1): delete row and column pr of L and restore the
+  !> factor of the trailing block by a rank-one update with the deleted column.
+  subroutine remove(wk, rs, pr)
+    type(contact_ldp_work_t), intent(inout) :: wk
+    type(cldp_run_t), intent(inout) :: rs
+    integer, intent(in) :: pr
+    integer :: cc2, ii, k
+    real(wp) :: rr, cg, sg, eta, t1
+    k = rs%k
+    wk%pos(wk%plist(pr)) = 0
+    ! yc: the trailing part goes through the same rotations as [L33, l32] (eta = old yc(pr))
+    eta = wk%yc(pr)
+    wk%yc(pr:k - 1) = wk%yc(pr + 1:k)
+    wk%y(pr:k - 1) = wk%l(pr + 1:k, pr)
+    do cc2 = 1, pr - 1
+      wk%l(pr:k - 1, cc2) = wk%l(pr + 1:k, cc2)
+    end do
+    do cc2 = pr + 1, k
+      wk%l(cc2 - 1:k - 1, cc2 - 1) = wk%l(cc2:k, cc2)
+      wk%plist(cc2 - 1) = wk%plist(cc2)
+      wk%pos(wk%plist(cc2 - 1)) = cc2 - 1
+    end do
+    k = k - 1
+    rs%k = k
+    do ii = pr, k
+      rr = hypot(wk%l(ii, ii), wk%y(ii))
+      t1 = wk%yc(ii)
+      wk%yc(ii) = (wk%l(ii, ii) * t1 + wk%y(ii) * eta) / rr
+      eta = (-wk%y(ii) * t1 + wk%l(ii, ii) * eta) / rr
+      cg = rr / wk%l(ii, ii); sg = wk%y(ii) / wk%l(ii, ii)
+      wk%l(ii, ii) = rr
+      wk%l(ii + 1:k, ii) = (wk%l(ii + 1:k, ii) + sg * wk%y(ii + 1:k)) / cg
+      wk%y(ii + 1:k) = cg * wk%y(ii + 1:k) - sg * wk%l(ii + 1:k, ii)
+    end do
+  end subroutine remove
+
+  !> b_j1 . b_j2 (normalised rows)
+  pure real(wp) function rowdot(wk, ia, ib, j1, j2) result(s)
+    type(contact_ldp_work_t), intent(in) :: wk
+    integer, intent(in) :: ia(:), ib(:)
+    integer, intent(in) :: j1, j2
+    real(wp) :: cd
+    s = 0.0_wp
+    cd = wk%c(1, j1) * wk%c(1, j2) + wk%c(2, j1) * wk%c(2, j2)
+    if (ia(j1) == ia(j2)) s = s + cd
+    if (ib(j1) > 0) then
+      if (ib(j1) == ia(j2)) s = s - cd
+      if (ib(j1) == ib(j2)) s = s + cd
+    end if
+    if (ib(j2) > 0) then
+      if (ia(j1) == ib(j2)) s = s - cd
+    end if
+  end function rowdot
+
+  !> b_j . w (normalised row)
+  pure real(wp) function rowdot_v(wk, ia, ib, j, w) result(s)
+    type(contact_ldp_work_t), intent(in) :: wk
+    integer, intent(in) :: ia(:), ib(:)
+    integer, intent(in) :: j
+    real(wp), intent(in) :: w(:)
+    integer :: a, b
+    a = ia(j); b = ib(j)
+    s = wk%c(1, j) * w(2*a - 1) + wk%c(2, j) * w(2*a)
+    if (b > 0) s = s - wk%c(1, j) * w(2*b - 1) - wk%c(2, j) * w(2*b)
+  end function rowdot_v
 
 end module cr_contact_ldp

@@ -117,6 +117,14 @@ module cr_dual_qp
     procedure, private :: reserve
   end type dual_qp_t
 
+  !> The state of one solve shared by its parts: sizes, active-set size and cap, iterations.
+  type :: dqp_run_t
+    !> rows, unknowns, active rows, largest active set, iterations and their cap
+    integer :: m = 0, n = 0, k = 0, kmax = 0, it = 0, itmax = 0
+    !> machine epsilon, |u| of the last sweep
+    real(wp) :: eps = 0, unorm = 0
+  end type dqp_run_t
+
 contains
 
   !> x . y with eight partial sums (the compiler keeps the order of a plain sum, which makes
@@ -193,24 +201,25 @@ contains
     integer, intent(in), optional :: max_iter
     !> largest active set handled (default min(m, n))
     integer, intent(in), optional :: max_active
-    integer :: kmax, m, n, k, i, j, p, it, itmax, jmin, ref, nc, c, pc
-    real(wp) :: eps, unorm, best, t1, t2, t, zeta, viol, lp
-    logical :: use_warm, dependent, ok, need_sweep, track, clamped
+    type(dqp_run_t) :: rs
+    integer :: i, m
+    logical :: use_warm
 
-    m = size(bt, 2); n = size(bt, 1)
-    eps = epsilon(1.0_wp)
+    m = size(bt, 2)
+    rs%m = m; rs%n = size(bt, 1)
+    rs%eps = epsilon(1.0_wp)
     use_warm = .true.
     if (present(warm)) use_warm = warm
-    itmax = 4 * m + 20
-    if (present(max_iter)) itmax = max_iter
+    rs%itmax = 4 * m + 20
+    if (present(max_iter)) rs%itmax = max_iter
     if (m == 0) then
       u = v
       stats%certified = .true.
       return
     end if
-    call this%reserve(m, n)
-    kmax = this%kcap
-    if (present(max_active)) kmax = max(0, min(kmax, max_active))
+    call this%reserve(m, rs%n)
+    rs%kmax = this%kcap
+    if (present(max_active)) rs%kmax = max(0, min(rs%kmax, max_active))
     ! squared row norms (the Gram diagonal)
     if (present(gsrc)) then
       call gsrc%gram_diag(this%nrm2(1:m))
@@ -221,61 +230,71 @@ contains
     end if
     this%nrm(1:m) = sqrt(this%nrm2(1:m))
     this%in_a(1:m) = .false.
-    k = 0
-    it = 0
+    rs%k = 0
+    rs%it = 0
 
     ! ---- warm start: factor the guessed rows, solve the equality problem, drop lambda < 0
-    if (use_warm .and. present(max_active)) stats%overfull = count(lambda > 0) > kmax
-    if (use_warm .and. .not. stats%overfull) then
-      do i = 1, m
-        if (lambda(i) > 0 .and. this%nrm2(i) > 0 .and. k < kmax) then
-          call entering(i, zeta)
-          if (zeta > ZTOL * this%nrm2(i)) call append(i, zeta)
-        end if
-      end do
-      do
-        if (k == 0) exit
-        ! G_A lambda_A = Bm_A v - d_A
-        do j = 1, k
-          this%y(j) = dot8(bt(:, this%act(j)), v) - d(this%act(j))
-        end do
-        call chol_solve(this%y(1:k), this%lam(1:k))
-        if (all(this%lam(1:k) >= 0)) exit
-        do j = k, 1, -1
-          if (this%lam(j) < 0) call drop(j)
-        end do
-      end do
-    end if
+    if (use_warm .and. present(max_active)) stats%overfull = count(lambda > 0) > rs%kmax
+    if (use_warm .and. .not. stats%overfull) call warm_start(this, rs, bt, d, v, lambda, gsrc)
+    call gi_iterate(this, rs, bt, d, v, u, stats, gsrc)
+    call certify(this, rs, bt, d, v, u, stats)
+    call return_iterate(this, rs, bt, d, v, u, lambda, stats)
+  end subroutine solve
 
-    ! ---- Goldfarb-Idnani iteration
+  !> Factor the rows guessed by lambda > 0, solve the equality problem on them and drop the
+  !> rows with a negative multiplier until none is left.
+  subroutine warm_start(this, rs, bt, d, v, lambda, gsrc)
+    class(dual_qp_t), intent(inout) :: this
+    type(dqp_run_t), intent(inout) :: rs
+    real(wp), contiguous, intent(in) :: bt(:,:)
+    real(wp), intent(in) :: d(:)
+    real(wp), contiguous, intent(in) :: v(:)
+    real(wp), intent(in) :: lambda(:)
+    class(gram_source_t), intent(in), optional :: gsrc
+    integer :: i, j
+    real(wp) :: zeta
+    do i = 1, rs%m
+      if (lambda(i) > 0 .and. this%nrm2(i) > 0 .and. rs%k < rs%kmax) then
+        call entering(this, rs, bt, i, zeta, gsrc)
+        if (zeta > ZTOL * this%nrm2(i)) call append(this, rs, i, zeta)
+      end if
+    end do
+    do
+      if (rs%k == 0) exit
+      ! G_A lambda_A = Bm_A v - d_A
+      do j = 1, rs%k
+        this%y(j) = dot8(bt(:, this%act(j)), v) - d(this%act(j))
+      end do
+      call chol_solve(this%lf, this%y(1:rs%k), this%lam(1:rs%k))
+      if (all(this%lam(1:rs%k) >= 0)) exit
+      do j = rs%k, 1, -1
+        if (this%lam(j) < 0) call drop(this, rs, j)
+      end do
+    end do
+  end subroutine warm_start
+
+  !> Goldfarb-Idnani iteration: sweep for the violated inactive rows (candidates), take the
+  !> most violated one by its tracked slack into the active set (gi_pivot), sweep again when
+  !> no candidate is left violated; stops when a sweep finds none or a flag of stats is set.
+  subroutine gi_iterate(this, rs, bt, d, v, u, stats, gsrc)
+    class(dual_qp_t), intent(inout) :: this
+    type(dqp_run_t), intent(inout) :: rs
+    real(wp), contiguous, intent(in) :: bt(:,:)
+    real(wp), intent(in) :: d(:)
+    real(wp), contiguous, intent(in) :: v(:)
+    real(wp), contiguous, intent(inout) :: u(:)
+    type(dual_qp_stats_t), intent(inout) :: stats
+    class(gram_source_t), intent(in), optional :: gsrc
+    integer :: i, p, nc, c, pc
+    real(wp) :: best
+    logical :: need_sweep, track, stop
     need_sweep = .true.
     nc = 0
     outer: do
       if (stats%overfull) exit outer
       if (need_sweep) then
-        call primal()
-        stats%sweeps = stats%sweeps + 1
-        if (stats%sweeps == 1) then
-          if (.not. ieee_is_finite(sum(this%s(1:m)))) then
-            stats%nonfinite = .true.
-            exit outer
-          end if
-        end if
-        ! candidates: the violated inactive rows
-        nc = 0
-        do i = 1, m
-          if (this%in_a(i)) cycle
-          if (-this%s(i) > this%tau(i)) then
-            if (this%nrm2(i) == 0) then
-              stats%infeasible = .true.
-              exit outer
-            end if
-            nc = nc + 1
-            this%cand(nc) = i
-            this%sc(nc) = this%s(i)
-          end if
-        end do
-        if (nc == 0) exit outer
+        call sweep(this, rs, bt, d, v, u, stats, nc, stop)
+        if (stop .or. nc == 0) exit outer
         need_sweep = .false.
       end if
       ! most violated candidate (scaled by its norm) by its tracked slack
@@ -296,92 +315,182 @@ contains
       do c = 1, nc
         if (c /= pc .and. .not. this%in_a(this%cand(c))) track = .true.
       end do
-      viol = -this%sc(pc)
-      lp = 0
-      inner: do
-        if (it >= itmax) then
-          stats%capped = .true.
-          exit outer
-        end if
-        it = it + 1
-        call entering(p, zeta)
-        dependent = .not. zeta > ZTOL * this%nrm2(p) .or. k >= this%kcap
-        t2 = huge(1.0_wp)
-        if (.not. dependent) t2 = viol / zeta
-        ! r = G_A^{-1} G_Ap: back substitution on y = L^{-1} G_Ap
-        call back_solve(this%y(1:k), this%r(1:k))
-        t1 = huge(1.0_wp)
-        jmin = 0
-        do j = 1, k
-          if (this%r(j) > 0) then
-            if (this%lam(j) / this%r(j) < t1) then
-              t1 = this%lam(j) / this%r(j); jmin = j
-            end if
-          end if
-        end do
-        if (jmin == 0 .and. dependent) then
-          stats%infeasible = .true.
-          exit outer
-        end if
-        t = min(t1, t2)
-        if (track) then
-          ! the other candidates' slacks move by t b_c . z, z = b_p - Bm_A^T r (O(k n + nc n)
-          ! instead of a sweep)
-          this%zdir(1:n) = bt(:, p)
-          do j = 1, k
-            this%zdir(1:n) = this%zdir(1:n) - this%r(j) * bt(:, this%act(j))
-          end do
-          do c = 1, nc
-            i = this%cand(c)
-            if (c == pc .or. this%in_a(i)) cycle
-            this%sc(c) = this%sc(c) + t * dot8(bt(:, i), this%zdir(1:n))
-          end do
-        end if
-        this%lam(1:k) = this%lam(1:k) - t * this%r(1:k)
-        lp = lp + t
-        if (t2 <= t1) then
-          if (k >= kmax) then
-            stats%overfull = .true.
-            exit outer
-          end if
-          call append(p, zeta)
-          this%lam(k) = lp
-          ! an active row has s = 0; should it leave A later, its slack is tracked from 0
-          this%sc(pc) = 0
-          stats%adds = stats%adds + 1
-          exit inner
-        end if
-        viol = viol - t * zeta
-        this%lam(jmin) = 0
-        call drop(jmin)
-        ! the dropped row may be a candidate, tracked from now on
-        track = nc > 1
-        stats%drops = stats%drops + 1
-      end do inner
+      call gi_pivot(this, rs, bt, p, pc, nc, track, stats, stop, gsrc)
+      if (stop) exit outer
     end do outer
+  end subroutine gi_iterate
 
-    ! ---- certificate (with up to two refinement steps on the active rows)
-    if (.not. (stats%infeasible .or. stats%capped .or. stats%nonfinite .or. stats%overfull)) then
-      do ref = 0, 2
-        ok = all(this%lam(1:k) >= 0)
-        do j = 1, k
-          ok = ok .and. abs(this%s(this%act(j))) <= this%tau(this%act(j))
-        end do
-        if (ok .or. ref == 2) exit
-        ! G_A delta = -s_A, lambda_A += delta
-        do j = 1, k
-          this%y(j) = -this%s(this%act(j))
-        end do
-        call chol_solve(this%y(1:k), this%r(1:k))
-        this%lam(1:k) = this%lam(1:k) + this%r(1:k)
-        stats%refinements = stats%refinements + 1
-        call primal()
-      end do
-      do i = 1, m
-        if (.not. this%in_a(i)) ok = ok .and. this%s(i) >= -this%tau(i)
-      end do
-      stats%certified = ok
+  !> A sweep: u, slacks and tolerances of the current iterate (primal) and the candidates, the
+  !> violated inactive rows [nc] with their slacks; stop when the data are not finite (first
+  !> sweep) or a violated row is zero (infeasible).
+  subroutine sweep(this, rs, bt, d, v, u, stats, nc, stop)
+    class(dual_qp_t), intent(inout) :: this
+    type(dqp_run_t), intent(inout) :: rs
+    real(wp), contiguous, intent(in) :: bt(:,:)
+    real(wp), intent(in) :: d(:)
+    real(wp), contiguous, intent(in) :: v(:)
+    real(wp), contiguous, intent(inout) :: u(:)
+    type(dual_qp_stats_t), intent(inout) :: stats
+    integer, intent(out) :: nc
+    logical, intent(out) :: stop
+    integer :: i
+    stop = .true.
+    nc = 0
+    call primal(this, rs, bt, d, v, u)
+    stats%sweeps = stats%sweeps + 1
+    if (stats%sweeps == 1) then
+      if (.not. ieee_is_finite(sum(this%s(1:rs%m)))) then
+        stats%nonfinite = .true.
+        return
+      end if
     end if
+    ! candidates: the violated inactive rows
+    do i = 1, rs%m
+      if (this%in_a(i)) cycle
+      if (-this%s(i) > this%tau(i)) then
+        if (this%nrm2(i) == 0) then
+          stats%infeasible = .true.
+          return
+        end if
+        nc = nc + 1
+        this%cand(nc) = i
+        this%sc(nc) = this%s(i)
+      end if
+    end do
+    stop = .false.
+  end subroutine sweep
+
+  !> Take row p (candidate pc of nc) into the active set: partial steps that drop the active
+  !> rows whose multiplier reaches zero, until p is added (with the other candidates' slacks
+  !> tracked when track); stop on the cap, an infeasible or an overfull active set.
+  subroutine gi_pivot(this, rs, bt, p, pc, nc, track, stats, stop, gsrc)
+    class(dual_qp_t), intent(inout) :: this
+    type(dqp_run_t), intent(inout) :: rs
+    real(wp), contiguous, intent(in) :: bt(:,:)
+    integer, intent(in) :: p, pc, nc
+    logical, intent(inout) :: track
+    type(dual_qp_stats_t), intent(inout) :: stats
+    logical, intent(out) :: stop
+    class(gram_source_t), intent(in), optional :: gsrc
+    integer :: i, j, jmin, c, k, n
+    real(wp) :: t1, t2, t, zeta, viol, lp
+    logical :: dependent
+    n = rs%n
+    stop = .true.
+    viol = -this%sc(pc)
+    lp = 0
+    do
+      if (rs%it >= rs%itmax) then
+        stats%capped = .true.
+        return
+      end if
+      rs%it = rs%it + 1
+      call entering(this, rs, bt, p, zeta, gsrc)
+      k = rs%k
+      dependent = .not. zeta > ZTOL * this%nrm2(p) .or. k >= this%kcap
+      t2 = huge(1.0_wp)
+      if (.not. dependent) t2 = viol / zeta
+      ! r = G_A^{-1} G_Ap: back substitution on y = L^{-1} G_Ap
+      call back_solve(this%lf, this%y(1:k), this%r(1:k))
+      t1 = huge(1.0_wp)
+      jmin = 0
+      do j = 1, k
+        if (this%r(j) > 0) then
+          if (this%lam(j) / this%r(j) < t1) then
+            t1 = this%lam(j) / this%r(j); jmin = j
+          end if
+        end if
+      end do
+      if (jmin == 0 .and. dependent) then
+        stats%infeasible = .true.
+        return
+      end if
+      t = min(t1, t2)
+      if (track) then
+        ! the other candidates' slacks move by t b_c . z, z = b_p - Bm_A^T r (O(k n + nc n)
+        ! instead of a sweep)
+        this%zdir(1:n) = bt(:, p)
+        do j = 1, k
+          this%zdir(1:n) = this%zdir(1:n) - this%r(j) * bt(:, this%act(j))
+        end do
+        do c = 1, nc
+          i = this%cand(c)
+          if (c == pc .or. this%in_a(i)) cycle
+          this%sc(c) = this%sc(c) + t * dot8(bt(:, i), this%zdir(1:n))
+        end do
+      end if
+      this%lam(1:k) = this%lam(1:k) - t * this%r(1:k)
+      lp = lp + t
+      if (t2 <= t1) then
+        if (k >= rs%kmax) then
+          stats%overfull = .true.
+          return
+        end if
+        call append(this, rs, p, zeta)
+        this%lam(rs%k) = lp
+        ! an active row has s = 0; should it leave A later, its slack is tracked from 0
+        this%sc(pc) = 0
+        stats%adds = stats%adds + 1
+        stop = .false.
+        return
+      end if
+      viol = viol - t * zeta
+      this%lam(jmin) = 0
+      call drop(this, rs, jmin)
+      ! the dropped row may be a candidate, tracked from now on
+      track = nc > 1
+      stats%drops = stats%drops + 1
+    end do
+  end subroutine gi_pivot
+
+  !> The KKT certificate of the iterate (with up to two refinement steps on the active rows),
+  !> unless the iteration stopped on a flag.
+  subroutine certify(this, rs, bt, d, v, u, stats)
+    class(dual_qp_t), intent(inout) :: this
+    type(dqp_run_t), intent(inout) :: rs
+    real(wp), contiguous, intent(in) :: bt(:,:)
+    real(wp), intent(in) :: d(:)
+    real(wp), contiguous, intent(in) :: v(:)
+    real(wp), contiguous, intent(inout) :: u(:)
+    type(dual_qp_stats_t), intent(inout) :: stats
+    integer :: i, j, ref, k
+    logical :: ok
+    if (stats%infeasible .or. stats%capped .or. stats%nonfinite .or. stats%overfull) return
+    k = rs%k
+    do ref = 0, 2
+      ok = all(this%lam(1:k) >= 0)
+      do j = 1, k
+        ok = ok .and. abs(this%s(this%act(j))) <= this%tau(this%act(j))
+      end do
+      if (ok .or. ref == 2) exit
+      ! G_A delta = -s_A, lambda_A += delta
+      do j = 1, k
+        this%y(j) = -this%s(this%act(j))
+      end do
+      call chol_solve(this%lf, this%y(1:k), this%r(1:k))
+      this%lam(1:k) = this%lam(1:k) + this%r(1:k)
+      stats%refinements = stats%refinements + 1
+      call primal(this, rs, bt, d, v, u)
+    end do
+    do i = 1, rs%m
+      if (.not. this%in_a(i)) ok = ok .and. this%s(i) >= -this%tau(i)
+    end do
+    stats%certified = ok
+  end subroutine certify
+
+  !> lambda, u and the statistics of the returned iterate.
+  subroutine return_iterate(this, rs, bt, d, v, u, lambda, stats)
+    class(dual_qp_t), intent(inout) :: this
+    type(dqp_run_t), intent(in) :: rs
+    real(wp), contiguous, intent(in) :: bt(:,:)
+    real(wp), intent(in) :: d(:)
+    real(wp), contiguous, intent(in) :: v(:)
+    real(wp), contiguous, intent(inout) :: u(:)
+    real(wp), intent(inout) :: lambda(:)
+    type(dual_qp_stats_t), intent(inout) :: stats
+    integer :: i, j, k, m
+    logical :: clamped
+    k = rs%k; m = rs%m
     ! u of the last sweep is v - Bm_A^T lambda_A unless the iteration stopped between sweeps
     ! or a multiplier is clamped at 0
     lambda = 0
@@ -410,112 +519,133 @@ contains
         stats%max_violation = max(stats%max_violation, -this%s(i))
       end do
     end if
+  end subroutine return_iterate
 
-  contains
+  !> u = v - Bm_A^T lambda_A, s = d - Bm u, tau (see the module header).
+  subroutine primal(this, rs, bt, d, v, u)
+    class(dual_qp_t), intent(inout) :: this
+    type(dqp_run_t), intent(inout) :: rs
+    real(wp), contiguous, intent(in) :: bt(:,:)
+    real(wp), intent(in) :: d(:)
+    real(wp), contiguous, intent(in) :: v(:)
+    real(wp), contiguous, intent(inout) :: u(:)
+    integer :: jj, m
+    m = rs%m
+    u = v
+    do jj = 1, rs%k
+      u = u - this%lam(jj) * bt(:, this%act(jj))
+    end do
+    this%s(1:m) = d
+    call la_gemv('T', -1.0_wp, bt, u, 1.0_wp, this%s(1:m))
+    rs%unorm = sqrt(dot8(u, u))
+    this%tau(1:m) = KKT_FACTOR * rs%eps * (this%nrm(1:m) * rs%unorm + abs(d))
+  end subroutine primal
 
-    !> u = v - Bm_A^T lambda_A, s = d - Bm u, tau (see the module header).
-    subroutine primal()
-      integer :: jj
-      u = v
-      do jj = 1, k
-        u = u - this%lam(jj) * bt(:, this%act(jj))
-      end do
-      this%s(1:m) = d
-      call la_gemv('T', -1.0_wp, bt, u, 1.0_wp, this%s(1:m))
-      unorm = sqrt(dot8(u, u))
-      this%tau(1:m) = KKT_FACTOR * eps * (this%nrm(1:m) * unorm + abs(d))
-    end subroutine primal
-
-    !> gp = G_{pA}, y = L^{-1} gp, zeta = G_pp - |y|^2.
-    subroutine entering(pp, zz)
-      integer, intent(in) :: pp
-      real(wp), intent(out) :: zz
-      integer :: jj
-      if (k > 0) then
-        if (present(gsrc)) then
-          call gsrc%gram_entries(pp, this%act(1:k), this%gp(1:k))
-        else
-          do jj = 1, k
-            this%gp(jj) = dot8(bt(:, pp), bt(:, this%act(jj)))
-          end do
-        end if
-        call forward_solve(this%gp(1:k), this%y(1:k))
+  !> gp = G_{pA}, y = L^{-1} gp, zeta = G_pp - |y|^2.
+  subroutine entering(this, rs, bt, pp, zz, gsrc)
+    class(dual_qp_t), intent(inout) :: this
+    type(dqp_run_t), intent(in) :: rs
+    real(wp), contiguous, intent(in) :: bt(:,:)
+    integer, intent(in) :: pp
+    real(wp), intent(out) :: zz
+    class(gram_source_t), intent(in), optional :: gsrc
+    integer :: jj, k
+    k = rs%k
+    if (k > 0) then
+      if (present(gsrc)) then
+        call gsrc%gram_entries(pp, this%act(1:k), this%gp(1:k))
+      else
+        do jj = 1, k
+          this%gp(jj) = dot8(bt(:, pp), bt(:, this%act(jj)))
+        end do
       end if
-      zz = this%nrm2(pp) - sum(this%y(1:k)**2)
-    end subroutine entering
+      call forward_solve(this%lf, this%gp(1:k), this%y(1:k))
+    end if
+    zz = this%nrm2(pp) - sum(this%y(1:k)**2)
+  end subroutine entering
 
-    !> Append row pp to A (its factor row is y, its pivot sqrt(zz)).
-    subroutine append(pp, zz)
-      integer, intent(in) :: pp
-      real(wp), intent(in) :: zz
-      k = k + 1
-      this%lf(k, 1:k - 1) = this%y(1:k - 1)
-      this%lf(k, k) = sqrt(zz)
-      this%act(k) = pp
-      this%lam(k) = 0
-      this%in_a(pp) = .true.
-    end subroutine append
+  !> Append row pp to A (its factor row is y, its pivot sqrt(zz)).
+  subroutine append(this, rs, pp, zz)
+    class(dual_qp_t), intent(inout) :: this
+    type(dqp_run_t), intent(inout) :: rs
+    integer, intent(in) :: pp
+    real(wp), intent(in) :: zz
+    integer :: k
+    rs%k = rs%k + 1
+    k = rs%k
+    this%lf(k, 1:k - 1) = this%y(1:k - 1)
+    this%lf(k, k) = sqrt(zz)
+    this%act(k) = pp
+    this%lam(k) = 0
+    this%in_a(pp) = .true.
+  end subroutine append
 
-    !> Remove the row at factor position jj: shift, then a rank-one update of the trailing
-    !> block by the removed column (Givens), O(k^2).
-    subroutine drop(jj)
-      integer, intent(in) :: jj
-      integer :: c, i2, nx
-      real(wp) :: a, xi, rr, cg, sg
-      this%in_a(this%act(jj)) = .false.
-      nx = k - jj
-      this%x(1:nx) = this%lf(jj + 1:k, jj)
-      do c = 1, jj - 1
-        this%lf(jj:k - 1, c) = this%lf(jj + 1:k, c)
-      end do
-      do c = jj + 1, k
-        this%lf(c - 1:k - 1, c - 1) = this%lf(c:k, c)
-      end do
-      this%act(jj:k - 1) = this%act(jj + 1:k)
-      this%lam(jj:k - 1) = this%lam(jj + 1:k)
-      k = k - 1
-      do i2 = jj, k
-        a = this%lf(i2, i2)
-        xi = this%x(i2 - jj + 1)
-        rr = hypot(a, xi)
-        cg = rr / a; sg = xi / a
-        this%lf(i2, i2) = rr
-        this%lf(i2 + 1:k, i2) = (this%lf(i2 + 1:k, i2) + sg * this%x(i2 - jj + 2:nx)) / cg
-        this%x(i2 - jj + 2:nx) = cg * this%x(i2 - jj + 2:nx) - sg * this%lf(i2 + 1:k, i2)
-      end do
-    end subroutine drop
+  !> Remove the row at factor position jj: shift, then a rank-one update of the trailing
+  !> block by the removed column (Givens), O(k^2).
+  subroutine drop(this, rs, jj)
+    class(dual_qp_t), intent(inout) :: this
+    type(dqp_run_t), intent(inout) :: rs
+    integer, intent(in) :: jj
+    integer :: c, i2, nx, k
+    real(wp) :: a, xi, rr, cg, sg
+    k = rs%k
+    this%in_a(this%act(jj)) = .false.
+    nx = k - jj
+    this%x(1:nx) = this%lf(jj + 1:k, jj)
+    do c = 1, jj - 1
+      this%lf(jj:k - 1, c) = this%lf(jj + 1:k, c)
+    end do
+    do c = jj + 1, k
+      this%lf(c - 1:k - 1, c - 1) = this%lf(c:k, c)
+    end do
+    this%act(jj:k - 1) = this%act(jj + 1:k)
+    this%lam(jj:k - 1) = this%lam(jj + 1:k)
+    k = k - 1
+    rs%k = k
+    do i2 = jj, k
+      a = this%lf(i2, i2)
+      xi = this%x(i2 - jj + 1)
+      rr = hypot(a, xi)
+      cg = rr / a; sg = xi / a
+      this%lf(i2, i2) = rr
+      this%lf(i2 + 1:k, i2) = (this%lf(i2 + 1:k, i2) + sg * this%x(i2 - jj + 2:nx)) / cg
+      this%x(i2 - jj + 2:nx) = cg * this%x(i2 - jj + 2:nx) - sg * this%lf(i2 + 1:k, i2)
+    end do
+  end subroutine drop
 
-    !> y = L^{-1} g (first size(g) rows of the factor)
-    subroutine forward_solve(g, yy)
-      real(wp), intent(in) :: g(:)
-      real(wp), intent(out) :: yy(:)
-      integer :: jj, kk
-      kk = size(g)
-      yy = g
-      do jj = 1, kk
-        yy(jj) = yy(jj) / this%lf(jj, jj)
-        yy(jj + 1:kk) = yy(jj + 1:kk) - this%lf(jj + 1:kk, jj) * yy(jj)
-      end do
-    end subroutine forward_solve
+  !> y = L^{-1} g (first size(g) rows of the factor lf)
+  subroutine forward_solve(lf, g, yy)
+    real(wp), intent(in) :: lf(:,:)
+    real(wp), intent(in) :: g(:)
+    real(wp), intent(out) :: yy(:)
+    integer :: jj, kk
+    kk = size(g)
+    yy = g
+    do jj = 1, kk
+      yy(jj) = yy(jj) / lf(jj, jj)
+      yy(jj + 1:kk) = yy(jj + 1:kk) - lf(jj + 1:kk, jj) * yy(jj)
+    end do
+  end subroutine forward_solve
 
-    !> z = L^{-T} yy
-    subroutine back_solve(yy, z)
-      real(wp), intent(in) :: yy(:)
-      real(wp), intent(out) :: z(:)
-      integer :: jj, kk
-      kk = size(yy)
-      do jj = kk, 1, -1
-        z(jj) = (yy(jj) - dot_product(this%lf(jj + 1:kk, jj), z(jj + 1:kk))) / this%lf(jj, jj)
-      end do
-    end subroutine back_solve
+  !> z = L^{-T} yy
+  subroutine back_solve(lf, yy, z)
+    real(wp), intent(in) :: lf(:,:)
+    real(wp), intent(in) :: yy(:)
+    real(wp), intent(out) :: z(:)
+    integer :: jj, kk
+    kk = size(yy)
+    do jj = kk, 1, -1
+      z(jj) = (yy(jj) - dot_product(lf(jj + 1:kk, jj), z(jj + 1:kk))) / lf(jj, jj)
+    end do
+  end subroutine back_solve
 
-    !> z = G_A^{-1} g
-    subroutine chol_solve(g, z)
-      real(wp), intent(in) :: g(:)
-      real(wp), intent(out) :: z(:)
-      real(wp) :: w(size(g))
-      call forward_solve(g, w)
-      call back_solve(w, z)
-    end subroutine chol_solve
-  end subroutine solve
+  !> z = G_A^{-1} g
+  subroutine chol_solve(lf, g, z)
+    real(wp), intent(in) :: lf(:,:)
+    real(wp), intent(in) :: g(:)
+    real(wp), intent(out) :: z(:)
+    real(wp) :: w(size(g))
+    call forward_solve(lf, g, w)
+    call back_solve(lf, w, z)
+  end subroutine chol_solve
 end module cr_dual_qp

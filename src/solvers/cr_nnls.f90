@@ -239,11 +239,9 @@ contains
     integer, intent(in) :: m, n, itmax
     type(nnls_stats_t), intent(inout) :: stats
     logical, intent(in), optional :: passive0(:)
-    integer :: k, j, t, p, it
-    real(wp) :: wmax, bn, eps, rnorm
-    logical :: ok, changed
+    integer :: k, j, p, it
+    real(wp) :: bn
 
-    eps = epsilon(1.0_wp)
     k = 0
     wk%x(1:n) = 0.0_wp
     wk%pos(1:n) = 0
@@ -261,38 +259,71 @@ contains
     stats%converged = .true.
     if (m == 0 .or. n == 0 .or. bn == 0.0_wp) then
       if (m > 0) wk%res(1:m) = wk%bs(1:m)
-      call finish()
+      call nnls_finish(wk, m, n, k, bn, stats)
       return
     end if
+    if (present(passive0)) call nnls_warm_start(wk, m, n, k, passive0)
+    call nnls_iterate(wk, m, n, itmax, k, it, stats%converged)
+    ! after a cap inside the step-back loop the entering column may still sit at x = 0:
+    ! drop such columns so that the passive set is exactly {x > 0}
+    do p = k, 1, -1
+      if (wk%x(wk%plist(p)) <= 0.0_wp) then
+        wk%x(wk%plist(p)) = 0.0_wp
+        call remove_column_impl(wk, m, p, k)
+      end if
+    end do
+    stats%iterations = it
+    call nnls_gradient(wk, m, n, k)
+    call nnls_finish(wk, m, n, k, bn, stats)
+  end subroutine nnls_core
 
-    ! ---- warm start: factor the guessed passive set, then drop non-positive coefficients
-    if (present(passive0)) then
-      do j = 1, n
-        if (passive0(j) .and. wk%cs(j) /= 0.0_wp .and. k < m) call add_column(j, k, ok)
+  !> Warm start of nnls_core: factor the guessed passive set passive0 [n], then drop
+  !> non-positive coefficients; x holds the least-squares solution on the k passive columns.
+  subroutine nnls_warm_start(wk, m, n, k, passive0)
+    type(nnls_work_t), intent(inout) :: wk
+    integer, intent(in) :: m, n
+    integer, intent(inout) :: k
+    logical, intent(in) :: passive0(:)
+    integer :: j, p
+    logical :: ok, changed
+    do j = 1, n
+      if (passive0(j) .and. wk%cs(j) /= 0.0_wp .and. k < m) call add_column_impl(wk, m, j, k, ok)
+    end do
+    do
+      if (k == 0) exit
+      call nnls_solve_r(wk, k)
+      changed = .false.
+      do p = k, 1, -1
+        if (wk%zp(p) <= 0.0_wp) then
+          call remove_column_impl(wk, m, p, k)
+          changed = .true.
+        end if
       end do
-      do
-        if (k == 0) exit
-        call solve_r(k)
-        changed = .false.
-        do p = k, 1, -1
-          if (wk%zp(p) <= 0.0_wp) then
-            call remove_column(p, k)
-            changed = .true.
-          end if
-        end do
-        if (.not. changed) exit
-      end do
-      do p = 1, k
-        wk%x(wk%plist(p)) = wk%zp(p)
-      end do
-    end if
+      if (.not. changed) exit
+    end do
+    do p = 1, k
+      wk%x(wk%plist(p)) = wk%zp(p)
+    end do
+  end subroutine nnls_warm_start
 
-    ! ---- main loop
+  !> Main loop of nnls_core (Lawson-Hanson): add the column of largest gradient, step back
+  !> until the least-squares solution on P is positive; it counts the iterations (cap itmax),
+  !> converged is set when no column may enter.
+  subroutine nnls_iterate(wk, m, n, itmax, k, it, converged)
+    type(nnls_work_t), intent(inout) :: wk
+    integer, intent(in) :: m, n, itmax
+    integer, intent(inout) :: k
+    integer, intent(out) :: it
+    logical, intent(out) :: converged
+    integer :: j, t, p
+    real(wp) :: wmax, eps, rnorm
+    logical :: ok, capped
+    eps = epsilon(1.0_wp)
     it = 0
-    stats%converged = .false.
+    converged = .false.
     outer: do
       ! optimality test in the orthogonal complement of the factorisation (see nnls_solve)
-      call complement_gradient(k, rnorm)
+      call nnls_complement_gradient(wk, m, n, k, rnorm)
       wmax = 16.0_wp * real(m, wp) * eps * rnorm
       t = 0
       do j = 1, n
@@ -302,151 +333,148 @@ contains
         end if
       end do
       if (t == 0 .or. k == m) then
-        stats%converged = .true.
+        converged = .true.
         exit outer
       end if
       if (it >= itmax) exit outer
       it = it + 1
-      call add_column(t, k, ok)
+      call add_column_impl(wk, m, t, k, ok)
       if (.not. ok) then
         wk%refused(t) = .true.
         cycle outer
       end if
       ! inner loop: step back until the least-squares solution on P is positive
-      call solve_r(k)
+      call nnls_solve_r(wk, k)
       if (wk%zp(k) <= 0.0_wp) then
         ! round-off: the entering column does not help; refuse it
-        call remove_column(k, k)
+        call remove_column_impl(wk, m, k, k)
         wk%refused(t) = .true.
         cycle outer
       end if
-      inner: do
-        if (all(wk%zp(1:k) > 0.0_wp)) exit inner
-        if (it >= itmax) exit outer
-        it = it + 1
-        call lh_step_back(wk%x, wk%zp(1:k), wk%plist(1:k))
-        do p = k, 1, -1
-          j = wk%plist(p)
-          if (wk%x(j) <= 0.0_wp) then
-            wk%x(j) = 0.0_wp
-            call remove_column(p, k)
-          end if
-        end do
-        if (k == 0) exit inner
-        call solve_r(k)
-      end do inner
+      call nnls_step_back(wk, m, itmax, k, it, capped)
+      if (capped) exit outer
       do p = 1, k
         wk%x(wk%plist(p)) = wk%zp(p)
       end do
       wk%refused(1:n) = .false.
     end do outer
-    ! after a cap inside the step-back loop the entering column may still sit at x = 0:
-    ! drop such columns so that the passive set is exactly {x > 0}
-    do p = k, 1, -1
-      if (wk%x(wk%plist(p)) <= 0.0_wp) then
-        wk%x(wk%plist(p)) = 0.0_wp
-        call remove_column(p, k)
+  end subroutine nnls_iterate
+
+  !> Inner loop of nnls_iterate: move x towards zp until the least-squares solution on P is
+  !> positive (columns reaching zero leave P); capped when the cap itmax stops it.
+  subroutine nnls_step_back(wk, m, itmax, k, it, capped)
+    type(nnls_work_t), intent(inout) :: wk
+    integer, intent(in) :: m, itmax
+    integer, intent(inout) :: k, it
+    logical, intent(out) :: capped
+    integer :: j, p
+    capped = .false.
+    do
+      if (all(wk%zp(1:k) > 0.0_wp)) exit
+      if (it >= itmax) then
+        capped = .true.
+        return
       end if
-    end do
-    stats%iterations = it
-    call gradient(k)
-    call finish()
-
-  contains
-
-    subroutine add_column(jj, kk, okk)
-      integer, intent(in) :: jj
-      integer, intent(inout) :: kk
-      logical, intent(out) :: okk
-      call add_column_impl(wk, m, jj, kk, okk)
-    end subroutine add_column
-
-    subroutine remove_column(pp, kk)
-      integer, intent(in) :: pp
-      integer, intent(inout) :: kk
-      call remove_column_impl(wk, m, pp, kk)
-    end subroutine remove_column
-
-    !> back substitution R(1:kk, 1:kk) zp = (Q^T b)(1:kk)
-    subroutine solve_r(kk)
-      integer, intent(in) :: kk
-      integer :: ii
-      do ii = kk, 1, -1
-        wk%zp(ii) = (wk%qtb(ii) - dot_product(wk%r(ii, ii + 1:kk), wk%zp(ii + 1:kk))) / wk%r(ii, ii)
-      end do
-    end subroutine solve_r
-
-    !> The residual of the least-squares solution on the passive set as the factorisation
-    !> represents it, res = Q(:, kk+1:m) (Q^T b)(kk+1:m), its norm rn = |(Q^T b)(kk+1:m)|, and
-    !> w_j = a_j^T res for the columns not in the passive set (scaled units). Unlike
-    !> a_j^T (b - A_P x_P), whose rounding is about eps |a_j| |b| whatever the true gradient,
-    !> this is accurate to about m eps |a_j| |res|: a column nearly in the span of A_P has
-    !> Q(:, kk+1:m)^T a_j small and a correspondingly small, correctly signed w_j.
-    !> O(m (m - kk) + nnz). Valid when x(plist(1:kk)) is that least-squares solution.
-    subroutine complement_gradient(kk, rn)
-      integer, intent(in) :: kk
-      real(wp), intent(out) :: rn
-      integer :: cc, jj, ii
-      real(wp) :: s
-      wk%res(1:m) = 0.0_wp
-      do cc = kk + 1, m
-        if (wk%qtb(cc) /= 0.0_wp) wk%res(1:m) = wk%res(1:m) + wk%qtb(cc) * wk%q(1:m, cc)
-      end do
-      rn = 0.0_wp
-      if (kk < m) rn = norm2(wk%qtb(kk + 1:m))
-      do jj = 1, n
-        if (wk%pos(jj) /= 0) cycle
-        s = 0.0_wp
-        do ii = wk%col(jj), wk%col(jj + 1) - 1
-          s = s + wk%val(ii) * wk%res(wk%row(ii))
-        end do
-        wk%w(jj) = s
-      end do
-    end subroutine complement_gradient
-
-    !> res = b - A_P x_P (scaled), w = A^T res (scaled): the statistics of the returned x
-    subroutine gradient(kk)
-      integer, intent(in) :: kk
-      integer :: pp, jj, ii
-      real(wp) :: s
-      wk%res(1:m) = wk%bs(1:m)
-      do pp = 1, kk
-        jj = wk%plist(pp)
-        s = wk%x(jj)
-        do ii = wk%col(jj), wk%col(jj + 1) - 1
-          wk%res(wk%row(ii)) = wk%res(wk%row(ii)) - s * wk%val(ii)
-        end do
-      end do
-      do jj = 1, n
-        s = 0.0_wp
-        do ii = wk%col(jj), wk%col(jj + 1) - 1
-          s = s + wk%val(ii) * wk%res(wk%row(ii))
-        end do
-        wk%w(jj) = s
-      end do
-    end subroutine gradient
-
-    subroutine finish()
-      integer :: jj
-      real(wp) :: viol
-      stats%n_passive = k
-      stats%residual = 0.0_wp
-      if (m > 0) stats%residual = norm2(wk%res(1:m))
-      if (m == 0 .or. n == 0 .or. bn == 0.0_wp) wk%w(1:n) = 0.0_wp
-      stats%kkt_rel = 0.0_wp
-      if (bn == 0.0_wp) return
-      do jj = 1, n
-        if (wk%cs(jj) == 0.0_wp) cycle
-        if (wk%pos(jj) > 0) then
-          viol = abs(wk%w(jj))
-        else
-          viol = max(wk%w(jj), 0.0_wp)
+      it = it + 1
+      call lh_step_back(wk%x, wk%zp(1:k), wk%plist(1:k))
+      do p = k, 1, -1
+        j = wk%plist(p)
+        if (wk%x(j) <= 0.0_wp) then
+          wk%x(j) = 0.0_wp
+          call remove_column_impl(wk, m, p, k)
         end if
-        stats%kkt_rel = max(stats%kkt_rel, viol / (bn * norm2(wk%val(wk%col(jj):wk%col(jj + 1) - 1))))
       end do
-    end subroutine finish
+      if (k == 0) exit
+      call nnls_solve_r(wk, k)
+    end do
+  end subroutine nnls_step_back
 
-  end subroutine nnls_core
+  !> back substitution R(1:kk, 1:kk) zp = (Q^T b)(1:kk)
+  subroutine nnls_solve_r(wk, kk)
+    type(nnls_work_t), intent(inout) :: wk
+    integer, intent(in) :: kk
+    integer :: ii
+    do ii = kk, 1, -1
+      wk%zp(ii) = (wk%qtb(ii) - dot_product(wk%r(ii, ii + 1:kk), wk%zp(ii + 1:kk))) / wk%r(ii, ii)
+    end do
+  end subroutine nnls_solve_r
+
+  !> The residual of the least-squares solution on the passive set as the factorisation
+  !> represents it, res = Q(:, kk+1:m) (Q^T b)(kk+1:m), its norm rn = |(Q^T b)(kk+1:m)|, and
+  !> w_j = a_j^T res for the columns not in the passive set (scaled units). Unlike
+  !> a_j^T (b - A_P x_P), whose rounding is about eps |a_j| |b| whatever the true gradient,
+  !> this is accurate to about m eps |a_j| |res|: a column nearly in the span of A_P has
+  !> Q(:, kk+1:m)^T a_j small and a correspondingly small, correctly signed w_j.
+  !> O(m (m - kk) + nnz). Valid when x(plist(1:kk)) is that least-squares solution.
+  subroutine nnls_complement_gradient(wk, m, n, kk, rn)
+    type(nnls_work_t), intent(inout) :: wk
+    integer, intent(in) :: m, n, kk
+    real(wp), intent(out) :: rn
+    integer :: cc, jj, ii
+    real(wp) :: s
+    wk%res(1:m) = 0.0_wp
+    do cc = kk + 1, m
+      if (wk%qtb(cc) /= 0.0_wp) wk%res(1:m) = wk%res(1:m) + wk%qtb(cc) * wk%q(1:m, cc)
+    end do
+    rn = 0.0_wp
+    if (kk < m) rn = norm2(wk%qtb(kk + 1:m))
+    do jj = 1, n
+      if (wk%pos(jj) /= 0) cycle
+      s = 0.0_wp
+      do ii = wk%col(jj), wk%col(jj + 1) - 1
+        s = s + wk%val(ii) * wk%res(wk%row(ii))
+      end do
+      wk%w(jj) = s
+    end do
+  end subroutine nnls_complement_gradient
+
+  !> res = b - A_P x_P (scaled), w = A^T res (scaled): the statistics of the returned x
+  subroutine nnls_gradient(wk, m, n, kk)
+    type(nnls_work_t), intent(inout) :: wk
+    integer, intent(in) :: m, n, kk
+    integer :: pp, jj, ii
+    real(wp) :: s
+    wk%res(1:m) = wk%bs(1:m)
+    do pp = 1, kk
+      jj = wk%plist(pp)
+      s = wk%x(jj)
+      do ii = wk%col(jj), wk%col(jj + 1) - 1
+        wk%res(wk%row(ii)) = wk%res(wk%row(ii)) - s * wk%val(ii)
+      end do
+    end do
+    do jj = 1, n
+      s = 0.0_wp
+      do ii = wk%col(jj), wk%col(jj + 1) - 1
+        s = s + wk%val(ii) * wk%res(wk%row(ii))
+      end do
+      wk%w(jj) = s
+    end do
+  end subroutine nnls_gradient
+
+  !> Statistics of nnls_core: passive columns k, residual norm, relative KKT violation (|b| = bn).
+  subroutine nnls_finish(wk, m, n, k, bn, stats)
+    type(nnls_work_t), intent(inout) :: wk
+    integer, intent(in) :: m, n, k
+    real(wp), intent(in) :: bn
+    type(nnls_stats_t), intent(inout) :: stats
+    integer :: jj
+    real(wp) :: viol
+    stats%n_passive = k
+    stats%residual = 0.0_wp
+    if (m > 0) stats%residual = norm2(wk%res(1:m))
+    if (m == 0 .or. n == 0 .or. bn == 0.0_wp) wk%w(1:n) = 0.0_wp
+    stats%kkt_rel = 0.0_wp
+    if (bn == 0.0_wp) return
+    do jj = 1, n
+      if (wk%cs(jj) == 0.0_wp) cycle
+      if (wk%pos(jj) > 0) then
+        viol = abs(wk%w(jj))
+      else
+        viol = max(wk%w(jj), 0.0_wp)
+      end if
+      stats%kkt_rel = max(stats%kkt_rel, viol / (bn * norm2(wk%val(wk%col(jj):wk%col(jj + 1) - 1))))
+    end do
+  end subroutine nnls_finish
 
   !> Least-distance programming: min |u - v|_2^2  s.t.  Bm u <= d.
   !>
