@@ -72,7 +72,7 @@ class Candidate:
 
 def answer_questions(questions, setup):
     """Answer every question at every accuracy; a dict report (rows, candidates, answers)."""
-    rows, cands, answers = [], [], []
+    rows, cands, answers, pilots = [], [], [], []
     for qi, q in enumerate(questions.questions):
         seed = question_seed(setup.seed, q)
         setup.progress(f"question {qi + 1} of {len(questions.questions)}: '{q.id}' ({q.kind}, {q.qoi})")
@@ -80,7 +80,7 @@ def answer_questions(questions, setup):
         if q.kind == "map":
             per_stat = {"map": _map_candidates(q, questions, qs, seed)}
         else:
-            per_stat = _stat_candidates(q, questions, qs, seed)
+            per_stat = _stat_candidates(q, questions, qs, seed, pilots)
         for stat, (cl, planner) in per_stat.items():
             for eps in questions.relative:
                 row, extra = _choose(q, stat, eps, cl(eps), planner, questions.confidence, qs)
@@ -91,7 +91,8 @@ def answer_questions(questions, setup):
                          for c in cl(None))
     return {"case": questions.case, "questions_file": questions.path,
             "confidence": questions.confidence, "accuracy": questions.relative,
-            "rows": rows, "candidates": cands, "answers": [a.as_dict() for a in answers]}
+            "rows": rows, "candidates": cands, "answers": [a.as_dict() for a in answers],
+            "pilots": pilots}
 
 
 def _num(x):
@@ -118,11 +119,30 @@ def _choose(q, stat, eps, cands, planner, conf, setup):
 
 # ------------------------------------------------------------------------------ distributions
 
-def _stat_candidates(q, questions, setup, seed):
+def pilot_summary(q, pilot):
+    """What decides between the methods, as the pilot measured it: per model the CPU seconds per
+    run, the mean and standard deviation of the QoI, its Pearson and Spearman correlation with
+    the exact model's and the mean difference exact - model (the bias M2 must state)."""
+    from scipy import stats
+    raw, out = pilot.raw, []
+    for k, name in enumerate(pilot.names):
+        y = raw[:, k]
+        flat = np.std(y) == 0 or np.std(raw[:, 0]) == 0
+        out.append({"model": name, "cpu_per_run": float(pilot.costs[k]), "mean": float(np.mean(y)),
+                    "std": float(np.std(y, ddof=1)),
+                    "corr": None if flat else float(np.corrcoef(raw[:, 0], y)[0, 1]),
+                    "spearman": None if flat else float(stats.spearmanr(raw[:, 0], y).statistic),
+                    "bias": float(np.mean(raw[:, 0] - y))})
+    return {"question": q.id, "qoi": q.qoi, "runs": int(len(raw)), "models": out}
+
+
+def _stat_candidates(q, questions, setup, seed, pilots=None):
     conf, z = questions.confidence, z_value(questions.confidence)
     models = [setup.exact] + setup.lows
     pilot_ledger = CostLedger()
     pilot = Pilot(q, models, setup.n_pilot, seed, pilot_ledger)
+    if pilots is not None:
+        pilots.append(pilot_summary(q, pilot))
     exact_pilot = CostLedger(e for e in pilot_ledger.entries if e[1] == setup.exact.name)
     training = TrainingSet(q, questions.box, [setup.exact], seed, CostLedger())
     out = {}

@@ -319,6 +319,11 @@ def test_driver_end_to_end(tmp_path):
     assert a["cost_cpu_seconds"] == pytest.approx(sum(e["cpu_seconds"] for e in a["ledger"]))
     assert row["m0_cost"] > row["cost"]
     assert "| late | t90 | exceedance | 10% | M3" in (tmp_path / "out.md").read_text()
+    pilot, = rep["pilots"]                      # what decides: correlations, costs, biases
+    corr = {m["model"]: m for m in pilot["models"]}
+    assert pilot["runs"] == 40 and corr["exact"]["corr"] == pytest.approx(1.0)
+    assert abs(corr["rom"]["corr"] - 0.9) < 0.15 and corr["rom"]["cpu_per_run"] == pytest.approx(0.05)
+    assert abs(corr["rom"]["bias"] - 5.0) < 1.0         # means 20 and 15
     assert (tmp_path / "out.png").stat().st_size > 0
 
 
