@@ -212,7 +212,8 @@ ROW_KEYS = ("t_evac", "censored", "flow", "flow_rate", "displacement")
 KINDS = ("exact", "rom", "ml")
 #: keys of an 'ml' model's specification (``ml``): the saved models and how to pick the truncation
 ML_KEYS = ("models_dir", "config", "ml_output", "n", "regressor", "batch")
-#: the integer range of a seed component (e.g. ``speed_seed``, docs/scenes.md#hetero1000)
+#: the integer range of a seed component (e.g. ``speed_seed``,
+#: docs/scenes.md#hetero1000-a-heterogeneous-population)
 SEED_RANGE = 1_000_000
 
 

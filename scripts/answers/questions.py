@@ -25,7 +25,8 @@ from scipy import stats
 
 from crowdrom_io import InputError
 
-#: parameter components the engine fills from its seeds, not from the box (docs/scenes.md#hetero1000)
+#: parameter components the engine fills from its seeds, not from the box
+#: (docs/scenes.md#hetero1000-a-heterogeneous-population)
 SEED_COMPONENTS = ("speed_seed",)
 #: relative tolerance of "the questions file's box is the ROM file's"
 BOX_RTOL = 1e-9
