@@ -117,7 +117,7 @@ def load_builds(path, doc):
     return builds
 
 
-def predict_models(path, doc, box, seed_params, program=None, progress=None):
+def predict_models(path, doc, box, seed_params, program=None, progress=None, cache_dir=None):
     """(exact, lows) PredictModels of a models file naming a ROM file."""
     from answers.backend import PredictModel
     rom = os.path.abspath(doc["rom_file"])
@@ -125,7 +125,7 @@ def predict_models(path, doc, box, seed_params, program=None, progress=None):
     program = os.path.abspath(program) if os.sep in program else program
     common = dict(rom_file=rom, param_names=box.names, seed_params=seed_params, program=program,
                   ranks=doc.get("ranks", 0), launcher=doc.get("launcher", "mpirun"),
-                  cpu=doc.get("cpu", "process"), progress=progress)
+                  cpu=doc.get("cpu", "process"), progress=progress, cache_dir=cache_dir)
 
     def model(spec, key, kind):
         if not isinstance(spec, dict) or "name" not in spec:
@@ -170,7 +170,8 @@ def read_models_file(path):
     return doc
 
 
-def load_models(path, box, qoi_names=None, doc=None, seed_params=(), program=None, progress=None):
+def load_models(path, box, qoi_names=None, doc=None, seed_params=(), program=None, progress=None,
+                cache_dir=None):
     """(exact, lows, builds) from a models file: Backends of the synthetic family, or
     PredictModels (one per model, serving every QoI; with ``qoi_names`` of one QoI, that QoI's
     Backends); InputError naming file and key."""
@@ -187,7 +188,7 @@ def load_models(path, box, qoi_names=None, doc=None, seed_params=(), program=Non
         models = [fam.model(k) for k in range(len(fam.means))]
         exact, lows = models[0], models[1:]
     else:
-        exact, lows = predict_models(path, doc, box, list(seed_params), program, progress)
+        exact, lows = predict_models(path, doc, box, list(seed_params), program, progress, cache_dir)
         if qoi_names is not None and len(qoi_names) == 1:
             exact, lows = exact.for_qoi(qoi_names[0]), [m.for_qoi(qoi_names[0]) for m in lows]
     names = [m.name for m in [exact] + lows]
@@ -212,6 +213,8 @@ def main(argv=None):
     ap.add_argument("--max-cost", type=float, help="CPU seconds a candidate may cost at most "
                     "(default: the models file's engine.max_cost, else unlimited)")
     ap.add_argument("--program", help="the crowd_predict executable (default: the models file's)")
+    ap.add_argument("--cache", metavar="DIR", help="keep every model's runs (QoIs and CPU seconds per "
+                    "parameter row) in DIR and reuse them in a later run (default: none)")
     ap.add_argument("--methods", nargs="+", default=["M0", "M1", "M2", "M3"],
                     choices=["M0", "M1", "M2", "M3"])
     ap.add_argument("--quiet", action="store_true")
@@ -232,7 +235,7 @@ def main(argv=None):
         source = f"ROM file '{doc['rom_file']}'"
     qs = load_questions(args.questions, box, source)
     exact, lows, builds = load_models(args.models, qs.box, None, doc, seed_params, args.program,
-                                      progress)
+                                      progress, args.cache)
     outs = {ext: f"{args.out_prefix}.{ext}" for ext in ("md", "json", "png")}
     cio.check_outputs([(f"output .{e}", p) for e, p in outs.items()],
                       [("questions", args.questions), ("models", args.models)])

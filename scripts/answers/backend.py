@@ -13,6 +13,8 @@ seconds spent out.
   ``cpu_seconds``). ``PredictBackend`` is one QoI of a model (``qoi_values``): questions on t50
   and t90 run each row once.
 """
+import hashlib
+import json
 import os
 import resource
 import shlex
@@ -240,7 +242,7 @@ class PredictModel:
 
     def __init__(self, name, rom_file, param_names, kind="rom", setting=None, ml=None,
                  program="crowd_predict", ranks=0, launcher="mpirun", cpu="process",
-                 workdir=None, seed_params=(), progress=None, python=None):
+                 workdir=None, seed_params=(), progress=None, python=None, cache_dir=None):
         if kind not in KINDS:
             raise InputError(f"model '{name}': model must be one of {', '.join(KINDS)}, not {kind!r}")
         if cpu not in CPU_SOURCES:
@@ -268,6 +270,42 @@ class PredictModel:
         self.progress = progress or (lambda msg: None)
         self.python = python or sys.executable
         self.rows, self.n_runs, self.wall_per_row = {}, 0, None
+        self.cache_file = self._cache_file(cache_dir) if cache_dir else None
+        if self.cache_file and os.path.exists(self.cache_file):
+            self._load_cache()
+
+    # -------------------------------------------------------------------------- file cache
+    def _cache_file(self, cache_dir):
+        """The cache file of this model: named by a digest of everything a row's result depends
+        on (the ROM file's path, size and modification time, the model, its setting, the ML
+        models, the programs, the parameter and seed components)."""
+        st = os.stat(self.rom_file)
+        key = json.dumps([os.path.abspath(self.rom_file), st.st_size, st.st_mtime_ns, self.kind,
+                          self.setting, self.ml, os.path.abspath(self.program) if os.sep in self.program
+                          else self.program, self.param_names, self.seed_params, self.cpu], sort_keys=True)
+        digest = hashlib.sha256(key.encode()).hexdigest()[:16]
+        return os.path.join(cache_dir, f"{self.name}-{digest}.npz")
+
+    def _load_cache(self):
+        with np.load(self.cache_file) as z:
+            for j, r in enumerate(z["rows"]):
+                rec = {k: z[k][j] for k in ROW_KEYS}
+                rec.update(n_exits=int(z["n_exits"]), cpu=float(z["cpu"][j]))
+                self.rows[r.tobytes()] = rec
+        self.progress(f"model '{self.name}': {len(self.rows)} rows from {self.cache_file}")
+
+    def _save_cache(self):
+        keys = list(self.rows)
+        width = len(self.param_names) + len(self.seed_params)
+        data = {"rows": np.array([np.frombuffer(k, float) for k in keys]).reshape(len(keys), width),
+                "cpu": np.array([self.rows[k]["cpu"] for k in keys]),
+                "n_exits": np.array(self.rows[keys[0]]["n_exits"])}
+        for k in ROW_KEYS:
+            data[k] = np.array([self.rows[x][k] for x in keys])
+        os.makedirs(os.path.dirname(os.path.abspath(self.cache_file)), exist_ok=True)
+        tmp = self.cache_file + ".tmp.npz"
+        np.savez(tmp, **data)
+        os.replace(tmp, self.cache_file)
 
     def for_qoi(self, qoi):
         """The Backend giving this model's values of one QoI."""
@@ -320,6 +358,8 @@ class PredictModel:
                 done = b + batch
                 self.progress(f"model '{self.name}': {done} of {n} queries, {time.time() - t0:.0f} s, "
                               f"remaining about {(time.time() - t0) / done * (n - done):.0f} s")
+            if self.cache_file:
+                self._save_cache()
         wall = time.time() - t0
         self.wall_per_row = wall / n
         self.n_runs += n

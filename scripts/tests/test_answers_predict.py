@@ -168,6 +168,14 @@ def test_rom_box_and_runs_shared_between_qois(study):
     assert model.n_runs == len(params)                  # t50 and the first 4 rows: no new run
     assert np.array_equal(c.values[:4], a.values) and b.censored.all()
     assert b.cpu_seconds == pytest.approx(a.cpu_seconds * 3 / 4)     # charged as when run
+    # --cache: a later run reads the rows (values and CPU seconds) instead of running them
+    kw = dict(kind="exact", program=PREDICT, workdir=str(tmp), cache_dir=str(tmp / "cache"))
+    PredictModel("exact", str(rom), names, **kw).for_qoi("displacement").evaluate(params[:4])
+    again = PredictModel("exact", str(rom), names, **kw)
+    d = again.for_qoi("displacement").evaluate(params[:4])
+    assert again.n_runs == 0 and np.array_equal(d.values, a.values) and d.cpu_seconds > 0
+    other = PredictModel("rom", str(rom), names, setting=SETTING, program=PREDICT, cache_dir=str(tmp / "cache"))
+    assert other.cache_file != again.cache_file and not other.rows     # another model: its own file
 
 
 def _trained_ml(tmp, rom):
