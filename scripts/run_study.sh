@@ -80,7 +80,7 @@ $PY "$SCRIPTS/study_table.py" "results/${CASE}_table.csv" --ml "results/${CASE}_
 if [ -f "inputs/${CASE}_questions.json" ] && [ -f "inputs/${CASE}_models.json" ]; then
   stage 7 "answers with a stated error (scripts/crowd_answers.py; budget from inputs/${CASE}_models.json)"
   $PY "$SCRIPTS/crowd_answers.py" "inputs/${CASE}_questions.json" --models "inputs/${CASE}_models.json" \
-    --program "$BIN/crowd_predict" --out-prefix "results/${CASE}_answers"
+    --program "$BIN/crowd_predict" --cache "results/${CASE}_answers_cache" --out-prefix "results/${CASE}_answers"
 else
   echo; echo "=== run_study [$CASE] stage 7 of 7: skipped (no inputs/${CASE}_questions.json and _models.json: not an evacuation case)"
 fi
