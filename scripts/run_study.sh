@@ -6,9 +6,11 @@
 # CASE: hall20, congested150, crowd1000 (the paper's two studies and the 1 000-agent hall), or the
 # evacuation scenes congested150_evac, hetero1000 (docs/scenes.md)
 # Inputs: inputs/<case>_study.nml (&study + &offline), inputs/<case>_rom.nml (&rom),
-# inputs/<case>_ml.json (ML settings). Results in results/: <case>_snapshots.h5, <case>_rom.h5,
+# inputs/<case>_ml.json (ML settings); for the evacuation cases also inputs/<case>_questions.json
+# and inputs/<case>_models.json (stage 7, the answers with a stated error, docs/answers.md). Results in results/: <case>_snapshots.h5, <case>_rom.h5,
 # <case>_romrun.h5, <case>_table.csv, <case>_ml.h5, figures in results/<case>_figures/
-# (evacuation figures and table of scripts/evac_figures.py in results/<case>_figures/evac/).
+# (evacuation figures and table of scripts/evac_figures.py in results/<case>_figures/evac/);
+# evacuation cases: results/<case>_answers.md / .json / .png.
 # A complete snapshot database of the same configuration is reused (crowd_snapshots resumes).
 # Environment: NP (ranks, 2), CROWDROM_BIN (programs; default build/bin after scripts/setup.sh;
 # given: no setup), CROWDROM_WORK (folder holding inputs/ and results/; default the repository).
@@ -30,7 +32,7 @@ export OMPI_MCA_rmaps_base_oversubscribe=${OMPI_MCA_rmaps_base_oversubscribe:-1}
 PY=$ROOT/.venv/bin/python
 SCRIPTS=$ROOT/scripts
 t0=$(date +%s)
-stage() { echo; echo "=== run_study [$CASE] stage $1 of 6: $2 (elapsed $(( $(date +%s) - t0 )) s)"; }
+stage() { echo; echo "=== run_study [$CASE] stage $1 of 7: $2 (elapsed $(( $(date +%s) - t0 )) s)"; }
 
 stage 1 "snapshots (mpirun -np $NP crowd_snapshots)"
 mpirun -np "$NP" "$BIN/crowd_snapshots" "inputs/${CASE}_study.nml" --summary "results/${CASE}_snapshots.json"
@@ -75,5 +77,12 @@ $PY "$SCRIPTS/evac_figures.py" --database "results/${CASE}_snapshots.h5" --romru
 stage 6 "accuracy / cost table and the cheapest setting without overlap per error level (scripts/study_table.py)"
 $PY "$SCRIPTS/study_table.py" "results/${CASE}_table.csv" --ml "results/${CASE}_ml.csv" \
   -o "results/${CASE}_study_table.md" --csv "results/${CASE}_cheapest.csv" --rows-csv "results/${CASE}_study_rows.csv"
+if [ -f "inputs/${CASE}_questions.json" ] && [ -f "inputs/${CASE}_models.json" ]; then
+  stage 7 "answers with a stated error (scripts/crowd_answers.py; budget from inputs/${CASE}_models.json)"
+  $PY "$SCRIPTS/crowd_answers.py" "inputs/${CASE}_questions.json" --models "inputs/${CASE}_models.json" \
+    --program "$BIN/crowd_predict" --cache "results/${CASE}_answers_cache" --out-prefix "results/${CASE}_answers"
+else
+  echo; echo "=== run_study [$CASE] stage 7 of 7: skipped (no inputs/${CASE}_questions.json and _models.json: not an evacuation case)"
+fi
 echo
 echo "run_study [$CASE]: done in $(( $(date +%s) - t0 )) s; table results/${CASE}_table.csv, ML results/${CASE}_ml.csv, figures results/${CASE}_figures/"

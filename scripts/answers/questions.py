@@ -18,12 +18,18 @@ naming the file, the key (``questions[1].distributions.speed.low``) and the prob
 import json
 import math
 import os
+import re
 
 import numpy as np
 from scipy import stats
 
 from crowdrom_io import InputError
 
+#: parameter components the engine fills from its seeds, not from the box
+#: (docs/scenes.md#hetero1000-a-heterogeneous-population)
+SEED_COMPONENTS = ("speed_seed",)
+#: relative tolerance of "the questions file's box is the ROM file's"
+BOX_RTOL = 1e-9
 #: quantities of interest a question may name (the scalar QoIs of the crowdrom-qoi product)
 QOI_NAMES = ("t50", "t90", "t100", "flow_1", "flow_2", "flow_rate_1", "flow_rate_2", "displacement")
 KINDS = ("map", "moments", "exceedance")
@@ -49,6 +55,43 @@ class ParamBox:
 
     def index(self, name):
         return self.names.index(name)
+
+
+def _nml_list(text, key):
+    """The values of ``key = v1, v2, ...`` in one namelist group's text (strings unquoted)."""
+    m = re.search(r"\b" + key + r"\s*=\s*(.*?)(?=,?\s*\b[a-z_]+\s*=|\s*/)", text, re.S | re.I)
+    if not m:
+        return None
+    return [v.strip().strip("'\"") for v in re.split(r",\s*", m.group(1).strip().rstrip(",")) if v.strip()]
+
+
+def rom_box(rom_file):
+    """(ParamBox, seed components) of a ROM file (version 3): the study's component names (group
+    ``study``, attribute ``param_names``) with the bounds of their parameter (``&study param_min``
+    / ``param_max`` of the stored configuration; ``speed_<i>`` take those of ``speeds``); the seed
+    components (``speed_seed``) are not in the box: the engine fills them from its seeds."""
+    import crowdrom_io as cio
+    with cio.open_h5(rom_file, cio.ROM_SCHEMA, "ROM file") as f:
+        study = cio.read_rom_study(f)
+    m = re.search(r"&study\b(.*?)/\s*$", study["config"], re.S | re.M | re.I)
+    names, lo, hi = (_nml_list(m.group(1), k) if m else None for k in ("param_name", "param_min", "param_max"))
+    if not names or not lo or not hi or not len(names) == len(lo) == len(hi):
+        raise QuestionsError(f"{rom_file}: study/config: no &study param_name, param_min, param_max")
+    bounds = {n: (float(a.replace("d", "e").replace("D", "e")), float(b.replace("d", "e").replace("D", "e")))
+              for n, a, b in zip(names, lo, hi)}
+    comps, seeds, blo, bhi = [], [], [], []
+    for c in study["param_names"]:
+        c = c.strip()
+        if c in SEED_COMPONENTS:
+            seeds.append(c)
+            continue
+        p = c if c in bounds else ("speeds" if re.fullmatch(r"speed_\d+", c) and "speeds" in bounds else None)
+        if p is None:
+            raise QuestionsError(f"{rom_file}: study/param_names: component '{c}' has no &study bounds")
+        comps.append(c)
+        blo.append(bounds[p][0])
+        bhi.append(bounds[p][1])
+    return ParamBox(comps, blo, bhi), seeds
 
 
 class Distribution:
@@ -115,6 +158,16 @@ class Question:
         self.threshold = spec.get("threshold")
         self.replicates = spec.get("replicates", 1)
 
+    def region_key(self):
+        """The question's region as canonical text (grid and nominal values, or distributions):
+        equal for two questions that draw their parameters alike."""
+        if self.kind == "map":
+            spec = {"grid": self.grid, "nominal": self.nominal, "replicates": self.replicates}
+        else:
+            spec = {"distributions": [[n, d.as_dict()] for n, d in
+                                      zip(self.distribution.box.names, self.distribution.dists)]}
+        return json.dumps(spec, sort_keys=True)
+
     def statistics(self):
         """The statistics this question asks for (one answer each)."""
         if self.kind == "moments":
@@ -143,10 +196,11 @@ class Questions:
         self.questions = questions
 
 
-def load_questions(path, box=None):
-    """Read and check a questions file. ``box`` (a ParamBox, e.g. from the ROM file) is the trained
-    box; without it the file's ``box`` key is used, with it the file's box (if any) must lie
-    inside it. Raises QuestionsError (one line: file, key, problem)."""
+def load_questions(path, box=None, box_source=None):
+    """Read and check a questions file. ``box`` (a ParamBox, e.g. ``rom_box`` of the ROM file
+    ``box_source``) is the trained box; without it the file's ``box`` key is used, with it the
+    file's box (optional) must be the same box: every component, the same bounds. Raises
+    QuestionsError (one line: file, key, problem)."""
     path = os.fspath(path)
     try:
         with open(path, encoding="utf-8") as f:
@@ -157,12 +211,12 @@ def load_questions(path, box=None):
         raise QuestionsError(f"{path}: cannot read: {exc}") from None
     except json.JSONDecodeError as exc:
         raise QuestionsError(f"{path}: not valid JSON: {exc.msg} at line {exc.lineno}") from None
-    return _Checker(path).document(doc, box)
+    return _Checker(path, box_source).document(doc, box)
 
 
 class _Checker:
-    def __init__(self, path):
-        self.path = path
+    def __init__(self, path, box_source=None):
+        self.path, self.source = path, box_source or "the caller's trained box"
 
     def fail(self, key, problem):
         raise QuestionsError(f"{self.path}: {key}: {problem}")
@@ -231,13 +285,16 @@ class _Checker:
         if trained is not None:
             for j, n in enumerate(given):
                 if n not in trained.names:
-                    self.fail(f"box.{n}", f"not a parameter of the model ({', '.join(trained.names)})")
+                    self.fail(f"box.{n}", f"not a parameter of {self.source} ({', '.join(trained.names)})")
                 k = trained.index(n)
-                if lo[j] < trained.lo[k] or hi[j] > trained.hi[k]:
-                    self.fail(f"box.{n}", f"[{lo[j]}, {hi[j]}] leaves the trained box "
-                              f"[{trained.lo[k]}, {trained.hi[k]}]")
-            if set(given) != set(trained.names):
-                self.fail("box", f"must name every parameter of the model ({', '.join(trained.names)})")
+                for end, mine, theirs in (("min", lo[j], trained.lo[k]), ("max", hi[j], trained.hi[k])):
+                    if abs(mine - theirs) > BOX_RTOL * max(abs(theirs), 1e-300):
+                        self.fail(f"box.{n}", f"[{lo[j]}, {hi[j]}] disagrees with the trained box "
+                                  f"[{trained.lo[k]}, {trained.hi[k]}] of {self.source} ({end})")
+            missing = [n for n in trained.names if n not in given]
+            if missing:
+                self.fail(f"box.{missing[0]}", f"missing: {self.source} has the parameters "
+                          f"{', '.join(trained.names)}")
             return trained
         return ParamBox(list(given), lo, hi)
 

@@ -39,6 +39,14 @@ def markdown(report):
         lines.append(f"| {r['question']} | {r['qoi']} | {r['statistic']} | {100 * r['accuracy']:g}% | "
                      f"{r['method']} | {fmt(r['value'])} | {interval} | "
                      f"{_pc(r['stated_error'])}{reached} | {fmt(r['cost'])} | {m0} | {gain} |")
+    for p in report.get("pilots", []):
+        lines += ["", f"Pilot of '{p['question']}' ({p['qoi']}, {p['runs']} joint runs): what decides "
+                  "between the methods.", "",
+                  "| model | CPU s per run | mean | std | corr. with exact | Spearman | bias (exact - model) |",
+                  "|---|---|---|---|---|---|---|"]
+        for m in p["models"]:
+            lines.append(f"| {m['model']} | {fmt(m['cpu_per_run'])} | {fmt(m['mean'])} | {fmt(m['std'])} | "
+                         f"{fmt(m['corr'], 3)} | {fmt(m['spearman'], 3)} | {fmt(m['bias'])} |")
     return "\n".join(lines) + "\n"
 
 

@@ -14,33 +14,54 @@ For each question statistic and relative accuracy eps (at the file's confidence)
 The report holds one row per (question, statistic, accuracy) with the chosen answer and M0's
 cost, every candidate (for the figure), and every answer in full.
 """
+import hashlib
 import math
 
 import numpy as np
 
 from . import methods
 from .intervals import z_value
-from .ledger import CostLedger
+from .ledger import Builds, CostLedger
 from .sampling import Pilot, RunCache, TrainingSet, per_sample, target_sd
 
 
 class Setup:
-    """The models and the knobs: ``exact`` and ``lows`` (Backends), ``builds`` (a CostLedger with
-    the build entries of the low fidelities), pilot size, the ladders, the CPU budget cap."""
+    """The models and the knobs: ``exact`` and ``lows`` (Backends, or models with
+    ``for_qoi(qoi)`` giving one: then each question gets its QoI's backends and the models'
+    runs are shared between questions), ``builds`` (``ledger.Builds``, or a CostLedger whose
+    build entries each belong to the model they name), pilot size, the ladders, the low
+    fidelity's sample size in M2 (``m2_low_runs``), the CPU budget cap."""
 
     def __init__(self, exact, lows=(), builds=None, seed=0, n_pilot=40, m1_ladder=(8, 16, 32, 64),
                  m2_ladder=(8, 16, 32, 64), max_cost=math.inf, methods=("M0", "M1", "M2", "M3"),
-                 gp_restarts=2, progress=None):
+                 gp_restarts=2, progress=None, m2_low_runs=2000):
         self.exact, self.lows = exact, list(lows)
-        self.builds = builds if builds is not None else CostLedger()
+        builds = builds if builds is not None else Builds()
+        self.builds = builds if isinstance(builds, Builds) else Builds.per_model(builds)
         self.seed, self.n_pilot, self.max_cost = seed, n_pilot, max_cost
         self.m1_ladder, self.m2_ladder, self.methods = m1_ladder, m2_ladder, methods
-        self.gp_restarts = gp_restarts
+        self.gp_restarts, self.m2_low_runs = gp_restarts, m2_low_runs
         self.progress = progress or (lambda msg: None)
 
     def ledger(self, models=()):
-        """A fresh ledger holding the build entries of ``models`` (names)."""
-        return self.builds.builds_of(models).copy()
+        """A fresh ledger holding the build items needed by ``models`` (names), each once."""
+        return self.builds.ledger(models)
+
+    def for_qoi(self, qoi):
+        """This setup with the backends of one QoI (models without ``for_qoi`` are kept)."""
+        out = Setup.__new__(Setup)
+        out.__dict__.update(self.__dict__)
+        pick = (lambda m: m.for_qoi(qoi) if hasattr(m, "for_qoi") else m)
+        out.exact, out.lows = pick(self.exact), [pick(m) for m in self.lows]
+        return out
+
+
+def question_seed(seed, q):
+    """The seed of a question's random streams: from the file's seed and the question's region
+    (distributions, or grid and nominal values), not from its place in the file, so questions on
+    several QoIs over one region draw the same parameter rows (and run them once)."""
+    h = hashlib.sha256(f"{int(seed)}:{q.region_key()}".encode()).hexdigest()
+    return int(h[:8], 16)       # < 2**32: a random_state scikit-learn accepts
 
 
 class Candidate:
@@ -51,17 +72,18 @@ class Candidate:
 
 def answer_questions(questions, setup):
     """Answer every question at every accuracy; a dict report (rows, candidates, answers)."""
-    rows, cands, answers = [], [], []
+    rows, cands, answers, pilots = [], [], [], []
     for qi, q in enumerate(questions.questions):
-        seed = setup.seed * 1000 + qi
-        setup.progress(f"question {qi + 1} of {len(questions.questions)}: '{q.id}' ({q.kind})")
+        seed = question_seed(setup.seed, q)
+        setup.progress(f"question {qi + 1} of {len(questions.questions)}: '{q.id}' ({q.kind}, {q.qoi})")
+        qs = setup.for_qoi(q.qoi)
         if q.kind == "map":
-            per_stat = {"map": _map_candidates(q, questions, setup, seed)}
+            per_stat = {"map": _map_candidates(q, questions, qs, seed)}
         else:
-            per_stat = _stat_candidates(q, questions, setup, seed)
+            per_stat = _stat_candidates(q, questions, qs, seed, pilots)
         for stat, (cl, planner) in per_stat.items():
             for eps in questions.relative:
-                row, extra = _choose(q, stat, eps, cl(eps), planner, questions.confidence, setup)
+                row, extra = _choose(q, stat, eps, cl(eps), planner, questions.confidence, qs)
                 rows.append(row)
                 answers.extend(extra)
             cands.extend({"question": q.id, "statistic": stat, "method": c.label, "cost": c.cost,
@@ -69,7 +91,8 @@ def answer_questions(questions, setup):
                          for c in cl(None))
     return {"case": questions.case, "questions_file": questions.path,
             "confidence": questions.confidence, "accuracy": questions.relative,
-            "rows": rows, "candidates": cands, "answers": [a.as_dict() for a in answers]}
+            "rows": rows, "candidates": cands, "answers": [a.as_dict() for a in answers],
+            "pilots": pilots}
 
 
 def _num(x):
@@ -96,11 +119,30 @@ def _choose(q, stat, eps, cands, planner, conf, setup):
 
 # ------------------------------------------------------------------------------ distributions
 
-def _stat_candidates(q, questions, setup, seed):
+def pilot_summary(q, pilot):
+    """What decides between the methods, as the pilot measured it: per model the CPU seconds per
+    run, the mean and standard deviation of the QoI, its Pearson and Spearman correlation with
+    the exact model's and the mean difference exact - model (the bias M2 must state)."""
+    from scipy import stats
+    raw, out = pilot.raw, []
+    for k, name in enumerate(pilot.names):
+        y = raw[:, k]
+        flat = np.std(y) == 0 or np.std(raw[:, 0]) == 0
+        out.append({"model": name, "cpu_per_run": float(pilot.costs[k]), "mean": float(np.mean(y)),
+                    "std": float(np.std(y, ddof=1)),
+                    "corr": None if flat else float(np.corrcoef(raw[:, 0], y)[0, 1]),
+                    "spearman": None if flat else float(stats.spearmanr(raw[:, 0], y).statistic),
+                    "bias": float(np.mean(raw[:, 0] - y))})
+    return {"question": q.id, "qoi": q.qoi, "runs": int(len(raw)), "models": out}
+
+
+def _stat_candidates(q, questions, setup, seed, pilots=None):
     conf, z = questions.confidence, z_value(questions.confidence)
     models = [setup.exact] + setup.lows
     pilot_ledger = CostLedger()
     pilot = Pilot(q, models, setup.n_pilot, seed, pilot_ledger)
+    if pilots is not None:
+        pilots.append(pilot_summary(q, pilot))
     exact_pilot = CostLedger(e for e in pilot_ledger.entries if e[1] == setup.exact.name)
     training = TrainingSet(q, questions.box, [setup.exact], seed, CostLedger())
     out = {}
@@ -133,7 +175,8 @@ def _ladders(q, stat, setup, training, seed, conf):
     if "M2" in setup.methods:
         for low in setup.lows:
             for n in setup.m2_ladder:
-                a = methods.m2(q, stat, low, setup.exact, 2000, n, seed, conf, setup.ledger([low.name]))
+                a = methods.m2(q, stat, low, setup.exact, setup.m2_low_runs, n, seed, conf,
+                               setup.ledger([low.name]))
                 found.append(Candidate("M2", a.cost, a.stated_error, a, label=f"M2 {low.name} n={n}"))
     return found
 
@@ -164,7 +207,8 @@ def _planned(q, stat, eps, pilot, pilot_ledger, exact_pilot, setup, z):
     if "M3" in setup.methods and setup.lows:
         plan = methods.m3_plan(pilot, stat, tsd, q)
         lows = [pilot.names[j] for j in plan["models"][1:]]
-        cost = pilot_ledger.total() + plan["cost"] + setup.ledger(lows).total()
+        # the pilot ran every model: the builds of all of them are needed
+        cost = pilot_ledger.total() + plan["cost"] + setup.ledger(pilot.names).total()
         label = "M3 MFMC " + "+".join(lows) if lows else "M3 MFMC (exact only)"
         found.append(Candidate("M3", cost, eps, plan=plan, label=label))
     return found
@@ -205,8 +249,7 @@ def _run_planned(q, stat, c, eps, pilot, pilot_ledger, exact_pilot, setup, conf,
                 break
             plan["m"] = np.maximum(plan["m"], c.plan["m"])
             a = methods.m3(q, stat, models, pilot, plan, s, conf, spent, cache)
-            lows = [pilot.names[j] for j in c.plan["models"][1:]]
-            a.ledger = setup.ledger(lows).extend(pilot_ledger).extend(spent)
+            a.ledger = setup.ledger(pilot.names).extend(pilot_ledger).extend(spent)
         if a.stated_error <= eps:
             break
     return a

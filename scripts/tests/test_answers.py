@@ -319,6 +319,11 @@ def test_driver_end_to_end(tmp_path):
     assert a["cost_cpu_seconds"] == pytest.approx(sum(e["cpu_seconds"] for e in a["ledger"]))
     assert row["m0_cost"] > row["cost"]
     assert "| late | t90 | exceedance | 10% | M3" in (tmp_path / "out.md").read_text()
+    pilot, = rep["pilots"]                      # what decides: correlations, costs, biases
+    corr = {m["model"]: m for m in pilot["models"]}
+    assert pilot["runs"] == 40 and corr["exact"]["corr"] == pytest.approx(1.0)
+    assert abs(corr["rom"]["corr"] - 0.9) < 0.15 and corr["rom"]["cpu_per_run"] == pytest.approx(0.05)
+    assert abs(corr["rom"]["bias"] - 5.0) < 1.0         # means 20 and 15
     assert (tmp_path / "out.png").stat().st_size > 0
 
 
@@ -328,3 +333,88 @@ def test_driver_bad_questions_writes_nothing(tmp_path):
     assert r.stderr.count("\n") == 1 and "accuracy.relative[1]: must be > 0" in r.stderr
     assert "q.json" in r.stderr
     assert not any(p.name.startswith("out") for p in tmp_path.iterdir())
+
+
+# ------------------------------------------------------------------------------ shared builds, shared runs
+
+def test_shared_build_charged_once(tmp_path):
+    """Two low fidelities of one ROM file share the snapshot stage (the same summary named under
+    each): an answer using both is charged it once, and the ML model's own training on top."""
+    import crowd_answers
+    from answers.select import Setup
+    snap = _write(tmp_path, {"program": "crowd_snapshots", "samples_total": 36,
+                             "busy_time_per_rank": [100.0, 110.0]}, "snap.json")
+    doc = {"builds": [{"model": "rom", "summary": snap}, {"model": "rom_ml", "summary": snap},
+                      {"model": "rom_ml", "cpu_seconds": 50.0, "runs": 36}]}
+    setup = Setup(None, [], crowd_answers.load_builds("m.json", doc))
+    assert setup.ledger(["rom", "rom_ml"]).total() == pytest.approx(210.0 + 50.0)
+    assert setup.ledger(["rom"]).total() == pytest.approx(210.0)
+    assert setup.ledger(["exact"]).total() == 0.0
+    doc = {"builds": [{"name": "snapshots", "models": ["rom", "rom_ml"], "summary": snap}]}
+    led = Setup(None, [], crowd_answers.load_builds("m.json", doc)).ledger(["exact", "rom", "rom_ml"])
+    assert [(e[1], e[2]) for e in led.entries] == [("snapshots", 36)]
+
+
+class _TwoQoIModel:
+    """A deterministic model with two QoIs that records every row it runs."""
+
+    def __init__(self, name, shift, log):
+        self.name, self.shift, self.log = name, shift, log
+
+    def for_qoi(self, qoi):
+        model = self
+
+        class View:
+            name = model.name
+
+            def evaluate(self, params, seeds=None):
+                for r in np.atleast_2d(params):
+                    model.log.append((model.name, r.tobytes()))
+                base = 10.0 + 5.0 * params[:, 2] - params[:, 0] + model.shift
+                return sampling_eval(base * (1.0 if qoi == "t50" else 1.8), 0.01 * len(params))
+        return View()
+
+
+def sampling_eval(values, cpu):
+    from answers.backend import Evaluation
+    return Evaluation(values, cpu)
+
+
+def test_questions_on_two_qois_share_the_runs():
+    """The moments of t50 and of t90 over one distribution: the second question runs no
+    parameter row the first did not (the rows are drawn from the region, not the question's
+    place), and each question reads its own QoI."""
+    from answers.questions import Questions
+    from answers.select import Setup, answer_questions
+    dist = JointDistribution(BOX, {n: Distribution("uniform", low=BOX.lo[j], high=BOX.hi[j])
+                                   for j, n in enumerate(BOX.names)})
+    qs = [Question(f"{qoi}_spread", "moments", qoi, distribution=dist) for qoi in ("t50", "t90")]
+    log = []
+    setup = Setup(_TwoQoIModel("exact", 0.0, log), [_TwoQoIModel("rom", 0.5, log)], seed=3, n_pilot=12,
+                  m1_ladder=(8, 16), methods=("M0", "M1"), gp_restarts=0)
+    first = Questions("q.json", "two", BOX, [0.05], 0.95, 3, qs[:1])
+    answer_questions(first, setup)
+    rows_first = set(log)
+    rep = answer_questions(Questions("q.json", "two", BOX, [0.05], 0.95, 3, qs), setup)
+    assert set(log) == rows_first                       # t90's rows are t50's rows
+    means = {r["question"]: r["value"] for r in rep["rows"] if r["statistic"] == "mean"}
+    assert means["t90_spread"] == pytest.approx(1.8 * means["t50_spread"], rel=0.05)
+
+
+def test_box_must_be_the_rom_files(tmp_path):
+    """A questions file whose box differs from the ROM file's (narrower too) is refused with one
+    line naming the file, the key and the component; without a box it takes the ROM file's."""
+    trained = ParamBox(BOX.names, BOX.lo, BOX.hi)
+    for speed in ([1.0, 1.5], [1.0, 1.3]):
+        doc = _bad(lambda d: d["box"].update(speed=speed))
+        path = _write(tmp_path, doc)
+        with pytest.raises(QuestionsError) as exc:
+            load_questions(path, trained, "ROM file 'r.h5'")
+        msg = str(exc.value)
+        assert msg.startswith(f"{path}: box.speed: ") and "disagrees with the trained box [1.0, 1.4] of " \
+            "ROM file 'r.h5'" in msg and "\n" not in msg
+    doc = _bad(lambda d: d["box"].pop("l_exit2"))
+    with pytest.raises(QuestionsError, match=r"box.l_exit2: missing"):
+        load_questions(_write(tmp_path, doc), trained, "ROM file 'r.h5'")
+    qs = load_questions(_write(tmp_path, _bad(lambda d: d.pop("box"))), trained, "ROM file 'r.h5'")
+    assert qs.box is trained

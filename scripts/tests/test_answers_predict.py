@@ -15,9 +15,10 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 SCRIPTS = os.path.dirname(HERE)
 sys.path.insert(0, SCRIPTS)
 sys.path.insert(0, HERE)
-from answers.backend import PredictBackend  # noqa: E402
+from answers.backend import PredictBackend, PredictModel  # noqa: E402
+from answers.questions import rom_box  # noqa: E402
 from crowdrom_io import InputError  # noqa: E402
-from test_predict import BIN, ENV, study  # noqa: E402,F401  (the tiny study's fixture)
+from test_predict import BIN, ENV, ROOT, nml_groups, predict_input, run, study, write_text_list  # noqa: E402,F401
 
 PREDICT = os.path.join(BIN, "crowd_predict")
 SETTING = {"n": 4, "r": 3, "hyper": "eq"}
@@ -106,8 +107,7 @@ def test_answers_m0_m3_on_tiny_study(study):
             assert a["cost_cpu_seconds"] == pytest.approx(sum(e["cpu_seconds"] for e in a["ledger"]))
             if method == "M3":
                 assert runs[("pilot", "rom43")] == 12, runs          # the joint pilot ran the ROM
-                used = "rom43" in a["details"]["models"]
-                assert (runs.get(("build", "rom43")) == 6) == used, (runs, a["details"])
+                assert runs[("build", "rom43")] == 6, runs           # so its build is charged
             else:
                 assert {m for s_, m in runs} == {"exact"}, runs
     m0 = {a["statistic"]: a for a in rep["M0"]["answers"]}
@@ -150,3 +150,76 @@ def test_build_cost_from_stage_summaries(tmp_path):
 def _write(path, doc):
     path.write_text(json.dumps(doc))
     return path
+
+
+def test_rom_box_and_runs_shared_between_qois(study):
+    """The box comes from the ROM file (component names, &study bounds; speeds per agent); one
+    model serves two QoIs: every row runs once, each QoI's backend charges the rows' CPU."""
+    tmp, db, rom, names, params = study
+    box, seeds = rom_box(str(rom))
+    assert box.names == names and seeds == []
+    assert np.allclose(box.lo, [0.18] + [0.9] * 8) and np.allclose(box.hi, [0.22] + [1.1] * 8)
+    model = PredictModel("exact", str(rom), names, kind="exact", program=PREDICT, workdir=str(tmp))
+    disp, t50 = model.for_qoi("displacement"), model.for_qoi("t50")
+    a = disp.evaluate(params[:4])
+    assert model.n_runs == 4
+    b = t50.evaluate(params[:3])
+    c = disp.evaluate(params)
+    assert model.n_runs == len(params)                  # t50 and the first 4 rows: no new run
+    assert np.array_equal(c.values[:4], a.values) and b.censored.all()
+    assert b.cpu_seconds == pytest.approx(a.cpu_seconds * 3 / 4)     # charged as when run
+    # --cache: a later run reads the rows (values and CPU seconds) instead of running them
+    kw = dict(kind="exact", program=PREDICT, workdir=str(tmp), cache_dir=str(tmp / "cache"))
+    PredictModel("exact", str(rom), names, **kw).for_qoi("displacement").evaluate(params[:4])
+    again = PredictModel("exact", str(rom), names, **kw)
+    d = again.for_qoi("displacement").evaluate(params[:4])
+    assert again.n_runs == 0 and np.array_equal(d.values, a.values) and d.cpu_seconds > 0
+    other = PredictModel("rom", str(rom), names, setting=SETTING, program=PREDICT, cache_dir=str(tmp / "cache"))
+    assert other.cache_file != again.cache_file and not other.rows     # another model: its own file
+
+
+def _trained_ml(tmp, rom):
+    """The ML correction of the reduced setting N = 4, R = 3 trained on the tiny study (as
+    test_predict.py's)."""
+    romrun = tmp / "ans_romrun.h5"
+    flat = ("rom_file = '%s', output = '%s', sets = 'both', fom_timing_samples = 0, timing_repeats = 1, "
+            "n(1) = 4, r(1) = 3, hyper(1) = 'eq'" % (rom, romrun))
+    (tmp / "ans_rom.nml").write_text(nml_groups.as_text(nml_groups.rom_groups(flat)))
+    p = run(0, "crowd_rom", tmp / "ans_rom.nml", tmp)
+    assert p.returncode == 0, p.stdout + p.stderr
+    cfg = tmp / "ans_ml.json"
+    cfg.write_text('{"n_values": [3], "regressors": ["random_forest"], "random_forest": {"n_estimators": 10}}')
+    p = subprocess.run([sys.executable, os.path.join(SCRIPTS, "ml_correct.py"), str(romrun), "--config", str(cfg),
+                        "--no-project", "--quiet", "-o", str(tmp / "ans_ml.h5"), "--models-dir",
+                        str(tmp / "ans_ml_models")], capture_output=True, text=True, env=dict(ENV, CROWDROM_BIN=BIN),
+                       cwd=tmp)
+    assert p.returncode == 0, p.stdout + p.stderr
+    return cfg, tmp / "ans_ml.h5", tmp / "ans_ml_models"
+
+
+def test_ml_corrected_backend(study):
+    """The ML-corrected model: crowd_predict (reduced, trajectories) then ml_correct.py --predict
+    with the saved models; on the validation parameters its displacements are those of the
+    training run's corrected positions, its CPU seconds include the reduced queries and the
+    correction; the ML build cost is read from the training output."""
+    import crowd_answers
+    tmp, db, rom, names, params = study
+    cfg, ml_out, models = _trained_ml(tmp, rom)
+    with h5py.File(db, "r") as f:
+        valid = f["valid/params"][...]
+    with h5py.File(ml_out, "r") as f:
+        q_ml = f["random_forest/best/positions"][...].reshape(len(valid), 13, 16)
+    ml = PredictModel("ml", str(rom), names, kind="ml", setting=SETTING, program=PREDICT, workdir=str(tmp),
+                      ml={"models_dir": str(models), "config": str(cfg), "ml_output": str(ml_out), "batch": 2})
+    ev = ml.for_qoi("displacement").evaluate(valid)
+    assert ml.n_runs == len(valid)
+    assert np.allclose(ev.values, np.linalg.norm(q_ml[:, -1] - q_ml[:, 0], axis=1), rtol=1e-12, atol=1e-14)
+    rom_only = PredictBackend("rom", "displacement", str(rom), names, setting=SETTING, program=PREDICT).evaluate(valid)
+    assert not np.allclose(ev.values, rom_only.values)          # the correction changed them
+    assert ev.cpu_seconds > rom_only.cpu_seconds
+    runs, cpu = crowd_answers.build_cost("m.json", "builds[0]", {"ml_output": str(ml_out), "fit_threads": 2})
+    with h5py.File(ml_out, "r") as f:
+        want = 9 * max(f.attrs["t_query_rom"], 0.0) + 2 * np.sum(f["random_forest/t_fit"][()])
+    assert runs == 9 and cpu == pytest.approx(want)
+    with pytest.raises(InputError, match=r"model 'bad': ml: needs models_dir"):
+        PredictModel("bad", str(rom), names, kind="ml", setting=SETTING, ml={"config": str(cfg)})
