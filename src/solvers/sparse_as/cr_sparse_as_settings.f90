@@ -78,7 +78,7 @@ module cr_sparse_as_settings
 
 contains
 
-  !> Every knob in its range (finite reals); error (code 2) naming the first one that is not.
+  !> Every knob in its range (reals finite); error (code 2) naming the first one that is not.
   subroutine settings_validate(this, error)
     class(sparse_as_settings_t), intent(in) :: this
     type(error_t), allocatable, intent(out) :: error
@@ -115,8 +115,13 @@ contains
     if (.not. ieee_is_finite(value)) then
       call set_error(error, "sparse_active_set: knob " // name // " must be finite, got " // str(value), 2)
     else if (value < lo .or. value > hi) then
-      call set_error(error, "sparse_active_set: knob " // name // " must be in [" // str(lo) // ", " // &
-        str(hi) // "], got " // str(value), 2)
+      if (hi >= huge(1.0_wp)) then
+        call set_error(error, "sparse_active_set: knob " // name // " must be >= " // str(lo) // &
+          ", got " // str(value), 2)
+      else
+        call set_error(error, "sparse_active_set: knob " // name // " must be in [" // str(lo) // ", " // &
+          str(hi) // "], got " // str(value), 2)
+      end if
     end if
   end subroutine real_in
 end module cr_sparse_as_settings
