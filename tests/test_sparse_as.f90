@@ -4,12 +4,14 @@
 program test_sparse_as
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t
+  use cr_strings, only: str
   use cr_assert, only: check, test_summary
   use cr_test_scenes, only: seed_random, lattice_scene, hex_scene
   use cr_contact_set, only: contact_set_t
   use cr_projection, only: projection_settings_t, solve_stats_t, projection_solver_t, &
     make_projection_solver
-  use cr_sparse_as, only: sparse_as_solver_t, pivot_lower_bound
+  use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
+  use cr_sparse_as, only: sparse_as_solver_t, sparse_as_settings_t, pivot_lower_bound
   use cr_cholmod, only: chol_t
   implicit none
   real(wp), parameter :: rad = 0.05_wp, h = 0.01_wp
@@ -26,6 +28,7 @@ program test_sparse_as
   call test_zero_pivot_factor()
   call test_sweeps_dependent()
   call test_options()
+  call test_knobs()
   call test_kernels()
   call test_pivot_bound()
   call test_summary()
@@ -157,7 +160,7 @@ contains
     call sp%solve(cs, v, u, l, st, err)
     call sp%solve(cs, v, u2, l, st, err)
     call check(st%converged .and. st%kkt <= s%tol .and. st%iterations == 0 .and. st%n_factor == 0 &
-      .and. st%n_modify == 0 .and. sp%n_warm_exact == 1, &
+      .and. st%n_modify == 0 .and. sp%state%n_warm_exact == 1, &
       "warm start from the solution: no iteration, no factorisation")
     call check(maxval(abs(u - u2)) <= 1.0e-12_wp * maxval(abs(v)), "warm start: same u")
     ! cold start through the dense kernel (dense_rows above the row count): same u
@@ -200,10 +203,10 @@ contains
     c = sum(q, dim=2) / na
     s = projection_settings_t(); s%name = 'sparse_active_set'; s%dense_rows = 0; s%refresh_every = 7
     call sp%init(s, err)
-    sp%check_drift = .true.
+    sp%knobs%check_drift = .true.
     ! the Schur pivot tests through the elimination-tree reach and factorisations from the
     ! packed identity (the paths of large problems)
-    sp%chol%reach_min = 0; sp%chol%pack_min = 0
+    sp%state%chol%reach_min = 0; sp%state%chol%pack_min = 0
     s%name = 'active_set'
     call make_projection_solver(s, sa, err)
     drift = 0; du = 0; nmod = 0; nfail = 0; nprev = 0
@@ -245,14 +248,14 @@ contains
       " factor modifications, largest backward error of an updated factor ", drift, ", largest |u - u_active_set| ", du
     call check(nfail == 0, "drift: every step converged on the sparse path")
     call check(nmod > 5 * nsteps, "drift: many active-set changes")
-    print '(2x,a,i0)', "drift: additions without the Schur pre-test (an agent in no active row): ", sp%n_free
-    call check(sp%n_free > 0, "drift: rows with a free agent enter without the pre-test")
+    print '(2x,a,i0)', "drift: additions without the Schur pre-test (an agent in no active row): ", sp%state%n_free
+    call check(sp%state%n_free > 0, "drift: rows with a free agent enter without the pre-test")
     print '(2x,a,i0)', "drift: Schur tests whose factor reach missed a fill (done by the scan): ", &
-      sp%chol%n_schur_scan()
-    call check(sp%chol%n_schur_scan() == 0, "drift: the elimination tree of the factor bounds every Schur solve")
-    print '(2x,a,i0,a,i0,a,i0)', "drift: rows given tail slots ", sp%n_tail, ", fresh analyses ", sp%n_analyse, &
-      ", enlargements of W ", sp%n_reanalyse
-    call check(sp%n_tail > 0, "drift: rows new to the analysis took tail slots (updated factors checked with them)")
+      sp%state%chol%n_schur_scan()
+    call check(sp%state%chol%n_schur_scan() == 0, "drift: the elimination tree of the factor bounds every Schur solve")
+    print '(2x,a,i0,a,i0,a,i0)', "drift: rows given tail slots ", sp%state%n_tail, ", fresh analyses ", sp%state%n_analyse, &
+      ", enlargements of W ", sp%state%n_reanalyse
+    call check(sp%state%n_tail > 0, "drift: rows new to the analysis took tail slots (updated factors checked with them)")
     call check(drift <= sqrt(epsilon(1.0_wp)), "drift: backward error of updated factors <= sqrt(eps)")
     call check(du <= 10.0_wp * s%tol, "drift: agrees with active_set on every step")
   end subroutine test_drift
@@ -279,24 +282,24 @@ contains
     call sa%solve(cs, v, ua, la, sta, err)
     s%name = 'sparse_active_set'; s%dense_rows = 0
     call sp%init(s, err); call spall%init(s, err)
-    sp%w_margin = 0.0_wp; sp%a_margin = 0.0_wp; spall%w_margin = -1.0_wp
+    sp%knobs%w_margin = 0.0_wp; sp%knobs%a_margin = 0.0_wp; spall%knobs%w_margin = -1.0_wp
     l0 = 0; lall = 0
     call sp%solve(cs, v, u0, l0, st, err)
     call spall%solve(cs, v, uall, lall, stall, err)
-    print '(2x,a,i0,a,i0,a,es9.2)', "analysed set: re-analyses ", sp%n_reanalyse, " (all rows: ", &
-      spall%n_reanalyse, "), |u - u_active_set| ", maxval(abs(u0 - ua)) / maxval(abs(v))
+    print '(2x,a,i0,a,i0,a,es9.2)', "analysed set: re-analyses ", sp%state%n_reanalyse, " (all rows: ", &
+      spall%state%n_reanalyse, "), |u - u_active_set| ", maxval(abs(u0 - ua)) / maxval(abs(v))
     call check(.not. allocated(err) .and. st%converged .and. st%kkt <= s%tol .and. st%n_fallback == 0, &
       "analysed set w_margin = 0: converged on the sparse path")
-    call check(sp%n_reanalyse > 0, "analysed set w_margin = 0: W enlarged by violated rows")
-    call check(spall%n_reanalyse == 0 .and. stall%kkt <= s%tol, "w_margin < 0: every row analysed")
+    call check(sp%state%n_reanalyse > 0, "analysed set w_margin = 0: W enlarged by violated rows")
+    call check(spall%state%n_reanalyse == 0 .and. stall%kkt <= s%tol, "w_margin < 0: every row analysed")
     call check(maxval(abs(u0 - ua)) <= 10.0_wp * s%tol * maxval(abs(v)), "analysed set: same u as active_set")
     call check(maxval(abs(u0 - uall)) <= 10.0_wp * s%tol * maxval(abs(v)), "analysed set: same u as all rows")
     ! the same through the primal-dual sweeps (used on large problems): W enlarged there too
     call sp%free(); call sp%init(s, err)
-    sp%w_margin = 0.0_wp; sp%a_margin = 0.0_wp; sp%pdas_rows = 0
+    sp%knobs%w_margin = 0.0_wp; sp%knobs%a_margin = 0.0_wp; sp%knobs%pdas_rows = 0
     l0 = 0
     call sp%solve(cs, v, u0, l0, st, err)
-    call check(.not. allocated(err) .and. st%kkt <= s%tol .and. st%n_fallback == 0 .and. sp%n_reanalyse > 0, &
+    call check(.not. allocated(err) .and. st%kkt <= s%tol .and. st%n_fallback == 0 .and. sp%state%n_reanalyse > 0, &
       "analysed set with sweeps: converged, W enlarged")
     call check(maxval(abs(u0 - ua)) <= 10.0_wp * s%tol * maxval(abs(v)), "analysed set with sweeps: same u")
     ! the shim: M = [2 1; 1 2] analysed with row 2 outside the set
@@ -358,25 +361,25 @@ contains
       do var = 1, 4
         write(tag, '(a,i0,a,i0)') "scene ", sc, " var ", var
         call sp%init(s, err)
-        sp%proj_search = proj(var); sp%add_frac = frac(var); sp%add_frac_rows = huge(1)
-        sp%keep_violated = keep(var)
-        sp%n_proj = 0; sp%n_proj_rows = 0; sp%n_kept = 0
+        sp%knobs%proj_search = proj(var); sp%knobs%add_frac = frac(var); sp%knobs%add_frac_rows = huge(1)
+        sp%knobs%keep_violated = keep(var)
+        sp%state%n_proj = 0; sp%state%n_proj_rows = 0; sp%state%n_kept = 0
         l = lw
         call sp%solve(cs, v, u, l, st, err)
         call check(.not. allocated(err) .and. st%converged .and. st%kkt <= s%tol .and. &
           st%n_fallback == 0, "step back " // trim(tag) // ": converged on the sparse path")
         call check(maxval(abs(u - ua)) <= 10.0_wp * s%tol * max(maxval(abs(v)), 1.0_wp), &
           "step back " // trim(tag) // ": same u as active_set")
-        if (.not. proj(var)) call check(sp%n_proj == 0, "step back " // trim(tag) // ": no projected search")
+        if (.not. proj(var)) call check(sp%state%n_proj == 0, "step back " // trim(tag) // ": no projected search")
         if (proj(var)) then
-          nproj = nproj + sp%n_proj; nrows = nrows + sp%n_proj_rows
+          nproj = nproj + sp%state%n_proj; nrows = nrows + sp%state%n_proj_rows
         end if
-        if (.not. (proj(var) .and. keep(var))) call check(sp%n_kept == 0, "step back " // trim(tag) // &
+        if (.not. (proj(var) .and. keep(var))) call check(sp%state%n_kept == 0, "step back " // trim(tag) // &
           ": no row kept")
-        if (proj(var) .and. keep(var)) nkept = nkept + sp%n_kept
+        if (proj(var) .and. keep(var)) nkept = nkept + sp%state%n_kept
         print '(2x,a,": it ",i0," fac ",i0," mod ",i0," projected searches ",i0," rows frozen ",i0," kept ",i0,&
-          &" kkt ",es9.2)', trim(tag), st%iterations, st%n_factor, st%n_modify, sp%n_proj, sp%n_proj_rows, &
-          sp%n_kept, st%kkt
+          &" kkt ",es9.2)', trim(tag), st%iterations, st%n_factor, st%n_modify, sp%state%n_proj, sp%state%n_proj_rows, &
+          sp%state%n_kept, st%kkt
         call sp%free()
       end do
     end do
@@ -424,9 +427,9 @@ contains
       write(tag, '(a,i0)') "reuse var ", var
       s = projection_settings_t(); s%name = 'sparse_active_set'; s%dense_rows = 0
       call sp%init(s, err)
-      sp%reuse_analysis = reuse(var); sp%warm_search = warm(var); sp%keep_violated = keep(var)
-      sp%tail_slots = tails(var)
-      sp%n_kept = 0
+      sp%knobs%reuse_analysis = reuse(var); sp%knobs%warm_search = warm(var); sp%knobs%keep_violated = keep(var)
+      sp%knobs%tail_slots = tails(var)
+      sp%state%n_kept = 0
       q = q0; du = 0; nfail = 0
       allocate(lprev(0), kprev(0))
       do step = 1, nsteps
@@ -464,22 +467,22 @@ contains
       end do
       deallocate(lprev, kprev)
       print '(2x,a,": analyses ",i0," reused ",i0," re-analyses ",i0," tail slots ",i0,", rows kept ",i0,&
-        &", largest |u - u_active_set| ",es9.2)', trim(tag), sp%n_analyse, sp%n_reuse, sp%n_reanalyse, &
-        sp%n_tail, sp%n_kept, du
+        &", largest |u - u_active_set| ",es9.2)', trim(tag), sp%state%n_analyse, sp%state%n_reuse, sp%state%n_reanalyse, &
+        sp%state%n_tail, sp%state%n_kept, du
       call check(nfail == 0, trim(tag) // ": every step converged on the sparse path")
-      if (.not. keep(var)) call check(sp%n_kept == 0, trim(tag) // ": no row kept when keep_violated is off")
+      if (.not. keep(var)) call check(sp%state%n_kept == 0, trim(tag) // ": no row kept when keep_violated is off")
       call check(du <= 10.0_wp * s%tol, trim(tag) // ": agrees with active_set on every step")
       if (tails(var) > 0 .and. reuse(var)) then
-        call check(sp%n_tail > 0, trim(tag) // ": rows new to a reused analysis take tail slots")
+        call check(sp%state%n_tail > 0, trim(tag) // ": rows new to a reused analysis take tail slots")
       else if (tails(var) == 0) then
-        call check(sp%n_tail == 0 .and. sp%n_reanalyse > 0, trim(tag) // &
+        call check(sp%state%n_tail == 0 .and. sp%state%n_reanalyse > 0, trim(tag) // &
           ": without tail slots new rows enlarge W (re-analysis)")
       end if
       if (reuse(var)) then
-        call check(sp%n_reuse > nsteps / 2, trim(tag) // ": most steps reuse the analysis")
-        call check(sp%n_analyse > 1, trim(tag) // ": new rows force fresh analyses")
+        call check(sp%state%n_reuse > nsteps / 2, trim(tag) // ": most steps reuse the analysis")
+        call check(sp%state%n_analyse > 1, trim(tag) // ": new rows force fresh analyses")
       else
-        call check(sp%n_reuse == 0, trim(tag) // ": no reuse when off")
+        call check(sp%state%n_reuse == 0, trim(tag) // ": no reuse when off")
       end if
       call sp%free()
     end do
@@ -743,7 +746,7 @@ contains
     call check(.not. allocated(err) .and. sta%kkt <= s%tol, "sweeps, dependent rows: active_set reference")
     s%name = 'sparse_active_set'; s%dense_rows = 0
     call sp%init(s, err)
-    sp%pdas_rows = 0
+    sp%knobs%pdas_rows = 0
     allocate(l(cs%n))
     do var = 1, 2
       l = 0
@@ -773,6 +776,70 @@ contains
     call check(allocated(err), "refresh_every < 1 refused")
     if (allocated(err)) call check(index(err%message, "refresh_every") > 0, "message names refresh_every")
   end subroutine test_options
+
+  !> Bad tuning knobs of sparse_active_set are refused before any arithmetic (bulk_div = 0 once
+  !> divided by zero): the solve returns an error (code 2) naming the knob, and the defaults
+  !> solve.
+  subroutine test_knobs()
+    integer, parameter :: ncase = 15
+    character(len=16), parameter :: names(ncase) = [character(len=16) :: "bulk_div", "bulk_min", &
+      "pdas_max", "pdas_rows", "add_frac", "add_frac", "add_frac_rows", "warm_search_rows", &
+      "keep_searches", "tail_slots", "reuse_fill", "w_margin", "a_margin", "r_margin", "bulk_div"]
+    type(contact_set_t) :: cs
+    real(wp), allocatable :: v(:), u(:), l(:)
+    type(sparse_as_solver_t) :: sp
+    type(sparse_as_settings_t) :: kn
+    type(projection_settings_t) :: s
+    type(solve_stats_t) :: st
+    type(error_t), allocatable :: err
+    real(wp) :: nan
+    integer :: c
+    nan = ieee_value(1.0_wp, ieee_quiet_nan)
+    call lattice_scene(6, 6, 2, 0.03_wp, rad, h, cs, v)
+    allocate(u(size(v)), l(cs%n))
+    s = projection_settings_t(); s%name = 'sparse_active_set'; s%dense_rows = 0
+    do c = 1, ncase
+      kn = sparse_as_settings_t()
+      select case (c)
+      case (1); kn%bulk_div = 0
+      case (2); kn%bulk_min = -1
+      case (3); kn%pdas_max = -1
+      case (4); kn%pdas_rows = -1
+      case (5); kn%add_frac = 1.5_wp
+      case (6); kn%add_frac = nan
+      case (7); kn%add_frac_rows = -1
+      case (8); kn%warm_search_rows = -1
+      case (9); kn%keep_searches = -1
+      case (10); kn%tail_slots = -1
+      case (11); kn%reuse_fill = 2.0_wp
+      case (12); kn%w_margin = nan
+      case (13); kn%a_margin = -1.0_wp
+      case (14); kn%r_margin = -1.0_wp
+      case (15); kn%bulk_div = -3
+      end select
+      call kn%validate(err)
+      call check(allocated(err), "knob " // trim(names(c)) // " (case " // str(c) // "): validate refuses")
+      call sp%init(s, err)
+      sp%knobs = kn
+      l = 0
+      call sp%solve(cs, v, u, l, st, err)
+      call check(allocated(err), "knob " // trim(names(c)) // " (case " // str(c) // "): the solve refuses")
+      if (allocated(err)) then
+        call check(index(err%message, trim(names(c))) > 0 .and. err%code == 2, "knob " // &
+          trim(names(c)) // ": the message names it, code 2 (" // err%message // ")")
+      end if
+      call sp%free()
+    end do
+    kn = sparse_as_settings_t()
+    call kn%validate(err)
+    call check(.not. allocated(err), "default knobs are valid")
+    call sp%init(s, err)
+    sp%knobs = kn
+    l = 0
+    call sp%solve(cs, v, u, l, st, err)
+    call check(.not. allocated(err) .and. st%kkt <= s%tol, "default knobs: the solve reaches tol")
+    call sp%free()
+  end subroutine test_knobs
 
   !> The factor's own kernels against plain arithmetic: cr_chol_solve and the Schur pre-test
   !> (by scan and by elimination-tree reach) on random sparse SPD matrices M = B B^T + I whose

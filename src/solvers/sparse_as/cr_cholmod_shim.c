@@ -1,5 +1,5 @@
 /* Thin C shim over SuiteSparse CHOLMOD for the sparse dual active-set projection
- * (src/solvers/cr_sparse_as.f90, Fortran interfaces in src/solvers/cr_cholmod.f90).
+ * (src/solvers/sparse_as/, Fortran interfaces in cr_cholmod.f90 beside it).
  *
  * One handle holds a symmetric matrix M [n, n] (upper triangle, compressed columns, 0-based,
  * rows sorted within each column), its symbolic analysis (fill-reducing ordering and pattern)

@@ -1,4 +1,4 @@
-!> Fortran side of the CHOLMOD shim (src/solvers/cr_cholmod_shim.c): a sparse symmetric matrix
+!> Fortran side of the CHOLMOD shim (cr_cholmod_shim.c beside it): a sparse symmetric matrix
 !> M [n, n], its fill-reducing analysis, and a simplicial LDL' factor of the "active" matrix
 !> (M on the active rows, identity elsewhere) that is modified by row additions and deletions
 !> (cholmod_rowadd; several rows deleted by one cholmod_updown) instead of being rebuilt.
