@@ -18,6 +18,7 @@ program crowd_geobench
   use cr_scene, only: scene_t
   use cr_desired, only: desired_t
   use cr_placement, only: place_agents
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   type(env_t) :: env
   type(logger_t) :: log
@@ -56,7 +57,7 @@ contains
     help = .false.
     repeats = 20
     if (command_argument_count() < 1) then
-      call set_error(error, "crowd_geobench: no input file given (usage: crowd_geobench input.nml [repeats])", 2)
+      call set_error(error, "crowd_geobench: no input file given (usage: crowd_geobench input.nml [repeats])", EXIT_BAD_INPUT)
       return
     end if
     path = argument(1)
@@ -67,7 +68,7 @@ contains
       arg = argument(2)
       read(arg, *, iostat=ios) repeats
       if (ios /= 0 .or. repeats < 1) then
-        call set_error(error, "crowd_geobench: repeats must be a positive integer, got '" // arg // "'", 2); return
+        call set_error(error, "crowd_geobench: repeats must be a positive integer, got '" // arg // "'", EXIT_BAD_INPUT); return
       end if
     end if
   end subroutine read_arguments

@@ -12,6 +12,7 @@ program crowd_nnlsbench
   use cr_kinds, only: wp
   use cr_error, only: error_t
   use cr_nnls, only: nnls_solve, nnls_stats_t, nnls_work_t
+  use cr_exit_codes, only: EXIT_FAILURE, EXIT_BAD_INPUT
   implicit none
   character(len=4096) :: path, arg
   integer :: u, ios, p, reps, i
@@ -26,7 +27,7 @@ program crowd_nnlsbench
 
   if (command_argument_count() < 1) then
     write(error_unit, '(a)') "usage: crowd_nnlsbench <problems.bin> [min_seconds]"
-    error stop 2
+    error stop EXIT_BAD_INPUT
   end if
   call get_command_argument(1, path)
   min_seconds = 0.2_wp
@@ -36,14 +37,14 @@ program crowd_nnlsbench
     if (ios /= 0 .or. .not. min_seconds > 0) then
       write(error_unit, '(a)') "error: crowd_nnlsbench: min_seconds must be a positive number, got '" // &
         trim(arg) // "'"
-      error stop 2
+      error stop EXIT_BAD_INPUT
     end if
   end if
   open(newunit=u, file=trim(path), access='stream', form='unformatted', status='old', action='read', &
     iostat=ios, iomsg=msg)
   if (ios /= 0) then
     write(error_unit, '(a)') "error: crowd_nnlsbench: " // trim(path) // ": " // trim(msg)
-    error stop 2
+    error stop EXIT_BAD_INPUT
   end if
   read(u, iostat=ios) nprob
   if (ios /= 0 .or. nprob < 0) call bad("cannot read the number of problems")
@@ -57,7 +58,7 @@ program crowd_nnlsbench
     call nnls_solve(a, b, x, st, error, work=work)
     if (allocated(error)) then
       write(error_unit, '(a)') "error: crowd_nnlsbench: problem " // itoa(p) // ": " // error%message
-      error stop 1
+      error stop EXIT_FAILURE
     end if
     reps = 0
     call system_clock(c0)
@@ -89,6 +90,6 @@ contains
   subroutine bad(what)
     character(len=*), intent(in) :: what
     write(error_unit, '(a)') "error: crowd_nnlsbench: " // trim(path) // ": " // what
-    error stop 2
+    error stop EXIT_BAD_INPUT
   end subroutine bad
 end program crowd_nnlsbench

@@ -17,6 +17,7 @@ program crowd_podbench
   use cr_lapack, only: la_gemm
   use cr_distribution, only: block_range
   use cr_pod, only: pod_result_t, pod_tsqr, pod_snapshots, pod_rsvd, pod_scalapack, sketch_gaussian
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   type(env_t) :: env
   type(logger_t) :: log
@@ -60,7 +61,7 @@ contains
     end if
     if (mod(nargs, 2) /= 0) then
       call set_error(error, "crowd_podbench: the arguments are pairs 'n_dof n_snap' (got " // &
-        trim(count_text(nargs)) // " arguments)", 2); return
+        trim(count_text(nargs)) // " arguments)", EXIT_BAD_INPUT); return
     end if
     allocate(sizes(nargs))
     do c = 1, nargs
@@ -71,16 +72,16 @@ contains
       read(arg, *, iostat=ios) sizes(c)
       if (ios /= 0) then
         call set_error(error, "crowd_podbench: argument " // trim(count_text(c)) // " '" // arg // &
-          "' is not a whole number (usage: crowd_podbench [n_dof n_snap] ...)", 2); return
+          "' is not a whole number (usage: crowd_podbench [n_dof n_snap] ...)", EXIT_BAD_INPUT); return
       else if (sizes(c) < 1 .or. sizes(c) > 10000000) then
         call set_error(error, "crowd_podbench: argument " // trim(count_text(c)) // " = " // arg // &
-          " must be in 1..10000000", 2); return
+          " must be in 1..10000000", EXIT_BAD_INPUT); return
       end if
     end do
     do c = 1, nargs / 2
       if (int(sizes(2 * c - 1), 8) * sizes(2 * c) > 2000000000_8) then
         call set_error(error, "crowd_podbench: case " // trim(count_text(c)) // ": n_dof * n_snap exceeds 2e9 " // &
-          "entries (the snapshot matrix would not fit)", 2); return
+          "entries (the snapshot matrix would not fit)", EXIT_BAD_INPUT); return
       end if
     end do
   end subroutine read_sizes

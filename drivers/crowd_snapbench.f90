@@ -25,6 +25,7 @@ program crowd_snapbench
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
   use cr_random, only: rng_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT, EXIT_STOPPED
   implicit none
   type(env_t) :: env
   type(logger_t) :: log
@@ -51,18 +52,18 @@ program crowd_snapbench
   if (command_argument_count() >= 2 .and. .not. allocated(error)) then
     call get_command_argument(2, arg); read(arg, *, iostat=ios) mb
     if (ios /= 0 .or. .not. (mb > 0)) call set_error(error, "crowd_snapbench: argument 2 (mb) must be a " // &
-      "positive number of megabytes, got '" // trim(arg) // "'", 2)
+      "positive number of megabytes, got '" // trim(arg) // "'", EXIT_BAD_INPUT)
   end if
   if (command_argument_count() >= 3 .and. .not. allocated(error)) then
     call get_command_argument(3, arg); read(arg, *, iostat=ios) block
     if (ios /= 0 .or. block < 8 .or. mod(block, 8_i8) /= 0) call set_error(error, "crowd_snapbench: " // &
-      "argument 3 (block) must be a positive multiple of 8 bytes, got '" // trim(arg) // "'", 2)
+      "argument 3 (block) must be a positive multiple of 8 bytes, got '" // trim(arg) // "'", EXIT_BAD_INPUT)
   end if
   ! the scratch file is created and deleted here: an existing file is never overwritten
   if (.not. allocated(error)) then
     inquire(file=path, exist=existed)
     if (existed) call set_error(error, "crowd_snapbench: scratch file '" // path // &
-      "' exists already (refusing to overwrite it; give another path as argument 1)", 2)
+      "' exists already (refusing to overwrite it; give another path as argument 1)", EXIT_BAD_INPUT)
   end if
   created = .false.
   ! shared counter: 50 tickets per rank, each after 0.5..1.5 x `work` s of computation (as in
@@ -111,7 +112,7 @@ program crowd_snapbench
       if (ios == 0) then
         close(u); created = .true.
       else
-        call set_error(error, "crowd_snapbench: cannot create scratch file '" // path // "'", 3)
+        call set_error(error, "crowd_snapbench: cannot create scratch file '" // path // "'", EXIT_STOPPED)
       end if
     end if
     call env%agree_error(error)

@@ -20,6 +20,7 @@ import sys
 import tempfile
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from crowdrom_io import EXIT_BAD_INPUT  # noqa: E402
 from extremes_cases import ROOT, all_cases, run_case  # noqa: E402
 
 
@@ -55,7 +56,7 @@ def main():
     if a.check:
         if a.check not in cases:
             print("unknown case '%s'; known: %s" % (a.check, ", ".join(cases)))
-            return 2
+            return EXIT_BAD_INPUT
         bin_dir = os.path.abspath(a.bin or os.path.join(ROOT, "build-debug", "bin"))
         work = a.workdir or tempfile.mkdtemp(prefix="extremes_")
         r, failures, row = run_case(cases[a.check], bin_dir, work, a.size or "small")

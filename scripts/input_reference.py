@@ -19,6 +19,9 @@ import os
 import re
 import sys
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from crowdrom_io import EXIT_BAD_INPUT  # noqa: E402
+
 PROG = "input_reference"
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 _NAMELIST = re.compile(r"^\s*namelist\s*/\s*(\w+)\s*/\s*(.*)$", re.IGNORECASE)
@@ -125,7 +128,7 @@ def main(argv=None):
         return 0
     except ValueError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
 
 
 if __name__ == "__main__":

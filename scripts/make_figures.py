@@ -703,7 +703,7 @@ def main(argv=None):
         written, skipped = make_all(ctx, args.outdir, args.only, args.dpi)
     except InputError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
+        return cio.EXIT_BAD_INPUT
     print(f"{PROG}: {len(written)} figures written to {args.outdir}, {len(skipped)} skipped")
     return 0
 

@@ -21,7 +21,7 @@ SCHEMA = cio.FOM_SCHEMA
 
 def _fail(msg):
     print(f"plot_scene: error: {msg}", file=sys.stderr)
-    sys.exit(2)
+    sys.exit(cio.EXIT_BAD_INPUT)
 
 
 def load(path):

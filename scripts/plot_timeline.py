@@ -72,7 +72,7 @@ def main():
         sets, start, time, rank, js = load(a.database, a.summary)
     except cio.InputError as exc:
         print("plot_timeline.py: error: %s" % exc, file=sys.stderr)
-        sys.exit(2)
+        sys.exit(cio.EXIT_BAD_INPUT)
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

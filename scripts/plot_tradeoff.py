@@ -305,7 +305,7 @@ def main(argv=None):
                                                         study_table.DEFAULT_LEVELS, args.overlap_tol)
     except InputError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
+        return cio.EXIT_BAD_INPUT
     print(f"{PROG}: Pareto front: " + ", ".join(_label(r) for r in front))
     for level, r in per_level:
         print(f"{PROG}: E_avg <= {level:g}: cheapest without overlap ({key}): " +

@@ -8,6 +8,7 @@ program test_config
   use cr_assert, only: check, check_close, test_summary
   use cr_config, only: config_t, read_config, config_echo
   use cr_config_check, only: check_config
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   type(env_t) :: env
   type(config_t) :: cfg
@@ -64,7 +65,7 @@ program test_config
     call check(index(error%message, "&agents: radius") > 0, "reports radius")
     call check(index(error%message, "&time: dt") > 0, "reports dt")
     call check(index(error%message, "&output: every") > 0, "reports every (all problems at once)")
-    call check(error%code == 2, "bad input code 2")
+    call check(error%code == EXIT_BAD_INPUT, "bad input code 2")
   end if
 
   open(newunit=u, file='cfg_twice.nml', status='replace')

@@ -11,6 +11,7 @@ program test_env_error
   use cr_program, only: program_start, program_finish
   use cr_strings, only: str
   use cr_assert, only: check, test_summary
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   type(env_t) :: env
   type(logger_t) :: log
@@ -52,17 +53,17 @@ program test_env_error
   end if
 
   ! several ranks fail: the lowest failing rank's message wins, identical on every rank
-  if (env%rank >= 1 .or. env%size == 1) call set_error(error, "failure on rank " // str(env%rank), 2)
+  if (env%rank >= 1 .or. env%size == 1) call set_error(error, "failure on rank " // str(env%rank), EXIT_BAD_INPUT)
   call env%agree_error(error)
   call check(allocated(error), "several failures: every rank returns an error")
   if (allocated(error)) then
     call check(index(error%message, "failure on rank " // str(min(1, last))) > 0, "the lowest failing rank wins")
-    call check(error%code == 2, "code of the lowest failing rank")
+    call check(error%code == EXIT_BAD_INPUT, "code of the lowest failing rank")
     deallocate(error)
   end if
 
   ! every rank fails (an error all ranks know about): no rank prefix, rank 0's message
-  call set_error(error, "bad input everywhere", 2)
+  call set_error(error, "bad input everywhere", EXIT_BAD_INPUT)
   call env%agree_error(error)
   call check(allocated(error), "all failed: error kept")
   if (allocated(error)) then

@@ -1,6 +1,6 @@
 !> MPI errors are returned through env_t, not fatal: env's communicator and its shared
 !> counter's window have the handler MPI_ERRORS_RETURN; a broadcast from an invalid root (every
-!> rank) and a receive into a too small buffer (rank 1) return an error with code code_mpi
+!> rank) and a receive into a too small buffer (rank 1) return an error with code EXIT_MPI
 !> naming the MPI call, and MPI goes on working after them; the code survives prefix_error; the
 !> error agreement leaves an MPI failure as it is (no collective); BLACS, which does not check
 !> MPI statuses, works on communicators with MPI_ERRORS_ARE_FATAL. Run at 1, 2 and 3 ranks (on
@@ -18,7 +18,8 @@ program test_env_mpi_error
   use mpi_f08, only: MPI_Errhandler, MPI_Comm_get_errhandler, MPI_Win_get_errhandler, &
     MPI_Errhandler_free, MPI_ERRORS_RETURN, MPI_ERRORS_ARE_FATAL, MPI_SUCCESS, MPI_Comm, operator(==), &
     MPI_Finalize
-  use cr_error, only: error_t, set_error, prefix_error, code_mpi
+  use cr_error, only: error_t, set_error, prefix_error
+  use cr_exit_codes, only: EXIT_MPI, EXIT_FAILURE
   use cr_env, only: env_t, shared_counter_t, mpi_failed
   use cr_distribution, only: blacs_grid_t
   use cr_logger, only: logger_t
@@ -58,7 +59,7 @@ program test_env_mpi_error
       ! rank 0 sends 3 integers, rank 1 receives 2; then rank 0 waits in a barrier and in the
       ! agreement, rank 1 cleans up (window freed, barrier) and goes to program_finish
       call counter%init(env, 1, error)
-      if (allocated(error)) stop 1
+      if (allocated(error)) stop EXIT_FAILURE
       iv = [1, 2, 3]
       if (r == 0) then
         call env%send(iv, 1, 7, error)
@@ -109,7 +110,7 @@ program test_env_mpi_error
   call env%bcast(iv, error, root=p)
   call check(allocated(error), "bcast from an invalid root: an error")
   if (allocated(error)) then
-    call check(error%code == code_mpi, "bcast from an invalid root: code code_mpi")
+    call check(error%code == EXIT_MPI, "bcast from an invalid root: code EXIT_MPI")
     head = "env: MPI_Bcast of 3 integer(s) from rank " // str(p) // " failed: "
     call check(index(error%message, head) == 1 .and. len(error%message) > len(head), &
       "bcast from an invalid root: the message names the call, then MPI's reason")
@@ -118,19 +119,19 @@ program test_env_mpi_error
     call env%sync(e2)
     call check(allocated(e2), "barrier after a failed MPI call: skipped with an error")
     if (allocated(e2)) then
-      call check(e2%code == code_mpi .and. e2%message == &
+      call check(e2%code == EXIT_MPI .and. e2%message == &
         "env: MPI_Barrier skipped after a failed MPI call on this rank", "barrier skipped: " // e2%message)
       deallocate(e2)
     end if
     ! the code survives the context added on the way up
     call prefix_error(error, "stage")
-    call check(error%code == code_mpi .and. index(error%message, "stage: " // head) == 1, "prefix_error keeps code_mpi")
+    call check(error%code == EXIT_MPI .and. index(error%message, "stage: " // head) == 1, "prefix_error keeps EXIT_MPI")
     ! the agreement leaves an MPI failure as it is (here every rank has one: each keeps its own)
     error%message = "mpi failure on rank " // str(r)
     call env%agree_error(error)
     call check(allocated(error), "agree_error keeps an MPI failure")
     if (allocated(error)) then
-      call check(error%message == "mpi failure on rank " // str(r) .and. error%code == code_mpi, &
+      call check(error%message == "mpi failure on rank " // str(r) .and. error%code == EXIT_MPI, &
         "agree_error: an MPI failure is returned unchanged (no agreement)")
     end if
   end if
@@ -153,7 +154,7 @@ program test_env_mpi_error
       call env%recv(ir, 0, 3, error)
       call check(allocated(error), "receive of 3 integers into 2: an error")
       if (allocated(error)) then
-        call check(error%code == code_mpi, "truncated receive: code code_mpi")
+        call check(error%code == EXIT_MPI, "truncated receive: code EXIT_MPI")
         call check(index(error%message, "env: MPI_Recv of 2 integer(s) from rank 0 failed: ") == 1, &
           "truncated receive: the message names the call")
       end if

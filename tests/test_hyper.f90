@@ -13,6 +13,7 @@ program test_hyper
   use cr_eim, only: eim_t, eim_build, eim_prefix, deim_indices, eim_interp_matrix
   use cr_eq, only: eq_t, eq_gramian, eq_build
   use cr_assert, only: check, check_close, test_summary
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   type(env_t) :: env, env1
   type(MPI_Comm) :: c1
@@ -211,7 +212,7 @@ contains
     call eim_build(env, local_cols(env, s), p + 1, eim, e)
     call check(allocated(e), "eim m > p: error")
     if (allocated(e)) then
-      call check(e%code == 2, "eim m > p: input error code 2")
+      call check(e%code == EXIT_BAD_INPUT, "eim m > p: input error code 2")
       call check(index(e%message, "m = 41") > 0 .and. index(e%message, "p = 40") > 0, &
         & "eim m > p: message names m and p")
     end if
@@ -320,7 +321,7 @@ contains
     call check(same_eim(cut, direct) .and. cut%m == 0, "eim prefix, zero snapshots: m = 0, same note")
     call eim_prefix(full, 5, 6, cut, e)
     call check(allocated(e), "eim prefix: more modes than built is refused")
-    if (allocated(e)) call check(e%code == 2, "eim prefix: input error code 2")
+    if (allocated(e)) call check(e%code == EXIT_BAD_INPUT, "eim prefix: input error code 2")
   end subroutine test_eim_prefix
 
   !> Every component of two EIMs bitwise equal.
@@ -373,7 +374,7 @@ contains
     u = 1.0_wp
     call deim_indices(u, idx, e)
     call check(allocated(e), "deim: m > p is an error")
-    if (allocated(e)) call check(e%code == 2, "deim: m > p, code 2")
+    if (allocated(e)) call check(e%code == EXIT_BAD_INPUT, "deim: m > p, code 2")
 
     ! a hand-made EIM whose 2 x 2 interpolation matrix [[1, 1], [0, 0]] is singular
     eim%p = 3; eim%m = 2
@@ -398,7 +399,7 @@ contains
     end if
     call eim_interp_matrix(eim, 3, minv, e)
     call check(allocated(e), "interp matrix: m > eim%m is an error")
-    if (allocated(e)) call check(e%code == 2, "interp matrix: m > eim%m, code 2")
+    if (allocated(e)) call check(e%code == EXIT_BAD_INPUT, "interp matrix: m > eim%m, code 2")
   end subroutine test_deim_and_interp_matrix
 
   ! ---------------------------------------------------------------- EQ
@@ -442,7 +443,7 @@ contains
     h1 = kmat(1:8, 1:8)
     call eq_gramian(env, local_cols(env, s), h1, h, e)
     call check(allocated(e), "gramian: kernel of the wrong size is an error")
-    if (allocated(e)) call check(e%code == 2, "gramian: wrong kernel, code 2")
+    if (allocated(e)) call check(e%code == EXIT_BAD_INPUT, "gramian: wrong kernel, code 2")
   end subroutine test_gramian
 
   !> All candidates of a small non-singular problem: Pi reproduced exactly (both variants,
@@ -660,7 +661,7 @@ contains
     call eq_build(h, .true., 6, 0.0_wp, eq, e)
     call check(allocated(e), "eq m > p: error")
     if (allocated(e)) then
-      call check(e%code == 2, "eq m > p: code 2")
+      call check(e%code == EXIT_BAD_INPUT, "eq m > p: code 2")
       call check(index(e%message, "m = 6") > 0 .and. index(e%message, "p = 5") > 0, &
         & "eq m > p: message names m and p")
     end if

@@ -27,6 +27,7 @@ program test_hyper_methods
   use cr_reduced_base, only: eval_ctx_t, reduced_ops_t
   use cr_rom_file, only: rom_pair_t
   use cr_reduced_ops, only: make_reduced_ops
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   type(env_t) :: env
   type(error_t), allocatable :: error
@@ -59,7 +60,7 @@ contains
     call new_hyper('deim', m, error)
     call check(allocated(error), "factory: refuses 'deim'")
     if (.not. allocated(error)) return
-    call check(error%code == 2, "factory: input error (code 2)")
+    call check(error%code == EXIT_BAD_INPUT, "factory: input error (code 2)")
     call check(error%message == "unknown hyper-reduction 'deim' (known: none, eim, eq, eq_deim)", &
       "factory: the one-line message (got: " // error%message // ")")
     call check(index(error%message, new_line('a')) == 0, "factory: one line")
@@ -74,7 +75,8 @@ contains
     call pair%terms%init(cone, 0, [1], [2], [0], 4, error)
     call make_reduced_ops('EQ', 'cone', pair, [0, 0, 0], 1.5_wp, "in.nml: &sweep", ops, error)
     call check(allocated(error), "factory: make_reduced_ops refuses 'EQ'")
-    if (allocated(error)) call check(error%code == 2 .and. error%message == "in.nml: &sweep: unknown hyper-reduction " // &
+    if (allocated(error)) call check(error%code == EXIT_BAD_INPUT .and. &
+      error%message == "in.nml: &sweep: unknown hyper-reduction " // &
       "'EQ' (known: none, eim, eq, eq_deim)", "factory: make_reduced_ops message (got: " // error%message // ")")
     ! a pair without stored data serves 'none' and refuses 'eq_deim'
     call make_reduced_ops('eq_deim', 'cone', pair, [0, 0, 0], 1.5_wp, "t", ops, error)

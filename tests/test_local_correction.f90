@@ -18,6 +18,7 @@ program test_local_correction
   use cr_scene, only: scene_t
   use cr_projection, only: projection_settings_t, solve_stats_t
   use cr_local_correction, only: local_correction_t, local_stats_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
 
   real(wp), parameter :: rad = 0.02_wp, h = 0.01_wp, cutoff_factor = 1.5_wp
@@ -272,7 +273,7 @@ contains
     call lc%correct(scene, rad, q, u_r, -h, u, st, error)
     call check(allocated(error), name // " bad input: negative step refused")
     if (allocated(error)) then
-      call check(error%code == 2, name // " bad input: an input error (code 2)")
+      call check(error%code == EXIT_BAD_INPUT, name // " bad input: an input error (code 2)")
       deallocate(error)
     end if
     call lc%correct(scene, rad, q, u_r, ieee_value(1.0_wp, ieee_positive_inf), u, st, error)

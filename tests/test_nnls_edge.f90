@@ -17,6 +17,7 @@ program test_nnls_edge
   use cr_strings, only: str
   use cr_assert, only: check, check_close, test_summary
   use cr_nnls, only: nnls_solve, nnls_stats_t, nnls_work_t, ldp_solve, ldp_stats_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   real(wp), parameter :: eps = epsilon(1.0_wp)
   !> relative tolerance of the enumeration's dependence test
@@ -512,7 +513,7 @@ contains
     ! inconsistent sizes are a clear error (code 2)
     call nnls_solve(a, b(1:3), x, st, err)
     call check(allocated(err), "size mismatch is an error")
-    if (allocated(err)) call check(err%code == 2 .and. index(err%message, "nnls_solve") > 0, &
+    if (allocated(err)) call check(err%code == EXIT_BAD_INPUT .and. index(err%message, "nnls_solve") > 0, &
       "size mismatch: code 2, message names nnls_solve")
   end subroutine test_nnls_trivial
 
@@ -1241,7 +1242,7 @@ contains
       end select
       call nnls_solve(a, b, x, st, err)
       call check(allocated(err), "nnls non-finite " // str(k) // ": error")
-      if (allocated(err)) call check(err%code == 2 .and. index(err%message, "finite") > 0, &
+      if (allocated(err)) call check(err%code == EXIT_BAD_INPUT .and. index(err%message, "finite") > 0, &
         "nnls non-finite " // str(k) // ": code 2, message")
     end do
     do k = 1, 5
@@ -1263,7 +1264,7 @@ contains
       end select
       call ldp_solve(bm, d, v, u, lam, lst, err)
       call check(allocated(err), "ldp non-finite " // str(k) // ": error")
-      if (allocated(err)) call check(err%code == 2 .and. index(err%message, "finite") > 0, &
+      if (allocated(err)) call check(err%code == EXIT_BAD_INPUT .and. index(err%message, "finite") > 0, &
         "ldp non-finite " // str(k) // ": code 2, message")
     end do
     ! a NaN warm-start lambda is fine when the warm start is off

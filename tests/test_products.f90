@@ -30,6 +30,7 @@ program test_products
   use cr_hyper_eq, only: hyper_eq_t
   use cr_eim, only: eim_t
   use cr_romrun_file, only: romrun_header_t, romrun_row_t, romrun_set_t, romrun_t, romrun_writer_t, read_romrun
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   integer, parameter :: NA = 3, NT = 2, NE = 2, NDICT = 4
   integer, parameter :: DICT_IA(NDICT) = [1, 1, 2, 3], DICT_IB(NDICT) = [2, 0, 3, 0], DICT_OB(NDICT) = [0, 1, 0, 2]
@@ -112,7 +113,7 @@ contains
     character(len=*), intent(in) :: path, what, name
     logical :: ok
     ok = allocated(error)
-    if (ok) ok = error%code == 2 .and. index(error%message, path) > 0 .and. index(error%message, what) > 0
+    if (ok) ok = error%code == EXIT_BAD_INPUT .and. index(error%message, path) > 0 .and. index(error%message, what) > 0
     if (.not. ok .and. allocated(error)) print '(a)', "   got: " // error%message
     call check(ok, name // ": refused with a message naming '" // path // "' and '" // what // "'")
   end subroutine expect_refusal

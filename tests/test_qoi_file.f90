@@ -15,6 +15,7 @@ program test_qoi_file
   use cr_qoi, only: qoi_t, compute_qoi
   use cr_qoi_file, only: qoi_product_t, write_qoi_product, read_qoi_product, write_qoi_group, read_qoi_group, &
     QOI_SCHEMA_VERSION
+    use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   integer, parameter :: nt = 30, na = 6
   real(wp), parameter :: h = 0.1_wp, radius = 0.04_wp
@@ -125,7 +126,7 @@ contains
     call f%close(error)
     call read_qoi_product("qoi_v.h5", b, error)
     call check(allocated(error), "another schema version refused")
-    if (allocated(error)) call check(index(error%message, "qoi_v.h5") > 0 .and. error%code == 2, &
+    if (allocated(error)) call check(index(error%message, "qoi_v.h5") > 0 .and. error%code == EXIT_BAD_INPUT, &
       "input error naming the file")
     ! a QoI group whose curve was changed after its checksum: rewrite the group with other data
     ! under the old checksum

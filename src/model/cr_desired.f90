@@ -28,6 +28,7 @@ module cr_desired
   use cr_shapes, only: obstacle_t, make_segment, segment_obstacle_distance, OBST_DISK, OBST_SEGMENT
   use cr_distance_field, only: distance_field_t
   use cr_geodesic, only: geodesic_t, GEODESIC_MAX_CIRCLES
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: desired_t, exact_applies
@@ -101,7 +102,7 @@ contains
       this%use_field = .false.
     case ('exact')
       if (.not. exact_applies(scene, radius, why)) then
-        call set_error(error, "&desired: field = 'exact' does not apply to this scene: " // why, 2)
+        call set_error(error, "&desired: field = 'exact' does not apply to this scene: " // why, EXIT_BAD_INPUT)
         return
       end if
       this%use_exact = .true.
@@ -302,20 +303,20 @@ contains
     allocate(vec(2 * n))
     open(newunit=u, file=path, status='old', action='read', iostat=ios, iomsg=msg)
     if (ios /= 0) then
-      call set_error(error, "&desired: file: cannot open '" // path // "' (" // trim(msg) // ")", 2)
+      call set_error(error, "&desired: file: cannot open '" // path // "' (" // trim(msg) // ")", EXIT_BAD_INPUT)
       return
     end if
     do k = 1, n
       read(u, *, iostat=ios, iomsg=msg) vec(2*k-1), vec(2*k)
       if (ios /= 0) then
         call set_error(error, "&desired: file: '" // path // "' line " // str(k) // &
-          ": expected two numbers 'vx vy' per agent for " // str(n) // " agents (" // trim(msg) // ")", 2)
+          ": expected two numbers 'vx vy' per agent for " // str(n) // " agents (" // trim(msg) // ")", EXIT_BAD_INPUT)
         close(u); return
       end if
     end do
     close(u)
     if (any(vec /= vec) .or. any(abs(vec) > huge(1.0_wp) / 4)) then
-      call set_error(error, "&desired: file: '" // path // "' has a non-finite value", 2)
+      call set_error(error, "&desired: file: '" // path // "' has a non-finite value", EXIT_BAD_INPUT)
     end if
   end subroutine read_vectors
 end module cr_desired

@@ -28,12 +28,11 @@ module cr_study_run
   use cr_piece_store, only: piece_index_t, piece_batch_t, scan_pieces, set_of_sample
   use cr_snapshot_file, only: SNAP_SCHEMA_VERSION, db_meta_t, snap_write_stats_t, snap_writer_t, &
     probe_snap_database, scene_vertex_list
+  use cr_exit_codes, only: EXIT_STOPPED, EXIT_FAILURE, EXIT_BAD_INPUT
   implicit none
   private
-  public :: run_options_t, study_run_t, EXIT_STOPPED
+  public :: run_options_t, study_run_t
 
-  !> exit status of a run stopped by --stop-after
-  integer, parameter :: EXIT_STOPPED = 3
   !> phase boundaries recorded by every rank (the summary's `phase_marks`, a timeline per rank)
   integer, parameter :: N_MARKS = 18
   character(len=*), parameter :: MARK_NAMES = "setup_local,counter_created,probe_shared,pieces_scanned," // &
@@ -188,7 +187,7 @@ contains
     mk(3) = env%wtime() - t_start
     if (status >= 2) then
       call env%bcast(msg, error)
-      if (.not. allocated(error)) call set_error(error, msg, merge(2, 1, status == 2))
+      if (.not. allocated(error)) call set_error(error, msg, merge(EXIT_BAD_INPUT, EXIT_FAILURE, status == 2))
       call sched%free()
       return
     end if
