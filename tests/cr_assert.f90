@@ -1,10 +1,12 @@
 !> Minimal assertion module for crowdrom's test programs (test-drive / pFUnit shaped).
 !>
-!> A test program calls `check*` any number of times and ends with `call test_summary()`,
-!> which prints "N passed, M failed" and stops with a non-zero code if anything failed.
+!> A test program calls `check*` at least once and ends with `call test_summary()`, which
+!> prints "N passed, M failed" and stops with a non-zero code if anything failed or if no check
+!> ran at all (a program whose checks were skipped must not pass).
 module cr_assert
   use, intrinsic :: iso_fortran_env, only: output_unit
   use cr_kinds, only: wp
+  use cr_exit_codes, only: EXIT_FAILURE
   implicit none
   private
   public :: check, check_close, check_rel, test_summary, n_failed
@@ -64,7 +66,9 @@ contains
     call check_close(a, b, tol * max(abs(b), tiny(1.0_wp)), name)
   end subroutine check_rel
 
-  !> Print the tally and stop with status 1 if any check failed.
+  !> Print the tally and stop with status 1 if any check failed, or if no check ran on the
+  !> printing rank (rank 0 when `rank` is given: the other ranks of an MPI test may leave the
+  !> checks to rank 0).
   subroutine test_summary(rank)
     integer, intent(in), optional :: rank
     logical :: show
@@ -74,6 +78,11 @@ contains
       write(output_unit, '(i0, " passed, ", i0, " failed")') n_passed, n_failed
       flush(output_unit)
     end if
-    if (n_failed > 0) error stop 1
+    if (n_failed > 0) error stop EXIT_FAILURE
+    if (show .and. n_passed == 0) then
+      write(output_unit, '(a)') "FAIL: no check ran"
+      flush(output_unit)
+      error stop EXIT_FAILURE
+    end if
   end subroutine test_summary
 end module cr_assert

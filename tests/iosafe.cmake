@@ -85,10 +85,8 @@ cr_refused(snapbench_existing_scratch "scratch file '.*CMakeLists.txt' exists al
 
 # crowd_project's request: files it cannot open (empty, truncated, random bytes, superblock
 # zeroed, text, folder, empty argument, namelist, missing, another product) and parameters that
-# give no valid scene, each refused with one line and exit 2 (needs h5py: the project venv)
-if(EXISTS ${CMAKE_SOURCE_DIR}/.venv/bin/python)
-  add_test(NAME project_requests
-    COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/project_requests.sh $<TARGET_FILE_DIR:crowd_project>
-      ${CMAKE_CURRENT_SOURCE_DIR}/inputs/snap_tiny.nml ${CMAKE_SOURCE_DIR}/.venv/bin/python)
-  set_tests_properties(project_requests PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}")
-endif()
+# give no valid scene, each refused with one line and exit 2 (h5py of the project venv)
+add_test(NAME project_requests
+  COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/project_requests.sh $<TARGET_FILE_DIR:crowd_project>
+    ${CMAKE_CURRENT_SOURCE_DIR}/inputs/snap_tiny.nml ${CR_PYTHON})
+set_tests_properties(project_requests PROPERTIES LABELS regression ENVIRONMENT "${CR_MPI_ENV}")

@@ -33,15 +33,12 @@ set_tests_properties(snapshots_stop_resume snapshots_kill_resume snapshots_misma
 set_tests_properties(snapshots_stop_resume snapshots_mismatch PROPERTIES FIXTURES_REQUIRED snap_ref)
 
 # pieces that cannot lie: corrupted, scaled, renamed and NaN pieces refused by name, then moved
-# aside with --quarantine-bad-pieces and recomputed (needs h5py: the project venv)
-if(EXISTS ${CMAKE_SOURCE_DIR}/.venv/bin/python)
-  add_test(NAME snapshots_corrupt_pieces
-    COMMAND bash ${CR_SNAP_CHECK} corrupt $<TARGET_FILE:crowd_snapshots> ${CR_SNAP_IN}/snap_tiny.nml
-      ${CMAKE_SOURCE_DIR}/.venv/bin/python
-    WORKING_DIRECTORY ${CR_SNAP_DIR})
-  set_tests_properties(snapshots_corrupt_pieces PROPERTIES LABELS "mpi;regression" ENVIRONMENT "${CR_SNAP_ENV}"
-    PROCESSORS 2 FIXTURES_REQUIRED snap_ref)
-endif()
+# aside with --quarantine-bad-pieces and recomputed (h5py of the project venv)
+add_test(NAME snapshots_corrupt_pieces
+  COMMAND bash ${CR_SNAP_CHECK} corrupt $<TARGET_FILE:crowd_snapshots> ${CR_SNAP_IN}/snap_tiny.nml ${CR_PYTHON}
+  WORKING_DIRECTORY ${CR_SNAP_DIR})
+set_tests_properties(snapshots_corrupt_pieces PROPERTIES LABELS "mpi;regression" ENVIRONMENT "${CR_SNAP_ENV}"
+  PROCESSORS 2 FIXTURES_REQUIRED snap_ref)
 
 # bad input: clear message, nothing created, an existing file survives
 function(cr_snap_bad case regex)
