@@ -5,8 +5,18 @@ The groups (docs/input-reference.md): crowd_offline reads &offline (files), &pod
 (reduced solver), &fom_timing; crowd_predict reads &predict (docs/queries.md). The tests and the extremes campaign describe a stage's options
 as one flat list of ``stage_variable = value`` assignments (the names of the former single
 groups); ``offline_groups`` / ``rom_groups`` turn such a list into the groups' text.
+
+The groups and their variables are the Fortran's (`namelist /group/` statements, read by
+scripts/input_reference.py): crowd_predict's one group is taken from there, and the flat names
+of crowd_offline and crowd_rom below are checked against them (scripts/tests/test_agreement.py:
+every variable of a group they name has a flat name, and every flat name is a variable).
 """
+import os
 import re
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from input_reference import code_groups  # noqa: E402
 
 #: flat name -> (group, variable) for crowd_offline
 OFFLINE = {
@@ -40,11 +50,8 @@ ROM = {
     "fom_uzawa_rows": ("fom_timing", "uzawa_rows"), "fom_exact_solver": ("fom_timing", "exact_solver"),
 }
 
-#: flat name -> (group, variable) for crowd_predict (one group)
-PREDICT = {name: ("predict", name) for name in (
-    "rom_file", "output", "model", "n", "r", "hyper", "contacts", "m_v", "m_b", "m_d", "correction", "solver",
-    "params_file", "params_dataset", "n_queries", "seed", "dist_param", "dist", "dist_a", "dist_b", "dist_lo",
-    "dist_hi", "out_of_box", "trajectories")}
+#: flat name -> (group, variable) for crowd_predict (one group: every variable of &predict)
+PREDICT = {name: ("predict", name) for name in code_groups()["predict"][0]}
 
 _ASSIGN = re.compile(r"(?:^|,)\s*([A-Za-z_]\w*)(\(\s*\d+\s*\))?\s*=")
 

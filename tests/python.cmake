@@ -30,7 +30,7 @@ endfunction()
 # groups start 2-rank runs only for seconds (oversubscribed), hence PROCESSORS 1
 cr_pytest(pytest_script_errors TIMEOUT 600 FILES test_script_errors.py test_hostile_inputs.py)
 cr_pytest(pytest_figures TIMEOUT 600 FILES test_figures.py test_plot_scene.py test_study_table.py test_io.py
-  test_deim_desired.py test_layout.py test_docs.py)
+  test_deim_desired.py test_layout.py test_docs.py test_agreement.py)
 cr_pytest(pytest_rom TIMEOUT 300 FILES test_rom.py test_rom_measures.py)
 cr_pytest(pytest_stages TIMEOUT 300 FILES test_offline.py test_snapshot_model.py test_fom_run.py test_snapshots.py
   test_checksums.py)
