@@ -14,4 +14,4 @@ set_tests_properties(assert_no_check_fails assert_one_check_passes PROPERTIES LA
 add_test(NAME tests_need_their_prerequisites
   COMMAND sh -c "out=$(\"$0\" -S \"$1\" -B \"$2\" -G Ninja -DCROWDROM_TEST_PYTHON=/nonexistent/python 2>&1); rc=$?; rm -rf \"$2\"; echo \"$out\"; [ $rc -ne 0 ] && echo \"$out\" | tr -s ' \\n' ' ' | grep -q 'crowdrom tests: missing the Python venv /nonexistent/python.*scripts/setup.sh'"
     ${CMAKE_COMMAND} ${CMAKE_SOURCE_DIR} ${CMAKE_BINARY_DIR}/tests/prerequisites.tmp)
-set_tests_properties(tests_need_their_prerequisites PROPERTIES LABELS regression TIMEOUT 120)
+set_tests_properties(tests_need_their_prerequisites PROPERTIES LABELS regression TIMEOUT 300)
