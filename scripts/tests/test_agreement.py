@@ -3,7 +3,7 @@
 - the products' schema names and versions: the `<P>_SCHEMA`, `<P>_SCHEMA_VERSION` (written) and
   `<P>_VERSIONS_READ` parameters of src/products and crowdrom_io's *_SCHEMA, SCHEMA_VERSIONS,
   SCRIPT_ONLY_VERSIONS and the versions the scripts write (ML_VERSION, PROJREQ_VERSION);
-- the namelist groups: scripts/nml_groups.py's maps and the `namelist /group/` statements.
+- the namelist groups: scripts/dev/nml_groups.py's maps and the `namelist /group/` statements.
 Each check reads the sources at a root directory, so that the tests below also show that a
 changed Fortran value is reported.
 """

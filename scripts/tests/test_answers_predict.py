@@ -71,7 +71,7 @@ def _files(tmp, qoi, **models):
 
 
 def _answers(cwd, qfile, mfile, *extra):
-    return subprocess.run([sys.executable, os.path.join(SCRIPTS, "crowd_answers.py"), str(qfile),
+    return subprocess.run([sys.executable, os.path.join(SCRIPTS, "pipeline", "crowd_answers.py"), str(qfile),
                            "--models", str(mfile), "--out-prefix", "out", "--pilot", "12", "--quiet",
                            *extra], cwd=cwd, capture_output=True, text=True, env=ENV)
 

@@ -4,7 +4,7 @@
   pages and the comments of src/, drivers/, scripts/, tests/ and inputs/;
 - every namelist variable the code reads (the `namelist /group/ ...` statements of src/**/*.f90)
   is listed in docs/input-reference.md under its group, and nothing else is (the check of
-  scripts/input_reference.py; scripts/nml_groups.py's map agrees with the same statements:
+  scripts/dev/input_reference.py; scripts/dev/nml_groups.py's map agrees with the same statements:
   scripts/tests/test_agreement.py);
 - the project speaks of itself only: no word about how it was developed in the README, the docs,
   the sources, the scripts, the tests or the inputs.
@@ -29,8 +29,8 @@ PENDING = set()
 DOCS = sorted(glob.glob(os.path.join(ROOT, "docs", "*.md")))
 PAGES = [os.path.join(ROOT, "README.md")] + DOCS
 #: files whose text may cite docs pages (comments, help texts, docstrings)
-SOURCE_GLOBS = ["src/**/*.f90", "src/**/*.c", "drivers/*.f90", "scripts/**/*.py", "scripts/*.sh",
-                "tests/*.f90", "tests/*.cmake", "tests/*.sh", "tests/*.py", "tests/CMakeLists.txt",
+SOURCE_GLOBS = ["src/**/*.f90", "src/**/*.c", "drivers/**/*.f90", "scripts/**/*.py", "scripts/**/*.sh",
+                "tests/**/*.f90", "tests/**/*.cmake", "tests/**/*.sh", "tests/**/*.py", "tests/CMakeLists.txt",
                 "inputs/*.nml", "inputs/*.json", "CMakeLists.txt"]
 SOURCES = sorted({p for g in SOURCE_GLOBS for p in glob.glob(os.path.join(ROOT, g), recursive=True)})
 

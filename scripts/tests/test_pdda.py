@@ -2,7 +2,7 @@
 read by PedPy in one call each (trajectory, walkable area), and the flow per exit and the
 density in front of each exit cross-checked against PedPy's on a small two-exit scene:
 PedPy's cumulative count at each exit's "has left" line equals the count of
-scripts/validate_flows.py (the QoI contract's definition) at every frame, so the specific
+scripts/post/validate_flows.py (the QoI contract's definition) at every frame, so the specific
 flows are equal, and PedPy's classic density in the 1 m deep area in front of each exit
 equals the count of crowd_fom's own positions in it at every frame."""
 import os

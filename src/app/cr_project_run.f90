@@ -1,5 +1,5 @@
 !> The run of crowd_project: exact position projection of the configurations of a request file
-!> (docs/model.md#exact-position-projection). The request (written by scripts/ml_correct.py; layout
+!> (docs/model.md#exact-position-projection). The request (written by scripts/pipeline/ml_correct.py; layout
 !> in cr_projection_file) names the snapshot database the positions belong to: its configuration
 !> gives the scene of each sample (the parameters mapped by cr_param_model, as in every stage), the
 !> &solver settings and the &contacts cutoff factor. The configurations of a sample are a

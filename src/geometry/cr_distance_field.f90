@@ -13,7 +13,7 @@
 !> O(dx log(1/dx)) error of first-order schemes at point-like sources (target endpoints), so the
 !> error away from obstacles is O(dx). Nodes near a target that are not in sight are swept.
 !>
-!> Accuracy (tests/test_distance_field.f90): without obstacles the nodal error is about 0.4 dx
+!> Accuracy (tests/unit/test_distance_field.f90): without obstacles the nodal error is about 0.4 dx
 !> and halves with dx; next to curved obstacles the blocked-node staircase dominates (about
 !> 3 dx at dx = 0.01 just behind a disk, converging like dx^0.6); a cut-cell boundary would fix it.
 !>

@@ -7,7 +7,7 @@
 !> the full model of the study's configuration (its &solver) on the same list; model =
 !> 'positions' runs nothing: the trajectories are given in the HDF5 params_file (dataset
 !> `positions`, query k's frames 0..n_steps in rows (k - 1)(n_steps + 1) + 1.., the layout of the
-!> product's positions) and only measured (the ML correction's QoIs, scripts/ml_correct.py).
+!> product's positions) and only measured (the ML correction's QoIs, scripts/pipeline/ml_correct.py).
 !> `label` (default: derived from the model) names the model in the product.
 !>
 !> The list: `params_file` (a text file, a header naming the columns then one query per row,

@@ -1,5 +1,5 @@
 !> The files of the position projection (crowd_project, docs/file-formats.md):
-!> - the request (schema "crowdrom-projreq", version 1), written by scripts/ml_correct.py:
+!> - the request (schema "crowdrom-projreq", version 1), written by scripts/pipeline/ml_correct.py:
 !>   root attributes `database` (snapshot database the positions belong to: its configuration
 !>   gives the scene, &solver and &contacts), `output` (result file to write), `n_agents`,
 !>   `configs_per_sample`, `solver` ('' = the database's &solver name), `tol` (0 = the
