@@ -4,7 +4,7 @@
 !>
 !>   crowd_project request.h5 [--summary FILE]
 !>
-!> The request (written by scripts/ml_correct.py; layout in cr_projection_file) names the
+!> The request (written by scripts/pipeline/ml_correct.py; layout in cr_projection_file) names the
 !> snapshot database the positions belong to: its configuration gives the scene of each sample
 !> (the parameters mapped by cr_param_model, as in every stage), the &solver settings and the
 !> &contacts cutoff factor. The result file named by the request is written atomically.

@@ -17,6 +17,7 @@ program crowd_rom
   use cr_namelist_text, only: namelist_text_t
   use cr_rom_config, only: rom_cfg_t, read_rom, check_rom, check_rom_paths
   use cr_rom_sweep, only: rom_sweep_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
 
   type(env_t) :: env
@@ -35,7 +36,7 @@ program crowd_rom
     stop
   end if
   if (.not. allocated(error) .and. env%size > 1) call set_error(error, "crowd_rom is serial: run it " // &
-    "without mpirun (or with -np 1); the parallel stages are crowd_snapshots and crowd_offline", 2)
+    "without mpirun (or with -np 1); the parallel stages are crowd_snapshots and crowd_offline", EXIT_BAD_INPUT)
   if (.not. allocated(error)) call nml%load(cli%input, env, error)
   if (.not. allocated(error)) call nml%require_groups('crowd_rom', ['rom'], FOM_GROUPS, error)
   if (.not. allocated(error)) call read_rom(nml, rcfg, error)

@@ -37,17 +37,28 @@ FOM_SCHEMA = "crowdrom-fom"
 PROJREQ_SCHEMA = "crowdrom-projreq"
 PROJ_SCHEMA = "crowdrom-projected"
 QOI_SCHEMA = "crowdrom-qoi"
-#: schema versions each reader accepts (as in src/products: *_VERSIONS_READ); the figures also
-#: read the offline results of a version-1 ROM file (written before the prepared pairs), which
-#: crowd_rom (pairs needed) refuses
+#: schema versions each reader accepts: those the Fortran readers accept (src/products:
+#: <P>_VERSIONS_READ, or the version written, <P>_SCHEMA_VERSION, of a product no program reads)
+#: plus SCRIPT_ONLY_VERSIONS; scripts/tests/test_agreement.py checks both sides agree
 SCHEMA_VERSIONS = {FOM_SCHEMA: (1,), DB_SCHEMA: (1, 2), ROM_SCHEMA: (1, 2, 3), ROMRUN_SCHEMA: (1,),
                    ML_SCHEMA: (1, 2), PROJ_SCHEMA: (2,), QOI_SCHEMA: (1,)}
+#: versions only the scripts read: the figures read the offline results of a version-1 ROM file
+#: (written before the prepared pairs), which crowd_rom (pairs needed) refuses
+SCRIPT_ONLY_VERSIONS = {ROM_SCHEMA: (1,)}
 #: products whose every dataset carries a ``checksum`` attribute (from the given schema version
 #: on; but those under the listed groups, e.g. the database's reference scene written by the
 #: full-order writer): ``dataset`` refuses one without it, and verifies it wherever it is present
 CHECKSUMMED = {DB_SCHEMA: (1, ("/scene/",)), ML_SCHEMA: (2, ())}
 #: version of the ML output this package writes (2: every dataset with its checksum)
 ML_VERSION = 2
+#: version of the projection request this package writes (read by crowd_project)
+PROJREQ_VERSION = 1
+#: exit statuses of the scripts, the values of the programs' (src/core/cr_exit_codes.f90)
+EXIT_OK = 0
+EXIT_FAILURE = 1
+EXIT_BAD_INPUT = 2
+EXIT_STOPPED = 3
+EXIT_MPI = 4
 
 
 class InputError(Exception):
@@ -796,7 +807,7 @@ def run_projection(exe, database, params, positions, workdir, solver="", tol=0.0
     out = os.path.join(os.fspath(workdir), "projection_result.h5")
     with h5py.File(req, "w") as f:
         a = f.attrs
-        a["schema"], a["schema_version"] = np.bytes_(PROJREQ_SCHEMA), np.int32(1)
+        a["schema"], a["schema_version"] = np.bytes_(PROJREQ_SCHEMA), np.int32(PROJREQ_VERSION)
         a["database"] = np.bytes_(os.path.abspath(database))
         a["output"] = np.bytes_(os.path.abspath(out))
         a["solver"] = np.bytes_(solver)
@@ -816,7 +827,7 @@ def run_projection(exe, database, params, positions, workdir, solver="", tol=0.0
     if p.returncode != 0:
         lines = [ln.strip() for ln in (out_text + "\n" + p.stderr).splitlines() if "error:" in ln]
         msg = lines[-1] if lines else (p.stderr.strip().splitlines() or ["(no message)"])[-1]
-        if p.returncode == 2:
+        if p.returncode == EXIT_BAD_INPUT:
             raise InputError(f"crowd_project: {msg}")
         raise RuntimeError(f"crowd_project failed (exit status {p.returncode}): {msg}")
     res = {"log": out_text}
@@ -1205,12 +1216,12 @@ def one_line_errors(prog, main, argv=None):
         return main(argv)
     except InputError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     except OSError as exc:
         where = f"'{exc.filename}': " if getattr(exc, "filename", None) else ""
         print(f"{prog}: error: {where}{exc.strerror or exc}", file=sys.stderr)
-        return 1
+        return EXIT_FAILURE
     except Exception as exc:  # noqa: BLE001 - the one-line promise covers unexpected failures too
         msg = " ".join(str(exc).split()) or type(exc).__name__
         print(f"{prog}: error: {type(exc).__name__}: {msg}", file=sys.stderr)
-        return 1
+        return EXIT_FAILURE

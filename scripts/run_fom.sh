@@ -11,5 +11,5 @@ mkdir -p results
 export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1
 build/bin/crowd_fom "$INPUT" --summary "results/${name}_fom.json"
 out=$(.venv/bin/python -c "import json,sys; print(json.load(open(sys.argv[1]))['output_file'])" "results/${name}_fom.json")
-.venv/bin/python scripts/plot_scene.py "$out" -o "results/${name}_fom.png"
+.venv/bin/python scripts/post/plot_scene.py "$out" -o "results/${name}_fom.png"
 echo "picture: results/${name}_fom.png"

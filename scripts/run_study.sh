@@ -9,7 +9,7 @@
 # inputs/<case>_ml.json (ML settings); for the evacuation cases also inputs/<case>_questions.json
 # and inputs/<case>_models.json (stage 7, the answers with a stated error, docs/answers.md). Results in results/: <case>_snapshots.h5, <case>_rom.h5,
 # <case>_romrun.h5, <case>_table.csv, <case>_ml.h5, figures in results/<case>_figures/
-# (evacuation figures and table of scripts/evac_figures.py in results/<case>_figures/evac/);
+# (evacuation figures and table of scripts/post/evac_figures.py in results/<case>_figures/evac/);
 # evacuation cases: results/<case>_answers.md / .json / .png.
 # A complete snapshot database of the same configuration is reused (crowd_snapshots resumes).
 # Environment: NP (ranks, 2), CROWDROM_BIN (programs; default build/bin after scripts/setup.sh;
@@ -65,21 +65,21 @@ best = max(rows, key=lambda r: (int(r["n"]), -int(r["setting"])))
 print(best["setting"])
 PYEOF
 )
-stage 4 "ML correction (scripts/ml_correct.py, setting $SETTING)"
-$PY "$SCRIPTS/ml_correct.py" "results/${CASE}_romrun.h5" --setting "$SETTING" --config "inputs/${CASE}_ml.json" \
+stage 4 "ML correction (scripts/pipeline/ml_correct.py, setting $SETTING)"
+$PY "$SCRIPTS/pipeline/ml_correct.py" "results/${CASE}_romrun.h5" --setting "$SETTING" --config "inputs/${CASE}_ml.json" \
   -o "results/${CASE}_ml.h5" --models-dir "results/${CASE}_ml_models" --csv "results/${CASE}_ml.csv"
-stage 5 "figures (scripts/make_figures.py)"
-$PY "$SCRIPTS/make_figures.py" --database "results/${CASE}_snapshots.h5" --rom "results/${CASE}_rom.h5" \
+stage 5 "figures (scripts/post/make_figures.py)"
+$PY "$SCRIPTS/post/make_figures.py" --database "results/${CASE}_snapshots.h5" --rom "results/${CASE}_rom.h5" \
   --romrun "results/${CASE}_romrun.h5" --csv "results/${CASE}_table.csv" --ml "results/${CASE}_ml.h5" \
   --setting "$SETTING" -o "results/${CASE}_figures"
-$PY "$SCRIPTS/evac_figures.py" --database "results/${CASE}_snapshots.h5" --romrun "results/${CASE}_romrun.h5" \
+$PY "$SCRIPTS/post/evac_figures.py" --database "results/${CASE}_snapshots.h5" --romrun "results/${CASE}_romrun.h5" \
   --csv "results/${CASE}_table.csv" --ml "results/${CASE}_ml.h5" -o "results/${CASE}_figures/evac"
-stage 6 "accuracy / cost table and the cheapest setting without overlap per error level (scripts/study_table.py)"
-$PY "$SCRIPTS/study_table.py" "results/${CASE}_table.csv" --ml "results/${CASE}_ml.csv" \
+stage 6 "accuracy / cost table and the cheapest setting without overlap per error level (scripts/post/study_table.py)"
+$PY "$SCRIPTS/post/study_table.py" "results/${CASE}_table.csv" --ml "results/${CASE}_ml.csv" \
   -o "results/${CASE}_study_table.md" --csv "results/${CASE}_cheapest.csv" --rows-csv "results/${CASE}_study_rows.csv"
 if [ -f "inputs/${CASE}_questions.json" ] && [ -f "inputs/${CASE}_models.json" ]; then
-  stage 7 "answers with a stated error (scripts/crowd_answers.py; budget from inputs/${CASE}_models.json)"
-  $PY "$SCRIPTS/crowd_answers.py" "inputs/${CASE}_questions.json" --models "inputs/${CASE}_models.json" \
+  stage 7 "answers with a stated error (scripts/pipeline/crowd_answers.py; budget from inputs/${CASE}_models.json)"
+  $PY "$SCRIPTS/pipeline/crowd_answers.py" "inputs/${CASE}_questions.json" --models "inputs/${CASE}_models.json" \
     --program "$BIN/crowd_predict" --cache "results/${CASE}_answers_cache" --out-prefix "results/${CASE}_answers"
 else
   echo; echo "=== run_study [$CASE] stage 7 of 7: skipped (no inputs/${CASE}_questions.json and _models.json: not an evacuation case)"

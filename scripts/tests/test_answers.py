@@ -1,4 +1,4 @@
-"""scripts/answers (answers with a stated error) on synthetic models with known moments: MFMC's
+"""scripts/pipeline/answers (answers with a stated error) on synthetic models with known moments: MFMC's
 allocation and variance against the closed forms, the 1 / (1 - rho^2) bound, unbiasedness, the
 coverage of the stated 95% intervals over repetitions, the surrogates' map intervals, the
 questions file's errors and the crowd_answers.py driver end to end."""
@@ -296,7 +296,7 @@ MODELS = {"synthetic": {"means": [20, 15, 18], "stds": [2, 1.5, 1.8],
 def _driver(tmp_path, qdoc, *extra):
     q, m = _write(tmp_path, qdoc), _write(tmp_path, MODELS, "models.json")
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONWARNINGS="ignore")
-    return subprocess.run([sys.executable, os.path.join(SCRIPTS, "crowd_answers.py"), q, "--models", m,
+    return subprocess.run([sys.executable, os.path.join(SCRIPTS, "pipeline", "crowd_answers.py"), q, "--models", m,
                            "--out-prefix", str(tmp_path / "out"), "--quiet", *extra],
                           capture_output=True, text=True, env=env)
 

@@ -72,7 +72,7 @@ def _files(tmp, qoi, **models):
 
 
 def _answers(cwd, qfile, mfile, *extra):
-    return subprocess.run([sys.executable, os.path.join(SCRIPTS, "crowd_answers.py"), str(qfile),
+    return subprocess.run([sys.executable, os.path.join(SCRIPTS, "pipeline", "crowd_answers.py"), str(qfile),
                            "--models", str(mfile), "--out-prefix", "out", "--pilot", "12", "--quiet",
                            *extra], cwd=cwd, capture_output=True, text=True, env=ENV)
 
@@ -189,7 +189,7 @@ def _trained_ml(tmp, rom):
     assert p.returncode == 0, p.stdout + p.stderr
     cfg = tmp / "ans_ml.json"
     cfg.write_text('{"n_values": [3], "regressors": ["random_forest"], "random_forest": {"n_estimators": 10}}')
-    p = subprocess.run([sys.executable, os.path.join(SCRIPTS, "ml_correct.py"), str(romrun), "--config", str(cfg),
+    p = subprocess.run([sys.executable, os.path.join(SCRIPTS, "pipeline", "ml_correct.py"), str(romrun), "--config", str(cfg),
                         "--no-project", "--quiet", "-o", str(tmp / "ans_ml.h5"), "--models-dir",
                         str(tmp / "ans_ml_models")], capture_output=True, text=True, env=dict(ENV, CROWDROM_BIN=BIN),
                        cwd=tmp)

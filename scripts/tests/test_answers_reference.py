@@ -1,4 +1,4 @@
-"""The honest reference and the coverage served from a pool (scripts/answers/reference.py,
+"""The honest reference and the coverage served from a pool (scripts/pipeline/answers/reference.py,
 pool.py): chunked runs that resume, the truth table's statistics and standard errors, the pool
 drawn without replacement and looked up bit for bit with its CPU seconds, M0 and M3 coverage from
 a pool of a synthetic family against its closed forms, and the map interval of a GP on a model

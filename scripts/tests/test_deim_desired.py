@@ -1,5 +1,5 @@
 """The reader of the stored DEIM of the desired velocity (crowdrom_io.read_rom_pair_vdeim) and
-scripts/deim_desired_accuracy.py on small synthetic files: with every mode and dof the reduced
+scripts/post/deim_desired_accuracy.py on small synthetic files: with every mode and dof the reduced
 vhat is exact (round-off), with fewer modes the reported error obeys the DEIM bound, and a
 corrupt index is refused with one line (exit 2)."""
 import os

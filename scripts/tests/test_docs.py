@@ -4,7 +4,8 @@
   pages and the comments of src/, drivers/, scripts/, tests/ and inputs/;
 - every namelist variable the code reads (the `namelist /group/ ...` statements of src/**/*.f90)
   is listed in docs/input-reference.md under its group, and nothing else is (the check of
-  scripts/input_reference.py); scripts/nml_groups.py's map agrees with the same statements;
+  scripts/dev/input_reference.py; scripts/dev/nml_groups.py's map agrees with the same statements:
+  scripts/tests/test_agreement.py);
 - the project speaks of itself only: no word about how it was developed in the README, the docs,
   the sources, the scripts, the tests or the inputs.
 """
@@ -20,7 +21,6 @@ SCRIPTS = os.path.dirname(HERE)
 ROOT = os.path.dirname(SCRIPTS)
 sys.path.insert(0, SCRIPTS)
 import input_reference  # noqa: E402
-import nml_groups  # noqa: E402
 
 #: pages other parts of the project write; a link to one of them is accepted while the page does
 #: not exist yet, and checked like any other once it does (remove a name when its page is in)
@@ -29,8 +29,8 @@ PENDING = set()
 DOCS = sorted(glob.glob(os.path.join(ROOT, "docs", "*.md")))
 PAGES = [os.path.join(ROOT, "README.md")] + DOCS
 #: files whose text may cite docs pages (comments, help texts, docstrings)
-SOURCE_GLOBS = ["src/**/*.f90", "src/**/*.c", "drivers/*.f90", "scripts/**/*.py", "scripts/*.sh",
-                "tests/*.f90", "tests/*.cmake", "tests/*.sh", "tests/*.py", "tests/CMakeLists.txt",
+SOURCE_GLOBS = ["src/**/*.f90", "src/**/*.c", "drivers/**/*.f90", "scripts/**/*.py", "scripts/**/*.sh",
+                "tests/**/*.f90", "tests/**/*.cmake", "tests/**/*.sh", "tests/**/*.py", "tests/CMakeLists.txt",
                 "inputs/*.nml", "inputs/*.json", "CMakeLists.txt"]
 SOURCES = sorted({p for g in SOURCE_GLOBS for p in glob.glob(os.path.join(ROOT, g), recursive=True)})
 
@@ -148,16 +148,6 @@ def test_input_reference_check_sees_a_missing_variable(tmp_path):
     assert "&contacts: cutoff_factor (src/config/cr_config.f90) is not documented" in diff
     assert "&output: every (src/config/cr_config.f90) is not documented" in diff
     assert "&output: everyother is documented but the code does not read it" in diff
-
-
-def test_nml_groups_map_follows_the_namelists():
-    code = input_reference.code_groups(ROOT)
-    for table in (nml_groups.OFFLINE, nml_groups.ROM):
-        mapped = set(table.values())
-        for flat, (group, var) in table.items():
-            assert var in code[group][0], (flat, group, var)
-        for group in {g for g, _ in mapped}:
-            assert {(group, v) for v in code[group][0]} <= mapped, group
 
 
 def test_no_development_history():

@@ -1,4 +1,4 @@
-"""scripts/make_figures.py and scripts/plot_tradeoff.py on small synthetic files (tests/synth.py):
+"""scripts/post/make_figures.py and scripts/post/plot_tradeoff.py on small synthetic files (tests/synth.py):
 every figure is produced and is a real picture, missing optional inputs skip only their figures,
 bad inputs fail with exit status 2; the Pareto front and the multiplier POD against direct
 computations."""
@@ -55,7 +55,7 @@ def study(tmp_path_factory):
 
 def test_all_figures(study, tmp_path):
     out = tmp_path / "figs"
-    res = run("make_figures.py", "--database", study["db"], "--rom", study["rom"], "--romrun",
+    res = run("post/make_figures.py", "--database", study["db"], "--rom", study["rom"], "--romrun",
               study["romrun"], "--csv", study["csv"], "--ml", study["ml"], "-o", out, "--dpi", 70)
     assert res.returncode == 0, res.stdout + res.stderr
     assert "make_figures: skip" not in res.stdout
@@ -122,7 +122,7 @@ def test_bad_inputs(study, tmp_path, args, expect, capsys):
 
 def test_tradeoff_cli(study, tmp_path, capsys):
     out = tmp_path / "csv.png"
-    res = run("plot_tradeoff.py", study["csv"], "-o", out, "--ml", study["ml"])
+    res = run("post/plot_tradeoff.py", study["csv"], "-o", out, "--ml", study["ml"])
     assert res.returncode == 0, res.stderr
     assert "Pareto front: (6,4,eq)" in res.stdout
     assert_picture(out)

@@ -113,7 +113,7 @@ def test_reference_positions(tiny):
 def test_plot(tiny):
     tmp, s, _ = tiny
     png = tmp / "tiny.png"
-    p = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "plot_scene.py"),
+    p = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "post", "plot_scene.py"),
                         str(tmp / s["output_file"]), "-o", str(png)], capture_output=True, text=True)
     assert p.returncode == 0, p.stderr
     assert png.stat().st_size > 10000

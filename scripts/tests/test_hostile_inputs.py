@@ -66,7 +66,7 @@ def real(tmp_path_factory):
             src.copy("setting_1/valid/qoi", g["best"], name="qoi")
     cio.write_h5_atomic(ml, write)
     good = tmp / "figs"
-    r = run("evac_figures.py", *base_args(tmp, ml), "-o", good)
+    r = run("post/evac_figures.py", *base_args(tmp, ml), "-o", good)
     assert r.returncode == 0, r.stdout + r.stderr
     assert sorted(os.listdir(good)) == ["evac_curves.png", "evac_table.md", "t90_map.png", "train_convergence.png"]
     return {"tmp": tmp, "db": db, "run": tmp / "run.h5", "csv": tmp / "run.csv", "ml": ml, "good": good}
@@ -83,7 +83,7 @@ def base_args(tmp, ml=None, db=None, runf=None, csvf=None):
 
 def refused_keeping(real, args, expect, code=2):
     before = listing(real["good"])
-    r = run("evac_figures.py", *args)
+    r = run("post/evac_figures.py", *args)
     assert_refused(r, expect, code)
     assert listing(real["good"]) == before
     assert not [n for n in os.listdir(real["tmp"]) if ".partial" in n]
@@ -206,7 +206,7 @@ def test_evac_interrupted_keeps_the_earlier_set(real, sig):
     """Interrupted while drawing (its temporary folder exists): the earlier set is untouched; after
     SIGTERM no temporary is left, after SIGKILL the next run removes it."""
     before = listing(real["good"])
-    cmd = [sys.executable, os.path.join(SCRIPTS, "evac_figures.py"), *map(str, base_args(real["tmp"], real["ml"])),
+    cmd = [sys.executable, os.path.join(SCRIPTS, "post", "evac_figures.py"), *map(str, base_args(real["tmp"], real["ml"])),
            "-o", str(real["good"]), "--dpi", "200"]
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     tmp_dir = real["tmp"] / f".figs.partial-{p.pid}"
@@ -223,7 +223,7 @@ def test_evac_interrupted_keeps_the_earlier_set(real, sig):
         assert not tmp_dir.exists()
     else:
         assert tmp_dir.exists()
-        r = run("evac_figures.py", *base_args(real["tmp"], real["ml"]), "-o", real["good"])
+        r = run("post/evac_figures.py", *base_args(real["tmp"], real["ml"]), "-o", real["good"])
         assert r.returncode == 0, r.stderr
         assert not tmp_dir.exists()
         assert sorted(os.listdir(real["good"])) == sorted(before)
@@ -261,7 +261,7 @@ def test_study_table_refuses_bad_tables(synth_study, tmp_path, name, edit, expec
     with open(path, "w", newline="") as fh:
         csv.writer(fh).writerows(rows)
     out = tmp_path / "table.md"
-    r = run("study_table.py", path, "-o", out)
+    r = run("post/study_table.py", path, "-o", out)
     assert_refused(r, expect)
     assert not out.exists()
 
@@ -277,7 +277,7 @@ def test_study_table_refuses_inf_in_ml_file(synth_study, tmp_path):
             np.array([0.1, 0.05])
     cio.write_h5_atomic(ml, write)
     out = tmp_path / "table.md"
-    r = run("study_table.py", synth_study["csv"], "--ml", ml, "-o", out)
+    r = run("post/study_table.py", synth_study["csv"], "--ml", ml, "-o", out)
     assert_refused(r, "dataset 'mlp/speedup_exact': non-finite")
     assert not out.exists()
 
@@ -285,14 +285,14 @@ def test_study_table_refuses_inf_in_ml_file(synth_study, tmp_path):
 @pytest.mark.parametrize("tol", ["-1", "nan", "inf"])
 def test_plot_tradeoff_bad_overlap_tol(synth_study, tmp_path, tol):
     out = tmp_path / "t.png"
-    r = run("plot_tradeoff.py", synth_study["csv"], "-o", out, "--overlap-tol", tol)
+    r = run("post/plot_tradeoff.py", synth_study["csv"], "-o", out, "--overlap-tol", tol)
     assert_refused(r, f"--overlap-tol {float(tol)}: must be a finite number >= 0")
     assert not out.exists()
 
 
 def test_make_figures_steps_beyond_the_run(synth_study, tmp_path):
     out = tmp_path / "figs"
-    r = run("make_figures.py", "--database", synth_study["db"], "--romrun", synth_study["romrun"], "-o", out,
+    r = run("post/make_figures.py", "--database", synth_study["db"], "--romrun", synth_study["romrun"], "-o", out,
             "--steps", "0", "9999")
     assert_refused(r, "--steps 0 9999: every value must be <= n_steps")
     assert not out.exists()
@@ -310,7 +310,7 @@ def test_ml_correct_refuses_scaled_database(synth_study, tmp_path, name):
     cfg.write_text(json.dumps({"n_values": [3], "random_forest": {"n_estimators": 2}, "timing_repeats": 1,
                                "regressors": ["random_forest"]}))
     out = tmp_path / "ml.h5"
-    r = run("ml_correct.py", synth_study["romrun"], "--database", db, "--config", cfg, "-o", out, "--csv",
+    r = run("pipeline/ml_correct.py", synth_study["romrun"], "--database", db, "--config", cfg, "-o", out, "--csv",
             tmp_path / "ml.csv", "--no-project", "--quiet")
     assert_refused(r, f"checksum mismatch in dataset '{name}'")
     assert not out.exists() and not (tmp_path / "ml.csv").exists()
@@ -325,7 +325,7 @@ def test_ml_correct_refuses_nan_in_run_file(synth_study, tmp_path):
     cfg.write_text(json.dumps({"n_values": [3], "random_forest": {"n_estimators": 2}, "timing_repeats": 1,
                                "regressors": ["random_forest"]}))
     out = tmp_path / "ml.h5"
-    r = run("ml_correct.py", runf, "--database", synth_study["db"], "--rom", synth_study["rom"], "--config", cfg,
+    r = run("pipeline/ml_correct.py", runf, "--database", synth_study["db"], "--rom", synth_study["rom"], "--config", cfg,
             "-o", out, "--csv", tmp_path / "ml.csv", "--no-project", "--quiet")
     assert_refused(r, "dataset 'setting_1/valid/positions': non-finite")
     assert not out.exists() and not (tmp_path / "ml.csv").exists()

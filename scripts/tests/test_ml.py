@@ -1,4 +1,4 @@
-"""scripts/ml_correct.py on small synthetic files (tests/synth.py): the file layouts, a learnable
+"""scripts/pipeline/ml_correct.py on small synthetic files (tests/synth.py): the file layouts, a learnable
 drift that both regressors learn, saved models reused by --predict-only, mismatched ROMs and bad
 inputs refused with one clear line and nothing written."""
 import json
@@ -19,7 +19,7 @@ import crowdrom_io as cio  # noqa: E402
 import ml_correct  # noqa: E402
 import synth  # noqa: E402
 
-SCRIPT = os.path.join(SCRIPTS, "ml_correct.py")
+SCRIPT = os.path.join(SCRIPTS, "pipeline", "ml_correct.py")
 SMALL = {"n_values": [3, 6], "random_forest": {"n_estimators": 20}, "mlp": {"max_iter": 300},
          "timing_repeats": 1}
 

@@ -2,7 +2,7 @@
 read by PedPy in one call each (trajectory, walkable area), and the flow per exit and the
 density in front of each exit cross-checked against PedPy's on a small two-exit scene:
 PedPy's cumulative count at each exit's "has left" line equals crowd_fom's own count (its QoI
-group, the one definition) at every output frame; scripts/validate_flows.py reads crowd_fom's
+group, the one definition) at every output frame; scripts/post/validate_flows.py reads crowd_fom's
 QoIs from that group, and its flow of a curve (the path of JuPedSim's curves) equals crowd_fom's
 on crowd_fom's curve; PedPy's classic density in the 1 m deep area in front of each exit equals
 the count of crowd_fom's own positions in it at every frame."""

@@ -1,4 +1,4 @@
-"""Tests of scripts/plot_scene.py on a synthetic FOM file built with h5py (schema v1)."""
+"""Tests of scripts/post/plot_scene.py on a synthetic FOM file built with h5py (schema v1)."""
 import importlib.util
 import subprocess
 import sys
@@ -8,7 +8,7 @@ import h5py
 import numpy as np
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "plot_scene.py"
+SCRIPT = Path(__file__).resolve().parents[1] / "post" / "plot_scene.py"
 
 
 def make_fom(path, n_agents=5, n_out=6, schema="crowdrom-fom"):

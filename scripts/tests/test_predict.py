@@ -252,7 +252,7 @@ def test_ml_predict_any_list(study):
     assert p.returncode == 0, p.stdout + p.stderr
     cfg = tmp / "ml_small.json"
     cfg.write_text('{"n_values": [3], "regressors": ["random_forest"], "random_forest": {"n_estimators": 10}}')
-    script = os.path.join(ROOT, "scripts", "ml_correct.py")
+    script = os.path.join(ROOT, "scripts", "pipeline", "ml_correct.py")
     env = dict(ENV, CROWDROM_BIN=BIN)
     p = subprocess.run([sys.executable, script, str(romrun), "--config", str(cfg), "--no-project", "--quiet",
                         "-o", str(tmp / "ml.h5"), "--models-dir", str(tmp / "ml_models")],

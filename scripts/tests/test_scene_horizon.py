@@ -1,4 +1,4 @@
-"""scripts/scene_horizon.py: evacuation times at the corners of a study's box.
+"""scripts/pipeline/scene_horizon.py: evacuation times at the corners of a study's box.
 
 Two agents, each in front of its own exit of the crowd1000_mini-like two-exit scene, walk
 straight out with the exact geodesic: they leave at steps known in closed form, so t50 (one agent
@@ -15,7 +15,7 @@ from test_rom import BIN, ENV, ROOT  # noqa: E402
 
 L, W, T, R, H = 4.0, 3.0, 0.3, 0.2, 0.1
 P_RIGHT, P_TOP = (L - 0.55, 1.0), (2.5, W - 0.75)
-SCRIPT = os.path.join(ROOT, "scripts", "scene_horizon.py")
+SCRIPT = os.path.join(ROOT, "scripts", "pipeline", "scene_horizon.py")
 
 
 def study(tmp):

@@ -81,7 +81,7 @@ def test_make_figures_bad_arguments_write_nothing(study, tmp_path, extra, expect
     out.mkdir()
     (out / "pod_decay.png").write_text("an earlier figure")
     before = listing(out)
-    res = run("make_figures.py", "--database", study["db"], "--rom", study["rom"], "--romrun",
+    res = run("post/make_figures.py", "--database", study["db"], "--rom", study["rom"], "--romrun",
               study["romrun"], "--csv", study["csv"], "-o", out, "--dpi", 40, *extra)
     assert res.returncode != 0, res.stdout + res.stderr
     assert_refused(res, expect, code=res.returncode)
@@ -91,14 +91,14 @@ def test_make_figures_bad_arguments_write_nothing(study, tmp_path, extra, expect
 def test_make_figures_output_dir_is_a_file(study, tmp_path):
     f = tmp_path / "figs"
     f.write_text("a file")
-    res = run("make_figures.py", "--rom", study["rom"], "-o", f)
+    res = run("post/make_figures.py", "--rom", study["rom"], "-o", f)
     assert_refused(res, "is a file")
     assert f.read_text() == "a file"
 
 
 def test_make_figures_missing_output_dir_left_absent_on_error(study, tmp_path):
     out = tmp_path / "new" / "figs"
-    res = run("make_figures.py", "--rom", study["rom"], "--romrun", study["romrun"], "--database", study["db"],
+    res = run("post/make_figures.py", "--rom", study["rom"], "--romrun", study["romrun"], "--database", study["db"],
               "--sample", "99", "-o", out)
     assert_refused(res, "--sample 99")
     assert not out.exists()
@@ -126,7 +126,7 @@ def test_plot_scene_refusals(fom, tmp_path, extra, expect):
     os.symlink("fom.h5", d / "link.h5")
     os.link(d / "fom.h5", d / "hard.h5")
     before = listing(d)
-    res = run("plot_scene.py", "fom.h5", *extra, cwd=d)
+    res = run("post/plot_scene.py", "fom.h5", *extra, cwd=d)
     assert_refused(res, expect)
     assert listing(d) == before
 
@@ -135,7 +135,7 @@ def test_plot_scene_writes_png_and_gif_together(fom, tmp_path):
     pytest.importorskip("PIL")
     d = tmp_path / "w"
     d.mkdir()
-    res = run("plot_scene.py", fom, "-o", d / "s.png", "--animate", d / "s.gif", "--dpi", 40)
+    res = run("post/plot_scene.py", fom, "-o", d / "s.png", "--animate", d / "s.gif", "--dpi", 40)
     assert res.returncode == 0, res.stderr
     assert sorted(os.listdir(d)) == ["s.gif", "s.png"]
 
@@ -149,13 +149,13 @@ def test_tradeoff_output_is_input(study, tmp_path, how):
         out = tmp_path / "l.csv"
         os.symlink(src, out)
     before = open(src).read()
-    res = run("plot_tradeoff.py", src, "-o", out)
+    res = run("post/plot_tradeoff.py", src, "-o", out)
     assert_refused(res, "is the input")
     assert open(src).read() == before
 
 
 def test_tradeoff_dpi_zero(study, tmp_path):
-    res = run("plot_tradeoff.py", study["csv"], "-o", tmp_path / "t.png", "--dpi", "0")
+    res = run("post/plot_tradeoff.py", study["csv"], "-o", tmp_path / "t.png", "--dpi", "0")
     assert_refused(res, "--dpi 0")
     assert not (tmp_path / "t.png").exists()
 
@@ -168,7 +168,7 @@ def test_ml_correct_output_is_input(study, tmp_path, which):
     target = study[which]
     with open(target, "rb") as fh:
         before = fh.read()
-    res = run("ml_correct.py", study["romrun"], "--config", cfg, "-o", target, "--quiet")
+    res = run("pipeline/ml_correct.py", study["romrun"], "--config", cfg, "-o", target, "--quiet")
     assert_refused(res, "refusing to overwrite an input")
     with open(target, "rb") as fh:
         assert fh.read() == before
@@ -177,13 +177,13 @@ def test_ml_correct_output_is_input(study, tmp_path, which):
 def test_ml_correct_csv_is_input(study, tmp_path):
     link = tmp_path / "db_link.h5"
     os.symlink(study["db"], link)
-    res = run("ml_correct.py", study["romrun"], "-o", tmp_path / "ml.h5", "--csv", link, "--quiet")
+    res = run("pipeline/ml_correct.py", study["romrun"], "-o", tmp_path / "ml.h5", "--csv", link, "--quiet")
     assert_refused(res, "refusing to overwrite an input")
     assert not (tmp_path / "ml.h5").exists()
 
 
 def test_ml_correct_output_and_csv_same(study, tmp_path):
-    res = run("ml_correct.py", study["romrun"], "-o", tmp_path / "ml.h5", "--csv", tmp_path / "." / "ml.h5",
+    res = run("pipeline/ml_correct.py", study["romrun"], "-o", tmp_path / "ml.h5", "--csv", tmp_path / "." / "ml.h5",
               "--quiet")
     assert_refused(res, "are the same file")
     assert not (tmp_path / "ml.h5").exists()
@@ -193,7 +193,7 @@ def test_bench_fom_cpu_outside_affinity(tmp_path):
     """bench_fom.py --cpu names a CPU this process may not run on: one error line, exit 2,
     no table written (checked before any run)."""
     out = tmp_path / "bench.md"
-    res = run("bench_fom.py", "--cpu", 4096, "--skip-solvers", "--skip-scaling", "--out", out)
+    res = run("bench/bench_fom.py", "--cpu", 4096, "--skip-solvers", "--skip-scaling", "--out", out)
     assert_refused(res, "--cpu 4096")
     assert not out.exists()
 
@@ -202,7 +202,7 @@ def test_bench_project_without_build(tmp_path):
     """bench_project.py with a --bindir holding no crowd_snapshots: one error line, exit 2,
     nothing made in the work directory but the directory itself."""
     work = tmp_path / "work"
-    res = run("bench_project.py", "--bindir", tmp_path / "nobin", "--workdir", work, "--configs", 2,
+    res = run("bench/bench_project.py", "--bindir", tmp_path / "nobin", "--workdir", work, "--configs", 2,
               "--steps", 2)
     assert_refused(res, "no crowd_snapshots in --bindir")
     assert listing(work) == {}

@@ -1,5 +1,5 @@
-"""The snapshot-stage scaling model (scripts/snapshot_model.py) and the timeline figure
-(scripts/plot_timeline.py): schedule simulation on cases with known answers, validation and
+"""The snapshot-stage scaling model (scripts/bench/snapshot_model.py) and the timeline figure
+(scripts/post/plot_timeline.py): schedule simulation on cases with known answers, validation and
 prediction on a real (tiny) run, the figure written, bad input refused."""
 import json
 import os
@@ -92,7 +92,7 @@ def test_timeline(tiny_run):
     tmp, runs, _ = tiny_run
     js, db = runs[1]
     out = tmp / "timeline.png"
-    p = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "plot_timeline.py"), db, js, "--out", str(out)],
+    p = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "post", "plot_timeline.py"), db, js, "--out", str(out)],
                        capture_output=True, text=True)
     assert p.returncode == 0, p.stderr
     assert out.exists() and out.stat().st_size > 1000
@@ -114,7 +114,7 @@ def test_timeline(tiny_run):
     # the end's multiplier blocks are part of each rank's busy time
     assert len(s["end_block_time_per_rank"]) == s["ranks"]
     assert all(b >= e >= 0 for b, e in zip(s["busy_time_per_rank"], s["end_block_time_per_rank"]))
-    bad = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "plot_timeline.py"), str(tmp / "nothing.h5"), js,
+    bad = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "post", "plot_timeline.py"), str(tmp / "nothing.h5"), js,
                           "--out", str(tmp / "bad.png")], capture_output=True, text=True)
     assert bad.returncode == 2 and "plot_timeline.py: error:" in bad.stderr
     assert not (tmp / "bad.png").exists()

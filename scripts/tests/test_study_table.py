@@ -1,4 +1,4 @@
-"""scripts/study_table.py (stage 6 of run_study.sh) and the trade-off plot on a synthetic sweep
+"""scripts/post/study_table.py (stage 6 of run_study.sh) and the trade-off plot on a synthetic sweep
 table with a known answer: for each error level, the cheapest setting without overlap (overlap
 tolerance, diverged samples, ML rows before and after the exact projection, the full model as the
 answer when no reduced setting qualifies); unknown columns and contacts names pass through;
@@ -82,7 +82,7 @@ def write_ml(path):
 
 
 def run(*args):
-    return subprocess.run([sys.executable, os.path.join(SCRIPTS, "study_table.py"), *map(str, args)],
+    return subprocess.run([sys.executable, os.path.join(SCRIPTS, "post", "study_table.py"), *map(str, args)],
                           capture_output=True, text=True, timeout=120)
 
 

@@ -2,12 +2,13 @@
 !> MPI_COMM_WORLD, the root-only logger, the command line; at the end the error is printed
 !> once (`error: <message>`), the exit code is agreed by all ranks, MPI is finalised.
 !> Only the driver stops (with the code returned by program_finish). After a failed MPI call
-!> (code 4) the failing rank prints its own line and ends every rank by MPI_Abort instead.
+!> (EXIT_MPI) the failing rank prints its own line and ends every rank by MPI_Abort instead.
 module cr_program
   use, intrinsic :: iso_fortran_env, only: error_unit
   ! MPI's life cycle (init, finalize, abort) is the program's; every other call goes through env_t
   use mpi_f08, only: MPI_Init, MPI_Finalize, MPI_Abort, MPI_COMM_WORLD
-  use cr_error, only: error_t, code_mpi
+  use cr_error, only: error_t
+  use cr_exit_codes, only: EXIT_OK, EXIT_FAILURE, EXIT_MPI
   use cr_strings, only: str
   use cr_env, only: env_t, mpi_failed
   use cr_logger, only: logger_t, LOG_ERROR, LOG_WARN, LOG_INFO, LOG_DEBUG
@@ -41,15 +42,15 @@ contains
   end subroutine program_start
 
   !> Print the error (root), agree on the exit code (largest over the ranks), free the
-  !> environment and finalise MPI. Returns 0 or the error code.
+  !> environment and finalise MPI. Returns EXIT_OK or the error code (cr_exit_codes).
   !>
-  !> A failed MPI call of this rank (cr_env's mpi_failed; the error has code code_mpi unless a
+  !> A failed MPI call of this rank (cr_env's mpi_failed; the error has code EXIT_MPI unless a
   !> caller replaced it on the way, e.g. by an input error of a parallel read) may have failed
   !> inside a collective that other ranks still wait in, so no collective follows it (no
   !> agreement on the code, no release of env or of HDF5): this rank prints its error itself,
   !> on any rank (the logger prints on rank 0 only), as `error: rank R of P: <message>` (no
-  !> prefix on one rank), and calls MPI_Abort(MPI_COMM_WORLD, 4), which ends every rank with a
-  !> non-zero status (mpirun: 4).
+  !> prefix on one rank), and calls MPI_Abort(MPI_COMM_WORLD, EXIT_MPI), which ends every rank with a
+  !> non-zero status (mpirun: EXIT_MPI = 4).
   integer function program_finish(env, log, error) result(code)
     type(env_t), intent(inout) :: env
     type(logger_t), intent(in) :: log
@@ -57,7 +58,7 @@ contains
     integer :: ierr
     type(error_t), allocatable :: e
     character(len=:), allocatable :: msg
-    code = 0
+    code = EXIT_OK
     if (mpi_failed()) then
       if (allocated(error)) then
         msg = error%message
@@ -70,9 +71,9 @@ contains
         write(error_unit, '(a)') "error: " // msg
       end if
       flush(error_unit)
-      call MPI_Abort(MPI_COMM_WORLD, code_mpi, ierr)
+      call MPI_Abort(MPI_COMM_WORLD, EXIT_MPI, ierr)
       ! (not reached: MPI_Abort does not return)
-      code = code_mpi
+      code = EXIT_MPI
       return
     end if
     if (allocated(error)) then
@@ -82,7 +83,7 @@ contains
     call env%allreduce(code, 'max', e)
     if (allocated(e)) then
       call log%error(e%message)
-      code = max(code, 1)
+      code = max(code, EXIT_FAILURE)
     end if
     call env%free()
     ! HDF5 (objects, files, then the library) is shut down before MPI, also after an error

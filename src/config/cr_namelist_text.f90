@@ -8,6 +8,7 @@ module cr_namelist_text
   use cr_error, only: error_t, set_error
   use cr_env, only: env_t
   use cr_strings, only: to_lower, str
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: namelist_text_t, MAX_LINE
@@ -74,7 +75,7 @@ contains
     call env%bcast(status, error)
     if (allocated(error)) return
     if (len(status) > 0) then
-      call set_error(error, status, 2); return
+      call set_error(error, status, EXIT_BAD_INPUT); return
     end if
     call env%bcast(this%text, error)
     if (allocated(error)) return
@@ -136,7 +137,7 @@ contains
     call list_groups(this, groups, bare)
     if (bare > 0) then
       call set_error(error, this%path // ": line " // str(bare) // ": '&' without a group name (a group " // &
-        "starts with &name, e.g. &scene)", 2)
+        "starts with &name, e.g. &scene)", EXIT_BAD_INPUT)
       return
     end if
     do k = 1, size(groups)
@@ -150,13 +151,13 @@ contains
           list = list // " &" // trim(known(j))
         end do
         call set_error(error, this%path // ": unknown namelist group &" // trim(groups(k)) // &
-          " (known groups:" // list // ")", 2)
+          " (known groups:" // list // ")", EXIT_BAD_INPUT)
         return
       end if
       do j = 1, k - 1
         if (groups(j) == groups(k)) then
           call set_error(error, this%path // ": namelist group &" // trim(groups(k)) // &
-            " appears twice", 2)
+            " appears twice", EXIT_BAD_INPUT)
           return
         end if
       end do
@@ -202,10 +203,10 @@ contains
     end if
     if (n_missing == 1) then
       call set_error(error, this%path // ": namelist group " // group_list(missing(1:1)) // " is missing (" // &
-        program // " needs " // group_list(needed) // holds // ")", 2)
+        program // " needs " // group_list(needed) // holds // ")", EXIT_BAD_INPUT)
     else
       call set_error(error, this%path // ": namelist groups " // group_list(missing(1:n_missing)) // &
-        " are missing (" // program // " needs " // group_list(needed) // holds // ")", 2)
+        " are missing (" // program // " needs " // group_list(needed) // holds // ")", EXIT_BAD_INPUT)
     end if
   end subroutine require_groups
 
@@ -293,7 +294,7 @@ contains
     type(error_t), allocatable, intent(out) :: error
     if (ios == 0) return
     if (is_iostat_end(ios) .and. .not. t%has_group(group)) return
-    call set_error(error, t%path // ": namelist group &" // group // ": " // trim(msg), 2)
+    call set_error(error, t%path // ": namelist group &" // group // ": " // trim(msg), EXIT_BAD_INPUT)
   end subroutine nml_status
 
   !> A real as the echo of a configuration writes it (es23.16: reads back exactly).

@@ -2,6 +2,7 @@
 module cr_cli
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: cli_t, parse_cli
@@ -47,7 +48,7 @@ contains
         cli%help = .true.
       case ('--summary')
         if (k == n) then
-          call set_error(error, program_name // ": --summary needs a file name", 2); return
+          call set_error(error, program_name // ": --summary needs a file name", EXIT_BAD_INPUT); return
         end if
         k = k + 1
         call get_command_argument(k, length=length)
@@ -56,10 +57,10 @@ contains
         cli%summary = arg
       case ('--stop-after')
         if (.not. stop_ok) then
-          call set_error(error, program_name // ": unknown option '" // arg // "' (see --help)", 2); return
+          call set_error(error, program_name // ": unknown option '" // arg // "' (see --help)", EXIT_BAD_INPUT); return
         end if
         if (k == n) then
-          call set_error(error, program_name // ": --stop-after needs a number of samples", 2); return
+          call set_error(error, program_name // ": --stop-after needs a number of samples", EXIT_BAD_INPUT); return
         end if
         k = k + 1
         call get_command_argument(k, length=length)
@@ -67,19 +68,19 @@ contains
         call get_command_argument(k, arg)
         read(arg, *, iostat=ios) cli%stop_after
         if (ios /= 0 .or. cli%stop_after < 0) then
-          call set_error(error, program_name // ": --stop-after '" // arg // "' is not a number >= 0", 2); return
+          call set_error(error, program_name // ": --stop-after '" // arg // "' is not a number >= 0", EXIT_BAD_INPUT); return
         end if
       case ('--quarantine-bad-pieces')
         if (.not. stop_ok) then
-          call set_error(error, program_name // ": unknown option '" // arg // "' (see --help)", 2); return
+          call set_error(error, program_name // ": unknown option '" // arg // "' (see --help)", EXIT_BAD_INPUT); return
         end if
         cli%quarantine = .true.
       case ('--batch-seconds')
         if (.not. stop_ok) then
-          call set_error(error, program_name // ": unknown option '" // arg // "' (see --help)", 2); return
+          call set_error(error, program_name // ": unknown option '" // arg // "' (see --help)", EXIT_BAD_INPUT); return
         end if
         if (k == n) then
-          call set_error(error, program_name // ": --batch-seconds needs a time in seconds", 2); return
+          call set_error(error, program_name // ": --batch-seconds needs a time in seconds", EXIT_BAD_INPUT); return
         end if
         k = k + 1
         call get_command_argument(k, length=length)
@@ -87,16 +88,16 @@ contains
         call get_command_argument(k, arg)
         read(arg, *, iostat=ios) cli%batch_seconds
         if (ios /= 0 .or. .not. (cli%batch_seconds >= 0 .and. cli%batch_seconds <= 1.0e6_wp)) then
-          call set_error(error, program_name // ": --batch-seconds '" // arg // "' is not a time in [0, 1e6] s", 2)
+          call set_error(error, program_name // ": --batch-seconds '" // arg // "' is not a time in [0, 1e6] s", EXIT_BAD_INPUT)
           return
         end if
       case default
         if (arg(1:1) == '-') then
-          call set_error(error, program_name // ": unknown option '" // arg // "' (see --help)", 2); return
+          call set_error(error, program_name // ": unknown option '" // arg // "' (see --help)", EXIT_BAD_INPUT); return
         end if
         if (allocated(cli%input)) then
           call set_error(error, program_name // ": more than one input file given ('" // cli%input // &
-            "' and '" // arg // "')", 2); return
+            "' and '" // arg // "')", EXIT_BAD_INPUT); return
         end if
         cli%input = arg
       end select
@@ -104,6 +105,6 @@ contains
     end do
     if (.not. cli%help .and. .not. allocated(cli%input)) &
       call set_error(error, program_name // ": no input file given (usage: " // program_name // &
-        " input.nml [--summary FILE]; see --help)", 2)
+        " input.nml [--summary FILE]; see --help)", EXIT_BAD_INPUT)
   end subroutine parse_cli
 end module cr_cli

@@ -5,7 +5,7 @@
 !>
 !> MPI errors are returned, not fatal: the duplicate communicator and every window created
 !> here have the error handler MPI_ERRORS_RETURN, so a failing call gives its status to
-!> check_mpi, which returns an error_t with code code_mpi naming the call. A rank holding
+!> check_mpi, which returns an error_t with code EXIT_MPI naming the call. A rank holding
 !> such an error does not take part in the error agreement (see agree_error_on); its driver
 !> ends the job by MPI_Abort (cr_program). Communicators derived from env%comm inherit the
 !> handler (HDF5's MPI-IO driver sets MPI_ERRORS_RETURN on its own duplicate anyway, and checks
@@ -15,7 +15,8 @@ module cr_env
   use, intrinsic :: iso_c_binding, only: c_ptr, c_f_pointer
   use mpi_f08
   use cr_kinds, only: wp, i8
-  use cr_error, only: error_t, set_error, code_mpi
+  use cr_error, only: error_t, set_error
+  use cr_exit_codes, only: EXIT_MPI
   use cr_strings, only: str
   implicit none
   private
@@ -166,12 +167,12 @@ contains
   !> rank 0 prints says where it happened. Collective: every rank must call it.
   !>
   !> Except after a failed MPI call: a rank on which any MPI call has failed (mpi_failed; its
-  !> error has code code_mpi, or another one if a caller replaced it) returns its error at
+  !> error has code EXIT_MPI, or another one if a caller replaced it) returns its error at
   !> once, unchanged, without any MPI call. Its call may have failed inside a collective that other
   !> ranks are still waiting in, and a further collective could then be matched wrongly or never
   !> complete. That rank goes straight to its driver's end (program_finish), whose MPI_Abort
   !> also ends the ranks waiting in this agreement or elsewhere. If a call of the agreement
-  !> itself fails, the rank's error becomes such an MPI failure too (code code_mpi).
+  !> itself fails, the rank's error becomes such an MPI failure too (code EXIT_MPI).
   subroutine agree_error(this, error)
     class(env_t), intent(in) :: this
     type(error_t), allocatable, intent(inout) :: error
@@ -230,7 +231,7 @@ contains
       if (.not. failed) return
       if (allocated(error)) then
         error%message = error%message // "; then " // mpi_error%message
-        error%code = code_mpi
+        error%code = EXIT_MPI
       else
         call move_alloc(mpi_error, error)
       end if
@@ -256,7 +257,7 @@ contains
   end function n_of
 
   !> Turn a non-zero MPI status into an error "env: <what> failed: <MPI's message>" with code
-  !> code_mpi (statuses other than MPI_SUCCESS reach it because of MPI_ERRORS_RETURN, see init).
+  !> EXIT_MPI (statuses other than MPI_SUCCESS reach it because of MPI_ERRORS_RETURN, see init).
   subroutine check_mpi(ierr, what, error)
     integer, intent(in) :: ierr
     character(len=*), intent(in) :: what
@@ -269,7 +270,7 @@ contains
     msg = ''
     call MPI_Error_string(ierr, msg, n, ierr2)
     if (ierr2 /= MPI_SUCCESS) msg = 'MPI error code ' // str(ierr)
-    call set_error(error, "env: " // what // " failed: " // trim(msg), code_mpi)
+    call set_error(error, "env: " // what // " failed: " // trim(msg), EXIT_MPI)
   end subroutine check_mpi
 
   !> True once an MPI call of this rank has failed (any env_t, any communicator or window).
@@ -646,7 +647,7 @@ contains
     integer :: ierr
     if (failed_here) then
       ! (see mpi_failed)
-      call set_error(error, "env: MPI_Barrier skipped after a failed MPI call on this rank", code_mpi)
+      call set_error(error, "env: MPI_Barrier skipped after a failed MPI call on this rank", EXIT_MPI)
       return
     end if
     call MPI_Barrier(this%comm, ierr)

@@ -3,23 +3,17 @@
 !> Usage: `type(error_t), allocatable :: error`; a callee that fails allocates it with
 !> `call set_error(error, "where: what")`; callers test `if (allocated(error)) return`.
 module cr_error
+  use cr_exit_codes, only: EXIT_FAILURE, EXIT_BAD_INPUT
   implicit none
   private
   public :: error_t, set_error, prefix_error, problems_t
-  public :: code_mpi
-
-  !> Error codes (error_t%code), also the programs' exit statuses: 1 generic failure (the
-  !> default), 2 bad input, 3 stopped by --stop-after (the snapshot stage, used by its driver),
-  !> 4 a failed MPI call (set by env_t's status checks only; the program then ends by
-  !> MPI_Abort, see cr_program).
-  integer, parameter :: code_mpi = 4
 
   !> An error with a human-readable one-line message and a numeric code.
   type :: error_t
     !> message, one line, starting with the place that failed
     character(len=:), allocatable :: message
-    !> non-zero status (1 generic failure, 2 bad input, 3 stopped, 4 MPI failure: see above)
-    integer :: code = 1
+    !> non-zero exit status, one of cr_exit_codes' EXIT_* (EXIT_FAILURE unless set)
+    integer :: code = EXIT_FAILURE
   end type error_t
 
   !> Collector of input problems: validation checks every rule, then reports all at once.
@@ -47,20 +41,20 @@ contains
     this%n = this%n + 1
   end subroutine need
 
-  !> If any problem was recorded, an input error (code 2) "prefix: p1; p2; ...".
+  !> If any problem was recorded, an input error (EXIT_BAD_INPUT) "prefix: p1; p2; ...".
   subroutine to_error(this, prefix, error)
     class(problems_t), intent(in) :: this
     character(len=*), intent(in) :: prefix
     type(error_t), allocatable, intent(out) :: error
     if (this%n == 0) return
     if (len(prefix) > 0) then
-      call set_error(error, prefix // ": " // this%text, 2)
+      call set_error(error, prefix // ": " // this%text, EXIT_BAD_INPUT)
     else
-      call set_error(error, this%text, 2)
+      call set_error(error, this%text, EXIT_BAD_INPUT)
     end if
   end subroutine to_error
 
-  !> Allocate `error` with a message (and optional code).
+  !> Allocate `error` with a message (and optional code, an EXIT_* of cr_exit_codes).
   subroutine set_error(error, message, code)
     type(error_t), allocatable, intent(out) :: error
     character(len=*), intent(in) :: message

@@ -33,6 +33,7 @@ module cr_fom
   use cr_projection, only: projection_solver_t, solve_stats_t, make_projection_solver
   use cr_key_map, only: key_map_t
   use cr_fom_state, only: fom_state_t, step_record_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: fom_t, step_record_t
@@ -282,19 +283,19 @@ contains
     character(len=256) :: msg
     open(newunit=u, file=path, status='old', action='read', iostat=ios, iomsg=msg)
     if (ios /= 0) then
-      call set_error(error, "&agents: speed_file: cannot open '" // path // "' (" // trim(msg) // ")", 2)
+      call set_error(error, "&agents: speed_file: cannot open '" // path // "' (" // trim(msg) // ")", EXIT_BAD_INPUT)
       return
     end if
     do k = 1, size(speeds)
       read(u, *, iostat=ios, iomsg=msg) speeds(k)
       if (ios /= 0) then
         call set_error(error, "&agents: speed_file: '" // path // "' line " // str(k) // &
-          ": expected one speed per agent for n_agents = " // str(size(speeds)), 2)
+          ": expected one speed per agent for n_agents = " // str(size(speeds)), EXIT_BAD_INPUT)
         close(u); return
       end if
       if (.not. (speeds(k) >= 0 .and. speeds(k) < huge(1.0_wp))) then
         call set_error(error, "&agents: speed_file: '" // path // "' line " // str(k) // &
-          ": speed must be finite and >= 0", 2)
+          ": speed must be finite and >= 0", EXIT_BAD_INPUT)
         close(u); return
       end if
     end do

@@ -19,6 +19,7 @@ module cr_local_projection
   use cr_neighbours, only: cell_list_t
   use cr_projection, only: projection_settings_t, projection_solver_t, solve_stats_t, &
     make_projection_solver
+    use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: local_projection_t, lin_gap, add_ring, max_agent_norm
@@ -64,7 +65,7 @@ contains
     this%warm = .false.
     if (present(warm_start)) this%warm = warm_start
     if (.not. (cutoff_factor >= 1.0_wp .and. cutoff_factor < huge(1.0_wp))) then
-      call set_error(error, name // ": cutoff_factor must be finite and >= 1, got " // str(cutoff_factor), 2)
+      call set_error(error, name // ": cutoff_factor must be finite and >= 1, got " // str(cutoff_factor), EXIT_BAD_INPUT)
       return
     end if
     this%cutoff_factor = cutoff_factor

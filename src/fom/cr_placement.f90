@@ -25,6 +25,7 @@ module cr_placement
   use cr_neighbours, only: cell_list_t, build_contacts
   use cr_projection, only: projection_solver_t, projection_settings_t, solve_stats_t, &
     make_projection_solver
+    use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: place_agents, read_positions_h5, check_feasible
@@ -168,7 +169,7 @@ contains
         " agents of radius " // str(radius) // " cover " // &
         str(na * acos(-1.0_wp) * radius**2 / ((reg(3) - reg(1)) * (reg(4) - reg(2))), 'f0.3') // &
         " of the region and still overlap by " // str(-worst) // " after " // str(iterations) // &
-        " projection iterations (" // why // "); use fewer agents or a larger region", 2)
+        " projection iterations (" // why // "); use fewer agents or a larger region", EXIT_BAD_INPUT)
     end if
   end subroutine separate
 
@@ -193,7 +194,7 @@ contains
     character(len=:), allocatable :: name
     call h5%open(path, error)
     if (allocated(error)) then
-      error%message = "&agents: init_file: " // error%message; error%code = 2; return
+      error%message = "&agents: init_file: " // error%message; error%code = EXIT_BAD_INPUT; return
     end if
     if (h5%exists("positions")) then
       name = "positions"
@@ -201,20 +202,20 @@ contains
       name = "agents/initial_positions"
     else
       call set_error(error, "&agents: init_file: '" // path // &
-        "' has neither a dataset 'positions' nor 'agents/initial_positions'", 2)
+        "' has neither a dataset 'positions' nor 'agents/initial_positions'", EXIT_BAD_INPUT)
       call h5%close(e2); return
     end if
     call h5%read(name, q, error)
     call h5%close(e2)
     if (allocated(error)) then
-      error%message = "&agents: init_file: " // error%message; error%code = 2; return
+      error%message = "&agents: init_file: " // error%message; error%code = EXIT_BAD_INPUT; return
     end if
     if (size(q) /= 2 * n) then
       call set_error(error, "&agents: init_file: '" // path // "' dataset '" // name // "' has " // &
-        str(size(q)) // " values, expected 2 * n_agents = " // str(2 * n), 2); return
+        str(size(q)) // " values, expected 2 * n_agents = " // str(2 * n), EXIT_BAD_INPUT); return
     end if
     if (any(q /= q) .or. any(abs(q) > huge(1.0_wp) / 4)) &
-      call set_error(error, "&agents: init_file: '" // path // "' has a non-finite value", 2)
+      call set_error(error, "&agents: init_file: '" // path // "' has a non-finite value", EXIT_BAD_INPUT)
   end subroutine read_positions_h5
 
   !> Error if an agent starts outside the building (beside or below the hall, not in the
@@ -237,14 +238,14 @@ contains
       if (cs%ib(l) > 0) then
         if (cs%gap(l) <= -2 * radius + tol) then
           call set_error(error, where // ": agents " // str(cs%ia(l)) // " and " // str(cs%ib(l)) // &
-            " are at the same position", 2); return
+            " are at the same position", EXIT_BAD_INPUT); return
         else if (cs%gap(l) < -tol) then
           call set_error(error, where // ": agents " // str(cs%ia(l)) // " and " // str(cs%ib(l)) // &
-            " overlap by " // str(-cs%gap(l)), 2); return
+            " overlap by " // str(-cs%gap(l)), EXIT_BAD_INPUT); return
         end if
       else if (cs%gap(l) < -tol) then
         call set_error(error, where // ": agent " // str(cs%ia(l)) // " starts inside obstacle '" // &
-          scene%obstacles(cs%ob(l))%label // "' (gap " // str(cs%gap(l)) // ")", 2); return
+          scene%obstacles(cs%ob(l))%label // "' (gap " // str(cs%gap(l)) // ")", EXIT_BAD_INPUT); return
       end if
     end do
     do l = 1, size(q) / 2
@@ -252,7 +253,7 @@ contains
           (q(2*l-1) < 0.0_wp .or. q(2*l-1) > scene%length .or. q(2*l) < 0.0_wp)) then
         call set_error(error, where // ": agent " // str(l) // " at (" // str(q(2*l-1)) // ", " // &
           str(q(2*l)) // ") starts outside the hall [0, " // str(scene%length) // "] x [0, " // &
-          str(scene%width) // "] (agents start in the hall, the doorway or beyond the top wall)", 2)
+          str(scene%width) // "] (agents start in the hall, the doorway or beyond the top wall)", EXIT_BAD_INPUT)
         return
       end if
     end do

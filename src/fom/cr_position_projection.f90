@@ -50,6 +50,7 @@ module cr_position_projection
   use cr_neighbours, only: build_contacts, cell_list_t, pair_contact
   use cr_projection, only: projection_settings_t, solve_stats_t
   use cr_local_projection, only: local_projection_t, max_agent_norm, lin_gap
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: position_projection_t, pproj_stats_t
@@ -108,7 +109,7 @@ contains
     if (present(refine_max)) this%refine_max = refine_max
     if (present(refine_tol)) this%refine_tol = refine_tol
     if (this%refine_max < 0 .or. .not. (this%refine_tol > 0 .and. this%refine_tol < 1)) then
-      call set_error(error, "position_projection: refine_max must be >= 0 and refine_tol in (0, 1)", 2); return
+      call set_error(error, "position_projection: refine_max must be >= 0 and refine_tol in (0, 1)", EXIT_BAD_INPUT); return
     end if
     call this%lp%init("position_projection", settings, cutoff_factor, error, warm_start=.true.)
   end subroutine init
@@ -145,15 +146,15 @@ contains
     na = size(q_in) / 2
     if (size(q_in) /= 2 * na .or. size(q_out) /= size(q_in)) then
       call set_error(error, "position_projection: inconsistent sizes: q_in " // str(size(q_in)) // &
-        ", q_out " // str(size(q_out)), 2); return
+        ", q_out " // str(size(q_out)), EXIT_BAD_INPUT); return
     end if
     if (.not. (ieee_is_finite(radius) .and. radius > 0) .or. .not. all(ieee_is_finite(q_in))) then
-      call set_error(error, "position_projection: radius must be finite and > 0, positions finite", 2); return
+      call set_error(error, "position_projection: radius must be finite and > 0, positions finite", EXIT_BAD_INPUT); return
     end if
     if (present(q_start)) then
       if (size(q_start) /= size(q_in) .or. .not. all(ieee_is_finite(q_start))) then
         call set_error(error, "position_projection: q_start must have " // str(size(q_in)) // &
-          " finite entries", 2); return
+          " finite entries", EXIT_BAD_INPUT); return
       end if
     end if
     q_out = q_in
@@ -182,7 +183,7 @@ contains
       end do
       if (depth_start > max(this%lp%solver%settings%tol, 1.0e-9_wp) * radius) then
         call set_error(error, "position_projection: the start overlaps by " // str(depth_start, "es9.2") // &
-          " m", 2); return
+          " m", EXIT_BAD_INPUT); return
       end if
     else
       ! a configuration on its own: no multipliers carried over from another one

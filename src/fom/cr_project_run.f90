@@ -1,5 +1,5 @@
 !> The run of crowd_project: exact position projection of the configurations of a request file
-!> (docs/model.md#exact-position-projection). The request (written by scripts/ml_correct.py; layout
+!> (docs/model.md#exact-position-projection). The request (written by scripts/pipeline/ml_correct.py; layout
 !> in cr_projection_file) names the snapshot database the positions belong to: its configuration
 !> gives the scene of each sample (the parameters mapped by cr_param_model, as in every stage), the
 !> &solver settings and the &contacts cutoff factor. The configurations of a sample are a
@@ -11,6 +11,7 @@ module cr_project_run
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
   use cr_logger, only: logger_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: project_request
@@ -67,7 +68,7 @@ contains
     if (hdr%n_agents /= req%n_agents .or. hdr%n_params /= req%n_params) then
       call set_error(error, where // ": '" // req%database // "' has " // str(hdr%n_agents) // " agents and " // &
         str(hdr%n_params) // " parameter components, the request " // str(req%n_agents) // " and " // &
-        str(req%n_params), 2); return
+        str(req%n_params), EXIT_BAD_INPUT); return
     end if
     call t%set_text(req%database // " (attribute config)", hdr%config_text)
     call parse_config(t, cfg, error)
@@ -161,7 +162,7 @@ contains
       deallocate(speeds)
       call check_config(c, error)
       if (allocated(error)) then
-        error%code = 2
+        error%code = EXIT_BAD_INPUT
         call prefix_error(error, "projection request '" // input // "': dataset 'params': sample " // str(s) // &
           " gives no valid scene")
         return

@@ -13,7 +13,7 @@
 !> O(dx log(1/dx)) error of first-order schemes at point-like sources (target endpoints), so the
 !> error away from obstacles is O(dx). Nodes near a target that are not in sight are swept.
 !>
-!> Accuracy (tests/test_distance_field.f90): without obstacles the nodal error is about 0.4 dx
+!> Accuracy (tests/unit/test_distance_field.f90): without obstacles the nodal error is about 0.4 dx
 !> and halves with dx; next to curved obstacles the blocked-node staircase dominates (about
 !> 3 dx at dx = 0.01 just behind a disk, converging like dx^0.6); a cut-cell boundary would fix it.
 !>
@@ -29,6 +29,7 @@ module cr_distance_field
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
   use cr_shapes, only: obstacle_t, obstacle_distance, obstacle_bbox, segment_obstacle_distance
+  use cr_exit_codes, only: EXIT_FAILURE, EXIT_BAD_INPUT
   implicit none
   private
   public :: distance_field_t, NODE_FREE, NODE_TARGET, NODE_BLOCKED
@@ -98,38 +99,38 @@ contains
     call this%free()
     if (.not. (all(ieee_is_finite(lo)) .and. all(ieee_is_finite(hi)) .and. ieee_is_finite(dx) &
         .and. ieee_is_finite(clearance))) then
-      call set_error(error, ctx // "lo, hi, dx and clearance must be finite", 2)
+      call set_error(error, ctx // "lo, hi, dx and clearance must be finite", EXIT_BAD_INPUT)
       return
     end if
     if (dx <= 0.0_wp) then
-      call set_error(error, ctx // "dx must be > 0, got " // str(dx), 2)
+      call set_error(error, ctx // "dx must be > 0, got " // str(dx), EXIT_BAD_INPUT)
       return
     end if
     if (.not. all(hi > lo)) then
       call set_error(error, ctx // "need lo < hi, got lo = (" // str(lo(1)) // ", " // str(lo(2)) &
-          // ") hi = (" // str(hi(1)) // ", " // str(hi(2)) // ")", 2)
+          // ") hi = (" // str(hi(1)) // ", " // str(hi(2)) // ")", EXIT_BAD_INPUT)
       return
     end if
     if (size(targets) == 0) then
-      call set_error(error, ctx // "no target set given", 2)
+      call set_error(error, ctx // "no target set given", EXIT_BAD_INPUT)
       return
     end if
     do k = 1, size(obstacles)
       if (obstacles(k)%kind == 0) then
-        call set_error(error, ctx // "obstacle " // str(k) // " was not built", 2)
+        call set_error(error, ctx // "obstacle " // str(k) // " was not built", EXIT_BAD_INPUT)
         return
       end if
     end do
     do k = 1, size(targets)
       if (targets(k)%kind == 0) then
-        call set_error(error, ctx // "target " // str(k) // " was not built", 2)
+        call set_error(error, ctx // "target " // str(k) // " was not built", EXIT_BAD_INPUT)
         return
       end if
     end do
     nreal = (hi - lo) / dx
     if (any(nreal > 1.0e5_wp) .or. product(nreal + 1.0_wp) > 2.0e8_wp) then
       call set_error(error, ctx // "grid too large: " // str(nreal(1), "es10.3") // " x " &
-          // str(nreal(2), "es10.3") // " cells for dx = " // str(dx), 2)
+          // str(nreal(2), "es10.3") // " cells for dx = " // str(dx), EXIT_BAD_INPUT)
       return
     end if
     this%lo = lo
@@ -184,7 +185,7 @@ contains
     end do
     if (n_target_nodes == 0) then
       call set_error(error, ctx // "no unblocked grid node in sight within " // str(band) &
-          // " of any target (targets outside the grid or inside obstacles?)", 2)
+          // " of any target (targets outside the grid or inside obstacles?)", EXIT_BAD_INPUT)
       return
     end if
 
@@ -201,7 +202,7 @@ contains
       if (change <= tol) return
     end do
     call set_error(error, ctx // "fast sweeping did not converge in " // str(max_cycles) &
-        // " cycles (last change " // str(change) // ")", 1)
+        // " cycles (last change " // str(change) // ")", EXIT_FAILURE)
   end subroutine init
 
   !> Node index range [ilo, ihi] covering the bounding box of obst inflated by margin (may be empty).

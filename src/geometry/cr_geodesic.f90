@@ -38,6 +38,7 @@ module cr_geodesic
   use cr_strings, only: str
   use cr_shapes, only: obstacle_t, OBST_DISK, OBST_SEGMENT, OBST_POLYGON, obstacle_distance, &
       obstacle_bbox, segment_obstacle_distance, closest_point_on_segment
+      use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: geodesic_t, GEODESIC_MAX_CIRCLES
@@ -143,13 +144,13 @@ contains
     call this%free()
     if (.not. (all(ieee_is_finite(lo)) .and. all(ieee_is_finite(hi)) .and. ieee_is_finite(r) &
         .and. all(ieee_is_finite(ta)) .and. all(ieee_is_finite(tb)))) then
-      call set_error(error, ctx // "box, radius and target must be finite", 2); return
+      call set_error(error, ctx // "box, radius and target must be finite", EXIT_BAD_INPUT); return
     end if
     if (.not. all(hi > lo)) then
-      call set_error(error, ctx // "need lo < hi", 2); return
+      call set_error(error, ctx // "need lo < hi", EXIT_BAD_INPUT); return
     end if
     if (r <= 0.0_wp) then
-      call set_error(error, ctx // "radius must be > 0, got " // str(r), 2); return
+      call set_error(error, ctx // "radius must be > 0, got " // str(r), EXIT_BAD_INPUT); return
     end if
     nc = 0
     do k = 1, size(obstacles)
@@ -158,12 +159,12 @@ contains
       case (OBST_SEGMENT); nc = nc + 2
       case (OBST_POLYGON); nc = nc + size(obstacles(k)%vertices, 2)
       case default
-        call set_error(error, ctx // "obstacle " // str(k) // " was not built", 2); return
+        call set_error(error, ctx // "obstacle " // str(k) // " was not built", EXIT_BAD_INPUT); return
       end select
     end do
     if (nc > GEODESIC_MAX_CIRCLES) then
       call set_error(error, ctx // str(nc) // " obstacle vertices and disks exceed the limit of " &
-          // str(GEODESIC_MAX_CIRCLES), 2); return
+          // str(GEODESIC_MAX_CIRCLES), EXIT_BAD_INPUT); return
     end if
     this%lo = lo; this%hi = hi; this%r = r; this%ta = ta; this%tb = tb
     this%tol = rtol_len * maxval(hi - lo)

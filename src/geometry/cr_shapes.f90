@@ -9,6 +9,7 @@ module cr_shapes
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: obstacle_t, OBST_DISK, OBST_SEGMENT, OBST_POLYGON
@@ -140,11 +141,11 @@ contains
     type(obstacle_t), intent(out) :: obst
     type(error_t), allocatable, intent(out) :: error
     if (.not. all(ieee_is_finite(c)) .or. .not. ieee_is_finite(r)) then
-      call set_error(error, "make_disk: obstacle '" // label // "': centre or radius is not finite", 2)
+      call set_error(error, "make_disk: obstacle '" // label // "': centre or radius is not finite", EXIT_BAD_INPUT)
       return
     end if
     if (r <= 0.0_wp) then
-      call set_error(error, "make_disk: obstacle '" // label // "': radius must be > 0, got " // str(r), 2)
+      call set_error(error, "make_disk: obstacle '" // label // "': radius must be > 0, got " // str(r), EXIT_BAD_INPUT)
       return
     end if
     obst%kind = OBST_DISK
@@ -162,17 +163,17 @@ contains
     real(wp) :: scale
     if (.not. all(ieee_is_finite(a)) .or. .not. all(ieee_is_finite(b)) &
         .or. .not. ieee_is_finite(half_thickness)) then
-      call set_error(error, "make_segment: obstacle '" // label // "': endpoint or thickness is not finite", 2)
+      call set_error(error, "make_segment: obstacle '" // label // "': endpoint or thickness is not finite", EXIT_BAD_INPUT)
       return
     end if
     if (half_thickness < 0.0_wp) then
       call set_error(error, "make_segment: obstacle '" // label // "': half-thickness must be >= 0, got " &
-          // str(half_thickness), 2)
+          // str(half_thickness), EXIT_BAD_INPUT)
       return
     end if
     scale = max(maxval(abs(a)), maxval(abs(b)), tiny(1.0_wp))
     if (norm2(b - a) <= geom_rtol * scale) then
-      call set_error(error, "make_segment: obstacle '" // label // "': degenerate segment (endpoints coincide)", 2)
+      call set_error(error, "make_segment: obstacle '" // label // "': degenerate segment (endpoints coincide)", EXIT_BAD_INPUT)
       return
     end if
     obst%kind = OBST_SEGMENT
@@ -197,16 +198,16 @@ contains
     ctx = "make_polygon: obstacle '" // label // "': "
     if (size(vertices, 1) /= 2) then
       call set_error(error, ctx // "vertices must have shape [2, nv], got first extent " &
-          // str(size(vertices, 1)), 2)
+          // str(size(vertices, 1)), EXIT_BAD_INPUT)
       return
     end if
     nv = size(vertices, 2)
     if (nv < 3) then
-      call set_error(error, ctx // "a polygon needs at least 3 vertices, got " // str(nv), 2)
+      call set_error(error, ctx // "a polygon needs at least 3 vertices, got " // str(nv), EXIT_BAD_INPUT)
       return
     end if
     if (.not. all(ieee_is_finite(vertices))) then
-      call set_error(error, ctx // "a vertex is not finite", 2)
+      call set_error(error, ctx // "a vertex is not finite", EXIT_BAD_INPUT)
       return
     end if
     ! orientation from the shoelace formula; reverse clockwise input
@@ -222,7 +223,7 @@ contains
     end if
     scale = max(maxval(maxval(vertices, dim=2) - minval(vertices, dim=2)), tiny(1.0_wp))
     if (abs(area2) <= geom_rtol * scale**2) then
-      call set_error(error, ctx // "degenerate polygon (zero area)", 2)
+      call set_error(error, ctx // "degenerate polygon (zero area)", EXIT_BAD_INPUT)
       return
     end if
     do i = 1, nv
@@ -231,16 +232,16 @@ contains
       e1 = v(:, i) - v(:, iprev)
       e2 = v(:, inext) - v(:, i)
       if (norm2(e2) <= geom_rtol * scale) then
-        call set_error(error, ctx // "vertices " // str(i) // " and " // str(inext) // " coincide", 2)
+        call set_error(error, ctx // "vertices " // str(i) // " and " // str(inext) // " coincide", EXIT_BAD_INPUT)
         return
       end if
       c = cross2(e1, e2)
       if (abs(c) <= geom_rtol * norm2(e1) * norm2(e2)) then
-        call set_error(error, ctx // "vertex " // str(i) // " is collinear with its neighbours", 2)
+        call set_error(error, ctx // "vertex " // str(i) // " is collinear with its neighbours", EXIT_BAD_INPUT)
         return
       end if
       if (c < 0.0_wp) then
-        call set_error(error, ctx // "polygon is not convex (reflex turn at vertex " // str(i) // ")", 2)
+        call set_error(error, ctx // "polygon is not convex (reflex turn at vertex " // str(i) // ")", EXIT_BAD_INPUT)
         return
       end if
     end do
@@ -252,7 +253,7 @@ contains
       do k = 1, nv
         if (k == i .or. k == inext) cycle
         if (cross2(e2, v(:, k) - v(:, i)) <= 0.0_wp) then
-          call set_error(error, ctx // "polygon is not convex (outline winds more than once)", 2)
+          call set_error(error, ctx // "polygon is not convex (outline winds more than once)", EXIT_BAD_INPUT)
           return
         end if
       end do
@@ -271,7 +272,7 @@ contains
     type(error_t), allocatable, intent(out) :: error
     if (.not. (xmax > xmin .and. ymax > ymin)) then
       call set_error(error, "make_rectangle: obstacle '" // label // "': need xmin < xmax and ymin < ymax, got [" &
-          // str(xmin) // ", " // str(xmax) // "] x [" // str(ymin) // ", " // str(ymax) // "]", 2)
+          // str(xmin) // ", " // str(xmax) // "] x [" // str(ymin) // ", " // str(ymax) // "]", EXIT_BAD_INPUT)
       return
     end if
     call make_polygon(reshape([xmin, ymin, xmax, ymin, xmax, ymax, xmin, ymax], [2, 4]), label, obst, error)

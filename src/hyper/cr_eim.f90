@@ -23,6 +23,7 @@ module cr_eim
   use cr_lapack, only: la_gesvd
   use cr_pod, only: pod_result_t, pod_tsqr, snapshot_layout
   use cr_sort, only: near_max_index
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: eim_t, eim_build, eim_prefix, deim_indices, eim_interp_matrix
@@ -80,7 +81,7 @@ contains
     p = size(s_local, 1)
     if (m_max < 0 .or. m_max > p) then
       call set_error(error, "eim_build: m = " // str(m_max) // " modes requested but there are p = " // &
-        & str(p) // " candidate entries (need 0 <= m <= p)", 2)
+        & str(p) // " candidate entries (need 0 <= m <= p)", EXIT_BAD_INPUT)
       return
     end if
     call snapshot_layout(env, s_local, n_snap, offset, error)
@@ -184,7 +185,7 @@ contains
     integer :: m
     if (m_max < 0 .or. m_max > m_full) then
       call set_error(error, "eim_prefix: m = " // str(m_max) // " modes requested from an EIM built for " // &
-        & str(m_full), 2)
+        & str(m_full), EXIT_BAD_INPUT)
       return
     end if
     eim%p = full%p
@@ -225,7 +226,7 @@ contains
     m = size(u, 2)
     if (m > p) then
       call set_error(error, "deim_indices: m = " // str(m) // " basis vectors but only p = " // &
-        & str(p) // " entries", 2)
+        & str(p) // " entries", EXIT_BAD_INPUT)
       return
     end if
     allocate(idx(m), rho(p, m))
@@ -248,7 +249,7 @@ contains
       if (.not. (big > real(p, wp) * epsilon(1.0_wp) * unorm)) then
         call set_error(error, "deim_indices: basis vector " // str(k) // " of " // str(m) // &
           & " is numerically in the span of the previous ones (largest interpolation residual " // &
-          & str(big) // ", |u_k| = " // str(unorm) // ")", 2)
+          & str(big) // ", |u_k| = " // str(unorm) // ")", EXIT_BAD_INPUT)
         return
       end if
       idx(k) = i
@@ -275,7 +276,7 @@ contains
     if (present(cond)) cond = 1.0_wp
     if (m < 0 .or. m > eim%m) then
       call set_error(error, "eim_interp_matrix: m = " // str(m) // " but the EIM has " // &
-        & str(eim%m) // " modes", 2)
+        & str(eim%m) // " modes", EXIT_BAD_INPUT)
       return
     end if
     allocate(minv(m, m))

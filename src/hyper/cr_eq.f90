@@ -49,6 +49,7 @@ module cr_eq
   use cr_pod, only: snapshot_layout
   use cr_nnls, only: nnls_solve, nnls_work_t, nnls_stats_t
   use cr_sort, only: near_max_index
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: eq_t, eq_gramian, eq_build
@@ -113,7 +114,7 @@ contains
     p = size(s_local, 1)
     if (size(kmat, 1) /= p .or. size(kmat, 2) /= p) then
       call set_error(error, "eq_gramian: the kernel is " // str(size(kmat, 1)) // " x " // &
-        & str(size(kmat, 2)) // " but there are p = " // str(p) // " candidates", 2)
+        & str(size(kmat, 2)) // " but there are p = " // str(p) // " candidates", EXIT_BAD_INPUT)
     end if
     call env%agree_error(error)
     if (allocated(error)) return
@@ -196,7 +197,7 @@ contains
     allocate(eq%idx(0), eq%w(0, 0), eq%err(0))
     if (total < 0.0_wp) then
       call set_error(error, "eq_build: 1^T H 1 = " // str(total) // " < 0: H is not a Gramian " // &
-        & "(not positive semi-definite)", 2)
+        & "(not positive semi-definite)", EXIT_BAD_INPUT)
       return
     end if
     if (m_max == 0) return
@@ -278,28 +279,28 @@ contains
     p = size(h, 1)
     if (size(h, 2) /= p) then
       call set_error(error, "eq_build: the Gramian is " // str(p) // " x " // str(size(h, 2)) // &
-        & ", expected a square matrix", 2)
+        & ", expected a square matrix", EXIT_BAD_INPUT)
       return
     end if
     if (m_max < 0 .or. m_max > p) then
       call set_error(error, "eq_build: m = " // str(m_max) // " candidates requested but there are p = " // &
-        & str(p) // " candidates (need 0 <= m <= p)", 2)
+        & str(p) // " candidates (need 0 <= m <= p)", EXIT_BAD_INPUT)
       return
     end if
     if (.not. (tol >= 0.0_wp)) then
-      call set_error(error, "eq_build: tolerance " // str(tol) // " is negative", 2)
+      call set_error(error, "eq_build: tolerance " // str(tol) // " is negative", EXIT_BAD_INPUT)
       return
     end if
     if (.not. (dtol > 0.0_wp .and. dtol < 1.0_wp)) then
-      call set_error(error, "eq_build: dependence threshold " // str(dtol) // " is not in (0, 1)", 2)
+      call set_error(error, "eq_build: dependence threshold " // str(dtol) // " is not in (0, 1)", EXIT_BAD_INPUT)
       return
     end if
     if (rl /= "residual" .and. rl /= "paper") then
-      call set_error(error, "eq_build: unknown selection rule '" // rl // "' (known: residual, paper)", 2)
+      call set_error(error, "eq_build: unknown selection rule '" // rl // "' (known: residual, paper)", EXIT_BAD_INPUT)
       return
     end if
     if (.not. all(abs(h) <= huge(1.0_wp))) then
-      call set_error(error, "eq_build: the Gramian has non-finite entries (p = " // str(p) // ")", 2)
+      call set_error(error, "eq_build: the Gramian has non-finite entries (p = " // str(p) // ")", EXIT_BAD_INPUT)
       return
     end if
   end subroutine eq_check

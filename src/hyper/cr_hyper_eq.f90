@@ -34,6 +34,7 @@ module cr_hyper_eq
   use cr_contact_eval, only: eval_contact
   use cr_lapack, only: la_gemv, la_gesvd
   use cr_product_check, only: need_finite, need_range, need_size, product_error
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: hyper_eq_t, ops_eq_t
@@ -236,7 +237,7 @@ contains
       if (this%vdeim%p == 0) then
         call set_error(error, where // ": hyper = 'eq_deim' needs the DEIM of the desired velocity (group " // &
           "'eq/v_deim'), which this ROM file does not store for (N, R) = (" // str(n) // ", " // str(r) // &
-          "); rerun crowd_offline", 2); return
+          "); rerun crowd_offline", EXIT_BAD_INPUT); return
       end if
       call choose_points('EQ', where, n, r, m_req, [nb, r, 2 * r], [this%vdeim%m, this%eq(2)%m, this%eq(3)%m], &
         [terms%p(1), terms%p(3), terms%p(3)], m, error)
@@ -328,7 +329,7 @@ contains
     call la_gesvd(a, s, error, uu, vt)
     if (allocated(error)) return
     if (.not. s(m) > 1.0e-12_wp * s(1)) then
-      call set_error(error, "the interpolation rows are singular (condition number " // str(s(1) / s(m)) // ")", 2)
+      call set_error(error, "the interpolation rows are singular (condition number " // str(s(1) / s(m)) // ")", EXIT_BAD_INPUT)
       return
     end if
     do j = 1, m

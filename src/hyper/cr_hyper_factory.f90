@@ -8,6 +8,7 @@ module cr_hyper_factory
   use cr_hyper_none, only: hyper_none_t
   use cr_hyper_eim, only: hyper_eim_t
   use cr_hyper_eq, only: hyper_eq_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: HYPER_NAMES, new_hyper, stored_hypers, hyper_known, hyper_name_list
@@ -30,7 +31,7 @@ contains
     case ('eq', 'eq_deim')
       allocate(hyper_eq_t :: method)
     case default
-      call set_error(error, "unknown hyper-reduction '" // trim(name) // "' (known: " // hyper_name_list() // ")", 2)
+      call set_error(error, "unknown hyper-reduction '" // trim(name) // "' (known: " // hyper_name_list() // ")", EXIT_BAD_INPUT)
     end select
   end subroutine new_hyper
 

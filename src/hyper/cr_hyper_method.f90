@@ -27,6 +27,7 @@ module cr_hyper_method
   use cr_reduced_base, only: reduced_ops_t
   use cr_product_check, only: product_error
   use cr_eim, only: eim_t, eim_build, eim_prefix
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: hyper_train_t, hyper_method_t, hyper_slot_t, choose_points, default_points, max_points, &
@@ -162,12 +163,12 @@ contains
       if (m_req(j) > cand(j)) then
         call set_error(error, where // ": " // names(j) // " = " // str(m_req(j)) // " is larger than the " // &
           str(cand(j)) // " " // what // " candidates of term s" // str(j) // " for (N, R) = (" // str(n) // &
-          ", " // str(r) // ")", 2); return
+          ", " // str(r) // ")", EXIT_BAD_INPUT); return
       end if
       if (m_req(j) > stored(j)) then
         call set_error(error, where // ": " // names(j) // " = " // str(m_req(j)) // " but the ROM file stores " // &
           str(stored(j)) // " " // what // " points for term s" // str(j) // " of (N, R) = (" // str(n) // &
-          ", " // str(r) // ") (raise &hyper m_factor)", 2); return
+          ", " // str(r) // ") (raise &hyper m_factor)", EXIT_BAD_INPUT); return
       end if
       if (m_req(j) > 0) then
         m(j) = m_req(j)

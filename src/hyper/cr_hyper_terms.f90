@@ -18,6 +18,7 @@ module cr_hyper_terms
   use cr_scene, only: scene_t
   use cr_sparse_cone, only: sparse_cone_t
   use cr_contact_eval, only: eval_contact
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: hyper_terms_t, contact_row_image
@@ -58,7 +59,7 @@ contains
     integer, allocatable :: pos(:)
     integer :: k, p, l, n3, n2
     if (r < 0 .or. r > cone%r) then
-      call set_error(error, "hyper terms: R = " // str(r) // " but the cone has " // str(cone%r) // " vectors", 2)
+      call set_error(error, "hyper terms: R = " // str(r) // " but the cone has " // str(cone%r) // " vectors", EXIT_BAD_INPUT)
       return
     end if
     this%n_dof = n_dof

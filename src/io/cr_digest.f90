@@ -24,6 +24,7 @@ module cr_digest
   use cr_env, only: env_t
   use cr_strings, only: to_lower
   use cr_h5file, only: h5file_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: digest_t, digest_of, digest_of_ranges, digest_add, digest_allreduce, digest_hex, put_digest, &
@@ -205,7 +206,7 @@ contains
     t = digest_table_sum(table, q)
     if (t%s1 == d%s1 .and. t%s2 == d%s2) return
     call set_error(error, what // ": block checksum mismatch in dataset '" // name // "' (stored " // &
-      digest_hex(t) // ", data " // digest_hex(d) // "): the file is corrupted", 2)
+      digest_hex(t) // ", data " // digest_hex(d) // "): the file is corrupted", EXIT_BAD_INPUT)
   end subroutine check_digest_blocks
 
   !> Digest of the union of two disjoint parts.

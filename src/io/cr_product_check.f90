@@ -10,6 +10,7 @@ module cr_product_check
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
   use cr_h5file, only: h5file_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: check_schema, need_finite, need_range, need_size, need_dims, need_attr_range, product_error
@@ -25,7 +26,7 @@ contains
   subroutine product_error(path, what, error)
     character(len=*), intent(in) :: path, what
     type(error_t), allocatable, intent(out) :: error
-    call set_error(error, "'" // path // "': " // what, 2)
+    call set_error(error, "'" // path // "': " // what, EXIT_BAD_INPUT)
   end subroutine product_error
 
   !> Root attributes `schema` (must equal `schema`) and `schema_version` (must be one of

@@ -5,6 +5,7 @@ module cr_xy_text
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: read_xy_text
@@ -23,7 +24,7 @@ contains
     allocate(v(2 * n))
     open(newunit=u, file=path, status='old', action='read', iostat=ios, iomsg=msg)
     if (ios /= 0) then
-      call set_error(error, what // ": cannot open '" // path // "' (" // trim(msg) // ")", 2)
+      call set_error(error, what // ": cannot open '" // path // "' (" // trim(msg) // ")", EXIT_BAD_INPUT)
       return
     end if
     do k = 1, n
@@ -31,12 +32,12 @@ contains
       if (ios /= 0) then
         call set_error(error, what // ": '" // path // "' line " // str(k) // &
           ": expected two numbers '" // pair // "' per agent for n_agents = " // str(n) // &
-          " (" // trim(msg) // ")", 2)
+          " (" // trim(msg) // ")", EXIT_BAD_INPUT)
         close(u); return
       end if
     end do
     close(u)
     if (any(v /= v) .or. any(abs(v) > huge(1.0_wp) / 4)) &
-      call set_error(error, what // ": '" // path // "' has a non-finite value", 2)
+      call set_error(error, what // ": '" // path // "' has a non-finite value", EXIT_BAD_INPUT)
   end subroutine read_xy_text
 end module cr_xy_text

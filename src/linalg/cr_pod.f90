@@ -37,6 +37,7 @@ module cr_pod
   use cr_lapack, only: la_geqrf, la_orgqr, la_gesvd, la_syevd, la_gemm, la_pdgesvd
   use cr_tsqr, only: tsqr
   use cr_distribution, only: block_range, blacs_grid_t, cyclic_owner, cyclic_local_index, DLEN
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: pod_result_t, pod_tsqr, pod_snapshots, pod_rsvd, pod_scalapack, pod_compute, rsvd_opts_t, POD_METHODS
@@ -103,7 +104,8 @@ contains
       call pod_rsvd(env, s_local, ro%rank, ro%oversampling, ro%power, trim(ro%sketch), ro%seed, result, error, &
         eps=eps, n_modes=n_modes)
     case default
-      call set_error(error, "pod: unknown method '" // trim(method) // "' (known: tsqr, rsvd, scalapack, snapshots)", 2)
+      call set_error(error, "pod: unknown method '" // trim(method) // "' (known: tsqr, rsvd, scalapack, snapshots)", &
+        EXIT_BAD_INPUT)
     end select
   end subroutine pod_compute
 

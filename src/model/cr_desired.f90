@@ -29,6 +29,7 @@ module cr_desired
   use cr_distance_field, only: distance_field_t
   use cr_geodesic, only: geodesic_t, GEODESIC_MAX_CIRCLES
   use cr_xy_text, only: read_xy_text
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: desired_t, exact_applies
@@ -102,7 +103,7 @@ contains
       this%use_field = .false.
     case ('exact')
       if (.not. exact_applies(scene, radius, why)) then
-        call set_error(error, "&desired: field = 'exact' does not apply to this scene: " // why, 2)
+        call set_error(error, "&desired: field = 'exact' does not apply to this scene: " // why, EXIT_BAD_INPUT)
         return
       end if
       this%use_exact = .true.

@@ -24,6 +24,7 @@ module cr_param_model
   use cr_scene, only: scene_t
   use cr_desired, only: desired_t
   use cr_random, only: rng_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: param_model_t, KNOWN_PARAMS, KNOWN_PARAMS_TEXT, SPEED_SEED_MAX, draw_speeds
@@ -105,24 +106,24 @@ contains
       else if (index(tok, 'speed_') == 1) then
         read(tok(7:), *, iostat=ios) j
         if (ios /= 0) then
-          call set_error(error, "parameter component '" // tok // "' is not understood", 2); return
+          call set_error(error, "parameter component '" // tok // "' is not understood", EXIT_BAD_INPUT); return
         end if
         if (j == 1) then
           n = n + 1; names(n) = 'speeds'
         end if
       else if (len(tok) > 0) then
         call set_error(error, "parameter component '" // tok // "' is not a known parameter (known: " // &
-          KNOWN_PARAMS_TEXT // ")", 2); return
+          KNOWN_PARAMS_TEXT // ")", EXIT_BAD_INPUT); return
       end if
       if (n >= size(names)) exit
     end do
     call this%init_model(names(1:n), n_agents)
     if (any(names(1:n) == 'speed_mean') .neqv. any(names(1:n) == 'speed_spread')) then
-      call set_error(error, "parameter components '" // csv // "': speed_mean and speed_spread go together", 2)
+      call set_error(error, "parameter components '" // csv // "': speed_mean and speed_spread go together", EXIT_BAD_INPUT)
       return
     end if
     if (this%component_names() /= csv) call set_error(error, "parameter components '" // csv // &
-      "' do not describe " // str(n_agents) // " agents", 2)
+      "' do not describe " // str(n_agents) // " agents", EXIT_BAD_INPUT)
   end subroutine init_from_components
 
   !> Comma-separated component names, e.g. "l_exit,speed_1,...,speed_20".

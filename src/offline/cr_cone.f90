@@ -18,6 +18,7 @@ module cr_cone
   !> the result of a cone construction is the cone record of the ROM file
   use cr_rom_file, only: cone_result_t => rom_cone_t
   use cr_nnls, only: nnls_solve, nnls_stats_t, ldp_solve, ldp_stats_t, nnls_work_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: sparse_columns_t, cone_result_t, gis_build, mcpg_build, cone_project_gram
@@ -196,7 +197,7 @@ contains
     res%method = 'gis'
     call check_columns(lam, error); if (allocated(error)) return
     if (delta < 0 .or. r_max < 0) then
-      call set_error(error, "gis: delta must be >= 0 and r_max >= 0", 2); return
+      call set_error(error, "gis: delta must be >= 0 and r_max >= 0", EXIT_BAD_INPUT); return
     end if
     allocate(res2(max(lam%n_cols, 1)), col(max(lam%n_rows, 1)), chosen(max(lam%n_rows, 1)))
     allocate(sel(r_max), sig(r_max), tmp_err(r_max + 1), tmp_mean(r_max + 1))
@@ -354,7 +355,7 @@ contains
     res%method = 'mcpg'
     call check_columns(lam, error); if (allocated(error)) return
     if (delta < 0 .or. r_max < 0) then
-      call set_error(error, "mcpg: delta must be >= 0 and r_max >= 0", 2); return
+      call set_error(error, "mcpg: delta must be >= 0 and r_max >= 0", EXIT_BAD_INPUT); return
     end if
     call mcpg_init(env, lam, r_max, st, error); if (allocated(error)) return
     allocate(col(max(lam%n_rows, 1)), resid(max(lam%n_rows, 1)))

@@ -14,6 +14,7 @@ module cr_offline_data
   use cr_snapshot_file, only: snap_header_t, snap_block_t, read_snap_header, read_snap_block
   use cr_distribution, only: block_range
   use cr_cone, only: sparse_columns_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: offline_data_t, load_training
@@ -68,14 +69,14 @@ contains
         str(data%n_agents) // ", radius " // str(data%radius) // ", dt " // str(data%dt) // &
         ") than the input (n_agents " // str(cfg%agents%n_agents) // ", radius " // &
         str(cfg%agents%radius + cfg%agents%social_distance / 2) // &
-        ", dt " // str(cfg%time%dt) // ")", 2); return
+        ", dt " // str(cfg%time%dt) // ")", EXIT_BAD_INPUT); return
     end if
     data%n_dof = hdr%n_dof
     nt = data%n_steps
     call block_range(data%n_train, env%size, env%rank, data%s0, data%ns)
     call read_snap_block(hdr, 'train', data%s0 + 1, data%ns, .true., .true., blk, error, env=env)
     if (allocated(error)) then
-      if (error%code == 2) error%message = "&offline: database: " // error%message
+      if (error%code == EXIT_BAD_INPUT) error%message = "&offline: database: " // error%message
       return
     end if
     ! velocities, desired velocities and the configurations before each step
@@ -114,7 +115,7 @@ contains
     if (data%n_dict > 0) then
       if (maxval(data%dict_ob) > data%scenes(1)%n_obstacles()) call set_error(error, "&offline: database '" // &
         path // "': dataset 'contacts/ob': obstacle index " // str(maxval(data%dict_ob)) // " but the scene has " // &
-        str(data%scenes(1)%n_obstacles()) // " obstacles", 2)
+        str(data%scenes(1)%n_obstacles()) // " obstacles", EXIT_BAD_INPUT)
     end if
 
   end subroutine load_training

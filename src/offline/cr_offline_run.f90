@@ -27,6 +27,7 @@ module cr_offline_run
   use cr_rom_pairs, only: rom_pair_t, build_pair, hyper_summary, cone_prefix
   use cr_hyper_method, only: points_cap
   use cr_eim, only: eim_t, eim_build
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: offline_run_t
@@ -118,7 +119,7 @@ contains
       nmodes = ocfg%pod_n
       if (nmodes > 0 .and. nmodes > data%n_dof) then
         call set_error(error, "&pod: n = " // str(nmodes) // " is larger than the number of velocity " // &
-          "dofs (" // str(data%n_dof) // ")", 2)
+          "dofs (" // str(data%n_dof) // ")", EXIT_BAD_INPUT)
       end if
       call env%agree_error(error)
       if (allocated(error)) return
@@ -326,11 +327,11 @@ contains
       do k = 1, size(nn)
         if (nn(k) > size(phi, 2)) then
           call set_error(error, this%input // ": &pairs: n(" // str(k) // ") = " // str(nn(k)) // &
-            " exceeds the " // str(size(phi, 2)) // " POD modes kept (&pod n / energy)", 2); return
+            " exceeds the " // str(size(phi, 2)) // " POD modes kept (&pod n / energy)", EXIT_BAD_INPUT); return
         end if
         if (rr(k) > scone%r) then
           call set_error(error, this%input // ": &pairs: r(" // str(k) // ") = " // str(rr(k)) // &
-            " exceeds the " // str(scone%r) // " cone vectors built (&cone r_max / delta)", 2); return
+            " exceeds the " // str(scone%r) // " cone vectors built (&cone r_max / delta)", EXIT_BAD_INPUT); return
         end if
         hit(k) = 0
         nb(k) = nn(k)

@@ -17,6 +17,7 @@ module cr_rom_pairs
   use cr_hyper_factory, only: stored_hypers
   use cr_rom_file, only: rom_pair_t
   use cr_eim, only: eim_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: rom_pair_t, build_pair, cone_prefix, hyper_summary
@@ -60,11 +61,11 @@ contains
     real(wp) :: t0
     if (n < 1 .or. n > size(phi, 2)) then
       call set_error(error, "&pairs: n = " // str(n) // " but the POD kept " // str(size(phi, 2)) // &
-        " modes", 2); return
+        " modes", EXIT_BAD_INPUT); return
     end if
     if (r < 0 .or. r > cone%r) then
       call set_error(error, "&pairs: r = " // str(r) // " but the cone has " // str(cone%r) // &
-        " vectors", 2); return
+        " vectors", EXIT_BAD_INPUT); return
     end if
     pair%n = n; pair%r = r
     pair%v = phi(:, 1:n)

@@ -33,6 +33,7 @@ module cr_supremizer
   use cr_scene, only: scene_t
   use cr_contact_eval, only: eval_contact
   use cr_sparse_cone, only: sparse_cone_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: pga_result_t, pga_enrich, supremizer, ROUNDOFF_FLOOR
@@ -198,11 +199,11 @@ contains
     end if
     if (present(exact_route)) then
       if (exact_route /= 'auto' .and. exact_route /= 'rows' .and. exact_route /= 'candidates') then
-        call set_error(error, "pga: exact_route = '" // exact_route // "' (known: auto, rows, candidates)", 2); return
+        call set_error(error, "pga: exact_route = '" // exact_route // "' (known: auto, rows, candidates)", EXIT_BAD_INPUT); return
       end if
     end if
     if (delta < 0 .or. max_add < 0) then
-      call set_error(error, "pga: delta must be >= 0 and max_add >= 0", 2); return
+      call set_error(error, "pga: delta must be >= 0 and max_add >= 0", EXIT_BAD_INPUT); return
     end if
   end subroutine pga_check
 

@@ -7,7 +7,7 @@
 !> the full model of the study's configuration (its &solver) on the same list; model =
 !> 'positions' runs nothing: the trajectories are given in the HDF5 params_file (dataset
 !> `positions`, query k's frames 0..n_steps in rows (k - 1)(n_steps + 1) + 1.., the layout of the
-!> product's positions) and only measured (the ML correction's QoIs, scripts/ml_correct.py).
+!> product's positions) and only measured (the ML correction's QoIs, scripts/pipeline/ml_correct.py).
 !> `label` (default: derived from the model) names the model in the product.
 !>
 !> The list: `params_file` (a text file, a header naming the columns then one query per row,
@@ -26,6 +26,7 @@ module cr_predict_config
   use cr_paths, only: io_paths_t
   use cr_sane, only: need_sane
   use cr_hyper_factory, only: hyper_known, hyper_name_list
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: predict_cfg_t, read_predict, check_predict, check_predict_paths, predict_echo, MAX_DIST, DIST_NAMES
@@ -96,7 +97,7 @@ contains
     integer :: ios
     character(len=512) :: msg
     if (.not. t%has_group('predict')) then
-      call set_error(error, t%path // ": namelist group &predict is missing", 2); return
+      call set_error(error, t%path // ": namelist group &predict is missing", EXIT_BAD_INPUT); return
     end if
     rom_file = c%rom_file; output = c%output; model = c%model; label = c%label; n = c%n; r = c%r; hyper = c%hyper
     contacts = c%contacts; m_v = c%m_v; m_b = c%m_b; m_d = c%m_d; correction = c%correction; solver = c%solver

@@ -37,6 +37,7 @@ module cr_predict_run
     write_predict_product
   use cr_json, only: json_writer_t
   use cr_h5file, only: h5file_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: predict_run_t
@@ -99,7 +100,7 @@ contains
     if (n_out > 0 .and. cfg%out_of_box == 'refuse') then
       call set_error(error, this%where // ": " // str(n_out) // " of " // str(this%list%n) // " queries lie outside " // &
         "the training box (first: query " // str(findloc(this%list%out_of_box, .true., 1)) // "; out_of_box = " // &
-        "'refuse')", 2); return
+        "'refuse')", EXIT_BAD_INPUT); return
     end if
     if (cfg%model == 'positions') then
       call check_given(this, error)
@@ -124,19 +125,19 @@ contains
     what = this%where // ": params_file '" // trim(this%cfg%params_file) // "'"
     call this%given%open(trim(this%cfg%params_file), error)
     if (allocated(error)) then
-      error%message = what // ": " // error%message; error%code = 2; return
+      error%message = what // ": " // error%message; error%code = EXIT_BAD_INPUT; return
     end if
     if (.not. this%given%exists("positions")) then
-      call set_error(error, what // ": no dataset 'positions' (model = 'positions')", 2)
+      call set_error(error, what // ": no dataset 'positions' (model = 'positions')", EXIT_BAD_INPUT)
     else
       call this%given%get_dims("positions", dims, error)
       if (.not. allocated(error)) then
         if (size(dims) /= 2) then
-          call set_error(error, what // ": dataset 'positions' must be 2-dimensional", 2)
+          call set_error(error, what // ": dataset 'positions' must be 2-dimensional", EXIT_BAD_INPUT)
         else if (dims(1) /= this%st%n_dof .or. dims(2) /= this%list%n * (this%st%n_steps + 1)) then
           call set_error(error, what // ": dataset 'positions' has " // str(dims(2)) // " x " // str(dims(1)) // &
             " entries, expected n_queries (n_steps + 1) x n_dof = " // str(this%list%n * (this%st%n_steps + 1)) // &
-            " x " // str(this%st%n_dof), 2)
+            " x " // str(this%st%n_dof), EXIT_BAD_INPUT)
         end if
       end if
     end if
@@ -146,7 +147,7 @@ contains
         if (.not. allocated(error)) then
           if (size(this%given_cpu) /= this%list%n .or. .not. all(this%given_cpu >= 0 .and. &
               this%given_cpu <= huge(1.0_wp))) call set_error(error, what // ": dataset 'cpu_seconds' must hold " // &
-            str(this%list%n) // " finite values >= 0", 2)
+            str(this%list%n) // " finite values >= 0", EXIT_BAD_INPUT)
         end if
       else
         allocate(this%given_cpu(this%list%n))
@@ -350,7 +351,7 @@ contains
     allocate(q(this%st%n_dof, nc))
     call this%given%read_block("positions", q, (k - 1) * nc, error)
     if (allocated(error)) then
-      call prefix_error(error, "params_file: dataset 'positions'"); error%code = 2; return
+      call prefix_error(error, "params_file: dataset 'positions'"); error%code = EXIT_BAD_INPUT; return
     end if
     call need_finite_q(q, error); if (allocated(error)) return
     call this%st%space%scene_of(this%list%mu(:, k), this%st%cfg, scene, error)
@@ -361,7 +362,7 @@ contains
     real(wp), intent(in) :: q(:,:)
     type(error_t), allocatable, intent(out) :: error
     if (all(abs(q) <= huge(1.0_wp))) return
-    call set_error(error, "params_file: dataset 'positions': a value is not finite", 2)
+    call set_error(error, "params_file: dataset 'positions': a value is not finite", EXIT_BAD_INPUT)
   end subroutine need_finite_q
 
   !> Rank 0 receives every rank's records and puts them in query order (this%rec).

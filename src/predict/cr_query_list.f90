@@ -22,6 +22,7 @@ module cr_query_list
   use cr_sampling, only: param_space_t
   use cr_config, only: config_t
   use cr_predict_config, only: predict_cfg_t, MAX_DIST
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: query_list_t, load_queries
@@ -71,12 +72,12 @@ contains
       list%source = "sampling, seed " // str(c%seed)
     end if
     if (list%n == 0) then
-      call set_error(error, what // ": the list holds no query", 2); return
+      call set_error(error, what // ": the list holds no query", EXIT_BAD_INPUT); return
     end if
     do k = 1, list%n
       call space%check_values(list%mu(:, k), cfg, what // ": query " // str(k), error)
       if (allocated(error)) then
-        error%code = 2; return
+        error%code = EXIT_BAD_INPUT; return
       end if
     end do
     allocate(list%out_of_box(list%n))
@@ -117,10 +118,10 @@ contains
       col(j) = findloc(known, names(j), 1)
       if (col(j) == 0) then
         call set_error(error, what // ": column '" // trim(names(j)) // "' is not a parameter of the study (" // &
-          "components: " // space%component_names() // ")", 2); return
+          "components: " // space%component_names() // ")", EXIT_BAD_INPUT); return
       end if
       if (seen(col(j))) then
-        call set_error(error, what // ": column '" // trim(names(j)) // "' is given twice", 2); return
+        call set_error(error, what // ": column '" // trim(names(j)) // "' is given twice", EXIT_BAD_INPUT); return
       end if
       seen(col(j)) = .true.
     end do
@@ -129,7 +130,7 @@ contains
       j = findloc(seen, .false., 1)
       call set_error(error, what // ": " // str(m) // " component(s) of the study have no column (first: '" // &
         trim(known(j)) // "'; the header must name " // str(size(known)) // " columns: " // &
-        space%component_names() // ")", 2)
+        space%component_names() // ")", EXIT_BAD_INPUT)
     end if
   end subroutine map_header
 
@@ -179,7 +180,7 @@ contains
     character(len=256) :: msg
     open(newunit=u, file=path, status='old', action='read', iostat=ios, iomsg=msg)
     if (ios /= 0) then
-      call set_error(error, what // ": cannot open (" // trim(msg) // ")", 2); return
+      call set_error(error, what // ": cannot open (" // trim(msg) // ")", EXIT_BAD_INPUT); return
     end if
     allocate(mu(space%n_expanded, 64))
     lineno = 0
@@ -198,7 +199,7 @@ contains
       call split(trim(line), tok)
       if (size(tok) /= size(col)) then
         call set_error(error, what // ": line " // str(lineno) // " has " // str(size(tok)) // " values, the " // &
-          "header names " // str(size(col)) // " columns", 2); goto 9
+          "header names " // str(size(col)) // " columns", EXIT_BAD_INPUT); goto 9
       end if
       if (list%n == size(mu, 2)) mu = reshape(mu, [size(mu, 1), 2 * size(mu, 2)], pad=[0.0_wp])
       list%n = list%n + 1
@@ -206,17 +207,17 @@ contains
         read(tok(j), *, iostat=ios) x
         if (ios /= 0) then
           call set_error(error, what // ": line " // str(lineno) // ", column " // str(j) // ": '" // trim(tok(j)) // &
-            "' is not a number", 2); goto 9
+            "' is not a number", EXIT_BAD_INPUT); goto 9
         end if
         if (.not. ieee_is_finite(x)) then
           call set_error(error, what // ": line " // str(lineno) // ", column " // str(j) // ": '" // trim(tok(j)) // &
-            "' is not a finite number", 2); goto 9
+            "' is not a finite number", EXIT_BAD_INPUT); goto 9
         end if
         mu(col(j), list%n) = x
       end do
     end do
     if (.not. allocated(col)) then
-      call set_error(error, what // ": no header line (the component names " // space%component_names() // ")", 2)
+      call set_error(error, what // ": no header line (the component names " // space%component_names() // ")", EXIT_BAD_INPUT)
       goto 9
     end if
     list%mu = mu(:, 1:list%n)
@@ -237,10 +238,10 @@ contains
     integer :: j, k
     call h5%open(path, error)
     if (allocated(error)) then
-      error%message = what // ": cannot open (" // error%message // ")"; error%code = 2; return
+      error%message = what // ": cannot open (" // error%message // ")"; error%code = EXIT_BAD_INPUT; return
     end if
     if (.not. h5%exists(dset)) then
-      call set_error(error, what // ": no dataset '" // dset // "'", 2); goto 9
+      call set_error(error, what // ": no dataset '" // dset // "'", EXIT_BAD_INPUT); goto 9
     end if
     call h5%read_attr(dset, "param_names", header, error)
     if (allocated(error)) then
@@ -249,16 +250,16 @@ contains
     end if
     if (allocated(error)) then
       call set_error(error, what // ": no attribute 'param_names' on dataset '" // dset // "' or the root (the " // &
-        "column names, comma-separated)", 2); goto 9
+        "column names, comma-separated)", EXIT_BAD_INPUT); goto 9
     end if
     call map_header(header, space, what // ": dataset '" // dset // "'", col, error); if (allocated(error)) goto 9
     call h5%read(dset, raw, error)
     if (allocated(error)) then
-      call prefix_error(error, what // ": dataset '" // dset // "'"); error%code = 2; goto 9
+      call prefix_error(error, what // ": dataset '" // dset // "'"); error%code = EXIT_BAD_INPUT; goto 9
     end if
     if (size(raw, 1) /= size(col)) then
       call set_error(error, what // ": dataset '" // dset // "' has " // str(size(raw, 1)) // " columns, " // &
-        "param_names names " // str(size(col)), 2); goto 9
+        "param_names names " // str(size(col)), EXIT_BAD_INPUT); goto 9
     end if
     list%n = size(raw, 2)
     allocate(list%mu(space%n_expanded, list%n))
@@ -266,7 +267,7 @@ contains
       do j = 1, size(col)
         if (.not. ieee_is_finite(raw(j, k))) then
           call set_error(error, what // ": dataset '" // dset // "', query " // str(k) // ", column " // str(j) // &
-            ": " // str(raw(j, k)) // " is not a finite number", 2); goto 9
+            ": " // str(raw(j, k)) // " is not a finite number", EXIT_BAD_INPUT); goto 9
         end if
         list%mu(col(j), k) = raw(j, k)
       end do
@@ -291,7 +292,7 @@ contains
       p = findloc(space%names, c%dist_param(j), 1)
       if (p == 0) then
         call set_error(error, where // ": dist_param(" // str(j) // ") = '" // trim(c%dist_param(j)) // "' is not " // &
-          "a parameter of the study (parameters: " // names_text(space) // ")", 2); return
+          "a parameter of the study (parameters: " // names_text(space) // ")", EXIT_BAD_INPUT); return
       end if
       dist_of(p) = j
     end do

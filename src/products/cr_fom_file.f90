@@ -30,6 +30,7 @@ module cr_fom_file
   use cr_product_check, only: check_schema, need_finite, need_range, need_dims, product_error
   use cr_qoi, only: qoi_t
   use cr_qoi_file, only: write_qoi_group
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: fom_writer_t, fom_file_t, read_fom_file, write_scene, FOM_SCHEMA, FOM_SCHEMA_VERSION, FOM_VERSIONS_READ
@@ -353,7 +354,7 @@ contains
     integer :: version, nd, c
     call h5%open(path, error)
     if (allocated(error)) then
-      error%code = 2; return
+      error%code = EXIT_BAD_INPUT; return
     end if
     f%path = path
     call check_schema(h5, path, FOM_SCHEMA, FOM_VERSIONS_READ, "full-order output", version, error)
@@ -425,7 +426,7 @@ contains
     end do
 9   call h5%close(e2)
     if (allocated(error)) then
-      if (error%code /= 2) call prefix_error(error, "full-order output '" // path // "'")
+      if (error%code /= EXIT_BAD_INPUT) call prefix_error(error, "full-order output '" // path // "'")
       return
     end if
     if (allocated(e2)) call move_alloc(e2, error)

@@ -1,5 +1,5 @@
 !> The files of the position projection (crowd_project, docs/file-formats.md):
-!> - the request (schema "crowdrom-projreq", version 1), written by scripts/ml_correct.py:
+!> - the request (schema "crowdrom-projreq", version 1), written by scripts/pipeline/ml_correct.py:
 !>   root attributes `database` (snapshot database the positions belong to: its configuration
 !>   gives the scene, &solver and &contacts), `output` (result file to write), `n_agents`,
 !>   `configs_per_sample`, `solver` ('' = the database's &solver name), `tol` (0 = the
@@ -23,6 +23,7 @@ module cr_projection_file
   use cr_strings, only: str
   use cr_h5file, only: h5file_t
   use cr_product_check, only: check_schema, need_finite, need_dims, product_error
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: PROJREQ_SCHEMA, PROJRES_SCHEMA, proj_request_t, proj_result_t, read_proj_request, &
@@ -31,8 +32,8 @@ module cr_projection_file
   character(len=*), parameter :: PROJREQ_SCHEMA = "crowdrom-projreq"
   character(len=*), parameter :: PROJRES_SCHEMA = "crowdrom-projected"
   !> request versions read; result version written (2: without the always-zero `grows`)
-  integer, parameter :: VERSIONS_READ(1) = [1]
-  integer, parameter :: PROJRES_VERSION = 2
+  integer, parameter :: PROJREQ_VERSIONS_READ(1) = [1]
+  integer, parameter :: PROJRES_SCHEMA_VERSION = 2
 
   !> A projection request.
   type :: proj_request_t
@@ -75,7 +76,7 @@ contains
     call h5%open(path, e2)
     if (allocated(e2)) then
       ! the message is copied out of e2 before error (intent(out) in set_error) is allocated
-      call set_error(error, "'" // path // "': cannot open the projection request (" // e2%message // ")", 2)
+      call set_error(error, "'" // path // "': cannot open the projection request (" // e2%message // ")", EXIT_BAD_INPUT)
       return
     end if
     call body(error)
@@ -84,7 +85,7 @@ contains
   contains
     subroutine body(error)
       type(error_t), allocatable, intent(out) :: error
-      call check_schema(h5, path, PROJREQ_SCHEMA, VERSIONS_READ, "projection request", version, error)
+      call check_schema(h5, path, PROJREQ_SCHEMA, PROJREQ_VERSIONS_READ, "projection request", version, error)
       if (allocated(error)) return
       call h5%read_attr("/", "database", req%database, error); if (allocated(error)) goto 9
       call h5%read_attr("/", "output", req%output, error); if (allocated(error)) goto 9
@@ -130,7 +131,7 @@ contains
       call need_finite(path, "params", req%params, error); if (allocated(error)) return
       call need_finite(path, "positions", req%positions, error)
       return
-9     error%code = 2
+9     error%code = EXIT_BAD_INPUT
       call prefix_error(error, "projection request '" // path // "'")
     end subroutine body
   end subroutine read_proj_request
@@ -166,7 +167,7 @@ contains
     subroutine body(error)
       type(error_t), allocatable, intent(out) :: error
       call h5%write_attr("/", "schema", PROJRES_SCHEMA, error); if (allocated(error)) return
-      call h5%write_attr("/", "schema_version", PROJRES_VERSION, error); if (allocated(error)) return
+      call h5%write_attr("/", "schema_version", PROJRES_SCHEMA_VERSION, error); if (allocated(error)) return
       call h5%write_attr("/", "request", req%path, error); if (allocated(error)) return
       call h5%write_attr("/", "database", req%database, error); if (allocated(error)) return
       call h5%write_attr("/", "solver", res%solver, error); if (allocated(error)) return

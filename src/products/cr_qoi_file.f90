@@ -19,6 +19,7 @@ module cr_qoi_file
   use cr_digest, only: digest_of, put_digest, check_digest, DIGEST_ALGORITHM
   use cr_product_check, only: check_schema, need_finite, need_range, need_dims, product_error
   use cr_qoi, only: qoi_t, QOI_PCT, QOI_FLOW_LO, QOI_FLOW_HI
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: QOI_SCHEMA, QOI_SCHEMA_VERSION, QOI_VERSIONS_READ, QOI_UNITS, qoi_product_t, write_qoi_product, &
@@ -304,7 +305,7 @@ contains
     integer :: version, n, np
     call h5%open(path, error)
     if (allocated(error)) then
-      error%code = 2; return
+      error%code = EXIT_BAD_INPUT; return
     end if
     call check_schema(h5, path, QOI_SCHEMA, QOI_VERSIONS_READ, "QoI product", version, error); if (allocated(error)) goto 9
     call h5%read_attr("/", "program", p%program, error); if (allocated(error)) goto 9
@@ -338,7 +339,7 @@ contains
       str(n), error)
 9   call h5%close(e2)
     if (allocated(error)) then
-      if (error%code /= 2) call prefix_error(error, "QoI product '" // path // "'")
+      if (error%code /= EXIT_BAD_INPUT) call prefix_error(error, "QoI product '" // path // "'")
       return
     end if
     if (allocated(e2)) call move_alloc(e2, error)

@@ -24,6 +24,7 @@ module cr_rom_file
   use cr_hyper_method, only: hyper_slot_t, TERM_NAMES
   use cr_hyper_factory, only: stored_hypers
   use cr_product_check, only: check_schema, need_finite, need_range, need_size, product_error
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: rom_file_t, rom_pair_t, rom_cone_t, rom_tables_t, write_rom_file, read_rom_file, read_rom_pair, &
@@ -315,7 +316,7 @@ contains
     call h5%open(path, error)
     if (allocated(error)) then
       error%message = where // " '" // path // "': cannot open (" // error%message // ")"
-      error%code = 2; return
+      error%code = EXIT_BAD_INPUT; return
     end if
     rom%path = path
     call check_schema(h5, path, ROM_SCHEMA, ROM_VERSIONS_READ, "ROM file", version, error); if (allocated(error)) goto 9
@@ -384,9 +385,9 @@ contains
     end do
 9   call h5%close(e2)
     if (allocated(error)) then
-      if (error%code /= 2) call prefix_error(error, where // " '" // path // "'")
-      if (error%code == 2 .and. index(error%message, where) /= 1) error%message = where // ": " // error%message
-      error%code = 2
+      if (error%code /= EXIT_BAD_INPUT) call prefix_error(error, where // " '" // path // "'")
+      if (error%code == EXIT_BAD_INPUT .and. index(error%message, where) /= 1) error%message = where // ": " // error%message
+      error%code = EXIT_BAD_INPUT
       return
     end if
     if (allocated(e2)) call move_alloc(e2, error)
@@ -491,7 +492,7 @@ contains
     end do
     k = 0
     call set_error(error, where // ": (N, R) = (" // str(n) // ", " // str(r) // ") is not prepared in ROM file '" // &
-      rom%path // "' (stored pairs (N, R):" // list // "; add it to &pairs n / r and rerun crowd_offline)", 2)
+      rom%path // "' (stored pairs (N, R):" // list // "; add it to &pairs n / r and rerun crowd_offline)", EXIT_BAD_INPUT)
   end subroutine find_pair
 
   !> Read pair k of the ROM file and validate it (sizes, finite values, indices in range).
@@ -570,7 +571,7 @@ contains
     end if
 9   call h5%close(e2)
     if (allocated(error)) then
-      if (error%code /= 2) call prefix_error(error, "ROM file '" // path // "', pair " // str(k))
+      if (error%code /= EXIT_BAD_INPUT) call prefix_error(error, "ROM file '" // path // "', pair " // str(k))
       return
     end if
     if (allocated(e2)) call move_alloc(e2, error)

@@ -15,6 +15,7 @@ module cr_romrun_file
   use cr_product_check, only: check_schema, need_finite, need_dims, product_error
   use cr_qoi, only: qoi_t
   use cr_qoi_file, only: write_qoi_group, read_qoi_group
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: ROMRUN_SCHEMA, ROMRUN_SCHEMA_VERSION, ROMRUN_VERSIONS_READ, romrun_header_t, romrun_row_t, &
@@ -359,7 +360,7 @@ contains
     integer :: version, ks, is, nset
     call h5%open(path, error)
     if (allocated(error)) then
-      error%code = 2; return
+      error%code = EXIT_BAD_INPUT; return
     end if
     call check_schema(h5, path, ROMRUN_SCHEMA, ROMRUN_VERSIONS_READ, "ROM-run file", version, error)
     if (allocated(error)) goto 9
@@ -386,7 +387,7 @@ contains
     call read_romrun_table(h5, path, run, error)
 9   call h5%close(e2)
     if (allocated(error)) then
-      if (error%code /= 2) call prefix_error(error, "ROM-run file '" // path // "'")
+      if (error%code /= EXIT_BAD_INPUT) call prefix_error(error, "ROM-run file '" // path // "'")
       return
     end if
     if (allocated(e2)) call move_alloc(e2, error)

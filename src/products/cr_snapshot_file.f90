@@ -32,6 +32,7 @@ module cr_snapshot_file
   use cr_fsys, only: rename_file, remove_file, block_file_t
   use cr_qoi, only: qoi_t
   use cr_qoi_file, only: write_qoi_group
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: SNAP_SCHEMA, SNAP_SCHEMA_VERSION, SNAP_VERSIONS_READ, SNAP_UNITS, db_meta_t, snap_header_t, &
@@ -1358,13 +1359,13 @@ contains
     call h5%open(path, error, env=env)
     if (allocated(error)) then
       error%message = where // ": '" // path // "': cannot open the snapshot database (" // error%message // ")"
-      error%code = 2; return
+      error%code = EXIT_BAD_INPUT; return
     end if
     call header_of(h5, path, hdr, error)
     call h5%close(e2)
     if (allocated(error)) then
       if (index(error%message, where) /= 1) error%message = where // ": " // error%message
-      error%code = 2
+      error%code = EXIT_BAD_INPUT
       return
     end if
     if (allocated(e2)) call move_alloc(e2, error)
@@ -1484,8 +1485,8 @@ contains
     end if
 9   call h5%close(e2)
     if (allocated(error)) then
-      if (error%code /= 2) call prefix_error(error, "database '" // rc%path // "', set " // name)
-      error%code = 2
+      if (error%code /= EXIT_BAD_INPUT) call prefix_error(error, "database '" // rc%path // "', set " // name)
+      error%code = EXIT_BAD_INPUT
       return
     end if
     if (allocated(e2)) call move_alloc(e2, error)
@@ -1512,7 +1513,7 @@ contains
       call set_error(error, "'" // path // "': snapshot database schema version " // str(hdr%version) // &
         " has no per-sample checksums: samples " // str(k0) // ".." // str(k0 + nloc - 1) // " of the " // &
         str(n) // " of set " // name // " cannot be verified (read the whole set, or rerun crowd_snapshots " // &
-        "to write version " // str(SNAP_SCHEMA_VERSION) // ")", 2); return
+        "to write version " // str(SNAP_SCHEMA_VERSION) // ")", EXIT_BAD_INPUT); return
     end if
     end associate
   end subroutine block_request

@@ -47,6 +47,7 @@ module cr_local_correction
   use cr_neighbours, only: build_contacts
   use cr_projection, only: projection_settings_t, solve_stats_t
   use cr_local_projection, only: local_projection_t, lin_gap, add_ring, max_agent_norm
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: local_correction_t, local_stats_t
@@ -132,13 +133,13 @@ contains
     na = size(q) / 2
     if (size(q) /= 2 * na .or. size(u_r) /= size(q) .or. size(u) /= size(q)) then
       call set_error(error, "local_correction: inconsistent sizes: q " // str(size(q)) // ", u_r " // &
-        str(size(u_r)) // ", u " // str(size(u)), 2); return
+        str(size(u_r)) // ", u " // str(size(u)), EXIT_BAD_INPUT); return
     end if
     if (.not. (ieee_is_finite(h) .and. ieee_is_finite(radius) .and. h > 0 .and. radius > 0)) then
-      call set_error(error, "local_correction: h and radius must be finite and > 0", 2); return
+      call set_error(error, "local_correction: h and radius must be finite and > 0", EXIT_BAD_INPUT); return
     end if
     if (.not. (all(ieee_is_finite(q)) .and. all(ieee_is_finite(u_r)))) then
-      call set_error(error, "local_correction: q and u_r must be finite", 2); return
+      call set_error(error, "local_correction: q and u_r must be finite", EXIT_BAD_INPUT); return
     end if
     if (allocated(this%corrected)) then
       if (size(this%corrected) /= na) deallocate(this%corrected)

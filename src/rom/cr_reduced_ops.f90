@@ -20,6 +20,7 @@ module cr_reduced_ops
   use cr_hyper_method, only: hyper_method_t
   use cr_hyper_factory, only: HYPER_NAMES, new_hyper
   use cr_hyper_eim, only: ops_eim_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: eval_ctx_t, reduced_ops_t, make_reduced_ops, HYPER_NAMES, eim_exact_rows
@@ -84,7 +85,8 @@ contains
     end if
     if (j == 0) then
       call set_error(error, where // ": the ROM file stores no hyper-reduction '" // method%storage() // &
-        "' for (N, R) = (" // str(pair%n) // ", " // str(pair%r) // ") (&hyper enabled = .false.); use hyper = 'none'", 2)
+        "' for (N, R) = (" // str(pair%n) // ", " // str(pair%r) // ") (&hyper enabled = .false.); use hyper = 'none'", &
+        EXIT_BAD_INPUT)
       return
     end if
     call pair%methods(j)%m%make_ops(trim(hyper), pair%v, pair%terms, pair%n, pair%r, m_req, where, ops, error)

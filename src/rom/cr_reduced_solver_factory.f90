@@ -6,6 +6,7 @@ submodule (cr_reduced_solver) cr_reduced_solver_factory
   use cr_reduced_dual, only: reduced_dual_t
   use cr_reduced_nnls, only: reduced_nnls_t
   use cr_reduced_uzawa, only: reduced_uzawa_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
 contains
   module subroutine make_reduced_solver(cfg, solver, error)
@@ -21,7 +22,7 @@ contains
       allocate(reduced_uzawa_t :: solver)
     case default
       call set_error(error, "make_reduced_solver: unknown reduced solver '" // trim(cfg%name) // &
-        "'; known names: " // known_reduced_solvers, 2)
+        "'; known names: " // known_reduced_solvers, EXIT_BAD_INPUT)
       return
     end select
     call solver%init(cfg)

@@ -22,6 +22,7 @@ module cr_rom_config
   use cr_paths, only: io_paths_t
   use cr_sane, only: need_sane, MAX_SPEED
   use cr_hyper_factory, only: hyper_known, hyper_name_list
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: check_rom_paths
@@ -96,7 +97,7 @@ contains
     type(rom_cfg_t), intent(inout) :: c
     type(error_t), allocatable, intent(out) :: error
     if (.not. t%has_group('rom')) then
-      call set_error(error, t%path // ": namelist group &rom is missing", 2); return
+      call set_error(error, t%path // ": namelist group &rom is missing", EXIT_BAD_INPUT); return
     end if
     call read_rom_groups(t, c, error)
   end subroutine read_rom

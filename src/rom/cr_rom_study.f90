@@ -17,6 +17,7 @@ module cr_rom_study
   use cr_h5file, only: h5file_t
   use cr_qoi, only: qoi_t
   use cr_qoi_file, only: read_qoi_group
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: rom_study_t, sample_block_t, open_study, open_rom_study, read_block_set
@@ -68,7 +69,7 @@ contains
     st%hash = st%db%hash
     if (st%hash /= hdr%db_hash) then
       call set_error(error, where // ": ROM file '" // hdr%path // "' was built from another study (database " // &
-        "config_hash " // hdr%db_hash // ", but '" // path // "' has " // st%hash // ")", 2); return
+        "config_hash " // hdr%db_hash // ", but '" // path // "' has " // st%hash // ")", EXIT_BAD_INPUT); return
     end if
     st%n_agents = st%db%n_agents; st%n_steps = st%db%n_steps
     st%n_train = st%db%n_train; st%n_valid = st%db%n_valid
@@ -78,13 +79,13 @@ contains
     st%n_dof = st%db%n_dof
     if (st%n_agents /= hdr%n_agents .or. st%n_steps /= hdr%n_steps) then
       call set_error(error, where // ": ROM file '" // hdr%path // "' and database '" // path // &
-        "' disagree on n_agents / n_steps", 2); return
+        "' disagree on n_agents / n_steps", EXIT_BAD_INPUT); return
     end if
     call parse_study(path // " (attribute config)", st%db%config_text, st, error)
     if (allocated(error)) return
     if (st%space%n_expanded /= st%db%n_params) then
       call set_error(error, where // " '" // path // "': attribute 'n_params' = " // str(st%db%n_params) // &
-        ", but its configuration has " // str(st%space%n_expanded) // " parameter components", 2); return
+        ", but its configuration has " // str(st%space%n_expanded) // " parameter components", EXIT_BAD_INPUT); return
     end if
   end subroutine open_study
 
@@ -98,7 +99,7 @@ contains
     if (hdr%version < 3 .or. .not. allocated(hdr%study_config)) then
       call set_error(error, where // " '" // hdr%path // "': ROM file version " // str(hdr%version) // " holds no " // &
         "study (configuration, initial positions), which prediction needs: rebuild it with this crowd_offline " // &
-        "(version 3)", 2); return
+        "(version 3)", EXIT_BAD_INPUT); return
     end if
     st%database = ''
     st%hash = hdr%db_hash
@@ -110,11 +111,11 @@ contains
     if (allocated(error)) return
     if (st%space%component_names() /= st%param_names) then
       call set_error(error, where // " '" // hdr%path // "': attribute study/param_names '" // st%param_names // &
-        "' does not match its configuration ('" // st%space%component_names() // "')", 2); return
+        "' does not match its configuration ('" // st%space%component_names() // "')", EXIT_BAD_INPUT); return
     end if
     if (st%cfg%agents%n_agents /= st%n_agents) then
       call set_error(error, where // " '" // hdr%path // "': its study configuration has " // &
-        str(st%cfg%agents%n_agents) // " agents, the file " // str(st%n_agents), 2); return
+        str(st%cfg%agents%n_agents) // " agents, the file " // str(st%n_agents), EXIT_BAD_INPUT); return
     end if
   end subroutine open_rom_study
 

@@ -38,6 +38,7 @@ module cr_rom_sweep
   use cr_romrun_file, only: romrun_header_t, romrun_row_t, romrun_set_t, romrun_writer_t, speedup
   use cr_fsys, only: rename_file, remove_file, write_whole_file
   use cr_json, only: json_writer_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: rom_sweep_t, fom_reference_t
@@ -150,13 +151,13 @@ contains
       allocate(this%blocks(1))
       if (.not. allocated(error)) this%blocks(1) = given
     case default
-      call set_error(error, this%where // ": sets '" // trim(this%cfg%sets) // "' unknown", 2)
+      call set_error(error, this%where // ": sets '" // trim(this%cfg%sets) // "' unknown", EXIT_BAD_INPUT)
     end select
     if (allocated(error)) return
     ! settings
     this%setting_ids = pack([(ks, ks = 1, MAX_SETTINGS)], this%cfg%n > 0)
     if (size(this%setting_ids) == 0) then
-      call set_error(error, this%where // ": no setting given (n(1) = N, r(1) = R, ...)", 2); return
+      call set_error(error, this%where // ": no setting given (n(1) = N, r(1) = R, ...)", EXIT_BAD_INPUT); return
     end if
     allocate(this%pair_of(size(this%setting_ids)))
     do ks = 1, size(this%setting_ids)
@@ -230,7 +231,7 @@ contains
     call make_header(this, rhdr)
     call out%open(trim(this%cfg%output), rhdr, error)
     if (allocated(error)) then
-      call prefix_error(error, this%where // ": output"); error%code = 2; return
+      call prefix_error(error, this%where // ": output"); error%code = EXIT_BAD_INPUT; return
     end if
     allocate(pairs(this%hdr%n_pairs), loaded(this%hdr%n_pairs))
     loaded = .false.
@@ -762,7 +763,7 @@ contains
     nmu = count(this%cfg%mu > -huge(1.0_wp))
     if (nmu /= this%st%space%n_expanded) then
       call set_error(error, this%where // ": mu has " // str(nmu) // " values but the study has " // &
-        str(this%st%space%n_expanded) // " parameter components (" // shorten(this%st%param_names, 60) // ")", 2)
+        str(this%st%space%n_expanded) // " parameter components (" // shorten(this%st%param_names, 60) // ")", EXIT_BAD_INPUT)
       return
     end if
     call this%st%space%check_values(this%cfg%mu(1:nmu), this%st%cfg, this%where // ": mu", error)

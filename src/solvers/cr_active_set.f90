@@ -15,6 +15,7 @@ module cr_active_set
   use cr_contact_ldp, only: contact_ldp_work_t, contact_ldp_stats_t, contact_ldp_solve, &
     contact_ldp_bytes
   use cr_projection, only: projection_solver_t, solve_stats_t, finish_stats, check_sizes, add_note
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: active_set_solver_t, default_max_dense_bytes
@@ -291,7 +292,7 @@ contains
     call set_error(error, "active_set: a contact cluster of " // str(nd / 2) // " agents and " // &
       str(mr) // " rows needs " // str(bytes / 1.0e9_wp, "f0.2") // " GB of dense storage " // &
       "(limit " // str(this%max_dense_bytes / 1.0e9_wp, "f0.2") // " GB); use solver 'gpcg' " // &
-      "for crowds this large", 2)
+      "for crowds this large", EXIT_BAD_INPUT)
   end subroutine too_large
 
   !> Root of x in the union-find forest (path halving).

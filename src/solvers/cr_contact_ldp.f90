@@ -34,6 +34,7 @@ module cr_contact_ldp
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
   use cr_nnls, only: lh_step_back
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: contact_ldp_work_t, contact_ldp_stats_t, contact_ldp_solve, contact_ldp_bytes
@@ -209,18 +210,18 @@ contains
       call set_error(error, "contact_ldp_solve: inconsistent sizes: " // str(m) // " rows, ia " // &
         str(size(ia)) // ", ib " // str(size(ib)) // ", coef " // str(size(coef, 1)) // " x " // &
         str(size(coef, 2)) // ", lambda " // str(size(lambda)) // ", v " // str(nd) // ", u " // &
-        str(size(u)), 2)
+        str(size(u)), EXIT_BAD_INPUT)
       return
     end if
     do j = 1, m
       if (ia(j) < 1 .or. ia(j) > na .or. ib(j) < 0 .or. ib(j) > na .or. ia(j) == ib(j)) then
         call set_error(error, "contact_ldp_solve: row " // str(j) // " has agents " // &
           str(ia(j)) // ", " // str(ib(j)) // " (expected 1 <= ia /= ib <= " // str(na) // &
-          ", ib = 0 for none)", 2)
+          ", ib = 0 for none)", EXIT_BAD_INPUT)
         return
       end if
       if (.not. (norm2(coef(:, j)) > 0.0_wp)) then
-        call set_error(error, "contact_ldp_solve: row " // str(j) // " is zero or not finite", 2)
+        call set_error(error, "contact_ldp_solve: row " // str(j) // " is zero or not finite", EXIT_BAD_INPUT)
         return
       end if
     end do

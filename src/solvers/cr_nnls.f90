@@ -43,6 +43,7 @@ module cr_nnls
   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
   use cr_error, only: error_t, set_error, prefix_error
   use cr_strings, only: str
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: nnls_work_t, nnls_stats_t, ldp_stats_t, nnls_solve, ldp_solve, lh_step_back
@@ -155,13 +156,13 @@ contains
     m = size(a, 1); n = size(a, 2)
     if (size(b) /= m .or. size(x) /= n) then
       call set_error(error, "nnls_solve: inconsistent sizes: A is " // str(m) // " x " // str(n) &
-        // ", b has " // str(size(b)) // ", x has " // str(size(x)), 2)
+        // ", b has " // str(size(b)) // ", x has " // str(size(x)), EXIT_BAD_INPUT)
       return
     end if
     if (present(passive0)) then
       if (size(passive0) /= n) then
         call set_error(error, "nnls_solve: passive0 has " // str(size(passive0)) // &
-          " entries, expected " // str(n), 2)
+          " entries, expected " // str(n), EXIT_BAD_INPUT)
         return
       end if
     end if
@@ -177,7 +178,7 @@ contains
     do j = 1, n
       do i = 1, m
         if (.not. ieee_is_finite(a(i, j))) then
-          call set_error(error, "nnls_solve: A(" // str(i) // ", " // str(j) // ") is not finite", 2)
+          call set_error(error, "nnls_solve: A(" // str(i) // ", " // str(j) // ") is not finite", EXIT_BAD_INPUT)
           return
         end if
         if (a(i, j) /= 0.0_wp) nnz = nnz + 1
@@ -185,7 +186,7 @@ contains
     end do
     do i = 1, m
       if (.not. ieee_is_finite(b(i))) then
-        call set_error(error, "nnls_solve: b(" // str(i) // ") is not finite", 2)
+        call set_error(error, "nnls_solve: b(" // str(i) // ") is not finite", EXIT_BAD_INPUT)
         return
       end if
     end do
@@ -545,7 +546,7 @@ contains
     if (size(d) /= mc .or. size(v) /= n .or. size(u) /= n .or. size(lambda) /= mc) then
       call set_error(error, "ldp_solve: inconsistent sizes: Bm is " // str(mc) // " x " // str(n) &
         // ", d " // str(size(d)) // ", v " // str(size(v)) // ", u " // str(size(u)) // &
-        ", lambda " // str(size(lambda)), 2)
+        ", lambda " // str(size(lambda)), EXIT_BAD_INPUT)
       return
     end if
     use_warm = .true.
@@ -553,23 +554,23 @@ contains
     do j = 1, n
       do i = 1, mc
         if (.not. ieee_is_finite(bm(i, j))) then
-          call set_error(error, "ldp_solve: Bm(" // str(i) // ", " // str(j) // ") is not finite", 2)
+          call set_error(error, "ldp_solve: Bm(" // str(i) // ", " // str(j) // ") is not finite", EXIT_BAD_INPUT)
           return
         end if
       end do
       if (.not. ieee_is_finite(v(j))) then
-        call set_error(error, "ldp_solve: v(" // str(j) // ") is not finite", 2)
+        call set_error(error, "ldp_solve: v(" // str(j) // ") is not finite", EXIT_BAD_INPUT)
         return
       end if
     end do
     do i = 1, mc
       if (.not. ieee_is_finite(d(i))) then
-        call set_error(error, "ldp_solve: d(" // str(i) // ") is not finite", 2)
+        call set_error(error, "ldp_solve: d(" // str(i) // ") is not finite", EXIT_BAD_INPUT)
         return
       end if
       if (use_warm) then
         if (.not. ieee_is_finite(lambda(i))) then
-          call set_error(error, "ldp_solve: warm-start lambda(" // str(i) // ") is not finite", 2)
+          call set_error(error, "ldp_solve: warm-start lambda(" // str(i) // ") is not finite", EXIT_BAD_INPUT)
           return
         end if
       end if
@@ -595,7 +596,7 @@ contains
       if (present(gram)) then
         if (size(gram, 1) /= mc .or. size(gram, 2) /= mc) then
           call set_error(error, "ldp_solve: gram is " // str(size(gram, 1)) // " x " // str(size(gram, 2)) // &
-            ", expected " // str(mc) // " x " // str(mc), 2)
+            ", expected " // str(mc) // " x " // str(mc), EXIT_BAD_INPUT)
           return
         end if
         call ldp_active_guess(bm, d, v, u, lambda, wk, feasible, gram)

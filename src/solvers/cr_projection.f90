@@ -11,6 +11,7 @@ module cr_projection
   use cr_strings, only: str
   use cr_contact_set, only: contact_set_t, kkt_residuals
   use cr_solver_settings, only: projection_settings_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: projection_settings_t, solve_stats_t, projection_solver_t, make_projection_solver, &
@@ -88,20 +89,20 @@ contains
     type(projection_settings_t), intent(in) :: settings
     type(error_t), allocatable, intent(out) :: error
     if (.not. (settings%tol > 0.0_wp)) then
-      call set_error(error, "projection solver: tol must be > 0, got " // str(settings%tol), 2)
+      call set_error(error, "projection solver: tol must be > 0, got " // str(settings%tol), EXIT_BAD_INPUT)
       return
     end if
     if (settings%dense_rows < 0 .or. settings%refresh_every < 1) then
-      call set_error(error, "projection solver: dense_rows must be >= 0 and refresh_every >= 1", 2)
+      call set_error(error, "projection solver: dense_rows must be >= 0 and refresh_every >= 1", EXIT_BAD_INPUT)
       return
     end if
     if (settings%max_iter < 1 .or. settings%uzawa_max_iter < 1) then
-      call set_error(error, "projection solver: max_iter and uzawa_max_iter must be >= 1", 2)
+      call set_error(error, "projection solver: max_iter and uzawa_max_iter must be >= 1", EXIT_BAD_INPUT)
       return
     end if
     if (.not. (settings%uzawa_rho_factor > 0.0_wp)) then
       call set_error(error, "projection solver: uzawa_rho_factor must be > 0, got " // &
-        str(settings%uzawa_rho_factor), 2)
+        str(settings%uzawa_rho_factor), EXIT_BAD_INPUT)
       return
     end if
     this%settings = settings
@@ -128,7 +129,7 @@ contains
     if (size(v) /= 2 * cs%n_agents .or. size(u) /= 2 * cs%n_agents .or. size(lambda) < cs%n) then
       call set_error(error, who // ": inconsistent sizes: " // str(cs%n_agents) // " agents, " // &
         str(cs%n) // " rows, but v has " // str(size(v)) // ", u " // str(size(u)) // &
-        ", lambda " // str(size(lambda)) // " entries", 2)
+        ", lambda " // str(size(lambda)) // " entries", EXIT_BAD_INPUT)
     end if
   end subroutine check_sizes
 

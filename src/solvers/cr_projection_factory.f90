@@ -7,6 +7,7 @@ submodule (cr_projection) cr_projection_factory
   use cr_active_set, only: active_set_solver_t
   use cr_gpcg, only: gpcg_solver_t
   use cr_sparse_as, only: sparse_as_solver_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
 contains
   module subroutine make_projection_solver(settings, solver, error)
@@ -29,7 +30,7 @@ contains
       allocate(gpcg_solver_t :: solver)
     case default
       call set_error(error, "make_projection_solver: unknown solver name '" // &
-        trim(settings%name) // "'; known names: " // known_projection_solvers, 2)
+        trim(settings%name) // "'; known names: " // known_projection_solvers, EXIT_BAD_INPUT)
       return
     end select
     call solver%init(s, error)

@@ -15,6 +15,7 @@ module cr_uzawa
   use cr_strings, only: str
   use cr_contact_set, only: contact_set_t, velocity_scale
   use cr_projection, only: projection_solver_t, solve_stats_t, finish_stats, check_sizes, add_note
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: uzawa_solver_t
@@ -80,7 +81,7 @@ contains
           "times the velocity scale): rho = uzawa_rho_factor / h^2 = " // str(rho, "es9.2") // " " // &
           trim(merge("exceeds ", "is below", rho > 2.0_wp / lb)) // " the convergence bound 2/L = " // &
           str(2.0_wp / lb, "es9.2") // "; lower uzawa_rho_factor (at most " // &
-          str(2.0_wp * cs%h**2 / lb, "es9.2") // " is safe for these contacts)", 2)
+          str(2.0_wp * cs%h**2 / lb, "es9.2") // " is safe for these contacts)", EXIT_BAD_INPUT)
         return
       end if
       if (k > 1) then

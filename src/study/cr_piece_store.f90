@@ -20,6 +20,7 @@ module cr_piece_store
   use cr_sampling, only: sample_set_t
   use cr_snapshot_piece, only: sample_result_t, move_sample, piece_header, read_piece, check_sample, piece_path, &
     write_piece
+    use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: piece_index_t, piece_batch_t, scan_pieces, global_sample, set_of_sample, quarantine_piece
@@ -259,7 +260,7 @@ contains
     if (allocated(error)) return
     if (head(1) > 0) then
       call env%bcast(fatal, error)
-      if (.not. allocated(error)) call set_error(error, fatal, 2)
+      if (.not. allocated(error)) call set_error(error, fatal, EXIT_BAD_INPUT)
       return
     end if
     n = head(2)
@@ -358,7 +359,7 @@ contains
     if (.not. quarantine) then
       call set_error(error, str(nbad) // " bad piece(s) in '" // dir // "':" // new_line('a') // all_msg // &
         "run again with --quarantine-bad-pieces to move them to '" // dir // "/quarantine' and recompute " // &
-        "their samples", 2)
+        "their samples", EXIT_BAD_INPUT)
       return
     end if
     m = ""
@@ -377,7 +378,7 @@ contains
     call env%bcast(m, error)
     if (allocated(error)) return
     if (len(m) > 0) then
-      call set_error(error, m, 2); return
+      call set_error(error, m, EXIT_BAD_INPUT); return
     end if
     idx%n_quarantined = nbad
     call drop_bad(idx, st, nbad)

@@ -23,6 +23,7 @@ module cr_study_config
   use cr_hash, only: hash_text
   use cr_param_model, only: KNOWN_PARAMS, KNOWN_PARAMS_TEXT
   use cr_snapshot_file, only: SNAP_SCHEMA
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: check_study_paths
@@ -66,7 +67,7 @@ contains
     integer :: ios, k
     character(len=512) :: msg
     if (.not. t%has_group('study')) then
-      call set_error(error, t%path // ": no namelist group &study (a parameter study needs one)", 2)
+      call set_error(error, t%path // ": no namelist group &study (a parameter study needs one)", EXIT_BAD_INPUT)
       return
     end if
     n_params = c%n_params; param_name = c%param_name; param_min = c%param_min
@@ -75,7 +76,7 @@ contains
     msg = ''
     read(t%lines, nml=study, iostat=ios, iomsg=msg)
     if (ios /= 0) then
-      call set_error(error, t%path // ": namelist group &study: " // trim(msg), 2); return
+      call set_error(error, t%path // ": namelist group &study: " // trim(msg), EXIT_BAD_INPUT); return
     end if
     c%n_params = n_params; c%param_min = param_min; c%param_max = param_max
     do k = 1, MAX_PARAMS

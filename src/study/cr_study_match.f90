@@ -12,6 +12,7 @@ module cr_study_match
   use cr_config, only: config_t, parse_config, config_echo
   use cr_study_config, only: study_cfg_t, read_study, study_echo, study_hash
   use cr_snapshot_file, only: SNAP_SCHEMA_VERSION, snap_header_t, read_snap_header
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: check_database_matches, compare_with_database
@@ -66,7 +67,7 @@ contains
     call parse_config(t, cdb, e)
     if (allocated(e)) then
       call set_error(error, where // ": database '" // db_path // "': its stored configuration cannot be read (" // &
-        e%message // ")", 2); return
+        e%message // ")", EXIT_BAD_INPUT); return
     end if
     diffs = ""; n = 0
     call diff_echo(config_echo(cdb), config_echo(cfg), diffs, n)
@@ -78,12 +79,12 @@ contains
     if (n == 0 .and. .not. has_study) return
     if (n == 0) then
       call set_error(error, where // ": database '" // db_path // "' was made with another configuration " // &
-        "(config_hash " // db_hash // ", this input " // study_hash(cfg, s_in, SNAP_SCHEMA_VERSION) // ")", 2)
+        "(config_hash " // db_hash // ", this input " // study_hash(cfg, s_in, SNAP_SCHEMA_VERSION) // ")", EXIT_BAD_INPUT)
       return
     end if
     if (n > MAX_LISTED) diffs = diffs // "; and " // str(n - MAX_LISTED) // " more"
     call set_error(error, where // ": database '" // db_path // "' was made with another configuration than " // &
-      "this input (" // diffs // "); give the study's own namelist file", 2)
+      "this input (" // diffs // "); give the study's own namelist file", EXIT_BAD_INPUT)
   end subroutine compare_with_database
 
   !> Append "&group variable: database X, input Y" for every variable whose echo differs.

@@ -28,6 +28,7 @@ module cr_study_run
   use cr_piece_store, only: piece_index_t, piece_batch_t, scan_pieces, set_of_sample
   use cr_snapshot_file, only: SNAP_SCHEMA_VERSION, db_meta_t, snap_write_stats_t, snap_writer_t, &
     probe_snap_database, scene_vertex_list
+    use cr_exit_codes, only: EXIT_FAILURE, EXIT_BAD_INPUT
   implicit none
   private
   public :: run_options_t, study_run_t, EXIT_STOPPED
@@ -234,7 +235,7 @@ contains
     st%mk(3) = env%wtime() - st%t_start
     if (status >= 2) then
       call env%bcast(msg, error)
-      if (.not. allocated(error)) call set_error(error, msg, merge(2, 1, status == 2))
+      if (.not. allocated(error)) call set_error(error, msg, merge(EXIT_BAD_INPUT, EXIT_FAILURE, status == 2))
       call st%sched%free()
       return
     end if

@@ -6,6 +6,7 @@ module cr_sparse_as_settings
   use cr_kinds, only: wp
   use cr_error, only: error_t, set_error
   use cr_strings, only: str
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: sparse_as_settings_t, dep_tol
@@ -105,7 +106,7 @@ contains
     integer, intent(in) :: value, lo
     type(error_t), allocatable, intent(inout) :: error
     if (value < lo) call set_error(error, "sparse_active_set: knob " // name // " must be >= " // &
-      str(lo) // ", got " // str(value), 2)
+      str(lo) // ", got " // str(value), EXIT_BAD_INPUT)
   end subroutine int_at_least
 
   subroutine real_in(name, value, lo, hi, error)
@@ -113,14 +114,14 @@ contains
     real(wp), intent(in) :: value, lo, hi
     type(error_t), allocatable, intent(inout) :: error
     if (.not. ieee_is_finite(value)) then
-      call set_error(error, "sparse_active_set: knob " // name // " must be finite, got " // str(value), 2)
+      call set_error(error, "sparse_active_set: knob " // name // " must be finite, got " // str(value), EXIT_BAD_INPUT)
     else if (value < lo .or. value > hi) then
       if (hi >= huge(1.0_wp)) then
         call set_error(error, "sparse_active_set: knob " // name // " must be >= " // str(lo) // &
-          ", got " // str(value), 2)
+          ", got " // str(value), EXIT_BAD_INPUT)
       else
         call set_error(error, "sparse_active_set: knob " // name // " must be in [" // str(lo) // ", " // &
-          str(hi) // "], got " // str(value), 2)
+          str(hi) // "], got " // str(value), EXIT_BAD_INPUT)
       end if
     end if
   end subroutine real_in

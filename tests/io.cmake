@@ -1,4 +1,0 @@
-# I/O layer: HDF5 file handle and JSON writer
-cr_unit_test(test_h5file)
-cr_unit_test(test_json)
-cr_mpi_test(test_h5file_mpi NP 1 2 4)

@@ -1,3 +1,0 @@
-# Solvers' results independent of their work space's content on entry (stale or never-written
-# memory): see tests/test_stale_workspace.f90 and scripts/memcheck.sh.
-cr_unit_test(test_stale_workspace)

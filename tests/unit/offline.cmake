@@ -1,0 +1,1 @@
+cr_unit_test(test_hertz)
