@@ -45,7 +45,7 @@ import sys
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
+sys.path[:0] = [HERE, os.path.dirname(HERE)]  # this folder and scripts/ (crowdrom_io)
 import crowdrom_io as cio  # noqa: E402
 from crowdrom_io import InputError  # noqa: E402
 

@@ -36,10 +36,11 @@ import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+sys.path[:0] = [os.path.dirname(os.path.abspath(__file__)),  # this folder and scripts/ (crowdrom_io)
+                os.path.dirname(os.path.dirname(os.path.abspath(__file__)))]
 import crowdrom_io as cio  # noqa: E402
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 FOM = os.path.join(ROOT, "build", "bin", "crowd_fom")
 
 # experimental range of the specific flow through wide bottlenecks (Seyfried et al. 2009,

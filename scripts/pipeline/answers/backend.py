@@ -29,8 +29,8 @@ from scipy import stats
 import crowdrom_io
 from crowdrom_io import InputError
 
-#: the scripts folder (ml_correct.py)
-SCRIPTS = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+#: the scripts folder (pipeline/ml_correct.py)
+SCRIPTS = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 class Evaluation:
