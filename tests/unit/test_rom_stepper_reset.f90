@@ -12,7 +12,6 @@
 module test_rom_stepper_reset_ops
   use cr_kinds, only: wp
   use cr_reduced_ops, only: reduced_ops_t, eval_ctx_t
-  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   private
   public :: two_step_ops_t
@@ -50,6 +49,7 @@ program test_rom_stepper_reset
   use cr_reduced_ops, only: eval_ctx_t
   use cr_rom_stepper, only: rom_solver_cfg_t, rom_traj_t, run_trajectory
   use test_rom_stepper_reset_ops, only: two_step_ops_t
+  use cr_exit_codes, only: EXIT_BAD_INPUT
   implicit none
   type(two_step_ops_t) :: ops
   type(eval_ctx_t) :: ctx
