@@ -2,7 +2,7 @@
 """The honest reference of a questions file: a large exact sample for every distribution (the
 first --n-pool rows the pool the coverage repetitions draw from, the next --n-truth rows the
 truth, disjoint), the exact model at every map point, and every low fidelity of the models
-file at the same inputs (a joint sample), run by crowd_predict (docs/answers.md#honest-reference-congested150_evac).
+file at the same inputs (a joint sample), run by crowd_predict (docs/answers-reference.md#honest-reference-congested150_evac).
 
     answers_reference.py QUESTIONS.json --models MODELS.json --n-truth 3000 --n-pool 1000 \\
         --work results/ref_chunks --out results/case_reference.h5 --truth results/case_truth.json
