@@ -17,7 +17,7 @@
 set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 CASE=${1:-hall20}
-CASES="hall20, congested150, congested150_evac, crowd1000, hetero1000"
+CASES="hall20, congested150, congested150_evac, crowd1000, crowd1000_calibrated, hetero1000"
 NP=${NP:-2}
 if [ -z "${CROWDROM_BIN:-}" ]; then "$ROOT/scripts/setup.sh"; fi
 BIN=${CROWDROM_BIN:-$ROOT/build/bin}
