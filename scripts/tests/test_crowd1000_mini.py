@@ -124,4 +124,5 @@ def test_crowd1000_mini_pipeline(tmp_path):
     over = [float(x) for x in cells[9].split("/")]
     assert all(0 <= x <= 1e-10 for x in over), cells[9]
     assert cells[7] != "" and float(cells[16]) > 0, ml[1]
-    assert "=== run_study [crowd1000_mini] stage 6 of 6" in p.stdout
+    assert "=== run_study [crowd1000_mini] stage 6 of 7" in p.stdout
+    assert "=== run_study [crowd1000_mini] stage 7 of 7: skipped" in p.stdout

@@ -70,4 +70,5 @@ def test_hetero_pipeline(tmp_path):
     figs = res / "hetero_mini_figures"
     for name in ("evac/evac_curves.png", "evac/t90_map.png", "tradeoff.png", "pod_decay.png"):
         assert (figs / name).stat().st_size > 1000, name
-    assert "=== run_study [hetero_mini] stage 6 of 6" in p.stdout
+    assert "=== run_study [hetero_mini] stage 6 of 7" in p.stdout
+    assert "=== run_study [hetero_mini] stage 7 of 7: skipped" in p.stdout

@@ -290,7 +290,7 @@ def test_ml_output_carries_the_qoi_of_the_corrected_trajectories(study, tmp_path
     with h5py.File(tmp_path / "ml_noqoi.h5", "r") as f:
         assert f.attrs["qoi"] == 0 and "qoi" not in f["random_forest/best"]
     # evac_figures draws and tabulates them; an output without them is refused by name
-    script = os.path.join(os.path.dirname(HERE), "evac_figures.py")
+    script = os.path.join(os.path.dirname(HERE), "post", "evac_figures.py")
     base = [sys.executable, script, "--database", study["db"], "--romrun", study["romrun"]]
     p = subprocess.run(base + ["--ml", str(out), "-o", str(tmp_path / "evac"), "--dpi", "40"],
                        capture_output=True, text=True)
