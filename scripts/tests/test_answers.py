@@ -390,8 +390,11 @@ def test_questions_on_two_qois_share_the_runs():
                                    for j, n in enumerate(BOX.names)})
     qs = [Question(f"{qoi}_spread", "moments", qoi, distribution=dist) for qoi in ("t50", "t90")]
     log = []
+    # M1 alone: the rows are the pilot and the nested training design of the region; a planned
+    # M0 would draw as many fresh rows as each QoI's own variance asks (legitimately more for
+    # one QoI than for the other), and its choice against M1 hangs on the measured fitting CPU
     setup = Setup(_TwoQoIModel("exact", 0.0, log), [_TwoQoIModel("rom", 0.5, log)], seed=3, n_pilot=12,
-                  m1_ladder=(8, 16), methods=("M0", "M1"), gp_restarts=0)
+                  m1_ladder=(8, 16), methods=("M1",), gp_restarts=0)
     first = Questions("q.json", "two", BOX, [0.05], 0.95, 3, qs[:1])
     answer_questions(first, setup)
     rows_first = set(log)
