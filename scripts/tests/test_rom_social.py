@@ -12,26 +12,15 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from test_rom import run, offline, rom_input, stored_m, STUDY  # noqa: E402
+from rom_full_basis import check_reproduces_snapshots, make_study, run_full_bases  # noqa: E402
 
 DS = 0.01
 
 
 @pytest.fixture(scope="module")
 def study(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("rom_social")
-    db = tmp / "tiny_social.h5"
-    text = open(STUDY).read().replace("database = 'rom_tiny.h5'", "database = '%s'" % db)
-    text = text.replace("seed = 3\n", "seed = 3, social_distance = %r\n" % DS)
-    assert "social_distance" in text
-    sfile = tmp / "study.nml"
-    sfile.write_text(text)
-    p = run(1, "crowd_snapshots", sfile, tmp)
-    assert p.returncode == 0, p.stdout + p.stderr
-    rom0 = offline(tmp, sfile, db, tmp / "rom_full.h5")
-    with h5py.File(rom0, "r") as f:
-        n_full, r_full = int(f["pairs/1"].attrs["n"]), int(f["pairs/1"].attrs["r"])
-    return tmp, db, rom0, n_full, r_full
+    return make_study(tmp_path_factory.mktemp("rom_social"), "tiny_social.h5",
+                      [("seed = 3\n", "seed = 3, social_distance = %r\n" % DS)])
 
 
 def test_snapshots_keep_the_social_distance(study):
@@ -53,17 +42,5 @@ def test_snapshots_keep_the_social_distance(study):
 
 
 def test_full_basis_reproduces_fom_with_social_distance(study):
-    tmp, db, rom, n, r = study
-    full = dict(n=n, r=r)
-    m_eim = dict(m_v=stored_m(rom, "eim", "s1"), m_b=stored_m(rom, "eim", "s2"), m_d=stored_m(rom, "eim", "s3"))
-    settings = [dict(full, hyper="'none'"), dict(full, hyper="'eq'"), dict(full, hyper="'eim'", **m_eim),
-                dict(full, hyper="'none'", contacts="'online'")]
-    out = tmp / "full.h5"
-    p = run(0, "crowd_rom", rom_input(tmp, "full.nml", rom, out, settings, sets="'train'"), tmp)
-    assert p.returncode == 0, p.stdout + p.stderr
-    with h5py.File(out, "r") as f, h5py.File(db, "r") as d:
-        q_fom = d["train/positions"][...]
-        for k in range(1, len(settings) + 1):
-            g = f["setting_%d/train" % k]
-            assert g["E_mu"][...].max() <= 1e-8, (k, g["E_mu"][...])
-            np.testing.assert_allclose(g["positions"][...], q_fom, atol=1e-9)
+    out, settings = run_full_bases(study)
+    check_reproduces_snapshots(out, study[1], len(settings))
