@@ -26,6 +26,9 @@ Table (markdown, ``<outdir>/evac_table.md``, also printed): per validation setti
 and per-query speedups against the exact full model, E_avg, E_disp, t50 / t90 errors,
 overlaps, agents not out, mobility, diverged samples; ML rows from --ml (the corrected positions,
 and the same after the exact position projection when --ml has them).
+A second table: per reduced setting and ML row, the correlation of its t50 and t90 with the
+full model's over the samples (Pearson r / Spearman rho, validation set, and training set for the
+settings run on it); then the offline error against the training-set size.
 
 Every argument is checked before any input is read, and against the inputs before anything is
 drawn; the inputs are read through crowdrom_io (checksums, finiteness, shapes against the
@@ -372,6 +375,58 @@ def table_lines(rows, ml, t_fom=None):
     return out
 
 
+def time_correlation(t_model, t_ref):
+    """Pearson r and Spearman rho of a model's evacuation times t_model [n_S] against the full
+    model's t_ref [n_S] (<= 0: not reached) over the samples where both reach them, and their
+    count: (r, rho, n); r / rho None when undefined (fewer than 3 samples, or a constant side)."""
+    from scipy.stats import rankdata
+    ok = (np.asarray(t_model) > 0) & (np.asarray(t_ref) > 0)
+    a, b = np.asarray(t_model, float)[ok], np.asarray(t_ref, float)[ok]
+    n = int(ok.sum())
+    if n < 3 or np.ptp(a) == 0 or np.ptp(b) == 0:
+        return None, None, n
+    r = float(np.corrcoef(a, b)[0, 1])
+    rho = float(np.corrcoef(rankdata(a), rankdata(b))[0, 1])
+    return r, rho, n
+
+
+def _corr_cell(t_model, t_ref):
+    r, rho, n = time_correlation(t_model, t_ref)
+    return "n/a (%d)" % n if r is None else "%.2f / %.2f (%d)" % (r, rho, n)
+
+
+def correlation_lines(runs, ml):
+    """The table of the evacuation times' correlations with the full model: per reduced setting
+    (validation set, and training set when run on it) and per ML regressor (its corrected and
+    projected validation trajectories' QoIs), Pearson r / Spearman rho of t50 and of t90 over
+    the samples where both models reach them."""
+    head = ("model", "t50 r / rho (n), valid", "t90 r / rho (n), valid", "t50 r / rho (n), train",
+            "t90 r / rho (n), train")
+    out = ["", "Evacuation times against the full model's, sample by sample: Pearson r / Spearman rho "
+           "over the (n) samples where both reach them:",
+           "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for k, s in runs.items():
+        cells = []
+        for name in ("valid", "train"):
+            d = s["data"].get(name)
+            for w in (0, 1):
+                cells.append(_corr_cell(d["t_out_rom"][:, w], d["t_out_fom"][:, w]) if d else "")
+        out.append(f"| ({s['n']}, {s['r']}) {s['hyper']} / {mode(s)} | " + " | ".join(cells) + " |")
+    valid = [s["data"]["valid"] for s in runs.values() if "valid" in s["data"]]
+    if not valid:
+        return out
+    t_fom = valid[0]["t_out_fom"]
+    for reg, m in ml.items():
+        for label, q in ((f"ML-corrected {reg} (n = {m['best_n']})", m["qoi"]),
+                         (f"ML-corrected {reg} (n = {m['best_n']}) + exact projection",
+                          m["projected"]["qoi"] if "projected" in m else None)):
+            if q is None:
+                continue
+            t = np.where(q["censored"][:, :2], -1.0, q["t_evac"][:, :2])
+            out.append(f"| {label} | {_corr_cell(t[:, 0], t_fom[:, 0])} | {_corr_cell(t[:, 1], t_fom[:, 1])} | | |")
+    return out
+
+
 # ------------------------------------------------------------------------------ main
 
 def check_args(args):
@@ -476,7 +531,7 @@ def main(argv=None):
     conv = ["", "Validation velocity error of a POD basis vs training samples (strided snapshots):",
             "| samples | " + " | ".join(f"N = {m}" for m in modes) + " |", "|---|" + "---|" * len(modes)]
     conv += ["| %d | %s |" % (n, " | ".join("%.3e" % e for e in err[i])) for i, n in enumerate(sz)]
-    text = "\n".join(lines + conv) + "\n"
+    text = "\n".join(lines + correlation_lines(runs, ml) + conv) + "\n"
     if re.search(r"\b(nan|inf)\b", text, re.IGNORECASE):
         raise InputError("the table would hold a non-finite value (NaN or Inf) from the inputs: nothing written")
     # the output set, all or nothing

@@ -226,3 +226,31 @@ def test_evac_table_ml_times_are_read_from_the_qoi():
     # t50: |1 - 1.25| / 1.25 = |4 - 5| / 5 = 0.2 over two samples; t90: 0.2 on sample 1, sample 2
     # censored in the ML trajectories although the full model evacuates it
     assert "| 2.00e-01 (2) | 2.00e-01 (1), ML never 1 |" in row, row
+
+
+def test_evac_table_correlations_of_the_times():
+    """evac_figures' second table: Pearson r / Spearman rho of a model's t50 / t90 against the
+    full model's over the samples where both reach them (a time <= 0 or a censored ML time is
+    left out, never counted as a value); undefined (n/a) below 3 samples or for a constant side."""
+    import evac_figures
+    t_ref = np.array([2.0, 4.0, 6.0, 9.0, 5.0, -1.0])
+    t_mod = np.array([1.0, 2.0, 3.0, 4.0, -1.0, 7.0])
+    r, rho, n = evac_figures.time_correlation(t_mod, t_ref)
+    assert n == 4 and rho == pytest.approx(1.0)
+    assert r == pytest.approx(np.corrcoef([1, 2, 3, 4], [2, 4, 6, 9])[0, 1], rel=1e-14) and r < 1 - 1e-3
+    assert evac_figures.time_correlation(t_mod[:2], t_ref[:2]) == (None, None, 2)
+    assert evac_figures.time_correlation(np.ones(4), t_ref[:4])[:2] == (None, None)
+    # one reduced setting on both sets, one ML regressor whose third sample is censored at t90
+    d = {"t_out_fom": np.array([[1.0, 2.0], [2.0, 3.0], [3.0, 5.0], [4.0, 6.0]]),
+         "t_out_rom": np.array([[4.0, 1.0], [3.0, 2.0], [2.0, 3.0], [1.0, 4.0]])}
+    runs = {1: {"n": 5, "r": 10, "hyper": "eq", "contacts": "cone", "data": {"valid": d, "train": d}}}
+    qoi = {"t_evac": np.array([[1.0, 2.0, 9.0], [2.0, 3.0, 9.0], [3.0, 9.0, 9.0], [4.0, 7.0, 9.0]]),
+           "censored": np.array([[0, 0, 1], [0, 0, 1], [0, 1, 1], [0, 0, 1]], dtype=bool)}
+    ml = {"mlp": {"qoi": qoi, "best_n": 4}}
+    lines = evac_figures.correlation_lines(runs, ml)
+    rom = [ln for ln in lines if ln.startswith("| (5, 10) eq / cone |")]
+    r90 = np.corrcoef([1, 2, 3, 4], [2, 3, 5, 6])[0, 1]            # t90: ranks equal, values not
+    assert rom == ["| (5, 10) eq / cone | -1.00 / -1.00 (4) | %.2f / 1.00 (4) | -1.00 / -1.00 (4) "
+                   "| %.2f / 1.00 (4) |" % (r90, r90)], lines
+    r90 = np.corrcoef([2, 3, 7], [2, 3, 6])[0, 1]                   # sample 3 censored: left out
+    assert "| ML-corrected mlp (n = 4) | 1.00 / 1.00 (4) | %.2f / 1.00 (3) | | |" % r90 in lines, lines
