@@ -94,7 +94,8 @@ def main(argv=None):
         cio.read_rom_study(f)
     settings = args.setting or [(str(n), str(r), "eq", "cone", "none") for n, r in pairs]
     load0 = os.getloadavg()
-    work = args.keep or tempfile.mkdtemp(prefix="bench_predict_")
+    # absolute: crowd_predict runs in this folder and is given its input by path
+    work = os.path.abspath(args.keep) if args.keep else tempfile.mkdtemp(prefix="bench_predict_")
     os.makedirs(work, exist_ok=True)
     rows = []
     sample = dict(n_queries=args.queries, seed=args.seed)

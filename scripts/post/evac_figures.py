@@ -399,7 +399,7 @@ def correlation_lines(runs, ml):
     """The table of the evacuation times' correlations with the full model: per reduced setting
     (validation set, and training set when run on it) and per ML regressor (its corrected and
     projected validation trajectories' QoIs), Pearson r / Spearman rho of t50 and of t90 over
-    the samples where both models reach them."""
+    the samples where both models reach them (a diverged reduced sample is left out)."""
     head = ("model", "t50 r / rho (n), valid", "t90 r / rho (n), valid", "t50 r / rho (n), train",
             "t90 r / rho (n), train")
     out = ["", "Evacuation times against the full model's, sample by sample: Pearson r / Spearman rho "
@@ -410,7 +410,12 @@ def correlation_lines(runs, ml):
         for name in ("valid", "train"):
             d = s["data"].get(name)
             for w in (0, 1):
-                cells.append(_corr_cell(d["t_out_rom"][:, w], d["t_out_fom"][:, w]) if d else "")
+                if not d:
+                    cells.append("")
+                    continue
+                # a diverged reduced trajectory (stopped at diverged_step > 0) has no time
+                t = np.where(np.asarray(d.get("diverged_step", 0)) > 0, -1.0, d["t_out_rom"][:, w])
+                cells.append(_corr_cell(t, d["t_out_fom"][:, w]))
         out.append(f"| ({s['n']}, {s['r']}) {s['hyper']} / {mode(s)} | " + " | ".join(cells) + " |")
     valid = [s["data"]["valid"] for s in runs.values() if "valid" in s["data"]]
     if not valid:

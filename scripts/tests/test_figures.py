@@ -243,7 +243,10 @@ def test_evac_table_correlations_of_the_times():
     # one reduced setting on both sets, one ML regressor whose third sample is censored at t90
     d = {"t_out_fom": np.array([[1.0, 2.0], [2.0, 3.0], [3.0, 5.0], [4.0, 6.0]]),
          "t_out_rom": np.array([[4.0, 1.0], [3.0, 2.0], [2.0, 3.0], [1.0, 4.0]])}
-    runs = {1: {"n": 5, "r": 10, "hyper": "eq", "contacts": "cone", "data": {"valid": d, "train": d}}}
+    # the same setting with its first sample diverged (its times are left out)
+    d2 = dict(d, diverged_step=np.array([7, 0, 0, 0]))
+    runs = {1: {"n": 5, "r": 10, "hyper": "eq", "contacts": "cone", "data": {"valid": d, "train": d}},
+            2: {"n": 5, "r": 10, "hyper": "eim", "contacts": "cone", "data": {"valid": d2}}}
     qoi = {"t_evac": np.array([[1.0, 2.0, 9.0], [2.0, 3.0, 9.0], [3.0, 9.0, 9.0], [4.0, 7.0, 9.0]]),
            "censored": np.array([[0, 0, 1], [0, 0, 1], [0, 1, 1], [0, 0, 1]], dtype=bool)}
     ml = {"mlp": {"qoi": qoi, "best_n": 4}}
@@ -252,5 +255,7 @@ def test_evac_table_correlations_of_the_times():
     r90 = np.corrcoef([1, 2, 3, 4], [2, 3, 5, 6])[0, 1]            # t90: ranks equal, values not
     assert rom == ["| (5, 10) eq / cone | -1.00 / -1.00 (4) | %.2f / 1.00 (4) | -1.00 / -1.00 (4) "
                    "| %.2f / 1.00 (4) |" % (r90, r90)], lines
+    r90 = np.corrcoef([2, 3, 4], [3, 5, 6])[0, 1]
+    assert "| (5, 10) eim / cone | -1.00 / -1.00 (3) | %.2f / 1.00 (3) |  |  |" % r90 in lines, lines
     r90 = np.corrcoef([2, 3, 7], [2, 3, 6])[0, 1]                   # sample 3 censored: left out
     assert "| ML-corrected mlp (n = 4) | 1.00 / 1.00 (4) | %.2f / 1.00 (3) | | |" % r90 in lines, lines
