@@ -11,7 +11,9 @@
 !>
 !> Sampling: query k (1-based) uses its own random stream (seed, k) of cr_random, so the list
 !> depends only on the seed and never on the number of ranks; each component of a parameter
-!> is drawn independently from the parameter's distribution.
+!> is drawn independently from the parameter's distribution (uniform in the training box by
+!> default), except the population's seed component (speed_seed), an integer uniform on its
+!> range as in the study's sampling.
 module cr_query_list
   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
   use cr_kinds, only: wp
@@ -302,8 +304,10 @@ contains
       call rng%seed(c%seed, k)
       do p = 1, space%n_params
         do i = space%first(p), space%first(p) + space%width(p) - 1
-          if (dist_of(p) == 0) then
-            list%mu(i, k) = space%lo(i) + (space%hi(i) - space%lo(i)) * rng%uniform()
+          ! the population's seed (speed_seed) is a label, not a quantity: an integer uniform on
+          ! its range whatever the distribution of its parameter, as in the study's sampling
+          if (dist_of(p) == 0 .or. space%integral(i)) then
+            list%mu(i, k) = space%uniform_value(i, rng%uniform())
           else
             list%mu(i, k) = draw(rng, dist_of(p))
           end if

@@ -30,6 +30,7 @@ module cr_sampling
   contains
     procedure :: init => space_init
     procedure :: check_values
+    procedure :: uniform_value
   end type param_space_t
 
   !> One sample set (training or validation).
@@ -62,6 +63,19 @@ contains
       end if
     end do
   end subroutine space_init
+
+  !> Component c at the uniform draw u in [0, 1): linear in the box, or, for an integral
+  !> component (the population's seed), an integer uniform on lo..hi.
+  pure real(wp) function uniform_value(this, c, u) result(x)
+    class(param_space_t), intent(in) :: this
+    integer, intent(in) :: c
+    real(wp), intent(in) :: u
+    if (this%integral(c)) then
+      x = min(aint(this%lo(c) + (this%hi(c) - this%lo(c) + 1) * u), this%hi(c))
+    else
+      x = this%lo(c) + (this%hi(c) - this%lo(c)) * u
+    end if
+  end function uniform_value
 
   !> Parameter values usable on the reference configuration `cfg`: every component finite
   !> and of a sane magnitude, and the scene they give valid (check_config: an l_exit wider
@@ -168,11 +182,7 @@ contains
       integer :: c
       call rng%seed(s%seed, stream)
       do c = 1, size(mu)
-        if (space%integral(c)) then
-          mu(c) = min(aint(space%lo(c) + (space%hi(c) - space%lo(c) + 1) * rng%uniform()), space%hi(c))
-        else
-          mu(c) = space%lo(c) + (space%hi(c) - space%lo(c)) * rng%uniform()
-        end if
+        mu(c) = space%uniform_value(c, rng%uniform())
       end do
     end subroutine draw
   end subroutine generate_samples

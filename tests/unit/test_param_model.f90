@@ -3,7 +3,8 @@
 !> components are refused. The heterogeneous population (speed_mean, speed_spread and its seed
 !> component): the per-agent draw is reproducible from mu alone, has the moments of the uniform
 !> distribution on (mean - spread, mean + spread) within sampling error, and the study's bad
-!> bounds and a bad mu are refused with a message naming the group and variable.
+!> bounds and a bad mu are refused with a message naming the group and variable; crowd_predict's
+!> sampling rule draws its seed component as an integer, as the study's sampling does.
 program test_param_model
   use cr_kinds, only: wp
   use cr_error, only: error_t
@@ -14,6 +15,8 @@ program test_param_model
   use cr_param_model, only: param_model_t, SPEED_SEED_MAX
   use cr_study_config, only: study_cfg_t, check_study
   use cr_sampling, only: param_space_t, sample_set_t, generate_samples
+  use cr_predict_config, only: predict_cfg_t
+  use cr_query_list, only: query_list_t, load_queries
   implicit none
   type(param_model_t) :: a, b
   type(config_t) :: cfg
@@ -128,7 +131,38 @@ contains
     call bad_mu(sp, c, [1.0_wp, 1.5_wp, 3.0_wp], "must not exceed speed_mean")
     call bad_mu(sp, c, [1.0_wp, 0.1_wp, 3.5_wp], "speed_seed = 3.5")
     call bad_mu(sp, c, [1.0_wp, 0.1_wp, -1.0_wp], "speed_seed = -1")
+    call check_sampled_queries(sp)
   end subroutine check_bad_spread
+
+  !> crowd_predict's sampling rule draws the population's seed as the study does (an integer in
+  !> 0..SPEED_SEED_MAX), also when a distribution is given for speed_spread; the list passes the
+  !> checks of every query.
+  subroutine check_sampled_queries(sp)
+    type(param_space_t), intent(in) :: sp
+    type(predict_cfg_t) :: pc
+    type(config_t) :: c
+    type(query_list_t) :: list
+    type(error_t), allocatable :: err
+    integer :: pass
+    c%agents%n_agents = 6
+    pc%n_queries = 40; pc%seed = 5
+    do pass = 1, 2
+      if (pass == 2) then
+        pc%dist_param(1) = 'speed_spread'; pc%dist(1) = 'uniform'; pc%dist_a(1) = 0.05_wp; pc%dist_b(1) = 0.2_wp
+      end if
+      call load_queries(pc, sp, c, "&predict", list, err)
+      call check(.not. allocated(err), "sampled queries of the heterogeneous box accepted")
+      if (allocated(err)) then
+        print '(a)', "  " // err%message
+        return
+      end if
+      call check(list%n == 40 .and. all(list%mu(3, :) == aint(list%mu(3, :))) .and. all(list%mu(3, :) >= 0) .and. &
+        all(list%mu(3, :) <= SPEED_SEED_MAX) .and. count(list%mu(3, :) /= list%mu(3, 1)) > 30, &
+        "sampled seeds are distinct integers in 0..SPEED_SEED_MAX")
+    end do
+    call check(all(list%mu(2, :) >= 0.05_wp .and. list%mu(2, :) <= 0.2_wp) .and. &
+      all(list%mu(1, :) >= 1.0_wp .and. list%mu(1, :) <= 1.4_wp), "the given distribution of speed_spread")
+  end subroutine check_sampled_queries
 
   subroutine refused(st0, k, lo, hi, name, msg)
     type(study_cfg_t), intent(in) :: st0
