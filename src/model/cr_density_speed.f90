@@ -13,6 +13,13 @@
 !> Neighbours come from the cell list of the contacts (cr_neighbours, a scene without
 !> obstacles and zero radius: a row per pair within the cut).
 !>
+!> The density of a few agents only (`density_of`, `scale_speeds_of`: the reduced models, which
+!> read the desired velocity of the agents of their sampled points only) bins every agent in a
+!> grid of cells of side >= the cut and sums the kernel over the 3 x 3 cells around each listed
+!> agent: O(n_agents) integer work plus the listed agents' kernel sums, the same values as
+!> `density` up to the order of the sums. `n_evaluated` counts the agents whose density was
+!> summed.
+!>
 !> Look-ahead (&desired density_anisotropy = beta in [0, 1]): neighbour j counts with weight
 !> w(d) (1 + beta cos theta_ij), theta_ij the angle between agent i's desired direction and
 !> x_j - x_i, so that a pedestrian slows for the crowd ahead more than for the crowd behind
@@ -22,11 +29,12 @@
 !> Fundamental diagram (Weidmann 1993), v0 = the agent's own speed c_i (its free speed):
 !>   v(rho) = v0 (1 - exp(-gamma (1/rho - 1/rho_max))), clamped to [0, v0], v(0) = v0.
 module cr_density_speed
+  use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
   use cr_kinds, only: wp
   use cr_config, only: desired_cfg_t
   use cr_scene, only: scene_t
   use cr_contact_set, only: contact_set_t
-  use cr_neighbours, only: cell_list_t, build_contacts
+  use cr_neighbours, only: cell_list_t, build_contacts, grid_size, cell_index, pair_contact
   implicit none
   private
   public :: density_speed_t, weidmann_factor, DENSITY_CUT
@@ -40,7 +48,9 @@ module cr_density_speed
     real(wp) :: sigma = 0.7_wp, gamma = 1.913_wp, rho_max = 5.4_wp, beta = 0.0_wp
     !> local density of each agent at the last call [n_agents]
     real(wp), allocatable :: rho(:)
-    type(cell_list_t), private :: cells
+    !> agents whose local density was summed, over every call since init
+    integer(8) :: n_evaluated = 0
+    type(cell_list_t), private :: cells, bins
     type(contact_set_t), private :: cs
     type(scene_t), private :: open_space
   contains
@@ -49,6 +59,8 @@ module cr_density_speed
     procedure :: density
     procedure :: apply
     procedure :: scale_speeds
+    procedure :: density_of
+    procedure :: scale_speeds_of
   end type density_speed_t
 
 contains
@@ -66,6 +78,7 @@ contains
     this%beta = cfg%density_anisotropy
     allocate(this%rho(n_agents))
     this%rho = 0
+    this%n_evaluated = 0
     call this%cs%init(n_agents, 1.0_wp, 16 * n_agents)
   end subroutine init
 
@@ -85,10 +98,8 @@ contains
     real(wp), intent(in), optional :: dir(:)
     real(wp) :: cut, c, e, two_s2, w, ca, cb, na, nb
     integer :: l
-    cut = DENSITY_CUT * this%sigma
-    two_s2 = 2 * this%sigma**2
-    e = exp(-DENSITY_CUT**2 / 2)
-    c = 1 / (acos(-1.0_wp) * two_s2 * (1 - (1 + DENSITY_CUT**2 / 2) * e))
+    call kernel_constants(this%sigma, cut, two_s2, e, c)
+    this%n_evaluated = this%n_evaluated + size(rho)
     call build_contacts(this%open_space, q, 0.0_wp, cut, this%cells, this%cs)
     rho = c * (1 - e)
     do l = 1, this%cs%n
@@ -137,6 +148,118 @@ contains
     call this%density(q, this%rho, v)
     speeds_out = speeds * weidmann_factor(this%rho, this%gamma, this%rho_max)
   end subroutine scale_speeds
+
+  !> speeds_out [n_agents]: speeds_out(a) = speeds(a) scaled by the diagram at the local density
+  !> of a at positions q [2*n_agents], for the agents a listed in `agents` (their rho stored in
+  !> this%rho); the other entries are speeds(:) unchanged. v [2*n_agents]: the desired
+  !> velocities of the listed agents (speeds times the desired directions; only their entries
+  !> are read), for the look-ahead. At the listed agents the result is scale_speeds' to round-off.
+  subroutine scale_speeds_of(this, q, v, agents, speeds, speeds_out)
+    class(density_speed_t), intent(inout) :: this
+    real(wp), intent(in) :: q(:), v(:), speeds(:)
+    integer, intent(in) :: agents(:)
+    real(wp), intent(out) :: speeds_out(:)
+    real(wp) :: rho(size(agents))
+    call this%density_of(q, agents, rho, v)
+    speeds_out = speeds
+    this%rho(agents) = rho
+    speeds_out(agents) = speeds(agents) * weidmann_factor(rho, this%gamma, this%rho_max)
+  end subroutine scale_speeds_of
+
+  !> rho [size(agents)] = local density of agents(k) at positions q [2*n_agents] (the kernel
+  !> above over every agent within the cut); with dir [2*n_agents] (desired velocities, any
+  !> length; only the listed agents' entries are read) the look-ahead weights apply.
+  subroutine density_of(this, q, agents, rho, dir)
+    class(density_speed_t), intent(inout) :: this
+    real(wp), intent(in) :: q(:)
+    integer, intent(in) :: agents(:)
+    real(wp), intent(out) :: rho(:)
+    real(wp), intent(in), optional :: dir(:)
+    real(wp) :: cut, c, e, two_s2, na
+    integer :: k, a, cx, cy, ix, iy, j
+    call kernel_constants(this%sigma, cut, two_s2, e, c)
+    call bin_agents(this%bins, q, cut)
+    this%n_evaluated = this%n_evaluated + size(agents)
+    do k = 1, size(agents)
+      a = agents(k)
+      na = 0
+      if (present(dir) .and. this%beta > 0) na = norm2(dir(2*a-1:2*a))
+      rho(k) = c * (1 - e)
+      cx = mod(this%bins%cell(a) - 1, this%bins%nx)
+      cy = (this%bins%cell(a) - 1) / this%bins%nx
+      do iy = max(cy - 1, 0), min(cy + 1, this%bins%ny - 1)
+        do ix = max(cx - 1, 0), min(cx + 1, this%bins%nx - 1)
+          j = this%bins%head(iy * this%bins%nx + ix + 1)
+          do while (j > 0)
+            if (j /= a) rho(k) = rho(k) + pair_weight(a, j)
+            j = this%bins%next(j)
+          end do
+        end do
+      end do
+    end do
+  contains
+    !> kernel weight of neighbour j in agent a's density (0 beyond the cut), with the look-ahead
+    real(wp) function pair_weight(a, j) result(w)
+      integer, intent(in) :: a, j
+      real(wp) :: dx, dy, d, g(2)
+      w = 0
+      dx = q(2*a-1) - q(2*j-1); dy = q(2*a) - q(2*j)
+      if (abs(dx) > cut .or. abs(dy) > cut) return
+      call pair_contact(dx, dy, 0.0_wp, g, d)
+      if (.not. d <= cut) return
+      w = c * (exp(-d * d / two_s2) - e)
+      if (na > 0 .and. d > 0) &
+        w = w * (1 + this%beta * dot_product(dir(2*a-1:2*a), q(2*j-1:2*j) - q(2*a-1:2*a)) / (na * d))
+    end function pair_weight
+  end subroutine density_of
+
+  !> The kernel's cut R = DENSITY_CUT sigma, 2 sigma^2, its shift exp(-R^2 / (2 sigma^2)) and
+  !> its normalisation C (module header).
+  pure subroutine kernel_constants(sigma, cut, two_s2, e, c)
+    real(wp), intent(in) :: sigma
+    real(wp), intent(out) :: cut, two_s2, e, c
+    cut = DENSITY_CUT * sigma
+    two_s2 = 2 * sigma**2
+    e = exp(-DENSITY_CUT**2 / 2)
+    c = 1 / (acos(-1.0_wp) * two_s2 * (1 - (1 + DENSITY_CUT**2 / 2) * e))
+  end subroutine kernel_constants
+
+  !> Every agent at positions q [2*n_agents] in a grid of cells of side >= side0 over the
+  !> bounding box of the finite positions (cr_neighbours' grid and cell indices; a non-finite
+  !> position goes to a clamped cell, its distances are NaN and never within the cut).
+  subroutine bin_agents(cells, q, side0)
+    type(cell_list_t), intent(inout) :: cells
+    real(wp), intent(in) :: q(:), side0
+    real(wp) :: lo(2), hi(2)
+    integer :: na, i, c
+    na = size(q) / 2
+    lo = huge(1.0_wp); hi = -huge(1.0_wp)
+    do i = 1, na
+      if (.not. all(ieee_is_finite(q(2*i-1:2*i)))) cycle
+      lo = min(lo, q(2*i-1:2*i)); hi = max(hi, q(2*i-1:2*i))
+    end do
+    if (lo(1) > hi(1)) then
+      lo = 0; hi = 0
+    end if
+    call grid_size(0.5_wp * hi - 0.5_wp * lo, side0, real(4 * na + 64, wp), cells%side, cells%nx, cells%ny)
+    cells%x0 = lo(1); cells%y0 = lo(2)
+    if (allocated(cells%head)) then
+      if (size(cells%head) < cells%nx * cells%ny) deallocate(cells%head)
+    end if
+    if (.not. allocated(cells%head)) allocate(cells%head(cells%nx * cells%ny))
+    if (.not. allocated(cells%next)) allocate(cells%next(na), cells%cell(na))
+    if (size(cells%next) < na) then
+      deallocate(cells%next, cells%cell); allocate(cells%next(na), cells%cell(na))
+    end if
+    cells%head(1:cells%nx * cells%ny) = 0
+    do i = na, 1, -1
+      c = cell_index(q(2*i), cells%y0, cells%side, cells%ny) * cells%nx + &
+        cell_index(q(2*i-1), cells%x0, cells%side, cells%nx) + 1
+      cells%cell(i) = c
+      cells%next(i) = cells%head(c)
+      cells%head(c) = i
+    end do
+  end subroutine bin_agents
 
   !> v(rho) / v0 of Weidmann's diagram: 1 - exp(-gamma (1/rho - 1/rho_max)) in [0, 1]; 1 at rho <= 0.
   elemental real(wp) function weidmann_factor(rho, gamma, rho_max) result(f)

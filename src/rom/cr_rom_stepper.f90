@@ -17,10 +17,12 @@
 !>
 !> With the density-dependent desired speed (ctx%density%on, &desired speed_model = 'weidmann')
 !> each step first rebuilds every agent's position (an agent's density reads its neighbours,
-!> which the assembly's agents do not list; O(n_dof Nb)), evaluates every agent's local density
-!> there as the full-order model does (cell list and kernel, O(n_agents)) and hands the assembly
-!> the speeds scaled by the diagram (density_speed_t%scale_speeds): every hyper-reduction
-!> evaluates the desired velocity of the agents it reads at their density-dependent speed.
+!> which the assembly's agents do not list; one product with V, O(n_dof Nb)), then evaluates
+!> the local density of the agents the assembly reads only (ops%agents: the agents of its
+!> sampled points; the kernel over their neighbours found in a grid of every agent,
+!> density_speed_t%scale_speeds_of) and hands the assembly their speeds scaled by the diagram:
+!> the hyper-reduction evaluates the desired velocity of its agents at their density-dependent
+!> speed, as with every agent's density (to the order of the kernel sums).
 module cr_rom_stepper
   use cr_kinds, only: wp, i8
   use cr_error, only: error_t, prefix_error
@@ -78,9 +80,10 @@ module cr_rom_stepper
     type(key_map_t) :: prev
     class(reduced_solver_t), allocatable :: solver
     !> with the density-dependent desired speed: ctx with the step's speeds, and the desired
-    !> velocities at the given speeds (the look-ahead's directions) [n_dof]
+    !> velocities at the given speeds (the look-ahead's directions) [n_dof], set at the dofs
+    !> the assembly reads from vsel [2, size(ops%agents)]
     type(eval_ctx_t) :: dctx
-    real(wp), allocatable :: vdes(:)
+    real(wp), allocatable :: vdes(:), vsel(:,:)
     !> positions carried in full (with a correction)
     logical :: carry = .false.
   end type stepper_state_t
@@ -114,7 +117,8 @@ contains
     end if
     if (ctx%density%on) then
       st%dctx = ctx
-      allocate(st%vdes(size(q0)))
+      allocate(st%vdes(size(q0)), st%vsel(2, size(ops%agents)))
+      st%vdes = 0
     end if
     call system_clock(c0, rate)
     do nu = 1, n_steps
@@ -216,14 +220,16 @@ contains
   end subroutine step_positions
 
   !> The step's reduced assembly at st%q; with the density-dependent desired speed, at the
-  !> speeds the diagram gives each agent's local density there.
+  !> speeds the diagram gives the local density there of each agent the assembly reads.
   subroutine step_assemble(ops, ctx, st)
     class(reduced_ops_t), intent(inout) :: ops
     type(eval_ctx_t), intent(in) :: ctx
     type(stepper_state_t), intent(inout) :: st
     if (ctx%density%on) then
-      call ctx%desired%evaluate(st%q, ctx%speeds, st%vdes)
-      call st%dctx%density%scale_speeds(st%q, st%vdes, ctx%speeds, st%dctx%speeds)
+      ! the desired velocities of the assembly's agents (their directions for the look-ahead)
+      call ctx%desired%evaluate_at(st%q, ctx%speeds, ops%agents, st%vsel)
+      st%vdes(st%dofs) = reshape(st%vsel, [size(st%dofs)])
+      call st%dctx%density%scale_speeds_of(st%q, st%vdes, ops%agents, ctx%speeds, st%dctx%speeds)
       call ops%assemble(st%dctx, st%q, st%vhat, st%bt, st%dhat)
     else
       call ops%assemble(ctx, st%q, st%vhat, st%bt, st%dhat)

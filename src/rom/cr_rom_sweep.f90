@@ -604,6 +604,9 @@ contains
     call log%info("   time per step (fastest repeat of each sample): positions " // &
       str(acc%t_parts(1) / steps, "es9.2") // " s, assembly " // str(acc%t_parts(2) / steps, "es9.2") // &
       " s, solve " // str(acc%t_parts(3) / steps, "es9.2") // " s")
+    if (this%st%cfg%desired%speed_model == 'weidmann') call log%info("   density-dependent speed: " // &
+      "the local density of " // str(size(ops%agents)) // " of " // str(this%st%n_agents) // &
+      " agents per step (those the assembly reads)")
     if (row%infeasible > 0) call log%warn(str(row%infeasible) // " reduced steps were infeasible (the reduced " // &
       "positions already overlap): least-violation coefficients used")
     if (row%capped > 0) call log%warn(str(row%capped) // " reduced solves stopped at their iteration cap " // &
