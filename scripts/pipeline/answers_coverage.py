@@ -95,7 +95,8 @@ def _m0_sd(pilot, stat, q, n):
     y = pilot.Y[:, 0]
     if stat in ("mean", "std"):
         return float(np.std(per_sample(stat, [y])[0], ddof=1) / np.sqrt(n))
-    p = np.mean(y > q.threshold) if stat == "exceedance" else q.percentile / 100
+    p = (np.mean(y > q.threshold) if stat == "exceedance" else np.mean(y >= q.horizon) if stat == "censored"
+         else q.percentile / 100)
     p = float(np.clip(p, 0.5 / len(y), 1 - 0.5 / len(y)))
     return float(np.sqrt(p * (1 - p) / n))
 
@@ -145,6 +146,7 @@ def main(argv=None):
     args.n_train = args.n_train or args.n_exact
     warnings.simplefilter("ignore")
     from answers.coverage import coverage
+    from answers.methods import conditional
     from answers.questions import load_questions
     from crowd_answers import load_models
 
@@ -176,7 +178,7 @@ def main(argv=None):
     for q in chosen:
         for stat in q.statistics():
             for m in args.methods:
-                if m in ("M2", "M3") and not lows:
+                if m in ("M2", "M3") and not lows or m == "M3" and conditional(q, stat):
                     continue
                 run = estimator(m, q, stat, models, qs.box, args, qs.confidence)
                 pt = models.pool_truth.get(q.id, {}).get(stat)

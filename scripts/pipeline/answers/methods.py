@@ -11,18 +11,35 @@
 ``ledger`` arguments are charged with every run the method makes (and the caller's entries it
 holds already: builds, pilot, training).
 """
+import copy
+
 import numpy as np
 from scipy import stats
 
 from . import acv, mfmc
-from .intervals import Answer, mean_ci, point_statistic, sample_statistic, std_from_variance, z_value
+from .intervals import Answer, bounded_moment, mean_ci, point_statistic, sample_statistic, std_from_variance, z_value
 from .sampling import (ESTIMATION, GRID, HELD_OUT, PROPAGATION, Clock, RunCache, draw,
                        indicator_cov, per_sample, run, stream)
 from .surrogate import AR1Surrogate, GPSurrogate, map_interval, propagate
 
 
 def _kw(question):
-    return {"percentile": question.percentile, "threshold": question.threshold}
+    return {"percentile": question.percentile, "threshold": question.threshold,
+            "horizon": getattr(question, "horizon", None), "censoring": getattr(question, "censoring", None)}
+
+
+def _censored_as_exceedance(question, statistic):
+    """The fraction censored asked as an exceedance of the largest double below the horizon."""
+    if statistic != "censored":
+        return question, statistic
+    q = copy.copy(question)
+    q.threshold, q.horizon, q.censoring = float(np.nextafter(question.horizon, -np.inf)), None, None
+    return q, "exceedance"
+
+
+def conditional(question, statistic):
+    """A statistic of the runs below the horizon (M3 does not answer these)."""
+    return getattr(question, "censoring", None) == "condition" and statistic != "censored"
 
 
 # ------------------------------------------------------------------------------ M0
@@ -137,6 +154,7 @@ ENGINE_SCHEMES = ("mfmc", "acvmf")
 def m3_plan(pilot, statistic, target_sd, question, m1_min=10):
     """The M3 plan (layout MFMC or ACV-MF, models, sizes m, alpha from the pilot) for a statistic
     and target sd."""
+    question, statistic = _censored_as_exceedance(question, statistic)
     y0, n = pilot.Y[:, 0], len(pilot.Y)
     if statistic in ("mean", "std"):
         C = np.atleast_2d(np.cov(np.column_stack(per_sample(statistic, list(pilot.Y.T))).T, ddof=1))
@@ -149,6 +167,10 @@ def m3_plan(pilot, statistic, target_sd, question, m1_min=10):
 def m3(question, statistic, models, pilot, plan, seed, confidence, ledger, cache=None):
     """MFMC / ACV-MF on fresh samples: model plan['models'][k] on the first m_k of N = max m_k
     inputs (``cache``: a RunCache of earlier runs on the same seed, extended rather than rerun)."""
+    if conditional(question, statistic):
+        raise ValueError(f"question '{question.id}': M3 does not answer {statistic} of the runs below the horizon")
+    asked = statistic
+    question, statistic = _censored_as_exceedance(question, statistic)
     order, m, alpha, scheme = plan["models"], plan["m"], plan["alpha"], plan["scheme"]
     b = acv.b_sizes(scheme, m)
     params, seeds = draw(question, stream(seed, ESTIMATION), int(np.max(m)))
@@ -174,8 +196,12 @@ def m3(question, statistic, models, pilot, plan, seed, confidence, ledger, cache
         lo, hi = est - h, est + h
         if statistic == "exceedance":
             est, lo, hi = min(max(est, 0.0), 1.0), max(lo, 0.0), min(hi, 1.0)
+    if getattr(question, "censoring", None) == "bound" and statistic in ("mean", "std"):
+        # the hull with the bound of the censored mass from the exact runs (valid by itself)
+        _, blo, bhi = bounded_moment(Y[0], statistic, confidence, question.horizon)
+        lo, hi = min(lo, blo), max(hi, bhi)
     names = [models[j].name for j in order]
-    return Answer(question.id, statistic, "M3", est, lo, hi, confidence, ledger, models=names,
+    return Answer(question.id, asked, "M3", est, lo, hi, confidence, ledger, models=names,
                   m=[int(v) for v in m], alpha=[float(a) for a in alpha], n_exact=int(m[0]),
                   layout=acv.LABELS[scheme], gammas=plan.get("gammas", {}))
 

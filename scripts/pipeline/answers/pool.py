@@ -164,7 +164,8 @@ def served_models(ref_path, questions, chosen, exact, lows, builds, seeds, n_tra
             pools[q.id] = s["params"][keep]
             y = s[exact.name][0][keep]
             pool_truth[q.id] = {st: float(sample_statistic(y, st, questions.confidence, percentile=q.percentile,
-                                                           threshold=q.threshold)[0])
+                                                           threshold=q.threshold, horizon=q.horizon,
+                                                           censoring=q.censoring)[0])
                                 for st in q.statistics()}
     for name, batches in design_runs(questions, chosen, of, exact, lows, seeds, n_train, methods, work).items():
         for rows, b in batches:

@@ -138,7 +138,8 @@ def truth_table(questions, of, batches, exact, n_pool, confidence=0.95):
         p, t = slice(0, n_pool), slice(n_pool, None)
         row = {}
         for s in q.statistics():
-            kw = {"percentile": q.percentile, "threshold": q.threshold}
+            kw = {"percentile": q.percentile, "threshold": q.threshold, "horizon": q.horizon,
+                  "censoring": q.censoring}
             v, lo, hi = sample_statistic(y[t], s, confidence, **kw)
             row[s] = {"value": float(v), "lo": float(lo), "hi": float(hi),
                       "se": float(max(hi - v, v - lo) / z), "n": int(len(y[t])),

@@ -204,7 +204,7 @@ def _planned(q, stat, eps, pilot, pilot_ledger, exact_pilot, setup, z):
         n = max(int(math.ceil(np.var(G, ddof=1) / tsd ** 2)), 10)
         found.append(Candidate("M0", exact_pilot.total() + n * pilot.costs[0], eps, plan={"n": n},
                                label="M0 exact MC"))
-    if "M3" in setup.methods and setup.lows:
+    if "M3" in setup.methods and setup.lows and not methods.conditional(q, stat):
         plan = methods.m3_plan(pilot, stat, tsd, q)
         lows = [pilot.names[j] for j in plan["models"][1:]]
         # the pilot ran every model: the builds of all of them are needed
