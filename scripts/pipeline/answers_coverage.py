@@ -75,9 +75,9 @@ def estimator(method, q, stat, models, box, args, conf):
             return methods.m1(q, stat, tr, args.n_train, seed, conf, led, restarts=1,
                               n_large=n_large, n_draws=n_draws, n_sub=n_sub)
         if method == "M2":
-            led = builds.builds_of([names[0]]).copy()
+            led = builds.ledger([names[0]])
             return methods.m2(pq, stat, lows[0], exact, args.n_low, args.n_exact, seed, conf, led)
-        led = builds.builds_of(names).copy()
+        led = builds.ledger(names)
         pilot = sampling.Pilot(pq, [exact] + lows, 40, seed, led)
         if args.m3_target == "m0":
             tsd = _m0_sd(pilot, stat, pq, args.n_exact)
@@ -110,7 +110,7 @@ def _map(method, q, exact, lows, box, args, conf, seed, builds):
         led = CostLedger()
         tr = sampling.TrainingSet(q, box, [exact], seed, led)
         return methods.m1_map(q, box, tr, args.n_train, seed, conf, led, restarts=1)
-    led = builds.builds_of([lows[0].name]).copy()
+    led = builds.ledger([lows[0].name])
     tr = sampling.TrainingSet(q, box, [exact, lows[0]], seed, led)
     if method == "M2":
         return methods.m2_map(q, box, lows[0], exact, tr, args.n_train, seed, conf, led)
