@@ -75,9 +75,9 @@ def estimator(method, q, stat, models, box, args, conf):
             return methods.m1(q, stat, tr, args.n_train, seed, conf, led, restarts=1,
                               n_large=n_large, n_draws=n_draws, n_sub=n_sub)
         if method == "M2":
-            led = builds.builds_of([names[0]]).copy()
+            led = builds.ledger([names[0]])
             return methods.m2(pq, stat, lows[0], exact, args.n_low, args.n_exact, seed, conf, led)
-        led = builds.builds_of(names).copy()
+        led = builds.ledger(names)
         pilot = sampling.Pilot(pq, [exact] + lows, 40, seed, led)
         if args.m3_target == "m0":
             tsd = _m0_sd(pilot, stat, pq, args.n_exact)
@@ -95,7 +95,8 @@ def _m0_sd(pilot, stat, q, n):
     y = pilot.Y[:, 0]
     if stat in ("mean", "std"):
         return float(np.std(per_sample(stat, [y])[0], ddof=1) / np.sqrt(n))
-    p = np.mean(y > q.threshold) if stat == "exceedance" else q.percentile / 100
+    p = (np.mean(y > q.threshold) if stat == "exceedance" else np.mean(y >= q.horizon) if stat == "censored"
+         else q.percentile / 100)
     p = float(np.clip(p, 0.5 / len(y), 1 - 0.5 / len(y)))
     return float(np.sqrt(p * (1 - p) / n))
 
@@ -109,7 +110,7 @@ def _map(method, q, exact, lows, box, args, conf, seed, builds):
         led = CostLedger()
         tr = sampling.TrainingSet(q, box, [exact], seed, led)
         return methods.m1_map(q, box, tr, args.n_train, seed, conf, led, restarts=1)
-    led = builds.builds_of([lows[0].name]).copy()
+    led = builds.ledger([lows[0].name])
     tr = sampling.TrainingSet(q, box, [exact, lows[0]], seed, led)
     if method == "M2":
         return methods.m2_map(q, box, lows[0], exact, tr, args.n_train, seed, conf, led)
@@ -145,6 +146,7 @@ def main(argv=None):
     args.n_train = args.n_train or args.n_exact
     warnings.simplefilter("ignore")
     from answers.coverage import coverage
+    from answers.methods import conditional
     from answers.questions import load_questions
     from crowd_answers import load_models
 
@@ -176,7 +178,7 @@ def main(argv=None):
     for q in chosen:
         for stat in q.statistics():
             for m in args.methods:
-                if m in ("M2", "M3") and not lows:
+                if m in ("M2", "M3") and not lows or m == "M3" and conditional(q, stat):
                     continue
                 run = estimator(m, q, stat, models, qs.box, args, qs.confidence)
                 pt = models.pool_truth.get(q.id, {}).get(stat)

@@ -7,7 +7,9 @@ file at the same inputs (a joint sample), run by crowd_predict (docs/answers-ref
     answers_reference.py QUESTIONS.json --models MODELS.json --n-truth 3000 --n-pool 1000 \\
         --work results/ref_chunks --out results/case_reference.h5 --truth results/case_truth.json
 
-Chunks of --chunk queries are kept in --work (a stopped run resumes). Writes the HDF5 reference
+Chunks of --chunk queries are kept in --work (a stopped run resumes). With --lows-on-pool the
+low fidelities run on the pool rows only (the coverage's joint sample; the truth is the exact
+model's). Writes the HDF5 reference
 (samples, QoIs, censoring, CPU seconds, the command, machine and load) and the truth JSON
 ({question id: {statistic: value}} plus "details": value, standard error, 95% interval, censored
 count, the pool's value), both or neither.
@@ -34,11 +36,7 @@ def backends(models_path, box, qoi):
     from crowd_answers import load_models
     exact, lows, _ = load_models(models_path, box, [qoi])
 
-    def keep(m):
-        return ProductBackend(m.name, m.qoi, m.rom_file, m.param_names, model=m.model,
-                              setting=m.setting, program=m.program, ranks=m.ranks,
-                              launcher=m.launcher, cpu=m.cpu)
-    return keep(exact), [keep(m) for m in lows]
+    return ProductBackend(exact), [ProductBackend(m) for m in lows]
 
 
 def main(argv=None):
@@ -49,6 +47,8 @@ def main(argv=None):
     ap.add_argument("--n-truth", type=int, default=3000)
     ap.add_argument("--n-pool", type=int, default=1000)
     ap.add_argument("--chunk", type=int, default=250)
+    ap.add_argument("--lows-on-pool", action="store_true",
+                    help="run the low fidelities on the pool rows only (the truth needs the exact model alone)")
     ap.add_argument("--work", required=True, help="folder of the chunks (resume)")
     ap.add_argument("--out", required=True, help="reference HDF5")
     ap.add_argument("--truth", required=True, help="truth JSON")
@@ -68,12 +68,13 @@ def main(argv=None):
     samples, of = reference.plan(qs, args.n_truth, args.n_pool)
     batches = {}
     for name, params in samples.items():
-        batches[name] = {m.name: reference.Batch(m, params, args.work, name, args.chunk)
-                         for m in [exact] + lows}
+        low_rows = params[:args.n_pool] if args.lows_on_pool and name.startswith("dist_") else params
+        batches[name] = {m.name: reference.Batch(m, params if m is exact else low_rows, args.work, name,
+                                                 args.chunk) for m in [exact] + lows}
     truth = reference.truth_table(qs, of, batches, exact.name, args.n_pool, qs.confidence)
     meta = {"command": " ".join([PROG] + (argv if argv is not None else sys.argv[1:])),
-            "questions_file": qs.path, "models_file": args.models, "rom_file": exact.rom_file,
-            "program": exact.program, "ranks": exact.ranks, "seed": qs.seed,
+            "questions_file": qs.path, "models_file": args.models, "rom_file": exact.model.rom_file,
+            "program": exact.model.program, "ranks": exact.model.ranks, "seed": qs.seed,
             "n_truth": args.n_truth, "n_pool": args.n_pool,
             "machine": f"{platform.node()} {platform.machine()} {os.cpu_count()} cores",
             "load_average_start": list(load0), "load_average_end": list(os.getloadavg()),

@@ -2,11 +2,15 @@
 
 * mean: Student t interval;
 * standard deviation: chi-square interval on the variance with the degrees of freedom matched to
-  the sample kurtosis (df = 2 s^4 / est. Var(s^2); df = n - 1 for a Gaussian sample, wider for
-  heavy tails), square-rooted;
+  the sample kurtosis (df = 2 s^4 / est. Var(s^2), at most n - 1: wider for heavy tails, never
+  narrower than a Gaussian sample's), square-rooted;
 * quantile q_p: distribution-free order-statistic interval [y_(l), y_(u)] with l, u the binomial
   (n, p) quantiles (an end is infinite when the sample is too small to bound it);
-* exceedance probability P(Y > c): Clopper-Pearson (exact binomial) interval.
+* exceedance probability P(Y > c): Clopper-Pearson (exact binomial) interval;
+* a QoI censored at a horizon (the value of a run that never reaches it): the mean and sd of the
+  censored QoI with intervals that bound the censored fraction by Clopper-Pearson, seen or not
+  (``bounded_moment``), or the fraction censored and the statistics of the runs below the
+  horizon (``conditional_statistic``).
 
 The stated error of an answer is relative: max(hi - value, value - lo) / |value|.
 """
@@ -85,13 +89,16 @@ def mean_ci(y, confidence):
 
 
 def variance_df(y):
-    """Degrees of freedom of the chi-square law matched to the sample's variance and kurtosis."""
+    """Degrees of freedom of the chi-square law matched to the sample's variance and kurtosis, at
+    most a Gaussian sample's n - 1 (a short sample's kurtosis is often below its law's, and a
+    lighter tail than the Gaussian's would narrow the interval: at 32 Gaussian runs the uncapped
+    interval holds the sd in 91% of 4 000 samples, the capped one in 96%)."""
     y = np.asarray(y, float)
     n = len(y)
     s2 = np.var(y, ddof=1)
     m4 = np.mean((y - y.mean()) ** 4)
     var_s2 = max((m4 - s2 ** 2 * (n - 3) / (n - 1)) / n, 2 * s2 ** 2 / (n - 1) * 1e-3)
-    return max(2.0 * s2 ** 2 / var_s2, 1.0) if s2 > 0 else float(n - 1)
+    return min(max(2.0 * s2 ** 2 / var_s2, 1.0), n - 1.0) if s2 > 0 else float(n - 1)
 
 
 def std_ci(y, confidence):
@@ -135,9 +142,13 @@ def exceedance_ci(y, c, confidence):
     return k / n, float(lo), float(hi)
 
 
-def point_statistic(y, statistic, percentile=95.0, threshold=None):
+def point_statistic(y, statistic, percentile=95.0, threshold=None, horizon=None, censoring=None):
     """The estimate of ``sample_statistic`` alone (no interval: cheap inside a bootstrap)."""
     y = np.asarray(y, float)
+    if horizon is not None and censoring == "condition":
+        if statistic == "censored":
+            return float(np.mean(y >= horizon))
+        y = y[y < horizon]
     if statistic == "mean":
         return float(np.mean(y))
     if statistic == "std":
@@ -148,8 +159,64 @@ def point_statistic(y, statistic, percentile=95.0, threshold=None):
     return float(ys[min(max(int(np.ceil(len(y) * percentile / 100.0)) - 1, 0), len(y) - 1)])
 
 
-def sample_statistic(y, statistic, confidence, percentile=95.0, threshold=None):
-    """(estimate, lo, hi) of a question's statistic from one sample of the QoI."""
+def censored_fraction_ci(y, horizon, confidence):
+    """Fraction of runs censored (y >= horizon) and its Clopper-Pearson interval."""
+    return exceedance_ci(y, np.nextafter(horizon, -np.inf), confidence)
+
+
+def censored_moments(p, mu, sd, horizon):
+    """Mean and sd of a QoI that is ``horizon`` with probability p and otherwise has mean mu and
+    sd sd (arrays broadcast)."""
+    d = horizon - mu
+    return (1 - p) * mu + p * horizon, np.sqrt(np.maximum((1 - p) * sd ** 2 + p * (1 - p) * d ** 2, 0.0))
+
+
+def bounded_moment(y, statistic, confidence, horizon):
+    """Mean or sd of min(QoI, horizon) with an interval that bounds the censored mass, seen or
+    not: Clopper-Pearson on the censored fraction p, the t interval of the mean mu and the
+    chi-square interval of the sd of the runs below the horizon, each at 1 - (1 - confidence) / 3
+    (Bonferroni), and the statistic's range over that box (its extremes in p over a grid that
+    holds the ends and the sd's stationary point, in mu and sd at their ends: the mean rises with
+    mu and sd, the sd with sd and falls with mu below the horizon). The value is the sample's."""
+    y = np.asarray(y, float)
+    cens = y >= horizon
+    c3 = 1 - (1 - confidence) / 3
+    _, plo, phi = censored_fraction_ci(y, horizon, c3)
+    free = y[~cens]
+    if len(free) < 3:
+        return point_statistic(y, statistic), -np.inf if statistic == "mean" else 0.0, np.inf
+    _, mlo, mhi = mean_ci(free, c3)
+    _, slo, shi = std_ci(free, c3)
+    mlo, mhi = min(mlo, horizon), min(mhi, horizon)
+    ps = np.linspace(plo, phi, 65)
+    stat = 0 if statistic == "mean" else 1
+    low = censored_moments(ps, mlo if stat == 0 else mhi, slo, horizon)[stat]
+    high = censored_moments(ps, mhi if stat == 0 else mlo, shi, horizon)[stat]
+    if stat == 1:     # the sd's maximum over p in (0, 1/2): where d/dp of the variance vanishes
+        d = horizon - mlo
+        pstar = np.clip(0.5 * (1 - shi ** 2 / d ** 2) if d > 0 else 0.0, plo, phi)
+        high = np.append(high, censored_moments(pstar, mlo, shi, horizon)[1])
+    return point_statistic(y, statistic), float(np.min(low)), float(np.max(high))
+
+
+def conditional_statistic(y, statistic, confidence, horizon, percentile=95.0):
+    """A statistic of the runs below the horizon (their own intervals); ``censored``: the
+    fraction at the horizon with its Clopper-Pearson interval."""
+    y = np.asarray(y, float)
+    if statistic == "censored":
+        return censored_fraction_ci(y, horizon, confidence)
+    return sample_statistic(y[y < horizon], statistic, confidence, percentile)
+
+
+def sample_statistic(y, statistic, confidence, percentile=95.0, threshold=None, horizon=None,
+                     censoring=None):
+    """(estimate, lo, hi) of a question's statistic from one sample of the QoI; a censored QoI
+    (``horizon``): ``censoring`` 'bound' (mean and sd of min(QoI, horizon), intervals bounding
+    the censored mass, ``bounded_moment``) or 'condition' (``conditional_statistic``)."""
+    if horizon is not None and censoring == "condition":
+        return conditional_statistic(y, statistic, confidence, horizon, percentile)
+    if horizon is not None and censoring == "bound" and statistic in ("mean", "std"):
+        return bounded_moment(y, statistic, confidence, horizon)
     if statistic == "mean":
         return mean_ci(y, confidence)
     if statistic == "std":

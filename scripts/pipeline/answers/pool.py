@@ -122,8 +122,7 @@ def design_runs(questions, chosen, of, exact, lows, seeds, n_train, methods, wor
     out = {}
     for (key, name), rows in need.items():
         m = next(x for x in [exact] + list(lows) if x.name == name)
-        real = ProductBackend(m.name, m.qoi, m.rom_file, m.param_names, model=m.model, setting=m.setting,
-                              program=m.program, ranks=m.ranks, launcher=m.launcher, cpu=m.cpu)
+        real = ProductBackend(m)
         tag = f"design_{key}_n{n_train}_s{min(seeds)}-{max(seeds)}"
         out.setdefault(name, []).append((rows, Batch(real, rows, work, tag, chunk=400)))
     return out
@@ -165,7 +164,8 @@ def served_models(ref_path, questions, chosen, exact, lows, builds, seeds, n_tra
             pools[q.id] = s["params"][keep]
             y = s[exact.name][0][keep]
             pool_truth[q.id] = {st: float(sample_statistic(y, st, questions.confidence, percentile=q.percentile,
-                                                           threshold=q.threshold)[0])
+                                                           threshold=q.threshold, horizon=q.horizon,
+                                                           censoring=q.censoring)[0])
                                 for st in q.statistics()}
     for name, batches in design_runs(questions, chosen, of, exact, lows, seeds, n_train, methods, work).items():
         for rows, b in batches:

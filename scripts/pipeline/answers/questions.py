@@ -33,6 +33,8 @@ BOX_RTOL = 1e-9
 #: quantities of interest a question may name (the scalar QoIs of the crowdrom-qoi product)
 QOI_NAMES = ("t50", "t90", "t100", "flow_1", "flow_2", "flow_rate_1", "flow_rate_2", "displacement")
 KINDS = ("map", "moments", "exceedance")
+#: how a moments question with a ``horizon`` treats the runs censored there
+CENSORING = ("bound", "condition")
 DIST_KEYS = {"fixed": ("value",), "uniform": ("low", "high"),
              "truncnormal": ("mean", "std", "low", "high"), "triangular": ("low", "mode", "high")}
 
@@ -157,6 +159,8 @@ class Question:
         self.percentile = spec.get("percentile", 95.0)
         self.threshold = spec.get("threshold")
         self.replicates = spec.get("replicates", 1)
+        self.horizon = spec.get("horizon")          # moments: the value of a censored run
+        self.censoring = spec.get("censoring", "bound" if self.horizon is not None else None)
 
     def region_key(self):
         """The question's region as canonical text (grid and nominal values, or distributions):
@@ -171,7 +175,8 @@ class Question:
     def statistics(self):
         """The statistics this question asks for (one answer each)."""
         if self.kind == "moments":
-            return ["mean", "std", f"p{self.percentile:g}"]
+            first = ["censored"] if self.censoring == "condition" else []
+            return first + ["mean", "std", f"p{self.percentile:g}"]
         if self.kind == "exceedance":
             return ["exceedance"]
         return ["map"]
@@ -305,7 +310,7 @@ class _Checker:
         if kind not in KINDS:
             self.fail(f"{key}.kind", f"unknown kind {kind!r} (known: {', '.join(KINDS)})")
         extra = {"map": (("grid", "nominal"), ("replicates",)),
-                 "moments": (("distributions",), ("percentile",)),
+                 "moments": (("distributions",), ("percentile", "horizon", "censoring")),
                  "exceedance": (("distributions", "threshold"), ())}[kind]
         self.keys(q, key, ("id", "kind", "qoi") + extra[0], extra[1] + ("comment",))
         if not isinstance(q["id"], str) or not q["id"]:
@@ -322,9 +327,26 @@ class _Checker:
             if not 0 < p < 100:
                 self.fail(f"{key}.percentile", f"must lie in (0, 100), got {p}")
             spec["percentile"] = p
+        if kind == "moments":
+            spec.update(self.censoring(q, key))
         if kind == "exceedance":
             spec["threshold"] = self.number(q["threshold"], f"{key}.threshold")
         return Question(q["id"], kind, q["qoi"], **spec)
+
+    def censoring(self, q, key):
+        """``horizon`` (> 0) and ``censoring`` ('bound' or 'condition', needs a horizon)."""
+        out = {}
+        if "horizon" in q:
+            out["horizon"] = self.number(q["horizon"], f"{key}.horizon")
+            if not out["horizon"] > 0:
+                self.fail(f"{key}.horizon", f"must be > 0, got {out['horizon']}")
+        if "censoring" in q:
+            if q["censoring"] not in CENSORING:
+                self.fail(f"{key}.censoring", f"unknown {q['censoring']!r} (known: {', '.join(CENSORING)})")
+            if "horizon" not in q:
+                self.fail(f"{key}.censoring", "needs a horizon (the value of a censored run)")
+            out["censoring"] = q["censoring"]
+        return out
 
     def inside(self, v, name, key, box):
         k = box.index(name)

@@ -31,13 +31,25 @@ REFERENCE = 7
 COLUMNS = {"t50": 0, "t90": 1, "t100": 2}
 
 
-class ProductBackend(backend.PredictBackend):
-    """A PredictBackend that keeps the whole product of its last call (``last``) and that call's
-    process CPU seconds (``last_cpu``)."""
+class ProductBackend(backend.Backend):
+    """A model (a PredictBackend or PredictModel) run for its whole product: after each call,
+    ``last`` holds the rows' t_evac [n, 3], censored [n, 3] and the product's per-query CPU
+    seconds, ``last_cpu`` the call's process CPU seconds (start-up and reading included)."""
 
-    def _evaluation(self, prod, params, cpu):
-        self.last, self.last_cpu = prod, cpu
-        return super()._evaluation(prod, params, cpu)
+    def __init__(self, model):
+        m = getattr(model, "model", model)
+        self.name = m.name
+        self.model = backend.PredictModel(
+            m.name, m.rom_file, m.param_names, kind=m.kind, setting=m.setting, ml=m.ml or None,
+            program=m.program, ranks=m.ranks, launcher=m.launcher, cpu="queries",
+            workdir=m.workdir, seed_params=m.seed_params, python=m.python)
+
+    def evaluate(self, params, seeds=None):
+        t0 = backend.children_cpu()
+        prod, cpu = self.model.products(params, seeds)
+        self.last_cpu = backend.children_cpu() - t0
+        self.last = {"t_evac": prod["t_evac"], "censored": prod["censored"], "cpu_seconds": cpu}
+        return backend.Evaluation(prod["t_evac"][:, 1], float(np.sum(cpu)), prod["censored"][:, 1])
 
 
 class Batch:
@@ -126,7 +138,8 @@ def truth_table(questions, of, batches, exact, n_pool, confidence=0.95):
         p, t = slice(0, n_pool), slice(n_pool, None)
         row = {}
         for s in q.statistics():
-            kw = {"percentile": q.percentile, "threshold": q.threshold}
+            kw = {"percentile": q.percentile, "threshold": q.threshold, "horizon": q.horizon,
+                  "censoring": q.censoring}
             v, lo, hi = sample_statistic(y[t], s, confidence, **kw)
             row[s] = {"value": float(v), "lo": float(lo), "hi": float(hi),
                       "se": float(max(hi - v, v - lo) / z), "n": int(len(y[t])),
