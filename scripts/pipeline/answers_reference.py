@@ -34,11 +34,7 @@ def backends(models_path, box, qoi):
     from crowd_answers import load_models
     exact, lows, _ = load_models(models_path, box, [qoi])
 
-    def keep(m):
-        return ProductBackend(m.name, m.qoi, m.rom_file, m.param_names, model=m.model,
-                              setting=m.setting, program=m.program, ranks=m.ranks,
-                              launcher=m.launcher, cpu=m.cpu)
-    return keep(exact), [keep(m) for m in lows]
+    return ProductBackend(exact), [ProductBackend(m) for m in lows]
 
 
 def main(argv=None):
@@ -72,8 +68,8 @@ def main(argv=None):
                          for m in [exact] + lows}
     truth = reference.truth_table(qs, of, batches, exact.name, args.n_pool, qs.confidence)
     meta = {"command": " ".join([PROG] + (argv if argv is not None else sys.argv[1:])),
-            "questions_file": qs.path, "models_file": args.models, "rom_file": exact.rom_file,
-            "program": exact.program, "ranks": exact.ranks, "seed": qs.seed,
+            "questions_file": qs.path, "models_file": args.models, "rom_file": exact.model.rom_file,
+            "program": exact.model.program, "ranks": exact.model.ranks, "seed": qs.seed,
             "n_truth": args.n_truth, "n_pool": args.n_pool,
             "machine": f"{platform.node()} {platform.machine()} {os.cpu_count()} cores",
             "load_average_start": list(load0), "load_average_end": list(os.getloadavg()),

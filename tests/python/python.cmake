@@ -41,6 +41,8 @@ cr_pytest(pytest_predict TIMEOUT 300 FILES test_predict.py)
 cr_pytest(pytest_answers_predict TIMEOUT 180 FILES test_answers_predict.py)
 # answers with a stated error: estimators on synthetic models with known moments (no build needed)
 cr_pytest(pytest_answers TIMEOUT 600 FILES test_answers.py)
+# approximate control variates (ACV-MF, ACV-IS) against closed forms on a synthetic family
+cr_pytest(pytest_answers_acv TIMEOUT 300 FILES test_answers_acv.py)
 # the scaled-down 1 000-agent study end to end (two exits, run_study.sh on 2 ranks): its own test
 cr_pytest(pytest_crowd1000_mini TIMEOUT 1500 PROCESSORS 2 FILES test_crowd1000_mini.py)
 # the heterogeneous population (speed_mean, speed_spread) end to end at test size

@@ -10,6 +10,7 @@ Modules (one concept each):
 * ``ledger``     the cost ledger (CPU seconds per stage and model);
 * ``intervals``  the ``Answer`` record and the single-sample statistics with their intervals;
 * ``mfmc``       multi-fidelity Monte Carlo: allocation, estimators, variances;
+* ``acv``        approximate control variates (MFMC, ACV-MF, ACV-IS layouts): variance, allocation, estimators;
 * ``surrogate``  Gaussian-process surrogates (single- and multi-fidelity), posterior propagation;
 * ``methods``    M0 (exact Monte Carlo), M1 (GP), M2 (low fidelity alone), M3 (multi-fidelity);
 * ``select``     the cheapest method per question and accuracy; table, JSON, figure;

@@ -4,8 +4,9 @@
   (``m0_map``);
 * M1 Gaussian-process surrogate on exact runs (``m1``, ``m1_map``);
 * M2 a low fidelity alone, its bias and error from held-out exact runs (``m2``, ``m2_map``);
-* M3 multi-fidelity: MFMC on fresh samples with the allocation and coefficients from the
-  pilot (``m3``), the autoregressive GP for maps (``m3_map``).
+* M3 multi-fidelity: MFMC or ACV-MF on fresh samples (the layout of least planned variance),
+  the allocation and coefficients from the pilot (``m3``), the autoregressive GP for maps
+  (``m3_map``).
 
 ``ledger`` arguments are charged with every run the method makes (and the caller's entries it
 holds already: builds, pilot, training).
@@ -13,7 +14,7 @@ holds already: builds, pilot, training).
 import numpy as np
 from scipy import stats
 
-from . import mfmc
+from . import acv, mfmc
 from .intervals import Answer, mean_ci, point_statistic, sample_statistic, std_from_variance, z_value
 from .sampling import (ESTIMATION, GRID, HELD_OUT, PROPAGATION, Clock, RunCache, draw,
                        indicator_cov, per_sample, run, stream)
@@ -128,68 +129,74 @@ def m2_map(question, box, low, exact, training, n_held, seed, confidence, ledger
 
 # ------------------------------------------------------------------------------ M3
 
+#: the layouts M3 chooses from (ACV-IS needs per-model input blocks, which the prefix-extending
+#: run cache and the top-up cannot reuse)
+ENGINE_SCHEMES = ("mfmc", "acvmf")
+
+
 def m3_plan(pilot, statistic, target_sd, question, m1_min=10):
-    """The MFMC plan (models, sizes m, alpha from the pilot) for a statistic and target sd."""
+    """The M3 plan (layout MFMC or ACV-MF, models, sizes m, alpha from the pilot) for a statistic
+    and target sd."""
     y0, n = pilot.Y[:, 0], len(pilot.Y)
     if statistic in ("mean", "std"):
         C = np.atleast_2d(np.cov(np.column_stack(per_sample(statistic, list(pilot.Y.T))).T, ddof=1))
     else:
         level = question.percentile / 100 if statistic != "exceedance" else np.mean(y0 <= question.threshold)
         C = indicator_cov(pilot.Y, float(np.clip(level, 0.5 / n, 1 - 0.5 / n)))
-    p = mfmc.plan(C, pilot.costs, target_sd ** 2, m1_min)
-    p["alpha"] = mfmc.optimal_alpha(C[np.ix_(p["models"], p["models"])])
-    return p
+    return acv.plan(C, pilot.costs, target_sd ** 2, m1_min, ENGINE_SCHEMES)
 
 
 def m3(question, statistic, models, pilot, plan, seed, confidence, ledger, cache=None):
-    """MFMC on fresh samples: model plan['models'][k] on the first m_k of N = m_K inputs
-    (``cache``: a RunCache of earlier runs on the same seed, extended rather than rerun)."""
-    order, m, alpha = plan["models"], plan["m"], plan["alpha"]
-    params, seeds = draw(question, stream(seed, ESTIMATION), int(m[-1]))
+    """MFMC / ACV-MF on fresh samples: model plan['models'][k] on the first m_k of N = max m_k
+    inputs (``cache``: a RunCache of earlier runs on the same seed, extended rather than rerun)."""
+    order, m, alpha, scheme = plan["models"], plan["m"], plan["alpha"], plan["scheme"]
+    b = acv.b_sizes(scheme, m)
+    params, seeds = draw(question, stream(seed, ESTIMATION), int(np.max(m)))
     cache = cache or RunCache()
     Y = [pilot.align(j, cache.run(models[j], params[:mk], seeds[:mk], ledger, "estimation"))
          for j, mk in zip(order, m)]
     tq = stats.t.ppf(0.5 + confidence / 2, max(m[0] - 1, 1))
     if statistic == "quantile" or statistic.startswith("p"):
-        est, lo, hi = _mf_quantile(Y, alpha, m, question.percentile / 100, tq)
+        est, lo, hi = _mf_quantile(Y, alpha, m, question.percentile / 100, tq, scheme)
     elif statistic == "std":
-        V = mfmc.combine_variance(Y, alpha)
-        var_v = mfmc.variance(mfmc.nested_cov(per_sample("std", Y)), m, alpha)
+        V = acv.combine_variance(Y, alpha, b)
+        var_v = acv.variance(mfmc.nested_cov(per_sample("std", Y)), m, alpha, scheme)
         df = max(2 * V ** 2 / var_v, 1.0) if var_v > 0 and V > 0 else 1.0
         est, lo, hi = std_from_variance(max(V, 0.0), df, confidence)
     else:
         G = per_sample(statistic, Y, question.threshold)
-        est = mfmc.combine(G, alpha)
+        est = acv.combine(G, alpha, b)
         if statistic == "exceedance":
-            v = _indicator_variance(Y, G, 1.0 - est, m, alpha)
+            v = _indicator_variance(Y, G, 1.0 - est, m, alpha, scheme)
         else:
-            v = mfmc.variance(mfmc.nested_cov(G), m, alpha)
+            v = acv.variance(mfmc.nested_cov(G), m, alpha, scheme)
         h = tq * np.sqrt(max(v, 0.0))
         lo, hi = est - h, est + h
         if statistic == "exceedance":
             est, lo, hi = min(max(est, 0.0), 1.0), max(lo, 0.0), min(hi, 1.0)
     names = [models[j].name for j in order]
     return Answer(question.id, statistic, "M3", est, lo, hi, confidence, ledger, models=names,
-                  m=[int(v) for v in m], alpha=[float(a) for a in alpha], n_exact=int(m[0]))
+                  m=[int(v) for v in m], alpha=[float(a) for a in alpha], n_exact=int(m[0]),
+                  layout=acv.LABELS[scheme], gammas=plan.get("gammas", {}))
 
 
-def _indicator_variance(Y, G, level, m, alpha):
+def _indicator_variance(Y, G, level, m, alpha, scheme="mfmc"):
     """Variance of an MFMC mean of indicators: the larger of the plug-in value (covariances of
     the m_1 joint indicators, unreliable when they saw few tail events) and the Gaussian-copula
     value at the estimated level (correlations from the ranks of the m_1 joint values)."""
     m1 = int(m[0])
-    plug = mfmc.variance(mfmc.nested_cov(G), m, alpha)
+    plug = acv.variance(mfmc.nested_cov(G), m, alpha, scheme)
     n = len(Y[0])
     level = float(np.clip(level, 0.5 / n, 1 - 0.5 / n))
     joint = np.column_stack([y[:m1] for y in Y])
-    return max(plug, mfmc.variance(indicator_cov(joint, level), m, alpha), 0.0)
+    return max(plug, acv.variance(indicator_cov(joint, level), m, alpha, scheme), 0.0)
 
 
-def _mf_quantile(Y, alpha, m, p, tq):
+def _mf_quantile(Y, alpha, m, p, tq, scheme="mfmc"):
     """Quantile from the MFMC CDF (made monotone), Woodruff interval: the CDF's inverse at
     p -+ t se(F(q))."""
     ts = np.unique(np.concatenate(Y))
-    F = mfmc.monotone_cdf(mfmc.combine_cdf(Y, alpha, ts))
+    F = mfmc.monotone_cdf(acv.combine_cdf(Y, alpha, ts, acv.b_sizes(scheme, m)))
 
     def inverse(level):
         if level <= 0:
@@ -197,7 +204,7 @@ def _mf_quantile(Y, alpha, m, p, tq):
         i = np.searchsorted(F, level, side="left")
         return float(ts[i]) if i < len(ts) and level <= 1 else np.inf
     q = inverse(p)
-    se = np.sqrt(_indicator_variance(Y, per_sample("p", Y, q), p, m, alpha))
+    se = np.sqrt(_indicator_variance(Y, per_sample("p", Y, q), p, m, alpha, scheme))
     return q, inverse(p - tq * se), inverse(p + tq * se)
 
 

@@ -122,8 +122,7 @@ def design_runs(questions, chosen, of, exact, lows, seeds, n_train, methods, wor
     out = {}
     for (key, name), rows in need.items():
         m = next(x for x in [exact] + list(lows) if x.name == name)
-        real = ProductBackend(m.name, m.qoi, m.rom_file, m.param_names, model=m.model, setting=m.setting,
-                              program=m.program, ranks=m.ranks, launcher=m.launcher, cpu=m.cpu)
+        real = ProductBackend(m)
         tag = f"design_{key}_n{n_train}_s{min(seeds)}-{max(seeds)}"
         out.setdefault(name, []).append((rows, Batch(real, rows, work, tag, chunk=400)))
     return out

@@ -31,13 +31,25 @@ REFERENCE = 7
 COLUMNS = {"t50": 0, "t90": 1, "t100": 2}
 
 
-class ProductBackend(backend.PredictBackend):
-    """A PredictBackend that keeps the whole product of its last call (``last``) and that call's
-    process CPU seconds (``last_cpu``)."""
+class ProductBackend(backend.Backend):
+    """A model (a PredictBackend or PredictModel) run for its whole product: after each call,
+    ``last`` holds the rows' t_evac [n, 3], censored [n, 3] and the product's per-query CPU
+    seconds, ``last_cpu`` the call's process CPU seconds (start-up and reading included)."""
 
-    def _evaluation(self, prod, params, cpu):
-        self.last, self.last_cpu = prod, cpu
-        return super()._evaluation(prod, params, cpu)
+    def __init__(self, model):
+        m = getattr(model, "model", model)
+        self.name = m.name
+        self.model = backend.PredictModel(
+            m.name, m.rom_file, m.param_names, kind=m.kind, setting=m.setting, ml=m.ml or None,
+            program=m.program, ranks=m.ranks, launcher=m.launcher, cpu="queries",
+            workdir=m.workdir, seed_params=m.seed_params, python=m.python)
+
+    def evaluate(self, params, seeds=None):
+        t0 = backend.children_cpu()
+        prod, cpu = self.model.products(params, seeds)
+        self.last_cpu = backend.children_cpu() - t0
+        self.last = {"t_evac": prod["t_evac"], "censored": prod["censored"], "cpu_seconds": cpu}
+        return backend.Evaluation(prod["t_evac"][:, 1], float(np.sum(cpu)), prod["censored"][:, 1])
 
 
 class Batch:

@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from . import methods
+from . import acv, methods
 from .intervals import z_value
 from .ledger import Builds, CostLedger
 from .sampling import Pilot, RunCache, TrainingSet, per_sample, target_sd
@@ -210,7 +210,8 @@ def _planned(q, stat, eps, pilot, pilot_ledger, exact_pilot, setup, z):
         lows = [pilot.names[j] for j in plan["models"][1:]]
         # the pilot ran every model: the builds of all of them are needed
         cost = pilot_ledger.total() + plan["cost"] + setup.ledger(pilot.names).total()
-        label = "M3 MFMC " + "+".join(lows) if lows else "M3 MFMC (exact only)"
+        layout = acv.LABELS[plan["scheme"]]
+        label = f"M3 {layout} " + "+".join(lows) if lows else "M3 MFMC (exact only)"
         found.append(Candidate("M3", cost, eps, plan=plan, label=label))
     return found
 
@@ -246,7 +247,7 @@ def _run_planned(q, stat, c, eps, pilot, pilot_ledger, exact_pilot, setup, conf,
             plan = c.plan if a is None else methods.m3_plan(
                 pilot, stat, target_sd(stat, pilot.Y[:, 0], eps, z, q.threshold, q.percentile)
                 * eps / a.stated_error / 1.05, q)
-            if a is not None and plan["models"] != c.plan["models"]:
+            if a is not None and (plan["models"], plan["scheme"]) != (c.plan["models"], c.plan["scheme"]):
                 break
             plan["m"] = np.maximum(plan["m"], c.plan["m"])
             a = methods.m3(q, stat, models, pilot, plan, s, conf, spent, cache)
