@@ -39,6 +39,7 @@ def markdown(report):
         lines.append(f"| {r['question']} | {r['qoi']} | {r['statistic']} | {100 * r['accuracy']:g}% | "
                      f"{r['method']} | {fmt(r['value'])} | {interval} | "
                      f"{_pc(r['stated_error'])}{reached} | {fmt(r['cost'])} | {m0} | {gain} |")
+    lines += by_method(report)
     for p in report.get("pilots", []):
         lines += ["", f"Pilot of '{p['question']}' ({p['qoi']}, {p['runs']} joint runs): what decides "
                   "between the methods.", "",
@@ -48,6 +49,58 @@ def markdown(report):
             lines.append(f"| {m['model']} | {fmt(m['cpu_per_run'])} | {fmt(m['mean'])} | {fmt(m['std'])} | "
                          f"{fmt(m['corr'], 3)} | {fmt(m['spearman'], 3)} | {fmt(m['bias'])} |")
     return "\n".join(lines) + "\n"
+
+
+METHODS = ("M0", "M1", "M2", "M3")
+
+
+def uses_low(label):
+    """Whether a candidate's label names a method that runs a low fidelity (M2, or M3 with one
+    kept: an MFMC plan that kept the exact model alone does not)."""
+    return label.startswith(("M2", "M3")) and "exact only" not in label
+
+
+def cheapest_by_method(report, question, statistic, eps):
+    """Per method (M0..M3) the cheapest candidate of one question statistic whose stated (or,
+    planned, targeted) error reaches eps, whatever the budget; and the cheapest using a low
+    fidelity. {method: candidate or None, 'low': candidate or None}."""
+    cands = [c for c in report["candidates"] if (c["question"], c["statistic"]) == (question, statistic)
+             and c["stated_error"] is not None and c["stated_error"] <= eps * (1 + 1e-9)]
+    out = {}
+    for m in METHODS:
+        out[m] = min((c for c in cands if c["method"].startswith(m)), key=lambda c: c["cost"], default=None)
+    out["low"] = min((c for c in cands if uses_low(c["method"])), key=lambda c: c["cost"], default=None)
+    return out
+
+
+def by_method(report):
+    """Markdown lines: for every question statistic and accuracy the cheapest candidate of each
+    method reaching it, also beyond the budget (a planned M0 / M3 is its predicted cost), and the
+    gain of the cheapest method using a low fidelity over M0: what a target on the reduced
+    model is judged by when another method wins the row."""
+    cap = report.get("max_cost")
+    keys = list(dict.fromkeys((r["question"], r["statistic"]) for r in report["rows"]))
+    if not keys:
+        return []
+    lines = ["", "Cheapest candidate of each method reaching the accuracy (total CPU s; p: planned, "
+             "predicted from the pilot; *: beyond the budget"
+             + (f" of {fmt(cap)} CPU s" if cap is not None else "") + "):", "",
+             "| question | statistic | accuracy | M0 | M1 | M2 | M3 | using a low fidelity: gain vs M0 |",
+             "|---|---|---|---|---|---|---|---|"]
+
+    def cell(c):
+        if c is None:
+            return "-"
+        over = "*" if cap is not None and c["cost"] > cap else ""
+        return f"{fmt(c['cost'])}{' p' if c['planned'] else ''}{over} ({c['method']})"
+    for q, stat in keys:
+        for eps in report["accuracy"]:
+            best = cheapest_by_method(report, q, stat, eps)
+            low, m0 = best["low"], best["M0"]
+            gain = f"{m0['cost'] / low['cost']:.3g}x" if low and m0 and low["cost"] > 0 else "-"
+            lines.append(f"| {q} | {stat} | {100 * eps:g}% | "
+                         + " | ".join(cell(best[m]) for m in METHODS) + f" | {gain} |")
+    return lines
 
 
 def finite(obj):

@@ -91,6 +91,7 @@ def answer_questions(questions, setup):
                          for c in cl(None))
     return {"case": questions.case, "questions_file": questions.path,
             "confidence": questions.confidence, "accuracy": questions.relative,
+            "max_cost": setup.max_cost if math.isfinite(setup.max_cost) else None,
             "rows": rows, "candidates": cands, "answers": [a.as_dict() for a in answers],
             "pilots": pilots}
 
