@@ -124,3 +124,16 @@ def test_bound_of_a_sample_without_censored_runs():
 def test_censoring_keys_refused(tmp_path, extra, match):
     with pytest.raises(QuestionsError, match=match):
         questions(tmp_path, **extra)
+
+
+def test_surrogate_interval_widened_by_its_exact_runs(tmp_path):
+    """M1's hull: 8 free training runs widen a narrow surrogate interval of the std to reach
+    above the censored QoI's sd (bound), and the fraction's to Clopper-Pearson's (condition)."""
+    y = MU + SD * stats.norm.ppf((np.arange(8) + 0.5) / 8)
+    q = questions(tmp_path, horizon=H)
+    lo, hi = methods._censoring_hull(q, "std", y, 0.95, 0.049, 0.051)
+    assert lo <= 0.049 and hi > TRUTH_BOUND["std"]
+    assert methods._censoring_hull(q, "p95", y, 0.95, 1.1, 1.2) == (1.1, 1.2)
+    qc = questions(tmp_path, horizon=H, censoring="condition")
+    lo, hi = methods._censoring_hull(qc, "censored", y, 0.95, 0.0, 0.0)
+    assert lo == 0.0 and hi == pytest.approx(1 - 0.025 ** (1 / 8))

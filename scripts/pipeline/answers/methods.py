@@ -17,7 +17,7 @@ import numpy as np
 from scipy import stats
 
 from . import acv, mfmc
-from .intervals import Answer, bounded_moment, mean_ci, point_statistic, sample_statistic, std_from_variance, z_value
+from .intervals import Answer, bounded_moment, censored_fraction_ci, mean_ci, point_statistic, sample_statistic, std_from_variance, z_value
 from .sampling import (ESTIMATION, GRID, HELD_OUT, PROPAGATION, Clock, RunCache, draw,
                        indicator_cov, per_sample, run, stream)
 from .surrogate import AR1Surrogate, GPSurrogate, map_interval, propagate
@@ -81,8 +81,25 @@ def m1(question, statistic, training, n, seed, confidence, ledger, restarts=2, *
         est, lo, hi = propagate(gp, reg.sample, statistic, confidence, stream(seed, PROPAGATION),
                                 **prop, **_kw(question))
     ledger.add("fitting", "gp", 0, c.seconds)
+    lo, hi = _censoring_hull(question, statistic, training.Y[:n, 0], confidence, lo, hi)
     return Answer(question.id, statistic, "M1", est, lo, hi, confidence, ledger, n_exact=n,
                   calibration=gp.calibration, cv_rel_rmse=gp.cv_rel_rmse)
+
+
+def _censoring_hull(question, statistic, y, confidence, lo, hi):
+    """The interval widened to hold the censoring bound from exact runs y drawn from the
+    question's distribution (the training design's quantile-transformed Sobol points): the
+    bounded mean or std (``censoring: bound``), the Clopper-Pearson interval of the fraction
+    censored (``censored``). A surrogate smooths the censored runs away; the exact runs bound
+    what it cannot see."""
+    c = getattr(question, "censoring", None)
+    if c == "bound" and statistic in ("mean", "std"):
+        _, blo, bhi = bounded_moment(y, statistic, confidence, question.horizon)
+    elif c == "condition" and statistic == "censored":
+        _, blo, bhi = censored_fraction_ci(y, question.horizon, confidence)
+    else:
+        return lo, hi
+    return min(lo, blo), max(hi, bhi)
 
 
 def m1_map(question, box, training, n, seed, confidence, ledger, restarts=2):
@@ -198,8 +215,7 @@ def m3(question, statistic, models, pilot, plan, seed, confidence, ledger, cache
             est, lo, hi = min(max(est, 0.0), 1.0), max(lo, 0.0), min(hi, 1.0)
     if getattr(question, "censoring", None) == "bound" and statistic in ("mean", "std"):
         # the hull with the bound of the censored mass from the exact runs (valid by itself)
-        _, blo, bhi = bounded_moment(Y[0], statistic, confidence, question.horizon)
-        lo, hi = min(lo, blo), max(hi, bhi)
+        lo, hi = _censoring_hull(question, statistic, Y[0], confidence, lo, hi)
     names = [models[j].name for j in order]
     return Answer(question.id, asked, "M3", est, lo, hi, confidence, ledger, models=names,
                   m=[int(v) for v in m], alpha=[float(a) for a in alpha], n_exact=int(m[0]),
