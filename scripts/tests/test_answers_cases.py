@@ -56,3 +56,22 @@ def test_engine_report_carries_the_budget():
     text = report.markdown(rep)
     assert "beyond the budget of 50 CPU s" in text
     assert "| q | std | 5% |" in text.split("Cheapest candidate of each method")[1]
+
+
+def test_planned_m0_percentile_has_a_bounded_interval():
+    from answers.intervals import quantile_ci
+    from answers.select import quantile_min_runs
+    n = quantile_min_runs(0.95, 0.95)
+    assert n == 72
+    assert all(abs(v) < 1e9 for v in quantile_ci(range(n), 0.95, 0.95))
+    assert quantile_ci(range(n - 1), 0.95, 0.95)[2] == float("inf")
+    # a narrow family: the variance alone would plan about 50 runs for the 95th percentile at 5%
+    box = ParamBox(["a", "b"], [0.0, 0.0], [1.0, 1.0])
+    fam = SyntheticFamily(box, [10.0, 8.0], [1.0, 1.0], [[1, 0.95], [0.95, 1]], [1.0, 0.01], "gauss")
+    dist = JointDistribution(box, {n: Distribution("uniform", low=0.0, high=1.0) for n in box.names})
+    qs = Questions("q.json", "c", box, [0.05], 0.95, 3,
+                   [Question("q", "moments", "t90", distribution=dist)])
+    rep = answer_questions(qs, Setup(fam.model(0), [fam.model(1)], seed=3, n_pilot=20,
+                                     methods=("M0",), max_cost=0.0))
+    m0 = [c for c in rep["candidates"] if c["statistic"] == "p95" and c["method"].startswith("M0")]
+    assert m0 and all(c["cost"] >= 20 + 72 - 1e-9 for c in m0)

@@ -20,7 +20,7 @@ import math
 import numpy as np
 
 from . import acv, methods
-from .intervals import z_value
+from .intervals import quantile_ci, z_value
 from .ledger import Builds, CostLedger
 from .sampling import Pilot, RunCache, TrainingSet, per_sample, target_sd
 
@@ -203,6 +203,8 @@ def _planned(q, stat, eps, pilot, pilot_ledger, exact_pilot, setup, z):
     if "M0" in setup.methods:
         G = per_sample(stat, [pilot.Y[:, 0]], _threshold(q, stat, pilot))[0]
         n = max(int(math.ceil(np.var(G, ddof=1) / tsd ** 2)), 10)
+        if stat not in ("mean", "std", "exceedance"):       # a percentile: both ends bounded
+            n = max(n, quantile_min_runs(q.percentile / 100, 2 * _norm_cdf(z) - 1))
         found.append(Candidate("M0", exact_pilot.total() + n * pilot.costs[0], eps, plan={"n": n},
                                label="M0 exact MC"))
     if "M3" in setup.methods and setup.lows and not methods.conditional(q, stat):
@@ -214,6 +216,21 @@ def _planned(q, stat, eps, pilot, pilot_ledger, exact_pilot, setup, z):
         label = f"M3 {layout} " + "+".join(lows) if lows else "M3 MFMC (exact only)"
         found.append(Candidate("M3", cost, eps, plan=plan, label=label))
     return found
+
+
+def _norm_cdf(z):
+    return 0.5 * (1 + math.erf(z / math.sqrt(2)))
+
+
+def quantile_min_runs(p, confidence):
+    """The fewest runs whose order-statistic interval of the p-quantile (M0's) has both ends:
+    below it one end is infinite and no accuracy is reached, however many runs the variance
+    asks for (72 for the 95th percentile at 95% confidence)."""
+    a = 1 - confidence
+    n = max(int(math.ceil(math.log(a / 2) / math.log(max(p, 1 - p)))) - 1, 1)
+    while not np.all(np.isfinite(quantile_ci(np.arange(n, dtype=float), p, confidence)[1:])):
+        n += 1
+    return n
 
 
 def _threshold(q, stat, pilot):
