@@ -10,7 +10,7 @@ import h5py
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from test_rom import run, offline, rom_input, stored_m, STUDY  # noqa: E402
+from test_rom import run, offline, run_full_bases, STUDY  # noqa: E402
 
 
 def make_study(tmp, db_name, edits):
@@ -30,19 +30,6 @@ def make_study(tmp, db_name, edits):
     with h5py.File(rom, "r") as f:
         n_full, r_full = int(f["pairs/1"].attrs["n"]), int(f["pairs/1"].attrs["r"])
     return tmp, db, rom, n_full, r_full
-
-
-def run_full_bases(study):
-    """crowd_rom with full bases and every assembly on the training set: (output, settings)."""
-    tmp, db, rom, n, r = study
-    full = dict(n=n, r=r)
-    m_eim = dict(m_v=stored_m(rom, "eim", "s1"), m_b=stored_m(rom, "eim", "s2"), m_d=stored_m(rom, "eim", "s3"))
-    settings = [dict(full, hyper="'none'"), dict(full, hyper="'eq'"), dict(full, hyper="'eim'", **m_eim),
-                dict(full, hyper="'none'", contacts="'online'")]
-    out = tmp / "full.h5"
-    p = run(0, "crowd_rom", rom_input(tmp, "full.nml", rom, out, settings, sets="'train'"), tmp)
-    assert p.returncode == 0, p.stdout + p.stderr
-    return out, settings
 
 
 def check_reproduces_snapshots(out, db, n_settings):

@@ -84,7 +84,9 @@ def stored_m(rom, method, term, pair=1):
         return int(f["pairs/%d/%s/%s" % (pair, method, term)].attrs["m"])
 
 
-def test_full_basis_reproduces_fom(study):
+def run_full_bases(study):
+    """crowd_rom with full bases and every assembly (exact, EQ, EIM with all points, online
+    contacts) on the training set: (output, settings)."""
     tmp, db, rom, n, r = study
     full = dict(n=n, r=r)
     m_eim = dict(m_v=stored_m(rom, "eim", "s1"), m_b=stored_m(rom, "eim", "s2"), m_d=stored_m(rom, "eim", "s3"))
@@ -93,6 +95,12 @@ def test_full_basis_reproduces_fom(study):
     out = tmp / "full.h5"
     p = run(0, "crowd_rom", rom_input(tmp, "full.nml", rom, out, settings, sets="'train'"), tmp)
     assert p.returncode == 0, p.stdout + p.stderr
+    return out, settings
+
+
+def test_full_basis_reproduces_fom(study):
+    tmp, db, rom, n, r = study
+    out, settings = run_full_bases(study)
     with h5py.File(out, "r") as f, h5py.File(db, "r") as d:
         assert f.attrs["schema"].decode() == "crowdrom-romrun"
         q_fom = d["train/positions"][...]
