@@ -97,7 +97,9 @@ def _m1_censored(question, statistic, training, n, seed, confidence, ledger, res
     the free runs' GP, ``censored`` the interval of k / n. ``bound``: mean and sd over the box of
     p and the free mean and sd (each at 1 - (1 - confidence) / 3), the q-quantile as the free
     runs' quantile at level q / (1 - p) (p and the quantile at 1 - (1 - confidence) / 2 each),
-    the horizon where p may reach 1 - q."""
+    the horizon where p may reach 1 - q. The propagation's posterior draws carry the scale of
+    the free runs as uncertain (``propagate``'s scale_df, their number less one): on a few runs
+    the spread is what the GP knows least, and what the sd and the percentile are made of."""
     h, y = question.horizon, training.Y[:n, 0]
     free = y < h
     if statistic == "censored":
@@ -114,7 +116,7 @@ def _m1_censored(question, statistic, training, n, seed, confidence, ledger, res
 
         def free_stat(stat, conf, percentile=question.percentile):
             return propagate(gp, reg.sample, stat, conf, stream(seed, PROPAGATION), **prop,
-                             percentile=percentile)
+                             percentile=percentile, scale_df=int(free.sum()) - 1)
         if question.censoring == "condition":
             est, lo, hi = free_stat(statistic, confidence)
         elif statistic in ("mean", "std"):
