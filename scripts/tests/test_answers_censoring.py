@@ -4,7 +4,9 @@ model whose runs are censored with probability 0.5% (the congested arches' rate)
 usually holds no censored run, yet the stated intervals of the censored QoI's mean and sd
 (``censoring: bound``), of the fraction censored and of the moments below the horizon
 (``censoring: condition``) cover the truth in >= 90% of 200 repetitions, by M0 and by M3 (the
-hull with the bound from its exact runs); the plain intervals do not."""
+hull with the bound from its exact runs); the plain intervals do not. M1 (8 training runs, some
+censored): the GP on the free runs, the fraction by Clopper-Pearson, the scale of the free runs
+drawn in the posterior."""
 import json
 import os
 import sys
