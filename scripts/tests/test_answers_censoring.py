@@ -4,7 +4,9 @@ model whose runs are censored with probability 0.5% (the congested arches' rate)
 usually holds no censored run, yet the stated intervals of the censored QoI's mean and sd
 (``censoring: bound``), of the fraction censored and of the moments below the horizon
 (``censoring: condition``) cover the truth in >= 90% of 200 repetitions, by M0 and by M3 (the
-hull with the bound from its exact runs); the plain intervals do not."""
+hull with the bound from its exact runs); the plain intervals do not. M1 (8 training runs, some
+censored): the GP on the free runs, the fraction by Clopper-Pearson, the scale of the free runs
+drawn in the posterior."""
 import json
 import os
 import sys
@@ -126,14 +128,78 @@ def test_censoring_keys_refused(tmp_path, extra, match):
         questions(tmp_path, **extra)
 
 
-def test_surrogate_interval_widened_by_its_exact_runs(tmp_path):
-    """M1's hull: 8 free training runs widen a narrow surrogate interval of the std to reach
-    above the censored QoI's sd (bound), and the fraction's to Clopper-Pearson's (condition)."""
-    y = MU + SD * stats.norm.ppf((np.arange(8) + 0.5) / 8)
-    q = questions(tmp_path, horizon=H)
-    lo, hi = methods._censoring_hull(q, "std", y, 0.95, 0.049, 0.051)
-    assert lo <= 0.049 and hi > TRUTH_BOUND["std"]
-    assert methods._censoring_hull(q, "p95", y, 0.95, 1.1, 1.2) == (1.1, 1.2)
-    qc = questions(tmp_path, horizon=H, censoring="condition")
-    lo, hi = methods._censoring_hull(qc, "censored", y, 0.95, 0.0, 0.0)
-    assert lo == 0.0 and hi == pytest.approx(1 - 0.025 ** (1 / 8))
+PA = 0.04         # M1's case: arches independent of the smooth response, in 28% of 8-run designs
+
+
+class Arched(Backend):
+    """y = MU + SD sqrt(3) (2 u - 1) (a smooth response of the first parameter, uniform, sd SD),
+    H where the second parameter w < PA (an arch: an event of its own, not a value of the
+    response)."""
+    name = "exact"
+
+    def evaluate(self, params, seeds=None):
+        u, w = params[:, 0], params[:, 1]
+        y = MU + SD * np.sqrt(3) * (2 * u - 1)
+        return Evaluation(np.where(w < PA, H, y), 1.0 * len(y), w < PA)
+
+
+ARCHED_FREE = {"censored": PA, "mean": MU, "std": SD, "p95": MU + SD * np.sqrt(3) * 0.9}
+ARCHED_BOUND = {**dict(zip(("mean", "std"), censored_moments(PA, MU, SD, H))),
+                "p95": MU + SD * np.sqrt(3) * (2 * 0.95 / (1 - PA) - 1)}
+
+
+def m1(q, box, stat, model=None):
+    def run(seed):
+        led = CostLedger()
+        training = sampling.TrainingSet(q, box, [model or Arched()], seed, led)
+        return methods.m1(q, stat, training, 8, seed, 0.95, led, restarts=0,
+                          n_large=1000, n_draws=20, n_sub=50)
+    return run
+
+
+def arched_questions(tmp_path, **extra):
+    q = questions(tmp_path, **extra)
+    return q, load_questions(tmp_path / "q.json").box
+
+
+def test_m1_percentile_of_a_censored_qoi_covers(tmp_path):
+    """M1's 95th percentile of min(QoI, H) on 8 Sobol runs, of which some arch in 28% of the
+    designs: the free runs' GP quantile at level 0.95 / (1 - p), p by Clopper-Pearson (the horizon
+    where p may reach 5%), covers; a GP on all runs states the free runs' percentile, below the
+    truth (coverage 0.25)."""
+    q, box = arched_questions(tmp_path, horizon=H)
+    c = coverage(m1(q, box, "p95"), ARCHED_BOUND["p95"], range(20))
+    assert c["coverage"] >= 0.90, c
+
+
+class Jittery(Arched):
+    """Arched, its free runs MU + SD e with e standard normal from the run's seed (no trend: the
+    spread is all noise, as congested150_evac's jitter)."""
+
+    def evaluate(self, params, seeds=None):
+        e = np.array([np.random.default_rng(int(k)).standard_normal() for k in seeds])
+        arch = params[:, 1] < PA
+        return Evaluation(np.where(arch, H, MU + SD * e), 1.0 * len(e), arch)
+
+
+def test_m1_free_std_carries_the_scale_uncertainty(tmp_path):
+    """The free runs' sd from 8 runs of pure noise: the GP's fitted noise level is an estimate on
+    at most 7 degrees of freedom; with that scale drawn in the posterior the interval covers, held
+    fixed it is a few percent wide and does not."""
+    q, box = arched_questions(tmp_path, horizon=H, censoring="condition")
+    c = coverage(m1(q, box, "std", Jittery()), SD, range(20))
+    assert c["coverage"] >= 0.90, c
+
+
+def test_m1_censored_fraction_is_clopper_pearson(tmp_path):
+    """The fraction censored: k / n of the training runs with the Clopper-Pearson interval."""
+    q, box = arched_questions(tmp_path, horizon=H, censoring="condition")
+    for seed in range(20):
+        a = m1(q, box, "censored")(seed)
+        k = a.details["n_censored"]
+        want = (k / 8, stats.beta.ppf(0.025, k, 9 - k) if k else 0.0,
+                stats.beta.ppf(0.975, k + 1, 8 - k) if k < 8 else 1.0)
+        assert (float(a.value), float(a.lo), float(a.hi)) == pytest.approx(want)
+        if k:
+            return
+    pytest.fail("no design of 20 drew a censored run")

@@ -187,6 +187,16 @@ def bounded_moment(y, statistic, confidence, horizon):
         return point_statistic(y, statistic), -np.inf if statistic == "mean" else 0.0, np.inf
     _, mlo, mhi = mean_ci(free, c3)
     _, slo, shi = std_ci(free, c3)
+    lo, hi = censored_moment_range(statistic, horizon, (plo, phi), (mlo, mhi), (slo, shi))
+    return point_statistic(y, statistic), lo, hi
+
+
+def censored_moment_range(statistic, horizon, p, mu, sd):
+    """Range of the mean or sd of min(QoI, horizon) over the box of the censored fraction p, the
+    free runs' mean mu and sd sd (each a (lo, hi) pair): its extremes in p over a grid that holds
+    the ends and the sd's stationary point, in mu and sd at their ends (the mean rises with mu and
+    sd, the sd with sd and falls with mu below the horizon)."""
+    (plo, phi), (mlo, mhi), (slo, shi) = p, mu, sd
     mlo, mhi = min(mlo, horizon), min(mhi, horizon)
     ps = np.linspace(plo, phi, 65)
     stat = 0 if statistic == "mean" else 1
@@ -196,7 +206,13 @@ def bounded_moment(y, statistic, confidence, horizon):
         d = horizon - mlo
         pstar = np.clip(0.5 * (1 - shi ** 2 / d ** 2) if d > 0 else 0.0, plo, phi)
         high = np.append(high, censored_moments(pstar, mlo, shi, horizon)[1])
-    return point_statistic(y, statistic), float(np.min(low)), float(np.max(high))
+    return float(np.min(low)), float(np.max(high))
+
+
+def censored_quantile_level(q, p):
+    """The level of the free runs' quantile that is the q-quantile of min(QoI, horizon) when a
+    fraction p is censored (None: the q-quantile is the horizon itself, p >= 1 - q)."""
+    return q / (1.0 - p) if p < 1.0 - q else None
 
 
 def conditional_statistic(y, statistic, confidence, horizon, percentile=95.0):

@@ -17,7 +17,9 @@ import numpy as np
 from scipy import stats
 
 from . import acv, mfmc
-from .intervals import Answer, bounded_moment, censored_fraction_ci, mean_ci, point_statistic, sample_statistic, std_from_variance, z_value
+from .intervals import (Answer, bounded_moment, censored_fraction_ci, censored_moment_range,
+                        censored_moments, censored_quantile_level, mean_ci, point_statistic,
+                        sample_statistic, std_from_variance, z_value)
 from .sampling import (ESTIMATION, GRID, HELD_OUT, PROPAGATION, Clock, RunCache, draw,
                        indicator_cov, per_sample, run, stream)
 from .surrogate import AR1Surrogate, GPSurrogate, map_interval, propagate
@@ -72,8 +74,10 @@ def m0_map(question, box, exact, seed, confidence, ledger):
 
 def m1(question, statistic, training, n, seed, confidence, ledger, restarts=2, **prop):
     """GP on the first n exact training runs, the statistic by ``propagate`` (``prop``: its
-    sample sizes n_large, n_draws, n_sub)."""
+    sample sizes n_large, n_draws, n_sub); a censored QoI (``horizon``) by ``_m1_censored``."""
     training.grow(n)
+    if getattr(question, "horizon", None) is not None:
+        return _m1_censored(question, statistic, training, n, seed, confidence, ledger, restarts, prop)
     with Clock() as c:
         reg = training.region
         gp = GPSurrogate(training.inputs(n), training.Y[:n, 0], reg.lo, reg.hi, seed,
@@ -81,25 +85,75 @@ def m1(question, statistic, training, n, seed, confidence, ledger, restarts=2, *
         est, lo, hi = propagate(gp, reg.sample, statistic, confidence, stream(seed, PROPAGATION),
                                 **prop, **_kw(question))
     ledger.add("fitting", "gp", 0, c.seconds)
-    lo, hi = _censoring_hull(question, statistic, training.Y[:n, 0], confidence, lo, hi)
     return Answer(question.id, statistic, "M1", est, lo, hi, confidence, ledger, n_exact=n,
                   calibration=gp.calibration, cv_rel_rmse=gp.cv_rel_rmse)
 
 
+def _m1_censored(question, statistic, training, n, seed, confidence, ledger, restarts, prop):
+    """M1 for a QoI censored at the horizon: the GP on the training runs below it (a censored run
+    is a different event, not a value of the smooth response: in the fit it bends the surface
+    around one point), the censored fraction p from the k censored of the n runs (drawn from the
+    question's distribution) by Clopper-Pearson, as M0. ``condition``: the free statistics from
+    the free runs' GP, ``censored`` the interval of k / n. ``bound``: mean and sd over the box of
+    p and the free mean and sd (each at 1 - (1 - confidence) / 3), the q-quantile as the free
+    runs' quantile at level q / (1 - p) (p and the quantile at 1 - (1 - confidence) / 2 each),
+    the horizon where p may reach 1 - q. The propagation's posterior draws carry the scale of
+    the free runs as uncertain (``propagate``'s scale_df, their number less one): on a few runs
+    the spread is what the GP knows least, and what the sd and the percentile are made of."""
+    h, y = question.horizon, training.Y[:n, 0]
+    free = y < h
+    if statistic == "censored":
+        est, lo, hi = censored_fraction_ci(y, h, confidence)
+        return Answer(question.id, statistic, "M1", est, lo, hi, confidence, ledger, n_exact=n,
+                      n_censored=int(n - free.sum()))
+    if free.sum() < 3:
+        est = point_statistic(y, statistic, question.percentile, horizon=h, censoring=question.censoring)
+        return Answer(question.id, statistic, "M1", est, -np.inf if statistic == "mean" else 0.0,
+                      np.inf, confidence, ledger, n_exact=n, n_censored=int(n - free.sum()))
+    with Clock() as c:
+        reg = training.region
+        gp = GPSurrogate(training.inputs(n)[free], y[free], reg.lo, reg.hi, seed, restarts=restarts)
+
+        def free_stat(stat, conf, percentile=question.percentile):
+            return propagate(gp, reg.sample, stat, conf, stream(seed, PROPAGATION), **prop,
+                             percentile=percentile, scale_df=int(free.sum()) - 1)
+        if question.censoring == "condition":
+            est, lo, hi = free_stat(statistic, confidence)
+        elif statistic in ("mean", "std"):
+            c3 = 1 - (1 - confidence) / 3
+            _, plo, phi = censored_fraction_ci(y, h, c3)
+            m, mlo, mhi = free_stat("mean", c3)
+            s, slo, shi = free_stat("std", c3)
+            est = censored_moments(1 - free.mean(), m, s, h)[0 if statistic == "mean" else 1]
+            lo, hi = censored_moment_range(statistic, h, (plo, phi), (mlo, mhi), (slo, shi))
+        else:
+            est, lo, hi = _m1_censored_quantile(free_stat, y, h, question.percentile / 100, confidence)
+    ledger.add("fitting", "gp", 0, c.seconds)
+    return Answer(question.id, statistic, "M1", float(est), float(lo), float(hi), confidence, ledger,
+                  n_exact=n, n_censored=int(n - free.sum()), calibration=gp.calibration,
+                  cv_rel_rmse=gp.cv_rel_rmse)
+
+
+def _m1_censored_quantile(free_stat, y, h, q, confidence):
+    """(estimate, lo, hi) of the q-quantile of min(QoI, h): the free quantile at the level
+    ``censored_quantile_level`` of k / n, of the Clopper-Pearson ends for the interval's ends."""
+    c2 = 1 - (1 - confidence) / 2
+    _, plo, phi = censored_fraction_ci(y, h, c2)
+
+    def at(p, conf, end):
+        level = censored_quantile_level(q, p)
+        return h if level is None else min(free_stat("p", conf, 100 * level)[end], h)
+    return at(np.mean(y >= h), confidence, 0), at(plo, c2, 1), at(phi, c2, 2)
+
+
 def _censoring_hull(question, statistic, y, confidence, lo, hi):
     """The interval widened to hold the censoring bound from exact runs y drawn from the
-    question's distribution (the training design's quantile-transformed Sobol points): the
-    bounded mean or std (``censoring: bound``), the Clopper-Pearson interval of the fraction
-    censored (``censored``). A surrogate smooths the censored runs away; the exact runs bound
-    what it cannot see."""
-    c = getattr(question, "censoring", None)
-    if c == "bound" and statistic in ("mean", "std"):
+    question's distribution: the bounded mean or std (``censoring: bound``). The exact runs bound
+    the censored mass the multi-fidelity combination does not see."""
+    if getattr(question, "censoring", None) == "bound" and statistic in ("mean", "std"):
         _, blo, bhi = bounded_moment(y, statistic, confidence, question.horizon)
-    elif c == "condition" and statistic == "censored":
-        _, blo, bhi = censored_fraction_ci(y, question.horizon, confidence)
-    else:
-        return lo, hi
-    return min(lo, blo), max(hi, bhi)
+        return min(lo, blo), max(hi, bhi)
+    return lo, hi
 
 
 def m1_map(question, box, training, n, seed, confidence, ledger, restarts=2):
@@ -122,8 +176,10 @@ def m1_map(question, box, training, n, seed, confidence, ledger, restarts=2):
 
 def m2(question, statistic, low, exact, n_low, n_held, seed, confidence, ledger, n_boot=400):
     """The low fidelity's statistic on n_low runs; its bias b = stat(exact) - stat(low) on n_held
-    held-out pairs (paired bootstrap for its standard error). Interval: the hull of the answer
-    and answer + b +- z sqrt(se_b^2 + se_low^2)."""
+    held-out pairs, its standard error se_b from the paired bootstrap times sqrt(n / (n - 1)) (the
+    plug-in variance's small-sample factor: for the mean, the pairs' differences' sd / sqrt(n)).
+    Interval: the hull of the answer and answer + b +- t_{n-1} sqrt(se_b^2 + se_low^2), the
+    Student quantile for a standard error estimated from n held-out pairs."""
     params, seeds = draw(question, stream(seed, ESTIMATION), n_low)
     ylo = run(low, params, seeds, ledger, "estimation")
     s_lo, a, b = sample_statistic(ylo, statistic, confidence, **_kw(question))
@@ -139,8 +195,8 @@ def m2(question, statistic, low, exact, n_low, n_held, seed, confidence, ledger,
     for _ in range(n_boot):
         i = rng.integers(0, n_held, n_held)
         boot.append(point_statistic(yh[i], statistic, **kw) - point_statistic(yl[i], statistic, **kw))
-    se_b = float(np.std(boot, ddof=1))
-    h = z * np.hypot(se_b, se_lo)
+    se_b = float(np.std(boot, ddof=1)) * np.sqrt(n_held / max(n_held - 1, 1))
+    h = stats.t.ppf(0.5 + confidence / 2, max(n_held - 1, 1)) * np.hypot(se_b, se_lo)
     lo, hi = min(s_lo, s_lo + bias - h), max(s_lo, s_lo + bias + h)
     return Answer(question.id, statistic, "M2", s_lo, lo, hi, confidence, ledger, n_low=n_low,
                   n_exact=n_held, model=low.name, bias=bias, bias_se=se_b)

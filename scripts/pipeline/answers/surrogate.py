@@ -142,13 +142,16 @@ class AR1Surrogate:
 
 
 def propagate(gp, sample_params, statistic, confidence, rng, n_large=20000, n_draws=200,
-              n_sub=300, **stat_kw):
+              n_sub=300, scale_df=None, **stat_kw):
     """(estimate, lo, hi) of a statistic of y = f(x) + noise, x drawn by ``sample_params(rng, n)``
     [n, d], through the surrogate ``gp`` (a GPSurrogate on those inputs). Half-widths: the larger
     of the posterior one (draws, times the calibration factor) and the grouped jackknife one over
     the cross-validation folds (the statistic recomputed with each fold left out:
     se^2 = (K - 1) / K sum_k (s_k - mean s)^2, times t_{K-1}), each side combined in quadrature
-    with the large sample's own sampling error."""
+    with the large sample's own sampling error. ``scale_df``: the scale of y is itself uncertain
+    (the GP works in units of the training runs' sd, an estimate with a chi-square law on scale_df
+    degrees of freedom that the posterior draws hold fixed): each draw's values about the
+    training mean are scaled by sqrt(scale_df / chi2_scale_df)."""
     X = sample_params(rng, n_large)
     mu, _ = gp.predict(X)
     eps = rng.standard_normal(n_large) * np.sqrt(gp.noise_var())
@@ -158,7 +161,11 @@ def propagate(gp, sample_params, statistic, confidence, rng, n_large=20000, n_dr
     mu_s, _ = gp.predict(Xs)
     eps_s = eps[:n_sub]
     base = point_statistic(mu_s + eps_s, statistic, **stat_kw)
-    delta = np.array([point_statistic(d + eps_s, statistic, **stat_kw) - base for d in draws])
+    m = float(np.mean(gp.y))
+    g = (np.sqrt(scale_df / rng.chisquare(scale_df, n_draws)) if scale_df
+         else np.ones(n_draws))
+    delta = np.array([point_statistic(m + gj * (d + eps_s - m), statistic, **stat_kw) - base
+                      for d, gj in zip(draws, g)])
     a = 1.0 - confidence
     d_lo, d_hi = np.quantile(delta, [a / 2, 1 - a / 2]) * gp.calibration
     jk, bias = _jackknife(gp, X, eps, statistic, confidence, stat_kw, est)
