@@ -75,3 +75,19 @@ def test_planned_m0_percentile_has_a_bounded_interval():
                                      methods=("M0",), max_cost=0.0))
     m0 = [c for c in rep["candidates"] if c["statistic"] == "p95" and c["method"].startswith("M0")]
     assert m0 and all(c["cost"] >= 20 + 72 - 1e-9 for c in m0)
+
+
+def test_planned_extension_stays_within_the_budget():
+    # P(QoI > 14) of a normal (10, 1): about 3e-5, so neither the 20-run pilot nor the planned
+    # 10 runs see an exceedance; the interval of 0 of 10 has no finite relative error and the
+    # planner would extend the sample to 40 runs (60 CPU s with the pilot) beyond the 35 allowed
+    box = ParamBox(["a", "b"], [0.0, 0.0], [1.0, 1.0])
+    fam = SyntheticFamily(box, [10.0, 8.0], [1.0, 1.0], [[1, 0.95], [0.95, 1]], [1.0, 0.01], "gauss")
+    dist = JointDistribution(box, {n: Distribution("uniform", low=0.0, high=1.0) for n in box.names})
+    qs = Questions("q.json", "c", box, [0.05], 0.95, 3,
+                   [Question("q", "exceedance", "t90", distribution=dist, threshold=14.0)])
+    rep = answer_questions(qs, Setup(fam.model(0), [fam.model(1)], seed=3, n_pilot=20,
+                                     methods=("M0",), max_cost=35.0))
+    row = [r for r in rep["rows"] if r["statistic"] == "exceedance"][0]
+    assert row["method"] == "M0 exact MC" and row["reached"] is False
+    assert 30.0 - 1e-9 <= row["cost"] <= 35.0

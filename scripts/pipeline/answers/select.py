@@ -244,7 +244,8 @@ def _threshold(q, stat, pilot):
 def _run_planned(q, stat, c, eps, pilot, pilot_ledger, exact_pilot, setup, conf, z):
     """Run a planned M0 / M3 candidate on fresh samples; if its stated error misses eps, extend
     the same sample once to the plan for the target scaled by (eps / stated error) (the runs
-    made are kept and charged once)."""
+    made are kept and charged once), unless the extension's cost would exceed ``max_cost``: the
+    answer then stands with its stated error, reported as not reaching eps."""
     models = [setup.exact] + setup.lows
     cache, spent, a = RunCache(), CostLedger(), None
     s = setup.seed * 1000 + 500
@@ -256,6 +257,8 @@ def _run_planned(q, stat, c, eps, pilot, pilot_ledger, exact_pilot, setup, conf,
                 n = int(math.ceil(c.plan["n"] * (a.stated_error / eps) ** 2 * 1.1))
             else:       # an unbounded interval (too few runs for the quantile's order statistics)
                 n = 4 * c.plan["n"]
+            if a is not None and exact_pilot.total() + n * pilot.costs[0] > setup.max_cost:
+                break   # the extension would leave the budget: the answer stands as it is
             a = methods.m0(q, stat, setup.exact, n, s, conf, spent, cache)
             a.ledger = exact_pilot.copy().extend(spent)
         else:
@@ -267,6 +270,9 @@ def _run_planned(q, stat, c, eps, pilot, pilot_ledger, exact_pilot, setup, conf,
             if a is not None and (plan["models"], plan["scheme"]) != (c.plan["models"], c.plan["scheme"]):
                 break
             plan["m"] = np.maximum(plan["m"], c.plan["m"])
+            if a is not None and (setup.ledger(pilot.names).total() + pilot_ledger.total()
+                                  + float(np.dot(plan["m"], np.asarray(pilot.costs)[plan["models"]])) > setup.max_cost):
+                break   # the extension would leave the budget
             a = methods.m3(q, stat, models, pilot, plan, s, conf, spent, cache)
             a.ledger = setup.ledger(pilot.names).extend(pilot_ledger).extend(spent)
         if a.stated_error <= eps:
