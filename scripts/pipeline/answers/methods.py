@@ -182,8 +182,9 @@ def m2(question, statistic, low, exact, n_low, n_held, seed, confidence, ledger,
     variances add). The mean and the percentiles: the bias b = stat(exact) - stat(low), the
     interval answer + b +- t_{n-1} sqrt(se_b^2 + se_low^2), as the sd bounded at a horizon
     (``censoring: bound``: the censored mass's share of it does not scale with the free runs'
-    spread). The sd otherwise (``_m2_std``): the ratio sd(exact) / sd(low) on the log scale. Either way the hull with the answer, t_{n-1} the
-    Student quantile for a standard error estimated from n pairs."""
+    spread). The sd otherwise (``_m2_std``): the ratio sd(exact) / sd(low) on the log scale.
+    Either way the hull with the answer, t_{n-1} the Student quantile for a standard error
+    estimated from n pairs."""
     params, seeds = draw(question, stream(seed, ESTIMATION), n_low)
     ylo = run(low, params, seeds, ledger, "estimation")
     s_lo, a, b = sample_statistic(ylo, statistic, confidence, **_kw(question))
@@ -216,10 +217,10 @@ def _m2_std(s_lo, a, b, held, boot, t, small, z):
     scale (se_r from the paired bootstrap of log r times sqrt(n / (n - 1)); se_low from the low
     sample's own interval [a, b], each side its own: log(s_lo / a) / z below, log(b / s_lo) / z
     above, as the chi-square interval of an sd and the bound of a censored one are not symmetric
-    on the log scale either), exponentiated. An sd's sampling law is skewed (an sd from 31 runs falls far below the
-    truth more often than above it) and its error is proportional to it: on the log scale the
-    error's size no longer follows the estimate, and the interval reaches further above than
-    below (an additive interval on sd(exact) - sd(low) is as narrow as a low estimate and misses
+    on the log scale either), exponentiated. An sd's sampling law is skewed (an sd from 31 runs
+    falls far below the truth more often than above it) and its error is proportional to it: on
+    the log scale the error's size no longer follows the estimate, and the interval reaches
+    further above than below (an additive interval on sd(exact) - sd(low) is as narrow as a low estimate and misses
     on the high side)."""
     log_r = float(np.log(held[0] / held[1]))
     se_r = float(np.std(np.log(boot[:, 0] / boot[:, 1]), ddof=1)) * small
