@@ -222,7 +222,8 @@ class Spread(Backend):
 
 def test_m2_std_interval_follows_the_skew_of_a_few_runs_sd(tmp_path):
     """M2's sd from 300 low runs and 32 held-out pairs, interval on the log scale of
-    sd(exact) / sd(low): covers in >= 90% of 200 repetitions (0.93); the additive interval on sd(exact) - sd(low) held 0.84 (32 misses, all high)."""
+    sd(exact) / sd(low): covers in >= 90% of 200 repetitions (0.93); the additive interval on
+    sd(exact) - sd(low) held 0.84 (32 misses, all high)."""
     q = questions(tmp_path)
     truth = np.sqrt(0.01 + np.exp(0.25) * np.expm1(0.25))
     def run(seed):

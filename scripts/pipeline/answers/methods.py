@@ -220,8 +220,8 @@ def _m2_std(s_lo, a, b, held, boot, t, small, z):
     on the log scale either), exponentiated. An sd's sampling law is skewed (an sd from 31 runs
     falls far below the truth more often than above it) and its error is proportional to it: on
     the log scale the error's size no longer follows the estimate, and the interval reaches
-    further above than below (an additive interval on sd(exact) - sd(low) is as narrow as a low estimate and misses
-    on the high side)."""
+    further above than below (an additive interval on sd(exact) - sd(low) is as narrow as a low
+    estimate and misses on the high side)."""
     log_r = float(np.log(held[0] / held[1]))
     se_r = float(np.std(np.log(boot[:, 0] / boot[:, 1]), ddof=1)) * small
     c = np.log(s_lo) + log_r
