@@ -216,8 +216,8 @@ def _m2_std(s_lo, a, b, held, boot, t, small, z):
     of the held-out pairs, interval log s_lo + log r +- t_{n-1} sqrt(se_r^2 + se_low^2) on the log
     scale (se_r from the paired bootstrap of log r times sqrt(n / (n - 1)); se_low from the low
     sample's own interval [a, b], each side its own: log(s_lo / a) / z below, log(b / s_lo) / z
-    above, as the chi-square interval of an sd and the bound of a censored one are not symmetric
-    on the log scale either), exponentiated. An sd's sampling law is skewed (an sd from 31 runs
+    above: the kurtosis-matched chi-square interval of a heavy-tailed sample is not symmetric on
+    the log scale either), exponentiated. An sd's sampling law is skewed (an sd from 31 runs
     falls far below the truth more often than above it) and its error is proportional to it: on
     the log scale the error's size no longer follows the estimate, and the interval reaches
     further above than below (an additive interval on sd(exact) - sd(low) is as narrow as a low
