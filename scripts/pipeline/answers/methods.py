@@ -175,31 +175,59 @@ def m1_map(question, box, training, n, seed, confidence, ledger, restarts=2):
 # ------------------------------------------------------------------------------ M2
 
 def m2(question, statistic, low, exact, n_low, n_held, seed, confidence, ledger, n_boot=400):
-    """The low fidelity's statistic on n_low runs; its bias b = stat(exact) - stat(low) on n_held
-    held-out pairs, its standard error se_b from the paired bootstrap times sqrt(n / (n - 1)) (the
-    plug-in variance's small-sample factor: for the mean, the pairs' differences' sd / sqrt(n)).
-    Interval: the hull of the answer and answer + b +- t_{n-1} sqrt(se_b^2 + se_low^2), the
-    Student quantile for a standard error estimated from n held-out pairs."""
+    """The low fidelity's statistic on n_low runs, corrected by n_held held-out pairs (exact and
+    low on the same fresh inputs): the correction's standard error from the paired bootstrap times
+    sqrt(n / (n - 1)) (the plug-in variance's small-sample factor: for the mean, the pairs'
+    differences' sd / sqrt(n)), combined with the low sample's own (independent samples: the
+    variances add). The mean and the percentiles: the bias b = stat(exact) - stat(low), the
+    interval answer + b +- t_{n-1} sqrt(se_b^2 + se_low^2), as the sd bounded at a horizon
+    (``censoring: bound``: the censored mass's share of it does not scale with the free runs'
+    spread). The sd otherwise (``_m2_std``): the ratio sd(exact) / sd(low) on the log scale.
+    Either way the hull with the answer, t_{n-1} the Student quantile for a standard error
+    estimated from n pairs."""
     params, seeds = draw(question, stream(seed, ESTIMATION), n_low)
     ylo = run(low, params, seeds, ledger, "estimation")
     s_lo, a, b = sample_statistic(ylo, statistic, confidence, **_kw(question))
-    z = z_value(confidence)
-    se_lo = max(s_lo - a, b - s_lo) / z
     hp, hs = draw(question, stream(seed, HELD_OUT), n_held)
     yh = run(exact, hp, hs, ledger, "estimation")
     yl = run(low, hp, hs, ledger, "estimation")
     kw = _kw(question)
-    bias = point_statistic(yh, statistic, **kw) - point_statistic(yl, statistic, **kw)
     rng = stream(seed, PROPAGATION)
-    boot = []
-    for _ in range(n_boot):
-        i = rng.integers(0, n_held, n_held)
-        boot.append(point_statistic(yh[i], statistic, **kw) - point_statistic(yl[i], statistic, **kw))
-    se_b = float(np.std(boot, ddof=1)) * np.sqrt(n_held / max(n_held - 1, 1))
-    h = stats.t.ppf(0.5 + confidence / 2, max(n_held - 1, 1)) * np.hypot(se_b, se_lo)
-    lo, hi = min(s_lo, s_lo + bias - h), max(s_lo, s_lo + bias + h)
-    return Answer(question.id, statistic, "M2", s_lo, lo, hi, confidence, ledger, n_low=n_low,
-                  n_exact=n_held, model=low.name, bias=bias, bias_se=se_b)
+    boot = np.array([[point_statistic(y[i], statistic, **kw) for y in (yh, yl)]
+                     for i in (rng.integers(0, n_held, n_held) for _ in range(n_boot))])
+    held = np.array([point_statistic(y, statistic, **kw) for y in (yh, yl)])
+    t = stats.t.ppf(0.5 + confidence / 2, max(n_held - 1, 1))
+    small = np.sqrt(n_held / max(n_held - 1, 1))
+    z = z_value(confidence)
+    scaled = statistic == "std" and getattr(question, "censoring", None) != "bound"
+    if scaled and min(s_lo, a, *held, *boot.ravel()) > 0:
+        lo, hi, bias, se_b = _m2_std(s_lo, a, b, held, boot, t, small, z)
+    else:
+        bias = float(held[0] - held[1])
+        se_b = float(np.std(boot[:, 0] - boot[:, 1], ddof=1)) * small
+        h = t * np.hypot(se_b, max(s_lo - a, b - s_lo) / z)
+        lo, hi = s_lo + bias - h, s_lo + bias + h
+    return Answer(question.id, statistic, "M2", s_lo, min(s_lo, lo), max(s_lo, hi), confidence,
+                  ledger, n_low=n_low, n_exact=n_held, model=low.name, bias=bias, bias_se=se_b)
+
+
+def _m2_std(s_lo, a, b, held, boot, t, small, z):
+    """(lo, hi, bias, se) of M2's sd: log sd(exact) = log s_lo + log r, r = sd(exact) / sd(low)
+    of the held-out pairs, interval log s_lo + log r +- t_{n-1} sqrt(se_r^2 + se_low^2) on the log
+    scale (se_r from the paired bootstrap of log r times sqrt(n / (n - 1)); se_low from the low
+    sample's own interval [a, b], each side its own: log(s_lo / a) / z below, log(b / s_lo) / z
+    above: the kurtosis-matched chi-square interval of a heavy-tailed sample is not symmetric on
+    the log scale either), exponentiated. An sd's sampling law is skewed (an sd from 31 runs
+    falls far below the truth more often than above it) and its error is proportional to it: on
+    the log scale the error's size no longer follows the estimate, and the interval reaches
+    further above than below (an additive interval on sd(exact) - sd(low) is as narrow as a low
+    estimate and misses on the high side)."""
+    log_r = float(np.log(held[0] / held[1]))
+    se_r = float(np.std(np.log(boot[:, 0] / boot[:, 1]), ddof=1)) * small
+    c = np.log(s_lo) + log_r
+    h_lo = t * np.hypot(se_r, np.log(s_lo / a) / z)
+    h_hi = t * np.hypot(se_r, np.log(b / s_lo) / z) if np.isfinite(b) else np.inf
+    return float(np.exp(c - h_lo)), float(np.exp(c + h_hi)), float(s_lo * np.expm1(log_r)), se_r
 
 
 def m2_map(question, box, low, exact, training, n_held, seed, confidence, ledger):
