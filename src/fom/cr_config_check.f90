@@ -154,7 +154,11 @@ contains
         "&output: log_level must be 'error', 'warn', 'info' or 'debug'")
     end associate
     call check_behaviour(cfg, probs)
-    call probs%to_error(cfg%source, error)
+    if (allocated(cfg%source)) then
+      call probs%to_error(cfg%source, error)
+    else      ! a configuration built in code, not read from a file
+      call probs%to_error("configuration", error)
+    end if
 
   end subroutine check_config
 

@@ -54,6 +54,7 @@ end module test_reduced_density_ops
 program test_reduced_density
   use cr_kinds, only: wp
   use cr_error, only: error_t
+  use cr_exit_codes, only: EXIT_FAILURE
   use cr_assert, only: check, test_summary
   use cr_config, only: scene_cfg_t, obstacles_cfg_t, desired_cfg_t
   use cr_reduced_ops, only: eval_ctx_t
@@ -82,7 +83,7 @@ program test_reduced_density
   sc%hall_length = 16; sc%hall_width = 10; sc%l_exit = 2
   call ctx%scene%init(sc, obstacles_cfg_t(), error)
   call check(.not. allocated(error), "scene")
-  if (allocated(error)) stop 1
+  if (allocated(error)) error stop EXIT_FAILURE
   do i = 1, NA
     u = [rng%uniform(), rng%uniform()]
     if (i <= 100) then
@@ -96,7 +97,7 @@ program test_reduced_density
   dc%speed_model = 'weidmann'; dc%density_anisotropy = 1
   call ctx%desired%init(dc, ctx%scene, ctx%radius, NA, error)
   call check(.not. allocated(error), "desired velocity")
-  if (allocated(error)) stop 1
+  if (allocated(error)) error stop EXIT_FAILURE
   call ctx%density%init(dc, NA)
   call ref%init(dc, NA)
   call check_density_of()
@@ -115,7 +116,7 @@ program test_reduced_density
   allocate(ops%q(2 * NA, NSTEPS), ops%speeds(NSEL, NSTEPS), ops%counted(NSTEPS))
   call run_trajectory(ops, ctx, q0, NSTEPS, scfg, traj, error)
   call check(.not. allocated(error), "reduced trajectory: no error")
-  if (allocated(error)) stop 1
+  if (allocated(error)) error stop EXIT_FAILURE
   call check(ops%calls == NSTEPS, "one assembly per step")
   ! the positions the density read: every agent, q0 + h V sum alpha
   qs = reduced_positions(q0, ops%v, traj%alpha, ctx%h)
@@ -131,7 +132,7 @@ program test_reduced_density
   do nu = 1, NSTEPS
     call ctx%desired%evaluate(ops%q(:, nu), ctx%speeds, vd)
     call ref%scale_speeds(ops%q(:, nu), vd, ctx%speeds, sref)
-    err = max(err, maxval(abs(ops%speeds(:, nu) - sref(ops%agents)) / sref(ops%agents)))
+    err = max(err, maxval(abs(ops%speeds(:, nu) - sref(ops%agents)) / max(sref(ops%agents), tiny(1.0_wp))))
     fmin = min(fmin, minval(sref(ops%agents) / ctx%speeds(ops%agents)))
   end do
   call check(err <= 1.0e-12_wp, "speeds of the agents read = every agent's density's, to round-off")
