@@ -29,12 +29,11 @@
 !> Fundamental diagram (Weidmann 1993), v0 = the agent's own speed c_i (its free speed):
 !>   v(rho) = v0 (1 - exp(-gamma (1/rho - 1/rho_max))), clamped to [0, v0], v(0) = v0.
 module cr_density_speed
-  use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
   use cr_kinds, only: wp
   use cr_config, only: desired_cfg_t
   use cr_scene, only: scene_t
   use cr_contact_set, only: contact_set_t
-  use cr_neighbours, only: cell_list_t, build_contacts, grid_size, cell_index, pair_contact
+  use cr_neighbours, only: cell_list_t, build_contacts, bin_agents, pair_contact
   implicit none
   private
   public :: density_speed_t, weidmann_factor, DENSITY_CUT
@@ -178,7 +177,7 @@ contains
     real(wp) :: cut, c, e, two_s2, na
     integer :: k, a, cx, cy, ix, iy, j
     call kernel_constants(this%sigma, cut, two_s2, e, c)
-    call bin_agents(this%bins, q, cut)
+    call bin_agents(q, cut, this%bins)
     this%n_evaluated = this%n_evaluated + size(agents)
     do k = 1, size(agents)
       a = agents(k)
@@ -223,43 +222,6 @@ contains
     e = exp(-DENSITY_CUT**2 / 2)
     c = 1 / (acos(-1.0_wp) * two_s2 * (1 - (1 + DENSITY_CUT**2 / 2) * e))
   end subroutine kernel_constants
-
-  !> Every agent at positions q [2*n_agents] in a grid of cells of side >= side0 over the
-  !> bounding box of the finite positions (cr_neighbours' grid and cell indices; a non-finite
-  !> position goes to a clamped cell, its distances are NaN and never within the cut).
-  subroutine bin_agents(cells, q, side0)
-    type(cell_list_t), intent(inout) :: cells
-    real(wp), intent(in) :: q(:), side0
-    real(wp) :: lo(2), hi(2)
-    integer :: na, i, c
-    na = size(q) / 2
-    lo = huge(1.0_wp); hi = -huge(1.0_wp)
-    do i = 1, na
-      if (.not. all(ieee_is_finite(q(2*i-1:2*i)))) cycle
-      lo = min(lo, q(2*i-1:2*i)); hi = max(hi, q(2*i-1:2*i))
-    end do
-    if (lo(1) > hi(1)) then
-      lo = 0; hi = 0
-    end if
-    call grid_size(0.5_wp * hi - 0.5_wp * lo, side0, real(4 * na + 64, wp), cells%side, cells%nx, cells%ny)
-    cells%x0 = lo(1); cells%y0 = lo(2)
-    if (allocated(cells%head)) then
-      if (size(cells%head) < cells%nx * cells%ny) deallocate(cells%head)
-    end if
-    if (.not. allocated(cells%head)) allocate(cells%head(cells%nx * cells%ny))
-    if (.not. allocated(cells%next)) allocate(cells%next(na), cells%cell(na))
-    if (size(cells%next) < na) then
-      deallocate(cells%next, cells%cell); allocate(cells%next(na), cells%cell(na))
-    end if
-    cells%head(1:cells%nx * cells%ny) = 0
-    do i = na, 1, -1
-      c = cell_index(q(2*i), cells%y0, cells%side, cells%ny) * cells%nx + &
-        cell_index(q(2*i-1), cells%x0, cells%side, cells%nx) + 1
-      cells%cell(i) = c
-      cells%next(i) = cells%head(c)
-      cells%head(c) = i
-    end do
-  end subroutine bin_agents
 
   !> v(rho) / v0 of Weidmann's diagram: 1 - exp(-gamma (1/rho - 1/rho_max)) in [0, 1]; 1 at rho <= 0.
   elemental real(wp) function weidmann_factor(rho, gamma, rho_max) result(f)

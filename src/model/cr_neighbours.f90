@@ -18,7 +18,7 @@ module cr_neighbours
   use cr_scene, only: scene_t
   implicit none
   private
-  public :: cell_list_t, build_contacts, rows_missing, grid_size, cell_index, pair_contact
+  public :: cell_list_t, build_contacts, bin_agents, rows_missing, grid_size, cell_index, pair_contact
 
   !> Linked-cell structure (reused across steps to avoid reallocation).
   type :: cell_list_t
@@ -46,7 +46,7 @@ contains
     logical, intent(in), optional :: active(:)
     real(wp), intent(in), optional :: margin(:)
     integer :: na, i, j, cx, cy, ix, iy, c, k
-    real(wp) :: lo(2), hi(2), dx, dy, dist, gap, reach, g(2), nrm(2), mi
+    real(wp) :: dx, dy, dist, gap, reach, g(2), nrm(2), mi
     !> obstacle bounding boxes grown by radius + cutoff [2, n_obstacles]
     real(wp) :: olo(2, scene%n_obstacles()), ohi(2, scene%n_obstacles())
     logical :: use_i, per_agent
@@ -55,44 +55,11 @@ contains
     call cs%clear()
     if (na == 0) return
     if (.not. allocated(cs%ia)) call cs%reserve(16)
-    ! -- cell grid over the agents' bounding box
-    lo = [huge(1.0_wp), huge(1.0_wp)]; hi = -lo
-    do i = 1, na
-      if (.not. all(ieee_is_finite(q(2*i-1:2*i)))) cycle
-      lo = min(lo, q(2*i-1:2*i)); hi = max(hi, q(2*i-1:2*i))
-    end do
-    if (lo(1) > hi(1)) then   ! no finite agent
-      lo = 0; hi = 0
-    end if
-    call grid_size(0.5_wp * hi - 0.5_wp * lo, 2 * radius + cutoff, real(4 * na + 64, wp), &
-      cells%side, cells%nx, cells%ny)
-    cells%x0 = lo(1); cells%y0 = lo(2)
-    if (allocated(cells%head)) then
-      if (size(cells%head) < cells%nx * cells%ny) deallocate(cells%head)
-    end if
-    if (.not. allocated(cells%head)) allocate(cells%head(cells%nx * cells%ny))
+    call bin_agents(q, 2 * radius + cutoff, cells, active)
     if (allocated(cells%near)) then
       if (size(cells%near) < size(cells%head)) deallocate(cells%near)
     end if
     if (.not. allocated(cells%near)) allocate(cells%near(size(cells%head)))
-    if (allocated(cells%next)) then
-      if (size(cells%next) < na) deallocate(cells%next)
-    end if
-    if (.not. allocated(cells%next)) allocate(cells%next(na))
-    if (allocated(cells%cell)) then
-      if (size(cells%cell) < na) deallocate(cells%cell)
-    end if
-    if (.not. allocated(cells%cell)) allocate(cells%cell(na))
-    cells%head(1:cells%nx * cells%ny) = 0
-    do i = na, 1, -1
-      if (present(active)) then
-        if (.not. active(i)) cycle
-      end if
-      c = cell_of(i)
-      cells%cell(i) = c
-      cells%next(i) = cells%head(c)
-      cells%head(c) = i
-    end do
     ! -- agent pairs
     reach = 2 * radius + cutoff
     do i = 1, na
@@ -193,12 +160,52 @@ contains
       cs%gap(m) = dd
     end subroutine append
 
-    pure integer function cell_of(a)
-      integer, intent(in) :: a
-      cell_of = cell_index(q(2*a), cells%y0, cells%side, cells%ny) * cells%nx + &
-        cell_index(q(2*a-1), cells%x0, cells%side, cells%nx) + 1
-    end function cell_of
   end subroutine build_contacts
+
+  !> The agents at positions q [2*n_agents] (those with active(i), all without it) in a grid of
+  !> cells of side >= side0 over the bounding box of the finite positions, at most
+  !> 4 n_agents + 64 cells (module header): cells%head, next and cell (kept, grown as needed).
+  subroutine bin_agents(q, side0, cells, active)
+    real(wp), intent(in) :: q(:), side0
+    type(cell_list_t), intent(inout) :: cells
+    logical, intent(in), optional :: active(:)
+    real(wp) :: lo(2), hi(2)
+    integer :: na, i, c
+    na = size(q) / 2
+    lo = [huge(1.0_wp), huge(1.0_wp)]; hi = -lo
+    do i = 1, na
+      if (.not. all(ieee_is_finite(q(2*i-1:2*i)))) cycle
+      lo = min(lo, q(2*i-1:2*i)); hi = max(hi, q(2*i-1:2*i))
+    end do
+    if (lo(1) > hi(1)) then   ! no finite agent
+      lo = 0; hi = 0
+    end if
+    call grid_size(0.5_wp * hi - 0.5_wp * lo, side0, real(4 * na + 64, wp), cells%side, cells%nx, cells%ny)
+    cells%x0 = lo(1); cells%y0 = lo(2)
+    if (allocated(cells%head)) then
+      if (size(cells%head) < cells%nx * cells%ny) deallocate(cells%head)
+    end if
+    if (.not. allocated(cells%head)) allocate(cells%head(cells%nx * cells%ny))
+    if (allocated(cells%next)) then
+      if (size(cells%next) < na) deallocate(cells%next)
+    end if
+    if (.not. allocated(cells%next)) allocate(cells%next(na))
+    if (allocated(cells%cell)) then
+      if (size(cells%cell) < na) deallocate(cells%cell)
+    end if
+    if (.not. allocated(cells%cell)) allocate(cells%cell(na))
+    cells%head(1:cells%nx * cells%ny) = 0
+    do i = na, 1, -1
+      if (present(active)) then
+        if (.not. active(i)) cycle
+      end if
+      c = cell_index(q(2*i), cells%y0, cells%side, cells%ny) * cells%nx + &
+        cell_index(q(2*i-1), cells%x0, cells%side, cells%nx) + 1
+      cells%cell(i) = c
+      cells%next(i) = cells%head(c)
+      cells%head(c) = i
+    end do
+  end subroutine bin_agents
 
   !> Whether a pair the contact set built by build_contacts(..., margin) left out could be
   !> needed: an agent pair (a, b) with gap <= need(a) + need(b) but > margin(a) + margin(b),
