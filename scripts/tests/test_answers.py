@@ -14,7 +14,7 @@ import pytest
 HERE = os.path.dirname(os.path.abspath(__file__))
 SCRIPTS = os.path.dirname(HERE)
 sys.path.insert(0, SCRIPTS)
-from answers import methods, mfmc, sampling  # noqa: E402
+from answers import acv, methods, mfmc, sampling  # noqa: E402
 from answers.backend import SyntheticFamily  # noqa: E402
 from answers.coverage import coverage, wilson  # noqa: E402
 from answers.ledger import CostLedger  # noqa: E402
@@ -70,7 +70,7 @@ def test_estimator_variance_and_unbiasedness_by_repetition():
         y0 = fam.values(0, x).reshape(R, m[1])[:, :m[0]]
         y1 = fam.values(1, x).reshape(R, m[1])
         est = y0.mean(1) + alpha[1] * (y1.mean(1) - y1[:, :m[0]].mean(1))
-        assert est[0] == pytest.approx(mfmc.combine([y0[0], y1[0]], alpha), rel=1e-14)
+        assert est[0] == pytest.approx(acv.combine([y0[0], y1[0]], alpha, acv.b_sizes("mfmc", m)), rel=1e-14)
         v = mfmc.variance(C, m, alpha)
         assert abs(est.mean() - fam.mean()) < 4 * np.sqrt(v / R)
         assert est.var(ddof=1) / v == pytest.approx(1.0, abs=4 * np.sqrt(2 / (R - 1)))
@@ -85,7 +85,7 @@ def test_variance_estimator_is_unbiased():
     y0 = fam.values(0, x).reshape(R, m[1])[:, :m[0]]
     y1 = fam.values(1, x).reshape(R, m[1])
     est = y0.var(1, ddof=1) + alpha[1] * (y1.var(1, ddof=1) - y1[:, :m[0]].var(1, ddof=1))
-    assert est[0] == pytest.approx(mfmc.combine_variance([y0[0], y1[0]], alpha), rel=1e-12)
+    assert est[0] == pytest.approx(acv.combine_variance([y0[0], y1[0]], alpha, acv.b_sizes("mfmc", m)), rel=1e-12)
     assert abs(est.mean() - fam.std() ** 2) < 4 * est.std(ddof=1) / np.sqrt(R)
 
 

@@ -19,7 +19,8 @@ m_1 = p / sum_k w_k r_k, for the variance
 which tends to (1 - rho_12^2) times plain Monte Carlo's C_11 w_1 / p as the low fidelities
 become free: the gain is bounded by 1 / (1 - rho_12^2). ``select_models`` tries every subset of
 low fidelities (the paper's model selection) and keeps the one of least variance per budget
-(plain Monte Carlo when no subset beats it).
+(plain Monte Carlo when no subset beats it). The estimators themselves, for MFMC and the
+approximate control variates alike, are `acv.combine*` (MFMC: B_k the first m_{k-1} samples).
 """
 import itertools
 
@@ -113,49 +114,6 @@ def integer_sizes(m, m1_min=2):
         out.append(n)
         prev = n
     return np.array(out, dtype=int)
-
-
-def plan(C, costs, target_var, m1_min=10):
-    """The model subset, integer sizes m, coefficients alpha and predicted variance that reach
-    ``target_var`` at least cost (sizes for the subset's models, in its order)."""
-    order, gamma = select_models(C, costs)
-    sig, rho = correlations(C)
-    Cs = C[np.ix_(order, order)]
-    w = np.asarray(costs, float)[order]
-    budget = gamma / target_var
-    m = integer_sizes(allocation(np.abs(rho[order]), w, budget), m1_min)
-    alpha = optimal_alpha(Cs)
-    return {"models": order, "m": m, "alpha": alpha, "variance": variance(Cs, m, alpha),
-            "cost": float(np.dot(w, m)), "gamma": gamma}
-
-
-def combine(G, alpha):
-    """The MFMC mean of per-sample quantities G[k] [m_k] (nested samples)."""
-    s = float(np.mean(G[0]))
-    for k in range(1, len(G)):
-        s += alpha[k] * (np.mean(G[k]) - np.mean(G[k][:len(G[k - 1])]))
-    return s
-
-
-def combine_variance(Y, alpha):
-    """The MFMC estimator of the variance (unbiased sample variances in place of means)."""
-    s = float(np.var(Y[0], ddof=1))
-    for k in range(1, len(Y)):
-        s += alpha[k] * (np.var(Y[k], ddof=1) - np.var(Y[k][:len(Y[k - 1])], ddof=1))
-    return s
-
-
-def combine_cdf(Y, alpha, t):
-    """The MFMC estimate of P(Y_1 <= t) at thresholds t [n_t] (indicators as g), not yet
-    monotone."""
-    t = np.asarray(t, float)
-
-    def frac(y):
-        return np.searchsorted(np.sort(y), t, side="right") / len(y)
-    F = frac(Y[0])
-    for k in range(1, len(Y)):
-        F = F + alpha[k] * (frac(Y[k]) - frac(Y[k][:len(Y[k - 1])]))
-    return F
 
 
 def monotone_cdf(F):
